@@ -1,0 +1,3 @@
+from lagrseq.cli import main
+
+raise SystemExit(main())

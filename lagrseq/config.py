@@ -1,0 +1,418 @@
+"""Experiment configuration: frozen dataclasses, TOML presets, ``--set section.field=value``.
+
+Every knob is a field with a docstring giving its unit and the paper's value. Where the released
+code (``upstream``) and the paper's text (``paper``) differ, the difference is a field, set by the
+two preset files under ``lagrseq/experiments/<task>/``; code never branches on a preset's name.
+A resolved configuration is stored in every MCAP log, so a run can be rebuilt from its log alone.
+
+Resolution order (later wins): dataclass defaults, preset TOML, ``--config FILE.toml``, ``--set``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import sys
+import types
+import typing
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any, Literal, Union, get_args, get_origin
+
+from lagrseq.errors import ConfigError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - exercised on Python 3.10 only
+    import tomli as tomllib
+
+METHODS = ("baseline", "lagr", "lagr-seq")
+PRESETS = ("upstream", "paper")
+
+
+# --------------------------------------------------------------------------------------------
+# Task and environment sections
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class CubeTaskConfig:
+    """[task] of cube stacking (SPEC section 1)."""
+
+    name: Literal["cube-stacking"] = "cube-stacking"
+    """Task id."""
+    stack_size: Literal[5, 8, 11] = 8
+    """Number of cubes in the full stack. Paper: 8 (appendix: 5, 8 and 11)."""
+
+
+@dataclass(frozen=True)
+class CubeEnvConfig:
+    """[env] of cube stacking: dynamics and reward (SPEC 1.1)."""
+
+    horizon: int = 100
+    """Steps per episode (H). Paper: 100; released code: 50."""
+    bonus: float = 1.0
+    """Reward bonus b for the complete stack. Paper and code: 1."""
+    bonus_on: Literal["next-state", "either-state"] = "next-state"
+    """When b is paid: when s' is complete (paper) or when s or s' is complete (code, which also
+    pays it for leaving and for staying at the full stack)."""
+    revert_wrong_cube: bool = False
+    """Replace s' by s when the new top cube is wrong (code: yes, after computing the reward on
+    the wrong stack, so a wrong cube on a correct prefix of length L earns +L). Paper: no revert."""
+    terminate_on_complete: bool = True
+    """End the episode when the stack is complete. Paper: not stated (we end it); code: never."""
+
+
+# --------------------------------------------------------------------------------------------
+# Agent sections
+# --------------------------------------------------------------------------------------------
+EpsilonSchedule = Literal["divide-cumulative", "linear", "exponential", "inverse-episode", "constant"]
+
+
+@dataclass(frozen=True)
+class TabularConfig:
+    """[primary] tabular Q-learning (cube stacking)."""
+
+    kind: Literal["tabular"] = "tabular"
+    """Agent kind."""
+    learning_rate: float = 0.1
+    """Step size alpha. Paper and code: 0.1."""
+    discount: float = 0.95
+    """Discount gamma. Paper and code: 0.95."""
+    epsilon_schedule: EpsilonSchedule = "linear"
+    """Exploration schedule over episodes. Paper: linear; code: divide-cumulative (at the start of
+    episode i, epsilon <- max(epsilon / (i + 1), minimum): 1, 0.5, 0.167, then 0.05)."""
+    epsilon_start: float = 1.0
+    """Initial epsilon. Paper and code: 1."""
+    epsilon_min: float = 0.05
+    """Minimum epsilon. Paper and code: 0.05."""
+    epsilon_decay: float = 0.0
+    """Linear: episodes to go from start to minimum (0 = half of run.episodes); exponential: the
+    per-episode factor. Paper: linear, length not given."""
+    invalid_actions: Literal["mask", "resample"] = "mask"
+    """Adding a cube that is already in the stack: choose among valid actions only (mask) or, as the
+    code does, redraw uniformly from all actions until valid (resample, also after a greedy pick)."""
+    state_index: Literal["exact", "upstream-aliased"] = "exact"
+    """Q-table rows: one per state (exact) or the code's ranking, which gives the stacks [],
+    [e], [e,f] and [e,f,g] one shared row (SPEC 1.1)."""
+    bootstrap_from: Literal["observation", "pre-revert"] = "observation"
+    """Next state used in the Q target: the observed s', or (code) the wrong stack before the revert,
+    whose value is always 0 because the agent never stands in it."""
+
+
+@dataclass(frozen=True)
+class TabularSecondaryConfig:
+    """[secondary] the SEQ agent as a tabular two-armed bandit over states (cube stacking)."""
+
+    kind: Literal["tabular"] = "tabular"
+    """Agent kind."""
+    learning_rate: float = 0.1
+    """Step size of the bandit update Q2[s,a] += lr (r2 - Q2[s,a]). Paper and code: 0.1."""
+    epsilon_schedule: EpsilonSchedule = "linear"
+    """Exploration schedule (same choices as the primary). Code: shares the primary's epsilon."""
+    epsilon_start: float = 1.0
+    """Initial epsilon. Paper and code: 1."""
+    epsilon_min: float = 0.05
+    """Minimum epsilon. Paper and code: 0.05."""
+    epsilon_decay: float = 0.0
+    """As for the primary agent."""
+    query_reward: Literal["binary", "logistic"] = "binary"
+    """Reward of a query: binary (reward_correct / reward_wrong) or the paper's appendix logistic
+    1 / (1 + exp(-steepness (E/N - midpoint)))."""
+    reward_correct: float = 1.0
+    """Binary query reward for an accepted answer. Paper and code: +1."""
+    reward_wrong: float = -1.0
+    """Binary query reward for a rejected answer. Cube paper and code: -1 (grids: 0)."""
+    logistic_steepness: float = 20.0
+    """p1 of the logistic query reward. Paper appendix: 20."""
+    logistic_midpoint: float = 0.9
+    """p2 of the logistic query reward (on the normalised evaluation E/N). Paper appendix: 0.9."""
+
+
+# --------------------------------------------------------------------------------------------
+# LaGR, LLM and run sections (shared by every task)
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class LagrConfig:
+    """[lagr] when to ask the LLM and what to do with its answer (Algorithm 1)."""
+
+    trigger: Literal["positive-reward", "new-max-prefix", "every-step"] = "positive-reward"
+    """When a query may happen. Paper: after a positive reward. Cube code: when the stack is taller
+    than at this episode's previous query (new-max-prefix). Grid code: every step."""
+    threshold: float = 1.0
+    """delta: an answer is accepted when its normalised evaluation E(s_LLM)/E(target) >= threshold.
+    Cube: 1 (exact). The paper writes E > delta."""
+    follow_probability: float = 1.0
+    """P: probability of taking pi_LLM's action once a solution is accepted. Paper experiments: 1."""
+    solution_scope: Literal["episode", "trial"] = "episode"
+    """How long an accepted solution is kept. Cube code: reset every episode; grid code: kept for
+    the rest of the trial (no more queries after the first accepted answer)."""
+    update_primary_while_guided: bool = True
+    """Update the primary agent on guided steps. Paper (Algorithm 1): yes; cube code: no."""
+
+
+@dataclass(frozen=True)
+class LLMConfig:
+    """[llm] what is asked of the language model."""
+
+    model: str = "gpt-3.5-turbo"
+    """Model name sent to the provider. Paper: GPT3 for cubes, GPT4 for grids."""
+    temperature: float = 0.0
+    """Sampling temperature tau. Paper: 0 (Table 2 also 0.5 and 1)."""
+    max_tokens: int = 256
+    """Completion token limit sent with every query."""
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """[run] length of a trial."""
+
+    episodes: int = 100
+    """Episodes per trial. Cube code: 100."""
+    max_steps: int = 0
+    """Global environment-step budget per trial, 0 for none. Grid code: 10001 (image), 5001."""
+
+
+TaskConfig = CubeTaskConfig
+EnvConfig = CubeEnvConfig
+PrimaryConfig = TabularConfig
+SecondaryConfig = TabularSecondaryConfig
+
+
+@dataclass(frozen=True)
+class ExperimentConfig:
+    """A whole experiment: one task, one method, every knob. Stored in each run's MCAP."""
+
+    method: Literal["baseline", "lagr", "lagr-seq"]
+    """baseline: the plain RL agent; lagr: query whenever triggered; lagr-seq: SEQ decides."""
+    preset: str
+    """Name of the preset the configuration started from (informational only)."""
+    task: TaskConfig
+    env: EnvConfig
+    primary: PrimaryConfig
+    secondary: SecondaryConfig
+    lagr: LagrConfig = field(default_factory=LagrConfig)
+    llm: LLMConfig = field(default_factory=LLMConfig)
+    run: RunConfig = field(default_factory=RunConfig)
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict of every field."""
+        return dataclasses.asdict(self)
+
+    def to_json(self) -> str:
+        """Key-sorted JSON of every field (stable: the same config gives the same text)."""
+        return json.dumps(self.to_dict(), sort_keys=True)
+
+    def digest(self) -> str:
+        """Short sha256 of the configuration, for directory names."""
+        return hashlib.sha256(self.to_json().encode()).hexdigest()[:8]
+
+
+# Which dataclass reads each section, per task.
+SECTIONS: dict[str, dict[str, type]] = {
+    "cube-stacking": {
+        "task": CubeTaskConfig,
+        "env": CubeEnvConfig,
+        "primary": TabularConfig,
+        "secondary": TabularSecondaryConfig,
+    },
+}
+COMMON_SECTIONS: dict[str, type] = {"lagr": LagrConfig, "llm": LLMConfig, "run": RunConfig}
+
+
+def tasks() -> tuple[str, ...]:
+    """Names of every task that has a configuration."""
+    return tuple(SECTIONS)
+
+
+# --------------------------------------------------------------------------------------------
+# Building and validating
+# --------------------------------------------------------------------------------------------
+def _allowed(hint: Any) -> str:
+    origin = get_origin(hint)
+    if origin is Literal:
+        return " | ".join(json.dumps(v) for v in get_args(hint))
+    if origin in (Union, types.UnionType):
+        return " or ".join(_allowed(a) for a in get_args(hint))
+    if hint is type(None):
+        return "none"
+    return getattr(hint, "__name__", str(hint))
+
+
+def _coerce(section: str, name: str, hint: Any, value: Any) -> Any:
+    """Check ``value`` against the field's type; return it converted (int -> float only)."""
+    origin = get_origin(hint)
+    where = f"{section}.{name}"
+    if origin is Literal:
+        options = get_args(hint)
+        for option in options:
+            if value == option and type(value) is type(option):
+                return value
+        raise ConfigError(f"{where} = {value!r} is not allowed; expected one of {_allowed(hint)}")
+    if origin in (Union, types.UnionType):
+        for arm in get_args(hint):
+            try:
+                return _coerce(section, name, arm, value)
+            except ConfigError:
+                continue
+        raise ConfigError(f"{where} = {value!r} is not allowed; expected {_allowed(hint)}")
+    if hint is type(None):
+        if value is None:
+            return None
+    elif hint is bool:
+        if isinstance(value, bool):
+            return value
+    elif hint is int:
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+    elif hint is float:
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+    elif hint is str:
+        if isinstance(value, str):
+            return value
+    elif origin is tuple:
+        if isinstance(value, (list, tuple)):
+            (item,) = get_args(hint)[:1]
+            return tuple(_coerce(section, name, item, v) for v in value)
+    else:  # pragma: no cover - a field type this function does not know is a programming error
+        raise TypeError(f"unsupported config field type {hint!r} for {where}")
+    raise ConfigError(
+        f"{where} = {value!r} has the wrong type; expected {_allowed(hint)}, found {type(value).__name__}"
+    )
+
+
+def build_section(cls: type, section: str, data: Mapping[str, Any]) -> Any:
+    """Build the dataclass ``cls`` from ``data``, rejecting unknown fields and bad values."""
+    hints = typing.get_type_hints(cls)
+    names = [f.name for f in dataclasses.fields(cls)]
+    unknown = sorted(set(data) - set(names))
+    if unknown:
+        raise ConfigError(
+            f"unknown field {section}.{unknown[0]}; fields of [{section}] are: {', '.join(names)}"
+        )
+    values = {k: _coerce(section, k, hints[k], v) for k, v in data.items()}
+    return cls(**values)
+
+
+def _merge(base: dict[str, Any], extra: Mapping[str, Any], origin: str) -> dict[str, Any]:
+    out = {k: dict(v) if isinstance(v, dict) else v for k, v in base.items()}
+    for key, value in extra.items():
+        if isinstance(value, Mapping):
+            current = out.setdefault(key, {})
+            if not isinstance(current, dict):
+                raise ConfigError(f"{origin}: [{key}] must be a table of fields")
+            current.update(value)
+        else:
+            out[key] = value
+    return out
+
+
+def preset_path(task: str, preset: str) -> Path:
+    """The packaged TOML file of a preset."""
+    if task not in SECTIONS:
+        raise ConfigError(f"unknown task {task!r}; expected one of {', '.join(SECTIONS)}")
+    if preset not in PRESETS:
+        raise ConfigError(f"unknown preset {preset!r}; expected one of {', '.join(PRESETS)}")
+    return Path(str(resources.files("lagrseq") / "experiments" / task / f"{preset}.toml"))
+
+
+def read_toml(path: Path | str) -> dict[str, Any]:
+    """Read a TOML file, turning every failure into one ConfigError line."""
+    path = Path(path)
+    try:
+        with path.open("rb") as handle:
+            return tomllib.load(handle)
+    except FileNotFoundError:
+        raise ConfigError(f"config file {path} does not exist") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"config file {path} is not valid TOML: {exc}") from None
+
+
+def parse_override(text: str) -> tuple[str, str, Any]:
+    """Parse ``section.field=value``; the value is read as TOML (``100``, ``0.5``, ``true``,
+    ``"text"``) and otherwise taken as a bare string."""
+    if "=" not in text:
+        raise ConfigError(f"--set {text!r}: expected section.field=value")
+    key, raw = text.split("=", 1)
+    parts = key.strip().split(".")
+    if len(parts) != 2 or not all(parts):
+        raise ConfigError(f"--set {text!r}: expected section.field=value, e.g. env.horizon=100")
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw.strip()
+    return parts[0], parts[1], value
+
+
+def from_dict(data: Mapping[str, Any]) -> ExperimentConfig:
+    """Rebuild an :class:`ExperimentConfig` from :meth:`ExperimentConfig.to_dict` output."""
+    task_section = data.get("task")
+    if not isinstance(task_section, Mapping) or "name" not in task_section:
+        raise ConfigError("configuration has no [task] name; expected e.g. name = \"cube-stacking\"")
+    task = task_section["name"]
+    if task not in SECTIONS:
+        raise ConfigError(f"unknown task {task!r}; expected one of {', '.join(SECTIONS)}")
+    classes = {**SECTIONS[task], **COMMON_SECTIONS}
+    unknown = sorted(set(data) - set(classes) - {"method", "preset"})
+    if unknown:
+        raise ConfigError(
+            f"unknown section [{unknown[0]}]; sections are: {', '.join(['method', 'preset', *classes])}"
+        )
+    method = data.get("method")
+    if method not in METHODS:
+        raise ConfigError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
+    sections = {}
+    for name, cls in classes.items():
+        raw = data.get(name, {})
+        if not isinstance(raw, Mapping):
+            raise ConfigError(f"[{name}] must be a table of fields, found {raw!r}")
+        sections[name] = build_section(cls, name, raw)
+    return ExperimentConfig(method=method, preset=str(data.get("preset", "custom")), **sections)
+
+
+def load(
+    task: str,
+    method: str,
+    preset: str,
+    config_file: str | Path | None = None,
+    overrides: typing.Sequence[str] = (),
+) -> ExperimentConfig:
+    """Resolve a configuration: defaults, preset, optional file, then ``--set`` overrides."""
+    if method not in METHODS:
+        raise ConfigError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
+    data: dict[str, Any] = read_toml(preset_path(task, preset))
+    if config_file is not None:
+        data = _merge(data, read_toml(config_file), str(config_file))
+    for text in overrides:
+        section, name, value = parse_override(text)
+        data = _merge(data, {section: {name: value}}, f"--set {text}")
+    task_section = data.setdefault("task", {})
+    if task_section.get("name", task) != task:
+        raise ConfigError(f"task.name = {task_section['name']!r} contradicts the task {task!r}")
+    task_section["name"] = task
+    data["method"] = method
+    data["preset"] = preset
+    return from_dict(data)
+
+
+def field_docs(cls: type) -> dict[str, str]:
+    """The attribute docstrings of a config dataclass (for ``lagrseq config``)."""
+    import ast
+    import inspect
+    import textwrap
+
+    tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
+    body = tree.body[0].body  # type: ignore[attr-defined]
+    docs: dict[str, str] = {}
+    for node, after in zip(body, body[1:]):
+        if (
+            isinstance(node, ast.AnnAssign)
+            and isinstance(node.target, ast.Name)
+            and isinstance(after, ast.Expr)
+            and isinstance(after.value, ast.Constant)
+            and isinstance(after.value.value, str)
+        ):
+            docs[node.target.id] = " ".join(after.value.value.split())
+    return docs

@@ -1,0 +1,478 @@
+"""The LaGR-SEQ loop (Algorithm 1 of the paper) and the wiring of concrete parts.
+
+``run_trial`` is the algorithm, top to bottom: for every step, while no accepted LLM solution is
+held, the secondary agent may query the LLM (LaGR-SEQ) from the current state; once a solution is
+accepted, the primary agent follows pi_LLM (with probability P) from the next step on. Every
+transition, every secondary decision and every episode goes to the trial's MCAP file.
+
+Everything concrete (which env, agent, provider) is chosen here and nowhere else.
+"""
+
+from __future__ import annotations
+
+import platform
+import time
+from collections.abc import Callable, Hashable
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lagrseq import __version__, seeding
+from lagrseq.agents.schedules import EpsilonSchedule
+from lagrseq.agents.tabular import TabularQ
+from lagrseq.config import CubeTaskConfig, ExperimentConfig
+from lagrseq.errors import UsageError
+from lagrseq.lagr import QueryTrigger, consult, follow
+from lagrseq.llm.base import Provider
+from lagrseq.llm.mock import MockProvider
+from lagrseq.logs.reader import is_complete
+from lagrseq.logs.sink import McapSink
+from lagrseq.seeding import Stream
+from lagrseq.seq import TabularSecondary, query_reward
+from lagrseq.tasks import cube
+from lagrseq.tasks.base import Task
+
+PROVIDER_KINDS = ("mock",)
+
+
+# ------------------------------------------------------------------------------------------
+# Results
+# ------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TrialResult:
+    """What a finished trial reports back (the MCAP file holds everything else)."""
+
+    path: Path
+    trial: int
+    episodes: int
+    steps: int
+    queries: int
+    total_return: float
+    seconds: float
+    skipped: bool = False
+
+
+# ------------------------------------------------------------------------------------------
+# Algorithm 1
+# ------------------------------------------------------------------------------------------
+def run_trial(
+    config: ExperimentConfig,
+    trial: int,
+    seed: int,
+    provider_spec: str,
+    path: Path,
+    log: bool = True,
+    on_episode: Callable[[], None] | None = None,
+) -> TrialResult:
+    """Run one trial and log it to ``path`` (``log=False`` runs without writing, for benchmarks)."""
+    started = time.perf_counter()
+    task = make_task(config)
+    env = make_env(config)
+    primary = make_primary(config, task)
+    secondary = make_secondary(config, task) if config.method == "lagr-seq" else None
+    provider = make_provider(provider_spec, config, seeding.generator(seed, trial, Stream.LLM))
+    primary_rng = seeding.generator(seed, trial, Stream.PRIMARY)
+    secondary_rng = seeding.generator(seed, trial, Stream.SECONDARY)
+    guidance_rng = seeding.generator(seed, trial, Stream.GUIDANCE)
+    primary_epsilon = _schedule(config.primary, config.run.episodes)
+    secondary_epsilon = _schedule(config.secondary, config.run.episodes)
+    trigger = QueryTrigger(config.lagr.trigger)
+    lagr = config.lagr
+    asks_llm = config.method != "baseline"
+    sink = (
+        McapSink(path, run_metadata(config, trial, seed, provider_spec)) if log else _NullSink()
+    )
+
+    global_step = 0
+    total_queries = 0
+    total_return = 0.0
+    episodes_run = 0
+    solution: Any = None  # the accepted LLM solution (pi_LLM), None while there is none
+    with sink, provider:
+        for episode in range(config.run.episodes):
+            if config.run.max_steps and global_step >= config.run.max_steps:
+                break
+            observation, info = env.reset(
+                seed=seeding.integer_seed(seed, trial, Stream.ENV) if episode == 0 else None
+            )
+            if lagr.solution_scope == "episode":
+                solution = None
+            trigger.reset_episode()
+            epsilon = primary_epsilon(episode)
+            epsilon2 = secondary_epsilon(episode)
+            last_reward = 0.0
+            episode_return = 0.0
+            queries = accepted = guided_steps = 0
+            solved = task.is_complete(info["pattern"])
+            step = 0
+            while True:
+                pattern = info["pattern"]
+                following = solution  # a solution accepted at this step guides from the next one
+
+                # SEQ + LaGR: from the current state, maybe query the LLM.
+                if asks_llm and solution is None and trigger.armed(task.progress(pattern), last_reward):
+                    if secondary is None:
+                        decision = 1  # LaGR without SEQ: query whenever triggered
+                    else:
+                        decision = secondary.decide(pattern, epsilon2, secondary_rng)
+                    record = _decision_record(trial, episode, step, global_step, pattern, decision)
+                    if decision == 1:
+                        result = consult(task, provider, config.llm, lagr.threshold, pattern)
+                        trigger.queried(task.progress(pattern))
+                        reward2 = query_reward(result.evaluation, result.accepted, config.secondary)
+                        queries += 1
+                        if result.accepted:
+                            accepted += 1
+                            solution = result.parsed.solution
+                        record.update(_query_fields(result, provider, config, reward2))
+                    else:
+                        reward2 = 0.0  # not querying earns the neutral reward
+                    if secondary is not None:
+                        secondary.update(secondary.key(pattern), decision, reward2)
+                    sink.write("/query", record, global_step)
+
+                # Act: follow pi_LLM once a solution is held, else the primary agent's policy.
+                action = None
+                if following is not None:
+                    action = follow(task, lagr, pattern, following, info.get("cursor"), guidance_rng)
+                guided = action is not None
+                if action is None:
+                    action = primary.act(observation, info, epsilon, primary_rng)
+
+                next_observation, reward, terminated, truncated, next_info = env.step(action)
+
+                # Learn: the primary agent is not updated on guided steps in the released code.
+                if not guided or lagr.update_primary_while_guided:
+                    primary.learn(info, action, reward, next_info, terminated)
+
+                sink.write(
+                    "/transition",
+                    {
+                        "trial": trial,
+                        "episode": episode,
+                        "step": step,
+                        "global_step": global_step,
+                        "state": _jsonable(pattern),
+                        "action": int(action),
+                        "reward": float(reward),
+                        "terminated": bool(terminated),
+                        "truncated": bool(truncated),
+                        "guided": guided,
+                    },
+                    global_step,
+                )
+                episode_return += reward
+                guided_steps += guided
+                last_reward = reward
+                solved = solved or task.is_complete(next_info["pattern"])
+                observation, info = next_observation, next_info
+                step += 1
+                global_step += 1
+                if terminated or truncated:
+                    break
+                if config.run.max_steps and global_step >= config.run.max_steps:
+                    break
+
+            sink.write(
+                "/episode",
+                {
+                    "trial": trial,
+                    "episode": episode,
+                    "return": float(episode_return),
+                    "length": step,
+                    "queries": queries,
+                    "accepted": accepted,
+                    "epsilon": float(epsilon),
+                    "solved": bool(solved),
+                    "guided_steps": guided_steps,
+                    "global_step": global_step,
+                },
+                max(global_step - 1, 0),
+            )
+            sink.flush()
+            total_queries += queries
+            total_return += episode_return
+            episodes_run += 1
+            if on_episode is not None:
+                on_episode()
+    env.close()
+    return TrialResult(
+        path=path,
+        trial=trial,
+        episodes=episodes_run,
+        steps=global_step,
+        queries=total_queries,
+        total_return=total_return,
+        seconds=time.perf_counter() - started,
+    )
+
+
+def _decision_record(
+    trial: int, episode: int, step: int, global_step: int, pattern: Any, decision: int
+) -> dict[str, Any]:
+    return {
+        "trial": trial,
+        "episode": episode,
+        "step": step,
+        "global_step": global_step,
+        "state": _jsonable(pattern),
+        "decision": int(decision),
+        "queried": False,
+        "prompt_sha256": None,
+        "answer": None,
+        "solution": None,
+        "parse_error": None,
+        "evaluation": None,
+        "accepted": None,
+        "query_reward": 0.0,
+        "provider": None,
+        "model": None,
+        "temperature": None,
+        "prompt_tokens": None,
+        "completion_tokens": None,
+        "cost_usd": None,
+        "latency_s": None,
+        "source": None,
+    }
+
+
+def _query_fields(result: Any, provider: Provider, config: ExperimentConfig, reward2: float) -> dict[str, Any]:
+    answer = result.answer
+    return {
+        "queried": True,
+        "prompt_sha256": result.prompt_sha256,
+        "answer": answer.text,
+        "solution": _jsonable(result.parsed.solution) if result.parsed.ok else None,
+        "parse_error": result.parsed.error,
+        "evaluation": result.evaluation,
+        "accepted": result.accepted,
+        "query_reward": float(reward2),
+        "provider": provider.name,
+        "model": answer.model,
+        "temperature": config.llm.temperature,
+        "prompt_tokens": answer.usage.prompt_tokens,
+        "completion_tokens": answer.usage.completion_tokens,
+        "cost_usd": answer.cost_usd,
+        "latency_s": answer.latency_s,
+        "source": answer.source,
+    }
+
+
+def _jsonable(pattern: Any) -> Any:
+    if pattern is None:
+        return None
+    if isinstance(pattern, np.ndarray):
+        return pattern.tolist()
+    return [int(x) for x in pattern]
+
+
+class _NullSink:
+    """Stands in for the MCAP sink when logging is off (benchmarks measure its cost)."""
+
+    def write(self, topic: str, record: dict[str, Any], log_time: int) -> None:
+        return None
+
+    def flush(self) -> None:
+        return None
+
+    def __enter__(self) -> _NullSink:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+
+# ------------------------------------------------------------------------------------------
+# Wiring: the only place that knows concrete tasks, envs, agents and providers
+# ------------------------------------------------------------------------------------------
+def make_task(config: ExperimentConfig) -> Task:
+    if isinstance(config.task, CubeTaskConfig):
+        return cube.CubeStacking(config.task.stack_size)  # type: ignore[return-value]
+    raise UsageError(f"unknown task {config.task.name!r}")  # pragma: no cover
+
+
+def make_env(config: ExperimentConfig) -> Any:
+    from lagrseq.envs.cube_stacking import CubeStackingEnv
+
+    env = config.env
+    return CubeStackingEnv(
+        stack_size=config.task.stack_size,
+        horizon=env.horizon,
+        bonus=env.bonus,
+        bonus_on=env.bonus_on,
+        revert_wrong_cube=env.revert_wrong_cube,
+        terminate_on_complete=env.terminate_on_complete,
+    )
+
+
+def _schedule(section: Any, episodes: int) -> EpsilonSchedule:
+    return EpsilonSchedule(
+        section.epsilon_schedule,
+        section.epsilon_start,
+        section.epsilon_min,
+        section.epsilon_decay,
+        episodes,
+    )
+
+
+class TabularPrimary:
+    """Tabular Q-learning on the task's patterns, with the configured state index."""
+
+    def __init__(self, config: ExperimentConfig, task: cube.CubeStacking) -> None:
+        section = config.primary
+        self.agent = TabularQ(task.n_actions, section.learning_rate, section.discount)
+        self.invalid = section.invalid_actions
+        self.pre_revert = section.bootstrap_from == "pre-revert"
+        if section.state_index == "upstream-aliased":
+            target = task.target
+            self.key: Callable[[Any], Hashable] = lambda p: cube.upstream_state_key(p, target)
+        else:
+            self.key = tuple
+
+    def act(self, observation: Any, info: dict[str, Any], epsilon: float, rng: np.random.Generator) -> int:
+        return self.agent.act(self.key(info["pattern"]), epsilon, rng, info["action_mask"], self.invalid)
+
+    def learn(
+        self, info: dict[str, Any], action: int, reward: float, next_info: dict[str, Any], terminated: bool
+    ) -> None:
+        following = next_info["pre_revert_pattern"] if self.pre_revert else next_info["pattern"]
+        self.agent.update(self.key(info["pattern"]), action, reward, self.key(following), terminated)
+
+
+class TabularSeq(TabularSecondary):
+    """The tabular SEQ agent keyed by the pattern."""
+
+    @staticmethod
+    def key(pattern: Any) -> Hashable:
+        return tuple(pattern)
+
+    def decide(self, pattern: Any, epsilon: float, rng: np.random.Generator) -> int:  # type: ignore[override]
+        return super().decide(self.key(pattern), epsilon, rng)
+
+
+def make_primary(config: ExperimentConfig, task: Task) -> TabularPrimary:
+    return TabularPrimary(config, task)  # type: ignore[arg-type]
+
+
+def make_secondary(config: ExperimentConfig, task: Task) -> TabularSeq:
+    return TabularSeq(config.secondary.learning_rate)
+
+
+def parse_provider(spec: str) -> tuple[str, str]:
+    """Split ``kind[:argument]`` and check the kind."""
+    kind, _, argument = spec.partition(":")
+    if kind not in PROVIDER_KINDS or (kind == "mock" and argument):
+        raise UsageError(
+            f"unknown provider {spec!r}; expected one of: {', '.join(PROVIDER_KINDS)}"
+        )
+    return kind, argument
+
+
+def make_provider(spec: str, config: ExperimentConfig, rng: np.random.Generator) -> MockProvider:
+    parse_provider(spec)
+    return MockProvider(extrapolator(config), rng, name="mock")
+
+
+def extrapolator(config: ExperimentConfig) -> Callable[[str, float, np.random.Generator], str]:
+    """The task's rule-based extrapolator (what the mock provider answers with)."""
+    return cube.extrapolate
+
+
+# ------------------------------------------------------------------------------------------
+# Runs: several trials, resumable, optionally in parallel
+# ------------------------------------------------------------------------------------------
+def run_metadata(config: ExperimentConfig, trial: int, seed: int, provider_spec: str) -> dict[str, str]:
+    """The ``lagrseq.run`` metadata record: everything replay needs to know about the trial."""
+    return {
+        "config": config.to_json(),
+        "task": config.task.name,
+        "method": config.method,
+        "preset": config.preset,
+        "provider": provider_spec,
+        "seed": str(seed),
+        "trial": str(trial),
+        "lagrseq_version": __version__,
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+    }
+
+
+def provider_slug(spec: str) -> str:
+    return "".join(ch if ch.isalnum() or ch in "-_." else "-" for ch in spec)
+
+
+def run_directory(out: Path, config: ExperimentConfig, provider_spec: str, seed: int, name: str | None = None) -> Path:
+    """``OUT/<task>/<method>/<name>``; the default name tells preset, provider, seed and a digest
+    of the whole configuration, so runs that differ in any field never share a directory."""
+    if name is None:
+        name = f"{config.preset}-{provider_slug(provider_spec)}-seed{seed}-{config.digest()}"
+    return out / config.task.name / config.method / name
+
+
+def trial_path(directory: Path, trial: int) -> Path:
+    return directory / f"trial-{trial:03d}.mcap"
+
+
+def _run_trial_job(args: tuple[Any, ...]) -> TrialResult:
+    config_dict, trial, seed, provider_spec, path = args
+    from lagrseq.config import from_dict
+
+    return run_trial(from_dict(config_dict), trial, seed, provider_spec, Path(path))
+
+
+def run_trials(
+    config: ExperimentConfig,
+    trials: int,
+    seed: int,
+    provider_spec: str,
+    directory: Path,
+    jobs: int = 1,
+    progress: Any = None,
+) -> list[TrialResult]:
+    """Run trials 0..trials-1 into ``directory``; trials whose log is complete are skipped."""
+    parse_provider(provider_spec)
+    results: list[TrialResult] = []
+    todo: list[int] = []
+    for trial in range(trials):
+        path = trial_path(directory, trial)
+        if is_complete(path):
+            results.append(TrialResult(path, trial, 0, 0, 0, 0.0, 0.0, skipped=True))
+            if progress is not None:
+                progress.update(config.run.episodes)
+        else:
+            todo.append(trial)
+    if jobs <= 1 or len(todo) <= 1:
+        for trial in todo:
+            results.append(
+                run_trial(
+                    config,
+                    trial,
+                    seed,
+                    provider_spec,
+                    trial_path(directory, trial),
+                    on_episode=(lambda: progress.update(1)) if progress is not None else None,
+                )
+            )
+    else:
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            futures = [
+                pool.submit(
+                    _run_trial_job,
+                    (config.to_dict(), trial, seed, provider_spec, str(trial_path(directory, trial))),
+                )
+                for trial in todo
+            ]
+            for future in as_completed(futures):
+                result = future.result()
+                results.append(result)
+                if progress is not None:
+                    progress.update(config.run.episodes)
+    return sorted(results, key=lambda r: r.trial)
+
+
+def with_episodes(config: ExperimentConfig, episodes: int) -> ExperimentConfig:
+    """A copy of ``config`` with another episode count."""
+    return replace(config, run=replace(config.run, episodes=episodes))

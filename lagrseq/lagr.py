@@ -1,0 +1,96 @@
+"""LaGR: when to ask the language model, how to judge its answer, and pi_LLM.
+
+Knows tasks (prompt, parser, evaluation, guidance) and the provider interface, never a concrete
+provider or the logs.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from lagrseq.config import LagrConfig, LLMConfig
+from lagrseq.llm.base import Answer, Provider, user_query
+from lagrseq.tasks.base import Parsed, Pattern, Task
+
+
+@dataclass(frozen=True)
+class Consultation:
+    """One query and what became of it."""
+
+    prompt_sha256: str
+    answer: Answer
+    parsed: Parsed
+    evaluation: float
+    accepted: bool
+
+
+def consult(
+    task: Task,
+    provider: Provider,
+    llm: LLMConfig,
+    threshold: float,
+    pattern: Pattern,
+) -> Consultation:
+    """Ask the provider to extrapolate ``pattern``; parse and evaluate the answer.
+
+    An answer that cannot be parsed is a wrong answer (evaluation 0) whose reason is kept in
+    ``parsed.error``; it never stops the run.
+    """
+    prompt = task.prompt(pattern)
+    query = user_query(task.name, prompt, llm.model, llm.temperature, llm.max_tokens)
+    answer = provider.complete(query)
+    parsed = task.parse(answer.text)
+    evaluation = task.evaluate(parsed.solution) if parsed.ok else 0.0
+    return Consultation(
+        prompt_sha256=hashlib.sha256(prompt.encode()).hexdigest(),
+        answer=answer,
+        parsed=parsed,
+        evaluation=float(evaluation),
+        accepted=parsed.ok and evaluation >= threshold,
+    )
+
+
+class QueryTrigger:
+    """Whether the current step may lead to a query (before SEQ's decision).
+
+    - ``positive-reward`` (paper): the transition into the current state was rewarded > 0.
+    - ``new-max-prefix`` (released cube code): the pattern has progressed further than at this
+      episode's last query; the released code checks this one step after the progress was made,
+      which is the same state our check sees at the start of the next step.
+    - ``every-step`` (released grid code): always.
+    """
+
+    def __init__(self, kind: str) -> None:
+        self.kind = kind
+        self.queried_progress = 0
+
+    def reset_episode(self) -> None:
+        self.queried_progress = 0
+
+    def armed(self, progress: int, last_reward: float) -> bool:
+        if self.kind == "every-step":
+            return True
+        if self.kind == "positive-reward":
+            return last_reward > 0
+        return progress > self.queried_progress
+
+    def queried(self, progress: int) -> None:
+        self.queried_progress = progress
+
+
+def follow(
+    task: Task,
+    config: LagrConfig,
+    pattern: Pattern,
+    solution: Any,
+    cursor: Any,
+    rng: np.random.Generator,
+) -> int | None:
+    """pi_LLM's action with probability P (``follow_probability``), else None (the primary acts)."""
+    if config.follow_probability < 1.0 and rng.random() >= config.follow_probability:
+        return None
+    return task.guidance(pattern, solution, cursor)

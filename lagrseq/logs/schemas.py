@@ -1,0 +1,99 @@
+"""JSON schemas of the MCAP topics. Field names are a public contract: add fields, rename none."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+_INT = {"type": "integer"}
+_NUM = {"type": "number"}
+_BOOL = {"type": "boolean"}
+
+
+def _nullable(schema: dict[str, Any]) -> dict[str, Any]:
+    return {"anyOf": [schema, {"type": "null"}]}
+
+
+def _object(title: str, description: str, properties: dict[str, Any]) -> dict[str, Any]:
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": title,
+        "description": description,
+        "type": "object",
+        "properties": properties,
+        "required": list(properties),
+    }
+
+
+TRANSITION = _object(
+    "lagrseq.Transition",
+    "One environment step of the primary agent.",
+    {
+        "trial": _INT,
+        "episode": _INT,
+        "step": {**_INT, "description": "step within the episode, from 0"},
+        "global_step": {**_INT, "description": "step within the trial, from 0 (also the log time)"},
+        "state": {"type": "array", "description": "the partial pattern before the action"},
+        "action": _INT,
+        "reward": _NUM,
+        "terminated": _BOOL,
+        "truncated": _BOOL,
+        "guided": {**_BOOL, "description": "the action came from the LLM's solution (pi_LLM)"},
+    },
+)
+
+QUERY = _object(
+    "lagrseq.Query",
+    "One decision of the secondary agent (or of LaGR without SEQ) and, if sent, the query.",
+    {
+        "trial": _INT,
+        "episode": _INT,
+        "step": _INT,
+        "global_step": _INT,
+        "state": {"type": "array", "description": "the partial pattern shown (or not) to the LLM"},
+        "decision": {**_INT, "description": "1 = query, 0 = do not query"},
+        "queried": {**_BOOL, "description": "a query was actually sent to a provider"},
+        "prompt_sha256": _nullable({"type": "string"}),
+        "answer": _nullable({"type": "string"}),
+        "solution": _nullable({"type": "array"}),
+        "parse_error": _nullable({"type": "string"}),
+        "evaluation": _nullable({**_NUM, "description": "E(s_LLM) / E(target), 0 if unparseable"}),
+        "accepted": _nullable(_BOOL),
+        "query_reward": _NUM,
+        "provider": _nullable({"type": "string"}),
+        "model": _nullable({"type": "string"}),
+        "temperature": _nullable(_NUM),
+        "prompt_tokens": _nullable(_INT),
+        "completion_tokens": _nullable(_INT),
+        "cost_usd": _nullable(_NUM),
+        "latency_s": _nullable(_NUM),
+        "source": _nullable({"enum": ["live", "recorded", "mock"]}),
+    },
+)
+
+EPISODE = _object(
+    "lagrseq.Episode",
+    "Summary of one episode.",
+    {
+        "trial": _INT,
+        "episode": _INT,
+        "return": _NUM,
+        "length": _INT,
+        "queries": {**_INT, "description": "queries sent in this episode"},
+        "accepted": {**_INT, "description": "accepted answers in this episode"},
+        "epsilon": _NUM,
+        "solved": {**_BOOL, "description": "the target pattern was reached"},
+        "guided_steps": _INT,
+        "global_step": {**_INT, "description": "trial step count at the end of the episode"},
+    },
+)
+
+TOPICS: dict[str, dict[str, Any]] = {
+    "/transition": TRANSITION,
+    "/query": QUERY,
+    "/episode": EPISODE,
+}
+
+
+def schema_bytes(schema: dict[str, Any]) -> bytes:
+    return json.dumps(schema, sort_keys=True).encode()

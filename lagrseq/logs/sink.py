@@ -1,0 +1,126 @@
+"""The MCAP sink: one file per trial, JSON messages with JSON schemas, logical log times.
+
+Layout of a file, so that tables are cheap to read: transitions go into chunks of their own; at
+each episode end the sink closes the transition chunk and writes that episode's ``/query`` and
+``/episode`` messages as a separate small chunk. A reader that asks only for ``/episode`` and
+``/query`` (replay's tables, the costs table) then never decompresses a transition chunk.
+
+Crash safety: the file is written as ``NAME.partial`` and renamed when finished; everything up to
+the last episode flush is on disk, and ``lagrseq recover`` turns a crash-truncated file into a
+valid one. ``finish()`` is idempotent and records whether the trial completed.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from mcap.writer import CompressionType, Writer
+
+from lagrseq.errors import LogError
+from lagrseq.logs.schemas import TOPICS, schema_bytes
+
+PROFILE = "lagrseq"
+RUN_METADATA = "lagrseq.run"
+STATUS_METADATA = "lagrseq.status"
+PARTIAL_SUFFIX = ".partial"
+
+_dumps = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
+
+
+def _encode(record: dict[str, Any]) -> bytes:
+    try:
+        return _dumps(record).encode()
+    except (TypeError, ValueError) as exc:
+        raise LogError(f"record is not JSON-serialisable ({exc}): {sorted(record)}") from None
+
+
+class McapSink:
+    """Write one trial's events. Use as a context manager; ``write(topic, record, log_time)``."""
+
+    def __init__(self, path: str | Path, metadata: dict[str, str], extra_topics: dict[str, tuple[str, str, bytes]] | None = None) -> None:
+        self.path = Path(path)
+        self.partial = self.path.with_name(self.path.name + PARTIAL_SUFFIX)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._stream = self.partial.open("wb")
+        self._writer = Writer(self._stream, compression=CompressionType.ZSTD, chunk_size=1 << 22)
+        self._writer.start(profile=PROFILE, library="lagrseq")
+        self._channels: dict[str, int] = {}
+        self._sequence: dict[str, int] = {}
+        for topic, schema in TOPICS.items():
+            schema_id = self._writer.register_schema(
+                name=schema["title"], encoding="jsonschema", data=schema_bytes(schema)
+            )
+            self._channels[topic] = self._writer.register_channel(
+                topic=topic, message_encoding="json", schema_id=schema_id
+            )
+        for topic, (name, encoding, data) in (extra_topics or {}).items():
+            schema_id = self._writer.register_schema(name=name, encoding=encoding, data=data)
+            self._channels[topic] = self._writer.register_channel(
+                topic=topic, message_encoding="json", schema_id=schema_id
+            )
+        self._sequence = {topic: 0 for topic in self._channels}
+        self._writer.add_metadata(RUN_METADATA, metadata)
+        self._pending: list[tuple[str, bytes, int]] = []
+        self._finished = False
+        self.messages = 0
+
+    def write(self, topic: str, record: dict[str, Any], log_time: int) -> None:
+        """Add one message. ``/transition`` (and picture topics) go to the current chunk;
+        every other topic is held until :meth:`flush` writes it into a summary chunk."""
+        data = _encode(record)
+        if topic == "/transition" or topic.startswith("/view"):
+            self._add(topic, data, log_time)
+        else:
+            self._pending.append((topic, data, log_time))
+
+    def _add(self, topic: str, data: bytes, log_time: int) -> None:
+        sequence = self._sequence[topic]
+        self._sequence[topic] = sequence + 1
+        self._writer.add_message(
+            channel_id=self._channels[topic],
+            log_time=log_time,
+            data=data,
+            publish_time=log_time,
+            sequence=sequence,
+        )
+        self.messages += 1
+
+    def flush(self) -> None:
+        """End of an episode: close the transition chunk, write the held messages as their own
+        chunk, and push everything to the operating system."""
+        self._writer.flush()
+        if self._pending:
+            for topic, data, log_time in self._pending:
+                self._add(topic, data, log_time)
+            self._pending.clear()
+            self._writer.flush()
+
+    def finish(self, status: str = "complete", error: str = "") -> Path:
+        """Write the summary and rename the file to its final name (idempotent)."""
+        if self._finished:
+            return self.path
+        self._finished = True
+        try:
+            self.flush()
+            self._writer.add_metadata(
+                STATUS_METADATA, {"status": status, "error": error, "messages": str(self.messages)}
+            )
+            self._writer.finish()
+        finally:
+            self._stream.close()
+        os.replace(self.partial, self.path)
+        return self.path
+
+    def __enter__(self) -> McapSink:
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        if exc_type is None:
+            self.finish()
+        elif exc_type is KeyboardInterrupt:
+            self.finish("interrupted", "interrupted by the user")
+        else:
+            self.finish("failed", f"{exc_type.__name__}: {exc}")

@@ -1,0 +1,63 @@
+"""What every pattern-completion task provides (the task descriptor d of the paper and more).
+
+A task is data plus pure functions; it knows nothing of agents, environments, LLM providers or
+logs. ``Pattern`` is the task's own partial-pattern type (a tuple of cube ids, a 2-D grid).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+
+Pattern = Any
+Solution = Any
+
+
+@dataclass(frozen=True)
+class Parsed:
+    """An LLM answer read as a solution: ``solution`` is None exactly when ``error`` says why."""
+
+    solution: Solution | None
+    error: str | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None
+
+
+class Task(Protocol):
+    """A pattern-completion task."""
+
+    name: str
+
+    def prompt(self, pattern: Pattern) -> str:
+        """The full prompt (descriptor + partial pattern) a language model is shown."""
+        ...
+
+    def parse(self, text: str) -> Parsed:
+        """Read an answer's text; never raises on bad text (the reason goes in ``Parsed.error``)."""
+        ...
+
+    def evaluate(self, solution: Solution) -> float:
+        """Normalised evaluation E(s_LLM) / E(target), in [0, 1]; 1 means the exact target."""
+        ...
+
+    def guidance(self, pattern: Pattern, solution: Solution, cursor: Any = None) -> int | None:
+        """pi_LLM: the action the solution asks for in ``pattern`` (None: it asks for nothing)."""
+        ...
+
+    def progress(self, pattern: Pattern) -> int:
+        """How far the partial pattern has come (stack height, cells on), for query triggers."""
+        ...
+
+    def render(self, pattern: Pattern) -> str:
+        """A short human-readable form of a pattern (logs, errors)."""
+        ...
+
+
+class Extrapolator(Protocol):
+    """A rule-based stand-in for an LLM: prompt text in, answer text out. Target-blind."""
+
+    def __call__(self, prompt: str, temperature: float, rng: np.random.Generator) -> str: ...

@@ -1,0 +1,344 @@
+"""Cube stacking (SPEC section 1): cubes, targets, E = l_s * C(s), the prompt, the answer parser,
+pi_LLM and a rule-based extrapolator that reads only the prompt.
+
+A pattern is a tuple of cube ids from bottom to top; id 0 is cube 'a' (the paper numbers cubes
+from 1, so paper cube k is id k - 1).
+
+Stack sizes:
+- 8 cubes: the released code's cubes and target e,f,g,a,b,c,d,h (decreasing edge length; the paper
+  also names e,f,g,a,b,c,h,d, which the code does not accept, and neither does lagrseq).
+- 11 cubes: the target f,k,e,j,d,i,c,h,b,g,a of the authors' 11-cube cache (SPEC section 5). Its
+  descriptor is not published; we give red cubes a..f the odd edge lengths 1..11 cm and blue cubes
+  g..k the even lengths 2..10 cm, so the target is again "decreasing edge length" (and alternates
+  colours).
+- 5 cubes: our own member of the same family: red a (5 cm), b (3 cm); blue c (6 cm), d (4 cm),
+  e (2 cm); target c,a,d,b,e, decreasing edge length.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from lagrseq.tasks.base import Parsed
+
+LETTERS = "abcdefghijklmnopqrstuvwxyz"
+
+
+@dataclass(frozen=True)
+class Cube:
+    """One cube of the table."""
+
+    letter: str
+    colour: str
+    edge_cm: int
+
+
+def _cubes(spec: str) -> tuple[Cube, ...]:
+    out = []
+    for item in spec.split():
+        letter, colour, edge = item.split(":")
+        out.append(Cube(letter, colour, int(edge)))
+    return tuple(out)
+
+
+# The stack sizes lagrseq knows: cubes and the target order (ids).
+CUBE_SETS: dict[int, tuple[tuple[Cube, ...], tuple[int, ...]]] = {
+    5: (_cubes("a:Red:5 b:Red:3 c:Blue:6 d:Blue:4 e:Blue:2"), (2, 0, 3, 1, 4)),
+    8: (
+        _cubes("a:Red:5 b:Red:4 c:Red:3 d:Red:2 e:Blue:10 f:Blue:8 g:Blue:6 h:Blue:2"),
+        (4, 5, 6, 0, 1, 2, 3, 7),
+    ),
+    11: (
+        _cubes(
+            "a:Red:1 b:Red:3 c:Red:5 d:Red:7 e:Red:9 f:Red:11 "
+            "g:Blue:2 h:Blue:4 i:Blue:6 j:Blue:8 k:Blue:10"
+        ),
+        (5, 10, 4, 9, 3, 8, 2, 7, 1, 6, 0),
+    ),
+}
+
+
+def format_stack(ids: tuple[int, ...] | list[int]) -> str:
+    """A stack as the released code writes it into prompts: ``['e','f','g']`` (no spaces)."""
+    return "[" + ",".join(f"'{LETTERS[i]}'" for i in ids) + "]"
+
+
+def _descriptor_objects(cubes: tuple[Cube, ...]) -> str:
+    lines = "".join(
+        f"     - {c.colour} cube of edge length {c.edge_cm}cm (represented by '{c.letter}')\n"
+        for c in cubes
+    )
+    return "\n    A table contains the following objects: \n" + lines + "\n\n"
+
+
+@dataclass(frozen=True)
+class CubeStacking:
+    """The cube-stacking task for one stack size."""
+
+    stack_size: int = 8
+    name: str = "cube-stacking"
+
+    def __post_init__(self) -> None:
+        if self.stack_size not in CUBE_SETS:
+            raise ValueError(
+                f"stack_size {self.stack_size} unknown; expected one of {sorted(CUBE_SETS)}"
+            )
+
+    @property
+    def cubes(self) -> tuple[Cube, ...]:
+        return CUBE_SETS[self.stack_size][0]
+
+    @property
+    def target(self) -> tuple[int, ...]:
+        return CUBE_SETS[self.stack_size][1]
+
+    @property
+    def n_actions(self) -> int:
+        """Action 0 removes the top cube; action k adds cube k - 1."""
+        return self.stack_size + 1
+
+    # ---------------------------------------------------------------- evaluation (SPEC 1.1)
+    def correct_positions(self, pattern: tuple[int, ...]) -> int:
+        """C(s): positions whose cube equals the target's cube there."""
+        return sum(1 for a, b in zip(pattern, self.target) if a == b)
+
+    def evaluation(self, pattern: tuple[int, ...]) -> int:
+        """E(s) = l_s * C(s), the paper's evaluation of a stack."""
+        return len(pattern) * self.correct_positions(pattern)
+
+    def is_complete(self, pattern: tuple[int, ...]) -> bool:
+        return tuple(pattern) == self.target
+
+    def evaluate(self, solution: tuple[int, ...]) -> float:
+        """E(s_LLM) / E(target) in [0, 1] (parsed solutions are never longer than the stack)."""
+        return self.evaluation(tuple(solution)) / float(self.stack_size**2)
+
+    def progress(self, pattern: tuple[int, ...]) -> int:
+        """Stack height (in the released code the stack is always a correct prefix)."""
+        return len(pattern)
+
+    def render(self, pattern: tuple[int, ...]) -> str:
+        return "".join(LETTERS[i] for i in pattern) or "(empty)"
+
+    # ---------------------------------------------------------------- prompt (SPEC section 6)
+    @cached_property
+    def _objects_text(self) -> str:
+        return _descriptor_objects(self.cubes)
+
+    def prompt(self, pattern: tuple[int, ...]) -> str:
+        """The released code's prompt, byte for byte for 8 cubes: instructions and example first,
+        then a triple-backtick block with the objects and the partial stack."""
+        text = (
+            self._objects_text
+            + "    A human is currently stacking some of the cubes in the following sequence"
+            " (from bottom to top): \n    " + format_stack(pattern)
+        )
+        return (
+            "You are an organizing robot. Stack the remaining cubes in the pattern that human"
+            " seems to be following.     The final stack should have all"
+            f" {self.stack_size} cubes. Lets think step by step.    For example, if the stack is"
+            " initially in the order (bottom to top)    ['a','d','b']\n"
+            "    Then, the explanation is that the human is likely first stacking the red cubes"
+            " irrespective of their edge lengths,     followed by the blue cubes. So a possible"
+            " order would be: (bottom to top):    ['a','d','b','c','f','e','g','h']\n"
+            "    Make sure your response contains only the order in the form of a list and not"
+            " the explanation.\n"
+            f"    ```{text}```\n    "
+        )
+
+    # ---------------------------------------------------------------- answer parser
+    def parse(self, text: str) -> Parsed:
+        """Read a cube order from an answer.
+
+        Accepts a list in brackets (quotes, spaces and prose around it are fine; the last
+        bracketed list that reads as cubes wins), a comma- or space-separated run of letters, or
+        one word of letters such as ``efgabcdh``. Refuses, with the reason: no list found, a token
+        that is not a cube of this table, a cube named twice, more cubes than the table has.
+        Unlike the released parser, an unknown character never repeats the previous letter.
+        """
+        if not isinstance(text, str) or not text.strip():
+            return Parsed(None, "empty answer")
+        known = {c.letter: i for i, c in enumerate(self.cubes)}
+        candidates = re.findall(r"\[([^\[\]]*)\]", text)
+        errors: list[str] = []
+        for body in reversed(candidates):
+            tokens = [t.strip().strip("'\"`").strip() for t in body.split(",")]
+            tokens = [t for t in tokens if t]
+            if len(tokens) == 1 and len(tokens[0]) > 1 and tokens[0].isalpha():
+                tokens = list(tokens[0])  # ['efgabcdh']
+            result = self._ids(tokens, known)
+            if result.ok:
+                return result
+            errors.append(result.error or "")
+        if not candidates:
+            stripped = text.strip().strip("`").strip()
+            words = re.findall(r"[A-Za-z]+", stripped)
+            if len(words) == 1 and len(words[0]) > 1:
+                return self._ids(list(words[0]), known)
+            if words and all(len(w) == 1 for w in words):
+                return self._ids(words, known)
+            return Parsed(None, f"no list of cubes found in {_clip(text)}")
+        return Parsed(None, errors[0])
+
+    def _ids(self, tokens: list[str], known: dict[str, int]) -> Parsed:
+        if not tokens:
+            return Parsed(None, "empty list")
+        ids: list[int] = []
+        for token in tokens:
+            letter = token.lower()
+            if letter not in known:
+                return Parsed(None, f"{token!r} is not a cube of this table")
+            if known[letter] in ids:
+                return Parsed(None, f"cube {letter!r} appears twice")
+            ids.append(known[letter])
+        if len(ids) > self.stack_size:
+            return Parsed(None, f"{len(ids)} cubes listed, the table has {self.stack_size}")
+        return Parsed(tuple(ids))
+
+    # ---------------------------------------------------------------- pi_LLM
+    def guidance(
+        self, pattern: tuple[int, ...], solution: tuple[int, ...], cursor: object = None
+    ) -> int | None:
+        """The action pi_LLM takes in ``pattern`` given an accepted solution.
+
+        On a prefix of the solution: add its next cube. On the whole solution: re-add the top
+        cube, a no-op (the released code does the same with a no-op add). Off the solution (only
+        possible when P < 1 or without the wrong-cube revert): remove the top cube. If the next cube
+        is already stacked (a partially wrong accepted answer), pi_LLM asks for nothing.
+        """
+        n = len(pattern)
+        if tuple(solution[:n]) != tuple(pattern):
+            return 0
+        if n >= len(solution):
+            return pattern[-1] + 1 if pattern else None
+        nxt = solution[n]
+        if nxt in pattern:
+            return None
+        return nxt + 1
+
+
+def _clip(text: str, width: int = 60) -> str:
+    one = " ".join(text.split())
+    return repr(one if len(one) <= width else one[: width - 3] + "...")
+
+
+# ------------------------------------------------------------------------------------------
+# Rule-based extrapolator (the mock LLM). It reads the prompt text only: the cubes of the
+# descriptor and the partial stack. It never sees the target.
+# ------------------------------------------------------------------------------------------
+_CUBE_LINE = re.compile(r"- (\w+) cube of edge length (\d+)\s*cm \(represented by '(\w)'\)")
+_PARTIAL = re.compile(r"\(from bottom to top\):\s*\n?\s*(\[[^\]]*\])\s*`{3}")
+
+
+def _rank_orders(cubes: list[Cube], partial: list[str]) -> list[tuple[str, list[str]]]:
+    """Candidate full orderings, simplest first.
+
+    The task descriptor's own example explains a stack by colour first ("first stacking the red
+    cubes irrespective of their edge lengths, followed by the blue cubes"), so colour grouping
+    ranks first, then a single attribute (size), then alternation and letter order.
+    """
+    by_letter = {c.letter: c for c in cubes}
+    colours: list[str] = []
+    for letter in partial + [c.letter for c in cubes]:
+        colour = by_letter[letter].colour if letter in by_letter else None
+        if colour and colour not in colours:
+            colours.append(colour)
+
+    def size_key(descending: bool):
+        return lambda c: (-c.edge_cm if descending else c.edge_cm, c.letter)
+
+    def grouped(descending: bool) -> list[str]:
+        out: list[str] = []
+        for colour in colours:
+            group = sorted((c for c in cubes if c.colour == colour), key=size_key(descending))
+            out += [c.letter for c in group]
+        return out
+
+    def by_size(descending: bool) -> list[str]:
+        return [c.letter for c in sorted(cubes, key=size_key(descending))]
+
+    def alternating(descending: bool) -> list[str]:
+        queues = {
+            colour: sorted((c for c in cubes if c.colour == colour), key=size_key(descending))
+            for colour in colours
+        }
+        out: list[str] = []
+        while any(queues.values()):
+            for colour in colours:
+                if queues[colour]:
+                    out.append(queues[colour].pop(0).letter)
+        return out
+
+    letters = [c.letter for c in cubes]
+    return [
+        ("colour groups, largest first", grouped(True)),
+        ("colour groups, smallest first", grouped(False)),
+        ("largest first", by_size(True)),
+        ("smallest first", by_size(False)),
+        ("alternating colours, largest first", alternating(True)),
+        ("alternating colours, smallest first", alternating(False)),
+        ("alphabetical", sorted(letters)),
+        ("reverse alphabetical", sorted(letters, reverse=True)),
+    ]
+
+
+def consistent_orders(prompt: str) -> list[tuple[str, list[str]]]:
+    """The ranked hypotheses that continue the prompt's partial stack (duplicates removed).
+
+    If none continues it, the answer keeps the partial stack and adds the remaining cubes largest
+    first (a guess, usually wrong, as a real model's would be).
+    """
+    cubes = [Cube(letter, colour, int(edge)) for colour, edge, letter in _CUBE_LINE.findall(prompt)]
+    match = _PARTIAL.search(prompt)
+    if not cubes or match is None:
+        raise ValueError("prompt does not look like a cube-stacking prompt")
+    partial = re.findall(r"'(\w)'", match.group(1))
+    seen: set[tuple[str, ...]] = set()
+    out = []
+    for name, order in _rank_orders(cubes, partial):
+        if order[: len(partial)] == partial and tuple(order) not in seen:
+            seen.add(tuple(order))
+            out.append((name, order))
+    if not out:
+        rest = [c for c in cubes if c.letter not in partial]
+        rest.sort(key=lambda c: (-c.edge_cm, c.letter))
+        out.append(("keep the stack, then largest first", partial + [c.letter for c in rest]))
+    return out
+
+
+def extrapolate(prompt: str, temperature: float, rng: np.random.Generator) -> str:
+    """Answer a cube-stacking prompt like a model that is told to reply with a list only.
+
+    Temperature 0: the simplest consistent ordering. Temperature > 0: one consistent ordering drawn
+    with weight exp(-rank / temperature) from ``rng``.
+    """
+    orders = consistent_orders(prompt)
+    if temperature <= 0 or len(orders) == 1:
+        choice = 0
+    else:
+        weights = np.exp(-np.arange(len(orders)) / float(temperature))
+        choice = int(rng.choice(len(orders), p=weights / weights.sum()))
+    return "[" + ", ".join(f"'{letter}'" for letter in orders[choice][1]) + "]"
+
+
+UPSTREAM_SHARED_ROW = "upstream-shared-row"
+
+
+def upstream_state_key(pattern: tuple[int, ...], target: tuple[int, ...]) -> object:
+    """The released code's Q-table row, where it differs from one row per state.
+
+    The code indexes a stack by its lexicographic rank among the permutations of its own cubes,
+    minus one, with no offset per length (SPEC 1.1). Every stack that is already in sorted
+    order (rank 0) lands on row -1: for 8 cubes the stacks [], [e], [e,f] and [e,f,g] share one
+    row. Other reachable stacks (always correct prefixes, because wrong cubes are reverted) get
+    distinct rows, and the wrong "phantom" stacks map to rows that are never updated, so this key
+    reproduces the code's table exactly on the states the code can visit.
+    """
+    n = len(pattern)
+    if list(pattern) == sorted(pattern) and sorted(pattern) == sorted(target[:n]):
+        return UPSTREAM_SHARED_ROW
+    return tuple(pattern)
