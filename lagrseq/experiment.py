@@ -304,6 +304,7 @@ def make_env(config: ExperimentConfig) -> Any:
         bonus=env.bonus,
         bonus_on=env.bonus_on,
         revert_wrong_cube=env.revert_wrong_cube,
+        wrong_cube_reward=env.wrong_cube_reward,
         terminate_on_complete=env.terminate_on_complete,
     )
 

@@ -31,8 +31,9 @@ class CubeStackingEnv(gym.Env[np.ndarray, int]):
     ## Reward
     ``E(s') - E(s) + b`` with E(s) = len(s) * (number of cubes in their target position) and the
     bonus b paid when s' is the complete target (``bonus_on="next-state"``) or, as in the released
-    code, when s or s' is (``"either-state"``). With ``revert_wrong_cube`` (released code) a wrong
-    top cube is taken off again after the reward is computed on the wrong stack.
+    code, when s or s' is (``"either-state"``). With ``revert_wrong_cube`` a wrong top cube is
+    taken off again; its reward is 0 (``wrong_cube_reward="zero"``) or, as in the released code,
+    computed on the wrong stack before the revert (``"pre-revert"``: +L on a prefix of length L).
 
     ## Starting State
     The empty stack.
@@ -47,7 +48,7 @@ class CubeStackingEnv(gym.Env[np.ndarray, int]):
 
     ## Arguments
     ``stack_size``, ``horizon``, ``bonus``, ``bonus_on``, ``revert_wrong_cube``,
-    ``terminate_on_complete``, ``render_mode`` (``"ansi"``).
+    ``wrong_cube_reward``, ``terminate_on_complete``, ``render_mode`` (``"ansi"``).
 
     ## Version History
     * v0: initial version.
@@ -61,7 +62,8 @@ class CubeStackingEnv(gym.Env[np.ndarray, int]):
         horizon: int = 100,
         bonus: float = 1.0,
         bonus_on: Literal["next-state", "either-state"] = "next-state",
-        revert_wrong_cube: bool = False,
+        revert_wrong_cube: bool = True,
+        wrong_cube_reward: Literal["pre-revert", "zero"] = "zero",
         terminate_on_complete: bool = True,
         render_mode: str | None = None,
     ) -> None:
@@ -71,6 +73,7 @@ class CubeStackingEnv(gym.Env[np.ndarray, int]):
         self.bonus = bonus
         self.bonus_on = bonus_on
         self.revert_wrong_cube = revert_wrong_cube
+        self.wrong_cube_reward = wrong_cube_reward
         self.terminate_on_complete = terminate_on_complete
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode {render_mode!r} not in {self.metadata['render_modes']}")
@@ -143,7 +146,9 @@ class CubeStackingEnv(gym.Env[np.ndarray, int]):
         pre_revert = after
         if self.revert_wrong_cube and after and len(after) > len(before):
             if after[-1] != target[len(after) - 1]:
-                after = before  # released code: the wrong cube is taken off again
+                after = before  # the wrong cube is taken off again
+                if self.wrong_cube_reward == "zero":
+                    reward = 0.0
         self._stack = after
         self._steps += 1
         terminated = bool(self.terminate_on_complete and after == target)

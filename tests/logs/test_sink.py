@@ -1,0 +1,96 @@
+"""The MCAP sink: readable by the plain mcap library, schemas valid, crash behaviour."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import jsonschema
+import pytest
+from mcap.reader import make_reader
+
+from lagrseq import config as cfg
+from lagrseq.errors import LogError
+from lagrseq.experiment import run_trial
+from lagrseq.logs.reader import is_complete, iter_messages, read_info
+from lagrseq.logs.sink import McapSink
+
+
+@pytest.fixture(scope="module")
+def trial_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    config = cfg.load("cube-stacking", "lagr-seq", "upstream", overrides=["run.episodes=20"])
+    return run_trial(config, 0, 0, "mock", tmp_path_factory.mktemp("log") / "trial-000.mcap").path
+
+
+def test_plain_mcap_reads_every_message_and_its_schema(trial_log: Path) -> None:
+    counts: dict[str, int] = {}
+    with trial_log.open("rb") as handle:
+        reader = make_reader(handle)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None
+        for schema, channel, message in reader.iter_messages():
+            assert schema is not None and schema.encoding == "jsonschema"
+            assert channel.message_encoding == "json"
+            record = json.loads(message.data)
+            jsonschema.validate(record, json.loads(schema.data))
+            counts[channel.topic] = counts.get(channel.topic, 0) + 1
+        metadata = {m.name: m.metadata for m in reader.iter_metadata()}
+    assert counts["/transition"] == 20 * 50 and counts["/episode"] == 20 and counts["/query"] > 0
+    run = metadata["lagrseq.run"]
+    assert json.loads(run["config"])["method"] == "lagr-seq"
+    assert (run["seed"], run["trial"], run["provider"]) == ("0", "0", "mock")
+    assert metadata["lagrseq.status"]["status"] == "complete"
+
+
+def test_log_times_are_logical_steps(trial_log: Path) -> None:
+    with trial_log.open("rb") as handle:
+        times = [m.log_time for _, c, m in make_reader(handle).iter_messages() if c.topic == "/transition"]
+    assert times == list(range(1000))
+
+
+def test_summary_topics_live_in_their_own_chunks(trial_log: Path) -> None:
+    with trial_log.open("rb") as handle:
+        summary = make_reader(handle).get_summary()
+    assert summary is not None
+    channels = {c.id: c.topic for c in summary.channels.values()}
+    for index in summary.chunk_indexes:
+        topics = {channels[i] for i in index.message_index_offsets}
+        assert topics == {"/transition"} or "/transition" not in topics
+
+
+def test_failed_trial_still_leaves_a_valid_file(tmp_path: Path) -> None:
+    path = tmp_path / "t.mcap"
+    with pytest.raises(RuntimeError), McapSink(path, {"config": "{}"}) as sink:
+        sink.write("/episode", {"x": 1}, 0)
+        sink.flush()
+        raise RuntimeError("boom")
+    info = read_info(path)
+    assert info.status["status"] == "failed" and "boom" in info.status["error"]
+    assert not is_complete(path) and not (tmp_path / "t.mcap.partial").exists()
+
+
+def test_partial_file_until_finished(tmp_path: Path) -> None:
+    path = tmp_path / "t.mcap"
+    sink = McapSink(path, {"config": "{}"})
+    assert (tmp_path / "t.mcap.partial").exists() and not path.exists()
+    sink.finish()
+    sink.finish()  # idempotent
+    assert path.exists() and is_complete(path)
+
+
+def test_truncated_or_foreign_files_give_one_line_errors(trial_log: Path, tmp_path: Path) -> None:
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(trial_log.read_bytes()[: trial_log.stat().st_size // 2])
+    with pytest.raises(LogError, match="lagrseq recover") as info:
+        list(iter_messages(cut))
+    assert "\n" not in str(info.value)
+    assert not is_complete(cut)
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"not an mcap file at all")
+    with pytest.raises(LogError, match="not a readable MCAP log"):
+        read_info(junk)
+
+
+def test_unserialisable_record_is_a_log_error(tmp_path: Path) -> None:
+    with McapSink(tmp_path / "t.mcap", {"config": "{}"}) as sink, pytest.raises(LogError, match="JSON"):
+        sink.write("/transition", {"reward": float("nan")}, 0)
