@@ -262,10 +262,13 @@ def _query_fields(result: Any, provider: Provider, config: ExperimentConfig, rew
 
 
 def _jsonable(pattern: Any) -> Any:
+    """A pattern as JSON-ready data (a tuple of ints stays as it is: it encodes as a list)."""
     if pattern is None:
         return None
     if isinstance(pattern, np.ndarray):
         return pattern.tolist()
+    if isinstance(pattern, tuple):
+        return pattern
     return [int(x) for x in pattern]
 
 

@@ -23,10 +23,7 @@ def epsilon_greedy(
     """
     n = values.shape[0]
     if mask is None or invalid == "resample" or mask.all():
-        if rng.random() < epsilon:
-            action = int(rng.integers(n))
-        else:
-            action = int(values.argmax())
+        action = int(rng.integers(n)) if rng.random() < epsilon else int(values.argmax())
         if mask is not None and not mask[action]:
             valid = np.flatnonzero(mask)
             action = int(valid[rng.integers(valid.size)])

@@ -11,7 +11,7 @@ from gymnasium import spaces
 from lagrseq.tasks.cube import CubeStacking
 
 
-class CubeStackingEnv(gym.Env[np.ndarray, int]):
+class CubeStackingEnv(gym.Env[np.ndarray, np.int64]):
     """Stack cubes in the order of a hidden target pattern.
 
     ## Description
@@ -126,7 +126,7 @@ class CubeStackingEnv(gym.Env[np.ndarray, int]):
         self._steps = 0
         return self._observation(), self._info()
 
-    def step(self, action: int) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+    def step(self, action: np.int64 | int) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         action = int(action)
         if not 0 <= action <= self.n:
             raise ValueError(f"action {action} outside Discrete({self.n + 1})")
@@ -144,11 +144,11 @@ class CubeStackingEnv(gym.Env[np.ndarray, int]):
         if pays_bonus:
             reward += self.bonus
         pre_revert = after
-        if self.revert_wrong_cube and after and len(after) > len(before):
-            if after[-1] != target[len(after) - 1]:
-                after = before  # the wrong cube is taken off again
-                if self.wrong_cube_reward == "zero":
-                    reward = 0.0
+        wrong_top = len(after) > len(before) and after[-1] != target[len(after) - 1]
+        if self.revert_wrong_cube and wrong_top:
+            after = before  # the wrong cube is taken off again
+            if self.wrong_cube_reward == "zero":
+                reward = 0.0
         self._stack = after
         self._steps += 1
         terminated = bool(self.terminate_on_complete and after == target)

@@ -13,13 +13,13 @@ valid one. ``finish()`` is idempotent and records whether the trial completed.
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 from typing import Any
 
-from mcap.writer import CompressionType, Writer
-
 from lagrseq.errors import LogError
+from lagrseq.logs.mcap_writer import LeanWriter
 from lagrseq.logs.schemas import TOPICS, schema_bytes
 
 PROFILE = "lagrseq"
@@ -37,16 +37,115 @@ def _encode(record: dict[str, Any]) -> bytes:
         raise LogError(f"record is not JSON-serialisable ({exc}): {sorted(record)}") from None
 
 
+_TRANSITION = (
+    '{"trial":%d,"episode":%d,"step":%d,"global_step":%d,"state":%s,"action":%d,'
+    '"reward":%s,"terminated":%s,"truncated":%s,"guided":%s}'
+)
+_BOOL = {True: "true", False: "false"}
+_TRANSITION_KEYS = (
+    "trial", "episode", "step", "global_step", "state", "action", "reward", "terminated", "truncated", "guided",
+)
+
+
+_STATE_TEXT: dict[tuple[int, ...], str] = {}
+
+
+def _state_text(state: tuple[int, ...] | list[int]) -> str:
+    """JSON of a flat integer pattern, memoised for tuples (cube stacks repeat all the time)."""
+    if type(state) is tuple:
+        text = _STATE_TEXT.get(state)
+        if text is None:
+            text = "[" + ",".join(map(str, state)) + "]"
+            if len(_STATE_TEXT) < 100_000:
+                _STATE_TEXT[state] = text
+        return text
+    return "[" + ",".join(map(str, state)) + "]"
+
+
+_SKIP = (
+    '{"trial":%d,"episode":%d,"step":%d,"global_step":%d,"state":%s,"decision":%d,'
+    '"queried":false,"prompt_sha256":null,"answer":null,"solution":null,"parse_error":null,'
+    '"evaluation":null,"accepted":null,"query_reward":%s,"provider":null,"model":null,'
+    '"temperature":null,"prompt_tokens":null,"completion_tokens":null,"cost_usd":null,'
+    '"latency_s":null,"source":null}'
+)
+_SKIP_NULLS = (
+    "prompt_sha256", "answer", "solution", "parse_error", "evaluation", "accepted", "provider",
+    "model", "temperature", "prompt_tokens", "completion_tokens", "cost_usd", "latency_s", "source",
+)
+
+
+def _encode_query(record: dict[str, Any]) -> bytes:
+    """A decision not to query (most ``/query`` messages) through a template; others via json."""
+    state, reward = record.get("state"), record.get("query_reward")
+    if (
+        len(record) != 22
+        or record.get("queried") is not False
+        or type(reward) is not float
+        or not math.isfinite(reward)
+        or not isinstance(state, (tuple, list))
+        or (state and type(state[0]) is not int)
+        or any(record.get(key, 0) is not None for key in _SKIP_NULLS)
+    ):
+        return _encode(record)
+    return (
+        _SKIP
+        % (
+            record["trial"],
+            record["episode"],
+            record["step"],
+            record["global_step"],
+            _state_text(state),
+            record["decision"],
+            repr(reward),
+        )
+    ).encode()
+
+
+def _encode_transition(record: dict[str, Any]) -> bytes:
+    """The hot path: one transition per environment step. Same JSON as ``_encode`` (key order
+    aside) for the contract fields, several times faster; anything unusual takes the slow path."""
+    if len(record) != len(_TRANSITION_KEYS):
+        return _encode(record)
+    state, reward = record.get("state"), record.get("reward")
+    if (
+        type(reward) is not float
+        or not math.isfinite(reward)
+        or not isinstance(state, (tuple, list))
+        or (state and type(state[0]) is not int)
+    ):
+        return _encode(record)
+    return (
+        _TRANSITION
+        % (
+            record["trial"],
+            record["episode"],
+            record["step"],
+            record["global_step"],
+            _state_text(state),
+            record["action"],
+            repr(reward),
+            _BOOL[record["terminated"]],
+            _BOOL[record["truncated"]],
+            _BOOL[record["guided"]],
+        )
+    ).encode()
+
+
 class McapSink:
     """Write one trial's events. Use as a context manager; ``write(topic, record, log_time)``."""
 
-    def __init__(self, path: str | Path, metadata: dict[str, str], extra_topics: dict[str, tuple[str, str, bytes]] | None = None) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        metadata: dict[str, str],
+        extra_topics: dict[str, tuple[str, str, bytes]] | None = None,
+    ) -> None:
         self.path = Path(path)
         self.partial = self.path.with_name(self.path.name + PARTIAL_SUFFIX)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._stream = self.partial.open("wb")
-        self._writer = Writer(self._stream, compression=CompressionType.ZSTD, chunk_size=1 << 22)
-        self._writer.start(profile=PROFILE, library="lagrseq")
+        self._writer = LeanWriter(self._stream, library="lagrseq", profile=PROFILE)
         self._channels: dict[str, int] = {}
         self._sequence: dict[str, int] = {}
         for topic, schema in TOPICS.items():
@@ -70,7 +169,12 @@ class McapSink:
     def write(self, topic: str, record: dict[str, Any], log_time: int) -> None:
         """Add one message. ``/transition`` (and picture topics) go to the current chunk;
         every other topic is held until :meth:`flush` writes it into a summary chunk."""
-        data = _encode(record)
+        if topic == "/transition":
+            data = _encode_transition(record)
+        elif topic == "/query":
+            data = _encode_query(record)
+        else:
+            data = _encode(record)
         if topic == "/transition" or topic.startswith("/view"):
             self._add(topic, data, log_time)
         else:
@@ -79,13 +183,7 @@ class McapSink:
     def _add(self, topic: str, data: bytes, log_time: int) -> None:
         sequence = self._sequence[topic]
         self._sequence[topic] = sequence + 1
-        self._writer.add_message(
-            channel_id=self._channels[topic],
-            log_time=log_time,
-            data=data,
-            publish_time=log_time,
-            sequence=sequence,
-        )
+        self._writer.add_message(self._channels[topic], log_time, data, sequence)
         self.messages += 1
 
     def flush(self) -> None:

@@ -48,6 +48,10 @@ class Task(Protocol):
         """pi_LLM: the action the solution asks for in ``pattern`` (None: it asks for nothing)."""
         ...
 
+    def is_complete(self, pattern: Pattern) -> bool:
+        """The pattern is the target."""
+        ...
+
     def progress(self, pattern: Pattern) -> int:
         """How far the partial pattern has come (stack height, cells on), for query triggers."""
         ...

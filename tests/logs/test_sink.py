@@ -94,3 +94,29 @@ def test_truncated_or_foreign_files_give_one_line_errors(trial_log: Path, tmp_pa
 def test_unserialisable_record_is_a_log_error(tmp_path: Path) -> None:
     with McapSink(tmp_path / "t.mcap", {"config": "{}"}) as sink, pytest.raises(LogError, match="JSON"):
         sink.write("/transition", {"reward": float("nan")}, 0)
+
+
+def test_fast_transition_encoding_equals_json() -> None:
+    from lagrseq.logs.sink import _encode_transition
+
+    record = {
+        "trial": 1, "episode": 2, "step": 3, "global_step": 4, "state": (4, 5, 6), "action": 7,
+        "reward": -0.125, "terminated": False, "truncated": True, "guided": True,
+    }
+    assert json.loads(_encode_transition(record)) == {**record, "state": [4, 5, 6]}
+    nested = {**record, "state": [[0, 1], [1, 0]], "reward": 1.0}
+    assert json.loads(_encode_transition(nested)) == nested
+    empty = {**record, "state": ()}
+    assert json.loads(_encode_transition(empty))["state"] == []
+    with pytest.raises(LogError):
+        _encode_transition({**record, "reward": float("inf")})
+
+
+def test_fast_query_encoding_equals_json() -> None:
+    from lagrseq.experiment import _decision_record
+    from lagrseq.logs.sink import _encode_query
+
+    skip = _decision_record(0, 1, 2, 3, (4, 5), 0)
+    assert json.loads(_encode_query(skip)) == {**skip, "state": [4, 5]}
+    sent = {**skip, "queried": True, "answer": "['e']", "decision": 1}
+    assert json.loads(_encode_query(sent)) == {**sent, "state": [4, 5]}
