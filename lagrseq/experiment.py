@@ -10,6 +10,7 @@ Everything concrete (which env, agent, provider) is chosen here and nowhere else
 
 from __future__ import annotations
 
+import multiprocessing
 import platform
 import time
 from collections.abc import Callable, Hashable
@@ -461,7 +462,9 @@ def run_trials(
                 )
             )
     else:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
+        # spawn, not fork: forking a process that runs threads (progress bar, torch) can deadlock
+        context = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=jobs, mp_context=context) as pool:
             futures = [
                 pool.submit(
                     _run_trial_job,
