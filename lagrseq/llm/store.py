@@ -405,7 +405,7 @@ class RecordStore:
             else:
                 matcher = difflib.SequenceMatcher(None, entry.prompt, prompt, autojunk=False)
                 similarity = matcher.ratio()
-                differences.insert(0, f"another prompt ({similarity:.0%} alike{_diff_hint(entry.prompt, prompt)})")
+                differences.insert(0, f"another prompt ({similarity:.1%} alike{_diff_hint(entry.prompt, prompt)})")
             score = similarity - 0.1 * len(differences)
             scored.append((-score, entry.key, entry, "; ".join(differences) or "identical"))
         scored.sort(key=lambda item: (item[0], item[1]))

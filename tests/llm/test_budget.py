@@ -59,16 +59,14 @@ def test_the_worst_case_pays_the_prompt_once_per_request(server: FakeOpenAI) -> 
     limit = (one_request + four_requests) / 2  # enough for n=4 in one request, not for four
     with guarded(server, Budget(max_cost_usd=limit)) as provider:
         provider.complete_n(q, 4)
-    with guarded(server, Budget(max_cost_usd=limit), kind="ollama") as provider:
-        with pytest.raises(BudgetExceeded):
-            provider.complete_n(q, 4)
+    with guarded(server, Budget(max_cost_usd=limit), kind="ollama") as provider, pytest.raises(BudgetExceeded):
+        provider.complete_n(q, 4)
     assert len(server.requests) == 1
 
 
 def test_an_unpriced_model_cannot_be_guarded_by_cost(server: FakeOpenAI) -> None:
-    with guarded(server, Budget(max_cost_usd=1.0)) as provider:
-        with pytest.raises(BudgetExceeded, match="no price in the price table"):
-            provider.complete(query(model="llama3:8b"))
+    with guarded(server, Budget(max_cost_usd=1.0)) as provider, pytest.raises(BudgetExceeded, match="no price in the price table"):
+        provider.complete(query(model="llama3:8b"))
     assert server.requests == []
     budget = Budget(max_queries=10)  # a query limit alone is fine
     with guarded(server, budget) as provider:

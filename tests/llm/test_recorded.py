@@ -94,9 +94,8 @@ def test_once_records_only_into_an_empty_store(tmp_path: Path) -> None:
 
 def test_none_never_asks(tmp_path: Path) -> None:
     inner = Counting()
-    with RecordingProvider(RecordStore(tmp_path / "s"), inner, ENDPOINT, "none", samples=3) as recorder:
-        with pytest.raises(RecordMiss, match="no recorded answer"):
-            recorder.complete(query())
+    with RecordingProvider(RecordStore(tmp_path / "s"), inner, ENDPOINT, "none", samples=3) as recorder, pytest.raises(RecordMiss, match="no recorded answer"):
+        recorder.complete(query())
     assert inner.calls == 0
 
 
@@ -123,9 +122,8 @@ def test_an_answer_is_chosen_among_all_recorded_samples_so_a_rerun_gets_the_same
 
 def test_an_interrupted_recording_keeps_every_answer_already_received(tmp_path: Path) -> None:
     inner = Counting(per_request=1, fail_at=4)  # the 4th request is interrupted
-    with RecordingProvider(RecordStore(tmp_path / "s"), inner, ENDPOINT, "new", samples=5) as recorder:
-        with pytest.raises(KeyboardInterrupt):
-            record_queries(recorder, [query()])
+    with RecordingProvider(RecordStore(tmp_path / "s"), inner, ENDPOINT, "new", samples=5) as recorder, pytest.raises(KeyboardInterrupt):
+        record_queries(recorder, [query()])
     assert stored(tmp_path / "s", query()) == ["answer 1", "answer 2", "answer 3"]
     resumed = Counting()
     with RecordingProvider(RecordStore(tmp_path / "s"), resumed, ENDPOINT, "new", samples=5) as recorder:

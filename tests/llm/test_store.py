@@ -246,9 +246,8 @@ def test_a_strict_miss_names_task_model_temperature_and_the_nearest_keys(tmp_pat
             key, request = query_key(q, ENDPOINT)
             store.add(key, request, "cube-stacking", samples(key[:4], 2))
     asked = query("A human is stacking ['e','f']", model="gpt-4", temperature=0.5)
-    with RecordedProvider(RecordStore(tmp_path / "store", create=False), ENDPOINT, 0) as provider:
-        with pytest.raises(RecordMiss) as caught:
-            provider.complete(asked)
+    with RecordedProvider(RecordStore(tmp_path / "store", create=False), ENDPOINT, 0) as provider, pytest.raises(RecordMiss) as caught:
+        provider.complete(asked)
     message = str(caught.value)
     same_prompt = query_key(recorded[0], ENDPOINT)[0]
     assert "task cube-stacking" in message and "model gpt-4" in message and "temperature 0.5" in message
@@ -259,9 +258,8 @@ def test_a_strict_miss_names_task_model_temperature_and_the_nearest_keys(tmp_pat
 
 
 def test_a_miss_in_an_empty_store(tmp_path: Path) -> None:
-    with RecordedProvider(RecordStore(tmp_path / "store"), ENDPOINT, 0) as provider:
-        with pytest.raises(RecordMiss, match="the store is empty"):
-            provider.complete(query())
+    with RecordedProvider(RecordStore(tmp_path / "store"), ENDPOINT, 0) as provider, pytest.raises(RecordMiss, match="the store is empty"):
+        provider.complete(query())
 
 
 # ------------------------------------------------------------------------------ JSONL
