@@ -27,6 +27,7 @@ class _Parser(argparse.ArgumentParser):
 
 def _add_run(sub: Any) -> None:
     from lagrseq.config import METHODS, PRESETS, tasks
+    from lagrseq.tasks.cube import PROFILE_HELP
 
     p = sub.add_parser(
         "run",
@@ -54,7 +55,7 @@ def _add_run(sub: Any) -> None:
         metavar="SPEC",
         help=(
             "LLM provider (default: mock): mock = the rule-based extrapolator (no key, no network); "
-            "mock:PROFILE = a calibrated profile of it (ideal, oracle, authors-t0); recorded:STORE = "
+            f"mock:PROFILE = a profile of it ({'; '.join(f'{k}: {v}' for k, v in PROFILE_HELP.items())}); recorded:STORE = "
             "answers recorded in the directory STORE (see --on-miss); live or live:MODEL = an "
             "OpenAI-compatible server (see --base-url; MODEL overrides llm.model)"
         ),

@@ -275,6 +275,8 @@ def _decision_record(
         "source": None,
         "record_key": None,
         "sample_index": None,
+        "finish_reason": None,
+        "system_fingerprint": None,
     }
 
 
@@ -299,6 +301,8 @@ def _query_fields(result: Any, provider: Provider, config: ExperimentConfig, rew
         "source": answer.source,
         "record_key": answer.record_key,
         "sample_index": answer.sample_index,
+        "finish_reason": answer.finish_reason,
+        "system_fingerprint": answer.system_fingerprint,
     }
 
 

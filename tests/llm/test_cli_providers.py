@@ -120,6 +120,7 @@ def test_a_live_run_logs_usage_and_cost_and_on_miss_live_records_once(tmp_path: 
     assert queried and len(server.requests) == len(queried)
     assert all(r["source"] == "live" and r["model"] == "gpt-4o-mini-2024-07-18" for r in queried)
     assert all(r["prompt_tokens"] > 0 and r["completion_tokens"] > 0 and r["cost_usd"] > 0 for r in queried)
+    assert all(r["finish_reason"] == "stop" and r["system_fingerprint"] == "fp_test" and r["latency_s"] > 0 for r in queried)
     assert read_info(log).config["llm"]["model"] == "gpt-4o-mini"  # live:MODEL is what the log says
     options = json.loads(read_info(log).run["provider_options"])
     assert options["api_key_env"] == KEY_ENV and options["base_url"] == server.url
