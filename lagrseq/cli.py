@@ -10,8 +10,6 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
-import numpy as np
-
 from lagrseq import __version__
 from lagrseq.errors import LagrseqError, UsageError
 
@@ -331,6 +329,7 @@ def _warn(command: str) -> Any:
 def cmd_record(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
+    import numpy as np
     from tqdm import tqdm
 
     from lagrseq import config as cfg

@@ -102,6 +102,7 @@ def run_trial(
 ) -> TrialResult:
     """Run one trial and log it to ``path`` (``log=False`` runs without writing, for benchmarks)."""
     started = time.perf_counter()
+    config = with_provider_model(config, provider_spec)  # live:MODEL asks MODEL, and the log says so
     task = make_task(config)
     env = make_env(config)
     primary = make_primary(config, task)
@@ -629,7 +630,6 @@ def run_trials(
 ) -> list[TrialResult]:
     """Run trials 0..trials-1 into ``directory``; trials whose log is complete are skipped."""
     parse_provider(provider_spec)
-    config = with_provider_model(config, provider_spec)
     results: list[TrialResult] = []
     todo: list[int] = []
     for trial in range(trials):
