@@ -289,7 +289,7 @@ class LiveProvider:
         )
 
     def _delay(self, attempt: int, retry_after: float | None, reason: str) -> float:
-        if retry_after is not None:
+        if retry_after is not None and retry_after > 0:  # 0 or a past date: back off as usual
             if retry_after > self.settings.max_retry_after_s:
                 raise ProviderError(
                     f"{self.url}: {reason}; the server asks to wait {retry_after:.0f} s, longer than "

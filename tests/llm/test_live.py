@@ -70,6 +70,15 @@ def test_429_with_retry_after_seconds_is_honoured(server: FakeOpenAI) -> None:
     live.close()
 
 
+def test_a_zero_retry_after_backs_off_instead_of_hammering(server: FakeOpenAI) -> None:
+    server.script.append(Reply(429, error_body("requests", "slow down"), {"retry-after": "0"}))
+    slept: list[float] = []
+    settings = fast_settings(server.url, backoff_initial_s=0.5, backoff_max_s=1.0, jitter=0.0)
+    with LiveProvider(settings, rng=np.random.default_rng(0), sleep=slept.append) as live:
+        live.complete(query())
+    assert slept == [0.5]
+
+
 def test_503_twice_then_success(server: FakeOpenAI) -> None:
     server.script.extend([Reply(503, b"upstream overloaded"), Reply(503, error_body("server_error", "try again"))])
     with provider(server) as live:
