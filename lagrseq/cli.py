@@ -25,6 +25,7 @@ class _Parser(argparse.ArgumentParser):
 
 def _add_run(sub: Any) -> None:
     from lagrseq.config import METHODS, PRESETS, tasks
+    from lagrseq.tasks.cube import PROFILE_HELP
 
     p = sub.add_parser(
         "run",
@@ -46,7 +47,17 @@ def _add_run(sub: Any) -> None:
     p.add_argument("task", metavar="TASK", choices=tasks(), help=f"one of: {', '.join(tasks())}")
     p.add_argument("--method", choices=METHODS, default="lagr-seq", help="baseline: the plain RL agent; lagr: query the LLM whenever triggered; lagr-seq: the secondary agent decides (default)")
     p.add_argument("--preset", choices=PRESETS, default="upstream", help="upstream: as the released code runs; paper: as the paper's text says (default: upstream)")
-    p.add_argument("--provider", default="mock", metavar="SPEC", help="LLM provider: mock (the rule-based extrapolator; no key, no network). Default: mock")
+    p.add_argument(
+        "--provider",
+        default="mock",
+        metavar="SPEC",
+        help=(
+            "LLM provider (default: mock): mock = the rule-based extrapolator (no key, no network); "
+            f"mock:PROFILE = a profile of it ({'; '.join(f'{k}: {v}' for k, v in PROFILE_HELP.items())}); recorded:STORE = "
+            "answers recorded in the directory STORE (see --on-miss); live or live:MODEL = an "
+            "OpenAI-compatible server (see --base-url; MODEL overrides llm.model)"
+        ),
+    )
     p.add_argument("--trials", type=int, default=10, help="number of independent trials (default 10)")
     p.add_argument("--seed", type=int, default=0, help="run seed; trial k uses a stream spawned from (seed, k) (default 0)")
     p.add_argument("--out", type=Path, default=Path("runs"), help="output directory (default: runs)")
@@ -55,6 +66,145 @@ def _add_run(sub: Any) -> None:
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.FIELD=VALUE", help="override one field (repeatable), e.g. --set env.horizon=100")
     p.add_argument("--jobs", type=int, default=1, help="trials run in parallel processes (default 1)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--on-miss",
+        choices=("error", "mock", "live"),
+        default="error",
+        help=(
+            "recorded:STORE only, a query the store has no answer for: error = stop with a message "
+            "naming the nearest recorded keys (default); mock = answer it with the rule-based mock "
+            "(not stored); live = ask the live server and record the answer into STORE"
+        ),
+    )
+    _add_live_options(p, per="trial")
+
+
+def _add_live_options(p: Any, per: str) -> None:
+    """Options of the live provider and its budget (run and record)."""
+    from lagrseq.llm.servers import DEFAULT_BASE_URL, SERVER_KINDS
+
+    p.add_argument("--base-url", default=DEFAULT_BASE_URL, metavar="URL", help=f"API root of an OpenAI-compatible server; its host is part of every recorded key (default: {DEFAULT_BASE_URL})")
+    p.add_argument("--api-key-env", default="OPENAI_API_KEY", metavar="NAME", help="environment variable that holds the API key (default: OPENAI_API_KEY); the key itself is never written anywhere")
+    p.add_argument("--server", choices=tuple(SERVER_KINDS), default="openai", help="kind of server: openai and vllm return n samples per request, ollama and llama.cpp one (default: openai)")
+    p.add_argument("--price-table", default=None, metavar="FILE.toml", help="prices (USD per million tokens, with source and date) over the built-in table")
+    p.add_argument("--max-cost-usd", type=float, default=None, metavar="X", help=f"per {per}: stop before a live request that could take the spending past X US dollars (worst case: every completion uses max_tokens)")
+    p.add_argument("--max-queries", type=int, default=None, metavar="N", help=f"per {per}: stop before a live request that would take the number of live answers past N")
+
+
+def _provider_options(args: argparse.Namespace) -> Any:
+    from lagrseq.experiment import ProviderOptions
+
+    if args.max_cost_usd is not None and args.max_cost_usd < 0:
+        raise UsageError(f"--max-cost-usd must be at least 0, got {args.max_cost_usd}")
+    if args.max_queries is not None and args.max_queries < 0:
+        raise UsageError(f"--max-queries must be at least 0, got {args.max_queries}")
+    return ProviderOptions(
+        base_url=args.base_url,
+        api_key_env=args.api_key_env,
+        server=args.server,
+        on_miss=getattr(args, "on_miss", "error"),
+        price_table=args.price_table,
+        max_cost_usd=args.max_cost_usd,
+        max_queries=args.max_queries,
+    )
+
+
+def _add_task_config(p: Any) -> None:
+    from lagrseq.config import PRESETS
+
+    p.add_argument("--preset", choices=PRESETS, default="upstream", help="preset the task and [llm] settings come from (default: upstream)")
+    p.add_argument("--config", type=Path, default=None, metavar="FILE.toml", help="a TOML file of [section] fields applied over the preset")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.FIELD=VALUE", help="override one field (repeatable), e.g. --set task.stack_size=11")
+
+
+def _add_record(sub: Any) -> None:
+    from lagrseq.config import tasks
+    from lagrseq.llm.servers import RECORD_MODES
+
+    p = sub.add_parser(
+        "record",
+        help="ask a live model every prompt a task can send and keep K answers per prompt in a store",
+        description=(
+            "Build the set of prompts a run of TASK sends (cube stacking: every prefix of the target; "
+            "or the states met in the MCAP runs given with --from-runs), ask a live OpenAI-compatible "
+            "model until every prompt has K answers in STORE, and show progress and the running cost. "
+            "Answers are stored as each request returns, so an interrupted recording loses nothing; "
+            "running the same command again tops up what is missing. A recorded run then needs no "
+            "network: lagrseq run TASK --provider recorded:STORE."
+        ),
+        epilog=(
+            "examples:\n"
+            "  lagrseq record cube-stacking --model gpt-3.5-turbo --temperature 0 --samples 10 --store store/ --max-cost-usd 1\n"
+            "  lagrseq record cube-stacking --model gpt-4o-mini --temperature 1 --samples 10 --store store/ --set task.stack_size=11\n"
+            "  lagrseq record cube-stacking --model llama3 --base-url http://localhost:11434/v1 --server ollama --store store/\n"
+            "  lagrseq record cube-stacking --from-runs runs/cube-stacking --model gpt-4 --store store/"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("task", metavar="TASK", choices=tasks(), help=f"one of: {', '.join(tasks())}")
+    p.add_argument("--store", type=Path, required=True, metavar="STORE", help="store directory (created if missing)")
+    p.add_argument("--model", default=None, help="model to ask (default: the preset's llm.model)")
+    p.add_argument("--temperature", type=float, default=None, metavar="T", help="sampling temperature (default: the preset's llm.temperature)")
+    p.add_argument("--samples", type=int, default=10, metavar="K", help="answers to keep per prompt (default 10, as the paper's authors recorded)")
+    p.add_argument("--mode", choices=RECORD_MODES, default="new", help="new: top every prompt up to K answers (default); once: record only into an empty store; none: ask nothing, report what is missing; all: ask K fresh answers for every prompt even if recorded")
+    p.add_argument("--from-runs", nargs="+", default=None, metavar="RUN", help="MCAP logs or directories: ask from the states met there instead of the default prompt set")
+    p.add_argument("--states-from", choices=("/query", "/transition"), default="/query", help="with --from-runs: the states of /query records (where a query was decided, default) or of every /transition")
+    _add_task_config(p)
+    _add_live_options(p, per="recording")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _add_cache(sub: Any) -> None:
+    from lagrseq.config import tasks
+
+    p = sub.add_parser(
+        "cache",
+        help="import, export or list recorded answers (JSONL, the authors' pickles)",
+        description="Move recorded answers between a store directory and portable files.",
+    )
+    actions = p.add_subparsers(dest="action", metavar="ACTION", parser_class=_Parser, required=True)
+    imp = actions.add_parser(
+        "import",
+        help="add a JSONL export or an authors' cache pickle to a store",
+        description=(
+            "Add the answers of FILE to STORE. FILE.jsonl is a lagrseq export (recorded_llm/README.md). "
+            "Any other FILE is read as one of the paper's authors' cache pickles (a flat list of "
+            "key, answer pairs) with a restricted unpickler that allows only numpy arrays: the "
+            "pickles do not say which model, temperature or prompt produced them, so give --task "
+            "(and --set for the stack size), --model and --temperature; each key's prompt is rebuilt "
+            "from the task descriptor, so the answers are keyed exactly like a run's queries. "
+            "Importing a file twice adds nothing."
+        ),
+        epilog=(
+            "examples:\n"
+            "  lagrseq cache import ../shared/data/authors_caches/cube_stacking_cache0.0.pkl \\\n"
+            "      --task cube-stacking --model gpt-3.5-turbo --temperature 0 --store store/\n"
+            "  lagrseq cache import ../shared/data/authors_caches/cube_stacking_cache0.pkl \\\n"
+            "      --task cube-stacking --set task.stack_size=11 --model gpt-3.5-turbo --temperature 0 --store store/\n"
+            "  lagrseq cache import recorded_llm/cube-gpt35-t0.jsonl --store store/"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    imp.add_argument("file", type=Path, metavar="FILE", help="FILE.jsonl (a lagrseq export) or an authors' cache pickle")
+    imp.add_argument("--store", type=Path, required=True, metavar="STORE", help="store directory (created if missing)")
+    imp.add_argument("--format", choices=("auto", "jsonl", "pkl"), default="auto", help="auto: .jsonl is JSONL, anything else a pickle (default)")
+    imp.add_argument("--task", choices=tasks(), default=None, help="pickles: the task whose prompts the keys are rendered with")
+    imp.add_argument("--model", default=None, help="pickles: the model the answers came from (keys include it)")
+    imp.add_argument("--temperature", type=float, default=None, metavar="T", help="pickles: the temperature they were sampled at")
+    imp.add_argument("--max-tokens", type=int, default=None, metavar="N", help="pickles: max tokens of the keys (default: the preset's llm.max_tokens, what runs send)")
+    from lagrseq.llm.servers import DEFAULT_BASE_URL
+
+    imp.add_argument("--base-url", default=DEFAULT_BASE_URL, metavar="URL", help=f"pickles: the server they came from; its host goes into the keys (default: {DEFAULT_BASE_URL})")
+    _add_task_config(imp)
+    exp = actions.add_parser(
+        "export",
+        help="write every recorded answer of a store to JSONL",
+        description="Write STORE as JSONL, one answer per line, in a stable order (keys sorted, answers in recorded order).",
+    )
+    exp.add_argument("--store", type=Path, required=True, metavar="STORE")
+    exp.add_argument("--out", required=True, metavar="FILE.jsonl", help="output file, or - for standard output")
+    lst = actions.add_parser("list", help="one line per recorded key", description="List the keys of STORE: key, task, model, temperature, samples, the partial pattern's end of the prompt.")
+    lst.add_argument("--store", type=Path, required=True, metavar="STORE")
 
 
 def _add_config(sub: Any) -> None:
@@ -84,6 +234,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     _add_run(sub)
     _add_config(sub)
+    _add_record(sub)
+    _add_cache(sub)
     return parser
 
 
@@ -128,7 +280,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.jobs < 1:
         raise UsageError(f"--jobs must be at least 1, got {args.jobs}")
     experiment.parse_provider(args.provider)
+    options = _provider_options(args)
+    if args.on_miss != "error" and not args.provider.startswith("recorded:"):
+        raise UsageError(f"--on-miss {args.on_miss} applies to --provider recorded:STORE only")
     config = cfg.load(args.task, args.method, args.preset, args.config, args.overrides)
+    config = experiment.with_provider_model(config, args.provider)
     directory = experiment.run_directory(args.out, config, args.provider, args.seed, args.name)
     total = args.trials * config.run.episodes
     with tqdm(
@@ -140,7 +296,14 @@ def cmd_run(args: argparse.Namespace) -> int:
         dynamic_ncols=True,
     ) as bar:
         results = experiment.run_trials(
-            config, args.trials, args.seed, args.provider, directory, jobs=args.jobs, progress=bar
+            config,
+            args.trials,
+            args.seed,
+            args.provider,
+            directory,
+            jobs=args.jobs,
+            progress=bar,
+            provider_options=options,
         )
     ran = [r for r in results if not r.skipped]
     skipped = len(results) - len(ran)
@@ -159,7 +322,176 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"run": cmd_run, "config": cmd_config}
+def _warn(command: str) -> Any:
+    return lambda message: print(f"lagrseq {command}: warning: {message}", file=sys.stderr)
+
+
+def cmd_record(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    import numpy as np
+    from tqdm import tqdm
+
+    from lagrseq import config as cfg
+    from lagrseq import experiment
+    from lagrseq.errors import BudgetExceeded
+    from lagrseq.llm.recorded import RecordingProvider, record_queries
+    from lagrseq.llm.store import RecordStore, endpoint_of, query_key
+
+    if args.samples < 1:
+        raise UsageError(f"--samples must be at least 1, got {args.samples}")
+    if args.temperature is not None and args.temperature < 0:
+        raise UsageError(f"--temperature must be at least 0, got {args.temperature}")
+    options = _provider_options(args)
+    config = cfg.load(args.task, "lagr", args.preset, args.config, args.overrides)
+    llm = replace(
+        config.llm,
+        model=args.model or config.llm.model,
+        temperature=config.llm.temperature if args.temperature is None else args.temperature,
+    )
+    config = replace(config, llm=llm)
+    queries = experiment.record_queries(
+        config, experiment.record_patterns(config, args.from_runs or (), args.states_from)
+    )
+    endpoint = endpoint_of(options.base_url)
+
+    def held(store: RecordStore) -> int:
+        entries = [store.entry(query_key(q, endpoint)[0]) for q in queries]
+        return sum(1 for e in entries if e is not None and len(e.samples) >= args.samples)
+
+    def missing(full: int) -> UsageError:
+        return UsageError(
+            f"{len(queries) - full} of {len(queries)} prompts have fewer than {args.samples} answers "
+            f"in {args.store} (record mode {args.mode}); run with --mode new to top them up"
+        )
+
+    if args.mode == "none":  # ask nobody (no key needed): report what the store lacks
+        with RecordStore(args.store, create=False) as store:
+            full = held(store)
+        if full < len(queries):
+            raise missing(full)
+        print(f"all {len(queries)} prompts hold at least {args.samples} answers in {args.store}")
+        return 0
+    bar = tqdm(
+        total=len(queries),
+        unit="prompt",
+        desc=f"record {args.task} {llm.model} t={llm.temperature:g}",
+        disable=args.quiet,
+        file=sys.stderr,
+        dynamic_ncols=True,
+    )
+    # The retry jitter's generator: seeded per process, so concurrent recorders back off apart.
+    jitter = np.random.default_rng([os.getpid()])
+    live = experiment.make_live(options, jitter, budgeted=True, on_retry=lambda m: bar.write(f"  {m}"))
+    budget = live.budget
+
+    def show(_answers: Any) -> None:
+        unpriced = f", {budget.unpriced} unpriced" if budget.unpriced else ""
+        bar.set_postfix_str(f"{budget.answers} new answers, ${budget.spent_usd:.4f}{unpriced}")
+
+    stopped: BudgetExceeded | None = None
+    with RecordingProvider(RecordStore(args.store), live, endpoint, args.mode, args.samples) as recorder:
+        try:
+            with bar:
+                record_queries(recorder, queries, on_answers=show, on_query=lambda _q: bar.update(1))
+        except BudgetExceeded as exc:
+            stopped = exc
+        full = held(recorder.store)
+    print(
+        f"{full}/{len(queries)} prompts hold at least {args.samples} answers in {args.store}; "
+        f"spent ${budget.spent_usd:.4f} on {budget.answers} new answers"
+        + (f" ({budget.unpriced} with no price)" if budget.unpriced else "")
+    )
+    if stopped is not None:
+        raise stopped
+    if full < len(queries):
+        raise missing(full)
+    return 0
+
+
+def cmd_cache(args: argparse.Namespace) -> int:
+    return {"import": _cache_import, "export": _cache_export, "list": _cache_list}[args.action](args)
+
+
+def _cache_import(args: argparse.Namespace) -> int:
+    from lagrseq.llm.store import RecordStore, import_jsonl
+
+    fmt = args.format if args.format != "auto" else ("jsonl" if args.file.suffix == ".jsonl" else "pkl")
+    if not args.file.is_file():
+        raise UsageError(f"{args.file}: no such file")
+    if fmt == "jsonl":
+        with RecordStore(args.store) as store, args.file.open(encoding="utf-8") as handle:
+            lines = import_jsonl(handle, store, args.file.name, warn=_warn("cache import"))
+        print(f"{args.file}: {lines.lines} answers under {lines.keys} keys; {lines.added} added, {lines.already_present} already in {args.store}")
+        return 0
+    missing = [flag for flag, value in (("--task", args.task), ("--model", args.model), ("--temperature", args.temperature)) if value is None]
+    if missing:
+        raise UsageError(f"importing a pickle needs {', '.join(missing)}: the authors' caches do not record them")
+    from dataclasses import replace
+
+    from lagrseq import config as cfg
+    from lagrseq import experiment
+    from lagrseq.llm.authors_cache import import_authors_cache
+    from lagrseq.llm.store import endpoint_of
+
+    config = cfg.load(args.task, "lagr", args.preset, args.config, args.overrides)
+    max_tokens = config.llm.max_tokens if args.max_tokens is None else args.max_tokens
+    config = replace(config, llm=replace(config.llm, model=args.model, temperature=args.temperature, max_tokens=max_tokens))
+    with RecordStore(args.store) as store:
+        report = import_authors_cache(
+            args.file,
+            store,
+            experiment.prompt_function(config),
+            task=args.task,
+            model=args.model,
+            temperature=args.temperature,
+            endpoint=endpoint_of(args.base_url),
+            max_tokens=max_tokens,
+            warn=_warn("cache import"),
+        )
+    print(
+        f"{args.file}: {report.pairs} pairs; {report.imported} answers added under {report.keys} keys, "
+        f"{report.already_present} already in {args.store}, {report.skipped} skipped"
+    )
+    return 0
+
+
+def _cache_export(args: argparse.Namespace) -> int:
+    from lagrseq.llm.store import RecordStore, export_jsonl
+
+    with RecordStore(args.store, create=False) as store:
+        if args.out == "-":
+            report = export_jsonl(store, sys.stdout)
+        else:
+            out = Path(args.out)
+            partial = out.with_name(out.name + ".partial")
+            try:
+                with partial.open("w", encoding="utf-8") as handle:
+                    report = export_jsonl(store, handle)
+                os.replace(partial, out)
+            except OSError as exc:
+                raise UsageError(f"cannot write {out}: {exc.strerror or exc}") from None
+    if args.out != "-":
+        print(f"{report.lines} answers under {report.keys} keys written to {args.out}")
+    return 0
+
+
+def _cache_list(args: argparse.Namespace) -> int:
+    from lagrseq.llm.store import RecordStore
+
+    with RecordStore(args.store, create=False) as store:
+        for entry in store.entries():
+            r = entry.request
+            tail = " ".join(entry.prompt.split())[-48:]
+            print(f"{entry.key[:12]}  {entry.task or '-'}  {r['model']}  t={r['temperature']}  {r['endpoint']}  {len(entry.samples):3d} samples  ...{tail}")
+    return 0
+
+
+COMMANDS = {"run": cmd_run, "config": cmd_config, "record": cmd_record, "cache": cmd_cache}
+INTERRUPTED = {
+    "run": "finished trial logs are kept",
+    "record": "answers recorded so far are kept in the store; run the same command to go on",
+}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -174,7 +506,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"lagrseq {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"lagrseq {args.command}: interrupted; finished trial logs are kept", file=sys.stderr)
+        kept = INTERRUPTED.get(args.command, "nothing finished is lost")
+        print(f"lagrseq {args.command}: interrupted; {kept}", file=sys.stderr)
         return 130
     except BrokenPipeError:  # pragma: no cover - e.g. piped into head
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())

@@ -8,6 +8,9 @@ re-raised as one of these, so the command line can print a single line and exit 
     ├── UsageError           bad command-line usage: unknown task, method, provider
     ├── ParseError           an LLM answer that cannot be read as a solution (usually logged, not raised)
     ├── ProviderError        an LLM provider failed (missing key, HTTP error, malformed body, cache miss)
+    │   ├── StoreError       a recorded store, JSONL file or authors' pickle that cannot be used
+    │   │   └── RecordMiss   a query with no recorded answer (strict mode)
+    │   └── BudgetExceeded   the next call would pass --max-cost-usd or --max-queries (not sent)
     └── LogError             an MCAP log that cannot be written or read (truncated, corrupt, wrong schema)
 
 Every message says what was expected, what was found and, where there is one, what to do.
@@ -34,6 +37,18 @@ class ParseError(LagrseqError):
 
 class ProviderError(LagrseqError):
     """An LLM provider could not produce an answer."""
+
+
+class StoreError(ProviderError):
+    """A recorded-answer store, JSONL export or authors' cache that cannot be read or written."""
+
+
+class RecordMiss(StoreError):
+    """A query whose key has no recorded answer, in a mode that may not ask anyone else."""
+
+
+class BudgetExceeded(ProviderError):
+    """A call was not sent because it could take the spending past a configured limit."""
 
 
 class LogError(LagrseqError):

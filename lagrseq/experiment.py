@@ -10,12 +10,13 @@ Everything concrete (which env, agent, provider) is chosen here and nowhere else
 
 from __future__ import annotations
 
+import json
 import multiprocessing
 import platform
 import time
-from collections.abc import Callable, Hashable
+from collections.abc import Callable, Hashable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -26,17 +27,48 @@ from lagrseq.agents.schedules import EpsilonSchedule
 from lagrseq.agents.tabular import TabularQ
 from lagrseq.config import CubeTaskConfig, ExperimentConfig
 from lagrseq.errors import UsageError
-from lagrseq.lagr import QueryTrigger, consult, follow
-from lagrseq.llm.base import Provider
+from lagrseq.lagr import QueryTrigger, consult, follow, query_for
+from lagrseq.llm.base import Provider, Query
 from lagrseq.llm.mock import MockProvider
-from lagrseq.logs.reader import is_complete
+from lagrseq.llm.servers import DEFAULT_BASE_URL
+from lagrseq.logs.reader import find_logs, is_complete, read_info, read_topic
 from lagrseq.logs.sink import McapSink
 from lagrseq.seeding import Stream
 from lagrseq.seq import TabularSecondary, query_reward
 from lagrseq.tasks import cube
 from lagrseq.tasks.base import Task
 
-PROVIDER_KINDS = ("mock",)
+PROVIDER_KINDS = ("mock", "recorded", "live")
+ON_MISS = ("error", "mock", "live")
+
+
+@dataclass(frozen=True)
+class ProviderOptions:
+    """How a provider other than the plain mock is set up: where answers come from, not what the
+    experiment is, so these are command-line options rather than config fields. They are written
+    into each trial's metadata. The API key is never here, only the name of its variable."""
+
+    base_url: str = DEFAULT_BASE_URL
+    """API root of the live server; its host is also part of every recorded key."""
+    api_key_env: str = "OPENAI_API_KEY"
+    """Environment variable holding the API key."""
+    server: str = "openai"
+    """Kind of OpenAI-compatible server (whether it honours ``n``)."""
+    on_miss: str = "error"
+    """recorded:STORE only: what answers a query the store lacks (error | mock | live)."""
+    price_table: str | None = None
+    """TOML file of prices over the built-in table."""
+    max_cost_usd: float | None = None
+    """Per trial (live answers): stop before a request that could pass this many US dollars."""
+    max_queries: int | None = None
+    """Per trial (live answers): stop before a request that would pass this many answers."""
+
+    def __post_init__(self) -> None:
+        if self.on_miss not in ON_MISS:
+            raise UsageError(f"--on-miss {self.on_miss!r}; expected one of {', '.join(ON_MISS)}")
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), sort_keys=True)
 
 
 # ------------------------------------------------------------------------------------------
@@ -67,14 +99,18 @@ def run_trial(
     path: Path,
     log: bool = True,
     on_episode: Callable[[], None] | None = None,
+    provider_options: ProviderOptions | None = None,
 ) -> TrialResult:
     """Run one trial and log it to ``path`` (``log=False`` runs without writing, for benchmarks)."""
     started = time.perf_counter()
+    config = with_provider_model(config, provider_spec)  # live:MODEL asks MODEL, and the log says so
     task = make_task(config)
     env = make_env(config)
     primary = make_primary(config, task)
     secondary = make_secondary(config, task) if config.method == "lagr-seq" else None
-    provider = make_provider(provider_spec, config, seeding.generator(seed, trial, Stream.LLM))
+    provider = make_provider(
+        provider_spec, config, seeding.generator(seed, trial, Stream.LLM), provider_options
+    )
     primary_rng = seeding.generator(seed, trial, Stream.PRIMARY)
     secondary_rng = seeding.generator(seed, trial, Stream.SECONDARY)
     guidance_rng = seeding.generator(seed, trial, Stream.GUIDANCE)
@@ -84,7 +120,9 @@ def run_trial(
     lagr = config.lagr
     asks_llm = config.method != "baseline"
     sink = (
-        McapSink(path, run_metadata(config, trial, seed, provider_spec)) if log else _NullSink()
+        McapSink(path, run_metadata(config, trial, seed, provider_spec, provider_options))
+        if log
+        else _NullSink()
     )
 
     global_step = 0
@@ -237,6 +275,10 @@ def _decision_record(
         "cost_usd": None,
         "latency_s": None,
         "source": None,
+        "record_key": None,
+        "sample_index": None,
+        "finish_reason": None,
+        "system_fingerprint": None,
     }
 
 
@@ -259,6 +301,10 @@ def _query_fields(result: Any, provider: Provider, config: ExperimentConfig, rew
         "cost_usd": answer.cost_usd,
         "latency_s": answer.latency_s,
         "source": answer.source,
+        "record_key": answer.record_key,
+        "sample_index": answer.sample_index,
+        "finish_reason": answer.finish_reason,
+        "system_fingerprint": answer.system_fingerprint,
     }
 
 
@@ -366,32 +412,179 @@ def make_secondary(config: ExperimentConfig, task: Task) -> TabularSeq:
     return TabularSeq(config.secondary.learning_rate)
 
 
+def mock_profiles() -> tuple[str, ...]:
+    """Names accepted by ``--provider mock:PROFILE``."""
+    return tuple(cube.PROFILES)
+
+
 def parse_provider(spec: str) -> tuple[str, str]:
-    """Split ``kind[:argument]`` and check the kind."""
+    """Split ``kind[:argument]`` and check it: ``mock``, ``mock:PROFILE``, ``recorded:STORE``,
+    ``live`` or ``live:MODEL``."""
     kind, _, argument = spec.partition(":")
-    if kind not in PROVIDER_KINDS or (kind == "mock" and argument):
+    if kind not in PROVIDER_KINDS:
         raise UsageError(
-            f"unknown provider {spec!r}; expected one of: {', '.join(PROVIDER_KINDS)}"
+            f"unknown provider {spec!r}; expected mock, mock:PROFILE, recorded:STORE, live or live:MODEL"
         )
+    if kind == "mock" and argument and argument not in mock_profiles():
+        raise UsageError(
+            f"unknown mock profile {argument!r}; expected one of: {', '.join(mock_profiles())}"
+        )
+    if kind == "recorded" and not argument:
+        raise UsageError("provider 'recorded' needs a store: recorded:STORE (a directory)")
     return kind, argument
 
 
-def make_provider(spec: str, config: ExperimentConfig, rng: np.random.Generator) -> MockProvider:
-    parse_provider(spec)
-    return MockProvider(extrapolator(config), rng, name="mock")
+def with_provider_model(config: ExperimentConfig, spec: str) -> ExperimentConfig:
+    """``live:MODEL`` asks MODEL: the configuration (and so every log) says so."""
+    kind, argument = parse_provider(spec)
+    if kind == "live" and argument and argument != config.llm.model:
+        return replace(config, llm=replace(config.llm, model=argument))
+    return config
 
 
-def extrapolator(config: ExperimentConfig) -> Callable[[str, float, np.random.Generator], str]:
-    """The task's rule-based extrapolator (what the mock provider answers with)."""
-    return cube.extrapolate
+def make_provider(
+    spec: str,
+    config: ExperimentConfig,
+    rng: np.random.Generator,
+    options: ProviderOptions | None = None,
+) -> Provider:
+    """The provider of one trial. ``rng`` is the trial's LLM stream: the mock samples from it,
+    the live provider draws its retry jitter from it, and a recorded store's sample choice is
+    seeded by its first draw."""
+    from lagrseq.llm.recorded import RecordedProvider, RecordingProvider
+    from lagrseq.llm.store import RecordStore, endpoint_of
+
+    kind, argument = parse_provider(spec)
+    options = options or ProviderOptions()
+    if kind == "mock":
+        return MockProvider(extrapolator(config, argument or "ideal"), rng, name=spec)
+    if kind == "live":
+        return make_live(options, rng, budgeted=True)
+    store = RecordStore(argument, create=options.on_miss == "live")
+    endpoint = endpoint_of(options.base_url)
+    run_seed = int(rng.integers(2**63))
+    if options.on_miss == "live":
+        # A miss is asked live and recorded (one sample), so the next run finds it.
+        return RecordingProvider(store, make_live(options, rng, budgeted=True), endpoint, "new", 1, run_seed)
+    fallback = MockProvider(extrapolator(config), rng, name="mock") if options.on_miss == "mock" else None
+    return RecordedProvider(store, endpoint, run_seed, fallback)
+
+
+def make_live(
+    options: ProviderOptions,
+    rng: np.random.Generator,
+    budgeted: bool = False,
+    on_retry: Callable[[str], None] | None = None,
+) -> Any:
+    """The live provider of ``options``, behind a budget guard when asked (one budget per call)."""
+    from lagrseq.llm.budget import Budget, BudgetedProvider
+    from lagrseq.llm.live import LiveProvider, LiveSettings
+
+    prices = load_prices(options.price_table)
+    settings = LiveSettings(base_url=options.base_url, api_key_env=options.api_key_env, server=options.server)
+    live = LiveProvider(settings, rng=rng, prices=prices, on_retry=on_retry)
+    if not budgeted:
+        return live
+    return BudgetedProvider(live, Budget(options.max_cost_usd, options.max_queries), prices)
+
+
+def load_prices(price_table: str | Path | None) -> Any:
+    """The built-in price table, with ``price_table`` (a TOML file) over it."""
+    from lagrseq.llm.pricing import PriceTable, read_price_table
+
+    return read_price_table(price_table) if price_table else PriceTable()
+
+
+def extrapolator(
+    config: ExperimentConfig, profile: str = "ideal"
+) -> Callable[[str, float, np.random.Generator], str]:
+    """What the mock provider answers with: the task's rule-based extrapolator (``ideal``) or a
+    calibrated profile of it (``cube.PROFILES``). The mock itself stays task-free."""
+    task = make_task(config)
+    if isinstance(task, cube.CubeStacking):
+        return cube.profile_extrapolator(task, profile)
+    return cube.extrapolate  # pragma: no cover - every task so far is a cube task
+
+
+# ------------------------------------------------------------------------------------------
+# Recording: which prompts to ask, and how outside data becomes a task's pattern
+# ------------------------------------------------------------------------------------------
+def pattern_from(task: Task, value: Any) -> Any:
+    """A task pattern from outside data (an authors' cache key, an MCAP ``state``); raises
+    ValueError when it does not fit the task. Tasks check shapes with ``coerce_pattern``."""
+    coerce = getattr(task, "coerce_pattern", None)
+    if coerce is not None:
+        return coerce(value)
+    array = np.asarray(value)  # pragma: no cover - grid tasks without coerce_pattern
+    return array if array.ndim > 1 else tuple(int(x) for x in array)  # pragma: no cover
+
+
+def prompt_function(config: ExperimentConfig) -> Callable[[Any], str]:
+    """``prompt_for(key)``: the prompt a run sends for an outside pattern (authors' cache import)."""
+    task = make_task(config)
+    return lambda key: query_for(task, config.llm, pattern_from(task, key)).prompt
+
+
+def record_patterns(
+    config: ExperimentConfig, runs: Sequence[str | Path] = (), topic: str = "/query"
+) -> list[Any]:
+    """The patterns ``lagrseq record`` asks about, without duplicates, in first-met order: the
+    states of ``topic`` records in the MCAP logs under ``runs`` (``/query``: where the secondary
+    agent decided; ``/transition``: every state met), or, with no runs, every prefix of a cube
+    target."""
+    task = make_task(config)
+    if not runs:
+        if isinstance(task, cube.CubeStacking):
+            return list(task.prefixes())
+        raise UsageError(  # pragma: no cover - every task so far is a cube task
+            f"{config.task.name} has no default set of prompts; give runs with --from-runs"
+        )
+    if topic not in ("/query", "/transition"):
+        raise UsageError(f"--states-from {topic!r}; expected /query or /transition")
+    patterns: list[Any] = []
+    seen: set[str] = set()
+    for path in find_logs(runs):
+        logged = read_info(path).config
+        logged_task = logged.get("task", {})
+        wanted = json.loads(json.dumps(asdict(config.task)))
+        if logged_task != wanted:
+            raise UsageError(
+                f"{path}: a run of task {logged_task}, not {wanted}; pass matching runs or --set task fields"
+            )
+        for record in read_topic(path, topic):
+            state = record.get("state")
+            marker = json.dumps(state)
+            if state is None or marker in seen:
+                continue
+            seen.add(marker)
+            try:
+                patterns.append(pattern_from(task, state))
+            except ValueError as exc:
+                raise UsageError(f"{path}: state {marker[:60]} does not fit the task: {exc}") from None
+    if not patterns:
+        raise UsageError(f"no {topic} states in {', '.join(map(str, runs))}")
+    return patterns
+
+
+def record_queries(config: ExperimentConfig, patterns: Sequence[Any]) -> list[Query]:
+    """The queries a run of ``config`` would send from ``patterns`` (same key, same prompt)."""
+    task = make_task(config)
+    return [query_for(task, config.llm, pattern) for pattern in patterns]
 
 
 # ------------------------------------------------------------------------------------------
 # Runs: several trials, resumable, optionally in parallel
 # ------------------------------------------------------------------------------------------
-def run_metadata(config: ExperimentConfig, trial: int, seed: int, provider_spec: str) -> dict[str, str]:
+def run_metadata(
+    config: ExperimentConfig,
+    trial: int,
+    seed: int,
+    provider_spec: str,
+    provider_options: ProviderOptions | None = None,
+) -> dict[str, str]:
     """The ``lagrseq.run`` metadata record: everything replay needs to know about the trial."""
     return {
+        "provider_options": (provider_options or ProviderOptions()).to_json(),
         "config": config.to_json(),
         "task": config.task.name,
         "method": config.method,
@@ -422,10 +615,12 @@ def trial_path(directory: Path, trial: int) -> Path:
 
 
 def _run_trial_job(args: tuple[Any, ...]) -> TrialResult:
-    config_dict, trial, seed, provider_spec, path = args
+    config_dict, trial, seed, provider_spec, path, options = args
     from lagrseq.config import from_dict
 
-    return run_trial(from_dict(config_dict), trial, seed, provider_spec, Path(path))
+    return run_trial(
+        from_dict(config_dict), trial, seed, provider_spec, Path(path), provider_options=options
+    )
 
 
 def run_trials(
@@ -436,6 +631,7 @@ def run_trials(
     directory: Path,
     jobs: int = 1,
     progress: Any = None,
+    provider_options: ProviderOptions | None = None,
 ) -> list[TrialResult]:
     """Run trials 0..trials-1 into ``directory``; trials whose log is complete are skipped."""
     parse_provider(provider_spec)
@@ -459,6 +655,7 @@ def run_trials(
                     provider_spec,
                     trial_path(directory, trial),
                     on_episode=(lambda: progress.update(1)) if progress is not None else None,
+                    provider_options=provider_options,
                 )
             )
     else:
@@ -468,7 +665,14 @@ def run_trials(
             futures = [
                 pool.submit(
                     _run_trial_job,
-                    (config.to_dict(), trial, seed, provider_spec, str(trial_path(directory, trial))),
+                    (
+                        config.to_dict(),
+                        trial,
+                        seed,
+                        provider_spec,
+                        str(trial_path(directory, trial)),
+                        provider_options,
+                    ),
                 )
                 for trial in todo
             ]

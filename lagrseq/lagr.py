@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from lagrseq.config import LagrConfig, LLMConfig
-from lagrseq.llm.base import Answer, Provider, user_query
+from lagrseq.llm.base import Answer, Provider, Query, user_query
 from lagrseq.tasks.base import Parsed, Pattern, Task
 
 
@@ -28,6 +28,12 @@ class Consultation:
     accepted: bool
 
 
+def query_for(task: Task, llm: LLMConfig, pattern: Pattern) -> Query:
+    """The query LaGR sends for ``pattern`` (``lagrseq record`` builds the same, so recorded keys
+    match the queries of a run)."""
+    return user_query(task.name, task.prompt(pattern), llm.model, llm.temperature, llm.max_tokens)
+
+
 def consult(
     task: Task,
     provider: Provider,
@@ -40,8 +46,8 @@ def consult(
     An answer that cannot be parsed is a wrong answer (evaluation 0) whose reason is kept in
     ``parsed.error``; it never stops the run.
     """
-    prompt = task.prompt(pattern)
-    query = user_query(task.name, prompt, llm.model, llm.temperature, llm.max_tokens)
+    query = query_for(task, llm, pattern)
+    prompt = query.prompt
     answer = provider.complete(query)
     parsed = task.parse(answer.text)
     evaluation = task.evaluate(parsed.solution) if parsed.ok else 0.0

@@ -3,14 +3,19 @@
 A provider turns a :class:`Query` (the exact prompt and sampling settings) into an
 :class:`Answer` (text, usage, where it came from). Providers know nothing of RL or of tasks: the
 caller parses and evaluates the text.
+
+Providers that can return several samples of one query in one go (a live server honouring the
+API's ``n``, or a wrapper around one) also implement :class:`MultiSampleProvider`;
+:func:`sample` asks any provider for ``n`` answers, looping over ``complete`` when it has to.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal, Protocol
+from typing import Any, Literal, Protocol, runtime_checkable
 
 Source = Literal["live", "recorded", "mock"]
+RecordedAs = Literal["text", "array", "list"]
 
 
 @dataclass(frozen=True)
@@ -31,6 +36,10 @@ class Query:
     temperature: float = 0.0
     max_tokens: int = 256
     top_p: float = 1.0
+    stop: tuple[str, ...] | None = None
+    """Stop sequences sent to the server (None: the API default, no stop sequence)."""
+    seed: int | None = None
+    """The API's best-effort ``seed`` (None: not sent). Not the run seed."""
 
     @property
     def prompt(self) -> str:
@@ -44,6 +53,8 @@ class Usage:
 
     prompt_tokens: int = 0
     completion_tokens: int = 0
+    cached_tokens: int = 0
+    """Prompt tokens the server served from its prompt cache (billed at the cached rate)."""
 
     @property
     def total_tokens(self) -> int:
@@ -52,26 +63,78 @@ class Usage:
 
 @dataclass(frozen=True)
 class Answer:
-    """What came back."""
+    """What came back.
+
+    ``cost_usd`` is what this answer cost now: the priced usage of a live answer, 0 for a recorded
+    or mock one, None when the model has no price in the price table. ``model`` is the model the
+    server says it used (e.g. ``gpt-3.5-turbo-0125`` for ``gpt-3.5-turbo``).
+    """
 
     text: str
     source: Source
     model: str
     usage: Usage = field(default_factory=Usage)
-    finish_reason: str = "stop"
+    finish_reason: str | None = "stop"
     latency_s: float = 0.0
-    cost_usd: float = 0.0
+    cost_usd: float | None = 0.0
     system_fingerprint: str | None = None
+    response_id: str | None = None
+    """The server's id of the response the answer came in (live answers)."""
+    record_key: str | None = None
+    """The recorded store's key of the query (recorded answers, and live ones that were stored)."""
+    sample_index: int | None = None
+    """Which of the key's recorded samples this answer is (recorded answers)."""
+    recorded_as: RecordedAs | None = None
+    """How a recorded sample was stored: the raw answer ``text``, or an ``array`` or ``list`` that
+    an old cache held already parsed and that the importer wrote out as text."""
 
 
 class Provider(Protocol):
-    """Anything that answers queries."""
+    """Anything that answers queries. A context manager whose ``close`` is idempotent."""
 
     name: str
 
     def complete(self, query: Query) -> Answer: ...
 
     def close(self) -> None: ...
+
+    def __enter__(self) -> Any: ...
+
+    def __exit__(self, *exc: object) -> None: ...
+
+
+@runtime_checkable
+class MultiSampleProvider(Protocol):
+    """A provider that can return ``n`` samples of one query at once."""
+
+    name: str
+
+    @property
+    def max_samples_per_request(self) -> int:
+        """How many samples one underlying request yields (1: one request per sample)."""
+        ...
+
+    def complete(self, query: Query) -> Answer: ...
+
+    def complete_n(self, query: Query, n: int) -> list[Answer]: ...
+
+    def close(self) -> None: ...
+
+
+def samples_per_request(provider: Provider) -> int:
+    """How many samples ``provider`` gets from one underlying request."""
+    if isinstance(provider, MultiSampleProvider):
+        return max(1, int(provider.max_samples_per_request))
+    return 1
+
+
+def sample(provider: Provider, query: Query, n: int) -> list[Answer]:
+    """``n`` answers to ``query``: in one go where the provider can, else one call per answer."""
+    if n <= 0:
+        return []
+    if isinstance(provider, MultiSampleProvider):
+        return provider.complete_n(query, n)
+    return [provider.complete(query) for _ in range(n)]
 
 
 def user_query(task: str, prompt: str, model: str, temperature: float, max_tokens: int) -> Query:

@@ -68,6 +68,10 @@ QUERY = _object(
         "cost_usd": _nullable(_NUM),
         "latency_s": _nullable(_NUM),
         "source": _nullable({"enum": ["live", "recorded", "mock"]}),
+        "record_key": _nullable({"type": "string", "description": "recorded store key of the query"}),
+        "sample_index": _nullable({**_INT, "description": "which recorded sample of the key was served"}),
+        "finish_reason": _nullable({"type": "string", "description": "why the model stopped (stop, length, ...)"}),
+        "system_fingerprint": _nullable({"type": "string", "description": "the server's backend fingerprint"}),
     },
 )
 

@@ -18,6 +18,7 @@ Stack sizes:
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -116,6 +117,32 @@ class CubeStacking:
     def evaluate(self, solution: tuple[int, ...]) -> float:
         """E(s_LLM) / E(target) in [0, 1] (parsed solutions are never longer than the stack)."""
         return self.evaluation(tuple(solution)) / float(self.stack_size**2)
+
+    def coerce_pattern(self, value: object) -> tuple[int, ...]:
+        """A partial stack from outside data (an authors' cache key, an MCAP ``state``): a
+        sequence of distinct cube ids of this table, at most ``stack_size`` long. Raises
+        ``ValueError`` saying what is wrong otherwise."""
+        if isinstance(value, np.ndarray):
+            if value.ndim != 1:
+                raise ValueError(f"expected a 1-D list of cube ids, found an array of shape {value.shape}")
+            value = value.tolist()
+        if not isinstance(value, (list, tuple)):
+            raise ValueError(f"expected a list of cube ids, found {type(value).__name__}")
+        ids = []
+        for item in value:
+            if isinstance(item, bool) or not isinstance(item, (int, np.integer)):
+                raise ValueError(f"expected cube ids (integers), found {item!r}")
+            if not 0 <= int(item) < self.stack_size:
+                raise ValueError(f"cube id {item} is not one of the {self.stack_size} cubes (0..{self.stack_size - 1})")
+            ids.append(int(item))
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"a cube appears twice in {ids}")
+        return tuple(ids)
+
+    def prefixes(self) -> list[tuple[int, ...]]:
+        """Every non-empty prefix of the target: the states a cube query can come from when wrong
+        cubes are taken off again (what ``lagrseq record`` asks by default)."""
+        return [self.target[:n] for n in range(1, self.stack_size + 1)]
 
     def progress(self, pattern: tuple[int, ...]) -> int:
         """Stack height (in the released code the stack is always a correct prefix)."""
@@ -323,6 +350,119 @@ def extrapolate(prompt: str, temperature: float, rng: np.random.Generator) -> st
         weights = np.exp(-np.arange(len(orders)) / float(temperature))
         choice = int(rng.choice(len(orders), p=weights / weights.sum()))
     return "[" + ", ".join(f"'{letter}'" for letter in orders[choice][1]) + "]"
+
+
+# ------------------------------------------------------------------------------------------
+# Calibrated mock profiles (``--provider mock:PROFILE``). A profile simulates a model whose chance of
+# answering with the right completion depends on how much of the stack it was shown, measured on
+# real answers; the wrong answers it gives are the extrapolator's best hypothesis that is not the
+# target (for a 1-cube prefix that is GPT's actual answer, colour groups e,f,g,h,a,b,c,d). Unlike
+# the rule-based extrapolator, a profile knows the target: it stands for a model of known accuracy.
+# ------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class AccuracyProfile:
+    """P(right completion) by prefix length, per stack size it was measured on."""
+
+    name: str
+    description: str
+    calibration: str
+    """Where the numbers come from and how they were obtained."""
+    accuracy: tuple[tuple[int, tuple[float, ...]], ...]
+    """(stack size, P(correct) for prefix lengths 1..stack size) pairs."""
+
+    def probability(self, shown: int, stack_size: int) -> float:
+        """P(correct) after seeing ``shown`` of ``stack_size`` cubes. Stack sizes without data use
+        the table measured on the nearest size, at the nearest fraction of the stack shown."""
+        tables = dict(self.accuracy)
+        if stack_size in tables:
+            table = tables[stack_size]
+            return table[min(max(shown, 1), len(table)) - 1]
+        size = min(tables, key=lambda n: (abs(n - stack_size), n))
+        table = tables[size]
+        index = int(np.floor(shown / stack_size * size + 0.5))
+        return table[min(max(index, 1), size) - 1]
+
+
+def calibrate_accuracy(pairs: list[tuple[object, object]], task: CubeStacking) -> tuple[float, ...]:
+    """Fraction of answers equal to the target, per prefix length 1..N, over the pairs whose key
+    is that prefix of ``task``'s target (an authors' cache read as (key, answer) pairs; answers
+    that are lists, like the caches' seed pair, are read as their text)."""
+    right = np.zeros(task.stack_size)
+    total = np.zeros(task.stack_size)
+    for key, answer in pairs:
+        if not isinstance(key, (list, tuple)) or not key or tuple(key) != task.target[: len(key)]:
+            continue
+        text = answer if isinstance(answer, str) else repr(list(answer)) if isinstance(answer, (list, tuple)) else ""
+        parsed = task.parse(text)
+        total[len(key) - 1] += 1
+        right[len(key) - 1] += bool(parsed.ok and task.is_complete(tuple(parsed.solution or ())))
+    if not total.all():
+        missing = [i + 1 for i in range(task.stack_size) if not total[i]]
+        raise ValueError(f"no answers for prefix lengths {missing}")
+    return tuple(float(x) for x in np.round(right / total, 2))
+
+
+AUTHORS_T0 = AccuracyProfile(
+    name="authors-t0",
+    description="GPT (3.5, per SPEC 5) at temperature 0 as in the authors' cube caches: wrong on short "
+    "prefixes, right on middle ones, wrong on the full sequence (8 cubes)",
+    calibration="calibrate_accuracy over cube_stacking_cache0.0.pkl (8 cubes, 81 answers) and "
+    "cube_stacking_cache0.pkl (11 cubes, 111 answers); 5 cubes use the 8-cube table by fraction shown",
+    accuracy=(
+        (8, (0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 0.0, 0.0)),
+        (11, (0.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.3, 1.0, 1.0, 1.0, 1.0)),
+    ),
+)
+ORACLE = AccuracyProfile(
+    name="oracle",
+    description="always the right completion (an upper bound)",
+    calibration="none: P(correct) = 1 by definition",
+    accuracy=((8, (1.0,) * 8),),
+)
+PROFILES: dict[str, AccuracyProfile | None] = {
+    "ideal": None,  # the rule-based extrapolator itself (the same as plain ``mock``)
+    "oracle": ORACLE,
+    "authors-t0": AUTHORS_T0,
+}
+PROFILE_HELP = {
+    "ideal": "the rule-based extrapolator (target-blind; the same as plain mock)",
+    "oracle": ORACLE.description,
+    "authors-t0": AUTHORS_T0.description,
+}
+
+
+def partial_stack(prompt: str) -> list[str]:
+    """The letters of the partial stack a cube prompt shows."""
+    match = _PARTIAL.search(prompt)
+    if match is None:
+        raise ValueError("prompt does not look like a cube-stacking prompt")
+    return re.findall(r"'(\w)'", match.group(1))
+
+
+def profile_extrapolator(task: CubeStacking, profile: str) -> Callable[[str, float, np.random.Generator], str]:
+    """The mock handler of ``--provider mock:PROFILE`` for ``task`` (a key of :data:`PROFILES`)."""
+    if profile not in PROFILES:
+        raise ValueError(f"unknown mock profile {profile!r}; expected one of {', '.join(PROFILES)}")
+    chosen = PROFILES[profile]
+    if chosen is None:
+        return extrapolate
+    target = [LETTERS[i] for i in task.target]
+
+    def answer(prompt: str, temperature: float, rng: np.random.Generator) -> str:
+        shown = partial_stack(prompt)
+        p = chosen.probability(len(shown), task.stack_size)
+        right = p >= 1.0 or (p > 0.0 and rng.random() < p)
+        if right:
+            order = target
+        else:
+            wrong = [o for _, o in consistent_orders(prompt) if o != target]
+            if not wrong:  # only the target continues the prompt: rewrite the order from scratch
+                cubes = [Cube(c.letter, c.colour, c.edge_cm) for c in task.cubes]
+                wrong = [o for _, o in _rank_orders(cubes, []) if o != target]
+            order = wrong[0]
+        return "[" + ", ".join(f"'{letter}'" for letter in order) + "]"
+
+    return answer
 
 
 UPSTREAM_SHARED_ROW = "upstream-shared-row"

@@ -1,0 +1,208 @@
+"""Import the LLM caches the paper's authors published (``../shared/data/authors_caches/``).
+
+Their format: a pickle of one flat list ``[key0, answer0, key1, answer1, ...]``. Keys are lists of
+ints (cube ids) or numpy arrays (grids); answers are raw strings (cubes) or numpy arrays parsed
+from the model's text (grids), and one cube cache starts with a list answer (``['e']``).
+
+Pickles can run code, so they are read with :class:`RestrictedUnpickler`, which allows exactly
+numpy's array reconstruction (``numpy.core.multiarray._reconstruct`` or its ``numpy._core``
+spelling, ``numpy.ndarray``, ``numpy.dtype``) and refuses every other global before anything is
+called.
+
+The caches do not say which prompt produced an answer, only the partial pattern. The importer is
+therefore handed ``prompt_for(key) -> str`` (the task's own prompt rendering, wired in by the
+command line), so imported answers are keyed exactly like the queries a run sends. ``prompt_for``
+raises ``ValueError`` for a key that does not fit the task (wrong shape, unknown cube); such
+entries are skipped with a warning, as are answers of an unknown type or of another shape than
+their key. Answers are stored as samples: the raw text where the cache has text; an array or list
+written out as text and marked ``recorded_as="array"`` / ``"list"``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import pickle
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lagrseq.errors import StoreError
+from lagrseq.llm.base import Message, Query, RecordedAs
+from lagrseq.llm.store import RecordStore, Sample, query_key
+
+ALLOWED_GLOBALS = frozenset(
+    {
+        ("numpy.core.multiarray", "_reconstruct"),
+        ("numpy._core.multiarray", "_reconstruct"),
+        ("numpy", "ndarray"),
+        ("numpy", "dtype"),
+    }
+)
+
+
+def _reconstruct() -> Any:
+    import importlib
+
+    try:
+        module = importlib.import_module("numpy._core.multiarray")  # NumPy >= 2
+    except ImportError:  # pragma: no cover - NumPy 1.x
+        module = importlib.import_module("numpy.core.multiarray")
+    return module._reconstruct
+
+
+class RestrictedUnpickler(pickle.Unpickler):
+    """An unpickler that can rebuild numpy arrays and plain Python data, and nothing else."""
+
+    def __init__(self, file: io.BufferedIOBase | io.BytesIO, name: str = "pickle") -> None:
+        super().__init__(file)
+        self.name = name
+
+    def find_class(self, module: str, name: str) -> Any:
+        if (module, name) not in ALLOWED_GLOBALS:
+            raise StoreError(
+                f"{self.name}: refusing to load {module}.{name}; an authors' cache may reference only "
+                "numpy's array reconstruction, and this pickle could run code. Nothing was executed"
+            )
+        if name == "_reconstruct":
+            return _reconstruct()
+        return np.ndarray if name == "ndarray" else np.dtype
+
+    def persistent_load(self, pid: Any) -> Any:
+        raise StoreError(f"{self.name}: refusing a persistent id in the pickle; nothing was executed")
+
+
+def read_pairs(path: str | Path) -> list[tuple[Any, Any]]:
+    """The (key, answer) pairs of an authors' cache file, read with the restricted unpickler."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise StoreError(f"cannot read {path}: {exc.strerror or exc}") from None
+    try:
+        loaded = RestrictedUnpickler(io.BytesIO(data), path.name).load()
+    except StoreError:
+        raise
+    except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError, IndexError, MemoryError) as exc:
+        raise StoreError(f"{path}: not a readable pickle ({type(exc).__name__}: {exc})") from None
+    if not isinstance(loaded, list) or len(loaded) % 2:
+        shape = f"a list of {len(loaded)} items" if isinstance(loaded, list) else type(loaded).__name__
+        raise StoreError(f"{path}: expected a flat list alternating key, answer; found {shape}")
+    return [(loaded[i], loaded[i + 1]) for i in range(0, len(loaded), 2)]
+
+
+def describe(value: Any) -> str:
+    """A short description of a cache item, for warnings."""
+    if isinstance(value, np.ndarray):
+        return f"{value.dtype} array of shape {value.shape}"
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def array_text(array: np.ndarray) -> str:
+    """An array answer written as text: JSON rows (integers when every value is whole)."""
+    if array.size and np.all(np.isfinite(array)) and np.all(np.equal(np.mod(array, 1), 0)):
+        return json.dumps(array.astype(int).tolist())
+    return json.dumps(array.tolist())
+
+
+def answer_text(answer: Any) -> tuple[str, RecordedAs] | None:
+    """The text to store for a cached answer and how it was recorded; None for an unknown type."""
+    if isinstance(answer, str):
+        return answer, "text"
+    if isinstance(answer, np.ndarray):
+        return array_text(answer), "array"
+    if isinstance(answer, (list, tuple)) and all(isinstance(x, (str, int)) and not isinstance(x, bool) for x in answer):
+        return repr(list(answer)), "list"
+    return None
+
+
+@dataclass(frozen=True)
+class ImportReport:
+    """What an import did."""
+
+    pairs: int
+    imported: int
+    """Samples added to the store."""
+    already_present: int
+    """Samples the store already held (a repeated import adds nothing)."""
+    skipped: int
+    keys: int
+    """Distinct keys the imported samples fall under."""
+
+
+def import_authors_cache(
+    path: str | Path,
+    store: RecordStore,
+    prompt_for: Callable[[Any], str],
+    *,
+    task: str,
+    model: str,
+    temperature: float,
+    endpoint: str,
+    max_tokens: int,
+    top_p: float = 1.0,
+    warn: Callable[[str], None] | None = None,
+) -> ImportReport:
+    """Import every usable pair of an authors' cache into ``store`` (module docstring)."""
+    path = Path(path)
+    pairs = read_pairs(path)
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    groups: dict[str, tuple[dict[str, Any], list[Sample]]] = {}
+    skipped = 0
+
+    def skip(index: int, why: str) -> None:
+        nonlocal skipped
+        skipped += 1
+        if warn is not None:
+            warn(f"{path.name}: skipping pair {index}: {why}")
+
+    for index, (key, answer) in enumerate(pairs):
+        try:
+            prompt = prompt_for(key)
+        except ValueError as exc:
+            skip(index, f"key {describe(key)} does not fit task {task}: {exc}")
+            continue
+        if isinstance(answer, np.ndarray) and isinstance(key, np.ndarray) and answer.shape != key.shape:
+            skip(index, f"answer shape {answer.shape} differs from key shape {key.shape}")
+            continue
+        written = answer_text(answer)
+        if written is None:
+            skip(index, f"answer {describe(answer)} is neither text nor an array")
+            continue
+        text, recorded_as = written
+        query = Query(
+            task=task,
+            model=model,
+            messages=(Message("user", prompt),),
+            temperature=temperature,
+            max_tokens=max_tokens,
+            top_p=top_p,
+        )
+        record_key, request = query_key(query, endpoint)
+        sample = Sample(
+            id=hashlib.sha256(f"authors-cache|{digest}|{index}".encode()).hexdigest()[:24],
+            text=text,
+            origin="authors-cache",
+            model=model,
+            recorded_as=recorded_as,
+            provenance=f"{path.name} pair {index} (sha256 {digest[:12]})",
+        )
+        groups.setdefault(record_key, (request, []))[1].append(sample)
+    imported = 0
+    for record_key, (request, samples) in groups.items():
+        before = store.entry(record_key)
+        count_before = len(before.samples) if before else 0
+        imported += store.add(record_key, request, task, samples) - count_before
+    usable = len(pairs) - skipped
+    return ImportReport(
+        pairs=len(pairs),
+        imported=imported,
+        already_present=usable - imported,
+        skipped=skipped,
+        keys=len(groups),
+    )

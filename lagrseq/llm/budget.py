@@ -1,0 +1,97 @@
+"""Budget guards: stop *before* a call that could take spending past a limit.
+
+:class:`BudgetedProvider` wraps the provider that costs money (the live one) and checks every
+request against a :class:`Budget` before sending it. The check is conservative: it assumes every
+completion uses ``max_tokens`` and bounds the prompt by one token per byte
+(:func:`~lagrseq.llm.pricing.prompt_token_bound`), so the limit is never passed; it may stop one
+request early. ``--max-queries`` counts answers (samples), not HTTP requests.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from lagrseq.errors import BudgetExceeded
+from lagrseq.llm.base import Answer, Provider, Query, sample, samples_per_request
+from lagrseq.llm.pricing import PriceTable
+
+
+@dataclass
+class Budget:
+    """Limits and what has been spent against them (mutable: one budget per recording or trial)."""
+
+    max_cost_usd: float | None = None
+    """Stop before a request that could take the spending past this many US dollars."""
+    max_queries: int | None = None
+    """Stop before a request that would take the number of answers past this."""
+    spent_usd: float = 0.0
+    """Priced cost of the answers received so far."""
+    answers: int = 0
+    """Answers received so far."""
+    unpriced: int = 0
+    """Answers whose model has no price (their cost is not in ``spent_usd``)."""
+
+    def check(self, query: Query, n: int, worst_cost: float | None) -> None:
+        """Raise :class:`BudgetExceeded` if asking ``n`` more answers could pass a limit."""
+        if self.max_queries is not None and self.answers + n > self.max_queries:
+            raise BudgetExceeded(
+                f"--max-queries {self.max_queries} reached: {self.answers} answers so far and the next "
+                f"request asks for {n} more (not sent); raise the limit to go on"
+            )
+        if self.max_cost_usd is None:
+            return
+        if worst_cost is None:
+            raise BudgetExceeded(
+                f"model {query.model!r} has no price in the price table, so --max-cost-usd cannot be "
+                "enforced (nothing sent); add its price with --price-table FILE"
+            )
+        if self.spent_usd + worst_cost > self.max_cost_usd:
+            raise BudgetExceeded(
+                f"--max-cost-usd {self.max_cost_usd:g} reached: ${self.spent_usd:.4f} spent and the next "
+                f"request could cost up to ${worst_cost:.4f} (not sent); raise the limit to go on"
+            )
+
+    def charge(self, answers: list[Answer]) -> None:
+        for answer in answers:
+            self.answers += 1
+            if answer.cost_usd is None:
+                self.unpriced += 1
+            else:
+                self.spent_usd += answer.cost_usd
+
+
+class BudgetedProvider:
+    """``inner`` behind a budget check (a wrapper: the inner provider knows nothing of it)."""
+
+    def __init__(self, inner: Provider, budget: Budget, prices: PriceTable) -> None:
+        self.inner = inner
+        self.budget = budget
+        self.prices = prices
+        self.name = inner.name
+
+    @property
+    def max_samples_per_request(self) -> int:
+        return samples_per_request(self.inner)
+
+    def complete(self, query: Query) -> Answer:
+        return self.complete_n(query, 1)[0]
+
+    def complete_n(self, query: Query, n: int) -> list[Answer]:
+        requests = math.ceil(n / self.max_samples_per_request)
+        self.budget.check(query, n, self.prices.worst_case(query, n, requests))
+        answers = sample(self.inner, query, n)
+        self.budget.charge(answers)
+        return answers
+
+    def close(self) -> None:
+        self.inner.close()
+
+    def __enter__(self) -> BudgetedProvider:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"BudgetedProvider({self.inner!r}, {self.budget!r})"

@@ -1,0 +1,211 @@
+"""Providers over a recorded store: replay (:class:`RecordedProvider`) and record
+(:class:`RecordingProvider`, a wrapper around the provider that answers misses).
+
+Replaying: a query's key (:func:`~lagrseq.llm.store.query_key`) selects the recorded samples and
+:class:`~lagrseq.llm.store.SampleChooser` picks one from (run seed, key, occurrence). An entry is
+read once per provider and then kept, so a trial sees one fixed set of samples per key even while
+another process appends to the store. A miss goes to the ``fallback`` provider (its answer is not
+stored) or raises :class:`~lagrseq.errors.RecordMiss` naming the nearest recorded keys.
+
+Recording, with vcrpy's record modes:
+
+========  ===========================================================================
+``once``  record only into a store that was empty when opened; otherwise a miss is an error
+``new``   replay what is recorded; top every key asked up to ``samples`` answers (default)
+``none``  replay only; a miss is an error (the strict mode of a recorded run)
+``all``   always ask the inner provider for ``samples`` fresh answers and append them
+========  ===========================================================================
+
+Answers are written to the store as soon as each request returns, one transaction per request,
+so an interrupted recording loses nothing already answered.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import Literal
+
+from lagrseq.errors import RecordMiss
+from lagrseq.llm.base import Answer, Provider, Query, sample, samples_per_request
+from lagrseq.llm.servers import RECORD_MODES
+from lagrseq.llm.store import (
+    Entry,
+    RecordStore,
+    Sample,
+    SampleChooser,
+    miss_message,
+    query_key,
+    sample_from_answer,
+)
+
+RecordMode = Literal["once", "new", "none", "all"]
+
+
+class RecordedProvider:
+    """Answer from ``store``; misses go to ``fallback`` or raise :class:`RecordMiss`."""
+
+    name = "recorded"
+
+    def __init__(
+        self,
+        store: RecordStore,
+        endpoint: str,
+        run_seed: int,
+        fallback: Provider | None = None,
+    ) -> None:
+        self.store = store
+        self.endpoint = endpoint
+        self.chooser = SampleChooser(run_seed)
+        self.fallback = fallback
+        self._entries: dict[str, Entry | None] = {}
+
+    def complete(self, query: Query) -> Answer:
+        key, request = query_key(query, self.endpoint)
+        if key not in self._entries:
+            self._entries[key] = self.store.entry(key)
+        entry = self._entries[key]
+        if entry is not None and entry.samples:
+            index = self.chooser.choose(key, len(entry.samples))
+            return entry.samples[index].answer(key, index)
+        if self.fallback is not None:
+            return self.fallback.complete(query)
+        raise RecordMiss(miss_message(self.store, key, request, query.task))
+
+    def close(self) -> None:
+        if self.fallback is not None:
+            self.fallback.close()
+        self.store.close()
+
+    def __enter__(self) -> RecordedProvider:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"RecordedProvider({self.store!r}, endpoint={self.endpoint!r})"
+
+
+class RecordingProvider:
+    """Replay from ``store`` and send what is missing to ``inner``, storing its answers."""
+
+    def __init__(
+        self,
+        store: RecordStore,
+        inner: Provider,
+        endpoint: str,
+        mode: RecordMode = "new",
+        samples: int = 1,
+        run_seed: int = 0,
+    ) -> None:
+        if mode not in RECORD_MODES:
+            raise ValueError(f"record mode {mode!r}; expected one of {', '.join(RECORD_MODES)}")
+        if samples < 1:
+            raise ValueError(f"samples must be at least 1, got {samples}")
+        self.store = store
+        self.inner = inner
+        self.endpoint = endpoint
+        self.mode = mode
+        self.samples = samples
+        self.chooser = SampleChooser(run_seed)
+        self.name = f"recorded+{inner.name}"
+        self._may_record = mode in ("new", "all") or (mode == "once" and len(store) == 0)
+
+    def wanted(self, entry: Entry | None) -> int:
+        """How many new answers this mode asks for, given what the key holds."""
+        if not self._may_record:
+            return 0
+        if self.mode == "all":
+            return self.samples
+        return max(self.samples - (len(entry.samples) if entry else 0), 0)
+
+    def top_up(self, query: Query, on_answers: Callable[[list[Answer]], None] | None = None) -> list[Answer]:
+        """Ask ``inner`` for the answers the mode wants for this query and store them, one request's
+        worth at a time; return them (with their record key set)."""
+        return [answer for _, answer in self._top_up(query, on_answers)]
+
+    def _top_up(
+        self, query: Query, on_answers: Callable[[list[Answer]], None] | None = None
+    ) -> list[tuple[Sample, Answer]]:
+        key, request = query_key(query, self.endpoint)
+        need = self.wanted(self.store.entry(key))
+        per_request = samples_per_request(self.inner)
+        fetched: list[tuple[Sample, Answer]] = []
+        while need > 0:
+            batch = sample(self.inner, query, min(need, per_request))
+            stored = [sample_from_answer(a, key) for a in batch]
+            self.store.add(key, request, query.task, stored)
+            fetched.extend((s, replace(a, record_key=key)) for s, a in zip(stored, batch, strict=True))
+            need -= len(batch)
+            if on_answers is not None:
+                on_answers(batch)
+        return fetched
+
+    def complete(self, query: Query) -> Answer:
+        fresh = dict((s.id, a) for s, a in self._top_up(query))
+        key, request = query_key(query, self.endpoint)
+        if self.mode == "all" and fresh:
+            return next(iter(fresh.values()))  # vcrpy's "all": the answer of a real request, every time
+        entry = self.store.entry(key)
+        if entry is None or not entry.samples:
+            raise RecordMiss(miss_message(self.store, key, request, query.task) + self._why_not())
+        # Choose among everything recorded (not just what was fetched now), so that a rerun, which
+        # finds all of it recorded, receives the same answer.
+        index = self.chooser.choose(key, len(entry.samples))
+        chosen = entry.samples[index]
+        answer = chosen.answer(key, index)
+        paid = fresh.get(chosen.id)
+        if paid is not None:  # this very answer was bought just now
+            answer = replace(answer, source=paid.source, cost_usd=paid.cost_usd, latency_s=paid.latency_s)
+        return answer
+
+    def _why_not(self) -> str:
+        if self.mode == "once" and not self._may_record:
+            return " (record mode once: the store was not empty, so nothing new is recorded; use mode new)"
+        return ""
+
+    def close(self) -> None:
+        self.inner.close()
+        self.store.close()
+
+    def __enter__(self) -> RecordingProvider:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"RecordingProvider({self.store!r}, {self.inner!r}, mode={self.mode!r}, samples={self.samples})"
+
+
+@dataclass(frozen=True)
+class RecordReport:
+    """What a recording session did."""
+
+    queries: int
+    """Queries (keys) visited."""
+    complete: int
+    """Of them, keys that hold at least the wanted number of samples afterwards."""
+    answers: int
+    """New answers recorded."""
+
+
+def record_queries(
+    recorder: RecordingProvider,
+    queries: list[Query],
+    on_answers: Callable[[list[Answer]], None] | None = None,
+    on_query: Callable[[Query], None] | None = None,
+) -> RecordReport:
+    """Top every query up to the recorder's sample count, in order. A budget stop or an
+    interruption propagates; everything answered before it is already in the store."""
+    answers = 0
+    done = 0
+    for query in queries:
+        answers += len(recorder.top_up(query, on_answers))
+        key, _ = query_key(query, recorder.endpoint)
+        entry = recorder.store.entry(key)
+        done += int(entry is not None and len(entry.samples) >= recorder.samples)
+        if on_query is not None:
+            on_query(query)
+    return RecordReport(queries=len(queries), complete=done, answers=answers)
