@@ -285,6 +285,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise UsageError(f"--on-miss {args.on_miss} applies to --provider recorded:STORE only")
     config = cfg.load(args.task, args.method, args.preset, args.config, args.overrides)
     config = experiment.with_provider_model(config, args.provider)
+    experiment.check_provider(args.provider, config, options)
     directory = experiment.run_directory(args.out, config, args.provider, args.seed, args.name)
     total = args.trials * config.run.episodes
     with tqdm(

@@ -470,6 +470,12 @@ def make_provider(
     return RecordedProvider(store, endpoint, run_seed, fallback)
 
 
+def check_provider(spec: str, config: ExperimentConfig, options: ProviderOptions | None = None) -> None:
+    """Build the provider once and close it, so that a missing API key or store fails before any
+    trial starts (nothing is sent)."""
+    make_provider(spec, config, np.random.default_rng(0), options).close()
+
+
 def make_live(
     options: ProviderOptions,
     rng: np.random.Generator,
