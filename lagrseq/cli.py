@@ -72,6 +72,21 @@ def _add_config(sub: Any) -> None:
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.FIELD=VALUE")
 
 
+def _add_recover(sub: Any) -> None:
+    p = sub.add_parser(
+        "recover",
+        help="repair a crash-truncated MCAP log, keeping every flushed episode",
+        description=(
+            "Rewrite the readable part of a log cut short by a crash (NAME.mcap.partial) as a valid "
+            "MCAP file NAME.mcap holding every episode flushed before the crash, marked with status "
+            "'recovered'. A NAME.mcap is repaired in place and its original kept as "
+            "NAME.mcap.truncated. A file damaged in the middle (not cut short) is refused."
+        ),
+    )
+    p.add_argument("files", nargs="+", type=Path, metavar="FILE", help="truncated .mcap or .mcap.partial files")
+    p.add_argument("--out", type=Path, default=None, metavar="PATH", help="where to write the recovered log (one FILE only)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="lagrseq",
@@ -84,6 +99,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     _add_run(sub)
     _add_config(sub)
+    _add_recover(sub)
     return parser
 
 
@@ -159,7 +175,17 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"run": cmd_run, "config": cmd_config}
+def cmd_recover(args: argparse.Namespace) -> int:
+    from lagrseq.logs.recover import recover
+
+    if args.out is not None and len(args.files) > 1:
+        raise UsageError("--out works with one FILE only")
+    for path in args.files:
+        print(recover(path, args.out).summary())
+    return 0
+
+
+COMMANDS = {"run": cmd_run, "config": cmd_config, "recover": cmd_recover}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
