@@ -127,23 +127,47 @@ class ReadStats:
         self.messages += other.messages
 
 
-def read_topics(
-    path: str | Path, topics: Sequence[str], stats: ReadStats | None = None
-) -> dict[str, list[dict[str, Any]]]:
-    """Every record of the given topics, per topic, in file order (which is log-time order for
-    lagrseq logs). Uses the chunk index: a chunk that holds none of ``topics`` is never read from
-    disk nor decompressed, and ``stats`` (if given) counts what was. Chunk CRCs are checked."""
+@dataclass(frozen=True)
+class LogData:
+    """One log read in a single pass over its summary: metadata, per-topic message counts (from
+    the statistics) and the records of the topics asked for."""
+
+    info: LogInfo
+    counts: dict[str, int]
+    topics: dict[str, list[dict[str, Any]]]
+
+
+def _no_summary(path: Path) -> LogError:
+    return LogError(
+        f"{path}: MCAP file has no summary section (unfinished or cut short); "
+        f"run `lagrseq recover {path}`"
+    )
+
+
+def read_log(
+    path: str | Path, topics: Sequence[str] = (), stats: ReadStats | None = None
+) -> LogData:
+    """Metadata, message counts and every record of ``topics``, per topic, in file order (which
+    is log-time order for lagrseq logs).
+
+    Uses the chunk index: a chunk that holds none of ``topics`` is never read from disk nor
+    decompressed, and ``stats`` (if given) counts what was. Chunk CRCs are checked.
+    """
     path = Path(path)
     out: dict[str, list[dict[str, Any]]] = {topic: [] for topic in topics}
     local = ReadStats(files=1)
     try:
         with path.open("rb") as handle:
-            summary = make_reader(handle).get_summary()
+            reader = make_reader(handle)
+            summary = reader.get_summary()
             if summary is None:
-                raise LogError(
-                    f"{path}: MCAP file has no summary section (unfinished or cut short); "
-                    f"run `lagrseq recover {path}`"
-                )
+                raise _no_summary(path)
+            records = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+            statistics = summary.statistics
+            counts = {
+                ch.topic: int(statistics.channel_message_counts.get(cid, 0)) if statistics else 0
+                for cid, ch in summary.channels.items()
+            }
             wanted = {cid: ch.topic for cid, ch in summary.channels.items() if ch.topic in out}
             chunks = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
             local.chunks = len(chunks)
@@ -162,23 +186,24 @@ def read_topics(
         raise
     except _READ_ERRORS as exc:
         raise _broken(path, exc) from None
+    if RUN_METADATA not in records:
+        raise LogError(f"{path}: MCAP file has no {RUN_METADATA!r} metadata; not a lagrseq log")
     if stats is not None:
         stats.add(local)
-    return out
+    info = LogInfo(path, records[RUN_METADATA], records.get(STATUS_METADATA, {}))
+    return LogData(info, counts, out)
+
+
+def read_topics(
+    path: str | Path, topics: Sequence[str], stats: ReadStats | None = None
+) -> dict[str, list[dict[str, Any]]]:
+    """Every record of the given topics, per topic (see :func:`read_log`)."""
+    return read_log(path, topics, stats).topics
 
 
 def message_counts(path: str | Path) -> dict[str, int]:
     """Messages per topic, from the summary's statistics (nothing is decompressed)."""
-    path = Path(path)
-    try:
-        with path.open("rb") as handle:
-            summary = make_reader(handle).get_summary()
-    except _READ_ERRORS as exc:
-        raise _broken(path, exc) from None
-    if summary is None or summary.statistics is None:
-        raise LogError(f"{path}: MCAP file has no statistics; run `lagrseq recover {path}`")
-    counts = summary.statistics.channel_message_counts
-    return {ch.topic: int(counts.get(cid, 0)) for cid, ch in summary.channels.items()}
+    return read_log(path).counts
 
 
 def read_topic(path: str | Path, topic: str) -> list[dict[str, Any]]:
