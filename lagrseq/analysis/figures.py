@@ -18,7 +18,7 @@ from matplotlib.figure import Figure
 
 from lagrseq.analysis.stats import CurveStats, Summary
 
-FIGSIZE = (6.4, 4.0)
+FIGSIZE = (6.4, 4.4)
 # The matplotlib default cycle, fixed here so a figure does not depend on the user's rcParams.
 COLORS = (
     "#1f77b4",
@@ -91,7 +91,7 @@ def returns(
                 s.stats.mean + spread,
                 where=finite,
                 color=color,
-                alpha=0.2,
+                alpha=0.18,
                 linewidth=0,
             )
     ax.set_xlabel(xlabel)
@@ -100,8 +100,20 @@ def returns(
         ax.set_title(title)
     ax.set_xlim(left=0)
     band_text = "±1 std" if band == "std" else "±1 s.e."
-    ax.legend(loc="lower right", title=f"mean {band_text} over trials", title_fontsize=8)
+    _legend_below(ax, len(series), title=f"mean, shaded {band_text} over trials")
     return ax
+
+
+def _legend_below(ax: Axes, entries: int, title: str | None = None) -> None:
+    """A legend under the axes, so that it never hides a curve."""
+    ax.legend(
+        loc="upper center",
+        bbox_to_anchor=(0.5, -0.16),
+        ncols=entries if entries <= 3 else -(-entries // 2),
+        frameon=False,
+        title=title,
+        title_fontsize=8,
+    )
 
 
 @dataclass(frozen=True)
@@ -186,5 +198,5 @@ def accuracy(
     ax.set_xlim(0, 1.05)
     if title:
         ax.set_title(title)
-    ax.legend(loc="best")
+    _legend_below(ax, len(lines))
     return ax
