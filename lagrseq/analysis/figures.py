@@ -128,7 +128,7 @@ def bars(
     items: Sequence[Bar],
     ax: Axes | None = None,
     *,
-    ylabel: str = "LLM queries per trial",
+    ylabel: str = "LLM queries per trial (mean ± s.e.)",
     title: str | None = None,
 ) -> Axes:
     """Bars of the mean with standard-error error bars (Fig. 6), each labelled mean ± s.e."""

@@ -138,8 +138,8 @@ class _Trial:
     config: dict[str, Any]
     display: str
     trial: int
-    episodes: list[dict[str, Any]]
-    queries: list[dict[str, Any]]
+    episodes: pd.DataFrame
+    queries: pd.DataFrame
     counts: dict[str, int]
     samples: int
 
@@ -200,8 +200,9 @@ def _read_trial(path: Path, root: Path, stats: ReadStats) -> _Trial:
         config=json.loads(text),
         display=display,
         trial=int(run.get("trial", 0)),
-        episodes=topics["/episode"],
-        queries=topics["/query"],
+        # Frames right away: a file's records as dicts are big, its columns are small.
+        episodes=_frame(topics["/episode"], EPISODE_COLUMNS),
+        queries=_frame(topics["/query"], QUERY_COLUMNS),
         counts=counts,
         samples=samples,
     )
@@ -209,6 +210,13 @@ def _read_trial(path: Path, root: Path, stats: ReadStats) -> _Trial:
 
 def _frame(records: list[dict[str, Any]], columns: Sequence[str]) -> pd.DataFrame:
     return pd.DataFrame.from_records(records, columns=list(columns))
+
+
+def _concat(frames: list[pd.DataFrame], columns: Sequence[str]) -> pd.DataFrame:
+    frames = [f for f in frames if not f.empty]
+    if not frames:
+        return pd.DataFrame(columns=list(columns))
+    return pd.concat(frames, ignore_index=True)
 
 
 def load(roots: Sequence[str | Path]) -> Logs:
@@ -245,8 +253,8 @@ def load(roots: Sequence[str | Path]) -> Logs:
                 continue
             trials[trial.trial] = trial
         ordered = [trials[t] for t in sorted(trials)]
-        episodes = _frame([r for t in ordered for r in t.episodes], EPISODE_COLUMNS)
-        queries = _frame([r for t in ordered for r in t.queries], QUERY_COLUMNS)
+        episodes = _concat([t.episodes for t in ordered], EPISODE_COLUMNS)
+        queries = _concat([t.queries for t in ordered], QUERY_COLUMNS)
         runs.append(
             Run(
                 key=key,

@@ -231,6 +231,7 @@ th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: left; }
 th { background: #f4f4f4; }
 .caption { color: #555; font-style: italic; } .how { color: #333; font-size: 0.92em; }
 .missing, .warn { color: #a33; } .links { font-size: 0.85em; }
+ul.how { font-size: 0.85em; color: #444; margin-top: 0; }
 .status { font-size: 0.8em; padding: 0.1em 0.5em; border-radius: 0.6em; background: #eee; }
 """
 
@@ -245,10 +246,10 @@ def _summary_line(logs: loading.Logs) -> str:
     )
 
 
-def _how(report: ItemReport, produced_by: str) -> list[str]:
-    lines = [f"Made by `{produced_by}` from the MCAP logs alone. {report.method}"]
-    lines += [f"Runs — {items.run_line(m)}" for m in report.matched if m.run is not None]
-    return lines
+def _how(report: ItemReport, produced_by: str) -> tuple[str, list[str]]:
+    """How the item was made, and one line per run it was made from."""
+    how = f"Made by `{produced_by}` from the MCAP logs alone. {report.method}"
+    return how, [items.run_line(m) for m in report.matched if m.run is not None]
 
 
 def _index_html(
@@ -300,8 +301,11 @@ def _index_html(
             )
         for table, md, csv in r.tables:
             parts.append(to_html(table, [("Markdown", md), ("CSV", csv)]))
-        for line in _how(r, produced_by):
-            parts.append(f'<p class="how">{e(line)}</p>')
+        how, run_lines = _how(r, produced_by)
+        parts.append(f'<p class="how">{e(how)} Runs:</p>')
+        parts.append(
+            '<ul class="how">' + "".join(f"<li>{e(line)}</li>" for line in run_lines) + "</ul>"
+        )
         if r.item.note:
             parts.append(f'<p class="how">Note: {e(r.item.note)}</p>')
         for line in r.missing():
@@ -345,7 +349,8 @@ def _index_markdown(
             lines += [f"![{r.item.title}]({r.figure})", ""]
         for table, _md, _csv in r.tables:
             lines += [to_markdown(table)]
-        lines += [*(f"{line}  " for line in _how(r, produced_by)), ""]
+        how, run_lines = _how(r, produced_by)
+        lines += [f"{how} Runs:", "", *(f"- {line}" for line in run_lines), ""]
         if r.item.note:
             lines += [f"Note: {r.item.note}", ""]
         lines += [f"Missing — {line}  " for line in r.missing()]
