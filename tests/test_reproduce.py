@@ -285,3 +285,47 @@ def test_committed_reports_match_fresh_runs(tmp_path: Path) -> None:
     assert len(fresh_curves) == len(committed_curves) == 200
     for a, b in zip(fresh_curves, committed_curves, strict=True):
         _same_numbers(a, b)
+
+
+# ------------------------------------------------------------------------------------------
+# Planning the packaged suite (nothing is run)
+# ------------------------------------------------------------------------------------------
+def test_the_packaged_suite_plans_each_configuration_once(tmp_path: Path) -> None:
+    from lagrseq import reproduce
+    from lagrseq.suite import load_suite
+
+    suite = load_suite()
+    plan = reproduce.plan(suite, quick=True, provider=None, runs_dir=tmp_path, seed=0)
+    paths = [run.path for run in plan.runs]
+    assert len(paths) == len(set(paths))
+    shared = next(
+        run
+        for run in plan.runs
+        if {"fig5a", "fig6a", "table2", "appendix-temperature", "appendix-stack-size"}
+        <= set(run.items)
+    )
+    assert (
+        shared.config.method == "lagr-seq"
+        and shared.trials == 10
+        and shared.config.run.episodes == 100
+    )
+    assert plan.not_run["fig5b"] == "task image-completion not available"
+    assert "mock:gpt4-tau0" in plan.unavailable and "fig4" not in plan.not_run
+    assert all(run.provider == "mock" for run in plan.runs)
+    # --provider replaces the default provider, never a run's explicit one (the baselines)
+    other = reproduce.plan(suite, quick=True, provider="mock", runs_dir=tmp_path / "x", seed=3)
+    assert all(run.seed == 3 for run in other.runs)
+
+
+def test_estimate_counts_only_pending_trials(tmp_path: Path) -> None:
+    from lagrseq import reproduce
+    from lagrseq.suite import load_suite
+
+    suite = load_suite().select(["fig6a"])
+    plan = reproduce.plan(suite, quick=True, provider=None, runs_dir=tmp_path, seed=0)
+    assert reproduce.estimate(plan, jobs=2) > 0
+    for run in plan.runs:
+        run.trials = 1
+    reproduce.execute(plan, jobs=1)
+    assert all(run.pending() == 0 for run in plan.runs)
+    assert reproduce.estimate(plan, jobs=2) == 0
