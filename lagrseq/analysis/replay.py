@@ -47,6 +47,8 @@ class ItemReport:
     item: Item
     matched: list[items.Match]
     figure: str | None = None
+    figure_size: tuple[int, int] = (0, 0)
+    """Pixel width and height of the PNG."""
     figure_files: list[str] = field(default_factory=list)
     figure_data: str | None = None
     tables: list[tuple[Table, str, str]] = field(default_factory=list)
@@ -81,7 +83,10 @@ class Report:
         return self.logs.warnings
 
 
-def _save_figure(axes: matplotlib.axes.Axes, stem: Path, formats: Sequence[str]) -> list[Path]:
+def _save_figure(
+    axes: matplotlib.axes.Axes, stem: Path, formats: Sequence[str]
+) -> tuple[list[Path], tuple[int, int]]:
+    """Save the figure of ``axes`` in each format; returns the paths and the PNG's pixel size."""
     figure = axes.figure
     while not isinstance(figure, Figure):  # a SubFigure: save its root figure
         figure = figure.figure
@@ -90,7 +95,8 @@ def _save_figure(axes: matplotlib.axes.Axes, stem: Path, formats: Sequence[str])
         path = stem.with_suffix(f".{fmt}")
         figure.savefig(path, format=fmt, dpi=DPI, metadata=_SAVE_METADATA[fmt])
         paths.append(path)
-    return paths
+    width, height = figure.get_size_inches() * DPI
+    return paths, (round(width), round(height))
 
 
 def _write(path: Path, text: str, written: list[Path]) -> None:
@@ -193,7 +199,9 @@ def replay(
             built = items.BUILDERS[item.render](item, matched)
             report.method = built.method
             if built.axes is not None:
-                paths = _save_figure(built.axes, out / "figures" / item.id, formats)
+                paths, report.figure_size = _save_figure(
+                    built.axes, out / "figures" / item.id, formats
+                )
                 written += paths
                 report.figure = f"figures/{item.id}.png"
                 report.figure_files = [p.relative_to(out).as_posix() for p in paths]
@@ -288,8 +296,9 @@ def _index_html(
             parts.append("</section>")
             continue
         if r.figure:
+            width, height = r.figure_size
             parts.append(
-                f'<img src="{e(r.figure)}" alt="{e(r.item.title)}" width="960" height="600">'
+                f'<img src="{e(r.figure)}" alt="{e(r.item.title)}" width="{width}" height="{height}">'
             )
             links = [(f.rsplit(".", 1)[1].upper(), f) for f in r.figure_files]
             if r.figure_data:

@@ -137,5 +137,10 @@ def test_index_links_only_to_files_that_exist(runs_dir: Path, tmp_path: Path) ->
     made = {r.item.id for r in report.items if r.status != "not run"}
     assert {"fig5a", "fig6a", "fig4", "table2"} <= made
     assert "not run: task image-completion not available" in page
+    from PIL import Image
+
+    for src, width, height in re.findall(r'<img src="([^"]+)"[^>]* width="(\d+)" height="(\d+)"', page):
+        with Image.open(tmp_path / "out" / src) as image:
+            assert image.size == (int(width), int(height))
     markdown = (tmp_path / "out" / "index.md").read_text()
     assert "![Fig. 5(a)" in markdown
