@@ -19,6 +19,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from lagrseq import config as cfg
 from lagrseq import experiment
 from lagrseq.config import ExperimentConfig
 from lagrseq.errors import ConfigError, UsageError
@@ -88,12 +89,11 @@ def plan(suite: Suite, quick: bool, provider: str | None, runs_dir: Path, seed: 
         made = 0
         for spec in item.runs:
             spec_provider = spec.provider_spec(default)
-            reason = _spec_problem(spec, quick, spec_provider, unavailable)
-            if reason:
+            config, reason = _resolve(spec, quick, spec_provider, unavailable)
+            if config is None:
                 reasons.append(reason)
                 continue
             made += 1
-            config = spec.resolve(quick)
             trials, _, _ = spec.length(quick)
             samples = spec.samples if not quick else spec.quick_samples
             if spec.kind == "accuracy":
@@ -113,20 +113,21 @@ def plan(suite: Suite, quick: bool, provider: str | None, runs_dir: Path, seed: 
     return Plan(list(planned.values()), not_run, unavailable)
 
 
-def _spec_problem(spec: RunSpec, quick: bool, provider: str, unavailable: dict[str, str]) -> str:
+def _resolve(
+    spec: RunSpec, quick: bool, provider: str, unavailable: dict[str, str]
+) -> tuple[ExperimentConfig | None, str]:
+    """The run's configuration, or None and why it cannot run here (its task or provider)."""
     try:
-        spec.resolve(quick)
+        config = spec.resolve(quick)
     except ConfigError as exc:
-        from lagrseq import config as cfg
-
         if spec.task not in cfg.tasks():
-            return f"task {spec.task} not available"
-        return str(exc)
+            return None, f"task {spec.task} not available"
+        return None, str(exc)
     problem = _provider_problem(provider)
     if problem:
         unavailable[provider] = problem
-        return problem
-    return ""
+        return None, problem
+    return config, ""
 
 
 def _calibration_key(run: PlannedRun) -> tuple[str, ...]:
@@ -136,7 +137,7 @@ def _calibration_key(run: PlannedRun) -> tuple[str, ...]:
 
 def estimate(the_plan: Plan, jobs: int) -> float:
     """Expected seconds for the pending trials, from a short timed stretch of each distinct
-    experiment on this machine (mock provider, nothing logged)."""
+    experiment on this machine (mock provider, logged to a scratch file)."""
     cache: dict[tuple[str, ...], tuple[float, float]] = {}
     total = 0.0
     for run in the_plan.runs:

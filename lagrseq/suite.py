@@ -28,14 +28,7 @@ from lagrseq.errors import ConfigError
 RENDERERS = ("returns", "query-bars", "query-table", "ratio-table", "accuracy")
 KINDS = ("trial", "accuracy")
 
-_RUN_KEYS = {
-    "label",
-    "kind",
-    "task",
-    "method",
-    "preset",
-    "provider",
-    "set",
+_INT_KEYS = (
     "trials",
     "episodes",
     "max_steps",
@@ -44,26 +37,12 @@ _RUN_KEYS = {
     "quick_max_steps",
     "samples",
     "quick_samples",
-    "row",
-    "column",
-}
+)
+_RUN_KEYS = {"label", "kind", "task", "method", "preset", "provider", "set", "row", "column"}
+_RUN_KEYS |= set(_INT_KEYS)
 _INHERITED = _RUN_KEYS - {"label", "row", "column"}
-_ITEM_KEYS = {
-    "id",
-    "title",
-    "caption",
-    "render",
-    "runs",
-    "note",
-    "x",
-    "band",
-    "window",
-    "ylabel",
-    "numerator",
-    "denominator",
-    "reference",
-    "row_header",
-} | _INHERITED
+_OPTIONS = ("x", "band", "window", "ylabel", "numerator", "denominator", "reference", "row_header")
+_ITEM_KEYS = {"id", "title", "caption", "render", "runs", "note", *_OPTIONS} | _INHERITED
 
 
 @dataclass(frozen=True)
@@ -193,20 +172,7 @@ def _run(item_id: str, index: int, defaults: Mapping[str, Any], data: Mapping[st
         section, name, _ = cfg.parse_override(text)
         if section == "run" and name in ("episodes", "max_steps"):
             raise ConfigError(f"{where}: give run.{name} as {name} / quick_{name}, not in set")
-    ints = {
-        key: _int(where, key, merged[key])
-        for key in (
-            "trials",
-            "episodes",
-            "max_steps",
-            "quick_trials",
-            "quick_episodes",
-            "quick_max_steps",
-            "samples",
-            "quick_samples",
-        )
-        if key in merged
-    }
+    ints = {key: _int(where, key, merged[key]) for key in _INT_KEYS if key in merged}
     trials = ints.get("trials", 10)
     label = data.get("label")
     if not isinstance(label, str) or not label:
@@ -258,20 +224,7 @@ def load_suite(path: str | Path | None = None) -> Suite:
         runs = tuple(_run(item_id, i, raw, r) for i, r in enumerate(raw.get("runs", [])))
         if not runs:
             raise ConfigError(f"suite item {item_id!r} lists no runs")
-        options = {
-            k: raw[k]
-            for k in (
-                "x",
-                "band",
-                "window",
-                "ylabel",
-                "numerator",
-                "denominator",
-                "reference",
-                "row_header",
-            )
-            if k in raw
-        }
+        options = {k: raw[k] for k in _OPTIONS if k in raw}
         items.append(
             Item(
                 id=item_id,

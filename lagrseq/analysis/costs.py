@@ -67,19 +67,19 @@ def _usd(value: float) -> str:
     return "n/a" if np.isnan(value) else f"{value:.4f}"
 
 
-def by_run(runs: Sequence[Run], price: Price | None = None) -> Table:
-    """Costs of each run."""
-    frame = run_costs(runs, price)
-    columns = ["run", "trials", "queries", "per trial", "recorded", "live", "mock", "tokens", "USD"]
-    if price is not None:
-        columns.append("USD at current prices")
+_COUNTS = ("trials", "queries", "per trial", "recorded", "live", "mock", "tokens", "USD")
+_KEYS = ("task", "method", "preset", "provider", "seed", "config", "variant")
+
+
+def _table(
+    title: str, first: list[str], leads: Sequence[tuple[str, ...]], data: pd.DataFrame, priced: bool
+) -> Table:
+    """Display rows: each row's ``leads`` cells, then the counts both cost tables share."""
+    columns = [*first, *_COUNTS] + (["USD at current prices"] if priced else [])
     rows = []
-    for _, r in frame.iterrows():
-        name = f"{r.task}/{r.method} {r.preset} {r.provider} seed{r.seed} {r.config}"
-        if r.variant:
-            name += f" {r.variant}"
+    for lead, (_, r) in zip(leads, data.iterrows(), strict=True):
         cells = [
-            name,
+            *lead,
             str(r.trials),
             str(r.queries),
             number(r.queries / r.trials if r.trials else float("nan"), 1),
@@ -89,56 +89,36 @@ def by_run(runs: Sequence[Run], price: Price | None = None) -> Table:
             str(r.prompt_tokens + r.completion_tokens),
             _usd(r.usd_logged),
         ]
-        if price is not None:
+        if priced:
             cells.append(_usd(r.usd_repriced))
         rows.append(tuple(cells))
-    return Table("LLM costs per run", tuple(columns), tuple(rows), frame)
+    return Table(title, tuple(columns), tuple(rows), data)
+
+
+def by_run(runs: Sequence[Run], price: Price | None = None) -> Table:
+    """Costs of each run."""
+    frame = run_costs(runs, price)
+    leads = [
+        (
+            f"{r.task}/{r.method} {r.preset} {r.provider} seed{r.seed} {r.config}"
+            + (f" {r.variant}" if r.variant else ""),
+        )
+        for _, r in frame.iterrows()
+    ]
+    return _table("LLM costs per run", ["run"], leads, frame, price is not None)
 
 
 def by_method(runs: Sequence[Run], price: Price | None = None) -> Table:
-    """Costs summed over the runs of each task and method."""
+    """Costs summed over the runs of each task and method (an unknown price stays unknown)."""
     frame = run_costs(runs, price)
     if frame.empty:
         data = frame
     else:
-        sums = [
-            c
-            for c in frame.columns
-            if c not in ("task", "method", "preset", "provider", "seed", "config", "variant")
-        ]
-        data = frame.groupby(["task", "method"], sort=True)[sums].sum().reset_index()
-        data.insert(2, "runs", frame.groupby(["task", "method"], sort=True).size().to_numpy())
-    columns = [
-        "task",
-        "method",
-        "runs",
-        "trials",
-        "queries",
-        "per trial",
-        "recorded",
-        "live",
-        "mock",
-        "tokens",
-        "USD",
-    ]
-    if price is not None:
-        columns.append("USD at current prices")
-    rows = []
-    for _, r in data.iterrows():
-        cells = [
-            r.task,
-            r.method,
-            str(r.runs),
-            str(r.trials),
-            str(r.queries),
-            number(r.queries / r.trials if r.trials else float("nan"), 1),
-            str(r.from_recorded),
-            str(r.from_live),
-            str(r.from_mock),
-            str(r.prompt_tokens + r.completion_tokens),
-            _usd(r.usd_logged),
-        ]
-        if price is not None:
-            cells.append(_usd(r.usd_repriced))
-        rows.append(tuple(cells))
-    return Table("LLM costs per method", tuple(columns), tuple(rows), data)
+        groups = frame.groupby(["task", "method"], sort=True)
+        sums = [c for c in frame.columns if c not in _KEYS]
+        data = groups[sums].agg(lambda column: column.sum(skipna=False)).reset_index()
+        data.insert(2, "runs", groups.size().to_numpy())
+    leads = [(r.task, r.method, str(r.runs)) for _, r in data.iterrows()]
+    return _table(
+        "LLM costs per method", ["task", "method", "runs"], leads, data, price is not None
+    )

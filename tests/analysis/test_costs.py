@@ -97,3 +97,14 @@ def test_costs_from_real_logs_read_no_transition(runs_dir: Path) -> None:
     assert seq.from_mock == seq.queries and seq.usd_logged == 0.0
     baseline = data[data["method"] == "baseline"].iloc[0]
     assert baseline.queries == 0
+
+
+def test_an_unknown_price_stays_unknown_per_method() -> None:
+    def price(model: str, prompt: int, completion: int) -> float | None:
+        return None if model == "mock" else 1.0
+
+    data = costs.by_method(RUNS, price).data
+    lagr = data[data["method"] == "lagr"].iloc[0]
+    assert math.isnan(lagr.usd_repriced)  # one of its runs used an unpriced model
+    seq = data[data["method"] == "lagr-seq"].iloc[0]
+    assert seq.usd_repriced == 3.0
