@@ -25,7 +25,7 @@ from typing import Any
 from lagrseq import config as cfg
 from lagrseq.errors import ConfigError
 
-RENDERERS = ("returns", "query-bars", "query-table", "ratio-table", "accuracy")
+RENDERERS = ("returns", "query-bars", "query-table", "ratio-table", "accuracy", "config-table")
 KINDS = ("trial", "accuracy")
 
 _INT_KEYS = (

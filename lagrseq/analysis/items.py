@@ -8,6 +8,7 @@ any task: learning curves use episodes or environment steps on the x axis as the
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -379,10 +380,52 @@ def build_accuracy(item: Item, matched: Sequence[Match]) -> Built:
     return Built(axes, pd.concat(frames, ignore_index=True), [], method)
 
 
+def _flatten(config: dict[str, Any]) -> dict[str, str]:
+    out: dict[str, str] = {}
+    for section, values in config.items():
+        if isinstance(values, dict):
+            for name, value in values.items():
+                out[f"{section}.{name}"] = json.dumps(value, ensure_ascii=False)
+        else:
+            out[section] = json.dumps(values, ensure_ascii=False)
+    return out
+
+
+def build_config_table(item: Item, matched: Sequence[Match]) -> Built:
+    """The hyperparameter table: every configuration field of each run, as its log stores it."""
+    present = _present(matched)
+    flat = [_flatten(run.config) for _, run in present]
+    fields: list[str] = []
+    for values in flat:
+        fields += [f for f in values if f not in fields]
+    rows = []
+    data = []
+    for name in fields:
+        cells = [values.get(name, "—") for values in flat]
+        differs = len(set(cells)) > 1
+        rows.append((f"{name} *" if differs else name, *cells))
+        data.append(
+            {
+                "field": name,
+                "differs": differs,
+                **{m.label: c for (m, _), c in zip(present, cells, strict=True)},
+            }
+        )
+    table = Table(
+        f"{item.title}: configuration of each run (* = differs between runs)",
+        ("field", *(m.label for m, _ in present)),
+        tuple(rows),
+        pd.DataFrame(data),
+    )
+    method = "Every field of each run's resolved configuration, read from the lagrseq.run metadata of its MCAP logs."
+    return Built(None, None, [(item.id, table)], method)
+
+
 BUILDERS: dict[str, Callable[[Item, Sequence[Match]], Built]] = {
     "returns": build_returns,
     "query-bars": build_query_bars,
     "query-table": build_query_table,
     "ratio-table": build_ratio_table,
     "accuracy": build_accuracy,
+    "config-table": build_config_table,
 }

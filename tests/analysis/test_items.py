@@ -176,3 +176,17 @@ def test_accuracy_counts_exact_answers_per_prefix(logs: loading.Logs) -> None:
 def test_every_packaged_item_has_a_builder() -> None:
     suite = load_suite()
     assert {item.render for item in suite.items} <= set(items.BUILDERS)
+
+
+def test_config_table_reads_each_runs_configuration(logs: loading.Logs) -> None:
+    seq = _spec(label="SEQ")
+    base = _spec(label="Q", method="baseline")
+    matched = items.match(_item("config-table", seq, base), logs.runs, "mock")
+    built = items.build_config_table(_item("config-table", seq, base), matched)
+    ((_, table),) = built.tables
+    rows = {row[0]: row[1:] for row in table.rows}
+    assert rows["env.horizon"] == ("50", "50")
+    assert rows["method *"] == ('"lagr-seq"', '"baseline"')
+    assert rows["run.episodes"] == ("20", "20")
+    data = table.data.set_index("field")
+    assert bool(data.loc["method", "differs"]) and not bool(data.loc["env.horizon", "differs"])

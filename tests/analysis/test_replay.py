@@ -139,7 +139,9 @@ def test_index_links_only_to_files_that_exist(runs_dir: Path, tmp_path: Path) ->
     assert "not run: task image-completion not available" in page
     from PIL import Image
 
-    for src, width, height in re.findall(r'<img src="([^"]+)"[^>]* width="(\d+)" height="(\d+)"', page):
+    for src, width, height in re.findall(
+        r'<img src="([^"]+)"[^>]* width="(\d+)" height="(\d+)"', page
+    ):
         with Image.open(tmp_path / "out" / src) as image:
             assert image.size == (int(width), int(height))
     markdown = (tmp_path / "out" / "index.md").read_text()
