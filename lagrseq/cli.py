@@ -222,6 +222,81 @@ def _add_config(sub: Any) -> None:
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.FIELD=VALUE")
 
 
+def _formats(text: str) -> list[str]:
+    return [f.strip() for f in text.split(",") if f.strip()]
+
+
+def _add_replay(sub: Any) -> None:
+    p = sub.add_parser(
+        "replay",
+        help="rebuild the paper's figures, tables and costs from MCAP logs (offline)",
+        description=(
+            "Read MCAP logs only (no network, no LLM, no torch or gymnasium) and write, for every "
+            "figure and table of the paper's suite the logs cover: figures/ID.png (SVG/PDF with "
+            "--formats) with the numbers behind each as CSV, tables/ID.md and .csv, the LLM costs "
+            "per run and per method, a table of the runs, and index.html showing all of it. The "
+            "same logs always give the same bytes. Unfinished or damaged logs are skipped with a "
+            "one-line warning."
+        ),
+        epilog=(
+            "examples:\n"
+            "  lagrseq replay runs --out reports\n"
+            "  lagrseq replay runs/cube-stacking other-runs --out /tmp/report --formats png,svg,pdf"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("runs", nargs="+", type=Path, metavar="RUNS", help="MCAP files or directories searched for *.mcap")
+    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
+    p.add_argument("--formats", type=_formats, default=["png"], metavar="png,svg,pdf", help="figure formats; PNG is always written (default: png)")
+    p.add_argument("--provider", default=None, metavar="SPEC", help="use only runs of this provider for the suite's default-provider runs (default: any, preferring mock)")
+    p.add_argument("--suite", type=Path, default=None, metavar="FILE.toml", help="a suite file instead of the packaged paper suite")
+
+
+def _add_reproduce(sub: Any) -> None:
+    p = sub.add_parser(
+        "reproduce",
+        help="run the paper's suite and build its report (figures, tables, costs)",
+        description=(
+            "Run every experiment of the paper's suite (lagrseq/experiments/paper_suite.toml) into "
+            "OUT/runs, then replay the logs into OUT/reports (index.html, figures, tables). Reports "
+            "the expected time before starting and shows progress; trials run in parallel on local "
+            "cores; a rerun skips trials whose log is complete. Items whose task or provider is not "
+            "available here are not run, with one line saying why."
+        ),
+        epilog=(
+            "examples:\n"
+            "  lagrseq reproduce --quick                # ./runs and ./reports, a few minutes\n"
+            "  lagrseq reproduce --out results --jobs 8\n"
+            "  lagrseq reproduce --provider recorded:recorded_llm/cube.jsonl --items table2"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--quick", action="store_true", help="fewer trials, episodes and probe samples where it matters (each item's quick_* length)")
+    p.add_argument("--out", type=Path, default=Path("."), metavar="DIR", help="writes DIR/runs and DIR/reports (default: .)")
+    p.add_argument("--provider", default=None, metavar="SPEC", help="provider of the suite's default-provider runs (default: the suite's, mock)")
+    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="trials run in parallel (default: the number of cores)")
+    p.add_argument("--seed", type=int, default=None, help="run seed (default: the suite's, 0)")
+    p.add_argument("--items", default=None, metavar="ID,ID", help="only these suite items (default: all)")
+    p.add_argument("--suite", type=Path, default=None, metavar="FILE.toml", help="a suite file instead of the packaged paper suite")
+    p.add_argument("--formats", type=_formats, default=["png"], metavar="png,svg,pdf", help="figure formats; PNG is always written")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _add_recover(sub: Any) -> None:
+    p = sub.add_parser(
+        "recover",
+        help="repair a crash-truncated MCAP log, keeping every flushed episode",
+        description=(
+            "Rewrite the readable part of a log cut short by a crash (NAME.mcap.partial) as a valid "
+            "MCAP file NAME.mcap holding every episode flushed before the crash, marked with status "
+            "'recovered'. A NAME.mcap is repaired in place and its original kept as "
+            "NAME.mcap.truncated. A file damaged in the middle (not cut short) is refused."
+        ),
+    )
+    p.add_argument("files", nargs="+", type=Path, metavar="FILE", help="truncated .mcap or .mcap.partial files")
+    p.add_argument("--out", type=Path, default=None, metavar="PATH", help="where to write the recovered log (one FILE only)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="lagrseq",
@@ -236,6 +311,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_config(sub)
     _add_record(sub)
     _add_cache(sub)
+    _add_reproduce(sub)
+    _add_replay(sub)
+    _add_recover(sub)
     return parser
 
 
@@ -488,10 +566,124 @@ def _cache_list(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"run": cmd_run, "config": cmd_config, "record": cmd_record, "cache": cmd_cache}
+def cmd_recover(args: argparse.Namespace) -> int:
+    from lagrseq.logs.recover import recover
+
+    if args.out is not None and len(args.files) > 1:
+        raise UsageError("--out works with one FILE only")
+    for path in args.files:
+        print(recover(path, args.out).summary())
+    return 0
+
+
+def _print_report(report: Any, elapsed: float | None = None, not_run_said: bool = False) -> None:
+    made = [r for r in report.items if r.status != "not run"]
+    for r in report.items:
+        if r.status == "not run":
+            if not_run_said:
+                continue
+            print(f"{r.item.id}: {r.not_run_line()}")
+        elif r.status == "partial":
+            print(f"{r.item.id}: partial; missing {'; '.join(r.missing())}")
+    for warning in report.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+    took = f" in {elapsed:.1f} s" if elapsed is not None else ""
+    print(f"{len(made)} of {len(report.items)} suite items made from {report.logs.files} logs{took}: {report.out / 'index.html'}")
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    import time
+
+    from lagrseq.analysis.replay import replay
+    from lagrseq.suite import load_suite
+
+    started = time.perf_counter()
+    suite = load_suite(args.suite)
+    report = replay(args.runs, args.out, args.formats, suite, provider=args.provider)
+    _print_report(report, time.perf_counter() - started)
+    return 0
+
+
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    import time
+
+    from tqdm import tqdm
+
+    from lagrseq import reproduce
+    from lagrseq.analysis.replay import replay
+    from lagrseq.suite import load_suite
+
+    if args.jobs < 1:
+        raise UsageError(f"--jobs must be at least 1, got {args.jobs}")
+    suite = load_suite(args.suite)
+    if args.items:
+        suite = suite.select([i.strip() for i in args.items.split(",") if i.strip()])
+    seed = suite.seed if args.seed is None else args.seed
+    if args.provider is not None:
+        from lagrseq import experiment
+
+        experiment.parse_provider(args.provider)
+    runs_dir = args.out / "runs"
+    reports_dir = args.out / "reports"
+    started = time.perf_counter()
+    the_plan = reproduce.plan(suite, args.quick, args.provider, runs_dir, seed)
+    for item_id, reason in the_plan.not_run.items():
+        print(f"{item_id}: not run: {reason}")
+    pending = sum(run.pending() for run in the_plan.runs)
+    trials = sum(run.trials if run.kind == "trial" else 1 for run in the_plan.runs)
+    expected = reproduce.estimate(the_plan, args.jobs)
+    print(
+        f"{'quick' if args.quick else 'full'} suite: {len(the_plan.runs)} runs, {trials} trial logs, "
+        f"{pending} to run ({trials - pending} already complete); expected about "
+        f"{_duration(expected)} on {args.jobs} process{'es' if args.jobs > 1 else ''} "
+        f"(timed on this machine; LLM latency of live providers not included)",
+        flush=True,
+    )
+    total = sum(run.units() for run in the_plan.runs)
+    with tqdm(total=total, unit="ep", disable=args.quiet, file=sys.stderr, dynamic_ncols=True) as bar:
+        reproduce.execute(
+            the_plan,
+            args.jobs,
+            bar,
+            on_run=lambda run: bar.set_description(run.describe()),
+        )
+    ran = time.perf_counter() - started
+    print(f"runs done in {_duration(ran)}: {runs_dir}", flush=True)
+    command = "lagrseq reproduce" + (" --quick" if args.quick else "")
+    report = replay(
+        [runs_dir],
+        reports_dir,
+        args.formats,
+        suite,
+        provider=args.provider or suite.provider,
+        unavailable=the_plan.unavailable,
+        produced_by=command,
+    )
+    _print_report(report, time.perf_counter() - started, not_run_said=True)
+    return 0
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.1f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+COMMANDS = {
+    "run": cmd_run,
+    "config": cmd_config,
+    "record": cmd_record,
+    "cache": cmd_cache,
+    "recover": cmd_recover,
+    "replay": cmd_replay,
+    "reproduce": cmd_reproduce,
+}
 INTERRUPTED = {
     "run": "finished trial logs are kept",
     "record": "answers recorded so far are kept in the store; run the same command to go on",
+    "reproduce": "finished trial logs are kept; run the same command to go on",
 }
 
 

@@ -32,6 +32,7 @@ from lagrseq.llm.base import Provider, Query
 from lagrseq.llm.mock import MockProvider
 from lagrseq.llm.servers import DEFAULT_BASE_URL
 from lagrseq.logs.reader import find_logs, is_complete, read_info, read_topic
+from lagrseq.logs.schemas import ACCURACY_METHOD
 from lagrseq.logs.sink import McapSink
 from lagrseq.seeding import Stream
 from lagrseq.seq import TabularSecondary, query_reward
@@ -333,6 +334,51 @@ class _NullSink:
 
     def __exit__(self, *exc: object) -> None:
         return None
+
+
+# ------------------------------------------------------------------------------------------
+# Fig. 4: the LLM alone (no RL)
+# ------------------------------------------------------------------------------------------
+def run_accuracy_probe(
+    config: ExperimentConfig,
+    samples: int,
+    seed: int,
+    provider_spec: str,
+    path: Path,
+    log: bool = True,
+) -> TrialResult:
+    """Fig. 4: query the provider ``samples`` times with every prefix of the target (1/N to N/N
+    of the sequence) and log each answer as a ``/query`` record (``fraction`` = prefix length /
+    N); replay rebuilds the accuracy curves from these records alone."""
+    started = time.perf_counter()
+    task = make_task(config)
+    if not isinstance(task, cube.CubeStacking):  # pragma: no cover - only cube tasks exist here
+        raise UsageError(f"the accuracy probe needs a sequence task, not {config.task.name!r}")
+    provider = make_provider(provider_spec, config, seeding.generator(seed, 0, Stream.LLM))
+    metadata = {**run_metadata(config, 0, seed, provider_spec), "method": ACCURACY_METHOD}
+    metadata["samples"] = str(samples)
+    sink = McapSink(path, metadata) if log else _NullSink()
+    target = task.target
+    index = 0
+    with sink, provider:
+        for length in range(1, len(target) + 1):
+            prefix = tuple(target[:length])
+            for sample in range(samples):
+                result = consult(task, provider, config.llm, config.lagr.threshold, prefix)
+                record = _decision_record(0, 0, sample, index, prefix, 1)
+                record.update(_query_fields(result, provider, config, 0.0))
+                record["prefix_length"] = length
+                record["fraction"] = length / len(target)
+                sink.write("/query", record, index)
+                index += 1
+            sink.flush()  # one chunk per prefix: a crash keeps every finished prefix
+    return TrialResult(path, 0, 0, 0, index, 0.0, time.perf_counter() - started)
+
+
+def probe_path(out: Path, config: ExperimentConfig, provider_spec: str, seed: int, samples: int) -> Path:
+    """``OUT/<task>/llm-accuracy/<preset>-<provider>-seed<S>-<digest>/samples-<K>.mcap``."""
+    name = f"{config.preset}-{provider_slug(provider_spec)}-seed{seed}-{config.digest()}"
+    return out / config.task.name / ACCURACY_METHOD / name / f"samples-{samples:04d}.mcap"
 
 
 # ------------------------------------------------------------------------------------------

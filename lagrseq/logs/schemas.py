@@ -92,6 +92,10 @@ EPISODE = _object(
     },
 )
 
+ACCURACY_METHOD = "llm-accuracy"
+"""``method`` in the ``lagrseq.run`` metadata of an accuracy-probe log (Fig. 4: the LLM alone,
+no RL): its ``/query`` records carry ``prefix_length`` and ``fraction`` of the sequence shown."""
+
 TOPICS: dict[str, dict[str, Any]] = {
     "/transition": TRANSITION,
     "/query": QUERY,

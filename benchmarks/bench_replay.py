@@ -1,0 +1,133 @@
+"""Replay benchmark: how fast the full suite's logs turn into the report, and proof that the
+tables and costs never decompress a transition.
+
+    PYTHONPATH=. python benchmarks/bench_replay.py                 # makes the full suite's logs
+    PYTHONPATH=. python benchmarks/bench_replay.py --runs runs     # or uses existing logs
+
+Prints the logs' size and message counts, then three timings:
+1. ``lagrseq replay`` (figures, tables, costs, index), in transitions covered per minute;
+2. the costs table alone, with the chunks it decompressed (none of them a transition chunk);
+3. a full decode of every ``/transition`` message, for comparison.
+Target: replay at >= 1 million transitions per minute.
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from mcap.reader import make_reader
+
+from lagrseq.analysis import costs, loading
+from lagrseq.analysis.replay import replay
+from lagrseq.logs.reader import ReadStats, read_topics
+
+TARGET_PER_MINUTE = 1_000_000
+
+
+def make_full_suite(out: Path, jobs: int) -> Path:
+    command = [
+        sys.executable,
+        "-m",
+        "lagrseq",
+        "reproduce",
+        "--out",
+        str(out),
+        "--jobs",
+        str(jobs),
+        "--quiet",
+    ]
+    print("making the full suite's logs:", " ".join(command[1:]), flush=True)
+    subprocess.run(command, check=True)
+    return out / "runs"
+
+
+def chunk_census(paths: list[Path]) -> tuple[int, int, int]:
+    """(chunks, chunks holding /transition, chunks holding /transition and /episode or /query)."""
+    total = transition = mixed = 0
+    for path in paths:
+        with path.open("rb") as handle:
+            summary = make_reader(handle).get_summary()
+        assert summary is not None
+        ids = {topic: cid for cid, ch in summary.channels.items() for topic in [ch.topic]}
+        for index in summary.chunk_indexes:
+            total += 1
+            channels = index.message_index_offsets.keys()
+            has_transition = ids.get("/transition") in channels
+            transition += has_transition
+            mixed += has_transition and bool({ids.get("/episode"), ids.get("/query")} & channels)
+    return total, transition, mixed
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--runs", type=Path, default=None, help="existing logs (default: make the full suite's)"
+    )
+    parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument(
+        "--repeat", type=int, default=3, help="timed repetitions (best is reported)"
+    )
+    args = parser.parse_args()
+
+    with tempfile.TemporaryDirectory(prefix="lagrseq-bench-") as scratch:
+        runs = (
+            args.runs
+            if args.runs is not None
+            else make_full_suite(Path(scratch) / "suite", args.jobs)
+        )
+        files = sorted(runs.rglob("*.mcap"))
+        size = sum(p.stat().st_size for p in files)
+        logs = loading.load([runs])
+        transitions = logs.messages.get("/transition", 0)
+        print(f"logs: {len(files)} files, {size / 1e6:.1f} MB, {len(logs.runs)} runs")
+        print(
+            "messages: " + ", ".join(f"{topic} {count}" for topic, count in logs.messages.items())
+        )
+
+        best = float("inf")
+        for i in range(args.repeat):
+            started = time.perf_counter()
+            replay([runs], Path(scratch) / f"report-{i}")
+            best = min(best, time.perf_counter() - started)
+        rate = transitions / best * 60
+        verdict = "meets" if rate >= TARGET_PER_MINUTE else "MISSES"
+        print(
+            f"replay (all figures, tables, costs, index.html): {best:.2f} s = "
+            f"{rate / 1e6:.1f} M transitions/min ({verdict} the {TARGET_PER_MINUTE / 1e6:.0f} M/min target)"
+        )
+
+        total, transition_chunks, mixed = chunk_census(files)
+        started = time.perf_counter()
+        for_costs = loading.load([runs])
+        costs.by_run(for_costs.runs)
+        costs.by_method(for_costs.runs)
+        costs_seconds = time.perf_counter() - started
+        stats = for_costs.stats
+        print(
+            f"costs tables (/query + metadata): {costs_seconds:.2f} s; decompressed "
+            f"{stats.chunks_decompressed} of {stats.chunks} chunks ({stats.bytes_decompressed / 1e6:.1f} MB); "
+            f"the logs have {transition_chunks} transition chunks, {mixed} of them shared with "
+            f"/episode or /query, so {mixed} transition chunks were decompressed"
+        )
+        assert total == stats.chunks
+
+        all_stats = ReadStats()
+        started = time.perf_counter()
+        decoded = sum(len(read_topics(p, ["/transition"], all_stats)["/transition"]) for p in files)
+        full = time.perf_counter() - started
+        print(
+            f"full /transition decode, for comparison: {decoded} transitions in {full:.2f} s = "
+            f"{decoded / full * 60 / 1e6:.1f} M/min; decompressed {all_stats.chunks_decompressed} chunks "
+            f"({all_stats.bytes_decompressed / 1e6:.1f} MB)"
+        )
+
+
+if __name__ == "__main__":
+    main()

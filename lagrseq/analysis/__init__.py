@@ -1,0 +1,16 @@
+"""Offline analysis: MCAP logs -> pandas -> the paper's figures, tables and costs.
+
+- :mod:`~lagrseq.analysis.loading`: logs grouped into runs (task, method, preset, provider, seed,
+  configuration digest), as pandas frames of episodes and queries.
+- :mod:`~lagrseq.analysis.stats`: mean, standard deviation, standard error, seeded bootstrap
+  confidence intervals, curves over trials.
+- :mod:`~lagrseq.analysis.figures`: plot functions; each takes ``ax=None`` and returns it, never
+  saves.
+- :mod:`~lagrseq.analysis.tables`: tables as Markdown, CSV and HTML text.
+- :mod:`~lagrseq.analysis.costs`: queries, tokens and USD per run and per method (``/query`` only).
+- :mod:`~lagrseq.analysis.items`: one builder per kind of paper item (data, figure, tables).
+- :mod:`~lagrseq.analysis.replay`: the only module that writes files.
+
+This package imports no environment, agent, LLM provider, torch, gymnasium, httpx or pybullet:
+``lagrseq replay`` runs with the core dependencies alone.
+"""

@@ -1,0 +1,202 @@
+"""Plot functions in the paper's style. Each takes ``ax=None`` (a new figure when None), draws on
+it and returns it; none saves, shows or touches pyplot's global state (only replay writes files).
+
+Inputs are already-summarised series (see :mod:`lagrseq.analysis.stats`), so a plot is a pure
+function of its numbers.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
+
+from lagrseq.analysis.stats import CurveStats, Summary
+
+FIGSIZE = (6.4, 4.4)
+# The matplotlib default cycle, fixed here so a figure does not depend on the user's rcParams.
+COLORS = (
+    "#1f77b4",
+    "#ff7f0e",
+    "#2ca02c",
+    "#d62728",
+    "#9467bd",
+    "#8c564b",
+    "#e377c2",
+    "#7f7f7f",
+    "#bcbd22",
+    "#17becf",
+)
+STYLE: dict[str, Any] = {
+    "font.family": "DejaVu Sans",
+    "font.size": 10,
+    "axes.titlesize": 11,
+    "axes.labelsize": 10,
+    "legend.fontsize": 9,
+    "axes.spines.top": False,
+    "axes.spines.right": False,
+    "axes.grid": True,
+    "grid.alpha": 0.3,
+    "grid.linewidth": 0.6,
+    "figure.dpi": 100,
+}
+"""rcParams replay draws with (it applies them with ``matplotlib.rc_context``)."""
+
+
+def new_axes(figsize: tuple[float, float] = FIGSIZE) -> Axes:
+    """Axes on a new, pyplot-free figure."""
+    figure = Figure(figsize=figsize, layout="constrained")
+    return figure.add_subplot()
+
+
+@dataclass(frozen=True)
+class Series:
+    """One learning curve: its label and its statistics over trials."""
+
+    label: str
+    stats: CurveStats
+    trials: int
+
+
+def returns(
+    series: Sequence[Series],
+    ax: Axes | None = None,
+    *,
+    band: str = "std",
+    xlabel: str = "Episodes",
+    ylabel: str = "Average return",
+    title: str | None = None,
+) -> Axes:
+    """Mean return curves with a shaded band of one standard deviation (``band="std"``, the
+    paper's appendix captions) or one standard error (``"se"``) over trials."""
+    if band not in ("std", "se"):
+        raise ValueError(f"band must be 'std' or 'se', not {band!r}")
+    ax = new_axes() if ax is None else ax
+    for i, s in enumerate(series):
+        color = COLORS[i % len(COLORS)]
+        spread = s.stats.std if band == "std" else s.stats.se
+        ax.plot(
+            s.stats.x, s.stats.mean, color=color, linewidth=1.6, label=f"{s.label} (n={s.trials})"
+        )
+        finite = np.isfinite(spread)
+        if finite.any():
+            ax.fill_between(
+                s.stats.x,
+                s.stats.mean - spread,
+                s.stats.mean + spread,
+                where=finite,
+                color=color,
+                alpha=0.18,
+                linewidth=0,
+            )
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    if title:
+        ax.set_title(title)
+    ax.set_xlim(left=0)
+    band_text = "±1 std" if band == "std" else "±1 s.e."
+    _legend_below(ax, len(series), title=f"mean, shaded {band_text} over trials")
+    return ax
+
+
+def _legend_below(ax: Axes, entries: int, title: str | None = None) -> None:
+    """A legend under the axes, so that it never hides a curve."""
+    ax.legend(
+        loc="upper center",
+        bbox_to_anchor=(0.5, -0.16),
+        ncols=entries if entries <= 3 else -(-entries // 2),
+        frameon=False,
+        title=title,
+        title_fontsize=8,
+    )
+
+
+@dataclass(frozen=True)
+class Bar:
+    """One bar: a label and a per-trial quantity's summary."""
+
+    label: str
+    summary: Summary
+
+
+def bars(
+    items: Sequence[Bar],
+    ax: Axes | None = None,
+    *,
+    ylabel: str = "LLM queries per trial (mean ± s.e.)",
+    title: str | None = None,
+) -> Axes:
+    """Bars of the mean with standard-error error bars (Fig. 6), each labelled mean ± s.e."""
+    ax = new_axes() if ax is None else ax
+    positions = np.arange(len(items))
+    means = np.array([b.summary.mean for b in items])
+    errors = np.array([0.0 if math.isnan(b.summary.se) else b.summary.se for b in items])
+    ax.bar(
+        positions,
+        means,
+        yerr=errors,
+        width=0.6,
+        color=[COLORS[i % len(COLORS)] for i in range(len(items))],
+        capsize=6,
+        error_kw={"elinewidth": 1.2},
+    )
+    top = float(np.nanmax(means + errors)) if len(items) else 1.0
+    for x, b, err in zip(positions.tolist(), items, errors.tolist(), strict=True):
+        text = (
+            f"{b.summary.mean:.1f}"
+            if math.isnan(b.summary.se)
+            else f"{b.summary.mean:.1f} ± {err:.1f}"
+        )
+        ax.text(x, b.summary.mean + err + 0.02 * top, text, ha="center", va="bottom", fontsize=9)
+    ax.set_xticks(positions, [f"{b.label}\n(n={b.summary.n})" for b in items])
+    ax.set_ylabel(ylabel)
+    ax.set_ylim(0, top * 1.15 if top > 0 else 1.0)
+    ax.grid(axis="x", visible=False)
+    if title:
+        ax.set_title(title)
+    return ax
+
+
+@dataclass(frozen=True)
+class AccuracyLine:
+    """Answer accuracy (percent) at each fraction of the sequence shown."""
+
+    label: str
+    fraction: np.ndarray
+    accuracy: np.ndarray
+    samples: int
+
+
+def accuracy(
+    lines: Sequence[AccuracyLine],
+    ax: Axes | None = None,
+    *,
+    title: str | None = None,
+) -> Axes:
+    """Fig. 4: percentage of answers equal to the target vs the fraction of the target sequence
+    given in the prompt, one line per provider and temperature."""
+    ax = new_axes() if ax is None else ax
+    markers = "osD^vP*X"
+    for i, line in enumerate(lines):
+        ax.plot(
+            line.fraction,
+            line.accuracy,
+            color=COLORS[i % len(COLORS)],
+            marker=markers[i % len(markers)],
+            markersize=5,
+            linewidth=1.6,
+            label=f"{line.label} ({line.samples} per point)",
+        )
+    ax.set_xlabel("Fraction of the sequence in the prompt")
+    ax.set_ylabel("Accuracy (%)")
+    ax.set_ylim(-3, 103)
+    ax.set_xlim(0, 1.05)
+    if title:
+        ax.set_title(title)
+    _legend_below(ax, len(lines))
+    return ax

@@ -1,0 +1,431 @@
+"""Paper items from runs: which runs feed an item, and one builder per kind of item.
+
+:func:`match` finds, for each run an item of the suite lists, the logged run made with that
+configuration (run length aside). A builder turns the matched runs into a figure (an ``Axes``,
+unsaved), the numbers behind it, tables, and a line on how the item was made. Builders work for
+any task: learning curves use episodes or environment steps on the x axis as the item says.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from matplotlib.axes import Axes
+
+from lagrseq import config as cfg
+from lagrseq.analysis import figures, stats
+from lagrseq.analysis.loading import ACCURACY_METHOD, Run
+from lagrseq.analysis.tables import Table, interval, number, plus_minus
+from lagrseq.errors import ConfigError
+from lagrseq.suite import Item, RunSpec, matches
+
+CURVE_POINTS = 200
+"""Points of a return-vs-steps curve (one every max_step / 200 steps)."""
+
+
+@dataclass(frozen=True)
+class Match:
+    """One run an item needs and the logged run that provides it (None: missing, and why)."""
+
+    spec: RunSpec
+    label: str
+    run: Run | None
+    reason: str = ""
+
+
+@dataclass
+class Built:
+    """What a builder made."""
+
+    axes: Axes | None = None
+    figure_data: pd.DataFrame | None = None
+    tables: list[tuple[str, Table]] = field(default_factory=list)
+    """(file stem, table)."""
+    method: str = ""
+    """How the numbers were computed (one sentence)."""
+
+
+def _describe_spec(spec: RunSpec, provider: str) -> str:
+    overrides = "".join(f" --set {o}" for o in spec.overrides)
+    if spec.kind == "accuracy":
+        return f"an accuracy probe of {spec.task} --preset {spec.preset} --provider {provider}{overrides}"
+    return f"{spec.task} {spec.method} --preset {spec.preset} --provider {provider}{overrides}"
+
+
+def match(
+    item: Item,
+    runs: Sequence[Run],
+    default_provider: str,
+    provider: str | None = None,
+    unavailable: dict[str, str] | None = None,
+) -> list[Match]:
+    """The logged run for each run ``item`` lists.
+
+    ``provider`` fixes the provider of the suite's default-provider runs; when None, any provider
+    matches and the suite default (``default_provider``) is preferred. Among several matching
+    runs the one with the most data wins, then the lowest seed. ``unavailable`` maps a run's
+    provider spec to why it cannot run here (from ``lagrseq reproduce``).
+    """
+    out = []
+    for spec in item.runs:
+        wanted = spec.provider if spec.provider is not None else provider
+        shown = wanted or default_provider
+        try:
+            resolved = spec.resolved_dict()
+        except ConfigError as exc:
+            task_missing = spec.task not in cfg.tasks()
+            reason = f"task {spec.task} not available" if task_missing else str(exc)
+            out.append(Match(spec, spec.display_label(shown), None, reason))
+            continue
+        method = ACCURACY_METHOD if spec.kind == "accuracy" else spec.method
+        candidates = [
+            run
+            for run in runs
+            if run.key.kind == spec.kind
+            and run.key.task == spec.task
+            and run.key.method == method
+            and run.key.preset == spec.preset
+            and (wanted is None or run.key.provider == wanted)
+            and matches(run.config, resolved)
+        ]
+        if not candidates:
+            reason = (unavailable or {}).get(shown, "")
+            if not reason:
+                reason = f"no logs of `{_describe_spec(spec, shown)}`"
+            out.append(Match(spec, spec.display_label(shown), None, reason))
+            continue
+        best = sorted(
+            candidates,
+            key=lambda r: (r.key.provider != default_provider, -r.size, r.key.seed, r.key.name),
+        )[0]
+        out.append(Match(spec, spec.display_label(best.key.provider), best))
+    return out
+
+
+def run_line(m: Match) -> str:
+    """ "label: 10 trials x 100 episodes of RUN" for the index page."""
+    run = m.run
+    assert run is not None
+    if run.key.kind == "accuracy":
+        size = f"{run.samples} answers per prefix"
+    else:
+        size = f"{len(run.trials)} trials × {run.episodes_per_trial} episodes"
+    return f"{m.label}: {size} of {run.key.name}"
+
+
+# ------------------------------------------------------------------------------------------
+# Builders
+# ------------------------------------------------------------------------------------------
+def _present(matched: Sequence[Match]) -> list[tuple[Match, Run]]:
+    return [(m, m.run) for m in matched if m.run is not None]
+
+
+def _episode_matrix(run: Run, window: int) -> tuple[np.ndarray, np.ndarray]:
+    length = run.episodes_per_trial
+    matrix = np.full((len(run.trials), length), np.nan)
+    for row, (_, group) in enumerate(run.episodes.groupby("trial", sort=True)):
+        values = group.sort_values("episode")["return"].to_numpy(dtype=float)
+        matrix[row, : len(values)] = stats.moving_average(values, window)
+    return np.arange(1, length + 1), matrix
+
+
+def _step_matrix(run: Run, grid: np.ndarray, window: int) -> np.ndarray:
+    matrix = np.full((len(run.trials), len(grid)), np.nan)
+    for row, (_, group) in enumerate(run.episodes.groupby("trial", sort=True)):
+        ordered = group.sort_values("episode")
+        matrix[row] = stats.step_curve(
+            ordered["global_step"].to_numpy(), ordered["return"].to_numpy(), grid, window
+        )
+    return matrix
+
+
+def build_returns(item: Item, matched: Sequence[Match]) -> Built:
+    """Fig. 5 and the appendix learning curves: mean return over trials with a band."""
+    options = item.options
+    x_axis = options.get("x", "episode")
+    band = options.get("band", "std")
+    window = int(options.get("window", 1))
+    present = _present(matched)
+    series = []
+    frames = []
+    if x_axis == "global_step":
+        last = max(int(run.episodes["global_step"].max()) for _, run in present)
+        stride = max(1, -(-last // CURVE_POINTS))
+        grid = np.arange(stride, last + stride, stride)
+    for m, run in present:
+        if x_axis == "global_step":
+            x, matrix = grid, _step_matrix(run, grid, window)
+        else:
+            x, matrix = _episode_matrix(run, window)
+        curve = stats.curve(x, matrix)
+        series.append(figures.Series(m.label, curve, len(run.trials)))
+        frames.append(
+            pd.DataFrame(
+                {
+                    "series": m.label,
+                    x_axis: curve.x,
+                    "trials": curve.n,
+                    "mean": curve.mean,
+                    "std": curve.std,
+                    "se": curve.se,
+                }
+            )
+        )
+    xlabel = "Environment steps" if x_axis == "global_step" else "Episodes"
+    axes = figures.returns(
+        series,
+        band=band,
+        xlabel=xlabel,
+        ylabel=str(options.get("ylabel", "Average return")),
+        title=item.title,
+    )
+    smoothing = ""
+    if x_axis == "global_step":
+        smoothing = (
+            f"; at each step, the mean of the last {window} episode returns finished by then"
+        )
+    elif window > 1:
+        smoothing = f"; moving average over {window} episodes"
+    spread = "one standard deviation" if band == "std" else "one standard error"
+    method = f"Return per episode, mean over trials with a band of {spread}{smoothing}."
+    return Built(axes, pd.concat(frames, ignore_index=True), [], method)
+
+
+def _summary_row(label: str, values: np.ndarray, key: str) -> tuple[stats.Summary, dict[str, Any]]:
+    """Summary of per-trial values; the bootstrap is seeded by ``key`` (the run and quantity), so
+    one run's interval is the same in every table that shows it."""
+    s = stats.summarize(values, stats.generator(key))
+    row = {
+        "label": label,
+        "n": s.n,
+        "mean": s.mean,
+        "se": s.se,
+        "std": s.std,
+        "ci_low": s.ci_low,
+        "ci_high": s.ci_high,
+    }
+    return s, row
+
+
+def build_query_bars(item: Item, matched: Sequence[Match]) -> Built:
+    """Fig. 6 and the binary-reward appendix figure: LLM queries per trial, mean ± s.e."""
+    bars = []
+    rows = []
+    display = []
+    for m, run in _present(matched):
+        values = np.array(list(run.total_per_trial("queries").values()))
+        summary, row = _summary_row(m.label, values, f"{run.key.name}/queries")
+        bars.append(figures.Bar(m.label, summary))
+        rows.append(row)
+        display.append(
+            (
+                m.label,
+                str(summary.n),
+                plus_minus(summary.mean, summary.se),
+                number(summary.std),
+                interval(summary.ci_low, summary.ci_high),
+            )
+        )
+    axes = figures.bars(bars, title=item.title)
+    table = Table(
+        f"{item.title}: LLM queries per trial",
+        ("", "trials", "mean ± s.e.", "std", "95% bootstrap CI"),
+        tuple(display),
+        pd.DataFrame(rows),
+    )
+    method = "LLM queries per trial (summed over its episodes), mean with standard-error bars; 95% percentile-bootstrap interval of the mean in the table."
+    return Built(axes, pd.DataFrame(rows), [(item.id, table)], method)
+
+
+def _reference(item: Item, key: str) -> str:
+    reference = item.options.get("reference", {})
+    return str(reference.get(key, "")) if isinstance(reference, dict) else ""
+
+
+def _rows_columns(matched: Sequence[Match]) -> tuple[list[str], list[str]]:
+    rows: list[str] = []
+    columns: list[str] = []
+    for m in matched:
+        if m.spec.row is not None and m.spec.row not in rows:
+            rows.append(m.spec.row)
+        if m.spec.column is not None and m.spec.column not in columns:
+            columns.append(m.spec.column)
+    return rows, columns
+
+
+def build_query_table(item: Item, matched: Sequence[Match]) -> Built:
+    """Table 2 and Table 3: queries per run, mean ± s.e., one cell per (row, column) run."""
+    rows, columns = _rows_columns(matched)
+    cells: dict[tuple[str, str], stats.Summary] = {}
+    data = []
+    for m, run in _present(matched):
+        row, column = m.spec.row or "", m.spec.column or ""
+        values = np.array(list(run.total_per_trial("queries").values()))
+        summary, record = _summary_row(m.label, values, f"{run.key.name}/queries")
+        cells[(row, column)] = summary
+        data.append(
+            {"row": row, "column": column, **record, "paper": _reference(item, f"{row}|{column}")}
+        )
+    header = str(item.options.get("row_header", ""))
+    display = []
+    for row in rows:
+        line = [row]
+        for column in columns:
+            s = cells.get((row, column))
+            line.append("not run" if s is None else f"{plus_minus(s.mean, s.se)} (n={s.n})")
+        line += [_reference(item, f"{row}|{column}") or "—" for column in columns]
+        display.append(tuple(line))
+    table = Table(
+        f"{item.title}: LLM queries per run, mean ± s.e.",
+        (header, *columns, *(f"paper: {c}" for c in columns)),
+        tuple(display),
+        pd.DataFrame(data),
+    )
+    method = "LLM queries per run (trial), mean ± standard error over trials, next to the paper's values; the CSV adds the standard deviation and a 95% percentile-bootstrap interval."
+    return Built(None, None, [(item.id, table)], method)
+
+
+def build_ratio_table(item: Item, matched: Sequence[Match]) -> Built:
+    """Appendix table: performance ratio (total return of one method over another, per trial)."""
+    numerator = str(item.options.get("numerator", ""))
+    denominator = str(item.options.get("denominator", ""))
+    rows, _ = _rows_columns(matched)
+    runs = {(m.spec.row, m.spec.column): run for m, run in _present(matched)}
+    display = []
+    data = []
+    for row in rows:
+        top = runs.get((row, numerator))
+        bottom = runs.get((row, denominator))
+        paper = _reference(item, row)
+        if top is None or bottom is None:
+            display.append((row, "not run", "", "", paper or "—"))
+            continue
+        top_returns = top.total_per_trial("return")
+        bottom_returns = bottom.total_per_trial("return")
+        ratios = stats.paired_ratios(top_returns, bottom_returns)
+        s = stats.summarize(ratios, stats.generator(f"{top.key.name}/{bottom.key.name}/ratio"))
+        t_mean, _, t_se = stats.mean_std_se(list(top_returns.values()))
+        b_mean, _, b_se = stats.mean_std_se(list(bottom_returns.values()))
+        display.append(
+            (
+                row,
+                f"{plus_minus(s.mean, s.se, 3)} (n={s.n})",
+                plus_minus(t_mean, t_se, 1),
+                plus_minus(b_mean, b_se, 1),
+                paper or "—",
+            )
+        )
+        data.append(
+            {
+                "row": row,
+                "n": s.n,
+                "ratio_mean": s.mean,
+                "ratio_se": s.se,
+                "ratio_std": s.std,
+                "ci_low": s.ci_low,
+                "ci_high": s.ci_high,
+                f"{numerator} return": t_mean,
+                f"{denominator} return": b_mean,
+                "paper": paper,
+            }
+        )
+    header = str(item.options.get("row_header", ""))
+    table = Table(
+        f"{item.title}: performance ratio {numerator} / {denominator}",
+        (
+            header,
+            "performance ratio (mean ± s.e.)",
+            f"{numerator} total return",
+            f"{denominator} total return",
+            "paper",
+        ),
+        tuple(display),
+        pd.DataFrame(data),
+    )
+    method = f"Per trial, the total return of {numerator} divided by that of {denominator} with the same trial index (same seed); mean ± standard error over trials, and a 95% percentile-bootstrap interval in the CSV."
+    return Built(None, None, [(item.id, table)], method)
+
+
+def build_accuracy(item: Item, matched: Sequence[Match]) -> Built:
+    """Fig. 4: the share of answers equal to the target at each fraction of the sequence shown."""
+    lines = []
+    frames = []
+    for m, run in _present(matched):
+        queries = run.queries[run.queries["queried"].astype(bool)]
+        grouped = queries.groupby("prefix_length", sort=True)
+        fraction = grouped["fraction"].first().to_numpy(dtype=float)
+        correct = grouped["accepted"].apply(lambda a: int(a.fillna(False).astype(bool).sum()))
+        count = grouped.size()
+        accuracy = 100.0 * correct.to_numpy() / count.to_numpy()
+        lines.append(figures.AccuracyLine(m.label, fraction, accuracy, run.samples))
+        frames.append(
+            pd.DataFrame(
+                {
+                    "series": m.label,
+                    "prefix_length": count.index.to_numpy(),
+                    "fraction": fraction,
+                    "answers": count.to_numpy(),
+                    "correct": correct.to_numpy(),
+                    "accuracy_pct": accuracy,
+                }
+            )
+        )
+    axes = figures.accuracy(lines, title=item.title)
+    method = "For each prefix of the target (1/N to N/N of the sequence), the percentage of the provider's answers that parse to exactly the target."
+    return Built(axes, pd.concat(frames, ignore_index=True), [], method)
+
+
+def _flatten(config: dict[str, Any]) -> dict[str, str]:
+    out: dict[str, str] = {}
+    for section, values in config.items():
+        if isinstance(values, dict):
+            for name, value in values.items():
+                out[f"{section}.{name}"] = json.dumps(value, ensure_ascii=False)
+        else:
+            out[section] = json.dumps(values, ensure_ascii=False)
+    return out
+
+
+def build_config_table(item: Item, matched: Sequence[Match]) -> Built:
+    """The hyperparameter table: every configuration field of each run, as its log stores it."""
+    present = _present(matched)
+    flat = [_flatten(run.config) for _, run in present]
+    fields: list[str] = []
+    for values in flat:
+        fields += [f for f in values if f not in fields]
+    rows = []
+    data = []
+    for name in fields:
+        cells = [values.get(name, "—") for values in flat]
+        differs = len(set(cells)) > 1
+        rows.append((f"{name} *" if differs else name, *cells))
+        data.append(
+            {
+                "field": name,
+                "differs": differs,
+                **{m.label: c for (m, _), c in zip(present, cells, strict=True)},
+            }
+        )
+    table = Table(
+        f"{item.title}: configuration of each run (* = differs between runs)",
+        ("field", *(m.label for m, _ in present)),
+        tuple(rows),
+        pd.DataFrame(data),
+    )
+    method = "Every field of each run's resolved configuration, read from the lagrseq.run metadata of its MCAP logs."
+    return Built(None, None, [(item.id, table)], method)
+
+
+BUILDERS: dict[str, Callable[[Item, Sequence[Match]], Built]] = {
+    "returns": build_returns,
+    "query-bars": build_query_bars,
+    "query-table": build_query_table,
+    "ratio-table": build_ratio_table,
+    "accuracy": build_accuracy,
+    "config-table": build_config_table,
+}

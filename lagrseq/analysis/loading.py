@@ -1,0 +1,277 @@
+"""MCAP logs -> runs: trial logs grouped by what was run, as pandas frames.
+
+A *run* is every trial log of one experiment: the same task, method, preset, provider, seed and
+configuration (its digest, i.e. the run directory's suffix). Everything comes from the logs: the
+``lagrseq.run`` metadata and the ``/episode`` and ``/query`` topics, read through the chunk index
+so that no transition chunk is decompressed (:func:`lagrseq.logs.reader.read_topics`).
+
+Logs that are unfinished (``.mcap.partial``), unreadable, or whose trial did not complete are left
+out with a one-line warning each, never failing the whole load.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from lagrseq.errors import LogError
+from lagrseq.logs.reader import ReadStats, read_log
+from lagrseq.logs.schemas import ACCURACY_METHOD
+from lagrseq.logs.sink import PARTIAL_SUFFIX
+
+EPISODE_COLUMNS = (
+    "trial",
+    "episode",
+    "return",
+    "length",
+    "queries",
+    "accepted",
+    "epsilon",
+    "solved",
+    "guided_steps",
+    "global_step",
+)
+QUERY_COLUMNS = (
+    "trial",
+    "episode",
+    "step",
+    "global_step",
+    "decision",
+    "queried",
+    "accepted",
+    "evaluation",
+    "provider",
+    "model",
+    "temperature",
+    "prompt_tokens",
+    "completion_tokens",
+    "cost_usd",
+    "latency_s",
+    "source",
+    "prefix_length",
+    "fraction",
+)
+
+
+@dataclass(frozen=True, order=True)
+class RunKey:
+    """What identifies a run (the sort order is the report order)."""
+
+    task: str
+    method: str
+    preset: str
+    provider: str
+    seed: int
+    digest: str
+    variant: str = ""
+    """Accuracy probes: ``samples-K`` (answers per prefix); empty for RL trials."""
+
+    @property
+    def kind(self) -> str:
+        return "accuracy" if self.method == ACCURACY_METHOD else "trial"
+
+    @property
+    def name(self) -> str:
+        tail = f"/{self.variant}" if self.variant else ""
+        return f"{self.task}/{self.method}/{self.preset}-{self.provider}-seed{self.seed}-{self.digest}{tail}"
+
+
+@dataclass(frozen=True)
+class Run:
+    """The complete trial logs of one run."""
+
+    key: RunKey
+    config: dict[str, Any]
+    files: tuple[str, ...]
+    """Log paths relative to the directory given to :func:`load`."""
+    trials: tuple[int, ...]
+    episodes: pd.DataFrame
+    """One row per episode: :data:`EPISODE_COLUMNS`."""
+    queries: pd.DataFrame
+    """One row per secondary decision (or probe query): :data:`QUERY_COLUMNS`."""
+    transitions: int
+    """``/transition`` messages in the logs (from their statistics; none were decompressed)."""
+    samples: int = 0
+    """Accuracy probes: answers per prefix."""
+
+    @property
+    def episodes_per_trial(self) -> int:
+        if self.episodes.empty:
+            return 0
+        return int(self.episodes.groupby("trial")["episode"].count().max())
+
+    @property
+    def size(self) -> int:
+        """How much data the run holds (trials x episodes, or probe answers): bigger wins when
+        several runs match one suite entry."""
+        if self.key.kind == "accuracy":
+            return len(self.queries)
+        return len(self.trials) * self.episodes_per_trial
+
+    def total_per_trial(self, column: str) -> dict[int, float]:
+        """Sum of an ``/episode`` column over each trial (e.g. queries or return per trial)."""
+        sums = self.episodes.groupby("trial")[column].sum()
+        return {int(t): float(v) for t, v in sums.items()}
+
+
+@dataclass(frozen=True)
+class Logs:
+    """Everything :func:`load` found."""
+
+    runs: tuple[Run, ...]
+    warnings: tuple[str, ...]
+    files: int
+    bytes: int
+    messages: dict[str, int] = field(default_factory=dict)
+    stats: ReadStats = field(default_factory=ReadStats)
+
+
+@dataclass
+class _Trial:
+    key: RunKey
+    config: dict[str, Any]
+    display: str
+    trial: int
+    episodes: pd.DataFrame
+    queries: pd.DataFrame
+    counts: dict[str, int]
+    samples: int
+
+
+def _display(path: Path, root: Path) -> str:
+    base = root if root.is_dir() else root.parent
+    try:
+        return path.relative_to(base).as_posix()
+    except ValueError:  # pragma: no cover - find_logs only returns paths under root
+        return path.name
+
+
+def _find(roots: Sequence[str | Path]) -> tuple[list[tuple[Path, Path]], list[str]]:
+    found: dict[Path, Path] = {}
+    warnings = []
+    for item in roots:
+        root = Path(item)
+        if root.is_dir():
+            for path in sorted(root.rglob("*.mcap")):
+                found.setdefault(path.resolve(), root)
+            for path in sorted(root.rglob("*.mcap" + PARTIAL_SUFFIX)):
+                warnings.append(
+                    f"{_display(path, root)}: unfinished log (its trial crashed or is still "
+                    f"running); skipped: run `lagrseq recover` on it to keep its episodes"
+                )
+        elif root.is_file() and root.name.endswith(".mcap"):
+            found.setdefault(root.resolve(), root)
+        else:
+            raise LogError(f"{root}: no such MCAP file or directory")
+    ordered = sorted(found.items(), key=lambda kv: _display(kv[0], kv[1]))
+    return ordered, warnings
+
+
+def _read_trial(path: Path, root: Path, stats: ReadStats) -> _Trial:
+    display = _display(path, root)
+    # Only complete trials count; the topics are read in the same pass (cheap: summary chunks).
+    data = read_log(path, ["/episode", "/query"], stats)
+    info, topics, counts = data.info, data.topics, data.counts
+    status = info.status.get("status", "unfinished")
+    run = info.run
+    method = run.get("method", "")
+    if status != "complete":
+        raise LogError(f"{display}: trial {status} ({info.status.get('error', '')}); skipped")
+    text = run["config"]
+    digest = hashlib.sha256(text.encode()).hexdigest()[:8]
+    samples = int(run.get("samples", 0)) if method == ACCURACY_METHOD else 0
+    key = RunKey(
+        task=run.get("task", ""),
+        method=method,
+        preset=run.get("preset", ""),
+        provider=run.get("provider", ""),
+        seed=int(run.get("seed", 0)),
+        digest=digest,
+        variant=f"samples-{samples}" if samples else "",
+    )
+    return _Trial(
+        key=key,
+        config=json.loads(text),
+        display=display,
+        trial=int(run.get("trial", 0)),
+        # Frames right away: a file's records as dicts are big, its columns are small.
+        episodes=_frame(topics["/episode"], EPISODE_COLUMNS),
+        queries=_frame(topics["/query"], QUERY_COLUMNS),
+        counts=counts,
+        samples=samples,
+    )
+
+
+def _frame(records: list[dict[str, Any]], columns: Sequence[str]) -> pd.DataFrame:
+    return pd.DataFrame.from_records(records, columns=list(columns))
+
+
+def _concat(frames: list[pd.DataFrame], columns: Sequence[str]) -> pd.DataFrame:
+    frames = [f for f in frames if not f.empty]
+    if not frames:
+        return pd.DataFrame(columns=list(columns))
+    return pd.concat(frames, ignore_index=True)
+
+
+def load(roots: Sequence[str | Path]) -> Logs:
+    """Read every ``*.mcap`` under ``roots`` (files or directories) into runs."""
+    paths, warnings = _find(roots)
+    stats = ReadStats()
+    groups: dict[RunKey, list[_Trial]] = {}
+    size = 0
+    messages: dict[str, int] = {}
+    for path, root in paths:
+        size += path.stat().st_size
+        try:
+            trial = _read_trial(path, root, stats)
+        except LogError as exc:
+            text = str(exc).replace(str(path), _display(path, root))
+            warnings.append(text if text.endswith("skipped") else f"{text}; skipped")
+            continue
+        except (KeyError, ValueError) as exc:
+            warnings.append(f"{_display(path, root)}: not a lagrseq trial log ({exc}); skipped")
+            continue
+        for topic, count in trial.counts.items():
+            messages[topic] = messages.get(topic, 0) + count
+        groups.setdefault(trial.key, []).append(trial)
+
+    runs = []
+    for key in sorted(groups):
+        trials: dict[int, _Trial] = {}
+        for trial in sorted(groups[key], key=lambda t: t.display):
+            if trial.trial in trials:
+                warnings.append(
+                    f"{trial.display}: trial {trial.trial} of {key.name} also in "
+                    f"{trials[trial.trial].display}; skipped"
+                )
+                continue
+            trials[trial.trial] = trial
+        ordered = [trials[t] for t in sorted(trials)]
+        episodes = _concat([t.episodes for t in ordered], EPISODE_COLUMNS)
+        queries = _concat([t.queries for t in ordered], QUERY_COLUMNS)
+        runs.append(
+            Run(
+                key=key,
+                config=ordered[0].config,
+                files=tuple(t.display for t in ordered),
+                trials=tuple(sorted(trials)),
+                episodes=episodes,
+                queries=queries,
+                transitions=sum(t.counts.get("/transition", 0) for t in ordered),
+                samples=ordered[0].samples,
+            )
+        )
+    return Logs(
+        runs=tuple(runs),
+        warnings=tuple(sorted(set(warnings))),
+        files=len(paths),
+        bytes=size,
+        messages=dict(sorted(messages.items())),
+        stats=stats,
+    )

@@ -1,0 +1,371 @@
+"""``lagrseq replay``: MCAP logs in, the paper's figures, tables and costs out. The only module of
+:mod:`lagrseq.analysis` that writes files.
+
+For every item of the suite (``lagrseq/experiments/paper_suite.toml``) that the logs cover, it
+writes the figure (``figures/ID.png``, plus SVG/PDF on request, and the numbers behind it as
+``figures/ID.csv``) and the tables (``tables/ID.md`` and ``.csv``); then the costs and runs tables,
+``index.html`` showing all of it with a line on how each item was made, and ``index.md`` (the same
+for a Markdown viewer). Items the logs do not cover get one line saying why.
+
+Same logs in, same bytes out: figures are saved without timestamps or software versions (PNG
+``Software``, PDF dates, SVG ids from a fixed salt), runs and rows are sorted, floats have fixed
+formats, and no path outside the output directory or wall-clock time is written.
+"""
+
+from __future__ import annotations
+
+import html
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import matplotlib
+import matplotlib.axes
+import pandas as pd
+from matplotlib.figure import Figure
+
+from lagrseq import __version__
+from lagrseq.analysis import costs, figures, items, loading, stats
+from lagrseq.analysis.tables import Table, plus_minus, to_csv, to_html, to_markdown
+from lagrseq.errors import LogError, UsageError
+from lagrseq.suite import Item, Suite, load_suite
+
+FORMATS = ("png", "svg", "pdf")
+DPI = 150
+_SAVE_METADATA: dict[str, dict[str, None]] = {
+    "png": {"Software": None},
+    "svg": {"Date": None, "Creator": None},
+    "pdf": {"CreationDate": None, "ModDate": None, "Producer": None, "Creator": None},
+}
+_RC = {**figures.STYLE, "svg.hashsalt": "lagrseq", "pdf.compression": 6, "path.simplify": True}
+
+
+@dataclass
+class ItemReport:
+    """What replay made of one suite item."""
+
+    item: Item
+    matched: list[items.Match]
+    figure: str | None = None
+    figure_size: tuple[int, int] = (0, 0)
+    """Pixel width and height of the PNG."""
+    figure_files: list[str] = field(default_factory=list)
+    figure_data: str | None = None
+    tables: list[tuple[Table, str, str]] = field(default_factory=list)
+    method: str = ""
+
+    @property
+    def status(self) -> str:
+        present = sum(m.run is not None for m in self.matched)
+        if present == 0:
+            return "not run"
+        return "made" if present == len(self.matched) else "partial"
+
+    def missing(self) -> list[str]:
+        return [f"{m.label}: {m.reason}" for m in self.matched if m.run is None]
+
+    def not_run_line(self) -> str:
+        reasons = sorted({m.reason for m in self.matched if m.run is None})
+        return "not run: " + "; ".join(reasons)
+
+
+@dataclass
+class Report:
+    """Everything one replay wrote."""
+
+    out: Path
+    logs: loading.Logs
+    items: list[ItemReport]
+    written: list[Path]
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        return self.logs.warnings
+
+
+def _save_figure(
+    axes: matplotlib.axes.Axes, stem: Path, formats: Sequence[str]
+) -> tuple[list[Path], tuple[int, int]]:
+    """Save the figure of ``axes`` in each format; returns the paths and the PNG's pixel size."""
+    figure = axes.figure
+    while not isinstance(figure, Figure):  # a SubFigure: save its root figure
+        figure = figure.figure
+    paths = []
+    for fmt in formats:
+        path = stem.with_suffix(f".{fmt}")
+        figure.savefig(path, format=fmt, dpi=DPI, metadata=_SAVE_METADATA[fmt])
+        paths.append(path)
+    width, height = figure.get_size_inches() * DPI
+    return paths, (round(width), round(height))
+
+
+def _write(path: Path, text: str, written: list[Path]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text, encoding="utf-8", newline="\n")
+    written.append(path)
+
+
+def runs_table(runs: Sequence[loading.Run]) -> Table:
+    """Every run found: trials, length, queries and return per trial."""
+    rows = []
+    data = []
+    for run in runs:
+        if run.key.kind == "accuracy":
+            length = f"{run.samples} answers per prefix"
+            queries = f"{len(run.queries)} (probe)"
+            ret = "—"
+            q_mean = r_mean = q_se = r_se = float("nan")
+        else:
+            length = f"{run.episodes_per_trial} episodes"
+            q_mean, _, q_se = stats.mean_std_se(list(run.total_per_trial("queries").values()))
+            r_mean, _, r_se = stats.mean_std_se(list(run.total_per_trial("return").values()))
+            queries = plus_minus(q_mean, q_se, 1)
+            ret = plus_minus(r_mean, r_se, 1)
+        rows.append(
+            (run.key.name, str(len(run.trials)), length, str(run.transitions), queries, ret)
+        )
+        data.append(
+            {
+                "run": run.key.name,
+                "task": run.key.task,
+                "method": run.key.method,
+                "preset": run.key.preset,
+                "provider": run.key.provider,
+                "seed": run.key.seed,
+                "config": run.key.digest,
+                "trials": len(run.trials),
+                "episodes_per_trial": run.episodes_per_trial,
+                "transitions": run.transitions,
+                "queries_per_trial_mean": q_mean,
+                "queries_per_trial_se": q_se,
+                "return_per_trial_mean": r_mean,
+                "return_per_trial_se": r_se,
+            }
+        )
+    return Table(
+        "Runs in these logs",
+        (
+            "run",
+            "trials",
+            "length",
+            "transitions",
+            "queries per trial (mean ± s.e.)",
+            "return per trial (mean ± s.e.)",
+        ),
+        tuple(rows),
+        pd.DataFrame(data),
+    )
+
+
+def replay(
+    roots: Sequence[str | Path],
+    out: str | Path,
+    formats: Sequence[str] = ("png",),
+    suite: Suite | None = None,
+    provider: str | None = None,
+    unavailable: Mapping[str, str] | None = None,
+    price: costs.Price | None = None,
+    produced_by: str = "lagrseq replay",
+) -> Report:
+    """Rebuild the suite's items that ``roots`` cover into ``out`` (see the module docstring).
+
+    ``provider`` restricts the suite's default-provider runs to one provider; ``unavailable``
+    (provider spec -> reason) lets ``lagrseq reproduce`` say why an item was not run; ``price``
+    re-costs queries from their token usage.
+    """
+    bad = [f for f in formats if f not in FORMATS]
+    if bad:
+        raise UsageError(f"unknown figure format {bad[0]!r}; expected some of {', '.join(FORMATS)}")
+    formats = ["png", *[f for f in FORMATS if f in formats and f != "png"]]
+    suite = load_suite() if suite is None else suite
+    logs = loading.load(roots)
+    if not logs.runs:
+        detail = f" ({'; '.join(logs.warnings)})" if logs.warnings else ""
+        raise LogError(f"no complete lagrseq trial logs under {', '.join(map(str, roots))}{detail}")
+    out = Path(out)
+    (out / "figures").mkdir(parents=True, exist_ok=True)
+    (out / "tables").mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    reports = []
+    with matplotlib.rc_context(_RC):  # type: ignore[arg-type]
+        for item in suite.items:
+            matched = items.match(
+                item, logs.runs, suite.provider, provider, dict(unavailable or {})
+            )
+            report = ItemReport(item, matched)
+            reports.append(report)
+            if report.status == "not run":
+                continue
+            built = items.BUILDERS[item.render](item, matched)
+            report.method = built.method
+            if built.axes is not None:
+                paths, report.figure_size = _save_figure(
+                    built.axes, out / "figures" / item.id, formats
+                )
+                written += paths
+                report.figure = f"figures/{item.id}.png"
+                report.figure_files = [p.relative_to(out).as_posix() for p in paths]
+            if built.figure_data is not None:
+                _write(out / "figures" / f"{item.id}.csv", to_csv(built.figure_data), written)
+                report.figure_data = f"figures/{item.id}.csv"
+            for stem, table in built.tables:
+                _write(out / "tables" / f"{stem}.md", to_markdown(table), written)
+                _write(out / "tables" / f"{stem}.csv", to_csv(table.data), written)
+                report.tables.append((table, f"tables/{stem}.md", f"tables/{stem}.csv"))
+
+    extra = [
+        ("costs-by-run", costs.by_run(logs.runs, price)),
+        ("costs-by-method", costs.by_method(logs.runs, price)),
+        ("runs", runs_table(logs.runs)),
+    ]
+    for stem, table in extra:
+        _write(out / "tables" / f"{stem}.md", to_markdown(table), written)
+        _write(out / "tables" / f"{stem}.csv", to_csv(table.data), written)
+    _write(out / "index.html", _index_html(reports, extra, logs, produced_by), written)
+    _write(out / "index.md", _index_markdown(reports, extra, logs, produced_by), written)
+    return Report(out, logs, reports, written)
+
+
+# ------------------------------------------------------------------------------------------
+# index.html / index.md
+# ------------------------------------------------------------------------------------------
+_CSS = """
+body { font-family: system-ui, sans-serif; max-width: 980px; margin: 2em auto; padding: 0 1em; color: #222; }
+h1 { font-size: 1.5em; } h2 { font-size: 1.15em; margin-top: 2em; border-bottom: 1px solid #ddd; }
+img { max-width: 100%; height: auto; border: 1px solid #eee; }
+table { border-collapse: collapse; margin: 0.8em 0; font-size: 0.9em; }
+caption { text-align: left; font-weight: 600; padding-bottom: 0.3em; }
+th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: left; }
+th { background: #f4f4f4; }
+.caption { color: #555; font-style: italic; } .how { color: #333; font-size: 0.92em; }
+.missing, .warn { color: #a33; } .links { font-size: 0.85em; }
+ul.how { font-size: 0.85em; color: #444; margin-top: 0; }
+.status { font-size: 0.8em; padding: 0.1em 0.5em; border-radius: 0.6em; background: #eee; }
+"""
+
+
+def _summary_line(logs: loading.Logs) -> str:
+    transitions = logs.messages.get("/transition", 0)
+    queries = logs.messages.get("/query", 0)
+    episodes = logs.messages.get("/episode", 0)
+    return (
+        f"{logs.files} MCAP logs ({logs.bytes / 1e6:.1f} MB; {transitions} transitions, "
+        f"{episodes} episodes, {queries} query records) in {len(logs.runs)} runs"
+    )
+
+
+def _how(report: ItemReport, produced_by: str) -> tuple[str, list[str]]:
+    """How the item was made, and one line per run it was made from."""
+    how = f"Made by `{produced_by}` from the MCAP logs alone. {report.method}"
+    return how, [items.run_line(m) for m in report.matched if m.run is not None]
+
+
+def _index_html(
+    reports: Sequence[ItemReport],
+    extra: Sequence[tuple[str, Table]],
+    logs: loading.Logs,
+    produced_by: str,
+) -> str:
+    e = html.escape
+    parts = [
+        "<!DOCTYPE html>",
+        '<html lang="en">',
+        '<head><meta charset="utf-8"><title>lagrseq: LaGR-SEQ results</title>',
+        f"<style>{_CSS}</style></head>",
+        "<body>",
+        "<h1>LaGR-SEQ: the paper's figures and tables, rebuilt from MCAP logs</h1>",
+        f"<p>{e(_summary_line(logs))}; lagrseq {e(__version__)}. Every number below was "
+        f"computed offline from these logs by <code>{e(produced_by)}</code>.</p>",
+        "<ul>",
+    ]
+    for r in reports:
+        parts.append(
+            f'<li><a href="#{e(r.item.id)}">{e(r.item.title)}</a> <span class="status">{e(r.status)}</span></li>'
+        )
+    parts += ['<li><a href="#costs">LLM costs</a></li>', '<li><a href="#runs">Runs</a></li>']
+    if logs.warnings:
+        parts.append('<li><a href="#warnings">Warnings</a></li>')
+    parts.append("</ul>")
+    for r in reports:
+        parts.append(f'<section id="{e(r.item.id)}">')
+        parts.append(f'<h2>{e(r.item.title)} <span class="status">{e(r.status)}</span></h2>')
+        if r.item.caption:
+            parts.append(f'<p class="caption">Paper: {e(r.item.caption)}</p>')
+        if r.status == "not run":
+            parts.append(f'<p class="missing">{e(r.not_run_line())}</p>')
+            parts.append("</section>")
+            continue
+        if r.figure:
+            width, height = r.figure_size
+            parts.append(
+                f'<img src="{e(r.figure)}" alt="{e(r.item.title)}" width="{width}" height="{height}">'
+            )
+            links = [(f.rsplit(".", 1)[1].upper(), f) for f in r.figure_files]
+            if r.figure_data:
+                links.append(("data (CSV)", r.figure_data))
+            parts.append(
+                '<p class="links">'
+                + " · ".join(f'<a href="{e(h)}">{e(t)}</a>' for t, h in links)
+                + "</p>"
+            )
+        for table, md, csv in r.tables:
+            parts.append(to_html(table, [("Markdown", md), ("CSV", csv)]))
+        how, run_lines = _how(r, produced_by)
+        parts.append(f'<p class="how">{e(how)} Runs:</p>')
+        parts.append(
+            '<ul class="how">' + "".join(f"<li>{e(line)}</li>" for line in run_lines) + "</ul>"
+        )
+        if r.item.note:
+            parts.append(f'<p class="how">Note: {e(r.item.note)}</p>')
+        for line in r.missing():
+            parts.append(f'<p class="missing">Missing — {e(line)}</p>')
+        parts.append("</section>")
+    for stem, table in extra:
+        anchor = "costs" if stem == "costs-by-run" else ("runs" if stem == "runs" else stem)
+        parts.append(f'<section id="{e(anchor)}">')
+        parts.append(
+            to_html(table, [("Markdown", f"tables/{stem}.md"), ("CSV", f"tables/{stem}.csv")])
+        )
+        parts.append("</section>")
+    if logs.warnings:
+        parts.append('<section id="warnings"><h2>Warnings</h2><ul>')
+        parts += [f'<li class="warn">{e(w)}</li>' for w in logs.warnings]
+        parts.append("</ul></section>")
+    parts += ["</body>", "</html>"]
+    return "\n".join(parts) + "\n"
+
+
+def _index_markdown(
+    reports: Sequence[ItemReport],
+    extra: Sequence[tuple[str, Table]],
+    logs: loading.Logs,
+    produced_by: str,
+) -> str:
+    lines = [
+        "# LaGR-SEQ: the paper's figures and tables, rebuilt from MCAP logs",
+        "",
+        f"{_summary_line(logs)}; lagrseq {__version__}. Made offline from these logs by `{produced_by}`.",
+        "",
+    ]
+    for r in reports:
+        lines += [f"## {r.item.title} ({r.status})", ""]
+        if r.item.caption:
+            lines += [f"*Paper: {r.item.caption}*", ""]
+        if r.status == "not run":
+            lines += [r.not_run_line(), ""]
+            continue
+        if r.figure:
+            lines += [f"![{r.item.title}]({r.figure})", ""]
+        for table, _md, _csv in r.tables:
+            lines += [to_markdown(table)]
+        how, run_lines = _how(r, produced_by)
+        lines += [f"{how} Runs:", "", *(f"- {line}" for line in run_lines), ""]
+        if r.item.note:
+            lines += [f"Note: {r.item.note}", ""]
+        lines += [f"Missing — {line}  " for line in r.missing()]
+        lines.append("")
+    for _stem, table in extra:
+        lines += [to_markdown(table)]
+    if logs.warnings:
+        lines += ["## Warnings", "", *(f"- {w}" for w in logs.warnings), ""]
+    return "\n".join(lines).rstrip("\n") + "\n"

@@ -1,0 +1,138 @@
+"""Statistics as pure functions over per-trial values.
+
+The paper reports mean +- standard error for query counts and ratios, and mean +- one standard
+deviation bands for learning curves. Both use the sample standard deviation (``ddof=1``).
+Confidence intervals are percentile bootstraps of the mean drawn from a generator the caller
+passes in; :func:`generator` makes one from a fixed seed and the statistic's name, so a table's
+numbers do not depend on which other statistics were computed before it.
+"""
+
+from __future__ import annotations
+
+import math
+import zlib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+BOOTSTRAP_SEED = 20230821
+"""Seed of every bootstrap (the date of the authors' released code)."""
+RESAMPLES = 10_000
+CONFIDENCE = 0.95
+
+
+def generator(key: str, seed: int = BOOTSTRAP_SEED) -> np.random.Generator:
+    """The bootstrap generator of one statistic, fixed by ``seed`` and the statistic's ``key``."""
+    sequence = np.random.SeedSequence(seed, spawn_key=(zlib.crc32(key.encode()),))
+    return np.random.Generator(np.random.PCG64(sequence))
+
+
+@dataclass(frozen=True)
+class Summary:
+    """One quantity over trials. ``std``, ``se`` and the interval are NaN with fewer than 2."""
+
+    n: int
+    mean: float
+    std: float
+    se: float
+    ci_low: float
+    ci_high: float
+
+
+def mean_std_se(values: Sequence[float] | np.ndarray) -> tuple[float, float, float]:
+    """Mean, sample standard deviation and standard error of the mean."""
+    x = np.asarray(values, dtype=float)
+    if x.size == 0:
+        return math.nan, math.nan, math.nan
+    mean = float(x.mean())
+    if x.size < 2:
+        return mean, math.nan, math.nan
+    std = float(x.std(ddof=1))
+    return mean, std, std / math.sqrt(x.size)
+
+
+def bootstrap_ci(
+    values: Sequence[float] | np.ndarray,
+    rng: np.random.Generator,
+    resamples: int = RESAMPLES,
+    confidence: float = CONFIDENCE,
+) -> tuple[float, float]:
+    """Percentile bootstrap interval of the mean: ``resamples`` resamples of the trials with
+    replacement, drawn from ``rng``."""
+    x = np.asarray(values, dtype=float)
+    if x.size < 2:
+        return math.nan, math.nan
+    means = x[rng.integers(0, x.size, size=(resamples, x.size))].mean(axis=1)
+    tail = (1.0 - confidence) / 2.0
+    low, high = np.quantile(means, [tail, 1.0 - tail])
+    return float(low), float(high)
+
+
+def summarize(values: Sequence[float] | np.ndarray, rng: np.random.Generator) -> Summary:
+    """Mean, spread and a bootstrap interval of per-trial values."""
+    x = np.asarray(values, dtype=float)
+    mean, std, se = mean_std_se(x)
+    low, high = bootstrap_ci(x, rng)
+    return Summary(int(x.size), mean, std, se, low, high)
+
+
+@dataclass(frozen=True)
+class CurveStats:
+    """A curve over trials: one value per point. ``n`` counts the trials with a value there."""
+
+    x: np.ndarray
+    mean: np.ndarray
+    std: np.ndarray
+    se: np.ndarray
+    n: np.ndarray
+
+
+def curve(x: np.ndarray, matrix: np.ndarray) -> CurveStats:
+    """Pointwise mean, sample standard deviation and standard error of ``matrix`` (trials x
+    points); NaN marks a trial without a value at a point (a shorter trial)."""
+    values = np.asarray(matrix, dtype=float)
+    if values.ndim != 2 or values.shape[1] != len(x):
+        raise ValueError(f"matrix of shape {values.shape} does not fit {len(x)} points")
+    present = ~np.isnan(values)
+    n = present.sum(axis=0)
+    total = np.where(present, values, 0.0).sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(n > 0, total / np.maximum(n, 1), np.nan)
+        squares = np.where(present, (values - mean) ** 2, 0.0).sum(axis=0)
+        std = np.where(n > 1, np.sqrt(squares / np.maximum(n - 1, 1)), np.nan)
+        se = np.where(n > 1, std / np.sqrt(np.maximum(n, 1)), np.nan)
+    return CurveStats(np.asarray(x), mean, std, se, n)
+
+
+def moving_average(values: np.ndarray, window: int) -> np.ndarray:
+    """Mean of the last ``window`` values at each position (fewer at the start)."""
+    x = np.asarray(values, dtype=float)
+    if window <= 1 or x.size == 0:
+        return x.copy()
+    sums = np.cumsum(np.concatenate([[0.0], x]))
+    ends = np.arange(1, x.size + 1)
+    starts = np.maximum(ends - window, 0)
+    return (sums[ends] - sums[starts]) / (ends - starts)
+
+
+def step_curve(
+    end_steps: np.ndarray, returns: np.ndarray, grid: np.ndarray, window: int
+) -> np.ndarray:
+    """Return vs environment steps, as the released grid code logs it: at each step of ``grid``,
+    the mean of the last ``window`` episode returns finished by then; NaN before the first episode
+    ends. ``end_steps`` are the trial's step counts at each episode end, in order."""
+    ends = np.asarray(end_steps, dtype=float)
+    averaged = moving_average(np.asarray(returns, dtype=float), window)
+    finished = np.searchsorted(ends, np.asarray(grid, dtype=float), side="right")
+    out = np.full(len(grid), np.nan)
+    has = finished > 0
+    out[has] = averaged[finished[has] - 1]
+    return out
+
+
+def paired_ratios(numerator: Mapping[int, float], denominator: Mapping[int, float]) -> np.ndarray:
+    """Per-trial ratios numerator / denominator over the trial indices both have, in trial order
+    (trial k of two runs with one seed share their environment seed)."""
+    trials = sorted(set(numerator) & set(denominator))
+    return np.array([numerator[t] / denominator[t] for t in trials], dtype=float)

@@ -1,0 +1,75 @@
+"""Tables: a display form (strings, for Markdown and HTML) and a data form (a pandas frame, for
+CSV), both with fixed formatting so that the same numbers always give the same bytes."""
+
+from __future__ import annotations
+
+import html
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import pandas as pd
+
+CSV_FLOAT = "%.6g"
+
+
+@dataclass(frozen=True)
+class Table:
+    """A table to show (``columns``/``rows`` of text) and the numbers behind it (``data``)."""
+
+    title: str
+    columns: tuple[str, ...]
+    rows: tuple[tuple[str, ...], ...]
+    data: pd.DataFrame
+
+
+def number(value: float | int | None, digits: int = 2) -> str:
+    """A number for display: fixed decimals, ``n/a`` for a missing value."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "n/a"
+    if isinstance(value, int):
+        return str(value)
+    return f"{value:.{digits}f}"
+
+
+def plus_minus(mean: float, se: float, digits: int = 2) -> str:
+    """``mean ± se`` as the paper writes it; just the mean when the error is unknown."""
+    if math.isnan(se):
+        return number(mean, digits)
+    return f"{number(mean, digits)} ± {number(se, digits)}"
+
+
+def interval(low: float, high: float, digits: int = 2) -> str:
+    if math.isnan(low) or math.isnan(high):
+        return "n/a"
+    return f"[{number(low, digits)}, {number(high, digits)}]"
+
+
+def _cell(text: str) -> str:
+    return text.replace("|", "\\|").replace("\n", " ")
+
+
+def to_markdown(table: Table) -> str:
+    """A GitHub-flavoured Markdown table under a heading."""
+    lines = [f"### {table.title}", "", "| " + " | ".join(_cell(c) for c in table.columns) + " |"]
+    lines.append("|" + "|".join(" --- " for _ in table.columns) + "|")
+    lines += ["| " + " | ".join(_cell(c) for c in row) + " |" for row in table.rows]
+    return "\n".join(lines) + "\n"
+
+
+def to_csv(frame: pd.DataFrame) -> str:
+    """CSV with ``\\n`` line ends and floats written with 6 significant digits."""
+    return frame.to_csv(index=False, float_format=CSV_FLOAT, lineterminator="\n")
+
+
+def to_html(table: Table, links: Sequence[tuple[str, str]] = ()) -> str:
+    """An HTML table (escaped), with optional links (text, href) under it."""
+    head = "".join(f"<th>{html.escape(c)}</th>" for c in table.columns)
+    body = "".join(
+        "<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in table.rows
+    )
+    out = f"<table>\n<caption>{html.escape(table.title)}</caption>\n<thead><tr>{head}</tr></thead>\n<tbody>{body}</tbody>\n</table>\n"
+    if links:
+        anchors = " · ".join(f'<a href="{html.escape(h)}">{html.escape(t)}</a>' for t, h in links)
+        out += f'<p class="links">{anchors}</p>\n'
+    return out

@@ -1,0 +1,226 @@
+"""``lagrseq reproduce``: run the paper's suite, then replay it into a report.
+
+1. Plan: every run the suite's items list, each distinct configuration once (Fig. 5(a), Fig. 6(a)
+   and Table 2 share runs); items whose task or provider this lagrseq lacks are set aside with a
+   one-line reason.
+2. Estimate: time a short stretch of every distinct experiment on this machine (no logs, mock
+   provider) and report the expected wall time before starting.
+3. Run: trials in parallel on local processes through :func:`lagrseq.experiment.run_trials`;
+   trials whose log is complete are skipped, so a rerun resumes.
+4. Replay: :func:`lagrseq.analysis.replay.replay` over the run logs, from the MCAP files alone.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from lagrseq import config as cfg
+from lagrseq import experiment
+from lagrseq.config import ExperimentConfig
+from lagrseq.errors import ConfigError, UsageError
+from lagrseq.logs.reader import is_complete
+from lagrseq.suite import RunSpec, Suite
+
+CALIBRATION_STEPS = 1000
+"""Environment steps timed per distinct experiment to estimate the suite's duration."""
+
+
+@dataclass
+class PlannedRun:
+    """One distinct run of the suite."""
+
+    kind: str
+    config: ExperimentConfig
+    provider: str
+    seed: int
+    trials: int
+    samples: int
+    path: Path
+    """Run directory (trials) or log file (accuracy probe)."""
+    items: list[str] = field(default_factory=list)
+
+    def pending(self) -> int:
+        """Trials (or probe files) whose log is not complete yet."""
+        if self.kind == "accuracy":
+            return 0 if is_complete(self.path) else 1
+        return sum(not is_complete(experiment.trial_path(self.path, t)) for t in range(self.trials))
+
+    def units(self) -> int:
+        """Progress units: episodes of all trials, or one per probe."""
+        return 1 if self.kind == "accuracy" else self.trials * self.config.run.episodes
+
+    def describe(self) -> str:
+        name = f"{self.config.task.name} {self.config.method}"
+        if self.kind == "accuracy":
+            name = f"{self.config.task.name} accuracy probe"
+        return name
+
+
+@dataclass
+class Plan:
+    runs: list[PlannedRun]
+    not_run: dict[str, str]
+    """Suite item id -> why none of its runs can be made here."""
+    unavailable: dict[str, str]
+    """Provider spec -> why it is not available."""
+
+
+def _provider_problem(spec: str) -> str | None:
+    try:
+        experiment.parse_provider(spec)
+    except UsageError as exc:
+        return f"provider not available: {exc}"
+    return None
+
+
+def plan(suite: Suite, quick: bool, provider: str | None, runs_dir: Path, seed: int) -> Plan:
+    """The distinct runs of ``suite`` (``provider`` replaces the suite's default provider)."""
+    default = provider or suite.provider
+    planned: dict[Path, PlannedRun] = {}
+    not_run: dict[str, str] = {}
+    unavailable: dict[str, str] = {}
+    for item in suite.items:
+        reasons: list[str] = []
+        made = 0
+        for spec in item.runs:
+            spec_provider = spec.provider_spec(default)
+            config, reason = _resolve(spec, quick, spec_provider, unavailable)
+            if config is None:
+                reasons.append(reason)
+                continue
+            made += 1
+            trials, _, _ = spec.length(quick)
+            samples = spec.samples if not quick else spec.quick_samples
+            if spec.kind == "accuracy":
+                path = experiment.probe_path(runs_dir, config, spec_provider, seed, samples)
+            else:
+                path = experiment.run_directory(runs_dir, config, spec_provider, seed)
+            run = planned.get(path)
+            if run is None:
+                run = planned[path] = PlannedRun(
+                    spec.kind, config, spec_provider, seed, trials, samples, path
+                )
+            run.trials = max(run.trials, trials)
+            if item.id not in run.items:
+                run.items.append(item.id)
+        if made == 0:
+            not_run[item.id] = "; ".join(sorted(set(reasons)))
+    return Plan(list(planned.values()), not_run, unavailable)
+
+
+def _resolve(
+    spec: RunSpec, quick: bool, provider: str, unavailable: dict[str, str]
+) -> tuple[ExperimentConfig | None, str]:
+    """The run's configuration, or None and why it cannot run here (its task or provider)."""
+    try:
+        config = spec.resolve(quick)
+    except ConfigError as exc:
+        if spec.task not in cfg.tasks():
+            return None, f"task {spec.task} not available"
+        return None, str(exc)
+    problem = _provider_problem(provider)
+    if problem:
+        unavailable[provider] = problem
+        return None, problem
+    return config, ""
+
+
+def _calibration_key(run: PlannedRun) -> tuple[str, ...]:
+    config = run.config
+    return (run.kind, config.task.name, config.method, config.preset, str(config.task))
+
+
+def estimate(the_plan: Plan, jobs: int) -> float:
+    """Expected seconds for the pending trials, from a short timed stretch of each distinct
+    experiment on this machine (mock provider, logged to a scratch file)."""
+    cache: dict[tuple[str, ...], tuple[float, float]] = {}
+    total = 0.0
+    for run in the_plan.runs:
+        pending = run.pending()
+        if pending == 0:
+            continue
+        key = _calibration_key(run)
+        if key not in cache:
+            cache[key] = _calibrate(run)
+        per_unit, steps_per_episode = cache[key]
+        if run.kind == "accuracy":
+            total += per_unit * run.samples
+            continue
+        episodes = run.config.run.episodes
+        steps = episodes * steps_per_episode
+        if run.config.run.max_steps:
+            steps = min(steps, run.config.run.max_steps)
+        rounds = -(-pending // max(1, min(jobs, pending)))
+        total += rounds * steps * per_unit
+    return total
+
+
+def _calibrate(run: PlannedRun) -> tuple[float, float]:
+    """(seconds per step, steps per episode) or, for a probe, (seconds per sample, 0), timed with
+    logging to a scratch file (the log is part of the cost) and the mock provider."""
+    with tempfile.TemporaryDirectory(prefix="lagrseq-calibration-") as scratch:
+        path = Path(scratch) / "calibration.mcap"
+        started = time.perf_counter()
+        if run.kind == "accuracy":
+            experiment.run_accuracy_probe(run.config, 1, run.seed, "mock", path)
+            return time.perf_counter() - started, 0.0
+        config = replace(run.config, run=replace(run.config.run, max_steps=CALIBRATION_STEPS))
+        result = experiment.run_trial(config, 0, run.seed, "mock", path)
+        seconds = time.perf_counter() - started
+    steps = max(result.steps, 1)
+    return seconds / steps, steps / max(result.episodes, 1)
+
+
+class _RunProgress:
+    """Feeds one run's episode updates into the suite's bar, never past the run's share."""
+
+    def __init__(self, bar: Any, units: int) -> None:
+        self.bar = bar
+        self.left = units
+
+    def update(self, n: int = 1) -> None:
+        n = min(n, self.left)
+        if n > 0 and self.bar is not None:
+            self.bar.update(n)
+        self.left -= n
+
+    def finish(self) -> None:
+        self.update(self.left)
+
+
+def execute(
+    the_plan: Plan,
+    jobs: int,
+    bar: Any = None,
+    on_run: Callable[[PlannedRun], None] | None = None,
+) -> list[experiment.TrialResult]:
+    """Run every planned run (complete trials are skipped)."""
+    results: list[experiment.TrialResult] = []
+    for run in the_plan.runs:
+        if on_run is not None:
+            on_run(run)
+        progress = _RunProgress(bar, run.units())
+        if run.kind == "accuracy":
+            if not is_complete(run.path):
+                results.append(
+                    experiment.run_accuracy_probe(
+                        run.config, run.samples, run.seed, run.provider, run.path
+                    )
+                )
+        else:
+            results += experiment.run_trials(
+                run.config,
+                run.trials,
+                run.seed,
+                run.provider,
+                run.path,
+                jobs=jobs,
+                progress=progress,
+            )
+        progress.finish()
+    return results

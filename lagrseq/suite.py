@@ -1,0 +1,261 @@
+"""The paper's suite as data: which runs feed which figure or table (SPEC section 4 and 7).
+
+``lagrseq/experiments/paper_suite.toml`` lists the paper's items. Each item names the function
+that renders it (``render``) and the runs it needs; a run is a task, a method, a preset, a provider
+and ``--set`` overrides, with its length for the full suite and for ``--quick``. Runs that several
+items share (Fig. 5(a), Fig. 6(a) and the tau = 0 row of Table 2 use the same LaGR-SEQ runs) are
+run once, because a run's directory is named after its whole configuration.
+
+``lagrseq reproduce`` runs the suite; ``lagrseq replay`` uses the same file to tell which logs
+feed which item, matching a log's stored configuration against the item's resolved one (run
+length aside). Adding a figure for a new task or provider is adding entries to the file.
+
+This module reads TOML and resolves configurations; it imports nothing but :mod:`lagrseq.config`.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from lagrseq import config as cfg
+from lagrseq.errors import ConfigError
+
+RENDERERS = ("returns", "query-bars", "query-table", "ratio-table", "accuracy", "config-table")
+KINDS = ("trial", "accuracy")
+
+_INT_KEYS = (
+    "trials",
+    "episodes",
+    "max_steps",
+    "quick_trials",
+    "quick_episodes",
+    "quick_max_steps",
+    "samples",
+    "quick_samples",
+)
+_RUN_KEYS = {"label", "kind", "task", "method", "preset", "provider", "set", "row", "column"}
+_RUN_KEYS |= set(_INT_KEYS)
+_INHERITED = _RUN_KEYS - {"label", "row", "column"}
+_OPTIONS = ("x", "band", "window", "ylabel", "numerator", "denominator", "reference", "row_header")
+_ITEM_KEYS = {"id", "title", "caption", "render", "runs", "note", *_OPTIONS} | _INHERITED
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run an item needs: what to run, and how long for the full suite and for --quick."""
+
+    label: str
+    """Legend entry or table cell name; ``{provider}`` is replaced by the provider spec."""
+    task: str
+    method: str
+    preset: str
+    provider: str | None
+    """Provider spec; None means the suite's default (``lagrseq reproduce --provider``)."""
+    overrides: tuple[str, ...] = ()
+    """``--set section.field=value`` overrides, run length excluded."""
+    kind: str = "trial"
+    """``trial``: RL trials; ``accuracy``: query the provider for every prefix of the target."""
+    trials: int = 10
+    episodes: int = 0
+    """Episodes per trial; 0 keeps the preset's ``run.episodes``."""
+    max_steps: int = -1
+    """Step budget per trial; -1 keeps the preset's ``run.max_steps``."""
+    quick_trials: int = 10
+    quick_episodes: int = 0
+    quick_max_steps: int = -1
+    samples: int = 100
+    """Accuracy probe: answers per prefix (the paper: 100 queries per point)."""
+    quick_samples: int = 20
+    row: str | None = None
+    column: str | None = None
+
+    def provider_spec(self, default: str) -> str:
+        return self.provider if self.provider is not None else default
+
+    def display_label(self, default_provider: str) -> str:
+        return self.label.replace("{provider}", self.provider_spec(default_provider))
+
+    def length(self, quick: bool) -> tuple[int, int, int]:
+        """(trials, episodes, max_steps) for the full suite or --quick (0 / -1: the preset's)."""
+        if quick:
+            return self.quick_trials, self.quick_episodes, self.quick_max_steps
+        return self.trials, self.episodes, self.max_steps
+
+    def all_overrides(self, quick: bool) -> tuple[str, ...]:
+        _, episodes, max_steps = self.length(quick)
+        extra = []
+        if episodes > 0:
+            extra.append(f"run.episodes={episodes}")
+        if max_steps >= 0:
+            extra.append(f"run.max_steps={max_steps}")
+        return (*self.overrides, *extra)
+
+    def resolve(self, quick: bool = False) -> cfg.ExperimentConfig:
+        """The run's configuration (raises ConfigError, e.g. for a task this lagrseq lacks)."""
+        return cfg.load(self.task, self.method, self.preset, None, self.all_overrides(quick))
+
+    def resolved_dict(self, quick: bool = False) -> dict[str, Any]:
+        """:meth:`resolve` as the JSON a log stores (tuples become lists)."""
+        return json.loads(self.resolve(quick).to_json())
+
+
+@dataclass(frozen=True)
+class Item:
+    """A paper figure or table and the runs it is made from."""
+
+    id: str
+    title: str
+    render: str
+    runs: tuple[RunSpec, ...]
+    caption: str = ""
+    """The paper's caption (what the item shows)."""
+    note: str = ""
+    """How lagrseq makes it, where that differs from the paper."""
+    options: Mapping[str, Any] = field(default_factory=dict)
+    """Renderer options: x, band, window, ylabel, numerator, denominator, reference."""
+
+
+@dataclass(frozen=True)
+class Suite:
+    seed: int
+    provider: str
+    items: tuple[Item, ...]
+
+    def select(self, ids: Sequence[str]) -> Suite:
+        """The items named in ``ids`` (in suite order)."""
+        known = {item.id for item in self.items}
+        unknown = [i for i in ids if i not in known]
+        if unknown:
+            raise ConfigError(
+                f"unknown suite item {unknown[0]!r}; items are: {', '.join(sorted(known))}"
+            )
+        return Suite(self.seed, self.provider, tuple(i for i in self.items if i.id in ids))
+
+
+def default_path() -> Path:
+    return Path(str(resources.files("lagrseq") / "experiments" / "paper_suite.toml"))
+
+
+def _int(where: str, key: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ConfigError(f"{where}: {key} = {value!r} must be an integer")
+    return value
+
+
+def _run(item_id: str, index: int, defaults: Mapping[str, Any], data: Mapping[str, Any]) -> RunSpec:
+    where = f"suite item {item_id!r}, run {index + 1}"
+    unknown = sorted(set(data) - _RUN_KEYS)
+    if unknown:
+        raise ConfigError(
+            f"{where}: unknown key {unknown[0]!r}; keys are: {', '.join(sorted(_RUN_KEYS))}"
+        )
+    merged = {**{k: v for k, v in defaults.items() if k in _INHERITED}, **data}
+    merged["set"] = [*defaults.get("set", []), *data.get("set", [])]
+    for key in ("task", "method", "preset"):
+        if not isinstance(merged.get(key), str):
+            raise ConfigError(f"{where}: {key} is missing (set it on the run or the item)")
+    kind = merged.get("kind", "trial")
+    if kind not in KINDS:
+        raise ConfigError(f"{where}: kind = {kind!r}; expected one of {', '.join(KINDS)}")
+    if merged["method"] not in cfg.METHODS:
+        raise ConfigError(
+            f"{where}: method = {merged['method']!r}; expected one of {', '.join(cfg.METHODS)}"
+        )
+    if not all(isinstance(s, str) for s in merged["set"]):
+        raise ConfigError(f'{where}: set must be a list of "section.field=value" strings')
+    for text in merged["set"]:
+        section, name, _ = cfg.parse_override(text)
+        if section == "run" and name in ("episodes", "max_steps"):
+            raise ConfigError(f"{where}: give run.{name} as {name} / quick_{name}, not in set")
+    ints = {key: _int(where, key, merged[key]) for key in _INT_KEYS if key in merged}
+    trials = ints.get("trials", 10)
+    label = data.get("label")
+    if not isinstance(label, str) or not label:
+        raise ConfigError(f"{where}: label is missing")
+    return RunSpec(
+        label=label,
+        task=merged["task"],
+        method=merged["method"],
+        preset=merged["preset"],
+        provider=merged.get("provider"),
+        overrides=tuple(merged["set"]),
+        kind=kind,
+        trials=trials,
+        episodes=ints.get("episodes", 0),
+        max_steps=ints.get("max_steps", -1),
+        quick_trials=ints.get("quick_trials", trials),
+        quick_episodes=ints.get("quick_episodes", ints.get("episodes", 0)),
+        quick_max_steps=ints.get("quick_max_steps", ints.get("max_steps", -1)),
+        samples=ints.get("samples", 100),
+        quick_samples=ints.get("quick_samples", ints.get("samples", 100)),
+        row=None if data.get("row") is None else str(data["row"]),
+        column=None if data.get("column") is None else str(data["column"]),
+    )
+
+
+def load_suite(path: str | Path | None = None) -> Suite:
+    """Read and check a suite file (default: the packaged ``paper_suite.toml``)."""
+    data = cfg.read_toml(default_path() if path is None else path)
+    head = data.get("suite", {})
+    seed = _int("[suite]", "seed", head.get("seed", 0))
+    provider = head.get("provider", "mock")
+    items = []
+    seen: set[str] = set()
+    for raw in data.get("items", []):
+        item_id = raw.get("id")
+        if not isinstance(item_id, str) or not item_id:
+            raise ConfigError("suite item without an id")
+        if item_id in seen:
+            raise ConfigError(f"suite item {item_id!r} appears twice")
+        seen.add(item_id)
+        unknown = sorted(set(raw) - _ITEM_KEYS)
+        if unknown:
+            raise ConfigError(f"suite item {item_id!r}: unknown key {unknown[0]!r}")
+        render = raw.get("render")
+        if render not in RENDERERS:
+            raise ConfigError(
+                f"suite item {item_id!r}: render = {render!r}; expected one of {', '.join(RENDERERS)}"
+            )
+        runs = tuple(_run(item_id, i, raw, r) for i, r in enumerate(raw.get("runs", [])))
+        if not runs:
+            raise ConfigError(f"suite item {item_id!r} lists no runs")
+        options = {k: raw[k] for k in _OPTIONS if k in raw}
+        items.append(
+            Item(
+                id=item_id,
+                title=str(raw.get("title", item_id)),
+                render=render,
+                runs=runs,
+                caption=str(raw.get("caption", "")),
+                note=str(raw.get("note", "")),
+                options=options,
+            )
+        )
+    return Suite(seed=seed, provider=str(provider), items=tuple(items))
+
+
+def matches(stored: Mapping[str, Any], resolved: Mapping[str, Any]) -> bool:
+    """Whether a log's stored configuration is the run an item asks for.
+
+    Run length (``run.episodes``, ``run.max_steps``) is ignored, so quick and full runs both
+    match; so are fields that only one side has (a log written before a field was added, whose
+    default keeps the old behaviour, still matches).
+    """
+    for section, values in resolved.items():
+        if section not in stored:
+            continue
+        other = stored[section]
+        if isinstance(values, Mapping) and isinstance(other, Mapping):
+            for name, value in values.items():
+                if section == "run" and name in ("episodes", "max_steps"):
+                    continue
+                if name in other and other[name] != value:
+                    return False
+        elif other != values:
+            return False
+    return True

@@ -1,0 +1,86 @@
+"""Plot functions draw on the axes they are given (or a new one), return it, and save nothing."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from matplotlib.figure import Figure
+
+from lagrseq.analysis import figures, stats
+
+
+def _series(label: str, offset: float) -> figures.Series:
+    x = np.arange(1, 6)
+    matrix = np.vstack([x + offset, x + offset + 2.0])
+    return figures.Series(label, stats.curve(x, matrix), 2)
+
+
+@pytest.fixture(autouse=True)
+def _in_empty_directory(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+
+
+@pytest.fixture(autouse=True)
+def _nothing_saved(tmp_path: Path):  # type: ignore[no-untyped-def]
+    yield
+    assert list(tmp_path.iterdir()) == [], "plot functions must never write files"
+
+
+def test_returns_draws_mean_lines_and_bands_on_the_given_axes() -> None:
+    ax = Figure().add_subplot()
+    out = figures.returns([_series("LaGR-SEQ", 0.0), _series("Q-learning", 10.0)], ax, title="t")
+    assert out is ax
+    lines = ax.get_lines()
+    assert [line.get_label() for line in lines] == ["LaGR-SEQ (n=2)", "Q-learning (n=2)"]
+    assert lines[0].get_ydata().tolist() == [2.0, 3.0, 4.0, 5.0, 6.0]
+    assert len(ax.collections) == 2  # one shaded band per series
+    assert ax.get_title() == "t" and ax.get_xlabel() == "Episodes"
+    assert "std" in ax.get_legend().get_title().get_text()
+
+
+def test_returns_band_choices() -> None:
+    se = figures.returns([_series("a", 0.0)], band="se")
+    assert "s.e." in se.get_legend().get_title().get_text()
+    with pytest.raises(ValueError, match="band"):
+        figures.returns([_series("a", 0.0)], band="iqr")
+
+
+def test_returns_creates_axes_when_none_given() -> None:
+    ax = figures.returns([_series("a", 0.0)])
+    assert isinstance(ax.figure, Figure)
+
+
+def test_bars_have_standard_error_bars_and_labels() -> None:
+    a = stats.summarize([120.0, 130.0, 140.0], stats.generator("a"))
+    b = stats.summarize([280.0, 290.0, 300.0], stats.generator("b"))
+    ax = figures.bars([figures.Bar("LaGR-SEQ", a), figures.Bar("LaGR", b)])
+    heights = [p.get_height() for p in ax.patches]
+    assert heights == [130.0, 290.0]
+    texts = [t.get_text() for t in ax.texts]
+    assert texts == [f"130.0 ± {a.se:.1f}", f"290.0 ± {b.se:.1f}"]
+    caps = [c for c in ax.get_children() if c.__class__.__name__ == "LineCollection"]
+    assert caps, "error bars are drawn"
+    ticks = [t.get_text() for t in ax.get_xticklabels()]
+    assert ticks == ["LaGR-SEQ\n(n=3)", "LaGR\n(n=3)"]
+
+
+def test_bars_with_a_single_trial_show_no_error() -> None:
+    one = stats.summarize([5.0], stats.generator("one"))
+    assert math.isnan(one.se)
+    ax = figures.bars([figures.Bar("x", one)])
+    assert [t.get_text() for t in ax.texts] == ["5.0"]
+
+
+def test_accuracy_plots_percent_against_fraction() -> None:
+    line = figures.AccuracyLine(
+        "mock, τ=0", np.array([0.125, 0.5, 1.0]), np.array([0.0, 50.0, 100.0]), 20
+    )
+    ax = figures.accuracy([line])
+    (plotted,) = ax.get_lines()
+    assert plotted.get_xdata().tolist() == [0.125, 0.5, 1.0]
+    assert plotted.get_ydata().tolist() == [0.0, 50.0, 100.0]
+    assert ax.get_ylabel() == "Accuracy (%)"
+    assert plotted.get_label() == "mock, τ=0 (20 per point)"

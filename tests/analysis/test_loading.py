@@ -1,0 +1,98 @@
+"""Logs -> runs: grouping by configuration, frames equal to the logged records, bad logs skipped
+with one line each."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from lagrseq import config as cfg
+from lagrseq import experiment
+from lagrseq.analysis import loading
+from lagrseq.errors import LogError
+from lagrseq.logs.reader import read_topics
+
+
+def test_runs_are_grouped_by_what_was_run(runs_dir: Path, shape: tuple[int, int]) -> None:
+    TRIALS, _ = shape
+    logs = loading.load([runs_dir])
+    assert logs.warnings == ()
+    assert logs.files == 3 * TRIALS + 1
+    methods = [run.key.method for run in logs.runs]
+    assert methods == sorted(methods) == ["baseline", "lagr", "lagr-seq", "llm-accuracy"]
+    for run in logs.runs:
+        config = cfg.from_dict(run.config)
+        assert run.key.digest == config.digest()
+        assert run.key.provider == "mock" and run.key.preset == "upstream" and run.key.seed == 0
+    probe = logs.runs[-1]
+    assert probe.key.kind == "accuracy" and probe.samples == 5 and probe.key.variant == "samples-5"
+    assert len(probe.queries) == 5 * 8
+
+
+def test_frames_hold_exactly_the_logged_records(runs_dir: Path, shape: tuple[int, int]) -> None:
+    TRIALS, EPISODES = shape
+    logs = loading.load([runs_dir])
+    run = next(r for r in logs.runs if r.key.method == "lagr-seq")
+    assert run.trials == tuple(range(TRIALS)) and run.episodes_per_trial == EPISODES
+    first = runs_dir / run.files[0]
+    records = read_topics(first, ["/episode", "/query"])
+    episodes = run.episodes[run.episodes["trial"] == 0]
+    assert episodes["return"].tolist() == [e["return"] for e in records["/episode"]]
+    queries = run.queries[run.queries["trial"] == 0]
+    assert queries["queried"].tolist() == [q["queried"] for q in records["/query"]]
+    assert run.transitions == TRIALS * EPISODES * 50  # upstream horizon, from the statistics
+    totals = run.total_per_trial("queries")
+    assert totals[0] == sum(e["queries"] for e in records["/episode"])
+    assert logs.stats.chunks_decompressed < logs.stats.chunks  # transition chunks left alone
+
+
+def test_bad_logs_are_skipped_with_one_line_each(
+    runs_dir: Path, tmp_path: Path, shape: tuple[int, int]
+) -> None:
+    TRIALS, EPISODES = shape
+    root = tmp_path / "runs"
+    shutil.copytree(runs_dir, root)
+    lagr_seq = sorted(root.rglob("lagr-seq/*/trial-000.mcap"))[0]
+    # a crash leftover, a cut copy, and a trial that was interrupted
+    (lagr_seq.parent / "trial-007.mcap.partial").write_bytes(lagr_seq.read_bytes()[:5000])
+    (lagr_seq.parent / "trial-008.mcap").write_bytes(lagr_seq.read_bytes()[:5000])
+    config = cfg.load(
+        "cube-stacking", "lagr-seq", "upstream", overrides=[f"run.episodes={EPISODES}"]
+    )
+    interrupted = lagr_seq.parent / "trial-009.mcap"
+
+    def stop() -> None:
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        experiment.run_trial(config, 9, 0, "mock", interrupted, on_episode=stop)
+    logs = loading.load([root])
+    assert len(logs.warnings) == 3
+    assert all("\n" not in w and w.endswith("skipped") or "skipped:" in w for w in logs.warnings)
+    text = " ".join(logs.warnings)
+    assert "trial-007.mcap.partial: unfinished log" in text
+    assert "trial-008.mcap" in text and "lagrseq recover" in text
+    assert "trial-009.mcap: trial interrupted" in text
+    assert str(tmp_path) not in text, "warnings name logs relative to the directory given"
+    run = next(r for r in logs.runs if r.key.method == "lagr-seq")
+    assert run.trials == tuple(range(TRIALS))
+
+
+def test_the_same_trial_twice_is_counted_once(
+    runs_dir: Path, tmp_path: Path, shape: tuple[int, int]
+) -> None:
+    TRIALS, _ = shape
+    copy = tmp_path / "copy"
+    shutil.copytree(runs_dir, copy)
+    logs = loading.load([runs_dir, copy])
+    assert len([w for w in logs.warnings if "also in" in w]) == 3 * TRIALS + 1
+    assert all(
+        len(run.trials) == (1 if run.key.kind == "accuracy" else TRIALS) for run in logs.runs
+    )
+
+
+def test_missing_path_is_an_error(tmp_path: Path) -> None:
+    with pytest.raises(LogError, match="no such MCAP file or directory"):
+        loading.load([tmp_path / "nowhere"])

@@ -1,0 +1,148 @@
+"""lagrseq replay: same logs -> same bytes, core dependencies only, bad logs skipped."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import lagrseq
+from lagrseq.analysis.replay import replay
+from lagrseq.errors import UsageError
+
+ROOT = Path(lagrseq.__file__).resolve().parents[1]
+HEAVY = ("torch", "gymnasium", "httpx", "pybullet")
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "lagrseq", *args],
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+def _files(root: Path) -> dict[str, bytes]:
+    return {
+        p.relative_to(root).as_posix(): p.read_bytes()
+        for p in sorted(root.rglob("*"))
+        if p.is_file()
+    }
+
+
+def test_same_logs_give_byte_identical_outputs(runs_dir: Path, tmp_path: Path) -> None:
+    first = replay([runs_dir], tmp_path / "a", formats=["png", "svg", "pdf"])
+    second = replay([runs_dir], tmp_path / "b", formats=["svg", "pdf", "png"])
+    a, b = _files(tmp_path / "a"), _files(tmp_path / "b")
+    assert a == b
+    assert {
+        "figures/fig5a.png",
+        "figures/fig5a.svg",
+        "figures/fig5a.pdf",
+        "index.html",
+        "index.md",
+    } <= set(a)
+    assert {
+        "tables/fig6a.md",
+        "tables/fig6a.csv",
+        "tables/costs-by-run.csv",
+        "tables/runs.csv",
+    } <= set(a)
+    assert sorted(p.relative_to(tmp_path / "a").as_posix() for p in first.written) == sorted(
+        p.relative_to(tmp_path / "b").as_posix() for p in second.written
+    )
+    assert b"Software" not in a["figures/fig5a.png"][:2000]
+    assert b"CreationDate" not in a["figures/fig5a.pdf"]
+
+
+def test_replay_needs_no_torch_gymnasium_httpx_or_pybullet(runs_dir: Path, tmp_path: Path) -> None:
+    script = (
+        "import json, sys\n"
+        "from lagrseq.cli import main\n"
+        f"code = main(['replay', {str(runs_dir)!r}, '--out', {str(tmp_path / 'out')!r}])\n"
+        f"print(json.dumps([code, sorted(m for m in {list(HEAVY)!r} if m in sys.modules)]))\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", script],
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr
+    code, loaded = json.loads(result.stdout.strip().splitlines()[-1])
+    assert code == 0
+    assert loaded == [], f"replay imported {loaded}"
+    assert (tmp_path / "out" / "index.html").exists()
+
+
+def test_unfinished_and_damaged_logs_are_skipped_with_a_warning(
+    runs_dir: Path, tmp_path: Path
+) -> None:
+    clean = replay([runs_dir], tmp_path / "clean")
+    root = tmp_path / "runs"
+    shutil.copytree(runs_dir, root)
+    trial = sorted(root.rglob("lagr-seq/*/trial-000.mcap"))[0]
+    data = trial.read_bytes()
+    (trial.parent / "trial-005.mcap.partial").write_bytes(data[: len(data) // 2])
+    (trial.parent / "trial-006.mcap").write_bytes(data[: len(data) // 2])
+    flipped = bytearray(data)
+    for i in range(len(data) // 2, len(data) // 2 + 32):
+        flipped[i] ^= 0xFF
+    (trial.parent / "trial-007.mcap").write_bytes(bytes(flipped))
+    result = _cli("replay", str(root), "--out", str(tmp_path / "out"))
+    assert result.returncode == 0, result.stderr
+    warnings = [line for line in result.stderr.splitlines() if line.startswith("warning: ")]
+    assert len(warnings) >= 2
+    assert any("trial-005.mcap.partial" in w and "lagrseq recover" in w for w in warnings)
+    assert any("trial-006.mcap" in w for w in warnings)
+    assert "Traceback" not in result.stderr
+    # the complete trials still give the same tables
+    for name in ("fig6a.csv", "table2.csv", "runs.csv"):
+        assert (tmp_path / "out" / "tables" / name).read_bytes() == (
+            clean.out / "tables" / name
+        ).read_bytes()
+    page = (tmp_path / "out" / "index.html").read_text()
+    assert "trial-005.mcap.partial" in page
+
+
+def test_no_logs_is_one_line_and_status_2(tmp_path: Path) -> None:
+    (tmp_path / "empty").mkdir()
+    result = _cli("replay", str(tmp_path / "empty"), "--out", str(tmp_path / "out"))
+    assert result.returncode == 2
+    assert (
+        len(result.stderr.strip().splitlines()) == 1
+        and "no complete lagrseq trial logs" in result.stderr
+    )
+
+
+def test_unknown_format_is_refused(runs_dir: Path, tmp_path: Path) -> None:
+    with pytest.raises(UsageError, match="unknown figure format 'gif'"):
+        replay([runs_dir], tmp_path / "out", formats=["gif"])
+
+
+def test_index_links_only_to_files_that_exist(runs_dir: Path, tmp_path: Path) -> None:
+    report = replay([runs_dir], tmp_path / "out", formats=["png", "svg"])
+    page = (tmp_path / "out" / "index.html").read_text()
+    targets = re.findall(r'(?:src|href)="([^"#]+)"', page)
+    assert targets and all((tmp_path / "out" / t).is_file() for t in targets)
+    made = {r.item.id for r in report.items if r.status != "not run"}
+    assert {"fig5a", "fig6a", "fig4", "table2"} <= made
+    assert "not run: task image-completion not available" in page
+    from PIL import Image
+
+    for src, width, height in re.findall(
+        r'<img src="([^"]+)"[^>]* width="(\d+)" height="(\d+)"', page
+    ):
+        with Image.open(tmp_path / "out" / src) as image:
+            assert image.size == (int(width), int(height))
+    markdown = (tmp_path / "out" / "index.md").read_text()
+    assert "![Fig. 5(a)" in markdown

@@ -1,0 +1,43 @@
+"""Table text: fixed formats, escaping, stable bytes."""
+
+from __future__ import annotations
+
+import math
+
+import pandas as pd
+
+from lagrseq.analysis.tables import (
+    Table,
+    interval,
+    number,
+    plus_minus,
+    to_csv,
+    to_html,
+    to_markdown,
+)
+
+
+def test_numbers_have_fixed_formats() -> None:
+    assert number(126.0) == "126.00"
+    assert number(3, 1) == "3"
+    assert number(float("nan")) == "n/a" and number(None) == "n/a"
+    assert plus_minus(126.0, 2.94) == "126.00 ± 2.94"
+    assert plus_minus(5.0, math.nan) == "5.00"
+    assert interval(1.0, 2.5) == "[1.00, 2.50]" and interval(math.nan, 1.0) == "n/a"
+
+
+def test_markdown_and_html_escape_cells() -> None:
+    table = Table("T <1>", ("a|b", "c"), (("x|y", "<b>"),), pd.DataFrame())
+    md = to_markdown(table)
+    assert md.splitlines()[2] == "| a\\|b | c |"
+    assert "| x\\|y | <b> |" in md
+    page = to_html(table, [("CSV", "t.csv")])
+    assert "&lt;b&gt;" in page and "<caption>T &lt;1&gt;</caption>" in page
+    assert '<a href="t.csv">CSV</a>' in page
+
+
+def test_csv_is_stable_text() -> None:
+    frame = pd.DataFrame({"label": ["a", "b"], "mean": [1 / 3, 2.0], "n": [10, 10]})
+    text = to_csv(frame)
+    assert text == "label,mean,n\na,0.333333,10\nb,2,10\n"
+    assert to_csv(frame.copy()) == text

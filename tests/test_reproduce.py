@@ -1,0 +1,331 @@
+"""lagrseq reproduce end to end on a tiny suite, the report in a real browser, and the committed
+reports/ against freshly made runs."""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import lagrseq
+from lagrseq import config as cfg
+from lagrseq import experiment
+from lagrseq.analysis.replay import replay
+
+ROOT = Path(lagrseq.__file__).resolve().parents[1]
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+TINY_SUITE = """
+[suite]
+seed = 0
+provider = "mock"
+
+[[items]]
+id = "curves"
+title = "Returns"
+render = "returns"
+task = "cube-stacking"
+preset = "upstream"
+trials = 4
+episodes = 30
+quick_trials = 2
+quick_episodes = 12
+
+[[items.runs]]
+label = "LaGR-SEQ ({provider})"
+method = "lagr-seq"
+
+[[items.runs]]
+label = "Q-learning"
+method = "baseline"
+provider = "mock"
+
+[[items]]
+id = "queries"
+title = "Queries"
+render = "query-table"
+row_header = "τ"
+task = "cube-stacking"
+preset = "upstream"
+trials = 4
+episodes = 30
+quick_trials = 2
+quick_episodes = 12
+
+[[items.runs]]
+label = "LaGR-SEQ"
+method = "lagr-seq"
+row = "0"
+column = "LaGR-SEQ"
+
+[[items.runs]]
+label = "LaGR"
+method = "lagr"
+row = "0"
+column = "LaGR"
+
+[[items]]
+id = "accuracy"
+title = "Accuracy"
+render = "accuracy"
+kind = "accuracy"
+task = "cube-stacking"
+method = "lagr"
+preset = "upstream"
+trials = 1
+samples = 10
+quick_samples = 3
+
+[[items.runs]]
+label = "{provider}, τ=1"
+set = ["llm.temperature=1.0"]
+
+[[items.runs]]
+label = "GPT4 profile"
+provider = "mock:gpt4-tau0"
+
+[[items]]
+id = "grid"
+title = "Image"
+render = "query-bars"
+task = "image-completion"
+method = "lagr-seq"
+preset = "upstream"
+
+[[items.runs]]
+label = "LaGR-SEQ"
+"""
+
+
+def _cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "lagrseq", *args],
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=cwd,
+    )
+
+
+def _files(root: Path, pattern: str) -> dict[str, bytes]:
+    return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.glob(pattern))}
+
+
+@pytest.fixture(scope="module")
+def reproduced(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> tuple[Path, Path, subprocess.CompletedProcess[str]]:
+    root = tmp_path_factory.mktemp("reproduce")
+    suite = root / "tiny.toml"
+    suite.write_text(TINY_SUITE)
+    out = root / "out"
+    result = _cli("reproduce", "--quick", "--suite", str(suite), "--out", str(out), "--jobs", "2")
+    assert result.returncode == 0, result.stderr
+    return out, suite, result
+
+
+def test_reproduce_reports_its_plan_and_what_it_could_not_run(reproduced) -> None:  # type: ignore[no-untyped-def]
+    out, _suite, result = reproduced
+    lines = result.stdout.splitlines()
+    assert "grid: not run: task image-completion not available" in lines
+    plan = next(line for line in lines if line.startswith("quick suite:"))
+    # lagr-seq, baseline and lagr trials (2 each) + one probe; the GPT4 profile is not available
+    assert "4 runs, 7 trial logs, 7 to run (0 already complete); expected about" in plan
+    assert any(
+        line.startswith("accuracy: partial; missing GPT4 profile: provider not available")
+        for line in lines
+    )
+    assert (out / "reports" / "index.html").is_file()
+    assert len(list((out / "runs").rglob("*.mcap"))) == 7
+    page = (out / "reports" / "index.html").read_text()
+    assert "not run: task image-completion not available" in page
+    assert "lagrseq reproduce --quick" in page
+
+
+def test_replaying_the_runs_gives_the_same_tables_and_figures(reproduced, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    out, suite, _ = reproduced
+    again = tmp_path / "again"
+    result = _cli("replay", str(out / "runs"), "--out", str(again), "--suite", str(suite))
+    assert result.returncode == 0, result.stderr
+    reports = out / "reports"
+    for pattern in ("tables/*", "figures/*"):
+        made, replayed = _files(reports, pattern), _files(again, pattern)
+        assert made and made == replayed
+    # quick runs are what the suite asked for: 2 trials x 12 episodes
+    rows = list(csv.DictReader(io.StringIO((again / "tables" / "queries.csv").read_text())))
+    assert [r["n"] for r in rows] == ["2", "2"]
+
+
+def test_a_rerun_skips_complete_trials(reproduced) -> None:  # type: ignore[no-untyped-def]
+    out, suite, _ = reproduced
+    logs = {p: p.read_bytes() for p in (out / "runs").rglob("*.mcap")}
+    result = _cli("reproduce", "--quick", "--suite", str(suite), "--out", str(out), "--quiet")
+    assert result.returncode == 0, result.stderr
+    assert "0 to run (7 already complete)" in result.stdout
+    assert {p: p.read_bytes() for p in (out / "runs").rglob("*.mcap")} == logs
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (apt-get install chromium)")
+def test_index_page_loads_in_headless_chromium_with_every_image(reproduced, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    from PIL import Image
+
+    out, _suite, _ = reproduced
+    index = out / "reports" / "index.html"
+    # A harness page loads the report in a frame and writes each image's load state into the DOM.
+    harness = out / "reports" / "check-images.html"
+    harness.write_text(
+        "<!DOCTYPE html><html><body><pre id='result'>pending</pre>"
+        "<iframe id='f' src='index.html' width='1200' height='800'></iframe><script>"
+        "document.getElementById('f').addEventListener('load', () => {"
+        " const doc = document.getElementById('f').contentDocument;"
+        " const imgs = Array.from(doc.images);"
+        " Promise.all(imgs.map(i => i.complete ? Promise.resolve() : new Promise(r => { i.onload = r; i.onerror = r; })))"
+        " .then(() => { document.getElementById('result').textContent = JSON.stringify("
+        " {title: doc.title, images: imgs.map(i => [i.getAttribute('src'), i.naturalWidth, i.naturalHeight])}); });"
+        "});</script></body></html>"
+    )
+    profile = tmp_path / "profile"
+    result = subprocess.run(
+        [
+            CHROMIUM,
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--allow-file-access-from-files",
+            f"--user-data-dir={profile}",
+            "--virtual-time-budget=10000",
+            "--dump-dom",
+            harness.as_uri(),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    harness.unlink()
+    assert result.returncode == 0, result.stderr[-2000:]
+    import html
+    import json
+
+    match = re.search(r'<pre id="result">(.*?)</pre>', result.stdout, re.S)
+    assert match, result.stdout[-2000:]
+    state = json.loads(html.unescape(match.group(1)))
+    assert state["title"] == "lagrseq: LaGR-SEQ results"
+    sources = re.findall(r'<img src="([^"]+)"', index.read_text())
+    assert sources and [s for s, _, _ in state["images"]] == sources
+    for src, width, height in state["images"]:
+        assert width > 0 and height > 0, f"{src} did not render in chromium"
+        with Image.open(index.parent / src) as image:
+            assert image.format == "PNG" and image.size == (width, height)
+            image.verify()
+
+
+# ------------------------------------------------------------------------------------------
+# The committed reports/ (lagrseq reproduce --quick) against freshly made runs
+# ------------------------------------------------------------------------------------------
+COMMITTED = ROOT / "reports"
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    return list(csv.DictReader(io.StringIO(path.read_text())))
+
+
+def _same_numbers(fresh: dict[str, str], committed: dict[str, str]) -> None:
+    """Equal cells; numbers may differ in the 6th significant digit (the CSV's precision), the
+    only place a different platform's floating point could show."""
+    assert fresh.keys() == committed.keys()
+    for key, value in fresh.items():
+        try:
+            assert float(value) == pytest.approx(float(committed[key]), rel=2e-6), key
+        except ValueError:
+            assert value == committed[key], key
+
+
+@pytest.mark.skipif(not (COMMITTED / "tables").is_dir(), reason="no committed reports/")
+def test_committed_reports_match_fresh_runs(tmp_path: Path) -> None:
+    # Table 2's tau = 0 row, Fig. 6(a) and the 8-cube performance ratio: upstream preset, mock
+    # provider at tau = 0 (no sampling), seed 0, 10 trials x 100 episodes, as --quick runs them.
+    runs = tmp_path / "runs"
+    for method in ("lagr-seq", "lagr", "baseline"):
+        config = cfg.load("cube-stacking", method, "upstream", overrides=["run.episodes=100"])
+        experiment.run_trials(
+            config, 10, 0, "mock", experiment.run_directory(runs, config, "mock", 0), jobs=2
+        )
+    report = replay([runs], tmp_path / "report")
+    fresh = report.out / "tables"
+
+    assert _rows(fresh / "fig6a.csv") and len(_rows(fresh / "fig6a.csv")) == 2
+    for a, b in zip(
+        _rows(fresh / "fig6a.csv"), _rows(COMMITTED / "tables" / "fig6a.csv"), strict=True
+    ):
+        _same_numbers(a, b)
+    committed_table2 = [r for r in _rows(COMMITTED / "tables" / "table2.csv") if r["row"] == "0"]
+    for a, b in zip(_rows(fresh / "table2.csv"), committed_table2, strict=True):
+        _same_numbers(a, b)
+    committed_ratio = [
+        r for r in _rows(COMMITTED / "tables" / "appendix-stack-size.csv") if r["row"] == "8"
+    ]
+    for a, b in zip(_rows(fresh / "appendix-stack-size.csv"), committed_ratio, strict=True):
+        _same_numbers(a, b)
+    # the learning curves of Fig. 5(a) too
+    committed_curves = _rows(COMMITTED / "figures" / "fig5a.csv")
+    fresh_curves = _rows(report.out / "figures" / "fig5a.csv")
+    assert len(fresh_curves) == len(committed_curves) == 200
+    for a, b in zip(fresh_curves, committed_curves, strict=True):
+        _same_numbers(a, b)
+
+
+# ------------------------------------------------------------------------------------------
+# Planning the packaged suite (nothing is run)
+# ------------------------------------------------------------------------------------------
+def test_the_packaged_suite_plans_each_configuration_once(tmp_path: Path) -> None:
+    from lagrseq import reproduce
+    from lagrseq.suite import load_suite
+
+    suite = load_suite()
+    plan = reproduce.plan(suite, quick=True, provider=None, runs_dir=tmp_path, seed=0)
+    paths = [run.path for run in plan.runs]
+    assert len(paths) == len(set(paths))
+    shared = next(
+        run
+        for run in plan.runs
+        if {"fig5a", "fig6a", "table2", "appendix-temperature", "appendix-stack-size"}
+        <= set(run.items)
+    )
+    assert (
+        shared.config.method == "lagr-seq"
+        and shared.trials == 10
+        and shared.config.run.episodes == 100
+    )
+    assert plan.not_run["fig5b"] == "task image-completion not available"
+    assert "fig4" not in plan.not_run
+    assert {run.provider for run in plan.runs} == {"mock", "mock:authors-t0"}
+    # --provider replaces the default provider, never a run's explicit one (the baselines)
+    other = reproduce.plan(suite, quick=True, provider="mock", runs_dir=tmp_path / "x", seed=3)
+    assert all(run.seed == 3 for run in other.runs)
+
+
+def test_estimate_counts_only_pending_trials(tmp_path: Path) -> None:
+    from lagrseq import reproduce
+    from lagrseq.suite import load_suite
+
+    suite = load_suite().select(["fig6a"])
+    plan = reproduce.plan(suite, quick=True, provider=None, runs_dir=tmp_path, seed=0)
+    assert reproduce.estimate(plan, jobs=2) > 0
+    for run in plan.runs:
+        run.trials = 1
+    reproduce.execute(plan, jobs=1)
+    assert all(run.pending() == 0 for run in plan.runs)
+    assert reproduce.estimate(plan, jobs=2) == 0

@@ -1,0 +1,111 @@
+"""The paper suite as data: loading, inheritance, checks, matching."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from lagrseq.errors import ConfigError
+from lagrseq.suite import load_suite, matches
+
+SUITE = """
+[suite]
+seed = 3
+provider = "mock"
+
+[[items]]
+id = "t"
+title = "T"
+render = "query-table"
+task = "cube-stacking"
+preset = "upstream"
+trials = 4
+episodes = 30
+quick_trials = 2
+set = ["env.horizon=20"]
+
+[[items.runs]]
+label = "a"
+method = "lagr-seq"
+set = ["llm.temperature=0.5"]
+row = "0.5"
+column = "SEQ"
+
+[[items.runs]]
+label = "b"
+method = "baseline"
+provider = "mock"
+quick_episodes = 5
+"""
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "suite.toml"
+    path.write_text(text)
+    return path
+
+
+def test_runs_inherit_item_defaults(tmp_path: Path) -> None:
+    suite = load_suite(_write(tmp_path, SUITE))
+    assert (suite.seed, suite.provider) == (3, "mock")
+    a, b = suite.items[0].runs
+    assert a.overrides == ("env.horizon=20", "llm.temperature=0.5")
+    assert (a.trials, a.episodes, a.quick_trials, a.quick_episodes) == (4, 30, 2, 30)
+    assert (b.quick_episodes, b.provider, a.provider) == (5, "mock", None)
+    assert (a.row, a.column) == ("0.5", "SEQ")
+    config = a.resolve(quick=True)
+    assert (config.env.horizon, config.llm.temperature, config.run.episodes) == (20, 0.5, 30)
+    assert b.resolve(quick=True).run.episodes == 5
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (('render = "query-table"', 'render = "pie"'), "render = 'pie'"),
+        (('label = "a"', 'label = "a"\nbogus = 1'), "unknown key 'bogus'"),
+        (("trials = 4", 'trials = "four"'), "must be an integer"),
+        (('method = "lagr-seq"', 'method = "dqn"'), "method = 'dqn'"),
+        (('set = ["env.horizon=20"]', 'set = ["run.episodes=20"]'), "give run.episodes"),
+    ],
+)
+def test_bad_suites_give_one_line(tmp_path: Path, edit: tuple[str, str], message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        load_suite(_write(tmp_path, SUITE.replace(*edit, 1)))
+
+
+def test_select_keeps_suite_order_and_rejects_unknown_ids() -> None:
+    suite = load_suite()
+    picked = suite.select(["table2", "fig5a"])
+    assert [i.id for i in picked.items] == ["fig5a", "table2"]
+    with pytest.raises(ConfigError, match="unknown suite item 'fig9'"):
+        suite.select(["fig9"])
+
+
+def test_matching_ignores_run_length_and_unknown_fields() -> None:
+    stored = {
+        "method": "lagr",
+        "llm": {"temperature": 0.0},
+        "run": {"episodes": 20, "max_steps": 0},
+    }
+    wanted = {
+        "method": "lagr",
+        "llm": {"temperature": 0.0, "new_field": 1},
+        "run": {"episodes": 100, "max_steps": 500},
+    }
+    assert matches(stored, wanted)
+    assert not matches(stored, {**wanted, "llm": {"temperature": 1.0}})
+    assert not matches(stored, {**wanted, "method": "lagr-seq"})
+
+
+def test_packaged_suite_covers_the_papers_items() -> None:
+    ids = {item.id for item in load_suite().items}
+    assert {"fig4", "fig5a", "fig5b", "fig5c", "fig6a", "fig6b", "fig6c", "table2", "table3"} <= ids
+    assert {
+        "appendix-temperature",
+        "appendix-llm-type",
+        "appendix-stack-size",
+        "appendix-seq",
+        "appendix-extended-arrangement",
+        "appendix-binary-reward",
+    } <= ids
