@@ -250,6 +250,7 @@ def _add_replay(sub: Any) -> None:
     p.add_argument("--formats", type=_formats, default=["png"], metavar="png,svg,pdf", help="figure formats; PNG is always written (default: png)")
     p.add_argument("--provider", default=None, metavar="SPEC", help="use only runs of this provider for the suite's default-provider runs (default: any, preferring mock)")
     p.add_argument("--suite", type=Path, default=None, metavar="FILE.toml", help="a suite file instead of the packaged paper suite")
+    p.add_argument("--price-table", default=None, metavar="FILE.toml", help="re-cost every logged query's token usage with these prices over the built-in dated table")
 
 
 def _add_reproduce(sub: Any) -> None:
@@ -278,6 +279,7 @@ def _add_reproduce(sub: Any) -> None:
     p.add_argument("--seed", type=int, default=None, help="run seed (default: the suite's, 0)")
     p.add_argument("--items", default=None, metavar="ID,ID", help="only these suite items (default: all)")
     p.add_argument("--suite", type=Path, default=None, metavar="FILE.toml", help="a suite file instead of the packaged paper suite")
+    p.add_argument("--price-table", default=None, metavar="FILE.toml", help="re-cost every logged query's token usage with these prices over the built-in dated table")
     p.add_argument("--formats", type=_formats, default=["png"], metavar="png,svg,pdf", help="figure formats; PNG is always written")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -591,6 +593,16 @@ def _print_report(report: Any, elapsed: float | None = None, not_run_said: bool 
     print(f"{len(made)} of {len(report.items)} suite items made from {report.logs.files} logs{took}: {report.out / 'index.html'}")
 
 
+def _price_function(price_table: str | None) -> Any:
+    """``(model, prompt tokens, completion tokens) -> USD or None`` from the dated price table, for
+    replay's costs tables (analysis never imports the provider layer itself)."""
+    from lagrseq.llm.base import Usage
+    from lagrseq.llm.pricing import PriceTable, read_price_table
+
+    table = read_price_table(price_table) if price_table else PriceTable()
+    return lambda model, prompt, completion: table.cost(Usage(prompt, completion), model)
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     import time
 
@@ -599,7 +611,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     started = time.perf_counter()
     suite = load_suite(args.suite)
-    report = replay(args.runs, args.out, args.formats, suite, provider=args.provider)
+    report = replay(
+        args.runs, args.out, args.formats, suite, provider=args.provider, price=_price_function(args.price_table)
+    )
     _print_report(report, time.perf_counter() - started)
     return 0
 
@@ -658,6 +672,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         provider=args.provider or suite.provider,
         unavailable=the_plan.unavailable,
         produced_by=command,
+        price=_price_function(args.price_table),
     )
     _print_report(report, time.perf_counter() - started, not_run_said=True)
     return 0

@@ -105,11 +105,17 @@ def returns(
 
 
 def _legend_below(ax: Axes, entries: int, title: str | None = None) -> None:
-    """A legend under the axes, so that it never hides a curve."""
+    """A legend under the axes, so that it never hides a curve; as many columns as fit the
+    figure's width (long labels stack), so the axes keep their size."""
+    labels = ax.get_legend_handles_labels()[1]
+    longest = max((len(label) for label in labels), default=0)
+    columns = entries if entries <= 3 else -(-entries // 2)
+    while columns > 1 and columns * (longest + 6) > 90:
+        columns -= 1
     ax.legend(
         loc="upper center",
         bbox_to_anchor=(0.5, -0.16),
-        ncols=entries if entries <= 3 else -(-entries // 2),
+        ncols=columns,
         frameon=False,
         title=title,
         title_fontsize=8,
