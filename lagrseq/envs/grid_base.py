@@ -1,0 +1,84 @@
+"""What the two grid environments share: the grid, the cursor and the observation vector."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from lagrseq.tasks.grid import GridTask
+
+
+class GridEnv(gym.Env[np.ndarray, int]):
+    """A rows x cols 0/1 grid worked on one cell (the cursor) at a time; subclasses say which cell
+    comes next and what action 1 does there.
+
+    Observation: ``[row, col, grid[row, col]] + grid.flatten()`` as float32, the released code's
+    state (SPEC 2.1, 3.1); coordinates are raw cell indices (an agent may normalise them with the
+    observation space's bounds).
+    """
+
+    metadata = {"render_modes": ["ansi"], "render_fps": 4}
+
+    def __init__(self, task: GridTask, bonus: float, render_mode: str | None) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode {render_mode!r} not in {self.metadata['render_modes']}")
+        self.task = task
+        self.bonus = bonus
+        self.render_mode = render_mode
+        self.rows, self.cols = task.rows, task.cols
+        high = np.ones(3 + task.cells, dtype=np.float32)
+        high[0], high[1] = self.rows - 1, self.cols - 1
+        self.observation_space = spaces.Box(np.zeros_like(high), high, dtype=np.float32)
+        self.action_space = spaces.Discrete(2)
+        self._grid = np.zeros((self.rows, self.cols), dtype=np.int8)
+        self._cursor = (0, 0)
+        self._observation = np.zeros(3 + task.cells, dtype=np.float32)
+        self._target = task.target
+        self._cells = task.cells
+
+    # ------------------------------------------------------------------ helpers
+    def _matches(self) -> int:
+        return int(np.count_nonzero(self._grid == self._target))
+
+    def _goal(self, matches: int) -> bool:
+        return matches / self._cells >= self.task.goal_threshold
+
+    def _observe(self) -> np.ndarray:
+        obs = self._observation
+        row, col = self._cursor
+        obs[0], obs[1], obs[2] = row, col, self._grid[row, col]
+        obs[3:] = self._grid.ravel()
+        return obs.copy()
+
+    def _info(self, matches: int | None = None) -> dict[str, Any]:
+        matches = self._matches() if matches is None else matches
+        return {
+            "pattern": self._grid.copy(),
+            "cursor": self._cursor,
+            "evaluation": matches / self._cells,
+        }
+
+    def _check(self, action: int) -> int:
+        action = int(action)
+        if action not in (0, 1):
+            raise ValueError(f"action {action} outside Discrete(2)")
+        return action
+
+    # ------------------------------------------------------------------ pi_LLM support
+    def move_cursor(self, cell: tuple[int, int]) -> tuple[np.ndarray, dict[str, Any]]:
+        """Act on ``cell`` at the next step instead of the scanned or drawn one, and return the
+        observation and info there. The released code's pi_LLM places the solution's next
+        missing cell wherever it is (SPEC 2.3); which cell comes after is unchanged."""
+        row, col = int(cell[0]), int(cell[1])
+        if not (0 <= row < self.rows and 0 <= col < self.cols):
+            raise ValueError(f"cell {cell} outside the {self.rows}x{self.cols} grid")
+        self._cursor = (row, col)
+        return self._observe(), self._info()
+
+    def render(self) -> str | None:
+        if self.render_mode == "ansi":
+            return self.task.render(self._grid) + f"\ncursor {self._cursor}\n"
+        return None
