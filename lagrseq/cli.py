@@ -39,6 +39,8 @@ def _add_run(sub: Any) -> None:
             "  lagrseq run cube-stacking --method lagr-seq --preset upstream --trials 10 --out runs\n"
             "  lagrseq run cube-stacking --method lagr --set env.horizon=100 --set llm.temperature=1.0\n"
             "  lagrseq run cube-stacking --method baseline --set task.stack_size=11\n"
+            "  lagrseq run image-completion --method lagr-seq --preset paper --trials 2\n"
+            "  lagrseq run object-arrangement --method lagr --set task.target=\"square\"\n"
             "  lagrseq config cube-stacking --preset paper     # every field, its value and meaning"
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -130,10 +132,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     experiment.parse_provider(args.provider)
     config = cfg.load(args.task, args.method, args.preset, args.config, args.overrides)
     directory = experiment.run_directory(args.out, config, args.provider, args.seed, args.name)
-    total = args.trials * config.run.episodes
+    unit, per_trial = experiment.progress_unit(config)
     with tqdm(
-        total=total,
-        unit="ep",
+        total=args.trials * per_trial,
+        unit=unit,
         desc=f"{args.task} {args.method}",
         disable=args.quiet,
         file=sys.stderr,

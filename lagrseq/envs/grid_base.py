@@ -32,7 +32,7 @@ class GridEnv(gym.Env[np.ndarray, int]):
         high = np.ones(3 + task.cells, dtype=np.float32)
         high[0], high[1] = self.rows - 1, self.cols - 1
         self.observation_space = spaces.Box(np.zeros_like(high), high, dtype=np.float32)
-        self.action_space = spaces.Discrete(2)
+        self.action_space = spaces.Discrete(2)  # type: ignore[assignment]  # gymnasium: Space[int64]
         self._grid = np.zeros((self.rows, self.cols), dtype=np.int8)
         self._cursor = (0, 0)
         self._observation = np.zeros(3 + task.cells, dtype=np.float32)
