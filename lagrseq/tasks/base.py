@@ -48,13 +48,8 @@ class Task(Protocol):
         """pi_LLM: the action the solution asks for in ``pattern`` (None: it asks for nothing)."""
         ...
 
-    def guided_cell(self, pattern: Pattern, solution: Solution) -> Any:
-        """Where pi_LLM wants to act next when the environment works cell by cell (grids), or
-        None to act wherever the environment is (its ``info["cursor"]``, if any)."""
-        ...
-
     def is_complete(self, pattern: Pattern) -> bool:
-        """The pattern is the target (or, for grids, close enough to earn the bonus)."""
+        """The pattern is the target."""
         ...
 
     def progress(self, pattern: Pattern) -> int:
@@ -63,6 +58,11 @@ class Task(Protocol):
 
     def render(self, pattern: Pattern) -> str:
         """A short human-readable form of a pattern (logs, errors)."""
+        ...
+
+    def guided_cell(self, pattern: Pattern, solution: Solution) -> Any:
+        """Where pi_LLM wants to act next when the environment works cell by cell (grids), or
+        None to act wherever the environment is (its ``info["cursor"]``, if any)."""
         ...
 
 
