@@ -267,6 +267,20 @@ class GridTask:
     def render(self, pattern: np.ndarray) -> str:
         return "\n".join("".join("#" if v else "." for v in row) for row in np.asarray(pattern))
 
+    def coerce_pattern(self, value: object) -> np.ndarray:
+        """A partial grid from outside data (an authors' cache key, an MCAP ``state``): a
+        rows x cols array or nested list of 0/1 (floats 0.0/1.0 too). Raises ``ValueError``
+        saying what is wrong otherwise (e.g. the 10 x 10 seed pair of the arrangement cache)."""
+        try:
+            array = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            raise ValueError(f"expected a {self.rows}x{self.cols} grid of 0/1, found {type(value).__name__}") from None
+        if array.shape != (self.rows, self.cols):
+            raise ValueError(f"expected a {self.rows}x{self.cols} grid of 0/1, found shape {array.shape}")
+        if not np.isin(array, (0.0, 1.0)).all():
+            raise ValueError(f"expected only 0 and 1 in the grid, found {sorted(set(array.ravel()) - {0.0, 1.0})}")
+        return array.astype(np.int8)
+
     # ---------------------------------------------------------------- prompt and parser
     def prompt(self, pattern: np.ndarray) -> str:
         """The descriptor with the partial grid written as configured (numpy ``str()`` as in the

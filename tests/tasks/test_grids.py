@@ -153,6 +153,19 @@ def test_parser_reads_every_answer_of_the_authors_arrangement_cache() -> None:
     assert exact == 41  # SPEC 5: 41/143 answers are the exact diamond
 
 
+def test_outside_patterns_are_checked() -> None:
+    table = object_arrangement()
+    grid_ = table.coerce_pattern(DIAMOND.astype(np.int64).tolist())
+    assert grid_.dtype == np.int8 and np.array_equal(grid_, DIAMOND)
+    assert np.array_equal(table.coerce_pattern(DIAMOND.astype(float)), DIAMOND)
+    with pytest.raises(ValueError, match=r"expected a 5x5 grid of 0/1, found shape \(10, 10\)"):
+        table.coerce_pattern(np.zeros((10, 10)))
+    with pytest.raises(ValueError, match="only 0 and 1"):
+        table.coerce_pattern(np.full((5, 5), 2))
+    with pytest.raises(ValueError, match="expected a 5x5 grid"):
+        table.coerce_pattern([[0, 1], [1]])
+
+
 # ------------------------------------------------------------------------------------------
 # pi_LLM
 # ------------------------------------------------------------------------------------------
