@@ -135,6 +135,11 @@ class ImageEnvConfig:
     """Undo, with reward 0, a flip that turns on a pixel that is off in the target (code: yes).
     The paper does not say, but its prompt states that "all the initial pixels are in their
     correct positions", which holds only with this rule, so both presets block."""
+    guided_goal_threshold: float = 0.96
+    """E at which pi_LLM's steps earn the bonus when pi_LLM picks its own cell (task.guidance =
+    "next-missing"). Code: E > 0.95 (LLMgreedy), while the primary's steps need
+    task.goal_threshold = 1.0, so an accepted answer with 96-99 right pixels still earns it.
+    Paper: one rule (unused with cell-by-cell guidance)."""
 
     def __post_init__(self) -> None:
         if self.scans < 1:

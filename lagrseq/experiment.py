@@ -119,7 +119,6 @@ def run_trial(
             if lagr.solution_scope == "episode":
                 solution = None
             trigger.reset_episode()
-            epsilon = primary_epsilon.at(episode, global_step)
             last_reward = 0.0
             episode_return = 0.0
             queries = accepted = guided_steps = 0
@@ -128,6 +127,7 @@ def run_trial(
             while True:
                 pattern = info["pattern"]
                 following = solution  # a solution accepted at this step guides from the next one
+                # Exploration per episode (cube) or per step (grid DQNs); /episode logs the last.
                 epsilon = primary_epsilon.at(episode, global_step)
                 epsilon2 = secondary_epsilon.at(episode, global_step)
 
@@ -158,9 +158,9 @@ def run_trial(
                 if following is not None and follows(lagr, guidance_rng):
                     # The released grid code's pi_LLM picks its own cell (the solution's next
                     # missing one) instead of the scanned or drawn cell.
-                    cell = task.guided_cell(pattern, following)
+                    cell = task.guided_cell(pattern, following, info.get("cursor"))
                     if cell is not None:
-                        observation, info = env.move_cursor(cell)
+                        observation, info = env.steer(cell)
                     action = task.guidance(pattern, following, info.get("cursor"))
                 guided = action is not None
                 if action is None:
@@ -352,6 +352,7 @@ def _make_grid_env(config: ExperimentConfig) -> Any:
             goal_threshold=task.goal_threshold,
             goal_ends=image.goal_ends,
             block_wrong_flips=image.block_wrong_flips,
+            guided_goal_threshold=image.guided_goal_threshold,
         )
     table = _expect(config.env, ArrangementEnvConfig, "env")
     arrangement = _expect(task, ArrangementTaskConfig, "task")
@@ -369,7 +370,6 @@ def make_env(config: ExperimentConfig) -> Any:
     from lagrseq.envs.cube_stacking import CubeStackingEnv
 
     env = _expect(config.env, CubeEnvConfig, "env")
-
     return CubeStackingEnv(
         stack_size=config.task.stack_size,
         horizon=env.horizon,

@@ -5,6 +5,7 @@ Trials here use small step budgets; the full-length comparison is the report's (
 
 from __future__ import annotations
 
+import json
 import math
 import subprocess
 import sys
@@ -47,6 +48,23 @@ def test_core_layers_do_not_import_torch() -> None:
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, check=True)
     assert out.stdout.strip() == "False"
+
+
+@pytest.mark.parametrize(
+    ("module", "forbidden"),
+    [
+        ("lagrseq.tasks.image", ["lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", "gymnasium", "torch"]),
+        ("lagrseq.tasks.arrangement", ["lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "gymnasium", "torch"]),
+        ("lagrseq.envs.image_completion", ["lagrseq.agents", "lagrseq.llm", "lagrseq.logs", "torch", "mcap"]),
+        ("lagrseq.envs.object_arrangement", ["lagrseq.agents", "lagrseq.llm", "lagrseq.logs", "torch", "mcap"]),
+        ("lagrseq.agents.dqn", ["lagrseq.tasks", "lagrseq.envs", "lagrseq.llm", "lagrseq.logs", "gymnasium", "torch"]),
+    ],
+)
+def test_grid_layers_import_only_what_they_may(module: str, forbidden: list[str]) -> None:
+    code = f"import json, sys; import {module}; print(json.dumps(sorted(sys.modules)))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, check=True)
+    loaded = set(json.loads(out.stdout))
+    assert not sorted(name for name in forbidden if name in loaded)
 
 
 @pytest.mark.parametrize("task", list(GRIDS))
@@ -157,6 +175,22 @@ def test_released_arrangement_guidance_places_the_diamond_in_8_steps(torch, tmp_
     episodes = read_topic(result.path, "/episode")
     guided = [e for e in episodes[1:-1] if e["guided_steps"] == e["length"]]
     assert guided and all(e["length"] == 8 and e["return"] == pytest.approx(1.32) for e in guided)
+
+
+@pytest.mark.torch
+@pytest.mark.parametrize(("trial", "evaluation", "episode_return"), [(0, 1.0, 5.20), (5, 0.96, 5.16)])
+def test_released_image_guidance_pays_the_bonus_above_095(  # type: ignore[no-untyped-def]
+    torch, tmp_path: Path, trial: int, evaluation: float, episode_return: float
+) -> None:
+    """SPEC 2.3: following an accepted answer, 16 placed pixels reach E = 0.96 and end the scan
+    with the bonus; each of the 4 later scans adds a pixel (+1.01) or, when the answer had 96-99
+    right pixels (seed 0, trial 5: the mock's 8 x 8 X), nothing (+1)."""
+    result = run_trial(load("image-completion", "lagr", "upstream"), trial, 0, "mock", tmp_path / "t.mcap")
+    accepted = [q for q in read_topic(result.path, "/query") if q["accepted"]]
+    assert accepted[0]["evaluation"] == evaluation
+    guided = [e for e in read_topic(result.path, "/episode")[1:-1] if e["guided_steps"] == e["length"]]
+    assert guided and all(e["length"] == 20 and e["return"] == pytest.approx(episode_return) for e in guided)
+    assert all(e["solved"] == (evaluation == 1.0) for e in guided)
 
 
 @pytest.mark.torch

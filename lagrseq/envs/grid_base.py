@@ -22,11 +22,21 @@ class GridEnv(gym.Env[np.ndarray, int]):
 
     metadata = {"render_modes": ["ansi"], "render_fps": 4}
 
-    def __init__(self, task: GridTask, bonus: float, render_mode: str | None) -> None:
+    def __init__(
+        self,
+        task: GridTask,
+        bonus: float,
+        render_mode: str | None,
+        guided_goal_threshold: float | None = None,
+    ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode {render_mode!r} not in {self.metadata['render_modes']}")
         self.task = task
         self.bonus = bonus
+        self.guided_goal_threshold = (
+            task.goal_threshold if guided_goal_threshold is None else guided_goal_threshold
+        )
+        self._steered = False  # the coming step is pi_LLM's, on a cell it chose (see steer)
         self.render_mode = render_mode
         self.rows, self.cols = task.rows, task.cols
         high = np.ones(3 + task.cells, dtype=np.float32)
@@ -44,7 +54,11 @@ class GridEnv(gym.Env[np.ndarray, int]):
         return int(np.count_nonzero(self._grid == self._target))
 
     def _goal(self, matches: int) -> bool:
-        return matches / self._cells >= self.task.goal_threshold
+        """Whether E reaches the goal; a steered step (pi_LLM's own) uses its own threshold.
+        Clears the steering: call once per step."""
+        threshold = self.guided_goal_threshold if self._steered else self.task.goal_threshold
+        self._steered = False
+        return matches / self._cells >= threshold
 
     def _observe(self) -> np.ndarray:
         obs = self._observation
@@ -68,14 +82,17 @@ class GridEnv(gym.Env[np.ndarray, int]):
         return action
 
     # ------------------------------------------------------------------ pi_LLM support
-    def move_cursor(self, cell: tuple[int, int]) -> tuple[np.ndarray, dict[str, Any]]:
-        """Act on ``cell`` at the next step instead of the scanned or drawn one, and return the
-        observation and info there. The released code's pi_LLM places the solution's next
-        missing cell wherever it is (SPEC 2.3); which cell comes after is unchanged."""
+    def steer(self, cell: tuple[int, int]) -> tuple[np.ndarray, dict[str, Any]]:
+        """Make the next step pi_LLM's, as the released code takes it (``LLMgreedy``, SPEC 2.3):
+        it acts on ``cell`` instead of the scanned or drawn one, and its bonus is judged with
+        ``guided_goal_threshold`` (released image code: E > 0.95, while the primary's steps need
+        the exact image). Returns the observation and info at ``cell``; which cell comes after
+        is unchanged."""
         row, col = int(cell[0]), int(cell[1])
         if not (0 <= row < self.rows and 0 <= col < self.cols):
             raise ValueError(f"cell {cell} outside the {self.rows}x{self.cols} grid")
         self._cursor = (row, col)
+        self._steered = True
         return self._observe(), self._info()
 
     def render(self) -> str | None:

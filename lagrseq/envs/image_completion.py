@@ -30,7 +30,8 @@ class ImageCompletionEnv(GridEnv):
     ## Reward
     ``E(I') - E(I) + b`` with E the fraction of pixels equal to the target's (so +-0.01 per pixel)
     and the bonus b paid when E(I') >= ``goal_threshold`` (1.0: the exact target; the paper pays it
-    for E > delta = 0.95, i.e. 0.96). With ``block_wrong_flips`` (released code) turning on a pixel
+    for E > delta = 0.95, i.e. 0.96); on a step steered by pi_LLM (``steer``) the threshold is
+    ``guided_goal_threshold`` (default: the same). With ``block_wrong_flips`` (released code) turning on a pixel
     that is black in the target is undone and earns 0 (no bonus either: the released code judges
     the step on the wrong image), so the image is always part of the target; turning a pixel off
     is always done.
@@ -50,7 +51,7 @@ class ImageCompletionEnv(GridEnv):
 
     ## Arguments
     ``target``, ``scans``, ``bonus``, ``goal_threshold``, ``goal_ends``, ``block_wrong_flips``,
-    ``render_mode`` (``"ansi"``).
+    ``guided_goal_threshold``, ``render_mode`` (``"ansi"``).
 
     ## Version History
     * v0: initial version.
@@ -64,13 +65,15 @@ class ImageCompletionEnv(GridEnv):
         goal_threshold: float = 0.96,
         goal_ends: Literal["episode", "scan"] = "episode",
         block_wrong_flips: bool = True,
+        guided_goal_threshold: float | None = None,
         render_mode: str | None = None,
     ) -> None:
         if goal_ends not in ("episode", "scan"):
             raise ValueError(f"goal_ends {goal_ends!r}; expected 'episode' or 'scan'")
         if scans < 1:
             raise ValueError(f"scans must be at least 1, got {scans}")
-        super().__init__(image_completion(target, goal_threshold), bonus, render_mode)
+        task = image_completion(target, goal_threshold)
+        super().__init__(task, bonus, render_mode, guided_goal_threshold)
         self.scans = scans
         self.goal_ends = goal_ends
         self.block_wrong_flips = block_wrong_flips
@@ -82,6 +85,7 @@ class ImageCompletionEnv(GridEnv):
     ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
         self._grid[:] = 0
+        self._steered = False
         self._scan = 0
         self._position = 0
         self._cursor = (0, 0)
@@ -98,7 +102,7 @@ class ImageCompletionEnv(GridEnv):
             else:
                 grid[cursor] = 1 - grid[cursor]
         after = self._matches()
-        goal = not blocked and self._goal(after)
+        goal = self._goal(after) and not blocked
         reward = 0.0 if blocked else (after - before) / self._cells + (self.bonus if goal else 0.0)
 
         self._position += 1

@@ -30,7 +30,8 @@ class ObjectArrangementEnv(GridEnv):
     ## Reward
     ``E(T') - E(T) + b`` with E the fraction of cells equal to the target's (+0.04 per correct
     object) and the bonus b paid when E(T') >= ``goal_threshold`` (1.0: the exact arrangement,
-    paper delta = 0.99 on 25 cells). A drop is executed only when it is rewarded (paper and code):
+    paper delta = 0.99 on 25 cells; ``guided_goal_threshold`` on steps steered by pi_LLM, default
+    the same). A drop is executed only when it is rewarded (paper and code):
     dropping on a cell outside the target, or on an occupied cell, changes nothing and earns 0.
     Objects are never removed, so the table always holds part of the target.
 
@@ -45,7 +46,8 @@ class ObjectArrangementEnv(GridEnv):
     ``info["evaluation"]``: E(T).
 
     ## Arguments
-    ``target``, ``horizon``, ``bonus``, ``goal_threshold``, ``render_mode`` (``"ansi"``).
+    ``target``, ``horizon``, ``bonus``, ``goal_threshold``, ``guided_goal_threshold``,
+    ``render_mode`` (``"ansi"``).
 
     ## Version History
     * v0: initial version.
@@ -57,11 +59,13 @@ class ObjectArrangementEnv(GridEnv):
         horizon: int = 50,
         bonus: float = 1.0,
         goal_threshold: float = 1.0,
+        guided_goal_threshold: float | None = None,
         render_mode: str | None = None,
     ) -> None:
         if horizon < 1:
             raise ValueError(f"horizon must be at least 1, got {horizon}")
-        super().__init__(object_arrangement(target, goal_threshold), bonus, render_mode)
+        task = object_arrangement(target, goal_threshold)
+        super().__init__(task, bonus, render_mode, guided_goal_threshold)
         self.horizon = horizon
         self._steps = 0
 
@@ -73,6 +77,7 @@ class ObjectArrangementEnv(GridEnv):
     ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
         self._grid[:] = 0
+        self._steered = False
         self._steps = 0
         self._cursor = self._draw_cell()
         return self._observe(), self._info()

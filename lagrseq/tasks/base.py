@@ -60,9 +60,10 @@ class Task(Protocol):
         """A short human-readable form of a pattern (logs, errors)."""
         ...
 
-    def guided_cell(self, pattern: Pattern, solution: Solution) -> Any:
-        """Where pi_LLM wants to act next when the environment works cell by cell (grids), or
-        None to act wherever the environment is (its ``info["cursor"]``, if any)."""
+    def guided_cell(self, pattern: Pattern, solution: Solution, cursor: Any = None) -> Any:
+        """The cell pi_LLM chooses to act on when the environment works cell by cell (grids;
+        the loop then steers the environment there), or None to act wherever the environment
+        is (its ``info["cursor"]``, if any)."""
         ...
 
 

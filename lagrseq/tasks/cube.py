@@ -200,7 +200,9 @@ class CubeStacking:
         return Parsed(tuple(ids))
 
     # ---------------------------------------------------------------- pi_LLM
-    def guided_cell(self, pattern: tuple[int, ...], solution: tuple[int, ...]) -> None:
+    def guided_cell(
+        self, pattern: tuple[int, ...], solution: tuple[int, ...], cursor: object = None
+    ) -> None:
         """Cube stacking has no cells to choose: pi_LLM acts on the stack."""
         return None
 

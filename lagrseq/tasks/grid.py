@@ -292,18 +292,20 @@ class GridTask:
         return read_grid(text, self.rows, self.cols)
 
     # ---------------------------------------------------------------- pi_LLM
-    def guided_cell(self, pattern: np.ndarray, solution: np.ndarray) -> tuple[int, int] | None:
-        """Where pi_LLM acts next, or None to act on the environment's current cell.
+    def guided_cell(
+        self, pattern: np.ndarray, solution: np.ndarray, cursor: tuple[int, int] | None = None
+    ) -> tuple[int, int] | None:
+        """The cell pi_LLM chooses to act on, or None when it acts wherever the environment is.
 
         ``next-missing`` (released ``LLMgreedy``, SPEC 2.3): the first cell in row-major order that
-        the solution has on and the pattern has off, wherever the scan or draw is.
-        ``cell-by-cell`` (paper, image task): always the environment's current cell.
+        the solution has on and the pattern has off, wherever the scan or draw is; ``cursor``
+        (a no-op there) when nothing is missing. ``cell-by-cell`` (paper, image task): None.
         """
         if self.guidance_mode != "next-missing":
             return None
         missing = np.flatnonzero((np.asarray(solution) == 1).ravel() & (np.asarray(pattern) == 0).ravel())
         if missing.size == 0:
-            return None
+            return cursor
         return divmod(int(missing[0]), self.cols)
 
     def guidance(

@@ -99,23 +99,40 @@ def test_image_truncates_after_the_scans() -> None:
         assert not terminated and truncated == (step == 199)
 
 
-def test_move_cursor_acts_elsewhere_without_moving_the_scan() -> None:
+def test_steered_steps_use_the_guided_goal_threshold() -> None:
+    """Released code: pi_LLM's steps earn the bonus at E > 0.95, the primary's only at E = 1."""
+    image = ImageCompletionEnv(goal_threshold=1.0, goal_ends="scan", guided_goal_threshold=0.96)
+    image.reset(seed=0)
+    cells = list(zip(*np.nonzero(X), strict=True))
+    rewards = []
+    for cell in cells[:16]:
+        image.steer(cell)
+        rewards.append(image.step(1)[1])
+    assert rewards[:15] == pytest.approx([0.01] * 15) and rewards[15] == pytest.approx(1.01)
+    _, reward, *_ = image.step(0)  # the primary's step on the same 96-pixel image: no bonus
+    assert reward == 0.0
+    image.steer(image.unwrapped._cursor)
+    _, reward, *_ = image.step(0)  # pi_LLM with nothing left to place: the bonus again
+    assert reward == 1.0
+
+
+def test_steer_acts_elsewhere_without_moving_the_scan() -> None:
     env = ImageCompletionEnv()
     env.reset(seed=0)
-    obs, info = env.move_cursor((9, 9))
+    obs, info = env.steer((9, 9))
     assert info["cursor"] == (9, 9) and obs[0] == 9 and obs[1] == 9
     _, reward, *_, info = env.step(1)
     assert info["pattern"][9, 9] == 1 and reward == pytest.approx(0.01)
     assert info["cursor"] == (0, 1)  # the scan goes on from where it was
     with pytest.raises(ValueError, match="outside"):
-        env.move_cursor((10, 0))
+        env.steer((10, 0))
 
 
 # ------------------------------------------------------------------------------------------
 # Object arrangement (SPEC 3.1)
 # ------------------------------------------------------------------------------------------
 def place(env: ObjectArrangementEnv, cell: tuple[int, int], action: int = 1) -> tuple[float, bool, bool, dict]:
-    env.move_cursor(cell)
+    env.steer(cell)
     _, reward, terminated, truncated, info = env.step(action)
     return reward, terminated, truncated, info
 

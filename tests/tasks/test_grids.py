@@ -189,6 +189,7 @@ def test_next_missing_guidance_picks_the_first_missing_cell() -> None:
     assert task.guided_cell(table, DIAMOND) == (1, 1)
     assert task.guidance(table, DIAMOND, (1, 1)) == 1
     assert task.guided_cell(DIAMOND, DIAMOND) is None
+    assert task.guided_cell(DIAMOND, DIAMOND, (3, 3)) == (3, 3)  # nothing missing: act in place
     image = image_completion(guidance_mode="next-missing")
     extra = X.copy()
     extra[0, 1] = 1
