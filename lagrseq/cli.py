@@ -40,6 +40,8 @@ def _add_run(sub: Any) -> None:
             "  lagrseq run cube-stacking --method lagr-seq --preset upstream --trials 10 --out runs\n"
             "  lagrseq run cube-stacking --method lagr --set env.horizon=100 --set llm.temperature=1.0\n"
             "  lagrseq run cube-stacking --method baseline --set task.stack_size=11\n"
+            "  lagrseq run image-completion --method lagr-seq --preset paper --trials 2\n"
+            "  lagrseq run object-arrangement --method lagr --set task.target=\"square\"\n"
             "  lagrseq config cube-stacking --preset paper     # every field, its value and meaning"
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -365,12 +367,15 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise UsageError(f"--on-miss {args.on_miss} applies to --provider recorded:STORE only")
     config = cfg.load(args.task, args.method, args.preset, args.config, args.overrides)
     config = experiment.with_provider_model(config, args.provider)
+    missing = experiment.missing_dependency(config)
+    if missing:
+        raise UsageError(f"{args.task} {missing}")
     experiment.check_provider(args.provider, config, options)
     directory = experiment.run_directory(args.out, config, args.provider, args.seed, args.name)
-    total = args.trials * config.run.episodes
+    unit, per_trial = experiment.progress_unit(config)
     with tqdm(
-        total=total,
-        unit="ep",
+        total=args.trials * per_trial,
+        unit=unit,
         desc=f"{args.task} {args.method}",
         disable=args.quiet,
         file=sys.stderr,

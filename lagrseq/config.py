@@ -69,6 +69,103 @@ class CubeEnvConfig:
     """End the episode when the stack is complete. Paper: not stated (we end it); code: never."""
 
 
+GridTarget = Literal[
+    "x",
+    "diamond",
+    "horizontal-line",
+    "vertical-line",
+    "diagonal",
+    "anti-diagonal",
+    "square",
+    "right-triangle",
+    "plus",
+    "oval",
+]
+
+
+@dataclass(frozen=True)
+class ImageTaskConfig:
+    """[task] of image completion (SPEC section 2): a 10 x 10 image."""
+
+    name: Literal["image-completion"] = "image-completion"
+    """Task id."""
+    target: GridTarget = "x"
+    """Target shape. Paper and code: "x" (20 pixels); the others come from lagrseq's shape
+    library (lines, square outline, right triangle, diamond, plus, oval), drawn across the grid."""
+    goal_threshold: float = 0.96
+    """Evaluation E (fraction of matching pixels) at which the bonus is paid and the image counts
+    as complete. Paper: E > delta = 0.95, i.e. >= 0.96 on 100 pixels; code: 1.0 on the primary's
+    steps (exact match), 0.95 on pi_LLM's steps (lagrseq uses one rule for both)."""
+    prompt_matrix: Literal["numpy", "comma"] = "numpy"
+    """How the partial image is written into the prompt: numpy's str() as the released code does
+    (space-separated), or the descriptor examples' comma lists. The paper does not show it."""
+    guidance: Literal["cell-by-cell", "next-missing"] = "cell-by-cell"
+    """pi_LLM: act on the scanned pixel, flipping it when it differs from the solution (paper:
+    "for each pixel in I"), or set the solution's first missing pixel in row-major order wherever
+    the scan is (code: LLMgreedy)."""
+
+
+@dataclass(frozen=True)
+class ArrangementTaskConfig:
+    """[task] of object arrangement, simulated (SPEC section 3): a 5 x 5 table."""
+
+    name: Literal["object-arrangement"] = "object-arrangement"
+    """Task id."""
+    target: GridTarget = "diamond"
+    """Target arrangement. Paper and code: "diamond" (8 objects); the others come from lagrseq's
+    shape library scaled to 5 x 5."""
+    goal_threshold: float = 1.0
+    """E at which the bonus is paid and the episode ends. Paper: E > delta = 0.99 and code: exact
+    match, both 25/25 cells, i.e. 1.0."""
+    prompt_matrix: Literal["numpy", "comma"] = "numpy"
+    """How the partial grid is written into the prompt: numpy's str() (code) or comma lists."""
+    guidance: Literal["cell-by-cell", "next-missing"] = "next-missing"
+    """pi_LLM: drop on the drawn cell when the solution has an object there (cell-by-cell), or
+    drop the solution's first missing object in row-major order wherever the draw is (code:
+    LLMgreedy, 8 steps per episode for the diamond; the paper does not say)."""
+
+
+@dataclass(frozen=True)
+class ImageEnvConfig:
+    """[env] of image completion: scans, bonus, flips (SPEC 2.1)."""
+
+    scans: int = 5
+    """Raster scans of the 100 pixels per episode. Paper: H = 500 steps; code: 5 scans."""
+    bonus: float = 1.0
+    """Reward bonus b at the goal. Paper and code: 1."""
+    goal_ends: Literal["episode", "scan"] = "episode"
+    """What reaching the goal ends: the episode, or (code) only the current scan; the next scan
+    starts at pixel (0, 0) on the same image, which earns the bonus again (up to 5 per episode)."""
+    block_wrong_flips: bool = True
+    """Undo, with reward 0, a flip that turns on a pixel that is off in the target (code: yes).
+    The paper does not say, but its prompt states that "all the initial pixels are in their
+    correct positions", which holds only with this rule, so both presets block."""
+    guided_goal_threshold: float = 0.96
+    """E at which pi_LLM's steps earn the bonus when pi_LLM picks its own cell (task.guidance =
+    "next-missing"). Code: E > 0.95 (LLMgreedy), while the primary's steps need
+    task.goal_threshold = 1.0, so an accepted answer with 96-99 right pixels still earns it.
+    Paper: one rule (unused with cell-by-cell guidance)."""
+
+    def __post_init__(self) -> None:
+        if self.scans < 1:
+            raise ConfigError(f"env.scans = {self.scans} must be at least 1")
+
+
+@dataclass(frozen=True)
+class ArrangementEnvConfig:
+    """[env] of object arrangement: horizon and bonus (SPEC 3.1). A drop is executed only when it
+    is rewarded, and the episode ends at the goal (paper and code)."""
+
+    horizon: int = 50
+    """Steps per episode (H). Paper and code: 50."""
+    bonus: float = 1.0
+    """Reward bonus b at the goal. Paper and code: 1."""
+
+    def __post_init__(self) -> None:
+        if self.horizon < 1:
+            raise ConfigError(f"env.horizon = {self.horizon} must be at least 1")
+
+
 # --------------------------------------------------------------------------------------------
 # Agent sections
 # --------------------------------------------------------------------------------------------
@@ -95,6 +192,10 @@ class TabularConfig:
     epsilon_decay: float = 0.0
     """Linear: episodes to go from start to minimum (0 = half of run.episodes); exponential: the
     per-episode factor. Paper: linear, length not given."""
+    epsilon_unit: Literal["episode", "step"] = "episode"
+    """What the schedule counts: episodes (cube paper and code) or environment steps."""
+    epsilon_warmup: int = 0
+    """Steps at the start of a trial during which epsilon stays at epsilon_start."""
     invalid_actions: Literal["mask", "resample"] = "mask"
     """Adding a cube that is already in the stack: choose among valid actions only (mask) or, as the
     code does, redraw uniformly from all actions until valid (resample, also after a greedy pick)."""
@@ -122,6 +223,10 @@ class TabularSecondaryConfig:
     """Minimum epsilon. Paper and code: 0.05."""
     epsilon_decay: float = 0.0
     """As for the primary agent."""
+    epsilon_unit: Literal["episode", "step"] = "episode"
+    """As for the primary agent."""
+    epsilon_warmup: int = 0
+    """As for the primary agent."""
     query_reward: Literal["binary", "logistic"] = "binary"
     """Reward of a query: binary (reward_correct / reward_wrong) or the paper's appendix logistic
     1 / (1 + exp(-steepness (E/N - midpoint)))."""
@@ -133,6 +238,122 @@ class TabularSecondaryConfig:
     """p1 of the logistic query reward. Paper appendix: 20."""
     logistic_midpoint: float = 0.9
     """p2 of the logistic query reward (on the normalised evaluation E/N). Paper appendix: 0.9."""
+
+
+def _check_network(section: str, hidden_sizes: tuple[int, ...], batch_size: int, buffer_size: int) -> None:
+    if not hidden_sizes or any(width < 1 for width in hidden_sizes):
+        raise ConfigError(
+            f"{section}.hidden_sizes = {list(hidden_sizes)} must list one positive width per hidden layer"
+        )
+    if batch_size < 1 or buffer_size < batch_size:
+        raise ConfigError(
+            f"{section}.batch_size = {batch_size} must be at least 1 and at most "
+            f"{section}.buffer_size = {buffer_size}"
+        )
+
+
+@dataclass(frozen=True)
+class DQNConfig:
+    """[primary] deep Q-network (image completion, object arrangement; needs the dqn extra)."""
+
+    kind: Literal["dqn"] = "dqn"
+    """Agent kind."""
+    hidden_sizes: tuple[int, ...] = (128, 128)
+    """Widths of the ReLU hidden layers; the output layer is linear. Paper and code: 128, 128
+    (image), 64, 64 (arrangement)."""
+    learning_rate: float = 0.001
+    """Adam step size. Paper and code: 1e-3."""
+    discount: float = 0.95
+    """Discount gamma. Paper and code: 0.95."""
+    batch_size: int = 32
+    """Minibatch of one optimiser step (one step per environment step). Paper: 32 (image), 16
+    (arrangement); code: 64 (image), 16, each sample fitted separately."""
+    buffer_size: int = 10000
+    """Replay buffer capacity in transitions. Paper and code: 10000."""
+    target_update_interval: int = 0
+    """Optimiser steps between copies of the online network into the target network; 0 = no
+    target network (bootstrap from the online network, as the released code does)."""
+    normalise_observations: bool = True
+    """Scale observations to [0, 1] with the observation space's bounds (the pixel coordinates
+    0..9 become 0..1). Code: raw coordinates."""
+    epsilon_schedule: EpsilonSchedule = "exponential"
+    """Exploration schedule. Paper: exponential, factor 0.998; code: inverse-episode
+    (max(1/episode, 0.1)) with its 0.998 factor defined but unused."""
+    epsilon_start: float = 1.0
+    """Initial epsilon. Paper and code: 1."""
+    epsilon_min: float = 0.1
+    """Minimum epsilon. Paper and code: 0.1."""
+    epsilon_decay: float = 0.998
+    """Per-unit factor of the exponential schedule (linear: its length). Paper: 0.998."""
+    epsilon_unit: Literal["episode", "step"] = "step"
+    """What the schedule counts. Paper: not said; per step (per episode, 0.998 would leave epsilon
+    above 0.9 for a whole 10000-step trial). Code: inverse-episode counts episodes."""
+    epsilon_warmup: int = 0
+    """Steps during which epsilon stays at epsilon_start. Code: the batch size (epsilon is set
+    inside the replay step, which waits for a full batch)."""
+    device: Literal["cpu", "cuda", "auto"] = "cpu"
+    """Where the networks run: cpu, cuda (an error without a GPU), auto (cuda when available)."""
+    cpu_threads: int = 1
+    """torch's intra-op CPU threads for the whole process (torch.set_num_threads), 0 = leave
+    torch's default (all cores). Networks this small run fastest on one thread: on a 2-core
+    machine the default made a trial 3x slower, and parallel trials oversubscribe the cores."""
+
+    def __post_init__(self) -> None:
+        _check_network("primary", self.hidden_sizes, self.batch_size, self.buffer_size)
+        if self.cpu_threads < 0:
+            raise ConfigError(f"primary.cpu_threads = {self.cpu_threads} must be >= 0 (0: torch's default)")
+        if self.target_update_interval < 0:
+            raise ConfigError(
+                f"primary.target_update_interval = {self.target_update_interval} must be >= 0 (0: none)"
+            )
+
+
+@dataclass(frozen=True)
+class NeuralSecondaryConfig:
+    """[secondary] the SEQ agent as a neural two-armed bandit on the grid (needs the dqn extra).
+
+    A multilayer perceptron maps the flattened grid to [value of not querying, value of querying];
+    each decision is stored with its reward and one Adam step fits Q(s, a) to r (no bootstrapping:
+    every decision ends, the paper's MAB setting)."""
+
+    kind: Literal["neural"] = "neural"
+    """Agent kind."""
+    hidden_sizes: tuple[int, ...] = (128, 128)
+    """Widths of the ReLU hidden layers. Code: 128, 128 (image), 64, 64 (arrangement)."""
+    learning_rate: float = 0.001
+    """Adam step size. Paper and code: 1e-3."""
+    batch_size: int = 32
+    """Minibatch of one optimiser step per decision. Code: 64 (image), 16 (arrangement)."""
+    buffer_size: int = 10000
+    """Replay buffer capacity in decisions. Code: 10000."""
+    epsilon_schedule: EpsilonSchedule = "exponential"
+    """Exploration schedule. Code: constant 1.0 (never decays: SEQ is random querying with
+    probability 1/2 and its network is trained but never consulted); paper: learned SEQ."""
+    epsilon_start: float = 1.0
+    """Initial epsilon. Paper and code: 1."""
+    epsilon_min: float = 0.1
+    """Minimum epsilon. Paper: 0.1."""
+    epsilon_decay: float = 0.998
+    """Per-unit factor of the exponential schedule. Paper: 0.998."""
+    epsilon_unit: Literal["episode", "step"] = "step"
+    """What the schedule counts (environment steps or episodes)."""
+    epsilon_warmup: int = 0
+    """Steps during which epsilon stays at epsilon_start."""
+    query_reward: Literal["binary", "logistic"] = "binary"
+    """Reward of a query: binary or the paper appendix's logistic on E/N (N = cells)."""
+    reward_correct: float = 1.0
+    """Binary query reward for an accepted answer. Paper and code: 1."""
+    reward_wrong: float = 0.0
+    """Binary query reward for a rejected answer. Grids, paper and code: 0."""
+    logistic_steepness: float = 20.0
+    """p1 of the logistic query reward. Paper appendix: 20."""
+    logistic_midpoint: float = 0.9
+    """p2 of the logistic query reward (on E/N). Paper appendix: 0.9."""
+    device: Literal["cpu", "cuda", "auto"] = "cpu"
+    """Where the network runs (as for the primary agent)."""
+
+    def __post_init__(self) -> None:
+        _check_network("secondary", self.hidden_sizes, self.batch_size, self.buffer_size)
 
 
 # --------------------------------------------------------------------------------------------
@@ -174,15 +395,22 @@ class RunConfig:
     """[run] length of a trial."""
 
     episodes: int = 100
-    """Episodes per trial. Cube code: 100."""
+    """Episodes per trial, 0 for no limit (then max_steps ends the trial). Cube code: 100."""
     max_steps: int = 0
     """Global environment-step budget per trial, 0 for none. Grid code: 10001 (image), 5001."""
 
+    def __post_init__(self) -> None:
+        if self.episodes < 0 or self.max_steps < 0 or not (self.episodes or self.max_steps):
+            raise ConfigError(
+                f"run.episodes = {self.episodes} and run.max_steps = {self.max_steps}: "
+                "both must be >= 0 and at least one > 0"
+            )
 
-TaskConfig = CubeTaskConfig
-EnvConfig = CubeEnvConfig
-PrimaryConfig = TabularConfig
-SecondaryConfig = TabularSecondaryConfig
+
+TaskConfig = CubeTaskConfig | ImageTaskConfig | ArrangementTaskConfig
+EnvConfig = CubeEnvConfig | ImageEnvConfig | ArrangementEnvConfig
+PrimaryConfig = TabularConfig | DQNConfig
+SecondaryConfig = TabularSecondaryConfig | NeuralSecondaryConfig
 
 
 @dataclass(frozen=True)
@@ -221,6 +449,18 @@ SECTIONS: dict[str, dict[str, type]] = {
         "env": CubeEnvConfig,
         "primary": TabularConfig,
         "secondary": TabularSecondaryConfig,
+    },
+    "image-completion": {
+        "task": ImageTaskConfig,
+        "env": ImageEnvConfig,
+        "primary": DQNConfig,
+        "secondary": NeuralSecondaryConfig,
+    },
+    "object-arrangement": {
+        "task": ArrangementTaskConfig,
+        "env": ArrangementEnvConfig,
+        "primary": DQNConfig,
+        "secondary": NeuralSecondaryConfig,
     },
 }
 COMMON_SECTIONS: dict[str, type] = {"lagr": LagrConfig, "llm": LLMConfig, "run": RunConfig}

@@ -10,24 +10,38 @@ Everything concrete (which env, agent, provider) is chosen here and nowhere else
 
 from __future__ import annotations
 
+import contextlib
+import itertools
 import json
 import multiprocessing
 import platform
 import time
 from collections.abc import Callable, Hashable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import Executor, ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
 from lagrseq import __version__, seeding
 from lagrseq.agents.schedules import EpsilonSchedule
 from lagrseq.agents.tabular import TabularQ
-from lagrseq.config import CubeTaskConfig, ExperimentConfig
-from lagrseq.errors import UsageError
-from lagrseq.lagr import QueryTrigger, consult, follow, query_for
+from lagrseq.config import (
+    ArrangementEnvConfig,
+    ArrangementTaskConfig,
+    CubeEnvConfig,
+    CubeTaskConfig,
+    DQNConfig,
+    ExperimentConfig,
+    ImageEnvConfig,
+    ImageTaskConfig,
+    NeuralSecondaryConfig,
+    RunConfig,
+    TabularConfig,
+)
+from lagrseq.errors import ConfigError, UsageError
+from lagrseq.lagr import QueryTrigger, consult, follows, query_for
 from lagrseq.llm.base import Provider, Query
 from lagrseq.llm.mock import MockProvider
 from lagrseq.llm.servers import DEFAULT_BASE_URL
@@ -36,8 +50,10 @@ from lagrseq.logs.schemas import ACCURACY_METHOD
 from lagrseq.logs.sink import McapSink
 from lagrseq.seeding import Stream
 from lagrseq.seq import TabularSecondary, query_reward
-from lagrseq.tasks import cube
+from lagrseq.tasks import cube, grid
+from lagrseq.tasks.arrangement import object_arrangement
 from lagrseq.tasks.base import Task
+from lagrseq.tasks.image import image_completion
 
 PROVIDER_KINDS = ("mock", "recorded", "live")
 ON_MISS = ("error", "mock", "live")
@@ -99,24 +115,25 @@ def run_trial(
     provider_spec: str,
     path: Path,
     log: bool = True,
-    on_episode: Callable[[], None] | None = None,
+    on_episode: Callable[[int], None] | None = None,
     provider_options: ProviderOptions | None = None,
 ) -> TrialResult:
-    """Run one trial and log it to ``path`` (``log=False`` runs without writing, for benchmarks)."""
+    """Run one trial and log it to ``path`` (``log=False`` runs without writing, for benchmarks).
+    ``on_episode(length)`` is called after every episode with its number of steps."""
     started = time.perf_counter()
     config = with_provider_model(config, provider_spec)  # live:MODEL asks MODEL, and the log says so
     task = make_task(config)
     env = make_env(config)
-    primary = make_primary(config, task)
-    secondary = make_secondary(config, task) if config.method == "lagr-seq" else None
+    primary = make_primary(config, task, env, seed, trial)
+    secondary = make_secondary(config, task, seed, trial) if config.method == "lagr-seq" else None
     provider = make_provider(
         provider_spec, config, seeding.generator(seed, trial, Stream.LLM), provider_options
     )
     primary_rng = seeding.generator(seed, trial, Stream.PRIMARY)
     secondary_rng = seeding.generator(seed, trial, Stream.SECONDARY)
     guidance_rng = seeding.generator(seed, trial, Stream.GUIDANCE)
-    primary_epsilon = _schedule(config.primary, config.run.episodes)
-    secondary_epsilon = _schedule(config.secondary, config.run.episodes)
+    primary_epsilon = _schedule(config.primary, config.run)
+    secondary_epsilon = _schedule(config.secondary, config.run)
     trigger = QueryTrigger(config.lagr.trigger)
     lagr = config.lagr
     asks_llm = config.method != "baseline"
@@ -132,7 +149,9 @@ def run_trial(
     episodes_run = 0
     solution: Any = None  # the accepted LLM solution (pi_LLM), None while there is none
     with sink, provider:
-        for episode in range(config.run.episodes):
+        for episode in itertools.count():
+            if config.run.episodes and episode >= config.run.episodes:
+                break
             if config.run.max_steps and global_step >= config.run.max_steps:
                 break
             observation, info = env.reset(
@@ -141,8 +160,6 @@ def run_trial(
             if lagr.solution_scope == "episode":
                 solution = None
             trigger.reset_episode()
-            epsilon = primary_epsilon(episode)
-            epsilon2 = secondary_epsilon(episode)
             last_reward = 0.0
             episode_return = 0.0
             queries = accepted = guided_steps = 0
@@ -151,6 +168,9 @@ def run_trial(
             while True:
                 pattern = info["pattern"]
                 following = solution  # a solution accepted at this step guides from the next one
+                # Exploration per episode (cube) or per step (grid DQNs); /episode logs the last.
+                epsilon = primary_epsilon.at(episode, global_step)
+                epsilon2 = secondary_epsilon.at(episode, global_step)
 
                 # SEQ + LaGR: from the current state, maybe query the LLM.
                 if asks_llm and solution is None and trigger.armed(task.progress(pattern), last_reward):
@@ -176,17 +196,24 @@ def run_trial(
 
                 # Act: follow pi_LLM once a solution is held, else the primary agent's policy.
                 action = None
-                if following is not None:
-                    action = follow(task, lagr, pattern, following, info.get("cursor"), guidance_rng)
+                if following is not None and follows(lagr, guidance_rng):
+                    # The released grid code's pi_LLM picks its own cell (the solution's next
+                    # missing one) instead of the scanned or drawn cell.
+                    cell = task.guided_cell(pattern, following, info.get("cursor"))
+                    if cell is not None:
+                        observation, info = env.steer(cell)
+                    action = task.guidance(pattern, following, info.get("cursor"))
                 guided = action is not None
                 if action is None:
                     action = primary.act(observation, info, epsilon, primary_rng)
 
                 next_observation, reward, terminated, truncated, next_info = env.step(action)
 
-                # Learn: the primary agent is not updated on guided steps in the released code.
+                # Learn: the primary agent is not updated on guided steps in the released cube code.
                 if not guided or lagr.update_primary_while_guided:
-                    primary.learn(info, action, reward, next_info, terminated)
+                    primary.learn(
+                        observation, info, action, reward, next_observation, next_info, terminated
+                    )
 
                 sink.write(
                     "/transition",
@@ -237,7 +264,7 @@ def run_trial(
             total_return += episode_return
             episodes_run += 1
             if on_episode is not None:
-                on_episode()
+                on_episode(step)
     env.close()
     return TrialResult(
         path=path,
@@ -384,16 +411,62 @@ def probe_path(out: Path, config: ExperimentConfig, provider_spec: str, seed: in
 # ------------------------------------------------------------------------------------------
 # Wiring: the only place that knows concrete tasks, envs, agents and providers
 # ------------------------------------------------------------------------------------------
+_Section = TypeVar("_Section")
+
+
+def _expect(value: Any, cls: type[_Section], section: str) -> _Section:
+    """``value`` as the section class this task needs (configs from ``config.load`` always are)."""
+    if not isinstance(value, cls):
+        raise ConfigError(
+            f"[{section}] is a {type(value).__name__}, this task needs a {cls.__name__}; "
+            "build configurations with lagrseq.config.load"
+        )
+    return value
+
+
 def make_task(config: ExperimentConfig) -> Task:
-    if isinstance(config.task, CubeTaskConfig):
-        return cube.CubeStacking(config.task.stack_size)  # type: ignore[return-value]
-    raise UsageError(f"unknown task {config.task.name!r}")  # pragma: no cover
+    task = config.task
+    if isinstance(task, CubeTaskConfig):
+        return cube.CubeStacking(task.stack_size)  # type: ignore[return-value]
+    if isinstance(task, ImageTaskConfig):
+        return image_completion(task.target, task.goal_threshold, task.prompt_matrix, task.guidance)
+    if isinstance(task, ArrangementTaskConfig):
+        return object_arrangement(task.target, task.goal_threshold, task.prompt_matrix, task.guidance)
+    raise UsageError(f"unknown task {task.name!r}")  # pragma: no cover
+
+
+def _make_grid_env(config: ExperimentConfig) -> Any:
+    from lagrseq.envs.image_completion import ImageCompletionEnv
+    from lagrseq.envs.object_arrangement import ObjectArrangementEnv
+
+    task = config.task
+    if isinstance(task, ImageTaskConfig):
+        image = _expect(config.env, ImageEnvConfig, "env")
+        return ImageCompletionEnv(
+            target=task.target,
+            scans=image.scans,
+            bonus=image.bonus,
+            goal_threshold=task.goal_threshold,
+            goal_ends=image.goal_ends,
+            block_wrong_flips=image.block_wrong_flips,
+            guided_goal_threshold=image.guided_goal_threshold,
+        )
+    table = _expect(config.env, ArrangementEnvConfig, "env")
+    arrangement = _expect(task, ArrangementTaskConfig, "task")
+    return ObjectArrangementEnv(
+        target=arrangement.target,
+        horizon=table.horizon,
+        bonus=table.bonus,
+        goal_threshold=arrangement.goal_threshold,
+    )
 
 
 def make_env(config: ExperimentConfig) -> Any:
+    if not isinstance(config.task, CubeTaskConfig):
+        return _make_grid_env(config)
     from lagrseq.envs.cube_stacking import CubeStackingEnv
 
-    env = config.env
+    env = _expect(config.env, CubeEnvConfig, "env")
     return CubeStackingEnv(
         stack_size=config.task.stack_size,
         horizon=env.horizon,
@@ -405,21 +478,58 @@ def make_env(config: ExperimentConfig) -> Any:
     )
 
 
-def _schedule(section: Any, episodes: int) -> EpsilonSchedule:
+def _schedule(section: Any, run: RunConfig) -> EpsilonSchedule:
+    """The epsilon schedule of an agent section, counted in episodes or steps."""
+    length = run.max_steps if section.epsilon_unit == "step" else run.episodes
+    if section.epsilon_schedule == "linear" and section.epsilon_decay <= 0 and length == 0:
+        unit = "max_steps" if section.epsilon_unit == "step" else "episodes"
+        raise ConfigError(
+            f"a linear epsilon schedule with epsilon_decay = 0 runs over half of run.{unit}, "
+            f"which is 0 (no limit); set epsilon_decay to its length in {section.epsilon_unit}s"
+        )
     return EpsilonSchedule(
         section.epsilon_schedule,
         section.epsilon_start,
         section.epsilon_min,
         section.epsilon_decay,
-        episodes,
+        length,
+        section.epsilon_unit,
+        section.epsilon_warmup,
     )
+
+
+class PrimaryAgent(Protocol):
+    """What the loop asks of a primary agent."""
+
+    def act(self, observation: Any, info: dict[str, Any], epsilon: float, rng: np.random.Generator) -> int: ...
+
+    def learn(
+        self,
+        observation: Any,
+        info: dict[str, Any],
+        action: int,
+        reward: float,
+        next_observation: Any,
+        next_info: dict[str, Any],
+        terminated: bool,
+    ) -> None: ...
+
+
+class SecondaryAgent(Protocol):
+    """What the loop asks of a secondary (SEQ) agent."""
+
+    def key(self, pattern: Any) -> Any: ...
+
+    def decide(self, pattern: Any, epsilon: float, rng: np.random.Generator) -> int: ...
+
+    def update(self, key: Any, decision: int, reward: float) -> None: ...
 
 
 class TabularPrimary:
     """Tabular Q-learning on the task's patterns, with the configured state index."""
 
     def __init__(self, config: ExperimentConfig, task: cube.CubeStacking) -> None:
-        section = config.primary
+        section = _expect(config.primary, TabularConfig, "primary")
         self.agent = TabularQ(task.n_actions, section.learning_rate, section.discount)
         self.invalid = section.invalid_actions
         self.pre_revert = section.bootstrap_from == "pre-revert"
@@ -433,7 +543,14 @@ class TabularPrimary:
         return self.agent.act(self.key(info["pattern"]), epsilon, rng, info["action_mask"], self.invalid)
 
     def learn(
-        self, info: dict[str, Any], action: int, reward: float, next_info: dict[str, Any], terminated: bool
+        self,
+        observation: Any,
+        info: dict[str, Any],
+        action: int,
+        reward: float,
+        next_observation: Any,
+        next_info: dict[str, Any],
+        terminated: bool,
     ) -> None:
         following = next_info["pre_revert_pattern"] if self.pre_revert else next_info["pattern"]
         self.agent.update(self.key(info["pattern"]), action, reward, self.key(following), terminated)
@@ -450,12 +567,99 @@ class TabularSeq(TabularSecondary):
         return super().decide(self.key(pattern), epsilon, rng)
 
 
-def make_primary(config: ExperimentConfig, task: Task) -> TabularPrimary:
+# The primary and secondary networks each get their own part of the TORCH and REPLAY streams.
+PRIMARY_PART, SECONDARY_PART = 0, 1
+
+
+class DQNPrimary:
+    """A DQN on the environment's observation vector (grid tasks; torch is imported here)."""
+
+    def __init__(self, section: DQNConfig, env: Any, seed: int, trial: int) -> None:
+        from lagrseq.agents.dqn import DQN
+
+        space = env.observation_space
+        normalise = section.normalise_observations
+        self.agent = DQN(
+            observation_size=int(space.shape[0]),
+            n_actions=int(env.action_space.n),
+            hidden_sizes=section.hidden_sizes,
+            learning_rate=section.learning_rate,
+            discount=section.discount,
+            batch_size=section.batch_size,
+            buffer_size=section.buffer_size,
+            target_update_interval=section.target_update_interval,
+            seed=seeding.integer_seed(seed, trial, Stream.TORCH, PRIMARY_PART),
+            device=section.device,
+            observation_low=space.low if normalise else None,
+            observation_high=space.high if normalise else None,
+            cpu_threads=section.cpu_threads,
+        )
+        self.replay_rng = seeding.generator(seed, trial, Stream.REPLAY, PRIMARY_PART)
+
+    def act(self, observation: Any, info: dict[str, Any], epsilon: float, rng: np.random.Generator) -> int:
+        return self.agent.act(observation, epsilon, rng)
+
+    def learn(
+        self,
+        observation: Any,
+        info: dict[str, Any],
+        action: int,
+        reward: float,
+        next_observation: Any,
+        next_info: dict[str, Any],
+        terminated: bool,
+    ) -> None:
+        # Bootstrap from the real next observation (the released code's can be stale, SPEC 7.15),
+        # then one optimiser step per environment step.
+        self.agent.remember(observation, action, reward, next_observation, terminated)
+        self.agent.train_step(self.replay_rng)
+
+
+class NeuralSeq:
+    """The neural SEQ bandit on the flattened grid: Q2(s) = [skip, query], fitted to r2."""
+
+    def __init__(self, section: NeuralSecondaryConfig, cells: int, seed: int, trial: int) -> None:
+        from lagrseq.agents.dqn import DQN
+
+        self.agent = DQN(
+            observation_size=cells,
+            n_actions=2,
+            hidden_sizes=section.hidden_sizes,
+            learning_rate=section.learning_rate,
+            discount=0.0,  # a bandit: every decision ends
+            batch_size=section.batch_size,
+            buffer_size=section.buffer_size,
+            target_update_interval=0,
+            seed=seeding.integer_seed(seed, trial, Stream.TORCH, SECONDARY_PART),
+            device=section.device,
+        )
+        self.replay_rng = seeding.generator(seed, trial, Stream.REPLAY, SECONDARY_PART)
+
+    @staticmethod
+    def key(pattern: Any) -> np.ndarray:
+        return np.asarray(pattern, dtype=np.float32).ravel()
+
+    def decide(self, pattern: Any, epsilon: float, rng: np.random.Generator) -> int:
+        """epsilon-greedy over {0: skip, 1: query}; ties choose 0."""
+        return self.agent.act(self.key(pattern), epsilon, rng)
+
+    def update(self, key: Any, decision: int, reward: float) -> None:
+        self.agent.remember(key, decision, reward, key, True)
+        self.agent.train_step(self.replay_rng)
+
+
+def make_primary(config: ExperimentConfig, task: Task, env: Any, seed: int, trial: int) -> PrimaryAgent:
+    if isinstance(config.primary, DQNConfig):
+        return DQNPrimary(config.primary, env, seed, trial)
     return TabularPrimary(config, task)  # type: ignore[arg-type]
 
 
-def make_secondary(config: ExperimentConfig, task: Task) -> TabularSeq:
-    return TabularSeq(config.secondary.learning_rate)
+def make_secondary(config: ExperimentConfig, task: Task, seed: int, trial: int) -> SecondaryAgent:
+    section = config.secondary
+    if isinstance(section, NeuralSecondaryConfig):
+        grid_task = _expect(task, grid.GridTask, "task")
+        return NeuralSeq(section, grid_task.cells, seed, trial)
+    return TabularSeq(section.learning_rate)
 
 
 def mock_profiles() -> tuple[str, ...]:
@@ -516,6 +720,19 @@ def make_provider(
     return RecordedProvider(store, endpoint, run_seed, fallback)
 
 
+def missing_dependency(config: ExperimentConfig) -> str:
+    """Why ``config`` cannot run with the installed extras ("" when it can): the DQN agents of
+    the grid tasks need torch (the ``dqn`` extra)."""
+    import importlib.util
+
+    needs_torch = config.primary.kind == "dqn" or (
+        config.method == "lagr-seq" and config.secondary.kind == "neural"
+    )
+    if needs_torch and importlib.util.find_spec("torch") is None:
+        return "needs torch, which is not installed (pip install 'lagrseq[dqn]')"
+    return ""
+
+
 def check_provider(spec: str, config: ExperimentConfig, options: ProviderOptions | None = None) -> None:
     """Build the provider once and close it, so that a missing API key or store fails before any
     trial starts (nothing is sent)."""
@@ -555,7 +772,12 @@ def extrapolator(
     task = make_task(config)
     if isinstance(task, cube.CubeStacking):
         return cube.profile_extrapolator(task, profile)
-    return cube.extrapolate  # pragma: no cover - every task so far is a cube task
+    if profile != "ideal":
+        raise UsageError(
+            f"mock profile {profile!r} is calibrated for cube stacking only; "
+            f"{config.task.name} has the ideal mock (--provider mock)"
+        )
+    return grid.extrapolate
 
 
 # ------------------------------------------------------------------------------------------
@@ -567,8 +789,8 @@ def pattern_from(task: Task, value: Any) -> Any:
     coerce = getattr(task, "coerce_pattern", None)
     if coerce is not None:
         return coerce(value)
-    array = np.asarray(value)  # pragma: no cover - grid tasks without coerce_pattern
-    return array if array.ndim > 1 else tuple(int(x) for x in array)  # pragma: no cover
+    array = np.asarray(value)
+    return array if array.ndim > 1 else tuple(int(x) for x in array)
 
 
 def prompt_function(config: ExperimentConfig) -> Callable[[Any], str]:
@@ -588,7 +810,7 @@ def record_patterns(
     if not runs:
         if isinstance(task, cube.CubeStacking):
             return list(task.prefixes())
-        raise UsageError(  # pragma: no cover - every task so far is a cube task
+        raise UsageError(
             f"{config.task.name} has no default set of prompts; give runs with --from-runs"
         )
     if topic not in ("/query", "/transition"):
@@ -675,6 +897,20 @@ def _run_trial_job(args: tuple[Any, ...]) -> TrialResult:
     )
 
 
+def process_pool(jobs: int) -> ProcessPoolExecutor:
+    """A pool of ``jobs`` worker processes, spawned rather than forked: forking a process that
+    runs threads (the progress bar's, torch's) can deadlock."""
+    return ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn"))
+
+
+def progress_unit(config: ExperimentConfig) -> tuple[str, int]:
+    """What a progress bar counts for ``config`` and how many per trial: environment steps when the
+    trial has a step budget (grid tasks), else episodes."""
+    if config.run.max_steps:
+        return "step", config.run.max_steps
+    return "ep", config.run.episodes
+
+
 def run_trials(
     config: ExperimentConfig,
     trials: int,
@@ -684,9 +920,12 @@ def run_trials(
     jobs: int = 1,
     progress: Any = None,
     provider_options: ProviderOptions | None = None,
+    pool: Executor | None = None,
 ) -> list[TrialResult]:
-    """Run trials 0..trials-1 into ``directory``; trials whose log is complete are skipped."""
+    """Run trials 0..trials-1 into ``directory``; trials whose log is complete are skipped.
+    ``pool``: an executor to reuse (``lagrseq reproduce`` keeps one warm for the whole suite)."""
     parse_provider(provider_spec)
+    unit, per_trial = progress_unit(config)
     results: list[TrialResult] = []
     todo: list[int] = []
     for trial in range(trials):
@@ -694,10 +933,10 @@ def run_trials(
         if is_complete(path):
             results.append(TrialResult(path, trial, 0, 0, 0, 0.0, 0.0, skipped=True))
             if progress is not None:
-                progress.update(config.run.episodes)
+                progress.update(per_trial)
         else:
             todo.append(trial)
-    if jobs <= 1 or len(todo) <= 1:
+    if pool is None and (jobs <= 1 or len(todo) <= 1):
         for trial in todo:
             results.append(
                 run_trial(
@@ -706,14 +945,18 @@ def run_trials(
                     seed,
                     provider_spec,
                     trial_path(directory, trial),
-                    on_episode=(lambda: progress.update(1)) if progress is not None else None,
+                    on_episode=(
+                        (lambda steps: progress.update(steps if unit == "step" else 1))
+                        if progress is not None
+                        else None
+                    ),
                     provider_options=provider_options,
                 )
             )
     else:
-        # spawn, not fork: forking a process that runs threads (progress bar, torch) can deadlock
-        context = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=jobs, mp_context=context) as pool:
+        with contextlib.ExitStack() as stack:
+            if pool is None:
+                pool = stack.enter_context(process_pool(jobs))
             futures = [
                 pool.submit(
                     _run_trial_job,
@@ -732,7 +975,7 @@ def run_trials(
                 result = future.result()
                 results.append(result)
                 if progress is not None:
-                    progress.update(config.run.episodes)
+                    progress.update(per_trial)
     return sorted(results, key=lambda r: r.trial)
 
 

@@ -88,6 +88,12 @@ class QueryTrigger:
         self.queried_progress = progress
 
 
+def follows(config: LagrConfig, rng: np.random.Generator) -> bool:
+    """Whether this step follows pi_LLM: with probability P (``follow_probability``); P = 1 draws
+    nothing from ``rng``."""
+    return config.follow_probability >= 1.0 or rng.random() < config.follow_probability
+
+
 def follow(
     task: Task,
     config: LagrConfig,
@@ -97,6 +103,6 @@ def follow(
     rng: np.random.Generator,
 ) -> int | None:
     """pi_LLM's action with probability P (``follow_probability``), else None (the primary acts)."""
-    if config.follow_probability < 1.0 and rng.random() >= config.follow_probability:
+    if not follows(config, rng):
         return None
     return task.guidance(pattern, solution, cursor)

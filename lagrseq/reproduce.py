@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import tempfile
 import time
 from collections.abc import Callable
@@ -123,6 +124,9 @@ def _resolve(
         if spec.task not in cfg.tasks():
             return None, f"task {spec.task} not available"
         return None, str(exc)
+    missing = experiment.missing_dependency(config)
+    if missing:
+        return None, f"{spec.task} {missing}"
     problem = _provider_problem(provider)
     if problem:
         unavailable[provider] = problem
@@ -151,10 +155,13 @@ def estimate(the_plan: Plan, jobs: int) -> float:
         if run.kind == "accuracy":
             total += per_unit * run.samples
             continue
-        episodes = run.config.run.episodes
-        steps = episodes * steps_per_episode
-        if run.config.run.max_steps:
-            steps = min(steps, run.config.run.max_steps)
+        episodes, max_steps = run.config.run.episodes, run.config.run.max_steps
+        if episodes == 0:  # no episode limit: the step budget alone ends a trial (grid tasks)
+            steps = float(max_steps)
+        else:
+            steps = episodes * steps_per_episode
+            if max_steps:
+                steps = min(steps, max_steps)
         rounds = -(-pending // max(1, min(jobs, pending)))
         total += rounds * steps * per_unit
     return total
@@ -199,28 +206,35 @@ def execute(
     bar: Any = None,
     on_run: Callable[[PlannedRun], None] | None = None,
 ) -> list[experiment.TrialResult]:
-    """Run every planned run (complete trials are skipped)."""
+    """Run every planned run (complete trials are skipped), reusing one warm process pool."""
     results: list[experiment.TrialResult] = []
-    for run in the_plan.runs:
-        if on_run is not None:
-            on_run(run)
-        progress = _RunProgress(bar, run.units())
-        if run.kind == "accuracy":
-            if not is_complete(run.path):
-                results.append(
-                    experiment.run_accuracy_probe(
-                        run.config, run.samples, run.seed, run.provider, run.path
-                    )
-                )
-        else:
-            results += experiment.run_trials(
-                run.config,
-                run.trials,
-                run.seed,
-                run.provider,
-                run.path,
-                jobs=jobs,
-                progress=progress,
+    with contextlib.ExitStack() as stack:
+        pool = stack.enter_context(experiment.process_pool(jobs)) if jobs > 1 else None
+        for run in the_plan.runs:
+            results += _execute_run(run, jobs, bar, on_run, pool)
+    return results
+
+
+def _execute_run(
+    run: PlannedRun,
+    jobs: int,
+    bar: Any,
+    on_run: Callable[[PlannedRun], None] | None,
+    pool: Any,
+) -> list[experiment.TrialResult]:
+    """One planned run: an accuracy probe (in this process) or its trials (in the pool)."""
+    if on_run is not None:
+        on_run(run)
+    progress = _RunProgress(bar, run.units())
+    results: list[experiment.TrialResult] = []
+    if run.kind == "accuracy":
+        if not is_complete(run.path):
+            results.append(
+                experiment.run_accuracy_probe(run.config, run.samples, run.seed, run.provider, run.path)
             )
-        progress.finish()
+    else:
+        results = experiment.run_trials(
+            run.config, run.trials, run.seed, run.provider, run.path, jobs=jobs, progress=progress, pool=pool
+        )
+    progress.finish()
     return results

@@ -28,13 +28,18 @@ def trial_seed_sequence(seed: int, trial: int) -> np.random.SeedSequence:
     return np.random.SeedSequence(entropy=seed, spawn_key=(trial,))
 
 
-def generator(seed: int, trial: int, stream: Stream) -> np.random.Generator:
-    """The generator of one component (``stream``) of one trial."""
-    sequence = np.random.SeedSequence(entropy=seed, spawn_key=(trial, int(stream)))
+def _key(trial: int, stream: Stream, part: int | None) -> tuple[int, ...]:
+    return (trial, int(stream)) if part is None else (trial, int(stream), part)
+
+
+def generator(seed: int, trial: int, stream: Stream, part: int | None = None) -> np.random.Generator:
+    """The generator of one component (``stream``) of one trial; ``part`` tells apart several
+    consumers of one stream (the primary and the secondary network)."""
+    sequence = np.random.SeedSequence(entropy=seed, spawn_key=_key(trial, stream, part))
     return np.random.Generator(np.random.PCG64(sequence))
 
 
-def integer_seed(seed: int, trial: int, stream: Stream) -> int:
+def integer_seed(seed: int, trial: int, stream: Stream, part: int | None = None) -> int:
     """A 32-bit integer seed for libraries that want one (gymnasium reset, torch)."""
-    sequence = np.random.SeedSequence(entropy=seed, spawn_key=(trial, int(stream)))
+    sequence = np.random.SeedSequence(entropy=seed, spawn_key=_key(trial, stream, part))
     return int(sequence.generate_state(1, dtype=np.uint32)[0])

@@ -13,10 +13,10 @@ from collections.abc import Hashable
 
 import numpy as np
 
-from lagrseq.config import TabularSecondaryConfig
+from lagrseq.config import SecondaryConfig
 
 
-def query_reward(evaluation: float, accepted: bool, config: TabularSecondaryConfig) -> float:
+def query_reward(evaluation: float, accepted: bool, config: SecondaryConfig) -> float:
     """The secondary agent's reward for a query.
 
     binary: ``reward_correct`` if the answer was accepted, else ``reward_wrong``.

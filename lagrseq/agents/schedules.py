@@ -1,22 +1,29 @@
-"""Exploration schedules: epsilon as a function of the episode index (0-based)."""
+"""Exploration schedules: epsilon as a function of the episode or of the environment step."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 SCHEDULES = ("divide-cumulative", "linear", "exponential", "inverse-episode", "constant")
+UNITS = ("episode", "step")
 
 
 @dataclass(frozen=True)
 class EpsilonSchedule:
-    """epsilon per episode; ``values[i]`` is the epsilon of episode i.
+    """epsilon over a trial; ``schedule(i)`` is the epsilon of index i (0-based) in ``unit``.
 
     - ``divide-cumulative`` (released cube code): at the start of episode i,
       epsilon <- max(epsilon / (i + 1), minimum); gives 1, 0.5, 0.167, then the minimum.
-    - ``linear``: from start to minimum over ``decay`` episodes (0: half the run), then minimum.
-    - ``exponential``: start * decay**i, floored at minimum.
+    - ``linear``: from start to minimum over ``decay`` units (0: half of ``episodes``), then minimum.
+    - ``exponential``: start * decay**i, floored at minimum (paper, grids: 0.998 per step).
     - ``inverse-episode`` (released grid code): max(1 / (i + 1), minimum).
     - ``constant``: start for ever.
+
+    ``unit`` is what i counts: episodes (cube stacking) or environment steps (the grid tasks' DQN).
+    ``episodes`` is the length of the run in that unit (used by ``linear``'s default length).
+    During the first ``warmup`` steps of a trial epsilon stays at ``start`` and the index of a
+    step-unit schedule counts from the end of the warm-up: the released grid code sets epsilon
+    only inside its replay step, which does nothing until the buffer holds a batch.
     """
 
     kind: str
@@ -24,23 +31,35 @@ class EpsilonSchedule:
     minimum: float
     decay: float
     episodes: int
+    unit: str = "episode"
+    warmup: int = 0
 
     def __post_init__(self) -> None:
         if self.kind not in SCHEDULES:
             raise ValueError(f"unknown epsilon schedule {self.kind!r}; expected one of {SCHEDULES}")
+        if self.unit not in UNITS:
+            raise ValueError(f"unknown epsilon unit {self.unit!r}; expected one of {UNITS}")
 
-    def __call__(self, episode: int) -> float:
+    def at(self, episode: int, step: int) -> float:
+        """epsilon at global step ``step`` (0-based), which belongs to episode ``episode``."""
+        if step < self.warmup:
+            return self.start
+        return self(episode if self.unit == "episode" else step - self.warmup)
+
+    def __call__(self, index: int) -> float:
         kind, start, minimum = self.kind, self.start, self.minimum
         if kind == "constant":
             return start
         if kind == "inverse-episode":
-            return max(1.0 / (episode + 1), minimum)
+            return max(1.0 / (index + 1), minimum)
         if kind == "exponential":
-            return max(start * self.decay**episode, minimum)
+            return max(start * self.decay**index, minimum)
         if kind == "linear":
             length = self.decay if self.decay > 0 else max(self.episodes / 2, 1)
-            return max(start + (minimum - start) * min(episode / length, 1.0), minimum)
+            return max(start + (minimum - start) * min(index / length, 1.0), minimum)
         epsilon = start
-        for i in range(episode + 1):
+        for i in range(index + 1):
             epsilon = max(epsilon / (i + 1), minimum)
+            if epsilon == minimum:  # it only ever shrinks: no need to run through every index
+                break
         return epsilon

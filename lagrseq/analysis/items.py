@@ -36,6 +36,12 @@ class Match:
     label: str
     run: Run | None
     reason: str = ""
+    provider: str = ""
+    """The provider spec shown for this run (replaces ``{provider}`` in its row name)."""
+
+    @property
+    def row(self) -> str:
+        return (self.spec.row or "").replace("{provider}", self.provider)
 
 
 @dataclass
@@ -80,7 +86,7 @@ def match(
         except ConfigError as exc:
             task_missing = spec.task not in cfg.tasks()
             reason = f"task {spec.task} not available" if task_missing else str(exc)
-            out.append(Match(spec, spec.display_label(shown), None, reason))
+            out.append(Match(spec, spec.display_label(shown), None, reason, shown))
             continue
         method = ACCURACY_METHOD if spec.kind == "accuracy" else spec.method
         candidates = [
@@ -97,13 +103,13 @@ def match(
             reason = (unavailable or {}).get(shown, "")
             if not reason:
                 reason = f"no logs of `{_describe_spec(spec, shown)}`"
-            out.append(Match(spec, spec.display_label(shown), None, reason))
+            out.append(Match(spec, spec.display_label(shown), None, reason, shown))
             continue
         best = sorted(
             candidates,
             key=lambda r: (r.key.provider != default_provider, -r.size, r.key.seed, r.key.name),
         )[0]
-        out.append(Match(spec, spec.display_label(best.key.provider), best))
+        out.append(Match(spec, spec.display_label(best.key.provider), best, "", best.key.provider))
     return out
 
 
@@ -251,8 +257,8 @@ def _rows_columns(matched: Sequence[Match]) -> tuple[list[str], list[str]]:
     rows: list[str] = []
     columns: list[str] = []
     for m in matched:
-        if m.spec.row is not None and m.spec.row not in rows:
-            rows.append(m.spec.row)
+        if m.spec.row is not None and m.row not in rows:
+            rows.append(m.row)
         if m.spec.column is not None and m.spec.column not in columns:
             columns.append(m.spec.column)
     return rows, columns
@@ -261,10 +267,15 @@ def _rows_columns(matched: Sequence[Match]) -> tuple[list[str], list[str]]:
 def build_query_table(item: Item, matched: Sequence[Match]) -> Built:
     """Table 2 and Table 3: queries per run, mean ± s.e., one cell per (row, column) run."""
     rows, columns = _rows_columns(matched)
+    reference = item.options.get("reference", {})
+    for key in reference if isinstance(reference, dict) else ():
+        row = str(key).split("|", 1)[0]
+        if "|" in str(key) and row not in rows:
+            rows.append(row)  # a row the paper has and these runs do not: its values, for scale
     cells: dict[tuple[str, str], stats.Summary] = {}
     data = []
     for m, run in _present(matched):
-        row, column = m.spec.row or "", m.spec.column or ""
+        row, column = m.row, m.spec.column or ""
         values = np.array(list(run.total_per_trial("queries").values()))
         summary, record = _summary_row(m.label, values, f"{run.key.name}/queries")
         cells[(row, column)] = summary
@@ -295,7 +306,7 @@ def build_ratio_table(item: Item, matched: Sequence[Match]) -> Built:
     numerator = str(item.options.get("numerator", ""))
     denominator = str(item.options.get("denominator", ""))
     rows, _ = _rows_columns(matched)
-    runs = {(m.spec.row, m.spec.column): run for m, run in _present(matched)}
+    runs = {(m.row, m.spec.column): run for m, run in _present(matched)}
     display = []
     data = []
     for row in rows:

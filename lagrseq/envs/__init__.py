@@ -6,6 +6,8 @@ id                                        task
 ``lagrseq/CubeStacking-v0``               8 cubes (``stack_size`` kwarg: 5, 8, 11)
 ``lagrseq/CubeStacking5-v0``              5 cubes
 ``lagrseq/CubeStacking11-v0``             11 cubes
+``lagrseq/ImageCompletion-v0``            10 x 10 image, X target (``target`` kwarg)
+``lagrseq/ObjectArrangement-v0``          5 x 5 table, diamond target (``target`` kwarg)
 ========================================  =========================================
 """
 
@@ -14,13 +16,19 @@ from __future__ import annotations
 import gymnasium as gym
 
 from lagrseq.envs.cube_stacking import CubeStackingEnv
+from lagrseq.envs.image_completion import ImageCompletionEnv
+from lagrseq.envs.object_arrangement import ObjectArrangementEnv
 
 CUBE_ENTRY = "lagrseq.envs.cube_stacking:CubeStackingEnv"
+IMAGE_ENTRY = "lagrseq.envs.image_completion:ImageCompletionEnv"
+ARRANGEMENT_ENTRY = "lagrseq.envs.object_arrangement:ObjectArrangementEnv"
 
 REGISTERED: dict[str, dict[str, object]] = {
     "lagrseq/CubeStacking-v0": {"entry_point": CUBE_ENTRY, "kwargs": {"stack_size": 8}},
     "lagrseq/CubeStacking5-v0": {"entry_point": CUBE_ENTRY, "kwargs": {"stack_size": 5}},
     "lagrseq/CubeStacking11-v0": {"entry_point": CUBE_ENTRY, "kwargs": {"stack_size": 11}},
+    "lagrseq/ImageCompletion-v0": {"entry_point": IMAGE_ENTRY, "kwargs": {"target": "x"}},
+    "lagrseq/ObjectArrangement-v0": {"entry_point": ARRANGEMENT_ENTRY, "kwargs": {"target": "diamond"}},
 }
 
 
@@ -33,4 +41,10 @@ def register_all() -> None:
 
 register_all()
 
-__all__ = ["CubeStackingEnv", "REGISTERED", "register_all"]
+__all__ = [
+    "CubeStackingEnv",
+    "ImageCompletionEnv",
+    "ObjectArrangementEnv",
+    "REGISTERED",
+    "register_all",
+]

@@ -60,6 +60,12 @@ class Task(Protocol):
         """A short human-readable form of a pattern (logs, errors)."""
         ...
 
+    def guided_cell(self, pattern: Pattern, solution: Solution, cursor: Any = None) -> Any:
+        """The cell pi_LLM chooses to act on when the environment works cell by cell (grids;
+        the loop then steers the environment there), or None to act wherever the environment
+        is (its ``info["cursor"]``, if any)."""
+        ...
+
 
 class Extrapolator(Protocol):
     """A rule-based stand-in for an LLM: prompt text in, answer text out. Target-blind."""

@@ -227,6 +227,12 @@ class CubeStacking:
         return Parsed(tuple(ids))
 
     # ---------------------------------------------------------------- pi_LLM
+    def guided_cell(
+        self, pattern: tuple[int, ...], solution: tuple[int, ...], cursor: object = None
+    ) -> None:
+        """Cube stacking has no cells to choose: pi_LLM acts on the stack."""
+        return None
+
     def guidance(
         self, pattern: tuple[int, ...], solution: tuple[int, ...], cursor: object = None
     ) -> int | None:

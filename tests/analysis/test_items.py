@@ -45,7 +45,7 @@ def test_match_ignores_run_length_but_not_configuration(logs: loading.Logs) -> N
 
 
 def test_match_says_why_a_task_or_provider_is_missing(logs: loading.Logs) -> None:
-    grid = _spec(task="image-completion")
+    grid = _spec(task="tower-of-hanoi")
     profile = _spec(provider="mock:gpt4-tau0")
     found = items.match(
         _item("returns", grid, profile),
@@ -54,7 +54,7 @@ def test_match_says_why_a_task_or_provider_is_missing(logs: loading.Logs) -> Non
         unavailable={"mock:gpt4-tau0": "provider not available: unknown provider"},
     )
     assert [m.reason for m in found] == [
-        "task image-completion not available",
+        "task tower-of-hanoi not available",
         "provider not available: unknown provider",
     ]
 

@@ -63,7 +63,7 @@ def test_bad_logs_are_skipped_with_one_line_each(
     )
     interrupted = lagr_seq.parent / "trial-009.mcap"
 
-    def stop() -> None:
+    def stop(_steps: int) -> None:
         raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):

@@ -1,0 +1,71 @@
+"""Experience replay: a ring buffer of transitions in preallocated numpy arrays (no torch here)."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+
+class Batch(NamedTuple):
+    """A minibatch of transitions, one row per transition."""
+
+    observations: np.ndarray
+    actions: np.ndarray
+    rewards: np.ndarray
+    next_observations: np.ndarray
+    terminals: np.ndarray
+
+
+class ReplayBuffer:
+    """The last ``capacity`` transitions (the oldest is overwritten first, like a bounded deque).
+
+    Observations are stored as float32 rows of width ``observation_size``; sampling draws a
+    minibatch without replacement (as ``random.sample`` does in the released code) from the
+    generator it is given, so the draws are reproducible and separate from the agent's own.
+    """
+
+    def __init__(self, capacity: int, observation_size: int) -> None:
+        if capacity < 1:
+            raise ValueError(f"replay capacity must be at least 1, got {capacity}")
+        self.capacity = capacity
+        self.observations = np.zeros((capacity, observation_size), dtype=np.float32)
+        self.next_observations = np.zeros((capacity, observation_size), dtype=np.float32)
+        self.actions = np.zeros(capacity, dtype=np.int64)
+        self.rewards = np.zeros(capacity, dtype=np.float32)
+        self.terminals = np.zeros(capacity, dtype=np.float32)
+        self.size = 0
+        self._next = 0
+
+    def __len__(self) -> int:
+        return self.size
+
+    def add(
+        self,
+        observation: np.ndarray,
+        action: int,
+        reward: float,
+        next_observation: np.ndarray,
+        terminal: bool,
+    ) -> None:
+        i = self._next
+        self.observations[i] = observation
+        self.actions[i] = action
+        self.rewards[i] = reward
+        self.next_observations[i] = next_observation
+        self.terminals[i] = terminal
+        self._next = (i + 1) % self.capacity
+        self.size = min(self.size + 1, self.capacity)
+
+    def sample(self, batch_size: int, rng: np.random.Generator) -> Batch:
+        """``batch_size`` distinct stored transitions, drawn uniformly with ``rng``."""
+        if batch_size > self.size:
+            raise ValueError(f"cannot sample {batch_size} transitions from {self.size}")
+        index = rng.choice(self.size, size=batch_size, replace=False)
+        return Batch(
+            self.observations[index],
+            self.actions[index],
+            self.rewards[index],
+            self.next_observations[index],
+            self.terminals[index],
+        )

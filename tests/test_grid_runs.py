@@ -1,0 +1,248 @@
+"""LaGR-SEQ on the grid tasks, end to end: logs, determinism, queries, guidance, presets, CLI.
+
+Trials here use small step budgets; the full-length comparison is the report's (see the README).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lagrseq import config as cfg
+from lagrseq.cli import main
+from lagrseq.errors import ConfigError
+from lagrseq.experiment import run_trial, run_trials
+from lagrseq.logs.reader import iter_messages, read_info, read_topic
+from lagrseq.tasks import shapes
+
+REPO = Path(__file__).resolve().parents[1]
+GRIDS = {"image-completion": (10, 10), "object-arrangement": (5, 5)}
+BUDGET = {"image-completion": 500, "object-arrangement": 400}
+
+
+def load(task: str, method: str, preset: str = "paper", *overrides: str) -> cfg.ExperimentConfig:
+    return cfg.load(task, method, preset, overrides=[f"run.max_steps={BUDGET[task]}", *overrides])
+
+
+def first_goal(path: Path, budget: int) -> int:
+    """Global step at which the first episode that reached the goal ended (the budget if none)."""
+    return next((e["global_step"] for e in read_topic(path, "/episode") if e["solved"]), budget)
+
+
+# ------------------------------------------------------------------------------------------
+# Import rules and configuration (no torch needed)
+# ------------------------------------------------------------------------------------------
+def test_core_layers_do_not_import_torch() -> None:
+    code = (
+        "import sys\n"
+        "import lagrseq.experiment, lagrseq.envs, lagrseq.tasks.grid, lagrseq.agents.dqn, lagrseq.cli\n"
+        "from lagrseq import config\n"
+        "config.load('image-completion', 'lagr-seq', 'paper')\n"
+        "print('torch' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, check=True)
+    assert out.stdout.strip() == "False"
+
+
+@pytest.mark.parametrize(
+    ("module", "forbidden"),
+    [
+        ("lagrseq.tasks.image", ["lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", "gymnasium", "torch"]),
+        ("lagrseq.tasks.arrangement", ["lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "gymnasium", "torch"]),
+        ("lagrseq.envs.image_completion", ["lagrseq.agents", "lagrseq.llm", "lagrseq.logs", "torch", "mcap"]),
+        ("lagrseq.envs.object_arrangement", ["lagrseq.agents", "lagrseq.llm", "lagrseq.logs", "torch", "mcap"]),
+        ("lagrseq.agents.dqn", ["lagrseq.tasks", "lagrseq.envs", "lagrseq.llm", "lagrseq.logs", "gymnasium", "torch"]),
+    ],
+)
+def test_grid_layers_import_only_what_they_may(module: str, forbidden: list[str]) -> None:
+    code = f"import json, sys; import {module}; print(json.dumps(sorted(sys.modules)))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, check=True)
+    loaded = set(json.loads(out.stdout))
+    assert not sorted(name for name in forbidden if name in loaded)
+
+
+@pytest.mark.parametrize("task", list(GRIDS))
+def test_presets_differ_only_in_fields(task: str) -> None:
+    upstream = cfg.load(task, "lagr-seq", "upstream").to_dict()
+    paper = cfg.load(task, "lagr-seq", "paper").to_dict()
+    differing = {
+        f"{section}.{name}"
+        for section in ("task", "env", "primary", "secondary", "lagr", "run")
+        for name in paper[section]
+        if paper[section][name] != upstream[section][name]
+    }
+    assert {"lagr.trigger", "secondary.epsilon_schedule", "primary.target_update_interval"} <= differing
+    assert cfg.load(task, "lagr", "paper", overrides=["task.target=\"square\""]).task.target == "square"
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("primary.batch_size=20000", "primary.batch_size = 20000 must be at least 1 and at most"),
+        ("primary.hidden_sizes=[]", "primary.hidden_sizes = [] must list one positive width"),
+        ("secondary.hidden_sizes=[64, 0]", "secondary.hidden_sizes"),
+        ('task.target="heart"', "task.target = 'heart' is not allowed"),
+        ("run.max_steps=0", "at least one > 0"),
+        ("primary.device=\"tpu\"", "primary.device = 'tpu' is not allowed"),
+        ("env.scans=0", "env.scans = 0 must be at least 1"),
+    ],
+)
+def test_bad_values_are_refused_in_one_line(override: str, message: str) -> None:
+    with pytest.raises(ConfigError, match=None) as caught:
+        cfg.load("image-completion", "lagr-seq", "paper", overrides=[override])
+    assert message in str(caught.value) and "\n" not in str(caught.value)
+
+
+# ------------------------------------------------------------------------------------------
+# Runs (torch)
+# ------------------------------------------------------------------------------------------
+@pytest.fixture
+def torch():  # type: ignore[no-untyped-def]
+    return pytest.importorskip("torch")
+
+
+@pytest.mark.torch
+@pytest.mark.parametrize("task", list(GRIDS))
+@pytest.mark.parametrize("method", ["baseline", "lagr", "lagr-seq"])
+def test_runs_write_contract_logs(torch, tmp_path: Path, task: str, method: str) -> None:  # type: ignore[no-untyped-def]
+    config = load(task, method)
+    result = run_trial(config, 0, 0, "mock", tmp_path / "t.mcap")
+    assert result.steps == BUDGET[task]
+    info = read_info(result.path)
+    assert info.complete and cfg.from_dict(info.config) == config  # the log rebuilds its config
+    transitions = read_topic(result.path, "/transition")
+    assert len(transitions) == BUDGET[task]
+    state = np.array(transitions[-1]["state"])
+    assert state.shape == GRIDS[task] and set(np.unique(state)) <= {0, 1}
+    assert {"trial", "episode", "step", "state", "action", "reward", "terminated", "truncated", "guided"} <= set(transitions[0])
+    episodes = read_topic(result.path, "/episode")
+    assert sum(e["length"] for e in episodes) == BUDGET[task]
+    assert sum(e["queries"] for e in episodes) == result.queries
+    queries = read_topic(result.path, "/query")
+    if method == "baseline":
+        assert result.queries == 0 and not queries
+    else:
+        assert result.queries >= 1
+        sent = [q for q in queries if q["queried"]]
+        assert len(sent) == result.queries and all(q["source"] == "mock" for q in sent)
+        assert all(np.array(q["solution"]).shape == GRIDS[task] for q in sent if q["solution"] is not None)
+
+
+@pytest.mark.torch
+def test_same_seed_same_events(torch, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    config = load("object-arrangement", "lagr-seq", "upstream")
+    a = run_trial(config, 1, 5, "mock", tmp_path / "a.mcap")
+    b = run_trial(config, 1, 5, "mock", tmp_path / "b.mcap")
+    assert list(iter_messages(a.path)) == list(iter_messages(b.path))
+    c = run_trial(config, 2, 5, "mock", tmp_path / "c.mcap")
+    assert list(iter_messages(c.path)) != list(iter_messages(a.path))
+
+
+@pytest.mark.torch
+@pytest.mark.parametrize("task", list(GRIDS))
+def test_guidance_beats_the_dqn_and_seq_asks_less(torch, tmp_path: Path, task: str) -> None:  # type: ignore[no-untyped-def]
+    budget = BUDGET[task]
+    steps, queries = {}, {}
+    for method in ("baseline", "lagr", "lagr-seq"):
+        for preset in ("paper", "upstream"):
+            results = run_trials(load(task, method, preset), 3, 0, "mock", tmp_path / method / preset)
+            steps[method, preset] = [first_goal(r.path, budget) for r in results]
+            queries[method, preset] = sum(r.queries for r in results)
+    for preset in ("paper", "upstream"):
+        assert queries["baseline", preset] == 0
+        assert 0 < queries["lagr-seq", preset] < queries["lagr", preset]
+        assert sum(steps["lagr-seq", preset]) < sum(steps["baseline", preset])
+
+
+@pytest.mark.torch
+def test_released_seq_queries_at_random_half_the_time(torch, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    config = load("image-completion", "lagr-seq", "upstream", 'task.target="oval"')  # hard to guess
+    result = run_trial(config, 0, 0, "mock", tmp_path / "t.mcap")
+    decisions = [q["decision"] for q in read_topic(result.path, "/query")]
+    assert len(decisions) > 50
+    assert 0.35 < np.mean(decisions) < 0.65
+
+
+@pytest.mark.torch
+def test_released_arrangement_guidance_places_the_diamond_in_8_steps(torch, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    result = run_trial(load("object-arrangement", "lagr", "upstream"), 0, 0, "mock", tmp_path / "t.mcap")
+    episodes = read_topic(result.path, "/episode")
+    guided = [e for e in episodes[1:-1] if e["guided_steps"] == e["length"]]
+    assert guided and all(e["length"] == 8 and e["return"] == pytest.approx(1.32) for e in guided)
+
+
+@pytest.mark.torch
+@pytest.mark.parametrize(("trial", "evaluation", "episode_return"), [(0, 1.0, 5.20), (5, 0.96, 5.16)])
+def test_released_image_guidance_pays_the_bonus_above_095(  # type: ignore[no-untyped-def]
+    torch, tmp_path: Path, trial: int, evaluation: float, episode_return: float
+) -> None:
+    """SPEC 2.3: following an accepted answer, 16 placed pixels reach E = 0.96 and end the scan
+    with the bonus; each of the 4 later scans adds a pixel (+1.01) or, when the answer had 96-99
+    right pixels (seed 0, trial 5: the mock's 8 x 8 X), nothing (+1)."""
+    result = run_trial(load("image-completion", "lagr", "upstream"), trial, 0, "mock", tmp_path / "t.mcap")
+    accepted = [q for q in read_topic(result.path, "/query") if q["accepted"]]
+    assert accepted[0]["evaluation"] == evaluation
+    guided = [e for e in read_topic(result.path, "/episode")[1:-1] if e["guided_steps"] == e["length"]]
+    assert guided and all(e["length"] == 20 and e["return"] == pytest.approx(episode_return) for e in guided)
+    assert all(e["solved"] == (evaluation == 1.0) for e in guided)
+
+
+@pytest.mark.torch
+def test_paper_image_guidance_works_pixel_by_pixel(torch, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    result = run_trial(load("image-completion", "lagr", "paper"), 0, 0, "mock", tmp_path / "t.mcap")
+    transitions = read_topic(result.path, "/transition")
+    guided = [t for t in transitions if t["guided"]]
+    assert guided
+    x = shapes.target("x", 10)
+    for t in guided:  # flip exactly where the scanned pixel differs from the accepted X
+        row, col = t["step"] % 100 // 10, t["step"] % 10
+        assert t["action"] == int(np.array(t["state"])[row, col] != x[row, col])
+    full = [e for e in read_topic(result.path, "/episode")[1:-1] if e["guided_steps"] == e["length"]]
+    assert full and all(e["solved"] and e["return"] == pytest.approx(1.16) for e in full)
+
+
+@pytest.mark.torch
+def test_follow_probability_below_one(torch, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    def guided_share(p: float) -> float:
+        config = load("object-arrangement", "lagr", "paper", f"lagr.follow_probability={p}")
+        result = run_trial(config, 0, 0, "mock", tmp_path / f"{p}.mcap")
+        episodes = [e for e in read_topic(result.path, "/episode") if e["episode"] > 2]
+        return sum(e["guided_steps"] for e in episodes) / sum(e["length"] for e in episodes)
+
+    full, half = guided_share(1.0), guided_share(0.5)
+    assert full == 1.0 and 0.3 < half < 0.7
+
+
+@pytest.mark.torch
+def test_logistic_query_reward(torch, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    config = load("image-completion", "lagr-seq", "paper", 'secondary.query_reward="logistic"', 'task.target="oval"')
+    result = run_trial(config, 0, 0, "mock", tmp_path / "t.mcap")
+    sent = [q for q in read_topic(result.path, "/query") if q["queried"]]
+    assert sent
+    for q in sent:  # p1 = 20, p2 = 0.9 on E/N, N = 100 pixels
+        assert q["query_reward"] == pytest.approx(1 / (1 + math.exp(-20 * (q["evaluation"] - 0.9))))
+
+
+@pytest.mark.torch
+def test_other_targets_run(torch, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    config = load("object-arrangement", "lagr", "paper", 'task.target="square"')
+    result = run_trial(config, 0, 0, "mock", tmp_path / "t.mcap")
+    accepted = [q for q in read_topic(result.path, "/query") if q["accepted"]]
+    assert accepted and np.array_equal(accepted[0]["solution"], shapes.target("square", 5))
+
+
+@pytest.mark.torch
+def test_command_line_run(torch, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # type: ignore[no-untyped-def]
+    status = main(
+        ["run", "object-arrangement", "--method", "lagr-seq", "--preset", "paper", "--trials", "2",
+         "--seed", "0", "--out", str(tmp_path), "--quiet", "--set", "run.max_steps=200"]
+    )  # fmt: skip
+    assert status == 0
+    assert "2 trial logs in" in capsys.readouterr().out
+    assert len(list(tmp_path.rglob("trial-*.mcap"))) == 2
