@@ -45,6 +45,7 @@ from lagrseq.lagr import QueryTrigger, consult, follows, query_for
 from lagrseq.llm.base import Provider, Query
 from lagrseq.llm.mock import MockProvider
 from lagrseq.llm.servers import DEFAULT_BASE_URL
+from lagrseq.logs import foxglove
 from lagrseq.logs.reader import find_logs, is_complete, read_info, read_topic
 from lagrseq.logs.schemas import ACCURACY_METHOD
 from lagrseq.logs.sink import McapSink
@@ -137,8 +138,13 @@ def run_trial(
     trigger = QueryTrigger(config.lagr.trigger)
     lagr = config.lagr
     asks_llm = config.method != "baseline"
+    view = VIEWS.get(config.task.name)  # a picture of the state, so the run opens in Foxglove
     sink = (
-        McapSink(path, run_metadata(config, trial, seed, provider_spec, provider_options))
+        McapSink(
+            path,
+            run_metadata(config, trial, seed, provider_spec, provider_options),
+            extra_topics=foxglove.view_topics(**{view[2]: True}) if view else None,
+        )
         if log
         else _NullSink()
     )
@@ -231,6 +237,9 @@ def run_trial(
                     },
                     global_step,
                 )
+                if view is not None:
+                    topic, picture, _ = view
+                    sink.write(topic, picture(next_info["pattern"], global_step), global_step)
                 episode_return += reward
                 guided_steps += guided
                 last_reward = reward
@@ -275,6 +284,13 @@ def run_trial(
         total_return=total_return,
         seconds=time.perf_counter() - started,
     )
+
+
+# Picture views of the state per task: (topic, message builder, view_topics flag).
+VIEWS: dict[str, tuple[str, Callable[[Any, int], dict[str, Any]], str]] = {
+    "image-completion": (foxglove.IMAGE_TOPIC, foxglove.raw_image, "image"),
+    "object-arrangement": (foxglove.GRID_TOPIC, foxglove.grid, "grid"),
+}
 
 
 def _decision_record(

@@ -132,6 +132,14 @@ def test_runs_write_contract_logs(torch, tmp_path: Path, task: str, method: str)
         sent = [q for q in queries if q["queried"]]
         assert len(sent) == result.queries and all(q["source"] == "mock" for q in sent)
         assert all(np.array(q["solution"]).shape == GRIDS[task] for q in sent if q["solution"] is not None)
+    # one Foxglove picture of the state per step, under the schema name Foxglove knows
+    from mcap.reader import make_reader
+
+    views = {"image-completion": ("/view/image", "foxglove.RawImage"), "object-arrangement": ("/view/grid", "foxglove.Grid")}
+    topic, schema_name = views[task]
+    with result.path.open("rb") as handle:
+        pictures = [(s.name, json.loads(m.data)) for s, _, m in make_reader(handle).iter_messages(topics=[topic])]
+    assert len(pictures) == BUDGET[task] and {name for name, _ in pictures} == {schema_name}
 
 
 @pytest.mark.torch
