@@ -182,7 +182,7 @@ def _append_many(directory: str, worker: int, count: int) -> None:
 def test_several_processes_appending_to_one_key_lose_nothing(tmp_path: Path) -> None:
     directory = str(tmp_path / "store")
     RecordStore(directory).close()
-    context = multiprocessing.get_context("fork")
+    context = multiprocessing.get_context("spawn")  # never fork a threaded test process
     workers = [context.Process(target=_append_many, args=(directory, w, 25)) for w in range(4)]
     for process in workers:
         process.start()
