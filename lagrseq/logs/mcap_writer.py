@@ -26,7 +26,6 @@ from mcap.records import (
     DataEnd,
     Footer,
     Header,
-    MessageIndex,
     Metadata,
     MetadataIndex,
     Schema,
@@ -40,6 +39,14 @@ _MESSAGE = struct.Struct("<BQHIQQ")  # opcode, record length, channel, sequence,
 _MESSAGE_FIXED = 2 + 4 + 8 + 8
 
 __all__ = ["LeanWriter", "MessageEncoding", "SchemaEncoding"]
+
+
+def _message_index(channel_id: int, records: list[tuple[int, int]]) -> bytes:
+    """A MessageIndex record (the same bytes as ``mcap.records.MessageIndex.write``), packed at
+    once instead of field by field."""
+    flat = [value for pair in records for value in pair]
+    body = struct.pack(f"<HI{len(flat)}Q", channel_id, 8 * len(flat), *flat)
+    return struct.pack("<BQ", Opcode.MESSAGE_INDEX, len(body)) + body
 
 
 class LeanWriter:
@@ -135,12 +142,14 @@ class LeanWriter:
         )
         chunk_start, chunk_length = self._record(chunk)
         offsets: dict[int, int] = {}
-        builder = RecordBuilder()
-        index_start = self._offset
+        pieces: list[bytes] = []
+        position = self._offset
         for channel_id, records in self._index.items():
-            offsets[channel_id] = index_start + builder.count
-            MessageIndex(channel_id=channel_id, records=records).write(builder)
-        index_data = builder.end()
+            offsets[channel_id] = position
+            piece = _message_index(channel_id, records)
+            pieces.append(piece)
+            position += len(piece)
+        index_data = b"".join(pieces)
         self._write(index_data)
         self._chunk_indexes.append(
             ChunkIndex(

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import math
+import operator
 import os
 from pathlib import Path
 from typing import Any
@@ -62,44 +63,62 @@ def _state_text(state: tuple[int, ...] | list[int]) -> str:
     return "[" + ",".join(map(str, state)) + "]"
 
 
-_SKIP = (
-    '{"trial":%d,"episode":%d,"step":%d,"global_step":%d,"state":%s,"decision":%d,'
-    '"queried":false,"prompt_sha256":null,"answer":null,"solution":null,"parse_error":null,'
-    '"evaluation":null,"accepted":null,"query_reward":%s,"provider":null,"model":null,'
-    '"temperature":null,"prompt_tokens":null,"completion_tokens":null,"cost_usd":null,'
-    '"latency_s":null,"source":null}'
-)
-_SKIP_NULLS = (
-    "prompt_sha256", "answer", "solution", "parse_error", "evaluation", "accepted", "provider",
-    "model", "temperature", "prompt_tokens", "completion_tokens", "cost_usd", "latency_s", "source",
-)
+_SKIP_VARIABLE = ("trial", "episode", "step", "global_step", "state", "decision", "query_reward")
+
+
+class _SkipTemplate:
+    """For one key order of decision records (``queried`` false): the JSON text with placeholders
+    for the variable fields, and the constant fields' values, which must all be None or false."""
+
+    def __init__(self, record: dict[str, Any]) -> None:
+        variable = [k for k in record if k in _SKIP_VARIABLE]
+        constant = [k for k in record if k not in _SKIP_VARIABLE]
+        parts = []
+        for key in record:
+            if key in ("state", "query_reward"):
+                value = "%s"
+            elif key in _SKIP_VARIABLE:
+                value = "%d"
+            else:
+                value = json.dumps(record[key])
+            parts.append(f'"{key}":{value}')
+        self.text = "{" + ",".join(parts) + "}"
+        self.variable = operator.itemgetter(*variable)
+        self.state_at = variable.index("state")
+        self.reward_at = variable.index("query_reward")
+        self.constant = operator.itemgetter(*constant)
+        self.constants = self.constant(record)
+
+
+_SKIP_TEMPLATES: dict[tuple[str, ...], _SkipTemplate | None] = {}
 
 
 def _encode_query(record: dict[str, Any]) -> bytes:
-    """A decision not to query (most ``/query`` messages) through a template; others via json."""
-    state, reward = record.get("state"), record.get("query_reward")
+    """A decision not to query (most ``/query`` messages) through a cached template; every other
+    record through json."""
+    if record.get("queried") is not False:
+        return _encode(record)
+    keys = tuple(record)
+    template = _SKIP_TEMPLATES.get(keys)
+    if template is None:
+        usable = all(k in record for k in _SKIP_VARIABLE) and len(keys) > len(_SKIP_VARIABLE) + 1
+        usable = usable and all(record[k] in (None, False) for k in keys if k not in _SKIP_VARIABLE)
+        template = _SKIP_TEMPLATES[keys] = _SkipTemplate(record) if usable else None
+        if template is None:
+            return _encode(record)
+    values = list(template.variable(record))
+    state, reward = values[template.state_at], values[template.reward_at]
     if (
-        len(record) != 22
-        or record.get("queried") is not False
+        template.constant(record) != template.constants
         or type(reward) is not float
         or not math.isfinite(reward)
         or not isinstance(state, (tuple, list))
         or (state and type(state[0]) is not int)
-        or any(record.get(key, 0) is not None for key in _SKIP_NULLS)
     ):
         return _encode(record)
-    return (
-        _SKIP
-        % (
-            record["trial"],
-            record["episode"],
-            record["step"],
-            record["global_step"],
-            _state_text(state),
-            record["decision"],
-            repr(reward),
-        )
-    ).encode()
+    values[template.state_at] = _state_text(state)
+    values[template.reward_at] = repr(reward)
+    return (template.text % tuple(values)).encode()
 
 
 def _encode_transition(record: dict[str, Any]) -> bytes:

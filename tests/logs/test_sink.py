@@ -118,5 +118,21 @@ def test_fast_query_encoding_equals_json() -> None:
 
     skip = _decision_record(0, 1, 2, 3, (4, 5), 0)
     assert json.loads(_encode_query(skip)) == {**skip, "state": [4, 5]}
+    assert json.loads(_encode_query(skip)) == {**skip, "state": [4, 5]}  # the cached template
     sent = {**skip, "queried": True, "answer": "['e']", "decision": 1}
     assert json.loads(_encode_query(sent)) == {**sent, "state": [4, 5]}
+    odd = {**skip, "answer": "not a skip after all"}  # a constant field that is not None
+    assert json.loads(_encode_query(odd)) == {**odd, "state": [4, 5]}
+    extra = {**skip, "new_field": None}  # fields may be added to the contract
+    assert json.loads(_encode_query(extra)) == {**extra, "state": [4, 5]}
+
+
+def test_lean_message_index_equals_the_reference_library() -> None:
+    from mcap.data_stream import RecordBuilder
+    from mcap.records import MessageIndex
+
+    from lagrseq.logs.mcap_writer import _message_index
+
+    builder = RecordBuilder()
+    MessageIndex(channel_id=3, records=[(1, 2), (5, 99), (2**40, 7)]).write(builder)
+    assert _message_index(3, [(1, 2), (5, 99), (2**40, 7)]) == builder.end()
