@@ -659,7 +659,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         flush=True,
     )
     total = sum(run.units() for run in the_plan.runs)
-    with tqdm(total=total, unit="ep", disable=args.quiet, file=sys.stderr, dynamic_ncols=True) as bar:
+    # the bar counts episodes of cube runs and environment steps of grid runs
+    with tqdm(total=total, unit="it", disable=args.quiet, file=sys.stderr, dynamic_ncols=True) as bar:
         reproduce.execute(
             the_plan,
             args.jobs,
