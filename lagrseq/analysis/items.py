@@ -107,7 +107,13 @@ def match(
             continue
         best = sorted(
             candidates,
-            key=lambda r: (r.key.provider != default_provider, -r.size, r.key.seed, r.key.name),
+            key=lambda r: (
+                not _length_asked(spec, r.config),  # the item's own (full or quick) length first
+                r.key.provider != default_provider,
+                -r.size,
+                r.key.seed,
+                r.key.name,
+            ),
         )[0]
         out.append(Match(spec, spec.display_label(best.key.provider), best, "", best.key.provider))
     return out
@@ -246,6 +252,18 @@ def build_query_bars(item: Item, matched: Sequence[Match]) -> Built:
     )
     method = "LLM queries per trial (summed over its episodes), mean with standard-error bars; 95% percentile-bootstrap interval of the mean in the table."
     return Built(axes, pd.DataFrame(rows), [(item.id, table)], method)
+
+
+def _length_asked(spec: RunSpec, config: dict[str, Any]) -> bool:
+    """Whether a logged run has the length the item asks for, full or --quick (several items may
+    share one configuration at different lengths, e.g. 200-step and extended arrangement runs)."""
+    run = config.get("run", {})
+    for _trials, episodes, max_steps in (spec.length(False), spec.length(True)):
+        if (episodes <= 0 or run.get("episodes") == episodes) and (
+            max_steps < 0 or run.get("max_steps") == max_steps
+        ):
+            return True
+    return False
 
 
 def _reference(item: Item, key: str) -> str:
