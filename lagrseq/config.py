@@ -95,7 +95,8 @@ class ImageTaskConfig:
     goal_threshold: float = 0.96
     """Evaluation E (fraction of matching pixels) at which the bonus is paid and the image counts
     as complete. Paper: E > delta = 0.95, i.e. >= 0.96 on 100 pixels; code: 1.0 on the primary's
-    steps (exact match), 0.95 on pi_LLM's steps (lagrseq uses one rule for both)."""
+    steps (exact match), 0.95 on pi_LLM's steps (see env.guided_goal_threshold for
+    the latter)."""
     prompt_matrix: Literal["numpy", "comma"] = "numpy"
     """How the partial image is written into the prompt: numpy's str() as the released code does
     (space-separated), or the descriptor examples' comma lists. The paper does not show it."""
