@@ -67,7 +67,7 @@ _SKIP_VARIABLE = ("trial", "episode", "step", "global_step", "state", "decision"
 
 
 class _SkipTemplate:
-    """For one key order of decision records (``queried`` false): the JSON text with placeholders
+    """For one key order of decision records (``queried`` false): the JSON text with %-format slots
     for the variable fields, and the constant fields' values, which must all be None or false."""
 
     def __init__(self, record: dict[str, Any]) -> None:

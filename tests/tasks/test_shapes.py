@@ -70,3 +70,13 @@ def test_containing_finds_exactly_the_supersets() -> None:
     others = np.setdiff1d(np.arange(len(lib)), found)
     assert not any(lib.masks[k][on].all() for k in others)
     assert np.array_equal(lib.containing(np.zeros(25, dtype=bool)), np.arange(len(lib)))
+
+
+def test_config_offers_exactly_the_library_targets() -> None:
+    """config.py may not import tasks/, so it spells the target names out; they must agree."""
+    from typing import get_args
+
+    from lagrseq.config import GridTarget
+    from lagrseq.tasks.shapes import TARGETS
+
+    assert get_args(GridTarget) == TARGETS
