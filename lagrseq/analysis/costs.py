@@ -52,7 +52,7 @@ def run_costs(runs: Sequence[Run], price: Price | None = None) -> pd.DataFrame:
             "decisions": int(len(queries)),
             "queries": int(len(sent)),
             **{f"from_{s}": int(source.get(s, 0)) for s in SOURCES},
-            "accepted": int(sent["accepted"].fillna(False).astype(bool).sum()) if len(sent) else 0,
+            "accepted": int((sent["accepted"] == True).sum()) if len(sent) else 0,  # noqa: E712 (None counts as not accepted)
             "prompt_tokens": int(sent["prompt_tokens"].fillna(0).sum()) if len(sent) else 0,
             "completion_tokens": int(sent["completion_tokens"].fillna(0).sum()) if len(sent) else 0,
             "usd_logged": float(sent["cost_usd"].fillna(0.0).sum()) if len(sent) else 0.0,
