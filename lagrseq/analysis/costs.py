@@ -41,12 +41,7 @@ def run_costs(runs: Sequence[Run], price: Price | None = None) -> pd.DataFrame:
         sent = queries[queries["queried"].astype(bool)] if not queries.empty else queries
         source = sent["source"].value_counts() if not sent.empty else pd.Series(dtype=int)
         row = {
-            "task": run.key.task,
-            "method": run.key.method,
-            "preset": run.key.preset,
-            "provider": run.key.provider,
-            "seed": run.key.seed,
-            "config": run.key.digest,
+            **run.key.columns(),
             "variant": run.key.variant,
             "trials": len(run.trials),
             "decisions": int(len(queries)),

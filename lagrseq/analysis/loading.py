@@ -76,6 +76,17 @@ class RunKey:
     def kind(self) -> str:
         return "accuracy" if self.method == ACCURACY_METHOD else "trial"
 
+    def columns(self) -> dict[str, str | int]:
+        """The identifying columns of a table row about this run."""
+        return {
+            "task": self.task,
+            "method": self.method,
+            "preset": self.preset,
+            "provider": self.provider,
+            "seed": self.seed,
+            "config": self.digest,
+        }
+
     @property
     def name(self) -> str:
         tail = f"/{self.variant}" if self.variant else ""

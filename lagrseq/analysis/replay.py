@@ -127,12 +127,7 @@ def runs_table(runs: Sequence[loading.Run]) -> Table:
         data.append(
             {
                 "run": run.key.name,
-                "task": run.key.task,
-                "method": run.key.method,
-                "preset": run.key.preset,
-                "provider": run.key.provider,
-                "seed": run.key.seed,
-                "config": run.key.digest,
+                **run.key.columns(),
                 "trials": len(run.trials),
                 "episodes_per_trial": run.episodes_per_trial,
                 "transitions": run.transitions,

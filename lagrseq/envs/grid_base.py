@@ -60,6 +60,12 @@ class GridEnv(gym.Env[np.ndarray, int]):
         self._steered = False
         return matches / self._cells >= threshold
 
+    def _clear(self, seed: int | None) -> None:
+        """The start of every episode: seed the env's generator (first call), empty the grid."""
+        super().reset(seed=seed)
+        self._grid[:] = 0
+        self._steered = False
+
     def _observe(self) -> np.ndarray:
         obs = self._observation
         row, col = self._cursor

@@ -83,9 +83,7 @@ class ImageCompletionEnv(GridEnv):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
-        super().reset(seed=seed)
-        self._grid[:] = 0
-        self._steered = False
+        self._clear(seed)
         self._scan = 0
         self._position = 0
         self._cursor = (0, 0)

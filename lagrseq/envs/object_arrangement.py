@@ -75,9 +75,7 @@ class ObjectArrangementEnv(GridEnv):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
-        super().reset(seed=seed)
-        self._grid[:] = 0
-        self._steered = False
+        self._clear(seed)
         self._steps = 0
         self._cursor = self._draw_cell()
         return self._observe(), self._info()
