@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 from lagrseq import config as cfg
-from lagrseq.experiment import run_trial
+from lagrseq.runner import run_one
 
 
 def main() -> None:
@@ -32,14 +32,14 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for method in ("baseline", "lagr", "lagr-seq"):
             config = cfg.load("cube-stacking", method, "upstream")
-            run_trial(config, 999, 1, "mock", Path(tmp) / "warm.mcap")  # imports, caches
+            run_one(config, 999, 1, "mock", Path(tmp) / "warm.mcap")  # imports, caches
             seconds: dict[bool, float] = {}
             for log in (False, True):
                 times, steps, size = [], 0, 0
                 for trial in range(args.trials):
                     path = Path(tmp) / f"{method}-{trial}.mcap"
                     started = time.perf_counter()
-                    result = run_trial(config, trial, 0, "mock", path, log=log)
+                    result = run_one(config, trial, 0, "mock", path, log=log)
                     times.append(time.perf_counter() - started)
                     steps += result.steps
                     size += path.stat().st_size if log else 0

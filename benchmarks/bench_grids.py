@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from lagrseq import config as cfg
-from lagrseq.experiment import make_env, run_trial
+from lagrseq.runner import run_one
+from lagrseq.wiring import make_env
 
 STEPS = {"image-completion": 10_000, "object-arrangement": 5_000}
 TARGET_SECONDS = {"image-completion": 30.0, "object-arrangement": 15.0}
@@ -77,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
                 seconds = []
                 for trial in range(args.trials):
                     path = out / task / method / args.preset / f"trial-{trial:03d}.mcap"
-                    result = run_trial(config, trial, 0, "mock", path)
+                    result = run_one(config, trial, 0, "mock", path)
                     seconds.append(result.seconds)
                 mean = float(np.mean(seconds))
                 ok = mean <= TARGET_SECONDS[task]

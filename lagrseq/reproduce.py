@@ -5,7 +5,7 @@
    one-line reason.
 2. Estimate: time a short stretch of every distinct experiment on this machine (no logs, mock
    provider) and report the expected wall time before starting.
-3. Run: trials in parallel on local processes through :func:`lagrseq.experiment.run_trials`;
+3. Run: trials in parallel on local processes through :func:`lagrseq.runner.run_trials`;
    trials whose log is complete are skipped, so a rerun resumes.
 4. Replay: :func:`lagrseq.analysis.replay.replay` over the run logs, from the MCAP files alone.
 """
@@ -13,6 +13,7 @@
 from __future__ import annotations
 
 import contextlib
+import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -21,9 +22,10 @@ from pathlib import Path
 from typing import Any
 
 from lagrseq import config as cfg
-from lagrseq import experiment
+from lagrseq import probe, runner, wiring
 from lagrseq.config import ExperimentConfig
 from lagrseq.errors import ConfigError, UsageError
+from lagrseq.experiment import TrialResult
 from lagrseq.logs.reader import is_complete
 from lagrseq.suite import RunSpec, Suite
 
@@ -49,11 +51,14 @@ class PlannedRun:
         """Trials (or probe files) whose log is not complete yet."""
         if self.kind == "accuracy":
             return 0 if is_complete(self.path) else 1
-        return sum(not is_complete(experiment.trial_path(self.path, t)) for t in range(self.trials))
+        return sum(not is_complete(runner.trial_path(self.path, t)) for t in range(self.trials))
 
     def units(self) -> int:
-        """Progress units: episodes of all trials, or one per probe."""
-        return 1 if self.kind == "accuracy" else self.trials * self.config.run.episodes
+        """Progress units: one per probe, else what ``runner.progress_unit`` counts (episodes of
+        cube trials, environment steps of grid trials) over all trials."""
+        if self.kind == "accuracy":
+            return 1
+        return self.trials * runner.progress_unit(self.config)[1]
 
     def describe(self) -> str:
         name = f"{self.config.task.name} {self.config.method}"
@@ -73,7 +78,7 @@ class Plan:
 
 def _provider_problem(spec: str) -> str | None:
     try:
-        experiment.parse_provider(spec)
+        wiring.parse_provider(spec)
     except UsageError as exc:
         return f"provider not available: {exc}"
     return None
@@ -98,9 +103,9 @@ def plan(suite: Suite, quick: bool, provider: str | None, runs_dir: Path, seed: 
             trials, _, _ = spec.length(quick)
             samples = spec.samples if not quick else spec.quick_samples
             if spec.kind == "accuracy":
-                path = experiment.probe_path(runs_dir, config, spec_provider, seed, samples)
+                path = probe.probe_path(runs_dir, config, spec_provider, seed, samples)
             else:
-                path = experiment.run_directory(runs_dir, config, spec_provider, seed)
+                path = runner.run_directory(runs_dir, config, spec_provider, seed)
             run = planned.get(path)
             if run is None:
                 run = planned[path] = PlannedRun(
@@ -124,7 +129,7 @@ def _resolve(
         if spec.task not in cfg.tasks():
             return None, f"task {spec.task} not available"
         return None, str(exc)
-    missing = experiment.missing_dependency(config)
+    missing = wiring.missing_dependency(config)
     if missing:
         return None, f"{spec.task} {missing}"
     problem = _provider_problem(provider)
@@ -174,10 +179,10 @@ def _calibrate(run: PlannedRun) -> tuple[float, float]:
         path = Path(scratch) / "calibration.mcap"
         started = time.perf_counter()
         if run.kind == "accuracy":
-            experiment.run_accuracy_probe(run.config, 1, run.seed, "mock", path)
+            probe.run_accuracy_probe(run.config, 1, run.seed, "mock", path)
             return time.perf_counter() - started, 0.0
         config = replace(run.config, run=replace(run.config.run, max_steps=CALIBRATION_STEPS))
-        result = experiment.run_trial(config, 0, run.seed, "mock", path)
+        result = runner.run_one(config, 0, run.seed, "mock", path)
         seconds = time.perf_counter() - started
     steps = max(result.steps, 1)
     return seconds / steps, steps / max(result.episodes, 1)
@@ -205,11 +210,11 @@ def execute(
     jobs: int,
     bar: Any = None,
     on_run: Callable[[PlannedRun], None] | None = None,
-) -> list[experiment.TrialResult]:
+) -> list[TrialResult]:
     """Run every planned run (complete trials are skipped), reusing one warm process pool."""
-    results: list[experiment.TrialResult] = []
+    results: list[TrialResult] = []
     with contextlib.ExitStack() as stack:
-        pool = stack.enter_context(experiment.process_pool(jobs)) if jobs > 1 else None
+        pool = stack.enter_context(runner.process_pool(jobs)) if jobs > 1 else None
         for run in the_plan.runs:
             results += _execute_run(run, jobs, bar, on_run, pool)
     return results
@@ -221,20 +226,88 @@ def _execute_run(
     bar: Any,
     on_run: Callable[[PlannedRun], None] | None,
     pool: Any,
-) -> list[experiment.TrialResult]:
+) -> list[TrialResult]:
     """One planned run: an accuracy probe (in this process) or its trials (in the pool)."""
     if on_run is not None:
         on_run(run)
     progress = _RunProgress(bar, run.units())
-    results: list[experiment.TrialResult] = []
+    results: list[TrialResult] = []
     if run.kind == "accuracy":
         if not is_complete(run.path):
             results.append(
-                experiment.run_accuracy_probe(run.config, run.samples, run.seed, run.provider, run.path)
+                probe.run_accuracy_probe(run.config, run.samples, run.seed, run.provider, run.path)
             )
     else:
-        results = experiment.run_trials(
+        results = runner.run_trials(
             run.config, run.trials, run.seed, run.provider, run.path, jobs=jobs, progress=progress, pool=pool
         )
     progress.finish()
     return results
+
+
+def duration(seconds: float) -> str:
+    """A duration as people read it: seconds, minutes or hours."""
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.1f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def reproduce(
+    suite_path: Path | None,
+    items: list[str] | None,
+    quick: bool,
+    provider: str | None,
+    out: Path,
+    jobs: int,
+    seed: int | None,
+    formats: list[str],
+    price: Callable[[str, int, int], float | None] | None = None,
+    quiet: bool = False,
+    say: Callable[[str], None] = print,
+) -> tuple[Any, float]:
+    """``lagrseq reproduce``: plan the suite, say what will run and how long it should take, run
+    it with one progress bar (episodes of cube runs, steps of grid runs), then replay the logs into
+    ``out/reports``. Returns the replay report and the seconds it all took."""
+    from tqdm import tqdm
+
+    from lagrseq.analysis.replay import replay
+    from lagrseq.paths import writable_directory
+    from lagrseq.suite import load_suite
+
+    suite = load_suite(suite_path)
+    if items:
+        suite = suite.select(items)
+    seed = suite.seed if seed is None else seed
+    if provider is not None:
+        wiring.parse_provider(provider)
+    writable_directory(out)
+    runs_dir, reports_dir = writable_directory(out / "runs"), writable_directory(out / "reports", "--out")
+    started = time.perf_counter()
+    the_plan = plan(suite, quick, provider, runs_dir, seed)
+    for item_id, reason in the_plan.not_run.items():
+        say(f"{item_id}: not run: {reason}")
+    pending = sum(run.pending() for run in the_plan.runs)
+    trials = sum(run.trials if run.kind == "trial" else 1 for run in the_plan.runs)
+    say(
+        f"{'quick' if quick else 'full'} suite: {len(the_plan.runs)} runs, {trials} trial logs, "
+        f"{pending} to run ({trials - pending} already complete); expected about "
+        f"{duration(estimate(the_plan, jobs))} on {jobs} process{'es' if jobs > 1 else ''} "
+        f"(timed on this machine; LLM latency of live providers not included)"
+    )
+    total = sum(run.units() for run in the_plan.runs)
+    with tqdm(total=total, unit="it", disable=quiet, file=sys.stderr, dynamic_ncols=True) as bar:
+        execute(the_plan, jobs, bar, on_run=lambda run: bar.set_description(run.describe()))
+    say(f"runs done in {duration(time.perf_counter() - started)}: {runs_dir}")
+    report = replay(
+        [runs_dir],
+        reports_dir,
+        formats,
+        suite,
+        provider=provider or suite.provider,
+        unavailable=the_plan.unavailable,
+        produced_by="lagrseq reproduce" + (" --quick" if quick else ""),
+        price=price,
+    )
+    return report, time.perf_counter() - started

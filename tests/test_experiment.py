@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 
 from lagrseq import config as cfg
-from lagrseq.experiment import run_trial, run_trials
 from lagrseq.logs.reader import iter_messages, read_topic
+from lagrseq.runner import run_one, run_trials
 
 
 def small(method: str, preset: str = "upstream", *overrides: str) -> cfg.ExperimentConfig:
@@ -22,10 +22,10 @@ def events(path: Path) -> list[tuple[str, dict]]:
 @pytest.mark.parametrize("method", ["baseline", "lagr", "lagr-seq"])
 def test_same_seed_gives_identical_events(tmp_path: Path, method: str) -> None:
     config = small(method)
-    a = run_trial(config, 2, 7, "mock", tmp_path / "a.mcap")
-    b = run_trial(config, 2, 7, "mock", tmp_path / "b.mcap")
+    a = run_one(config, 2, 7, "mock", tmp_path / "a.mcap")
+    b = run_one(config, 2, 7, "mock", tmp_path / "b.mcap")
     assert events(a.path) == events(b.path)
-    c = run_trial(config, 3, 7, "mock", tmp_path / "c.mcap")
+    c = run_one(config, 3, 7, "mock", tmp_path / "c.mcap")
     assert events(c.path) != events(a.path)
 
 
@@ -48,7 +48,7 @@ def test_seq_asks_less_than_lagr_and_baseline_never(tmp_path: Path) -> None:
 
 
 def test_upstream_cube_queries_once_per_new_stack_height(tmp_path: Path) -> None:
-    result = run_trial(small("lagr"), 0, 0, "mock", tmp_path / "t.mcap")
+    result = run_one(small("lagr"), 0, 0, "mock", tmp_path / "t.mcap")
     for episode in range(30):
         heights = [
             len(q["state"]) for q in read_topic(result.path, "/query") if q["episode"] == episode
@@ -59,7 +59,7 @@ def test_upstream_cube_queries_once_per_new_stack_height(tmp_path: Path) -> None
 
 
 def test_guidance_starts_the_step_after_an_accepted_answer(tmp_path: Path) -> None:
-    result = run_trial(small("lagr"), 0, 1, "mock", tmp_path / "t.mcap")
+    result = run_one(small("lagr"), 0, 1, "mock", tmp_path / "t.mcap")
     transitions = read_topic(result.path, "/transition")
     accepted = [q for q in read_topic(result.path, "/query") if q["accepted"]]
     assert accepted
@@ -70,7 +70,7 @@ def test_guidance_starts_the_step_after_an_accepted_answer(tmp_path: Path) -> No
 
 
 def test_query_records_carry_the_contract_fields(tmp_path: Path) -> None:
-    result = run_trial(small("lagr-seq"), 0, 0, "mock", tmp_path / "t.mcap")
+    result = run_one(small("lagr-seq"), 0, 0, "mock", tmp_path / "t.mcap")
     queries = read_topic(result.path, "/query")
     sent = [q for q in queries if q["queried"]]
     skipped = [q for q in queries if not q["queried"]]
@@ -83,8 +83,8 @@ def test_query_records_carry_the_contract_fields(tmp_path: Path) -> None:
 
 
 def test_follow_probability_below_one_mixes_in_primary_actions(tmp_path: Path) -> None:
-    full = run_trial(small("lagr", "paper"), 0, 0, "mock", tmp_path / "p1.mcap")
-    half = run_trial(small("lagr", "paper", "lagr.follow_probability=0.5"), 0, 0, "mock", tmp_path / "p5.mcap")
+    full = run_one(small("lagr", "paper"), 0, 0, "mock", tmp_path / "p1.mcap")
+    half = run_one(small("lagr", "paper", "lagr.follow_probability=0.5"), 0, 0, "mock", tmp_path / "p5.mcap")
 
     def guided_share(path: Path) -> float:
         episodes = read_topic(path, "/episode")
@@ -96,7 +96,7 @@ def test_follow_probability_below_one_mixes_in_primary_actions(tmp_path: Path) -
 
 def test_logistic_query_reward(tmp_path: Path) -> None:
     config = small("lagr-seq", "paper", 'secondary.query_reward="logistic"')
-    result = run_trial(config, 0, 0, "mock", tmp_path / "t.mcap")
+    result = run_one(config, 0, 0, "mock", tmp_path / "t.mcap")
     sent = [q for q in read_topic(result.path, "/query") if q["queried"]]
     assert sent
     for q in sent:
@@ -105,13 +105,13 @@ def test_logistic_query_reward(tmp_path: Path) -> None:
 
 
 def test_paper_preset_learns_to_complete_the_stack(tmp_path: Path) -> None:
-    result = run_trial(cfg.load("cube-stacking", "lagr-seq", "paper"), 0, 0, "mock", tmp_path / "t.mcap")
+    result = run_one(cfg.load("cube-stacking", "lagr-seq", "paper"), 0, 0, "mock", tmp_path / "t.mcap")
     episodes = read_topic(result.path, "/episode")
     assert all(e["solved"] for e in episodes[-10:])
     assert episodes[-1]["length"] == 8  # the complete stack in 8 steps, then the episode ends
 
 
 def test_max_steps_bounds_the_trial(tmp_path: Path) -> None:
-    result = run_trial(small("baseline", "upstream", "run.max_steps=120"), 0, 0, "mock", tmp_path / "t.mcap")
+    result = run_one(small("baseline", "upstream", "run.max_steps=120"), 0, 0, "mock", tmp_path / "t.mcap")
     assert result.steps == 120
     assert [e["length"] for e in read_topic(result.path, "/episode")] == [50, 50, 20]

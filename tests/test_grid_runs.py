@@ -17,8 +17,8 @@ import pytest
 from lagrseq import config as cfg
 from lagrseq.cli import main
 from lagrseq.errors import ConfigError
-from lagrseq.experiment import run_trial, run_trials
 from lagrseq.logs.reader import iter_messages, read_info, read_topic
+from lagrseq.runner import run_one, run_trials
 from lagrseq.tasks import shapes
 
 REPO = Path(__file__).resolve().parents[1]
@@ -112,7 +112,7 @@ def torch():  # type: ignore[no-untyped-def]
 @pytest.mark.parametrize("method", ["baseline", "lagr", "lagr-seq"])
 def test_runs_write_contract_logs(torch, tmp_path: Path, task: str, method: str) -> None:  # type: ignore[no-untyped-def]
     config = load(task, method)
-    result = run_trial(config, 0, 0, "mock", tmp_path / "t.mcap")
+    result = run_one(config, 0, 0, "mock", tmp_path / "t.mcap")
     assert result.steps == BUDGET[task]
     info = read_info(result.path)
     assert info.complete and cfg.from_dict(info.config) == config  # the log rebuilds its config
@@ -145,10 +145,10 @@ def test_runs_write_contract_logs(torch, tmp_path: Path, task: str, method: str)
 @pytest.mark.torch
 def test_same_seed_same_events(torch, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     config = load("object-arrangement", "lagr-seq", "upstream")
-    a = run_trial(config, 1, 5, "mock", tmp_path / "a.mcap")
-    b = run_trial(config, 1, 5, "mock", tmp_path / "b.mcap")
+    a = run_one(config, 1, 5, "mock", tmp_path / "a.mcap")
+    b = run_one(config, 1, 5, "mock", tmp_path / "b.mcap")
     assert list(iter_messages(a.path)) == list(iter_messages(b.path))
-    c = run_trial(config, 2, 5, "mock", tmp_path / "c.mcap")
+    c = run_one(config, 2, 5, "mock", tmp_path / "c.mcap")
     assert list(iter_messages(c.path)) != list(iter_messages(a.path))
 
 
@@ -171,7 +171,7 @@ def test_guidance_beats_the_dqn_and_seq_asks_less(torch, tmp_path: Path, task: s
 @pytest.mark.torch
 def test_released_seq_queries_at_random_half_the_time(torch, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     config = load("image-completion", "lagr-seq", "upstream", 'task.target="oval"')  # hard to guess
-    result = run_trial(config, 0, 0, "mock", tmp_path / "t.mcap")
+    result = run_one(config, 0, 0, "mock", tmp_path / "t.mcap")
     decisions = [q["decision"] for q in read_topic(result.path, "/query")]
     assert len(decisions) > 50
     assert 0.35 < np.mean(decisions) < 0.65
@@ -179,7 +179,7 @@ def test_released_seq_queries_at_random_half_the_time(torch, tmp_path: Path) -> 
 
 @pytest.mark.torch
 def test_released_arrangement_guidance_places_the_diamond_in_8_steps(torch, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
-    result = run_trial(load("object-arrangement", "lagr", "upstream"), 0, 0, "mock", tmp_path / "t.mcap")
+    result = run_one(load("object-arrangement", "lagr", "upstream"), 0, 0, "mock", tmp_path / "t.mcap")
     episodes = read_topic(result.path, "/episode")
     guided = [e for e in episodes[1:-1] if e["guided_steps"] == e["length"]]
     assert guided and all(e["length"] == 8 and e["return"] == pytest.approx(1.32) for e in guided)
@@ -193,7 +193,7 @@ def test_released_image_guidance_pays_the_bonus_above_095(  # type: ignore[no-un
     """SPEC 2.3: following an accepted answer, 16 placed pixels reach E = 0.96 and end the scan
     with the bonus; each of the 4 later scans adds a pixel (+1.01) or, when the answer had 96-99
     right pixels (seed 0, trial 5: the mock's 8 x 8 X), nothing (+1)."""
-    result = run_trial(load("image-completion", "lagr", "upstream"), trial, 0, "mock", tmp_path / "t.mcap")
+    result = run_one(load("image-completion", "lagr", "upstream"), trial, 0, "mock", tmp_path / "t.mcap")
     accepted = [q for q in read_topic(result.path, "/query") if q["accepted"]]
     assert accepted[0]["evaluation"] == evaluation
     guided = [e for e in read_topic(result.path, "/episode")[1:-1] if e["guided_steps"] == e["length"]]
@@ -203,7 +203,7 @@ def test_released_image_guidance_pays_the_bonus_above_095(  # type: ignore[no-un
 
 @pytest.mark.torch
 def test_paper_image_guidance_works_pixel_by_pixel(torch, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
-    result = run_trial(load("image-completion", "lagr", "paper"), 0, 0, "mock", tmp_path / "t.mcap")
+    result = run_one(load("image-completion", "lagr", "paper"), 0, 0, "mock", tmp_path / "t.mcap")
     transitions = read_topic(result.path, "/transition")
     guided = [t for t in transitions if t["guided"]]
     assert guided
@@ -219,7 +219,7 @@ def test_paper_image_guidance_works_pixel_by_pixel(torch, tmp_path: Path) -> Non
 def test_follow_probability_below_one(torch, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     def guided_share(p: float) -> float:
         config = load("object-arrangement", "lagr", "paper", f"lagr.follow_probability={p}")
-        result = run_trial(config, 0, 0, "mock", tmp_path / f"{p}.mcap")
+        result = run_one(config, 0, 0, "mock", tmp_path / f"{p}.mcap")
         episodes = [e for e in read_topic(result.path, "/episode") if e["episode"] > 2]
         return sum(e["guided_steps"] for e in episodes) / sum(e["length"] for e in episodes)
 
@@ -230,7 +230,7 @@ def test_follow_probability_below_one(torch, tmp_path: Path) -> None:  # type: i
 @pytest.mark.torch
 def test_logistic_query_reward(torch, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     config = load("image-completion", "lagr-seq", "paper", 'secondary.query_reward="logistic"', 'task.target="oval"')
-    result = run_trial(config, 0, 0, "mock", tmp_path / "t.mcap")
+    result = run_one(config, 0, 0, "mock", tmp_path / "t.mcap")
     sent = [q for q in read_topic(result.path, "/query") if q["queried"]]
     assert sent
     for q in sent:  # p1 = 20, p2 = 0.9 on E/N, N = 100 pixels
@@ -240,7 +240,7 @@ def test_logistic_query_reward(torch, tmp_path: Path) -> None:  # type: ignore[n
 @pytest.mark.torch
 def test_other_targets_run(torch, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     config = load("object-arrangement", "lagr", "paper", 'task.target="square"')
-    result = run_trial(config, 0, 0, "mock", tmp_path / "t.mcap")
+    result = run_one(config, 0, 0, "mock", tmp_path / "t.mcap")
     accepted = [q for q in read_topic(result.path, "/query") if q["accepted"]]
     assert accepted and np.array_equal(accepted[0]["solution"], shapes.target("square", 5))
 

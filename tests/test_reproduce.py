@@ -16,7 +16,7 @@ import pytest
 
 import lagrseq
 from lagrseq import config as cfg
-from lagrseq import experiment
+from lagrseq import runner
 from lagrseq.analysis.replay import replay
 
 ROOT = Path(lagrseq.__file__).resolve().parents[1]
@@ -260,8 +260,8 @@ def test_committed_reports_match_fresh_runs(tmp_path: Path) -> None:
     runs = tmp_path / "runs"
     for method in ("lagr-seq", "lagr", "baseline"):
         config = cfg.load("cube-stacking", method, "upstream", overrides=["run.episodes=100"])
-        experiment.run_trials(
-            config, 10, 0, "mock", experiment.run_directory(runs, config, "mock", 0), jobs=2
+        runner.run_trials(
+            config, 10, 0, "mock", runner.run_directory(runs, config, "mock", 0), jobs=2
         )
     report = replay([runs], tmp_path / "report")
     fresh = report.out / "tables"

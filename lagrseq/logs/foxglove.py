@@ -10,7 +10,7 @@ Use: pass :func:`view_topics` to :class:`~lagrseq.logs.sink.McapSink` (``extra_t
 write one view per step next to its ``/transition``::
 
     sink = McapSink(path, metadata, extra_topics=view_topics(image=True))
-    sink.write(IMAGE_TOPIC, raw_image(pattern, global_step), global_step)
+    sink.write(View(IMAGE_TOPIC, raw_image(pattern, global_step), global_step))
 
 Topics under ``/view`` go into the transition chunks, so replay's tables never decompress them.
 Log times are lagrseq's logical clock (one tick per environment step), which Foxglove shows as

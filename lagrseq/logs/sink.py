@@ -12,14 +12,29 @@ valid one. ``finish()`` is idempotent and records whether the trial completed.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
-import operator
 import os
 from pathlib import Path
 from typing import Any
 
 from lagrseq.errors import LogError
+from lagrseq.logs.events import (
+    EPISODE_TOPIC,
+    QUERY_TOPIC,
+    TRANSITION_TOPIC,
+    EpisodeEvent,
+    Event,
+    NullSink,
+    QueryEvent,
+    Sink,
+    Transition,
+    View,
+    to_record,
+)
+
+__all__ = ["McapSink", "NullSink", "Sink"]
 from lagrseq.logs.mcap_writer import LeanWriter
 from lagrseq.logs.schemas import TOPICS, schema_bytes
 
@@ -43,10 +58,6 @@ _TRANSITION = (
     '"reward":%s,"terminated":%s,"truncated":%s,"guided":%s}'
 )
 _BOOL = {True: "true", False: "false"}
-_TRANSITION_KEYS = (
-    "trial", "episode", "step", "global_step", "state", "action", "reward", "terminated", "truncated", "guided",
-)
-
 
 _STATE_TEXT: dict[tuple[int, ...], str] = {}
 
@@ -63,90 +74,73 @@ def _state_text(state: tuple[int, ...] | list[int]) -> str:
     return "[" + ",".join(map(str, state)) + "]"
 
 
-_SKIP_VARIABLE = ("trial", "episode", "step", "global_step", "state", "decision", "query_reward")
+def _flat_ints(state: Any) -> bool:
+    """Whether ``state`` is a flat tuple or list of ints (what the fast encoders format)."""
+    return isinstance(state, (tuple, list)) and (not state or type(state[0]) is int)
 
 
-class _SkipTemplate:
-    """For one key order of decision records (``queried`` false): the JSON text with %-format slots
-    for the variable fields, and the constant fields' values, which must all be None or false."""
-
-    def __init__(self, record: dict[str, Any]) -> None:
-        variable = [k for k in record if k in _SKIP_VARIABLE]
-        constant = [k for k in record if k not in _SKIP_VARIABLE]
-        parts = []
-        for key in record:
-            if key in ("state", "query_reward"):
-                value = "%s"
-            elif key in _SKIP_VARIABLE:
-                value = "%d"
-            else:
-                value = json.dumps(record[key])
-            parts.append(f'"{key}":{value}')
-        self.text = "{" + ",".join(parts) + "}"
-        self.variable = operator.itemgetter(*variable)
-        self.state_at = variable.index("state")
-        self.reward_at = variable.index("query_reward")
-        self.constant = operator.itemgetter(*constant)
-        self.constants = self.constant(record)
-
-
-_SKIP_TEMPLATES: dict[tuple[str, ...], _SkipTemplate | None] = {}
-
-
-def _encode_query(record: dict[str, Any]) -> bytes:
-    """A decision not to query (most ``/query`` messages) through a cached template; every other
-    record through json."""
-    if record.get("queried") is not False:
-        return _encode(record)
-    keys = tuple(record)
-    template = _SKIP_TEMPLATES.get(keys)
-    if template is None:
-        usable = all(k in record for k in _SKIP_VARIABLE) and len(keys) > len(_SKIP_VARIABLE) + 1
-        usable = usable and all(record[k] in (None, False) for k in keys if k not in _SKIP_VARIABLE)
-        template = _SKIP_TEMPLATES[keys] = _SkipTemplate(record) if usable else None
-        if template is None:
-            return _encode(record)
-    values = list(template.variable(record))
-    state, reward = values[template.state_at], values[template.reward_at]
-    if (
-        template.constant(record) != template.constants
-        or type(reward) is not float
-        or not math.isfinite(reward)
-        or not isinstance(state, (tuple, list))
-        or (state and type(state[0]) is not int)
-    ):
-        return _encode(record)
-    values[template.state_at] = _state_text(state)
-    values[template.reward_at] = repr(reward)
-    return (template.text % tuple(values)).encode()
-
-
-def _encode_transition(record: dict[str, Any]) -> bytes:
-    """The hot path: one transition per environment step. Same JSON as ``_encode`` (key order
-    aside) for the contract fields, several times faster; anything unusual takes the slow path."""
-    if len(record) != len(_TRANSITION_KEYS):
-        return _encode(record)
-    state, reward = record.get("state"), record.get("reward")
-    if (
-        type(reward) is not float
-        or not math.isfinite(reward)
-        or not isinstance(state, (tuple, list))
-        or (state and type(state[0]) is not int)
-    ):
-        return _encode(record)
+def _encode_transition(event: Transition) -> bytes:
+    """The hot path: one transition per environment step. The same bytes as ``_encode`` for the
+    contract's fields, several times faster; anything unusual (grids' nested states, a
+    non-finite reward) takes the slow path, which also refuses what JSON cannot hold."""
+    trial, episode, step, global_step, state, action, reward, terminated, truncated, guided = event
+    if type(reward) is not float or not math.isfinite(reward) or not _flat_ints(state):
+        return _encode(to_record(event))
     return (
         _TRANSITION
         % (
-            record["trial"],
-            record["episode"],
-            record["step"],
-            record["global_step"],
+            trial,
+            episode,
+            step,
+            global_step,
             _state_text(state),
-            record["action"],
+            action,
             repr(reward),
-            _BOOL[record["terminated"]],
-            _BOOL[record["truncated"]],
-            _BOOL[record["guided"]],
+            _BOOL[terminated],
+            _BOOL[truncated],
+            _BOOL[guided],
+        )
+    ).encode()
+
+
+# A decision not to query (most /query messages): every field after ``decision`` is at its
+# default except ``query_reward``, so the JSON is a template with slots for the variable fields.
+_QUERY_FIELDS = QueryEvent._fields[:-1]  # the contract's; ``extra`` follows them
+_REWARD_AT = QueryEvent._fields.index("query_reward")
+_SKIP_HEAD = QueryEvent(0, 0, 0, 0, (), 0)[6:_REWARD_AT]
+_SKIP_TAIL = QueryEvent(0, 0, 0, 0, (), 0)[_REWARD_AT + 1 :]
+_SKIP = (
+    '{"trial":%d,"episode":%d,"step":%d,"global_step":%d,"state":%s,"decision":%d,'
+    + ",".join(f'"{k}":{json.dumps(v)}' for k, v in zip(_QUERY_FIELDS[6:_REWARD_AT], _SKIP_HEAD))
+    + ',"query_reward":%s,'
+    + ",".join(
+        f'"{k}":{json.dumps(v)}' for k, v in zip(_QUERY_FIELDS[_REWARD_AT + 1 :], _SKIP_TAIL)
+    )
+    + "}"
+)
+
+
+def _encode_query(event: QueryEvent) -> bytes:
+    """A decision not to query through the template; every other record through json."""
+    reward = event[_REWARD_AT]
+    if (
+        event[6:_REWARD_AT] != _SKIP_HEAD
+        or event[_REWARD_AT + 1 :] != _SKIP_TAIL
+        or type(reward) is not float
+        or not math.isfinite(reward)
+        or not _flat_ints(event.state)
+    ):
+        return _encode(to_record(event))
+    return (
+        _SKIP
+        % (
+            event.trial,
+            event.episode,
+            event.step,
+            event.global_step,
+            _state_text(event.state),
+            event.decision,
+            repr(reward),
         )
     ).encode()
 
@@ -185,19 +179,29 @@ class McapSink:
         self._finished = False
         self.messages = 0
 
-    def write(self, topic: str, record: dict[str, Any], log_time: int) -> None:
-        """Add one message. ``/transition`` (and picture topics) go to the current chunk;
-        every other topic is held until :meth:`flush` writes it into a summary chunk."""
-        if topic == "/transition":
-            data = _encode_transition(record)
-        elif topic == "/query":
-            data = _encode_query(record)
+    def write(self, event: Event) -> None:
+        """Add one event. Transitions and pictures go to the current chunk; queries and episodes
+        are held until :meth:`flush` writes them into a chunk of their own."""
+        kind = type(event)
+        if kind is Transition:
+            self._add(TRANSITION_TOPIC, _encode_transition(event), event[3])  # type: ignore[arg-type,misc]
+        elif kind is QueryEvent:
+            self._pending.append((QUERY_TOPIC, _encode_query(event), event[3]))  # type: ignore[arg-type,misc]
+        elif kind is EpisodeEvent:
+            self._pending.append((EPISODE_TOPIC, _encode(to_record(event)), max(event[-1] - 1, 0)))  # type: ignore[index,operator]
+        elif kind is View:
+            self._add(event.topic, _encode(event.message), event.log_time)  # type: ignore[union-attr]
         else:
-            data = _encode(record)
-        if topic == "/transition" or topic.startswith("/view"):
-            self._add(topic, data, log_time)
+            raise LogError(f"cannot log a {kind.__name__}; expected Transition, QueryEvent, EpisodeEvent or View")
+
+    def write_record(self, topic: str, record: dict[str, Any], log_time: int) -> None:
+        """Add one JSON object to ``topic`` as it is (tools and tests that write their own)."""
+        if topic not in self._channels:
+            raise LogError(f"topic {topic!r} is not registered in {self.path.name}")
+        if topic == TRANSITION_TOPIC or topic.startswith("/view"):
+            self._add(topic, _encode(record), log_time)
         else:
-            self._pending.append((topic, data, log_time))
+            self._pending.append((topic, _encode(record), log_time))
 
     def _add(self, topic: str, data: bytes, log_time: int) -> None:
         sequence = self._sequence[topic]
@@ -231,6 +235,19 @@ class McapSink:
         os.replace(self.partial, self.path)
         return self.path
 
+    def abandon(self) -> None:
+        """Ctrl-C: stop writing and leave ``NAME.partial`` as it is on disk, every flushed
+        episode in it (``lagrseq recover`` makes it a valid log; a rerun writes it anew)."""
+        if self._finished:
+            return
+        self._finished = True
+        with contextlib.suppress(OSError):
+            self._stream.close()  # the unfinished episode's messages were never written
+
+    def close(self) -> None:
+        """Finish a trial that ended normally (idempotent)."""
+        self.finish()
+
     def __enter__(self) -> McapSink:
         return self
 
@@ -238,6 +255,6 @@ class McapSink:
         if exc_type is None:
             self.finish()
         elif exc_type is KeyboardInterrupt:
-            self.finish("interrupted", "interrupted by the user")
+            self.abandon()
         else:
             self.finish("failed", f"{exc_type.__name__}: {exc}")

@@ -15,8 +15,8 @@ import pytest
 
 from lagrseq import config as cfg
 from lagrseq.errors import UsageError
-from lagrseq.experiment import run_trial
 from lagrseq.logs.reader import read_topic
+from lagrseq.runner import run_one
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -158,7 +158,7 @@ def test_dqn_learns_the_diamond_better_than_random(torch, tmp_path: Path) -> Non
 
     def late_returns(*overrides: str) -> float:
         config = cfg.load("object-arrangement", "baseline", "paper", overrides=["run.max_steps=2500", *overrides])
-        result = run_trial(config, 0, 0, "mock", tmp_path / f"{len(overrides)}.mcap")
+        result = run_one(config, 0, 0, "mock", tmp_path / f"{len(overrides)}.mcap")
         episodes = read_topic(result.path, "/episode")
         late = [e["return"] for e in episodes if e["global_step"] > 1250 and (e["solved"] or e["length"] == 50)]
         return float(np.mean(late))

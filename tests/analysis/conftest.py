@@ -7,7 +7,8 @@ from pathlib import Path
 import pytest
 
 from lagrseq import config as cfg
-from lagrseq import experiment
+from lagrseq import runner
+from lagrseq.probe import probe_path, run_accuracy_probe
 
 EPISODES = 20
 TRIALS = 3
@@ -19,12 +20,10 @@ def make_runs(out: Path, episodes: int = EPISODES, trials: int = TRIALS) -> Path
         config = cfg.load(
             "cube-stacking", method, "upstream", overrides=[f"run.episodes={episodes}"]
         )
-        directory = experiment.run_directory(out, config, "mock", 0)
-        experiment.run_trials(config, trials, 0, "mock", directory)
+        directory = runner.run_directory(out, config, "mock", 0)
+        runner.run_trials(config, trials, 0, "mock", directory)
     probe = cfg.load("cube-stacking", "lagr", "upstream", overrides=["llm.temperature=1.0"])
-    experiment.run_accuracy_probe(
-        probe, 5, 0, "mock", experiment.probe_path(out, probe, "mock", 0, 5)
-    )
+    run_accuracy_probe(probe, 5, 0, "mock", probe_path(out, probe, "mock", 0, 5))
     return out
 
 

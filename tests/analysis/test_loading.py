@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from lagrseq import config as cfg
-from lagrseq import experiment
+from lagrseq import runner
 from lagrseq.analysis import loading
 from lagrseq.errors import LogError
 from lagrseq.logs.reader import read_topics
@@ -67,7 +67,7 @@ def test_bad_logs_are_skipped_with_one_line_each(
         raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        experiment.run_trial(config, 9, 0, "mock", interrupted, on_episode=stop)
+        runner.run_one(config, 9, 0, "mock", interrupted, on_episode=stop)
     logs = loading.load([root])
     assert len(logs.warnings) == 3
     assert all("\n" not in w and w.endswith("skipped") or "skipped:" in w for w in logs.warnings)

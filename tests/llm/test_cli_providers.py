@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lagrseq import cli, experiment
+from lagrseq import cli, recording, runner, wiring
 from lagrseq import config as cfg
 from lagrseq.llm.store import RecordStore
 from lagrseq.logs.reader import find_logs, iter_messages, read_info, read_topic
@@ -41,9 +41,9 @@ def queries_per_trial(directory: Path) -> list[int]:
 
 def run(method: str, provider: str, out: Path, trials: int, *extra: str, **options: object) -> list[int]:
     config = cfg.load("cube-stacking", method, "upstream", None, list(extra))
-    directory = out / method / experiment.provider_slug(provider)
-    results = experiment.run_trials(
-        config, trials, 0, provider, directory, provider_options=experiment.ProviderOptions(**options)  # type: ignore[arg-type]
+    directory = out / method / runner.provider_slug(provider)
+    results = runner.run_trials(
+        config, trials, 0, provider, directory, provider_options=wiring.ProviderOptions(**options)  # type: ignore[arg-type]
     )
     return [r.queries for r in results]
 
@@ -57,7 +57,7 @@ def test_the_tau0_cache_gives_the_released_codes_query_counts(tmp_path: Path) ->
 
     def queries(method: str) -> np.ndarray:  # 10 trials, seed 0, not logged (only the counts matter)
         config = cfg.load("cube-stacking", method, "upstream")
-        return np.array([experiment.run_trial(config, t, 0, spec, tmp_path / "x.mcap", log=False).queries for t in range(10)])
+        return np.array([runner.run_one(config, t, 0, spec, tmp_path / "x.mcap", log=False).queries for t in range(10)])
 
     seq, lagr = queries("lagr-seq"), queries("lagr")
     assert 126 <= seq.mean() <= 140, seq
@@ -186,7 +186,7 @@ def test_record_stops_before_passing_max_cost(tmp_path: Path, server: FakeOpenAI
 
     config = cfg.load("cube-stacking", "lagr", "upstream", None, [])
     config = replace(config, llm=replace(config.llm, model="gpt-4o-mini", temperature=1.0))
-    queries = experiment.record_queries(config, experiment.record_patterns(config))
+    queries = recording.queries_for(config, recording.record_patterns(config))
     prices = PriceTable()
     worst = [prices.worst_case(q, 1) or 0.0 for q in queries]
     actual = [  # what the test server bills: prompt chars / 4, answer chars / 4
@@ -208,7 +208,7 @@ def test_record_from_the_states_of_logged_runs(tmp_path: Path, server: FakeOpenA
     code = run_cli(*record_args(server, tmp_path / "s", "--samples", "1", "--from-runs", str(tmp_path / "runs")))
     assert code == 0 and len(server.requests) == len(states) > 0
     with pytest.raises(Exception, match="a run of task"):
-        experiment.record_patterns(cfg.load("cube-stacking", "lagr", "upstream", None, ["task.stack_size=5"]), [tmp_path / "runs"])
+        recording.record_patterns(cfg.load("cube-stacking", "lagr", "upstream", None, ["task.stack_size=5"]), [tmp_path / "runs"])
 
 
 def test_an_interrupted_record_loses_nothing(tmp_path: Path, server: FakeOpenAI) -> None:

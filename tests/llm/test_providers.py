@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from lagrseq import config as cfg
-from lagrseq import experiment
+from lagrseq import recording
 from lagrseq.lagr import consult
 from lagrseq.llm.base import Answer, Provider, Usage
 from lagrseq.llm.live import LiveProvider
@@ -41,7 +41,7 @@ def provider(request: pytest.FixtureRequest, tmp_path: Path, server: FakeOpenAI)
             made = recorder
         else:  # recorded: fill the store through the recorder first, then replay it alone
             for prefix in TASK.prefixes():
-                recorder.top_up(experiment.record_queries(CONFIG, [prefix])[0])
+                recorder.top_up(recording.queries_for(CONFIG, [prefix])[0])
             made = RecordedProvider(RecordStore(tmp_path / "store", create=False), live.endpoint, 0)
             store.close()
     yield kind, made

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from lagrseq.logs import foxglove
+from lagrseq.logs.events import View
 from lagrseq.logs.reader import ReadStats, read_topics
 from lagrseq.logs.sink import McapSink
 
@@ -63,9 +64,9 @@ def test_views_round_trip_through_the_sink_in_transition_chunks(tmp_path: Path) 
         for episode in range(3):
             for step in range(4):
                 t = episode * 4 + step
-                sink.write(foxglove.IMAGE_TOPIC, foxglove.raw_image(X_SHAPE, t), t)
-                sink.write(foxglove.GRID_TOPIC, foxglove.grid(DIAMOND, t), t)
-            sink.write("/episode", {"episode": episode}, t)
+                sink.write(View(foxglove.IMAGE_TOPIC, foxglove.raw_image(X_SHAPE, t), t))
+                sink.write(View(foxglove.GRID_TOPIC, foxglove.grid(DIAMOND, t), t))
+            sink.write_record("/episode", {"episode": episode}, t)
             sink.flush()
     from mcap.reader import make_reader
 

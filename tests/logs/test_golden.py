@@ -3,7 +3,7 @@
 Regenerate (only when a change is meant to alter events) with::
 
     PYTHONPATH=. python -c "from pathlib import Path; from lagrseq import config as c; \\
-    from lagrseq.experiment import run_trial; run_trial(c.load('cube-stacking', 'lagr-seq', \\
+    from lagrseq.runner import run_one; run_one(c.load('cube-stacking', 'lagr-seq', \\
     'upstream', overrides=['run.episodes=4']), 0, 0, 'mock', \\
     Path('fixtures/golden/cube-stacking-lagr-seq-upstream-4ep.mcap'))"
 """
@@ -13,8 +13,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from lagrseq import config as cfg
-from lagrseq.experiment import run_trial
 from lagrseq.logs.reader import iter_messages, read_info
+from lagrseq.runner import run_one
 
 GOLDEN = Path(__file__).resolve().parents[2] / "fixtures" / "golden" / "cube-stacking-lagr-seq-upstream-4ep.mcap"
 
@@ -31,7 +31,7 @@ def test_todays_code_writes_the_golden_events(tmp_path: Path) -> None:
     """Same events, and every field the golden file has is still there with the same value
     (fields may be added to the contract, never renamed or removed)."""
     config = cfg.load("cube-stacking", "lagr-seq", "upstream", overrides=["run.episodes=4"])
-    fresh = run_trial(config, 0, 0, "mock", tmp_path / "trial.mcap").path
+    fresh = run_one(config, 0, 0, "mock", tmp_path / "trial.mcap").path
     old, new = list(iter_messages(GOLDEN)), list(iter_messages(fresh))
     assert [topic for topic, _ in new] == [topic for topic, _ in old]
     for (topic, before), (_, after) in zip(old, new):

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from lagrseq import config as cfg
-from lagrseq import experiment
+from lagrseq import runner
 from lagrseq.errors import LogError
 from lagrseq.logs.reader import ReadStats, message_counts, read_topic, read_topics
 
@@ -16,7 +16,7 @@ from lagrseq.logs.reader import ReadStats, message_counts, read_topic, read_topi
 def log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     config = cfg.load("cube-stacking", "lagr-seq", "upstream", overrides=["run.episodes=20"])
     path = tmp_path_factory.mktemp("log") / "trial-000.mcap"
-    experiment.run_trial(config, 0, 0, "mock", path)
+    runner.run_one(config, 0, 0, "mock", path)
     return path
 
 

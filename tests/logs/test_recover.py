@@ -13,7 +13,7 @@ import pytest
 
 import lagrseq
 from lagrseq import config as cfg
-from lagrseq import experiment
+from lagrseq import runner
 from lagrseq.errors import LogError
 from lagrseq.logs.reader import read_info, read_topics
 from lagrseq.logs.recover import default_output, recover
@@ -41,7 +41,7 @@ def _finished_log(tmp_path: Path, episodes: int = 30) -> Path:
         "cube-stacking", "lagr-seq", "upstream", overrides=[f"run.episodes={episodes}"]
     )
     path = tmp_path / "complete" / "trial-000.mcap"
-    experiment.run_trial(config, 0, 0, "mock", path)
+    runner.run_one(config, 0, 0, "mock", path)
     return path
 
 
@@ -102,7 +102,7 @@ def test_sigkill_mid_run_is_recovered_with_every_flushed_episode(tmp_path: Path)
     # Same seed, same config: the recovered episodes are exactly the first episodes of a run.
     config = cfg.from_dict(info.config)
     reference = tmp_path / "reference.mcap"
-    experiment.run_trial(experiment.with_episodes(config, len(episodes)), 0, 0, "mock", reference)
+    runner.run_one(runner.with_episodes(config, len(episodes)), 0, 0, "mock", reference)
     expected = read_topics(reference, ["/episode", "/query"])
     assert episodes == expected["/episode"]
     assert topics["/query"] == expected["/query"]

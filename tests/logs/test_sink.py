@@ -11,15 +11,17 @@ from mcap.reader import make_reader
 
 from lagrseq import config as cfg
 from lagrseq.errors import LogError
-from lagrseq.experiment import run_trial
+from lagrseq.logs.events import EpisodeEvent, QueryEvent, Transition, log_time, to_record
 from lagrseq.logs.reader import is_complete, iter_messages, read_info
-from lagrseq.logs.sink import McapSink
+from lagrseq.logs.schemas import EPISODE, QUERY, TRANSITION
+from lagrseq.logs.sink import McapSink, NullSink
+from lagrseq.runner import run_one
 
 
 @pytest.fixture(scope="module")
 def trial_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     config = cfg.load("cube-stacking", "lagr-seq", "upstream", overrides=["run.episodes=20"])
-    return run_trial(config, 0, 0, "mock", tmp_path_factory.mktemp("log") / "trial-000.mcap").path
+    return run_one(config, 0, 0, "mock", tmp_path_factory.mktemp("log") / "trial-000.mcap").path
 
 
 def test_plain_mcap_reads_every_message_and_its_schema(trial_log: Path) -> None:
@@ -61,7 +63,7 @@ def test_summary_topics_live_in_their_own_chunks(trial_log: Path) -> None:
 def test_failed_trial_still_leaves_a_valid_file(tmp_path: Path) -> None:
     path = tmp_path / "t.mcap"
     with pytest.raises(RuntimeError), McapSink(path, {"config": "{}"}) as sink:
-        sink.write("/episode", {"x": 1}, 0)
+        sink.write_record("/episode", {"x": 1}, 0)
         sink.flush()
         raise RuntimeError("boom")
     info = read_info(path)
@@ -93,38 +95,58 @@ def test_truncated_or_foreign_files_give_one_line_errors(trial_log: Path, tmp_pa
 
 def test_unserialisable_record_is_a_log_error(tmp_path: Path) -> None:
     with McapSink(tmp_path / "t.mcap", {"config": "{}"}) as sink, pytest.raises(LogError, match="JSON"):
-        sink.write("/transition", {"reward": float("nan")}, 0)
+        sink.write_record("/transition", {"reward": float("nan")}, 0)
 
 
 def test_fast_transition_encoding_equals_json() -> None:
-    from lagrseq.logs.sink import _encode_transition
+    from lagrseq.logs.sink import _encode, _encode_transition
 
-    record = {
-        "trial": 1, "episode": 2, "step": 3, "global_step": 4, "state": (4, 5, 6), "action": 7,
-        "reward": -0.125, "terminated": False, "truncated": True, "guided": True,
-    }
-    assert json.loads(_encode_transition(record)) == {**record, "state": [4, 5, 6]}
-    nested = {**record, "state": [[0, 1], [1, 0]], "reward": 1.0}
-    assert json.loads(_encode_transition(nested)) == nested
-    empty = {**record, "state": ()}
-    assert json.loads(_encode_transition(empty))["state"] == []
+    event = Transition(1, 2, 3, 4, (4, 5, 6), 7, -0.125, False, True, True)
+    record = to_record(event)
+    assert list(record) == list(TRANSITION["properties"]), "contract order"
+    assert _encode_transition(event) == _encode(record), "byte for byte the slow path's JSON"
+    assert json.loads(_encode_transition(event)) == {**record, "state": [4, 5, 6]}
+    nested = event._replace(state=[[0, 1], [1, 0]], reward=1.0)
+    assert json.loads(_encode_transition(nested)) == to_record(nested)
+    assert json.loads(_encode_transition(event._replace(state=())))["state"] == []
     with pytest.raises(LogError):
-        _encode_transition({**record, "reward": float("inf")})
+        _encode_transition(event._replace(reward=float("inf")))
 
 
 def test_fast_query_encoding_equals_json() -> None:
-    from lagrseq.experiment import _decision_record
-    from lagrseq.logs.sink import _encode_query
+    from lagrseq.logs.sink import _encode, _encode_query
 
-    skip = _decision_record(0, 1, 2, 3, (4, 5), 0)
-    assert json.loads(_encode_query(skip)) == {**skip, "state": [4, 5]}
-    assert json.loads(_encode_query(skip)) == {**skip, "state": [4, 5]}  # the cached template
-    sent = {**skip, "queried": True, "answer": "['e']", "decision": 1}
-    assert json.loads(_encode_query(sent)) == {**sent, "state": [4, 5]}
-    odd = {**skip, "answer": "not a skip after all"}  # a constant field that is not None
-    assert json.loads(_encode_query(odd)) == {**odd, "state": [4, 5]}
-    extra = {**skip, "new_field": None}  # fields may be added to the contract
-    assert json.loads(_encode_query(extra)) == {**extra, "state": [4, 5]}
+    skip = QueryEvent(0, 1, 2, 3, (4, 5), 0)
+    assert list(to_record(skip)) == list(QUERY["properties"]), "contract order"
+    assert _encode_query(skip) == _encode(to_record(skip)), "the template is the slow path's JSON"
+    assert _encode_query(skip) == _encode(to_record(skip))  # the template, cached
+    assert json.loads(_encode_query(skip._replace(query_reward=-1.0)))["query_reward"] == -1.0
+    sent = skip._replace(queried=True, answer="['e']", decision=1)
+    assert json.loads(_encode_query(sent)) == {**to_record(sent), "state": [4, 5]}
+    odd = skip._replace(answer="not a skip after all")  # a field after the decision that is set
+    assert json.loads(_encode_query(odd))["answer"] == "not a skip after all"
+    extra = skip._replace(extra=(("prefix_length", 2), ("fraction", 0.25)))  # fields added after the contract's
+    assert json.loads(_encode_query(extra)) == {**to_record(skip), "state": [4, 5], "prefix_length": 2, "fraction": 0.25}
+
+
+def test_episode_event_keeps_the_return_field_name() -> None:
+    event = EpisodeEvent(0, 1, 12.5, 50, 3, 1, 0.05, True, 4, 100)
+    assert list(to_record(event)) == list(EPISODE["properties"])
+    assert to_record(event)["return"] == 12.5 and log_time(event) == 99
+
+
+def test_null_sink_takes_every_event_and_writes_nothing(tmp_path: Path) -> None:
+    with NullSink() as sink:
+        sink.write(Transition(0, 0, 0, 0, (), 0, 0.0, False, False, False))
+        sink.write(QueryEvent(0, 0, 0, 0, (), 0))
+        sink.flush()
+    sink.close()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_sink_refuses_what_is_not_an_event(tmp_path: Path) -> None:
+    with McapSink(tmp_path / "t.mcap", {"config": "{}"}) as sink, pytest.raises(LogError, match="cannot log a dict"):
+        sink.write({"trial": 0})  # type: ignore[arg-type]
 
 
 def test_lean_message_index_equals_the_reference_library() -> None:

@@ -1,0 +1,187 @@
+"""The events of a trial, as frozen records: one type per MCAP topic.
+
+Each record's fields are the topic's contract (``logs/schemas.py``), in the order they appear in
+the JSON. Only :class:`EpisodeEvent` departs in spelling: ``return`` is a Python keyword, so the
+attribute is ``return_`` and the JSON field stays ``return``. Field names are a public contract:
+add fields at the end, rename none.
+
+A sink dispatches on the record's type (``McapSink.write``), and its fast encoders key on these
+types; :func:`to_record` gives the JSON object of any event.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple, Protocol
+
+import numpy as np
+
+TRANSITION_TOPIC = "/transition"
+QUERY_TOPIC = "/query"
+EPISODE_TOPIC = "/episode"
+
+
+class Transition(NamedTuple):
+    """One environment step of the primary agent (``/transition``)."""
+
+    trial: int
+    episode: int
+    step: int
+    """Step within the episode, from 0."""
+    global_step: int
+    """Step within the trial, from 0; also the log time."""
+    state: Any
+    """The partial pattern before the action (JSON-ready: a tuple or a nested list of ints)."""
+    action: int
+    reward: float
+    terminated: bool
+    truncated: bool
+    guided: bool
+    """The action came from the LLM's solution (pi_LLM)."""
+
+
+class QueryEvent(NamedTuple):
+    """One decision of the secondary agent and, when one was sent, the query (``/query``)."""
+
+    trial: int
+    episode: int
+    step: int
+    global_step: int
+    state: Any
+    decision: int
+    """1 = query, 0 = do not query."""
+    queried: bool = False
+    """A query was actually sent to a provider."""
+    prompt_sha256: str | None = None
+    answer: str | None = None
+    solution: Any = None
+    parse_error: str | None = None
+    evaluation: float | None = None
+    accepted: bool | None = None
+    query_reward: float = 0.0
+    provider: str | None = None
+    model: str | None = None
+    temperature: float | None = None
+    prompt_tokens: int | None = None
+    completion_tokens: int | None = None
+    cost_usd: float | None = None
+    latency_s: float | None = None
+    source: str | None = None
+    record_key: str | None = None
+    sample_index: int | None = None
+    finish_reason: str | None = None
+    system_fingerprint: str | None = None
+    extra: tuple[tuple[str, Any], ...] = ()
+    """Fields some records add after the contract's (the Fig. 4 probe: ``prefix_length``,
+    ``fraction``); written in this order, never named like a contract field."""
+
+
+class EpisodeEvent(NamedTuple):
+    """Summary of one episode (``/episode``)."""
+
+    trial: int
+    episode: int
+    return_: float
+    """The episode's return (JSON field ``return``)."""
+    length: int
+    queries: int
+    accepted: int
+    epsilon: float
+    """The primary agent's exploration rate at the episode's last step."""
+    solved: bool
+    guided_steps: int
+    global_step: int
+    """Steps of the trial so far, this episode's included."""
+
+
+class View(NamedTuple):
+    """A picture of the state for Foxglove (``foxglove.RawImage`` or ``foxglove.Grid``)."""
+
+    topic: str
+    message: dict[str, Any]
+    log_time: int
+
+
+Event = Transition | QueryEvent | EpisodeEvent | View
+
+TOPICS: dict[type, str] = {
+    Transition: TRANSITION_TOPIC,
+    QueryEvent: QUERY_TOPIC,
+    EpisodeEvent: EPISODE_TOPIC,
+}
+
+
+def topic_of(event: Event) -> str:
+    """The MCAP topic an event goes to."""
+    if type(event) is View:
+        return event.topic
+    return TOPICS[type(event)]
+
+
+def log_time(event: Event) -> int:
+    """An event's logical log time: the trial's step counter (an episode ends at its last step)."""
+    if type(event) is View:
+        return event.log_time
+    if type(event) is EpisodeEvent:
+        return max(event.global_step - 1, 0)
+    return event.global_step  # type: ignore[union-attr]
+
+
+def to_record(event: Event) -> dict[str, Any]:
+    """The JSON object of an event, with the contract's field names, in contract order."""
+    if type(event) is View:
+        return event.message
+    record = event._asdict()
+    if type(event) is EpisodeEvent:
+        return {("return" if k == "return_" else k): v for k, v in record.items()}
+    if type(event) is QueryEvent:
+        extra = record.pop("extra")
+        record.update(extra)
+    return record
+
+
+class Sink(Protocol):
+    """Where a trial's events go: the MCAP file of the trial, or nowhere (benchmarks)."""
+
+    def write(self, event: Event) -> None:
+        """Take one event; its topic and log time follow from its type."""
+
+    def flush(self) -> None:
+        """End of an episode: make everything written so far durable."""
+
+    def close(self) -> None:
+        """Finish (idempotent)."""
+
+    def __enter__(self) -> Any: ...
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None: ...
+
+
+class NullSink:
+    """A sink that keeps nothing: runs without a log (benchmarks measure the logging's cost)."""
+
+    def write(self, event: Event) -> None:
+        return None
+
+    def flush(self) -> None:
+        return None
+
+    def close(self) -> None:
+        return None
+
+    def __enter__(self) -> NullSink:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+
+def jsonable(pattern: Any) -> Any:
+    """A pattern as JSON-ready data: a tuple of ints stays as it is (it encodes as a list), an
+    array becomes nested lists."""
+    if pattern is None:
+        return None
+    if isinstance(pattern, np.ndarray):
+        return pattern.tolist()
+    if isinstance(pattern, tuple):
+        return pattern
+    return [int(x) for x in pattern]

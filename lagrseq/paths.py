@@ -1,0 +1,41 @@
+"""Output paths given on the command line, checked before anything is written.
+
+Every command that writes (run, reproduce, replay, recover, record, cache export) checks its
+output directory here first, so a path that is a file, lies below a file, or cannot be written
+ends in one line naming the flag, the path and the fix, instead of a traceback halfway through.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+from lagrseq.errors import UsageError
+
+
+def writable_directory(path: str | Path, flag: str = "--out") -> Path:
+    """``path`` as a directory this process can write into (created if missing)."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise UsageError(f"{flag} {path} is a file, not a directory; give a directory path")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path, prefix=".lagrseq-write-test-"):
+            pass
+    except OSError as exc:
+        reason = exc.strerror or type(exc).__name__
+        raise UsageError(f"{flag} {path}: cannot write there ({reason}); give a writable directory") from None
+    return path
+
+
+def readable_file(path: str | Path, flag: str) -> Path:
+    """``path`` as an existing regular file this process can open."""
+    path = Path(path)
+    if path.is_dir():
+        raise UsageError(f"{flag} {path} is a directory; give a file")
+    if not path.is_file():
+        raise UsageError(f"{flag} {path}: no such file")
+    if not os.access(path, os.R_OK):
+        raise UsageError(f"{flag} {path}: not readable (permission denied)")
+    return path

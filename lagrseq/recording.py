@@ -1,0 +1,291 @@
+"""``lagrseq record``: which prompts to ask, the store they go to, the recorder and its budget.
+
+The prompts are exactly those a run sends (same task descriptor, same key), built from every
+prefix of a cube target or from the states met in earlier runs' MCAP logs; each is topped up to K
+answers in the store by a recording wrapper around the live provider, behind a budget guard.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lagrseq.config import ExperimentConfig
+from lagrseq.errors import BudgetExceeded, LogError, UsageError
+from lagrseq.lagr import query_for
+from lagrseq.llm.base import Query
+from lagrseq.logs.reader import find_logs, read_info, read_topic
+from lagrseq.tasks import cube
+from lagrseq.tasks.base import Task
+from lagrseq.wiring import ProviderOptions, make_live, make_task
+
+STATE_TOPICS = ("/query", "/transition")
+
+
+def pattern_from(task: Task, value: Any) -> Any:
+    """A task pattern from outside data (an authors' cache key, an MCAP ``state``); raises
+    ValueError when it does not fit the task. Tasks check shapes with ``coerce_pattern``."""
+    coerce = getattr(task, "coerce_pattern", None)
+    if coerce is not None:
+        return coerce(value)
+    array = np.asarray(value)
+    return array if array.ndim > 1 else tuple(int(x) for x in array)
+
+
+def prompt_function(config: ExperimentConfig) -> Callable[[Any], str]:
+    """``prompt_for(key)``: the prompt a run sends for an outside pattern (authors' cache import)."""
+    task = make_task(config)
+    return lambda key: query_for(task, config.llm, pattern_from(task, key)).prompt
+
+
+def record_patterns(
+    config: ExperimentConfig,
+    runs: Sequence[str | Path] = (),
+    topic: str = "/query",
+    warn: Callable[[str], None] | None = None,
+) -> list[Any]:
+    """The patterns ``lagrseq record`` asks about, without duplicates, in first-met order: the
+    states of ``topic`` records in the MCAP logs under ``runs`` (``/query``: where the secondary
+    agent decided; ``/transition``: every state met), or, with no runs, every prefix of a cube
+    target. A damaged log is skipped with a warning, as replay skips it."""
+    task = make_task(config)
+    if not runs:
+        if isinstance(task, cube.CubeStacking):
+            return list(task.prefixes())
+        raise UsageError(f"{config.task.name} has no default set of prompts; give runs with --from-runs")
+    if topic not in STATE_TOPICS:
+        raise UsageError(f"--states-from {topic!r}; expected /query or /transition")
+    warn = warn or (lambda message: print(f"warning: {message}", file=sys.stderr))
+    wanted = json.loads(json.dumps(asdict(config.task)))
+    patterns: list[Any] = []
+    seen: set[str] = set()
+    for path in find_logs(runs):
+        try:
+            logged_task = read_info(path).config.get("task", {})
+            if logged_task != wanted:
+                raise UsageError(
+                    f"{path}: a run of task {logged_task}, not {wanted}; pass matching runs or --set task fields"
+                )
+            for record in read_topic(path, topic):
+                state = record.get("state")
+                marker = json.dumps(state)
+                if state is None or marker in seen:
+                    continue
+                seen.add(marker)
+                try:
+                    patterns.append(pattern_from(task, state))
+                except ValueError as exc:
+                    raise UsageError(f"{path}: state {marker[:60]} does not fit the task: {exc}") from None
+        except LogError as exc:
+            warn(f"{exc}; skipped")
+    if not patterns:
+        raise UsageError(f"no {topic} states in {', '.join(map(str, runs))}")
+    return patterns
+
+
+def queries_for(config: ExperimentConfig, patterns: Sequence[Any]) -> list[Query]:
+    """The queries a run of ``config`` would send from ``patterns`` (same key, same prompt)."""
+    task = make_task(config)
+    return [query_for(task, config.llm, pattern) for pattern in patterns]
+
+
+@dataclass(frozen=True)
+class RecordingReport:
+    """What one ``lagrseq record`` achieved."""
+
+    prompts: int
+    full: int
+    """Prompts that hold at least ``samples`` answers."""
+    samples: int
+    store: Path
+    answers: int = 0
+    """New answers recorded by this call."""
+    spent_usd: float = 0.0
+    unpriced: int = 0
+    stopped: BudgetExceeded | None = None
+    """Why recording stopped early (the budget), if it did."""
+
+    def summary(self) -> str:
+        unpriced = f" ({self.unpriced} with no price)" if self.unpriced else ""
+        return (
+            f"{self.full}/{self.prompts} prompts hold at least {self.samples} answers in {self.store}; "
+            f"spent ${self.spent_usd:.4f} on {self.answers} new answers{unpriced}"
+        )
+
+    def missing(self, mode: str) -> UsageError | None:
+        """The error to end with when prompts still lack answers (None when none do)."""
+        if self.full >= self.prompts:
+            return None
+        return UsageError(
+            f"{self.prompts - self.full} of {self.prompts} prompts have fewer than {self.samples} answers "
+            f"in {self.store} (record mode {mode}); run with --mode new to top them up"
+        )
+
+
+def record(
+    queries: Sequence[Query],
+    store_path: Path,
+    samples: int,
+    mode: str,
+    options: ProviderOptions,
+    bar: Any = None,
+) -> RecordingReport:
+    """Top every query up to ``samples`` answers in ``store_path`` from the live server of
+    ``options`` (mode ``none`` asks nobody and only counts). ``bar``: a tqdm-like progress bar
+    (``update``, ``write``, ``set_postfix_str``) or None."""
+    from lagrseq.llm.recorded import RecordingProvider, record_queries
+    from lagrseq.llm.store import RecordStore, endpoint_of, query_key
+
+    endpoint = endpoint_of(options.base_url)
+
+    def held(store: RecordStore) -> int:
+        entries = [store.entry(query_key(q, endpoint)[0]) for q in queries]
+        return sum(1 for e in entries if e is not None and len(e.samples) >= samples)
+
+    if mode == "none":  # ask nobody (no key needed): report what the store lacks
+        with RecordStore(store_path, create=False) as store:
+            return RecordingReport(len(queries), held(store), samples, store_path)
+    # The retry jitter's generator: seeded per process, so concurrent recorders back off apart.
+    jitter = np.random.default_rng([os.getpid()])
+    say = bar.write if bar is not None else (lambda message: print(message, file=sys.stderr))
+    live = make_live(options, jitter, budgeted=True, on_retry=lambda message: say(f"  {message}"))
+    budget = live.budget
+
+    def show(_answers: Any) -> None:
+        if bar is not None:
+            unpriced = f", {budget.unpriced} unpriced" if budget.unpriced else ""
+            bar.set_postfix_str(f"{budget.answers} new answers, ${budget.spent_usd:.4f}{unpriced}")
+
+    stopped: BudgetExceeded | None = None
+    with RecordingProvider(RecordStore(store_path), live, endpoint, mode, samples) as recorder:  # type: ignore[arg-type]
+        try:
+            record_queries(
+                recorder, list(queries), on_answers=show, on_query=lambda _q: bar.update(1) if bar is not None else None
+            )
+        except BudgetExceeded as exc:
+            stopped = exc
+        full = held(recorder.store)
+    return RecordingReport(
+        len(queries), full, samples, store_path, budget.answers, budget.spent_usd, budget.unpriced, stopped
+    )
+
+
+def record_config(
+    task: str,
+    preset: str,
+    config_file: Path | None,
+    overrides: Sequence[str],
+    model: str | None = None,
+    temperature: float | None = None,
+    max_tokens: int | None = None,
+) -> ExperimentConfig:
+    """The configuration whose queries are recorded (or imported): the preset's, with the model,
+    temperature and max tokens given (each defaults to the preset's)."""
+    from lagrseq import config as cfg
+
+    config = cfg.load(task, "lagr", preset, config_file, overrides)
+    llm = replace(
+        config.llm,
+        model=model or config.llm.model,
+        temperature=config.llm.temperature if temperature is None else temperature,
+        max_tokens=config.llm.max_tokens if max_tokens is None else max_tokens,
+    )
+    return replace(config, llm=llm)
+
+
+def import_answers(
+    file: Path,
+    store_path: Path,
+    fmt: str,
+    task: str | None,
+    preset: str,
+    config_file: Path | None,
+    overrides: Sequence[str],
+    model: str | None,
+    temperature: float | None,
+    max_tokens: int | None,
+    base_url: str,
+    warn: Callable[[str], None],
+) -> str:
+    """``lagrseq cache import``: a JSONL export, or an authors' pickle whose keys are rebuilt
+    from the task descriptor. Returns the line to print."""
+    from lagrseq.llm.store import RecordStore, endpoint_of, import_jsonl
+
+    fmt = fmt if fmt != "auto" else ("jsonl" if file.suffix == ".jsonl" else "pkl")
+    if not file.is_file():
+        raise UsageError(f"{file}: no such file")
+    if fmt == "jsonl":
+        try:
+            with RecordStore(store_path) as store, file.open(encoding="utf-8") as handle:
+                lines = import_jsonl(handle, store, file.name, warn=warn)
+        except UnicodeDecodeError:
+            raise UsageError(f"{file}: not UTF-8 text, so not a JSONL export; for an authors' pickle use --format pkl") from None
+        return f"{file}: {lines.lines} answers under {lines.keys} keys; {lines.added} added, {lines.already_present} already in {store_path}"
+    missing = [flag for flag, value in (("--task", task), ("--model", model), ("--temperature", temperature)) if value is None]
+    if missing or task is None or model is None or temperature is None:
+        raise UsageError(f"importing a pickle needs {', '.join(missing)}: the authors' caches do not record them")
+    from lagrseq.llm.authors_cache import import_authors_cache
+
+    config = record_config(task, preset, config_file, overrides, model, temperature, max_tokens)
+    with RecordStore(store_path) as store:
+        report = import_authors_cache(
+            file,
+            store,
+            prompt_function(config),
+            task=task,
+            model=model,
+            temperature=temperature,
+            endpoint=endpoint_of(base_url),
+            max_tokens=config.llm.max_tokens,
+            warn=warn,
+        )
+    return (
+        f"{file}: {report.pairs} pairs; {report.imported} answers added under {report.keys} keys, "
+        f"{report.already_present} already in {store_path}, {report.skipped} skipped"
+    )
+
+
+def export_answers(store_path: Path, out: str, stdout: Any) -> str:
+    """``lagrseq cache export``: the store as JSONL into ``out`` (``-``: ``stdout``), written to a
+    temporary name and renamed, so a failed export leaves nothing half-written."""
+    from lagrseq.llm.store import RecordStore, export_jsonl
+
+    with RecordStore(store_path, create=False) as store:
+        if out == "-":
+            report = export_jsonl(store, stdout)
+        else:
+            path = Path(out)
+            partial = path.with_name(path.name + ".partial")
+            try:
+                with partial.open("w", encoding="utf-8") as handle:
+                    report = export_jsonl(store, handle)
+                os.replace(partial, path)
+            except OSError as exc:
+                with contextlib.suppress(OSError):
+                    partial.unlink()
+                raise UsageError(f"cannot write {path}: {exc.strerror or exc}") from None
+    return f"{report.lines} answers under {report.keys} keys written to {out}"
+
+
+def list_answers(store_path: Path) -> list[str]:
+    """``lagrseq cache list``: one line per recorded key."""
+    from lagrseq.llm.store import RecordStore
+
+    lines = []
+    with RecordStore(store_path, create=False) as store:
+        for entry in store.entries():
+            r = entry.request
+            tail = " ".join(entry.prompt.split())[-48:]
+            lines.append(
+                f"{entry.key[:12]}  {entry.task or '-'}  {r['model']}  t={r['temperature']}  {r['endpoint']}  "
+                f"{len(entry.samples):3d} samples  ...{tail}"
+            )
+    return lines

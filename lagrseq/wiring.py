@@ -1,0 +1,373 @@
+"""Wiring: the only place that knows the concrete tasks, envs, agents and providers.
+
+``trial_parts`` builds everything one trial of ``lagrseq.experiment.run_trial`` runs on; the
+``make_*`` factories build one part each from the resolved configuration. Provider specs
+(``mock``, ``mock:PROFILE``, ``recorded:STORE``, ``live[:MODEL]``) are parsed here and only here.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+
+from lagrseq import seeding
+from lagrseq.adapters import (
+    DQNPrimary,
+    NeuralSeq,
+    PrimaryAgent,
+    SecondaryAgent,
+    TabularPrimary,
+    TabularSeq,
+)
+from lagrseq.agents.schedules import EpsilonSchedule
+from lagrseq.config import (
+    ArrangementEnvConfig,
+    ArrangementTaskConfig,
+    CubeEnvConfig,
+    CubeTaskConfig,
+    DQNConfig,
+    ExperimentConfig,
+    ImageEnvConfig,
+    ImageTaskConfig,
+    NeuralSecondaryConfig,
+    RunConfig,
+    TabularConfig,
+)
+from lagrseq.errors import ConfigError, UsageError
+from lagrseq.experiment import TrialParts
+from lagrseq.llm.base import Provider
+from lagrseq.llm.mock import MockProvider
+from lagrseq.llm.servers import DEFAULT_BASE_URL
+from lagrseq.logs import foxglove
+from lagrseq.logs.events import Sink, View
+from lagrseq.seeding import Stream
+from lagrseq.tasks import cube, grid
+from lagrseq.tasks.arrangement import object_arrangement
+from lagrseq.tasks.base import Task
+from lagrseq.tasks.image import image_completion
+
+PROVIDER_KINDS = ("mock", "recorded", "live")
+ON_MISS = ("error", "mock", "live")
+PROVIDER_HELP = "mock, mock:PROFILE, recorded:STORE, live or live:MODEL"
+
+
+# ------------------------------------------------------------------------------------------
+# Providers
+# ------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ProviderSpec:
+    """A parsed ``--provider`` value: ``kind[:argument]``."""
+
+    kind: str
+    """mock | recorded | live"""
+    argument: str = ""
+    """The mock's profile, the recorded store's directory, or the live model."""
+
+    def __str__(self) -> str:
+        return f"{self.kind}:{self.argument}" if self.argument else self.kind
+
+
+def mock_profiles() -> tuple[str, ...]:
+    """Names accepted by ``--provider mock:PROFILE``."""
+    return tuple(cube.PROFILES)
+
+
+def parse_provider(spec: str) -> ProviderSpec:
+    """Split ``kind[:argument]`` and check it: ``mock``, ``mock:PROFILE``, ``recorded:STORE``,
+    ``live`` or ``live:MODEL``."""
+    kind, _, argument = spec.partition(":")
+    if kind not in PROVIDER_KINDS:
+        raise UsageError(f"unknown provider {spec!r}; expected {PROVIDER_HELP}")
+    if kind == "mock" and argument and argument not in mock_profiles():
+        raise UsageError(f"unknown mock profile {argument!r}; expected one of: {', '.join(mock_profiles())}")
+    if kind == "recorded" and not argument:
+        raise UsageError("provider 'recorded' needs a store: recorded:STORE (a directory)")
+    return ProviderSpec(kind, argument)
+
+
+@dataclass(frozen=True)
+class ProviderOptions:
+    """How a provider other than the plain mock is set up: where answers come from, not what the
+    experiment is, so these are command-line options rather than config fields. They are written
+    into each trial's metadata. The API key is never here, only the name of its variable."""
+
+    base_url: str = DEFAULT_BASE_URL
+    """API root of the live server; its host is also part of every recorded key."""
+    api_key_env: str = "OPENAI_API_KEY"
+    """Environment variable holding the API key."""
+    server: str = "openai"
+    """Kind of OpenAI-compatible server (whether it honours ``n``)."""
+    on_miss: str = "error"
+    """recorded:STORE only: what answers a query the store lacks (error | mock | live)."""
+    price_table: str | None = None
+    """TOML file of prices over the built-in table."""
+    max_cost_usd: float | None = None
+    """Per trial (live answers): stop before a request that could pass this many US dollars."""
+    max_queries: int | None = None
+    """Per trial (live answers): stop before a request that would pass this many answers."""
+
+    def __post_init__(self) -> None:
+        if self.on_miss not in ON_MISS:
+            raise UsageError(f"--on-miss {self.on_miss!r}; expected one of {', '.join(ON_MISS)}")
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), sort_keys=True)
+
+
+def with_provider_model(config: ExperimentConfig, spec: str) -> ExperimentConfig:
+    """``live:MODEL`` asks MODEL: the configuration (and so every log) says so."""
+    provider = parse_provider(spec)
+    if provider.kind == "live" and provider.argument and provider.argument != config.llm.model:
+        return replace(config, llm=replace(config.llm, model=provider.argument))
+    return config
+
+
+def make_provider(
+    spec: str,
+    config: ExperimentConfig,
+    rng: np.random.Generator,
+    options: ProviderOptions | None = None,
+) -> Provider:
+    """The provider of one trial. ``rng`` is the trial's LLM stream: the mock samples from it,
+    the live provider draws its retry jitter from it, and a recorded store's sample choice is
+    seeded by its first draw."""
+    from lagrseq.llm.recorded import RecordedProvider, RecordingProvider
+    from lagrseq.llm.store import RecordStore, endpoint_of
+
+    provider = parse_provider(spec)
+    options = options or ProviderOptions()
+    if provider.kind == "mock":
+        return MockProvider(extrapolator(config, provider.argument or "ideal"), rng, name=spec)
+    if provider.kind == "live":
+        return make_live(options, rng, budgeted=True)
+    store = RecordStore(provider.argument, create=options.on_miss == "live")
+    endpoint = endpoint_of(options.base_url)
+    run_seed = int(rng.integers(2**63))
+    if options.on_miss == "live":
+        # A miss is asked live and recorded (one sample), so the next run finds it.
+        return RecordingProvider(store, make_live(options, rng, budgeted=True), endpoint, "new", 1, run_seed)
+    fallback = MockProvider(extrapolator(config), rng, name="mock") if options.on_miss == "mock" else None
+    return RecordedProvider(store, endpoint, run_seed, fallback)
+
+
+def check_provider(spec: str, config: ExperimentConfig, options: ProviderOptions | None = None) -> None:
+    """Build the provider once and close it, so that a missing API key or store fails before any
+    trial starts (nothing is sent)."""
+    make_provider(spec, config, np.random.default_rng(0), options).close()
+
+
+def make_live(
+    options: ProviderOptions,
+    rng: np.random.Generator,
+    budgeted: bool = False,
+    on_retry: Callable[[str], None] | None = None,
+) -> Any:
+    """The live provider of ``options``, behind a budget guard when asked (one budget per call)."""
+    from lagrseq.llm.budget import Budget, BudgetedProvider
+    from lagrseq.llm.live import LiveProvider, LiveSettings
+
+    prices = load_prices(options.price_table)
+    settings = LiveSettings(base_url=options.base_url, api_key_env=options.api_key_env, server=options.server)
+    live = LiveProvider(settings, rng=rng, prices=prices, on_retry=on_retry)
+    if not budgeted:
+        return live
+    return BudgetedProvider(live, Budget(options.max_cost_usd, options.max_queries), prices)
+
+
+def load_prices(price_table: str | Path | None) -> Any:
+    """The built-in price table, with ``price_table`` (a TOML file) over it."""
+    from lagrseq.llm.pricing import PriceTable, read_price_table
+
+    return read_price_table(price_table) if price_table else PriceTable()
+
+
+def extrapolator(config: ExperimentConfig, profile: str = "ideal") -> Callable[[str, float, np.random.Generator], str]:
+    """What the mock provider answers with: the task's rule-based extrapolator (``ideal``) or a
+    calibrated profile of it (``cube.PROFILES``). The mock itself stays task-free: it reads the
+    same prompt text a real LLM would see."""
+    task = make_task(config)
+    if isinstance(task, cube.CubeStacking):
+        return cube.profile_extrapolator(task, profile)
+    if profile != "ideal":
+        raise UsageError(
+            f"mock profile {profile!r} is calibrated for cube stacking only; "
+            f"{config.task.name} has the ideal mock (--provider mock)"
+        )
+    return grid.extrapolate
+
+
+# ------------------------------------------------------------------------------------------
+# Tasks, envs, agents
+# ------------------------------------------------------------------------------------------
+_Section = TypeVar("_Section")
+
+
+def _expect(value: Any, cls: type[_Section], section: str) -> _Section:
+    """``value`` as the section class this task needs (configs from ``config.load`` always are)."""
+    if not isinstance(value, cls):
+        raise ConfigError(
+            f"[{section}] is a {type(value).__name__}, this task needs a {cls.__name__}; "
+            "build configurations with lagrseq.config.load"
+        )
+    return value
+
+
+def make_task(config: ExperimentConfig) -> Task:
+    task = config.task
+    if isinstance(task, CubeTaskConfig):
+        return cube.CubeStacking(task.stack_size)  # type: ignore[return-value]
+    if isinstance(task, ImageTaskConfig):
+        return image_completion(task.target, task.goal_threshold, task.prompt_matrix, task.guidance)
+    if isinstance(task, ArrangementTaskConfig):
+        return object_arrangement(task.target, task.goal_threshold, task.prompt_matrix, task.guidance)
+    raise UsageError(f"unknown task {task.name!r}")  # pragma: no cover
+
+
+def make_env(config: ExperimentConfig) -> Any:
+    """The task's gymnasium env (imported here: ``lagrseq replay`` never needs gymnasium)."""
+    task = config.task
+    if isinstance(task, CubeTaskConfig):
+        from lagrseq.envs.cube_stacking import CubeStackingEnv
+
+        env = _expect(config.env, CubeEnvConfig, "env")
+        return CubeStackingEnv(
+            stack_size=task.stack_size,
+            horizon=env.horizon,
+            bonus=env.bonus,
+            bonus_on=env.bonus_on,
+            revert_wrong_cube=env.revert_wrong_cube,
+            wrong_cube_reward=env.wrong_cube_reward,
+            terminate_on_complete=env.terminate_on_complete,
+        )
+    if isinstance(task, ImageTaskConfig):
+        from lagrseq.envs.image_completion import ImageCompletionEnv
+
+        image = _expect(config.env, ImageEnvConfig, "env")
+        return ImageCompletionEnv(
+            target=task.target,
+            scans=image.scans,
+            bonus=image.bonus,
+            goal_threshold=task.goal_threshold,
+            goal_ends=image.goal_ends,
+            block_wrong_flips=image.block_wrong_flips,
+            guided_goal_threshold=image.guided_goal_threshold,
+        )
+    from lagrseq.envs.object_arrangement import ObjectArrangementEnv
+
+    table = _expect(config.env, ArrangementEnvConfig, "env")
+    arrangement = _expect(task, ArrangementTaskConfig, "task")
+    return ObjectArrangementEnv(
+        target=arrangement.target,
+        horizon=table.horizon,
+        bonus=table.bonus,
+        goal_threshold=arrangement.goal_threshold,
+    )
+
+
+def make_schedule(section: Any, run: RunConfig) -> EpsilonSchedule:
+    """The epsilon schedule of an agent section, counted in episodes or steps."""
+    length = run.max_steps if section.epsilon_unit == "step" else run.episodes
+    if section.epsilon_schedule == "linear" and section.epsilon_decay <= 0 and length == 0:
+        unit = "max_steps" if section.epsilon_unit == "step" else "episodes"
+        raise ConfigError(
+            f"a linear epsilon schedule with epsilon_decay = 0 runs over half of run.{unit}, "
+            f"which is 0 (no limit); set epsilon_decay to its length in {section.epsilon_unit}s"
+        )
+    return EpsilonSchedule(
+        section.epsilon_schedule,
+        section.epsilon_start,
+        section.epsilon_min,
+        section.epsilon_decay,
+        length,
+        section.epsilon_unit,
+        section.epsilon_warmup,
+    )
+
+
+def make_primary(config: ExperimentConfig, task: Task, env: Any, seed: int, trial: int) -> PrimaryAgent:
+    if isinstance(config.primary, DQNConfig):
+        return DQNPrimary(config.primary, env, seed, trial)
+    section = _expect(config.primary, TabularConfig, "primary")
+    return TabularPrimary(section, _expect(task, cube.CubeStacking, "task"))
+
+
+def make_secondary(config: ExperimentConfig, task: Task, seed: int, trial: int) -> SecondaryAgent | None:
+    """The SEQ agent of ``lagr-seq``; None for ``lagr`` (always asks) and ``baseline`` (never)."""
+    if config.method != "lagr-seq":
+        return None
+    section = config.secondary
+    if isinstance(section, NeuralSecondaryConfig):
+        return NeuralSeq(section, _expect(task, grid.GridTask, "task").cells, seed, trial)
+    return TabularSeq(section.learning_rate)
+
+
+def missing_dependency(config: ExperimentConfig) -> str:
+    """Why ``config`` cannot run with the installed extras ("" when it can): the DQN agents of
+    the grid tasks need torch (the ``dqn`` extra)."""
+    import importlib.util
+
+    needs_torch = config.primary.kind == "dqn" or (config.method == "lagr-seq" and config.secondary.kind == "neural")
+    if needs_torch and importlib.util.find_spec("torch") is None:
+        return "needs torch, which is not installed (pip install 'lagrseq[dqn]')"
+    return ""
+
+
+# Picture views of the state per task: (topic, message builder, view_topics flag).
+VIEWS: dict[str, tuple[str, Callable[[Any, int], dict[str, Any]], str]] = {
+    "image-completion": (foxglove.IMAGE_TOPIC, foxglove.raw_image, "image"),
+    "object-arrangement": (foxglove.GRID_TOPIC, foxglove.grid, "grid"),
+}
+
+
+def view_topics(config: ExperimentConfig) -> dict[str, tuple[str, str, bytes]] | None:
+    """The picture topic of ``config``'s task for the sink (None: the task has none)."""
+    view = VIEWS.get(config.task.name)
+    return foxglove.view_topics(**{view[2]: True}) if view else None
+
+
+def _view(config: ExperimentConfig) -> Callable[[Any, int], View] | None:
+    view = VIEWS.get(config.task.name)
+    if view is None:
+        return None
+    topic, picture, _ = view
+    return lambda pattern, global_step: View(topic, picture(pattern, global_step), global_step)
+
+
+def trial_parts(
+    config: ExperimentConfig,
+    trial: int,
+    seed: int,
+    provider_spec: str,
+    open_sink: Callable[[], Sink],
+    provider_options: ProviderOptions | None = None,
+) -> TrialParts:
+    """Everything trial ``trial`` of a run with seed ``seed`` runs on; each random stream is
+    spawned from (seed, trial, component), so a trial is the same whatever else runs. The sink
+    is opened last, so a part that cannot be built leaves no file behind."""
+    task = make_task(config)
+    env = make_env(config)
+    primary = make_primary(config, task, env, seed, trial)
+    secondary = make_secondary(config, task, seed, trial)
+    provider = make_provider(provider_spec, config, seeding.generator(seed, trial, Stream.LLM), provider_options)
+    return TrialParts(
+        config=config,
+        trial=trial,
+        task=task,
+        env=env,
+        primary=primary,
+        secondary=secondary,
+        provider=provider,
+        sink=open_sink(),
+        primary_epsilon=make_schedule(config.primary, config.run),
+        secondary_epsilon=make_schedule(config.secondary, config.run),
+        env_seed=seeding.integer_seed(seed, trial, Stream.ENV),
+        primary_rng=seeding.generator(seed, trial, Stream.PRIMARY),
+        secondary_rng=seeding.generator(seed, trial, Stream.SECONDARY),
+        guidance_rng=seeding.generator(seed, trial, Stream.GUIDANCE),
+        view=_view(config),
+    )
