@@ -10,35 +10,235 @@ Resolution order (later wins): dataclass defaults, preset TOML, ``--config FILE.
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import hashlib
 import json
-import sys
+import math
 import types
 import typing
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any, Literal, Union, get_args, get_origin
+from typing import Any, Literal, TypeVar, Union, get_args, get_origin
 
 from lagrseq.errors import ConfigError
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - exercised on Python 3.10 only
-    import tomli as tomllib
+from lagrseq.tomlfile import read_toml as _read_toml_file
+from lagrseq.tomlfile import shown as _shown_path
+from lagrseq.tomlfile import value_of as _toml_value
 
 METHODS = ("baseline", "lagr", "lagr-seq")
 PRESETS = ("upstream", "paper")
+INT64_MAX = 2**63 - 1
+"""The largest integer any field, option or seed takes (TOML's integers are 64-bit)."""
+
+
+# --------------------------------------------------------------------------------------------
+# Ranges of numeric values (fields and command-line options)
+# --------------------------------------------------------------------------------------------
+def show_value(value: Any) -> str:
+    """``repr(value)``, shortened to 40 characters (a 400-digit integer stays on a short line)."""
+    text = repr(value)
+    return text if len(text) <= 40 else f"{text[:20]}...{text[-12:]} ({len(text)} characters)"
+
+
+def show_name(name: Any) -> str:
+    """A section or field name from a file, as written or escaped (one line, short)."""
+    text = str(name)
+    return text if text.isprintable() and len(text) <= 40 else show_value(text)
+
+
+def _number(value: float) -> str:
+    if isinstance(value, int):
+        return str(value)
+    return str(int(value)) if value.is_integer() and abs(value) < 1e15 else repr(value)
+
+
+@dataclass(frozen=True)
+class Range:
+    """The values a number may take: ``ge``/``le`` inclusive, ``gt``/``lt`` exclusive bounds.
+    Floats must be finite; integers must not be booleans and must fit in 64 bits."""
+
+    ge: float | None = None
+    gt: float | None = None
+    le: float | None = None
+    lt: float | None = None
+
+    def describe(self, integer: bool) -> str:
+        """``an integer >= 1``, ``a finite number in [0, 1]``, ``a finite number > 0``..."""
+        noun = "an integer" if integer else "a finite number"
+        low = (f"[{_number(self.ge)}" if self.ge is not None else None) or (
+            f"({_number(self.gt)}" if self.gt is not None else None
+        )
+        high = (f"{_number(self.le)}]" if self.le is not None else None) or (
+            f"{_number(self.lt)})" if self.lt is not None else None
+        )
+        if low and high:
+            return f"{noun} in {low}, {high}"
+        if low:
+            return f"{noun} {'>=' if low[0] == '[' else '>'} {low[1:]}"
+        if high:
+            return f"{noun} {'<=' if high[-1] == ']' else '<'} {high[:-1]}"
+        return noun
+
+    def problem(self, value: Any, integer: bool) -> str | None:
+        """None if ``value`` is allowed, else what was expected (for the message)."""
+        expected = self.describe(integer)
+        if isinstance(value, bool):
+            return expected
+        if integer:
+            if not isinstance(value, int):
+                return expected
+            if abs(value) > INT64_MAX:
+                return f"{expected} (and below 2**63)"
+        elif not isinstance(value, (int, float)):
+            return expected
+        else:
+            try:
+                if not math.isfinite(value):
+                    return expected
+            except OverflowError:  # an int too large for a float
+                return expected
+        if (
+            (self.ge is not None and not value >= self.ge)
+            or (self.gt is not None and not value > self.gt)
+            or (self.le is not None and not value <= self.le)
+            or (self.lt is not None and not value < self.lt)
+        ):
+            return expected
+        return None
+
+    def check(self, where: str, value: Any, integer: bool) -> None:
+        """Raise ConfigError ``where = value; expected ...`` unless ``value`` is allowed."""
+        expected = self.problem(value, integer)
+        if expected is not None:
+            raise ConfigError(f"{where} = {show_value(value)}; expected {expected}")
+
+
+_T = TypeVar("_T")
+
+
+def ranged(
+    default: _T, *, ge: float | None = None, gt: float | None = None, le: float | None = None, lt: float | None = None
+) -> _T:
+    """A numeric dataclass field with its allowed range (for a tuple, the range of each item),
+    checked by :func:`check_ranges` when the section is built."""
+    return field(default=default, metadata={"range": Range(ge=ge, gt=gt, le=le, lt=lt)})
+
+
+_HINTS: dict[type, dict[str, Any]] = {}
+
+
+def _hints(cls: type) -> dict[str, Any]:
+    """The resolved field types of a section class (computed once per class)."""
+    if cls not in _HINTS:
+        _HINTS[cls] = typing.get_type_hints(cls)
+    return _HINTS[cls]
+
+
+def _is_numeric(hint: Any) -> bool:
+    if hint in (int, float):
+        return True
+    return get_origin(hint) is tuple and all(a in (int, float, Ellipsis) for a in get_args(hint))
+
+
+def numeric_fields(cls: type) -> list[dataclasses.Field[Any]]:
+    """The int, float and tuple-of-number fields of a section dataclass."""
+    return [f for f in dataclasses.fields(cls) if _is_numeric(_hints(cls)[f.name])]
+
+
+def check_ranges(section: str, obj: Any) -> None:
+    """Check every numeric field of the dataclass ``obj`` against its declared :class:`Range`."""
+    hints = _hints(type(obj))
+    for f in dataclasses.fields(obj):
+        hint = hints[f.name]
+        if not _is_numeric(hint):
+            continue
+        bounds = f.metadata.get("range")
+        if bounds is None:  # pragma: no cover - a programming error, caught by the tests
+            raise TypeError(f"{type(obj).__name__}.{f.name} is numeric but declares no range")
+        value = getattr(obj, f.name)
+        where = f"{section}.{f.name}"
+        if get_origin(hint) is tuple:
+            integer = get_args(hint)[0] is int
+            if not isinstance(value, tuple):
+                raise ConfigError(f"{where} = {show_value(value)}; expected a list of {bounds.describe(integer)}")
+            for item in value:
+                expected = bounds.problem(item, integer)
+                if expected is not None:
+                    raise ConfigError(f"{where} = {show_value(list(value))}; expected every item to be {expected}")
+        else:
+            bounds.check(where, value, hint is int)
+
+
+class _Section:
+    """Base of the section dataclasses: after construction every numeric field is checked against
+    its range, then :meth:`_check` checks rules between fields."""
+
+    SECTION: typing.ClassVar[str] = ""
+
+    def __post_init__(self) -> None:
+        check_ranges(self.SECTION, self)
+        self._check()
+
+    def _check(self) -> None:
+        """Rules between fields (overridden by sections that have some)."""
+
+
+def _check_epsilon(section: str, obj: Any) -> None:
+    if obj.epsilon_schedule == "exponential":
+        expected = Range(gt=0, le=1).problem(obj.epsilon_decay, integer=False)
+        if expected is not None:
+            raise ConfigError(
+                f"{section}.epsilon_decay = {obj.epsilon_decay!r}; expected {expected} "
+                f'(the per-{obj.epsilon_unit} factor of epsilon_schedule = "exponential")'
+            )
+
+
+# --------------------------------------------------------------------------------------------
+# Command-line numbers (argparse ``type=`` functions)
+# --------------------------------------------------------------------------------------------
+def number_type(name: str, *, integer: bool = False, **bounds: float) -> Callable[[str], Any]:
+    """An argparse ``type=`` function reading one number in a :class:`Range` (keywords ``ge``,
+    ``gt``, ``le``, ``lt``): NaN, infinities, ``1e999``, booleans and numbers out of range raise
+    ``argparse.ArgumentTypeError`` with one line (argparse then exits with status 2)."""
+    allowed = Range(**bounds)
+
+    def parse(text: str) -> int | float:
+        value: int | float | None
+        try:
+            value = int(text, 10) if integer else float(text)
+        except (TypeError, ValueError):
+            value = None
+        expected = allowed.describe(integer) if value is None else allowed.problem(value, integer)
+        if expected is not None:
+            raise argparse.ArgumentTypeError(f"expected {expected}, found {show_value(text)}")
+        assert value is not None
+        return value
+
+    parse.__name__ = name
+    return parse
+
+
+nonneg_float: Callable[[str], float] = number_type("nonneg_float", ge=0)
+"""A finite number >= 0: budgets (``--max-cost-usd``)."""
+nonneg_int: Callable[[str], int] = number_type("nonneg_int", integer=True, ge=0)
+"""An integer >= 0: counts that may be zero (``--max-queries``)."""
+positive_int: Callable[[str], int] = number_type("positive_int", integer=True, ge=1)
+"""An integer >= 1: sizes and counts (``--trials``, ``--jobs``, ``--samples``)."""
+seed_int: Callable[[str], int] = number_type("seed_int", integer=True, ge=0, le=INT64_MAX)
+"""A seed: an integer in [0, 2**63 - 1] (numpy's SeedSequence refuses negative seeds)."""
 
 
 # --------------------------------------------------------------------------------------------
 # Task and environment sections
 # --------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class CubeTaskConfig:
+class CubeTaskConfig(_Section):
     """[task] of cube stacking (SPEC section 1)."""
+
+    SECTION = "task"
 
     name: Literal["cube-stacking"] = "cube-stacking"
     """Task id."""
@@ -47,12 +247,14 @@ class CubeTaskConfig:
 
 
 @dataclass(frozen=True)
-class CubeEnvConfig:
+class CubeEnvConfig(_Section):
     """[env] of cube stacking: dynamics and reward (SPEC 1.1)."""
 
-    horizon: int = 100
+    SECTION = "env"
+
+    horizon: int = ranged(100, ge=1)
     """Steps per episode (H). Paper: 100; released code: 50."""
-    bonus: float = 1.0
+    bonus: float = ranged(1.0, ge=0)
     """Reward bonus b for the complete stack. Paper and code: 1."""
     bonus_on: Literal["next-state", "either-state"] = "next-state"
     """When b is paid: when s' is complete (paper) or when s or s' is complete (code, which also
@@ -84,15 +286,17 @@ GridTarget = Literal[
 
 
 @dataclass(frozen=True)
-class ImageTaskConfig:
+class ImageTaskConfig(_Section):
     """[task] of image completion (SPEC section 2): a 10 x 10 image."""
+
+    SECTION = "task"
 
     name: Literal["image-completion"] = "image-completion"
     """Task id."""
     target: GridTarget = "x"
     """Target shape. Paper and code: "x" (20 pixels); the others come from lagrseq's shape
     library (lines, square outline, right triangle, diamond, plus, oval), drawn across the grid."""
-    goal_threshold: float = 0.96
+    goal_threshold: float = ranged(0.96, gt=0, le=1)
     """Evaluation E (fraction of matching pixels) at which the bonus is paid and the image counts
     as complete. Paper: E > delta = 0.95, i.e. >= 0.96 on 100 pixels; code: 1.0 on the primary's
     steps (exact match), 0.95 on pi_LLM's steps (see env.guided_goal_threshold for
@@ -107,15 +311,17 @@ class ImageTaskConfig:
 
 
 @dataclass(frozen=True)
-class ArrangementTaskConfig:
+class ArrangementTaskConfig(_Section):
     """[task] of object arrangement, simulated (SPEC section 3): a 5 x 5 table."""
+
+    SECTION = "task"
 
     name: Literal["object-arrangement"] = "object-arrangement"
     """Task id."""
     target: GridTarget = "diamond"
     """Target arrangement. Paper and code: "diamond" (8 objects); the others come from lagrseq's
     shape library scaled to 5 x 5."""
-    goal_threshold: float = 1.0
+    goal_threshold: float = ranged(1.0, gt=0, le=1)
     """E at which the bonus is paid and the episode ends. Paper: E > delta = 0.99 and code: exact
     match, both 25/25 cells, i.e. 1.0."""
     prompt_matrix: Literal["numpy", "comma"] = "numpy"
@@ -127,12 +333,14 @@ class ArrangementTaskConfig:
 
 
 @dataclass(frozen=True)
-class ImageEnvConfig:
+class ImageEnvConfig(_Section):
     """[env] of image completion: scans, bonus, flips (SPEC 2.1)."""
 
-    scans: int = 5
+    SECTION = "env"
+
+    scans: int = ranged(5, ge=1)
     """Raster scans of the 100 pixels per episode. Paper: H = 500 steps; code: 5 scans."""
-    bonus: float = 1.0
+    bonus: float = ranged(1.0, ge=0)
     """Reward bonus b at the goal. Paper and code: 1."""
     goal_ends: Literal["episode", "scan"] = "episode"
     """What reaching the goal ends: the episode, or (code) only the current scan; the next scan
@@ -141,30 +349,24 @@ class ImageEnvConfig:
     """Undo, with reward 0, a flip that turns on a pixel that is off in the target (code: yes).
     The paper does not say, but its prompt states that "all the initial pixels are in their
     correct positions", which holds only with this rule, so both presets block."""
-    guided_goal_threshold: float = 0.96
+    guided_goal_threshold: float = ranged(0.96, gt=0, le=1)
     """E at which pi_LLM's steps earn the bonus when pi_LLM picks its own cell (task.guidance =
     "next-missing"). Code: E > 0.95 (LLMgreedy), while the primary's steps need
     task.goal_threshold = 1.0, so an accepted answer with 96-99 right pixels still earns it.
     Paper: one rule (unused with cell-by-cell guidance)."""
 
-    def __post_init__(self) -> None:
-        if self.scans < 1:
-            raise ConfigError(f"env.scans = {self.scans} must be at least 1")
-
 
 @dataclass(frozen=True)
-class ArrangementEnvConfig:
+class ArrangementEnvConfig(_Section):
     """[env] of object arrangement: horizon and bonus (SPEC 3.1). A drop is executed only when it
     is rewarded, and the episode ends at the goal (paper and code)."""
 
-    horizon: int = 50
-    """Steps per episode (H). Paper and code: 50."""
-    bonus: float = 1.0
-    """Reward bonus b at the goal. Paper and code: 1."""
+    SECTION = "env"
 
-    def __post_init__(self) -> None:
-        if self.horizon < 1:
-            raise ConfigError(f"env.horizon = {self.horizon} must be at least 1")
+    horizon: int = ranged(50, ge=1)
+    """Steps per episode (H). Paper and code: 50."""
+    bonus: float = ranged(1.0, ge=0)
+    """Reward bonus b at the goal. Paper and code: 1."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -174,28 +376,30 @@ EpsilonSchedule = Literal["divide-cumulative", "linear", "exponential", "inverse
 
 
 @dataclass(frozen=True)
-class TabularConfig:
+class TabularConfig(_Section):
     """[primary] tabular Q-learning (cube stacking)."""
+
+    SECTION = "primary"
 
     kind: Literal["tabular"] = "tabular"
     """Agent kind."""
-    learning_rate: float = 0.1
+    learning_rate: float = ranged(0.1, gt=0, le=1)
     """Step size alpha. Paper and code: 0.1."""
-    discount: float = 0.95
+    discount: float = ranged(0.95, ge=0, le=1)
     """Discount gamma. Paper and code: 0.95."""
     epsilon_schedule: EpsilonSchedule = "linear"
     """Exploration schedule over episodes. Paper: linear; code: divide-cumulative (at the start of
     episode i, epsilon <- max(epsilon / (i + 1), minimum): 1, 0.5, 0.167, then 0.05)."""
-    epsilon_start: float = 1.0
+    epsilon_start: float = ranged(1.0, ge=0, le=1)
     """Initial epsilon. Paper and code: 1."""
-    epsilon_min: float = 0.05
+    epsilon_min: float = ranged(0.05, ge=0, le=1)
     """Minimum epsilon. Paper and code: 0.05."""
-    epsilon_decay: float = 0.0
+    epsilon_decay: float = ranged(0.0, ge=0)
     """Linear: episodes to go from start to minimum (0 = half of run.episodes); exponential: the
     per-episode factor. Paper: linear, length not given."""
     epsilon_unit: Literal["episode", "step"] = "episode"
     """What the schedule counts: episodes (cube paper and code) or environment steps."""
-    epsilon_warmup: int = 0
+    epsilon_warmup: int = ranged(0, ge=0)
     """Steps at the start of a trial during which epsilon stays at epsilon_start."""
     invalid_actions: Literal["mask", "resample"] = "mask"
     """Adding a cube that is already in the stack: choose among valid actions only (mask) or, as the
@@ -207,71 +411,79 @@ class TabularConfig:
     """Next state used in the Q target: the observed s', or (code) the wrong stack before the revert,
     whose value is always 0 because the agent never stands in it."""
 
+    def _check(self) -> None:
+        _check_epsilon(self.SECTION, self)
+
 
 @dataclass(frozen=True)
-class TabularSecondaryConfig:
+class TabularSecondaryConfig(_Section):
     """[secondary] the SEQ agent as a tabular two-armed bandit over states (cube stacking)."""
+
+    SECTION = "secondary"
 
     kind: Literal["tabular"] = "tabular"
     """Agent kind."""
-    learning_rate: float = 0.1
+    learning_rate: float = ranged(0.1, gt=0, le=1)
     """Step size of the bandit update Q2[s,a] += lr (r2 - Q2[s,a]). Paper and code: 0.1."""
     epsilon_schedule: EpsilonSchedule = "linear"
     """Exploration schedule (same choices as the primary). Code: shares the primary's epsilon."""
-    epsilon_start: float = 1.0
+    epsilon_start: float = ranged(1.0, ge=0, le=1)
     """Initial epsilon. Paper and code: 1."""
-    epsilon_min: float = 0.05
+    epsilon_min: float = ranged(0.05, ge=0, le=1)
     """Minimum epsilon. Paper and code: 0.05."""
-    epsilon_decay: float = 0.0
+    epsilon_decay: float = ranged(0.0, ge=0)
     """As for the primary agent."""
     epsilon_unit: Literal["episode", "step"] = "episode"
     """As for the primary agent."""
-    epsilon_warmup: int = 0
+    epsilon_warmup: int = ranged(0, ge=0)
     """As for the primary agent."""
     query_reward: Literal["binary", "logistic"] = "binary"
     """Reward of a query: binary (reward_correct / reward_wrong) or the paper's appendix logistic
     1 / (1 + exp(-steepness (E/N - midpoint)))."""
-    reward_correct: float = 1.0
+    reward_correct: float = ranged(1.0)
     """Binary query reward for an accepted answer. Paper and code: +1."""
-    reward_wrong: float = -1.0
+    reward_wrong: float = ranged(-1.0)
     """Binary query reward for a rejected answer. Cube paper and code: -1 (grids: 0)."""
-    logistic_steepness: float = 20.0
+    logistic_steepness: float = ranged(20.0, ge=0, le=500)
     """p1 of the logistic query reward. Paper appendix: 20."""
-    logistic_midpoint: float = 0.9
+    logistic_midpoint: float = ranged(0.9, ge=0, le=1)
     """p2 of the logistic query reward (on the normalised evaluation E/N). Paper appendix: 0.9."""
+
+    def _check(self) -> None:
+        _check_epsilon(self.SECTION, self)
 
 
 def _check_network(section: str, hidden_sizes: tuple[int, ...], batch_size: int, buffer_size: int) -> None:
-    if not hidden_sizes or any(width < 1 for width in hidden_sizes):
+    if not hidden_sizes:
+        raise ConfigError(f"{section}.hidden_sizes = []; expected one positive width per hidden layer")
+    if buffer_size < batch_size:
         raise ConfigError(
-            f"{section}.hidden_sizes = {list(hidden_sizes)} must list one positive width per hidden layer"
-        )
-    if batch_size < 1 or buffer_size < batch_size:
-        raise ConfigError(
-            f"{section}.batch_size = {batch_size} must be at least 1 and at most "
-            f"{section}.buffer_size = {buffer_size}"
+            f"{section}.batch_size = {batch_size}; expected at most {section}.buffer_size = {buffer_size} "
+            "(a minibatch is drawn from the buffer)"
         )
 
 
 @dataclass(frozen=True)
-class DQNConfig:
+class DQNConfig(_Section):
     """[primary] deep Q-network (image completion, object arrangement; needs the dqn extra)."""
+
+    SECTION = "primary"
 
     kind: Literal["dqn"] = "dqn"
     """Agent kind."""
-    hidden_sizes: tuple[int, ...] = (128, 128)
+    hidden_sizes: tuple[int, ...] = ranged((128, 128), ge=1, le=4096)
     """Widths of the ReLU hidden layers; the output layer is linear. Paper and code: 128, 128
     (image), 64, 64 (arrangement)."""
-    learning_rate: float = 0.001
+    learning_rate: float = ranged(0.001, gt=0, le=1)
     """Adam step size. Paper and code: 1e-3."""
-    discount: float = 0.95
+    discount: float = ranged(0.95, ge=0, le=1)
     """Discount gamma. Paper and code: 0.95."""
-    batch_size: int = 32
+    batch_size: int = ranged(32, ge=1)
     """Minibatch of one optimiser step (one step per environment step). Paper: 32 (image), 16
     (arrangement); code: 64 (image), 16, each sample fitted separately."""
-    buffer_size: int = 10000
+    buffer_size: int = ranged(10000, ge=1, le=1_000_000)
     """Replay buffer capacity in transitions. Paper and code: 10000."""
-    target_update_interval: int = 0
+    target_update_interval: int = ranged(0, ge=0)
     """Optimiser steps between copies of the online network into the target network; 0 = no
     target network (bootstrap from the online network, as the released code does)."""
     normalise_observations: bool = True
@@ -280,97 +492,97 @@ class DQNConfig:
     epsilon_schedule: EpsilonSchedule = "exponential"
     """Exploration schedule. Paper: exponential, factor 0.998; code: inverse-episode
     (max(1/episode, 0.1)) with its 0.998 factor defined but unused."""
-    epsilon_start: float = 1.0
+    epsilon_start: float = ranged(1.0, ge=0, le=1)
     """Initial epsilon. Paper and code: 1."""
-    epsilon_min: float = 0.1
+    epsilon_min: float = ranged(0.1, ge=0, le=1)
     """Minimum epsilon. Paper and code: 0.1."""
-    epsilon_decay: float = 0.998
+    epsilon_decay: float = ranged(0.998, ge=0)
     """Per-unit factor of the exponential schedule (linear: its length). Paper: 0.998."""
     epsilon_unit: Literal["episode", "step"] = "step"
     """What the schedule counts. Paper: not said; per step (per episode, 0.998 would leave epsilon
     above 0.9 for a whole 10000-step trial). Code: inverse-episode counts episodes."""
-    epsilon_warmup: int = 0
+    epsilon_warmup: int = ranged(0, ge=0)
     """Steps during which epsilon stays at epsilon_start. Code: the batch size (epsilon is set
     inside the replay step, which waits for a full batch)."""
     device: Literal["cpu", "cuda", "auto"] = "cpu"
     """Where the networks run: cpu, cuda (an error without a GPU), auto (cuda when available)."""
-    cpu_threads: int = 1
+    cpu_threads: int = ranged(1, ge=0, le=1024)
     """torch's intra-op CPU threads for the whole process (torch.set_num_threads), 0 = leave
     torch's default (all cores). Networks this small run fastest on one thread: on a 2-core
     machine the default made a trial 3x slower, and parallel trials oversubscribe the cores."""
 
-    def __post_init__(self) -> None:
-        _check_network("primary", self.hidden_sizes, self.batch_size, self.buffer_size)
-        if self.cpu_threads < 0:
-            raise ConfigError(f"primary.cpu_threads = {self.cpu_threads} must be >= 0 (0: torch's default)")
-        if self.target_update_interval < 0:
-            raise ConfigError(
-                f"primary.target_update_interval = {self.target_update_interval} must be >= 0 (0: none)"
-            )
+    def _check(self) -> None:
+        _check_network(self.SECTION, self.hidden_sizes, self.batch_size, self.buffer_size)
+        _check_epsilon(self.SECTION, self)
 
 
 @dataclass(frozen=True)
-class NeuralSecondaryConfig:
+class NeuralSecondaryConfig(_Section):
     """[secondary] the SEQ agent as a neural two-armed bandit on the grid (needs the dqn extra).
 
     A multilayer perceptron maps the flattened grid to [value of not querying, value of querying];
     each decision is stored with its reward and one Adam step fits Q(s, a) to r (no bootstrapping:
     every decision ends, the paper's MAB setting)."""
 
+    SECTION = "secondary"
+
     kind: Literal["neural"] = "neural"
     """Agent kind."""
-    hidden_sizes: tuple[int, ...] = (128, 128)
+    hidden_sizes: tuple[int, ...] = ranged((128, 128), ge=1, le=4096)
     """Widths of the ReLU hidden layers. Code: 128, 128 (image), 64, 64 (arrangement)."""
-    learning_rate: float = 0.001
+    learning_rate: float = ranged(0.001, gt=0, le=1)
     """Adam step size. Paper and code: 1e-3."""
-    batch_size: int = 32
+    batch_size: int = ranged(32, ge=1)
     """Minibatch of one optimiser step per decision. Code: 64 (image), 16 (arrangement)."""
-    buffer_size: int = 10000
+    buffer_size: int = ranged(10000, ge=1, le=1_000_000)
     """Replay buffer capacity in decisions. Code: 10000."""
     epsilon_schedule: EpsilonSchedule = "exponential"
     """Exploration schedule. Code: constant 1.0 (never decays: SEQ is random querying with
     probability 1/2 and its network is trained but never consulted); paper: learned SEQ."""
-    epsilon_start: float = 1.0
+    epsilon_start: float = ranged(1.0, ge=0, le=1)
     """Initial epsilon. Paper and code: 1."""
-    epsilon_min: float = 0.1
+    epsilon_min: float = ranged(0.1, ge=0, le=1)
     """Minimum epsilon. Paper: 0.1."""
-    epsilon_decay: float = 0.998
+    epsilon_decay: float = ranged(0.998, ge=0)
     """Per-unit factor of the exponential schedule. Paper: 0.998."""
     epsilon_unit: Literal["episode", "step"] = "step"
     """What the schedule counts (environment steps or episodes)."""
-    epsilon_warmup: int = 0
+    epsilon_warmup: int = ranged(0, ge=0)
     """Steps during which epsilon stays at epsilon_start."""
     query_reward: Literal["binary", "logistic"] = "binary"
     """Reward of a query: binary or the paper appendix's logistic on E/N (N = cells)."""
-    reward_correct: float = 1.0
+    reward_correct: float = ranged(1.0)
     """Binary query reward for an accepted answer. Paper and code: 1."""
-    reward_wrong: float = 0.0
+    reward_wrong: float = ranged(0.0)
     """Binary query reward for a rejected answer. Grids, paper and code: 0."""
-    logistic_steepness: float = 20.0
+    logistic_steepness: float = ranged(20.0, ge=0, le=500)
     """p1 of the logistic query reward. Paper appendix: 20."""
-    logistic_midpoint: float = 0.9
+    logistic_midpoint: float = ranged(0.9, ge=0, le=1)
     """p2 of the logistic query reward (on E/N). Paper appendix: 0.9."""
     device: Literal["cpu", "cuda", "auto"] = "cpu"
     """Where the network runs (as for the primary agent)."""
 
-    def __post_init__(self) -> None:
-        _check_network("secondary", self.hidden_sizes, self.batch_size, self.buffer_size)
+    def _check(self) -> None:
+        _check_network(self.SECTION, self.hidden_sizes, self.batch_size, self.buffer_size)
+        _check_epsilon(self.SECTION, self)
 
 
 # --------------------------------------------------------------------------------------------
 # LaGR, LLM and run sections (shared by every task)
 # --------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class LagrConfig:
+class LagrConfig(_Section):
     """[lagr] when to ask the LLM and what to do with its answer (Algorithm 1)."""
+
+    SECTION = "lagr"
 
     trigger: Literal["positive-reward", "new-max-prefix", "every-step"] = "positive-reward"
     """When a query may happen. Paper: after a positive reward. Cube code: when the stack is taller
     than at this episode's previous query (new-max-prefix). Grid code: every step."""
-    threshold: float = 1.0
+    threshold: float = ranged(1.0, ge=0, le=1)
     """delta: an answer is accepted when its normalised evaluation E(s_LLM)/E(target) >= threshold.
     Cube: 1 (exact). The paper writes E > delta."""
-    follow_probability: float = 1.0
+    follow_probability: float = ranged(1.0, ge=0, le=1)
     """P: probability of taking pi_LLM's action once a solution is accepted. Paper experiments: 1."""
     solution_scope: Literal["episode", "trial"] = "episode"
     """How long an accepted solution is kept. Cube code: reset every episode; grid code: kept for
@@ -380,32 +592,52 @@ class LagrConfig:
 
 
 @dataclass(frozen=True)
-class LLMConfig:
+class LLMConfig(_Section):
     """[llm] what is asked of the language model."""
+
+    SECTION = "llm"
 
     model: str = "gpt-3.5-turbo"
     """Model name sent to the provider. Paper: GPT3 for cubes, GPT4 for grids."""
-    temperature: float = 0.0
+    temperature: float = ranged(0.0, ge=0, le=2)
     """Sampling temperature tau. Paper: 0 (Table 2 also 0.5 and 1)."""
-    max_tokens: int = 256
+    max_tokens: int = ranged(256, ge=1, le=1_000_000)
     """Completion token limit sent with every query."""
 
 
 @dataclass(frozen=True)
-class RunConfig:
+class RunConfig(_Section):
     """[run] length of a trial."""
 
-    episodes: int = 100
+    SECTION = "run"
+
+    episodes: int = ranged(100, ge=0)
     """Episodes per trial, 0 for no limit (then max_steps ends the trial). Cube code: 100."""
-    max_steps: int = 0
+    max_steps: int = ranged(0, ge=0)
     """Global environment-step budget per trial, 0 for none. Grid code: 10001 (image), 5001."""
 
-    def __post_init__(self) -> None:
-        if self.episodes < 0 or self.max_steps < 0 or not (self.episodes or self.max_steps):
+    def _check(self) -> None:
+        if not (self.episodes or self.max_steps):
             raise ConfigError(
                 f"run.episodes = {self.episodes} and run.max_steps = {self.max_steps}: "
-                "both must be >= 0 and at least one > 0"
+                "expected at least one > 0 (0 means no limit)"
             )
+
+
+def field_type(cls: type, name: str) -> Callable[[str], Any]:
+    """An argparse ``type=`` function for an option that sets the field ``name`` of ``cls``: it
+    accepts exactly what the field accepts (same range, same message)."""
+    (spec,) = [f for f in dataclasses.fields(cls) if f.name == name]
+    bounds = dataclasses.asdict(spec.metadata["range"])
+    integer = _hints(cls)[name] is int
+    return number_type(f"{name}_{'int' if integer else 'float'}", integer=integer, **{k: v for k, v in bounds.items() if v is not None})
+
+
+temperature_float: Callable[[str], float] = field_type(LLMConfig, "temperature")
+"""A sampling temperature: a finite number in [0, 2], the range of ``llm.temperature`` (and of
+OpenAI's API)."""
+max_tokens_int: Callable[[str], int] = field_type(LLMConfig, "max_tokens")
+"""A completion token limit: an integer in [1, 1000000], the range of ``llm.max_tokens``."""
 
 
 TaskConfig = CubeTaskConfig | ImageTaskConfig | ArrangementTaskConfig
@@ -495,14 +727,14 @@ def _coerce(section: str, name: str, hint: Any, value: Any) -> Any:
         for option in options:
             if value == option and type(value) is type(option):
                 return value
-        raise ConfigError(f"{where} = {value!r} is not allowed; expected one of {_allowed(hint)}")
+        raise ConfigError(f"{where} = {show_value(value)} is not allowed; expected one of {_allowed(hint)}")
     if origin in (Union, types.UnionType):
         for arm in get_args(hint):
             try:
                 return _coerce(section, name, arm, value)
             except ConfigError:
                 continue
-        raise ConfigError(f"{where} = {value!r} is not allowed; expected {_allowed(hint)}")
+        raise ConfigError(f"{where} = {show_value(value)} is not allowed; expected {_allowed(hint)}")
     if hint is type(None):
         if value is None:
             return None
@@ -514,7 +746,10 @@ def _coerce(section: str, name: str, hint: Any, value: Any) -> Any:
             return value
     elif hint is float:
         if isinstance(value, (int, float)) and not isinstance(value, bool):
-            return float(value)
+            try:
+                return float(value)
+            except OverflowError:  # an integer beyond any float: the range check says what is allowed
+                return value
     elif hint is str:
         if isinstance(value, str):
             return value
@@ -525,7 +760,7 @@ def _coerce(section: str, name: str, hint: Any, value: Any) -> Any:
     else:  # pragma: no cover - a field type this function does not know is a programming error
         raise TypeError(f"unsupported config field type {hint!r} for {where}")
     raise ConfigError(
-        f"{where} = {value!r} has the wrong type; expected {_allowed(hint)}, found {type(value).__name__}"
+        f"{where} = {show_value(value)} has the wrong type; expected {_allowed(hint)}, found {type(value).__name__}"
     )
 
 
@@ -536,7 +771,7 @@ def build_section(cls: type, section: str, data: Mapping[str, Any]) -> Any:
     unknown = sorted(set(data) - set(names))
     if unknown:
         raise ConfigError(
-            f"unknown field {section}.{unknown[0]}; fields of [{section}] are: {', '.join(names)}"
+            f"unknown field {section}.{show_name(unknown[0])}; fields of [{section}] are: {', '.join(names)}"
         )
     values = {k: _coerce(section, k, hints[k], v) for k, v in data.items()}
     return cls(**values)
@@ -548,7 +783,7 @@ def _merge(base: dict[str, Any], extra: Mapping[str, Any], origin: str) -> dict[
         if isinstance(value, Mapping):
             current = out.setdefault(key, {})
             if not isinstance(current, dict):
-                raise ConfigError(f"{origin}: [{key}] must be a table of fields")
+                raise ConfigError(f"{origin}: [{show_name(key)}] must be a table of fields")
             current.update(value)
         else:
             out[key] = value
@@ -564,16 +799,10 @@ def preset_path(task: str, preset: str) -> Path:
     return Path(str(resources.files("lagrseq") / "experiments" / task / f"{preset}.toml"))
 
 
-def read_toml(path: Path | str) -> dict[str, Any]:
-    """Read a TOML file, turning every failure into one ConfigError line."""
-    path = Path(path)
-    try:
-        with path.open("rb") as handle:
-            return tomllib.load(handle)
-    except FileNotFoundError:
-        raise ConfigError(f"config file {path} does not exist") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"config file {path} is not valid TOML: {exc}") from None
+def read_toml(path: Path | str, what: str = "config") -> dict[str, Any]:
+    """Read a TOML file (:func:`lagrseq.tomlfile.read_toml`): every failure is one ConfigError
+    line naming the path and the problem."""
+    return _read_toml_file(path, what)
 
 
 def parse_override(text: str) -> tuple[str, str, Any]:
@@ -586,9 +815,9 @@ def parse_override(text: str) -> tuple[str, str, Any]:
     if len(parts) != 2 or not all(parts):
         raise ConfigError(f"--set {text!r}: expected section.field=value, e.g. env.horizon=100")
     try:
-        value = tomllib.loads(f"v = {raw}")["v"]
-    except tomllib.TOMLDecodeError:
-        value = raw.strip()
+        value = _toml_value(raw)
+    except ValueError as exc:
+        raise ConfigError(f"--set {key.strip()}: the value cannot be read: {exc}") from None
     return parts[0], parts[1], value
 
 
@@ -598,22 +827,22 @@ def from_dict(data: Mapping[str, Any]) -> ExperimentConfig:
     if not isinstance(task_section, Mapping) or "name" not in task_section:
         raise ConfigError("configuration has no [task] name; expected e.g. name = \"cube-stacking\"")
     task = task_section["name"]
-    if task not in SECTIONS:
-        raise ConfigError(f"unknown task {task!r}; expected one of {', '.join(SECTIONS)}")
+    if not isinstance(task, str) or task not in SECTIONS:
+        raise ConfigError(f"unknown task {show_value(task)}; expected one of {', '.join(SECTIONS)}")
     classes = {**SECTIONS[task], **COMMON_SECTIONS}
     unknown = sorted(set(data) - set(classes) - {"method", "preset"})
     if unknown:
         raise ConfigError(
-            f"unknown section [{unknown[0]}]; sections are: {', '.join(['method', 'preset', *classes])}"
+            f"unknown section [{show_name(unknown[0])}]; sections are: {', '.join(['method', 'preset', *classes])}"
         )
     method = data.get("method")
     if method not in METHODS:
-        raise ConfigError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
+        raise ConfigError(f"unknown method {show_value(method)}; expected one of {', '.join(METHODS)}")
     sections = {}
     for name, cls in classes.items():
         raw = data.get(name, {})
         if not isinstance(raw, Mapping):
-            raise ConfigError(f"[{name}] must be a table of fields, found {raw!r}")
+            raise ConfigError(f"[{name}] must be a table of fields, found {show_value(raw)}")
         sections[name] = build_section(cls, name, raw)
     return ExperimentConfig(method=method, preset=str(data.get("preset", "custom")), **sections)
 
@@ -630,13 +859,15 @@ def load(
         raise ConfigError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
     data: dict[str, Any] = read_toml(preset_path(task, preset))
     if config_file is not None:
-        data = _merge(data, read_toml(config_file), str(config_file))
+        data = _merge(data, read_toml(config_file), _shown_path(config_file))
     for text in overrides:
         section, name, value = parse_override(text)
-        data = _merge(data, {section: {name: value}}, f"--set {text}")
+        data = _merge(data, {section: {name: value}}, f"--set {show_name(text)}")
     task_section = data.setdefault("task", {})
+    if not isinstance(task_section, dict):
+        raise ConfigError(f"task = {show_value(task_section)}; expected a [task] table of fields")
     if task_section.get("name", task) != task:
-        raise ConfigError(f"task.name = {task_section['name']!r} contradicts the task {task!r}")
+        raise ConfigError(f"task.name = {show_value(task_section['name'])} contradicts the task {task!r}")
     task_section["name"] = task
     data["method"] = method
     data["preset"] = preset

@@ -28,20 +28,25 @@ from lagrseq.errors import ConfigError
 RENDERERS = ("returns", "query-bars", "query-table", "ratio-table", "accuracy", "config-table")
 KINDS = ("trial", "accuracy")
 
-_INT_KEYS = (
-    "trials",
-    "episodes",
-    "max_steps",
-    "quick_trials",
-    "quick_episodes",
-    "quick_max_steps",
-    "samples",
-    "quick_samples",
-)
+# The integer keys of a run and their ranges (0 episodes / -1 max_steps: the preset's).
+_INT_RANGES = {
+    "trials": cfg.Range(ge=1),
+    "episodes": cfg.Range(ge=0),
+    "max_steps": cfg.Range(ge=-1),
+    "quick_trials": cfg.Range(ge=1),
+    "quick_episodes": cfg.Range(ge=0),
+    "quick_max_steps": cfg.Range(ge=-1),
+    "samples": cfg.Range(ge=1),
+    "quick_samples": cfg.Range(ge=1),
+}
+_INT_KEYS = tuple(_INT_RANGES)
+_SEED = cfg.Range(ge=0, le=cfg.INT64_MAX)
 _RUN_KEYS = {"label", "kind", "task", "method", "preset", "provider", "set", "row", "column"}
 _RUN_KEYS |= set(_INT_KEYS)
 _INHERITED = _RUN_KEYS - {"label", "row", "column"}
 _OPTIONS = ("x", "band", "window", "ylabel", "numerator", "denominator", "reference", "row_header")
+_CHOICES = {"x": ("episode", "global_step"), "band": ("std", "se")}
+_TEXT_KEYS = ("title", "caption", "note", "label", "provider", "ylabel", "numerator", "denominator", "row_header")
 _ITEM_KEYS = {"id", "title", "caption", "render", "runs", "note", *_OPTIONS} | _INHERITED
 
 
@@ -141,18 +146,57 @@ def default_path() -> Path:
     return Path(str(resources.files("lagrseq") / "experiments" / "paper_suite.toml"))
 
 
-def _int(where: str, key: str, value: Any) -> int:
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise ConfigError(f"{where}: {key} = {value!r} must be an integer")
+def _int(where: str, key: str, value: Any, allowed: cfg.Range) -> int:
+    expected = allowed.problem(value, integer=True)
+    if expected is not None:
+        raise ConfigError(f"{where}: {key} = {cfg.show_value(value)}; expected {expected}")
+    return int(value)
+
+
+def _table(where: str, value: Any) -> Mapping[str, Any]:
+    if not isinstance(value, Mapping):
+        raise ConfigError(f"{where} = {cfg.show_value(value)}; expected a table of keys")
     return value
+
+
+def _tables(where: str, value: Any) -> list[Mapping[str, Any]]:
+    if not isinstance(value, list) or not all(isinstance(v, Mapping) for v in value):
+        raise ConfigError(f"{where} = {cfg.show_value(value)}; expected a list of tables ([[{where}]])")
+    return value
+
+
+def _texts(where: str, data: Mapping[str, Any]) -> None:
+    """The keys that must be strings are strings; ``set`` is a list of strings."""
+    for key in _TEXT_KEYS:
+        if key in data and not isinstance(data[key], str):
+            raise ConfigError(f"{where}: {key} = {cfg.show_value(data[key])}; expected a string")
+    if "set" in data and not (isinstance(data["set"], list) and all(isinstance(s, str) for s in data["set"])):
+        raise ConfigError(f'{where}: set = {cfg.show_value(data["set"])}; expected a list of "section.field=value" strings')
+
+
+def _options(where: str, raw: Mapping[str, Any]) -> dict[str, Any]:
+    """The renderer options of an item, checked."""
+    options = {k: raw[k] for k in _OPTIONS if k in raw}
+    for key, choices in _CHOICES.items():
+        if key in options and options[key] not in choices:
+            raise ConfigError(
+                f"{where}: {key} = {cfg.show_value(options[key])}; expected one of {', '.join(choices)}"
+            )
+    if "window" in options:
+        _int(where, "window", options["window"], cfg.Range(ge=1))
+    reference = options.get("reference", {})
+    if not isinstance(reference, Mapping) or not all(isinstance(v, str) for v in reference.values()):
+        raise ConfigError(f'{where}: reference = {cfg.show_value(reference)}; expected a table of "key" = "text"')
+    return options
 
 
 def _run(item_id: str, index: int, defaults: Mapping[str, Any], data: Mapping[str, Any]) -> RunSpec:
     where = f"suite item {item_id!r}, run {index + 1}"
+    _texts(where, data)
     unknown = sorted(set(data) - _RUN_KEYS)
     if unknown:
         raise ConfigError(
-            f"{where}: unknown key {unknown[0]!r}; keys are: {', '.join(sorted(_RUN_KEYS))}"
+            f"{where}: unknown key {cfg.show_value(unknown[0])}; keys are: {', '.join(sorted(_RUN_KEYS))}"
         )
     merged = {**{k: v for k, v in defaults.items() if k in _INHERITED}, **data}
     merged["set"] = [*defaults.get("set", []), *data.get("set", [])]
@@ -161,18 +205,16 @@ def _run(item_id: str, index: int, defaults: Mapping[str, Any], data: Mapping[st
             raise ConfigError(f"{where}: {key} is missing (set it on the run or the item)")
     kind = merged.get("kind", "trial")
     if kind not in KINDS:
-        raise ConfigError(f"{where}: kind = {kind!r}; expected one of {', '.join(KINDS)}")
+        raise ConfigError(f"{where}: kind = {cfg.show_value(kind)}; expected one of {', '.join(KINDS)}")
     if merged["method"] not in cfg.METHODS:
         raise ConfigError(
-            f"{where}: method = {merged['method']!r}; expected one of {', '.join(cfg.METHODS)}"
+            f"{where}: method = {cfg.show_value(merged['method'])}; expected one of {', '.join(cfg.METHODS)}"
         )
-    if not all(isinstance(s, str) for s in merged["set"]):
-        raise ConfigError(f'{where}: set must be a list of "section.field=value" strings')
     for text in merged["set"]:
         section, name, _ = cfg.parse_override(text)
         if section == "run" and name in ("episodes", "max_steps"):
             raise ConfigError(f"{where}: give run.{name} as {name} / quick_{name}, not in set")
-    ints = {key: _int(where, key, merged[key]) for key in _INT_KEYS if key in merged}
+    ints = {key: _int(where, key, merged[key], _INT_RANGES[key]) for key in _INT_KEYS if key in merged}
     trials = ints.get("trials", 10)
     label = data.get("label")
     if not isinstance(label, str) or not label:
@@ -200,13 +242,18 @@ def _run(item_id: str, index: int, defaults: Mapping[str, Any], data: Mapping[st
 
 def load_suite(path: str | Path | None = None) -> Suite:
     """Read and check a suite file (default: the packaged ``paper_suite.toml``)."""
-    data = cfg.read_toml(default_path() if path is None else path)
-    head = data.get("suite", {})
-    seed = _int("[suite]", "seed", head.get("seed", 0))
+    data = cfg.read_toml(default_path() if path is None else path, "suite")
+    unknown_sections = sorted(set(data) - {"suite", "items"})
+    if unknown_sections:
+        raise ConfigError(f"suite: unknown section [{cfg.show_name(unknown_sections[0])}]; sections are: suite, items")
+    head = _table("suite", data.get("suite", {}))
+    seed = _int("[suite]", "seed", head.get("seed", 0), _SEED)
     provider = head.get("provider", "mock")
+    if not isinstance(provider, str) or not provider:
+        raise ConfigError(f"[suite]: provider = {cfg.show_value(provider)}; expected a provider spec such as \"mock\"")
     items = []
     seen: set[str] = set()
-    for raw in data.get("items", []):
+    for raw in _tables("items", data.get("items", [])):
         item_id = raw.get("id")
         if not isinstance(item_id, str) or not item_id:
             raise ConfigError("suite item without an id")
@@ -215,16 +262,18 @@ def load_suite(path: str | Path | None = None) -> Suite:
         seen.add(item_id)
         unknown = sorted(set(raw) - _ITEM_KEYS)
         if unknown:
-            raise ConfigError(f"suite item {item_id!r}: unknown key {unknown[0]!r}")
+            raise ConfigError(f"suite item {item_id!r}: unknown key {cfg.show_value(unknown[0])}")
+        _texts(f"suite item {item_id!r}", raw)
         render = raw.get("render")
         if render not in RENDERERS:
             raise ConfigError(
-                f"suite item {item_id!r}: render = {render!r}; expected one of {', '.join(RENDERERS)}"
+                f"suite item {item_id!r}: render = {cfg.show_value(render)}; expected one of {', '.join(RENDERERS)}"
             )
-        runs = tuple(_run(item_id, i, raw, r) for i, r in enumerate(raw.get("runs", [])))
+        listed = _tables(f"items.runs of suite item {item_id!r}", raw.get("runs", []))
+        runs = tuple(_run(item_id, i, raw, r) for i, r in enumerate(listed))
         if not runs:
             raise ConfigError(f"suite item {item_id!r} lists no runs")
-        options = {k: raw[k] for k in _OPTIONS if k in raw}
+        options = _options(f"suite item {item_id!r}", raw)
         items.append(
             Item(
                 id=item_id,

@@ -84,13 +84,13 @@ def test_presets_differ_only_in_fields(task: str) -> None:
 @pytest.mark.parametrize(
     ("override", "message"),
     [
-        ("primary.batch_size=20000", "primary.batch_size = 20000 must be at least 1 and at most"),
-        ("primary.hidden_sizes=[]", "primary.hidden_sizes = [] must list one positive width"),
+        ("primary.batch_size=20000", "primary.batch_size = 20000; expected at most primary.buffer_size = 10000"),
+        ("primary.hidden_sizes=[]", "primary.hidden_sizes = []; expected one positive width"),
         ("secondary.hidden_sizes=[64, 0]", "secondary.hidden_sizes"),
         ('task.target="heart"', "task.target = 'heart' is not allowed"),
         ("run.max_steps=0", "at least one > 0"),
         ("primary.device=\"tpu\"", "primary.device = 'tpu' is not allowed"),
-        ("env.scans=0", "env.scans = 0 must be at least 1"),
+        ("env.scans=0", "env.scans = 0; expected an integer >= 1"),
     ],
 )
 def test_bad_values_are_refused_in_one_line(override: str, message: str) -> None:

@@ -64,14 +64,42 @@ def test_runs_inherit_item_defaults(tmp_path: Path) -> None:
     [
         (('render = "query-table"', 'render = "pie"'), "render = 'pie'"),
         (('label = "a"', 'label = "a"\nbogus = 1'), "unknown key 'bogus'"),
-        (("trials = 4", 'trials = "four"'), "must be an integer"),
+        (("trials = 4", 'trials = "four"'), "trials = 'four'; expected an integer >= 1"),
         (('method = "lagr-seq"', 'method = "dqn"'), "method = 'dqn'"),
         (('set = ["env.horizon=20"]', 'set = ["run.episodes=20"]'), "give run.episodes"),
+        # values of the right type that make no sense, and values of the wrong shape
+        (("trials = 4", "trials = 0"), "trials = 0; expected an integer >= 1"),
+        (("quick_trials = 2", "quick_trials = -2"), "quick_trials = -2; expected an integer >= 1"),
+        (("episodes = 30", "episodes = -1"), "episodes = -1; expected an integer >= 0"),
+        (("quick_episodes = 5", "quick_episodes = 5\nsamples = 0"), "samples = 0; expected an integer >= 1"),
+        (("trials = 4", "trials = 99999999999999999999"), "expected an integer >= 1 \\(and below 2\\*\\*63\\)"),
+        (("seed = 3", "seed = -1"), "seed = -1; expected an integer in \\[0, 9223372036854775807\\]"),
+        (('provider = "mock"', "provider = 3"), "provider = 3; expected a provider spec"),
+        (('set = ["env.horizon=20"]', 'set = "env.horizon=20"'), "set = 'env.horizon=20'; expected a list of"),
+        (('label = "a"', "label = 1"), "label = 1; expected a string"),
+        (('render = "query-table"', 'render = "query-table"\nwindow = 0'), "window = 0; expected an integer >= 1"),
+        (('render = "query-table"', 'render = "query-table"\nx = "time"'), "x = 'time'; expected one of episode, global_step"),
+        (('render = "query-table"', 'render = "query-table"\nreference = 3'), "reference = 3; expected a table"),
+        (('[suite]\nseed = 3\nprovider = "mock"', "suite = 3"), "suite = 3; expected a table of keys"),
+        (("[[items]]", "[extra]\n[[items]]"), "unknown section \\[extra\\]"),
     ],
 )
 def test_bad_suites_give_one_line(tmp_path: Path, edit: tuple[str, str], message: str) -> None:
-    with pytest.raises(ConfigError, match=message):
-        load_suite(_write(tmp_path, SUITE.replace(*edit, 1)))
+    text = SUITE.replace(*edit, 1)
+    assert text != SUITE
+    with pytest.raises(ConfigError, match=message) as info:
+        load_suite(_write(tmp_path, text))
+    assert "\n" not in str(info.value)
+
+
+def test_items_and_runs_that_are_not_tables_give_one_line(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"^items = 3; expected a list of tables"):
+        load_suite(_write(tmp_path, "items = 3\n"))
+    with pytest.raises(ConfigError, match=r"^items = \['a'\]; expected a list of tables"):
+        load_suite(_write(tmp_path, 'items = ["a"]\n'))
+    text = SUITE.split("[[items.runs]]")[0] + "runs = [1, 2]\n"
+    with pytest.raises(ConfigError, match=r"items.runs of suite item 't' = \[1, 2\]; expected a list of tables"):
+        load_suite(_write(tmp_path, text))
 
 
 def test_select_keeps_suite_order_and_rejects_unknown_ids() -> None:

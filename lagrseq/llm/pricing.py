@@ -25,7 +25,7 @@ differs from its family's has an entry of its own.
 
 from __future__ import annotations
 
-import sys
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,11 +33,7 @@ from typing import Any
 
 from lagrseq.errors import ConfigError
 from lagrseq.llm.base import Query, Usage
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - exercised on Python 3.10 only
-    import tomli as tomllib
+from lagrseq.tomlfile import read_toml, shown
 
 MILLION = 1_000_000
 OPENAI_PRICING = "https://platform.openai.com/docs/pricing"
@@ -168,28 +164,27 @@ def _field(where: str, entry: Mapping[str, Any], name: str, kind: type, required
     if kind is float and isinstance(value, int) and not isinstance(value, bool):
         value = float(value)
     if not isinstance(value, kind) or isinstance(value, bool):
-        raise ConfigError(f"{where}.{name} = {value!r}: expected a {kind.__name__}")
+        raise ConfigError(f"{where}.{name} = {_clip(repr(value))}: expected a {kind.__name__}")
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ConfigError(f"{where}.{name} = {value!r}: expected a finite price >= 0")
     if isinstance(value, float) and value < 0:
         raise ConfigError(f"{where}.{name} = {value!r}: a price cannot be negative")
     return value
 
 
+def _clip(text: str, limit: int = 60) -> str:
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
+
 def read_price_table(path: str | Path, base: PriceTable | None = None) -> PriceTable:
     """Read a TOML price table (module docstring) over ``base`` (the built-in table by default)."""
-    path = Path(path)
-    try:
-        with path.open("rb") as handle:
-            data = tomllib.load(handle)
-    except FileNotFoundError:
-        raise ConfigError(f"price table {path} does not exist") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"price table {path} is not valid TOML: {exc}") from None
+    data = read_toml(path, "price table")
     models = data.get("models")
     if not isinstance(models, dict) or not models:
-        raise ConfigError(f'price table {path}: expected [models."NAME"] tables of prices')
+        raise ConfigError(f'price table file {shown(path)}: expected [models."NAME"] tables of prices')
     prices = []
     for name, entry in models.items():
-        where = f'{path.name}: models."{name}"'
+        where = f"price table file {shown(path)}: models.{_clip(repr(name))}"
         if not isinstance(entry, dict):
             raise ConfigError(f"{where} must be a table of fields")
         known = {"input_usd_per_mtok", "output_usd_per_mtok", "cached_input_usd_per_mtok", "source", "date"}

@@ -74,13 +74,18 @@ def test_a_toml_table_overrides_and_extends(tmp_path: Path) -> None:
         ('[models."m"]\ninput_usd_per_mtok = -1\noutput_usd_per_mtok = 1\nsource = "s"\ndate = "d"', "cannot be negative"),
         ('[models."m"]\ninput_usd_per_mtok = "1"\noutput_usd_per_mtok = 1\nsource = "s"\ndate = "d"', "expected a float"),
         ('[models."m"]\ninput = 1', "unknown field 'input'"),
+        ('[models."m"]\ninput_usd_per_mtok = nan\noutput_usd_per_mtok = 1\nsource = "s"\ndate = "d"', "input_usd_per_mtok = nan: expected a finite price >= 0"),
+        ('[models."m"]\ninput_usd_per_mtok = 1\noutput_usd_per_mtok = inf\nsource = "s"\ndate = "d"', "output_usd_per_mtok = inf: expected a finite price"),
+        ('[models."m"]\ninput_usd_per_mtok = 1\noutput_usd_per_mtok = 1\ncached_input_usd_per_mtok = -inf\nsource = "s"\ndate = "d"', "cached_input_usd_per_mtok = -inf: expected a finite"),
+        ('[models."m"]\ninput_usd_per_mtok = 1\noutput_usd_per_mtok = 1\nsource = "s"\ndate = "d"\n[models."a\\nb"]\ninput_usd_per_mtok = true', "models.'a\\\\nb'.input_usd_per_mtok = True: expected a float"),
     ],
 )
 def test_a_bad_table_is_one_clear_error(tmp_path: Path, text: str, message: str) -> None:
     path = tmp_path / "prices.toml"
     path.write_text(text)
-    with pytest.raises(ConfigError, match=message):
+    with pytest.raises(ConfigError, match=message) as info:
         read_price_table(path)
+    assert str(info.value).startswith(f"price table file {path}") and "\n" not in str(info.value)
 
 
 def test_a_missing_table_file() -> None:
