@@ -201,9 +201,11 @@ def files_and_contents(root: Path) -> Iterator[tuple[Path, str]]:
         data = path.read_bytes()
         yield path, data.decode("latin-1")
         try:
-            yield path, zlib.decompress(data).decode("latin-1")
+            unpacked: str | None = zlib.decompress(data).decode("latin-1")
         except zlib.error:
-            pass
+            unpacked = None
+        if unpacked is not None:
+            yield path, unpacked
         if data.startswith(b"SQLite format 3"):
             with sqlite3.connect(f"file:{path}?mode=ro", uri=True) as db:
                 for key, value in db.execute("SELECT key, value FROM Cache"):
