@@ -13,7 +13,9 @@ whatever the operator chose), and 8 random base-62 characters carry about 48 bit
 window of a key turning up in an innocent answer by chance is negligible, while any echo long
 enough to be recognised as part of the key (and to help anyone guess it) is caught. Pieces shorter
 than 8 characters are not recognisable and are left; a key split into two fields leaves pieces of
-at least half its length, which are caught. A key shorter than 8 characters is redacted only whole.
+at least half its length, which are caught. A key shorter than 8 characters is redacted only whole
+and only in its own case (such a key, ``EMPTY`` or ``ollama`` for a local server, is no secret
+and is easily mistaken for ordinary words, which should not be blanked out of answers).
 
 The scan is linear in the text: every window is packed into one 64-bit integer (8 characters of
 8 bits: the key is printable ASCII and anything else maps to a code no key has) and looked up among
@@ -37,13 +39,16 @@ _KEY_LIKE = re.compile(r"\b(sk|key|api[_-]?key)[-_][A-Za-z0-9_\-*.]{6,}", re.IGN
 _NOT_ASCII = 0x80  # the code of every non-ASCII character in a packed window (never in a key)
 
 
-def _codes(text: str) -> np.ndarray:
-    """The characters of ``text`` as uint8 codes: ASCII lower-cased, everything else 0x80."""
+def _codes(text: str, fold: bool) -> np.ndarray:
+    """The characters of ``text`` as uint8 codes: ASCII (lower-cased if ``fold``), everything else
+    0x80."""
     if text.isascii():
-        return np.frombuffer(text.encode("ascii").lower(), dtype=np.uint8)
+        data = text.encode("ascii")
+        return np.frombuffer(data.lower() if fold else data, dtype=np.uint8)
     wide = np.frombuffer(text.encode("utf-32-le", "surrogatepass"), dtype="<u4")
-    upper = (wide >= 65) & (wide <= 90)
-    return np.where(upper, wide + 32, np.minimum(wide, _NOT_ASCII)).astype(np.uint8)
+    if fold:
+        wide = np.where((wide >= 65) & (wide <= 90), wide + 32, wide)
+    return np.minimum(wide, _NOT_ASCII).astype(np.uint8)
 
 
 def _windows(codes: np.ndarray, width: int) -> np.ndarray:
@@ -62,17 +67,18 @@ def _windows(codes: np.ndarray, width: int) -> np.ndarray:
 class Redactor:
     """Blanks a secret, and every recognisable fragment of it, out of text (module docstring)."""
 
-    __slots__ = ("_grams", "_pairs", "_width")
+    __slots__ = ("_fold", "_grams", "_pairs", "_width")
 
     def __init__(self, secret: str, min_fragment: int = MIN_FRAGMENT) -> None:
         if not 1 <= min_fragment <= 8:
             raise ValueError("min_fragment must be between 1 and 8 (8 characters fill 64 bits)")
         self._width = min(min_fragment, len(secret))
+        self._fold = len(secret) >= min_fragment  # a short key is matched in its own case only
         if not secret or not secret.isascii():
             self._grams = np.zeros(0, dtype=np.uint64)  # nothing to find (a non-ASCII key is refused)
             self._pairs = np.zeros(0, dtype=bool)
             return
-        codes = _codes(secret)
+        codes = _codes(secret, self._fold)
         if len(secret) < min_fragment:  # too short for fragments to mean anything: the whole key only
             self._grams = _windows(codes, len(secret))[:1]
         else:
@@ -92,7 +98,7 @@ class Redactor:
         width = self._width
         if not self._grams.size or len(text) < width:
             return text
-        windows = _windows(_codes(text), width)
+        windows = _windows(_codes(text, self._fold), width)
         maybe = np.flatnonzero(self._pairs[(windows & np.uint64(0xFFFF)).astype(np.intp)])
         found = np.searchsorted(self._grams, windows[maybe])  # the grams are sorted and distinct
         found[found == self._grams.size] = 0
