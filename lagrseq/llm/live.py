@@ -16,20 +16,46 @@ Failures, as the OpenAI client libraries treat them:
   ``insufficient_quota`` (no amount of waiting helps); a 200 whose body is empty, not JSON, or not a
   chat completion.
 
+Limits, so that no server can hang a run or fill its memory (:class:`LiveSettings`):
+
+- ``request_deadline_s`` (300 s): the most one request may take, from sending it to the last byte
+  of the response. Once the response has begun, a watchdog shuts its connection down at the
+  deadline, so even a server that sends a byte a second for ever is cut off on time; before that,
+  connecting, sending and waiting for the headers are each limited to the smaller of their timeout
+  and the deadline. An overrun counts as a timeout: retried, within ``max_retries``.
+- ``read_timeout_s`` (120 s): the longest wait for the next bytes of a response (a timeout,
+  retried).
+- ``max_response_bytes`` (4 MiB, some thousand times a chat completion): the largest body read,
+  counted after decompression (lagrseq asks for gzip or deflate only and decompresses in bounded
+  steps, so a compressed bomb is stopped at the cap too). A larger body, or a larger declared
+  ``Content-Length``, fails the request at once and is not retried: the same server would send it
+  again.
+
+Token counts are not taken on trust either: the usage a server reports is believed up to what the
+request can have used (:func:`believed_usage`): completion tokens up to ``n * max_tokens``, prompt
+tokens up to :func:`~lagrseq.llm.pricing.prompt_token_bound` (the bound the budget guard uses), and
+a missing, negative or fractional count is unknown and counted as that bound. ``on_warning`` is told
+once per kind of distrust.
+
 Every failure is one :class:`~lagrseq.errors.ProviderError` line saying what happened and what to
 do. The API key is read from the environment (``OPENAI_API_KEY`` or the variable named by
-``--api-key-env``), kept in a :class:`Secret` that never prints, sent only in the ``Authorization``
-header, and redacted from anything the server echoes back.
+``--api-key-env``), must be printable ASCII (HTTP headers carry nothing else), is kept in a
+:class:`Secret` that never prints, sent only in the ``Authorization`` header, and redacted, whole
+or in recognisable part (:mod:`lagrseq.llm.redaction`), from every string the server sends back
+before it reaches an answer, a store, an exception or a callback.
 """
 
 from __future__ import annotations
 
+import contextlib
 import email.utils
 import json
 import math
 import os
-import re
+import socket
+import threading
 import time
+import zlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -38,9 +64,10 @@ import httpx
 import numpy as np
 
 from lagrseq import __version__
-from lagrseq.errors import ProviderError
+from lagrseq.errors import ConfigError, ProviderError
 from lagrseq.llm.base import Answer, Query, Usage
-from lagrseq.llm.pricing import PriceTable
+from lagrseq.llm.pricing import PriceTable, prompt_token_bound
+from lagrseq.llm.redaction import Redactor, clip, redact_key_like
 from lagrseq.llm.servers import DEFAULT_BASE_URL, SERVER_KINDS
 from lagrseq.llm.store import endpoint_of
 
@@ -58,7 +85,13 @@ class LiveSettings:
     connect_timeout_s: float = 10.0
     """Seconds to open a connection (also the write and pool timeouts)."""
     read_timeout_s: float = 120.0
-    """Seconds to wait for the next bytes of a response."""
+    """Seconds to wait for the next bytes of a response (at most ``request_deadline_s``)."""
+    request_deadline_s: float = 300.0
+    """Seconds one request may take, from sending it to the last byte of the response; an overrun
+    is a failed attempt, retried like a timeout."""
+    max_response_bytes: int = 4 * 1024 * 1024
+    """Largest response body read (after decompression); a larger one fails the request, not
+    retried."""
     max_retries: int = 5
     """Retries after the first attempt (0: fail on the first retryable error)."""
     backoff_initial_s: float = 0.5
@@ -72,13 +105,29 @@ class LiveSettings:
 
     def __post_init__(self) -> None:
         if self.server not in SERVER_KINDS:
-            raise ProviderError(
+            raise ConfigError(
                 f"unknown server kind {self.server!r}; expected one of {', '.join(SERVER_KINDS)}"
             )
-        if self.max_retries < 0 or self.backoff_initial_s < 0 or not 0 <= self.jitter <= 1:
-            raise ProviderError(
-                "retry settings out of range: max_retries >= 0, backoff_initial_s >= 0, 0 <= jitter <= 1"
-            )
+        for name in ("connect_timeout_s", "read_timeout_s", "request_deadline_s"):
+            _check_setting(name, getattr(self, name), "a finite number of seconds > 0", low=0.0, low_ok=False)
+        for name in ("backoff_initial_s", "backoff_max_s", "max_retry_after_s"):
+            _check_setting(name, getattr(self, name), "a finite number of seconds >= 0", low=0.0)
+        _check_setting("jitter", self.jitter, "a number from 0 to 1", low=0.0, high=1.0)
+        _check_setting("max_retries", self.max_retries, "a whole number >= 0", low=0, integer=True)
+        _check_setting("max_response_bytes", self.max_response_bytes, "a whole number of bytes >= 1", low=1, integer=True)
+
+
+def _check_setting(
+    name: str, value: Any, expected: str, low: float, low_ok: bool = True, high: float | None = None, integer: bool = False
+) -> None:
+    """Raise ConfigError unless ``value`` is a finite number (an int if ``integer``) in range."""
+    if isinstance(value, bool) or not isinstance(value, int if integer else (int, float)):
+        ok = False
+    else:
+        ok = (isinstance(value, int) or math.isfinite(value)) and (value >= low if low_ok else value > low)
+        ok = ok and (high is None or value <= high)
+    if not ok:
+        raise ConfigError(f"live setting {name} = {value!r} is out of range: expected {expected}")
 
 
 class Secret:
@@ -107,19 +156,12 @@ class Secret:
         return bool(self._value)
 
 
-_KEY_LIKE = re.compile(r"\b(sk|key|api[_-]?key)[-_][A-Za-z0-9_\-*.]{6,}", re.IGNORECASE)
-
-
 def redact(text: str, secret: Secret | None) -> str:
-    """``text`` with the key, and anything that looks like an API key, blanked out."""
+    """``text`` with the key, its recognisable fragments and anything that looks like an API key
+    blanked out (for messages; answers go through :class:`~lagrseq.llm.redaction.Redactor` only)."""
     if secret and secret.reveal():
-        text = text.replace(secret.reveal(), "****")
-    return _KEY_LIKE.sub(lambda m: m.group(1) + "-****", text)
-
-
-def _clip(text: str, width: int = 200) -> str:
-    one = " ".join(text.split())
-    return one if len(one) <= width else one[: width - 3] + "..."
+        text = Redactor(secret.reveal()).text(text)
+    return redact_key_like(text)
 
 
 def parse_retry_after(headers: Mapping[str, str], now: float | None = None) -> float | None:
@@ -160,6 +202,93 @@ class _Retry(Exception):
         self.retry_after = retry_after
 
 
+class _Watchdog:
+    """Shuts the connection of ``response`` down at ``deadline`` (a perf_counter time), so that a
+    read blocked on a server that stalls or trickles ends then, whatever the read timeout. Without
+    a socket to shut (a mock transport), the reader's own deadline checks remain."""
+
+    def __init__(self, response: httpx.Response, deadline: float) -> None:
+        self.fired = False
+        self._lock = threading.Lock()
+        self._done = False
+        self._sock: socket.socket | None = None
+        self._timer: threading.Timer | None = None
+        stream = response.extensions.get("network_stream")
+        try:
+            sock = stream.get_extra_info("socket") if stream is not None else None
+        except Exception:  # an unusual transport: no socket to shut
+            sock = None
+        if isinstance(sock, socket.socket):
+            self._sock = sock
+            self._timer = threading.Timer(max(deadline - time.perf_counter(), 0.0), self._fire)
+            self._timer.daemon = True
+            self._timer.start()
+
+    def _fire(self) -> None:
+        with self._lock:
+            if self._done or self._sock is None:
+                return
+            self.fired = True
+            # the plain socket's shutdown (an SSL socket's own would unwrap it under the reader)
+            with contextlib.suppress(OSError):
+                socket.socket.shutdown(self._sock, socket.SHUT_RDWR)
+
+    def cancel(self) -> None:
+        with self._lock:
+            self._done = True
+        if self._timer is not None:
+            self._timer.cancel()
+
+
+class _Decoder:
+    """Undoes the response's Content-Encoding (none, gzip or deflate) in steps that never produce
+    more than the room left under the size cap, so a compressed bomb costs no more memory than the
+    cap. Any other encoding is refused (lagrseq asks for gzip or deflate only)."""
+
+    def __init__(self, encoding: str, url: str) -> None:
+        self.url = url
+        name = encoding.strip().lower()
+        self._raw_fallback = False
+        if name in ("", "identity"):
+            self._z: Any = None
+        elif name in ("gzip", "x-gzip"):
+            self._z = zlib.decompressobj(zlib.MAX_WBITS | 16)
+        elif name == "deflate":
+            self._z = zlib.decompressobj()
+            self._raw_fallback = True  # "deflate" is zlib-wrapped by the standard, raw by some servers
+        else:
+            raise ProviderError(
+                f"{url}: the response is encoded as {clip(name, 40)!r}, which lagrseq did not ask for "
+                "(it accepts gzip and deflate); check --base-url and any proxy in between"
+            )
+
+    def decode(self, data: bytes, room: int) -> bytes:
+        """At most ``room + 1`` decoded bytes of ``data`` (more than ``room``: over the cap)."""
+        if self._z is None:
+            return data[: room + 1]
+        try:
+            return bytes(self._z.decompress(data, room + 1))
+        except zlib.error:
+            if not self._raw_fallback:
+                raise self._bad() from None
+            self._raw_fallback = False
+            self._z = zlib.decompressobj(-zlib.MAX_WBITS)
+            return self.decode(data, room)
+        finally:
+            self._raw_fallback = False
+
+    def flush(self, room: int) -> bytes:
+        if self._z is None:
+            return b""
+        try:
+            return bytes(self._z.flush())[: room + 1]
+        except zlib.error:
+            raise self._bad() from None
+
+    def _bad(self) -> ProviderError:
+        return ProviderError(f"{self.url}: the compressed response is damaged; check the server")
+
+
 class LiveProvider:
     """Ask an OpenAI-compatible server. A context manager; ``close`` is idempotent.
 
@@ -179,6 +308,7 @@ class LiveProvider:
         environ: Mapping[str, str] | None = None,
         on_retry: Callable[[str], None] | None = None,
         sleep: Callable[[float], None] = time.sleep,
+        on_warning: Callable[[str], None] | None = None,
     ) -> None:
         self.settings = settings or LiveSettings()
         self.kind = SERVER_KINDS[self.settings.server]
@@ -187,21 +317,27 @@ class LiveProvider:
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self.prices = prices if prices is not None else PriceTable()
         self.on_retry = on_retry
+        self.on_warning = on_warning if on_warning is not None else on_retry
+        """Told once per kind of distrusted usage (defaults to ``on_retry``)."""
+        self._warned: set[str] = set()
         self._sleep = sleep
         value = (os.environ if environ is None else environ).get(self.settings.api_key_env, "")
-        self._key = Secret(value.strip())
+        self._key = Secret(_checked_key(value.strip(), self.settings.api_key_env))
+        self._redactor = Redactor(self._key.reveal())
         if not self._key and (self.endpoint == "api.openai.com" or self.settings.api_key_env != "OPENAI_API_KEY"):
             raise ProviderError(
                 f"environment variable {self.settings.api_key_env} is not set; export your API key "
                 "there, or name another variable with --api-key-env"
             )
-        timeout = httpx.Timeout(
-            self.settings.read_timeout_s,
-            connect=self.settings.connect_timeout_s,
-            write=self.settings.connect_timeout_s,
-            pool=self.settings.connect_timeout_s,
+        s = self.settings
+        # Every phase is limited by the request deadline too (see the module docstring).
+        self._timeout = httpx.Timeout(
+            min(s.read_timeout_s, s.request_deadline_s),
+            connect=min(s.connect_timeout_s, s.request_deadline_s),
+            write=min(s.connect_timeout_s, s.request_deadline_s),
+            pool=min(s.connect_timeout_s, s.request_deadline_s),
         )
-        self._client = httpx.Client(timeout=timeout, transport=transport, follow_redirects=False)
+        self._client = httpx.Client(timeout=self._timeout, transport=transport, follow_redirects=False)
         self._closed = False
 
     @property
@@ -260,6 +396,7 @@ class LiveProvider:
         headers = {
             "Content-Type": "application/json",
             "Accept": "application/json",
+            "Accept-Encoding": "gzip, deflate",  # what _Decoder undoes in bounded steps
             "User-Agent": f"lagrseq/{__version__}",
         }
         if self._key:
@@ -301,32 +438,89 @@ class LiveProvider:
         return delay * (1.0 - s.jitter * float(self.rng.random()))
 
     def _attempt(self, query: Query, body: dict[str, Any], n: int) -> list[Answer]:
+        s = self.settings
         started = time.perf_counter()
+        deadline = started + s.request_deadline_s
+        watchdog: _Watchdog | None = None
         try:
-            response = self._client.post(self.url, json=body, headers=self._headers())
+            with self._client.stream("POST", self.url, json=body, headers=self._headers()) as response:
+                watchdog = _Watchdog(response, deadline)
+                try:
+                    data = self._read(response, deadline, watchdog)
+                except _Retry:
+                    raise
+                except (httpx.HTTPError, ProviderError):
+                    if watchdog.fired:
+                        raise self._overrun() from None
+                    raise
+                except Exception:  # a read interrupted by the watchdog (e.g. an unwrapped TLS socket)
+                    if watchdog.fired:
+                        raise self._overrun() from None
+                    raise
+                finally:
+                    watchdog.cancel()
         except httpx.TimeoutException as exc:
+            if time.perf_counter() - started >= s.request_deadline_s * 0.999:
+                raise self._overrun() from None
             phase = {"ConnectTimeout": "connect", "ReadTimeout": "read", "WriteTimeout": "write", "PoolTimeout": "pool"}
             which = phase.get(type(exc).__name__, "")
-            limit = self.settings.read_timeout_s if which == "read" else self.settings.connect_timeout_s
+            limit = self._timeout.read if which == "read" else self._timeout.connect
             raise _Retry(f"no response within the {limit:g} s {which} timeout".replace("  ", " ")) from None
         except (httpx.NetworkError, httpx.RemoteProtocolError) as exc:
-            raise _Retry(f"connection failed ({type(exc).__name__}: {redact(str(exc), self._key)})") from None
+            raise _Retry(f"connection failed ({type(exc).__name__}: {self._redactor.diagnostic(str(exc))})") from None
         except httpx.HTTPError as exc:  # bad URL, unsupported scheme, proxy trouble: not transient
             raise ProviderError(
-                f"{self.url}: cannot send the request ({type(exc).__name__}: {redact(str(exc), self._key)}); "
+                f"{self.url}: cannot send the request ({type(exc).__name__}: {self._redactor.diagnostic(str(exc))}); "
                 "check --base-url"
             ) from None
         latency = time.perf_counter() - started
         if response.status_code != 200:
-            self._refuse(response, query)
-        return self._answers(response, query, n, latency)
+            self._refuse(response.status_code, response.headers, data, query)
+        return self._answers(data, query, n, latency)
 
-    def _refuse(self, response: httpx.Response, query: Query) -> None:
+    def _overrun(self) -> _Retry:
+        return _Retry(
+            f"the response did not end within the {self.settings.request_deadline_s:g} s request deadline"
+        )
+
+    def _read(self, response: httpx.Response, deadline: float, watchdog: _Watchdog) -> bytes:
+        """The body of ``response``, decoded, at most ``max_response_bytes``; _Retry past the
+        deadline, ProviderError (not retried) when it is larger."""
+        limit = self.settings.max_response_bytes
+        declared = response.headers.get("content-length", "").strip()
+        if declared.isdigit() and len(declared) < 30 and int(declared) > limit:
+            raise self._too_large(f"it declares {int(declared)} bytes")
+        decoder = _Decoder(response.headers.get("content-encoding", ""), self.url)
+        chunks: list[bytes] = []
+        size = 0
+        for raw in response.iter_raw():
+            piece = decoder.decode(raw, limit - size)
+            size += len(piece)
+            if size > limit:
+                raise self._too_large("it went on past that")
+            chunks.append(piece)
+            if time.perf_counter() > deadline:
+                raise self._overrun()
+        tail = decoder.flush(limit - size)
+        if size + len(tail) > limit:
+            raise self._too_large("it went on past that")
+        if watchdog.fired:  # the body "ended" because the watchdog closed the connection
+            raise self._overrun()
+        chunks.append(tail)
+        return b"".join(chunks)
+
+    def _too_large(self, what: str) -> ProviderError:
+        return ProviderError(
+            f"{self.url}: the response is larger than max_response_bytes = {self.settings.max_response_bytes} "
+            f"({what}); not retried: a chat completion is far smaller, so check --base-url, or raise "
+            "--max-response-bytes for a server you trust"
+        )
+
+    def _refuse(self, status: int, headers: httpx.Headers, data: bytes, query: Query) -> None:
         """Raise for a non-200 response: ``_Retry`` if it is worth retrying, else ProviderError."""
-        status = response.status_code
-        kind, message = self._error_of(response)
+        kind, message = self._error_of(data)
         said = f"HTTP {status}" + (f" {kind}" if kind else "") + (f": {message}" if message else "")
-        should = response.headers.get("x-should-retry", "").lower()
+        should = headers.get("x-should-retry", "").strip().lower()
         if kind == "insufficient_quota":
             raise ProviderError(
                 f"{self.url}: {said}; the account behind {self.settings.api_key_env} has no quota left "
@@ -334,7 +528,7 @@ class LiveProvider:
             )
         retryable = status in (408, 409, 429) or status >= 500
         if should == "true" or (retryable and should != "false"):
-            raise _Retry(said, parse_retry_after(response.headers))
+            raise _Retry(said, parse_retry_after(headers))
         hint = {
             400: "the server rejected the request",
             401: f"the key in {self.settings.api_key_env} was refused; check it",
@@ -344,65 +538,68 @@ class LiveProvider:
         }.get(status, "not retried")
         raise ProviderError(f"{self.url}: {said}; {hint}")
 
-    def _error_of(self, response: httpx.Response) -> tuple[str, str]:
-        """(error type or code, message) from an error body in OpenAI's or vLLM's shape."""
+    def _error_of(self, data: bytes) -> tuple[str, str]:
+        """(error type or code, message) from an error body in OpenAI's or vLLM's shape, redacted."""
+        show = self._redactor
         try:
-            data = response.json()
-        except (json.JSONDecodeError, UnicodeDecodeError, ValueError):
-            return "", redact(_clip(response.text), self._key)
-        error = data.get("error", data) if isinstance(data, dict) else data
+            parsed = json.loads(data)
+        except (ValueError, RecursionError):  # not JSON, not UTF-8, or nested past Python's limit
+            return "", show.diagnostic(data[:4096].decode("utf-8", "replace"))
+        error = parsed.get("error", parsed) if isinstance(parsed, dict) else parsed
         if isinstance(error, dict):
             code = error.get("code")
             kind = error.get("type")
-            name = "insufficient_quota" if "insufficient_quota" in (code, kind) else str(kind or code or "")
+            if "insufficient_quota" in (code, kind):
+                name = "insufficient_quota"
+            else:
+                name = show.diagnostic(str(kind or code or ""), 60) if isinstance(kind or code or "", (str, int)) else ""
             message = error.get("message") or error.get("detail") or ""
-            return name, redact(_clip(str(message)), self._key)
-        return "", redact(_clip(str(error)), self._key)
+            return name, show.diagnostic(message) if isinstance(message, str) else show.shown(message, 200)
+        return "", show.shown(error, 200)
 
-    def _answers(self, response: httpx.Response, query: Query, n: int, latency: float) -> list[Answer]:
+    def _answers(self, data: bytes, query: Query, n: int, latency: float) -> list[Answer]:
         where = f"{self.url}: HTTP 200 but"
-        if not response.content.strip():
+        show = self._redactor
+        if not data.strip():
             raise ProviderError(f"{where} the body is empty; the server may be misconfigured")
         try:
-            data = response.json()
-        except (json.JSONDecodeError, UnicodeDecodeError, ValueError):
+            parsed = json.loads(data)
+        except (ValueError, RecursionError):
             raise ProviderError(
-                f"{where} the body is not JSON ({redact(_clip(response.text, 80), self._key)!r}); "
+                f"{where} the body is not JSON ({show.diagnostic(data[:4096].decode('utf-8', 'replace'), 80)!r}); "
                 "is --base-url an OpenAI-compatible API root (ending in /v1)?"
             ) from None
-        choices = data.get("choices") if isinstance(data, dict) else None
+        choices = parsed.get("choices") if isinstance(parsed, dict) else None
         if not isinstance(choices, list) or not choices:
-            raise ProviderError(f"{where} the body has no choices ({redact(_clip(json.dumps(data), 120), self._key)})")
+            raise ProviderError(f"{where} the body has no choices ({show.shown(parsed)})")
         texts: list[tuple[str, str | None]] = []
-        for choice in sorted(choices, key=lambda c: c.get("index", 0) if isinstance(c, dict) else 0):
+        for choice in sorted(choices, key=_choice_index):
             message = choice.get("message") if isinstance(choice, dict) else None
             if not isinstance(message, dict):
-                raise ProviderError(f"{where} a choice has no message ({_clip(json.dumps(choice), 120)})")
+                raise ProviderError(f"{where} a choice has no message ({show.shown(choice)})")
             content = message.get("content")
             if content is not None and not isinstance(content, str):
                 raise ProviderError(f"{where} a message's content is not text ({type(content).__name__})")
-            finish = choice.get("finish_reason")
-            texts.append((content or "", finish if isinstance(finish, str) else None))
+            texts.append((show.text(content or ""), show.optional(choice.get("finish_reason"))))
         texts = texts[:n]
-        raw_usage = data.get("usage")
-        usage_known = isinstance(raw_usage, dict)
-        usage = raw_usage if isinstance(raw_usage, dict) else {}
-        details = usage.get("prompt_tokens_details") or {}
-        prompt = _int(usage.get("prompt_tokens"))
-        completion = _int(usage.get("completion_tokens"))
-        cached = _int(details.get("cached_tokens")) if isinstance(details, dict) else 0
+        usage, notes = believed_usage(parsed.get("usage"), query, n)
+        for kind, note in notes:
+            self._warn(kind, note)
         # The server reports usage for the whole request; with several choices it is shared out
         # evenly (integer parts that sum to the totals), so summed costs equal the request's.
         parts = len(texts)
-        model = data.get("model") if isinstance(data.get("model"), str) else query.model
-        fingerprint = data.get("system_fingerprint")
-        response_id = data.get("id") if isinstance(data.get("id"), str) else None
+        model = show.optional(parsed.get("model")) or query.model
+        fingerprint = show.optional(parsed.get("system_fingerprint"))
+        response_id = show.optional(parsed.get("id"))
         answers = []
         for (text, finish), p, c, k in zip(
-            texts, _split(prompt, parts), _split(completion, parts), _split(cached, parts), strict=True
+            texts,
+            _split(usage.prompt_tokens, parts),
+            _split(usage.completion_tokens, parts),
+            _split(usage.cached_tokens, parts),
+            strict=True,
         ):
             share = Usage(p, c, k)
-            cost = self.prices.cost(share, model, query.model) if usage_known else None
             answers.append(
                 Answer(
                     text=text,
@@ -411,13 +608,103 @@ class LiveProvider:
                     usage=share,
                     finish_reason=finish,
                     latency_s=latency,
-                    cost_usd=cost,
-                    system_fingerprint=fingerprint if isinstance(fingerprint, str) else None,
+                    cost_usd=self.prices.cost(share, model, query.model),
+                    system_fingerprint=fingerprint,
                     response_id=response_id,
                 )
             )
         return answers
 
+    def _warn(self, kind: str, message: str) -> None:
+        """Tell ``on_warning`` about one kind of distrusted usage, the first time it happens."""
+        if kind in self._warned or self.on_warning is None:
+            return
+        self._warned.add(kind)
+        self.on_warning(f"{self.url}: {message} (said once per run)")
 
-def _int(value: Any) -> int:
-    return int(value) if isinstance(value, (int, float)) and not isinstance(value, bool) and value >= 0 else 0
+
+def _choice_index(choice: Any) -> int:
+    index = choice.get("index") if isinstance(choice, dict) else None
+    return index if isinstance(index, int) and not isinstance(index, bool) else 0
+
+
+def _checked_key(key: str, env: str) -> str:
+    """``key`` if it can go in an HTTP header (printable ASCII, no spaces); else a ConfigError that
+    names the variable and never shows the key."""
+    for position, char in enumerate(key, 1):
+        if not 0x21 <= ord(char) <= 0x7E:
+            what = "a space or control character" if char.isascii() else "a character that is not ASCII"
+            raise ConfigError(
+                f"environment variable {env} holds an API key with {what} (character {position} of "
+                f"{len(key)}); HTTP headers carry printable ASCII only: set the key again, copied "
+                "without stray characters"
+            )
+    return key
+
+
+# ---------------------------------------------------------------------------------------------
+# Usage a server reports, believed only as far as the request allows
+# ---------------------------------------------------------------------------------------------
+def _count(value: Any) -> int | None:
+    """A token count: a whole number >= 0 (an integral float too); None when it is not one."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    if isinstance(value, float) and not (math.isfinite(value) and value.is_integer()):
+        return None
+    return int(value) if value >= 0 else None
+
+
+def believed_usage(raw: Any, query: Query, n: int) -> tuple[Usage, list[tuple[str, str]]]:
+    """The usage of one request for ``n`` samples of ``query``, as far as it can be believed, and
+    ``(kind, note)`` for every count that was not taken as reported.
+
+    A request cannot have used more than ``n * max_tokens`` completion tokens, nor more prompt
+    tokens than :func:`~lagrseq.llm.pricing.prompt_token_bound` (one token per byte of every
+    message plus the per-message and per-request overhead; a BPE token is never shorter than a
+    byte), and cached tokens are part of the prompt. A count above its bound is capped to it; a
+    count that is missing, negative, fractional or not a number is unknown and taken as the bound
+    (the worst case, the one the budget guard assumed before sending). The prompt is paid once per
+    request, whatever ``n``.
+    """
+    usage = raw if isinstance(raw, dict) else {}
+    bounds = {"prompt_tokens": prompt_token_bound(query), "completion_tokens": max(int(n), 1) * max(int(query.max_tokens), 0)}
+    notes: list[tuple[str, str]] = []
+    believed: dict[str, int] = {}
+    for name, bound in bounds.items():
+        reported = _count(usage.get(name))
+        if not isinstance(raw, dict):
+            believed[name] = bound
+            continue
+        if reported is None:
+            notes.append((f"invalid-{name}", f"the server reported {name} = {_shown_count(usage.get(name))}, not a "
+                          f"whole number >= 0; counted as the worst case, {bound} for this request"))
+            believed[name] = bound
+        elif reported > bound:
+            notes.append((f"capped-{name}", f"the server reported {name} = {reported}, more than the request can "
+                          f"have used; counted {bound}"))
+            believed[name] = bound
+        else:
+            believed[name] = reported
+    if not isinstance(raw, dict):
+        notes.append(("no-usage", "the server reported no usage; counted as the worst case "
+                      f"({believed['prompt_tokens']} prompt and {believed['completion_tokens']} completion tokens a request)"))
+    details = usage.get("prompt_tokens_details")
+    cached_raw = details.get("cached_tokens") if isinstance(details, dict) else None
+    cached = 0 if cached_raw is None else _count(cached_raw)
+    if cached is None:
+        notes.append(("invalid-cached_tokens", f"the server reported cached_tokens = {_shown_count(cached_raw)}, "
+                      "not a whole number >= 0; counted 0 (billed at the full input rate)"))
+        cached = 0
+    elif cached > believed["prompt_tokens"]:
+        notes.append(("capped-cached_tokens", f"the server reported cached_tokens = {cached}, more than the prompt "
+                      f"tokens; counted {believed['prompt_tokens']}"))
+        cached = believed["prompt_tokens"]
+    return Usage(believed["prompt_tokens"], believed["completion_tokens"], cached), notes
+
+
+def _shown_count(value: Any) -> str:
+    """A reported count for a message: numbers as they are, anything else by its type only (a
+    string from a server is never repeated)."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return repr(value)
+    return "missing" if value is None else f"a {type(value).__name__}"

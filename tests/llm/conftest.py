@@ -44,8 +44,11 @@ class Reply:
 
     status: int = 200
     body: Any = None
-    """dict/list: sent as JSON; bytes/str: sent as is; None: a chat completion of the default answer."""
-    headers: dict[str, str] = field(default_factory=dict)
+    """dict/list: sent as JSON; bytes/str: sent as is; None: a chat completion of the default answer;
+    a callable: called with the key the request carried (its Authorization value without
+    ``Bearer``) and its result sent as above (a server that echoes the key)."""
+    headers: Any = field(default_factory=dict)
+    """Header names and values, or a callable of the key returning them."""
     delay_s: float = 0.0
     """Wait this long before answering (longer than the client's read timeout: a timeout)."""
     extra_length: int = 0
@@ -92,7 +95,10 @@ class FakeOpenAI:
                     number = server._count
                 if reply.delay_s:
                     server.release.wait(reply.delay_s)
-                payload = reply.body if reply.body is not None else server.completion(body, number)
+                key = self.headers.get("Authorization", "").removeprefix("Bearer ")
+                payload = reply.body(key) if callable(reply.body) else reply.body
+                payload = payload if payload is not None else server.completion(body, number)
+                headers = reply.headers(key) if callable(reply.headers) else reply.headers
                 data = payload if isinstance(payload, bytes) else (
                     payload.encode() if isinstance(payload, str) else json.dumps(payload).encode()
                 )
@@ -100,7 +106,7 @@ class FakeOpenAI:
                     self.send_response(reply.status)
                     self.send_header("Content-Type", "application/json")
                     self.send_header("Content-Length", str(len(data) + reply.extra_length))
-                    for name, value in reply.headers.items():
+                    for name, value in headers.items():
                         self.send_header(name, value)
                     self.end_headers()
                     self.wfile.write(data)
