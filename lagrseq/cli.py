@@ -8,7 +8,6 @@ code's own constants; each ``cmd_*`` handler parses, calls one function and prin
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 from collections.abc import Callable, Sequence
@@ -31,32 +30,23 @@ class _Parser(argparse.ArgumentParser):
 # ------------------------------------------------------------------------------------------
 # Values: every number from the command line is checked where it enters
 # ------------------------------------------------------------------------------------------
-def _number(kind: type, minimum: float | None = None, maximum: float | None = None, above: bool = False) -> Callable[[str], Any]:
-    """An argparse ``type=``: a finite ``kind`` (int or float) in range, else one line."""
-    bound = f"> {minimum:g}" if above else f">= {minimum:g}" if minimum is not None else ""
-    if maximum is not None:
-        bound = f"{bound} and <= {maximum:g}" if bound else f"<= {maximum:g}"
-    expected = f"{'an integer' if kind is int else 'a finite number'}{' ' + bound if bound else ''}"
+def _number_types() -> dict[str, Callable[[str], Any]]:
+    from lagrseq import config as cfg
 
-    def convert(text: str) -> Any:
-        try:
-            value = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not {expected}") from None
-        bad = not math.isfinite(value) or (minimum is not None and (value <= minimum if above else value < minimum))
-        if bad or (maximum is not None and value > maximum):
-            raise argparse.ArgumentTypeError(f"{text!r} is not {expected}")
-        return value
-
-    return convert
+    return {
+        "count": cfg.positive_int,
+        "seed": cfg.seed_int,
+        "budget": cfg.nonneg_float,
+        "limit": cfg.nonneg_int,
+        "temperature": cfg.temperature_float,
+        "max_tokens": cfg.max_tokens_int,
+        "seconds": cfg.number_type("seconds", gt=0, le=86_400),
+        "bytes": cfg.number_type("bytes", integer=True, ge=1024, le=2**31),
+    }
 
 
-_COUNT = _number(int, 1)
-_SEED = _number(int, 0, 2**63 - 1)
-_BUDGET = _number(float, 0)
-_LIMIT = _number(int, 0)
-_TEMPERATURE = _number(float, 0, 2)
-_SECONDS = _number(float, 0, above=True)
+_N = _number_types()
+_COUNT, _SEED, _BUDGET, _LIMIT, _TEMPERATURE = _N["count"], _N["seed"], _N["budget"], _N["limit"], _N["temperature"]
 
 
 def _formats(text: str) -> list[str]:
@@ -100,6 +90,9 @@ def _live_options(per: str) -> argparse.ArgumentParser:
     g.add_argument("--api-key-env", default="OPENAI_API_KEY", metavar="NAME", help="environment variable that holds the API key (default: OPENAI_API_KEY); the key itself is never written anywhere")
     g.add_argument("--server", choices=tuple(SERVER_KINDS), default="openai", help="kind of server: openai and vllm return n samples per request, ollama and llama.cpp one (default: openai)")
     g.add_argument("--price-table", default=None, metavar="FILE.toml", help="prices (USD per million tokens, with source and date) over the built-in table")
+    g.add_argument("--read-timeout", type=_N["seconds"], default=120.0, metavar="S", help="seconds to wait for the next bytes of a response (default 120)")
+    g.add_argument("--request-deadline", type=_N["seconds"], default=300.0, metavar="S", help="most seconds one request may take, from sending to the last byte; an overrun is retried like a timeout (default 300)")
+    g.add_argument("--max-response-bytes", type=_N["bytes"], default=4 * 1024 * 1024, metavar="N", help="largest response body read, decompressed; a larger one fails at once and is not retried (default 4194304)")
     g.add_argument("--max-cost-usd", type=_BUDGET, default=None, metavar="X", help=f"per {per}: stop before a live request that could take the spending past X US dollars (worst case: every completion uses max_tokens)")
     g.add_argument("--max-queries", type=_LIMIT, default=None, metavar="N", help=f"per {per}: stop before a live request that would take the number of live answers past N")
     return p
@@ -132,6 +125,9 @@ def _provider_options(args: argparse.Namespace) -> Any:
         price_table=args.price_table,
         max_cost_usd=args.max_cost_usd,
         max_queries=args.max_queries,
+        read_timeout_s=args.read_timeout,
+        request_deadline_s=args.request_deadline,
+        max_response_bytes=args.max_response_bytes,
     )
 
 
@@ -268,7 +264,7 @@ def _add_cache(sub: Any) -> None:
     imp.add_argument("--task", choices=tasks(), default=None, help="pickles: the task whose prompts the keys are rendered with")
     imp.add_argument("--model", default=None, help="pickles: the model the answers came from (keys include it)")
     imp.add_argument("--temperature", type=_TEMPERATURE, default=None, metavar="T", help="pickles: the temperature they were sampled at")
-    imp.add_argument("--max-tokens", type=_COUNT, default=None, metavar="N", help="pickles: max tokens of the keys (default: the preset's llm.max_tokens, what runs send)")
+    imp.add_argument("--max-tokens", type=_N["max_tokens"], default=None, metavar="N", help="pickles: max tokens of the keys (default: the preset's llm.max_tokens, what runs send)")
     imp.add_argument("--base-url", default=DEFAULT_BASE_URL, metavar="URL", help=f"pickles: the server they came from; its host goes into the keys (default: {DEFAULT_BASE_URL})")
     exp = actions.add_parser("export", help="write every recorded answer of a store to JSONL", description="Write STORE as JSONL, one answer per line, in a stable order (keys sorted, answers in recorded order).")
     exp.add_argument("--store", type=Path, required=True, metavar="STORE")

@@ -8,6 +8,7 @@
 from __future__ import annotations
 
 import json
+import sys
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -110,6 +111,12 @@ class ProviderOptions:
     """Per trial (live answers): stop before a request that could pass this many US dollars."""
     max_queries: int | None = None
     """Per trial (live answers): stop before a request that would pass this many answers."""
+    read_timeout_s: float = 120.0
+    """Seconds to wait for the next bytes of a response."""
+    request_deadline_s: float = 300.0
+    """Most seconds one request may take, from sending to the last byte (retried like a timeout)."""
+    max_response_bytes: int = 4 * 1024 * 1024
+    """Largest response body read, decompressed (a larger one fails at once, not retried)."""
 
     def __post_init__(self) -> None:
         if self.on_miss not in ON_MISS:
@@ -144,15 +151,20 @@ def make_provider(
     if provider.kind == "mock":
         return MockProvider(extrapolator(config, provider.argument or "ideal"), rng, name=spec)
     if provider.kind == "live":
-        return make_live(options, rng, budgeted=True)
+        return make_live(options, rng, budgeted=True, on_retry=_say)
     store = RecordStore(provider.argument, create=options.on_miss == "live")
     endpoint = endpoint_of(options.base_url)
     run_seed = int(rng.integers(2**63))
     if options.on_miss == "live":
         # A miss is asked live and recorded (one sample), so the next run finds it.
-        return RecordingProvider(store, make_live(options, rng, budgeted=True), endpoint, "new", 1, run_seed)
+        return RecordingProvider(store, make_live(options, rng, budgeted=True, on_retry=_say), endpoint, "new", 1, run_seed)
     fallback = MockProvider(extrapolator(config), rng, name="mock") if options.on_miss == "mock" else None
     return RecordedProvider(store, endpoint, run_seed, fallback)
+
+
+def _say(message: str) -> None:
+    """Retries and notes of a live provider during a run go to stderr (redacted at the source)."""
+    print(f"lagrseq: {message.strip()}", file=sys.stderr)
 
 
 def check_provider(spec: str, config: ExperimentConfig, options: ProviderOptions | None = None) -> None:
@@ -172,7 +184,14 @@ def make_live(
     from lagrseq.llm.live import LiveProvider, LiveSettings
 
     prices = load_prices(options.price_table)
-    settings = LiveSettings(base_url=options.base_url, api_key_env=options.api_key_env, server=options.server)
+    settings = LiveSettings(
+        base_url=options.base_url,
+        api_key_env=options.api_key_env,
+        server=options.server,
+        read_timeout_s=options.read_timeout_s,
+        request_deadline_s=options.request_deadline_s,
+        max_response_bytes=options.max_response_bytes,
+    )
     live = LiveProvider(settings, rng=rng, prices=prices, on_retry=on_retry)
     if not budgeted:
         return live

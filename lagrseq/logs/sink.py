@@ -16,6 +16,11 @@ import contextlib
 import json
 import math
 import os
+
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - not on Windows: no lock, as before
+    fcntl = None  # type: ignore[assignment]
 from pathlib import Path
 from typing import Any
 
@@ -145,6 +150,28 @@ def _encode_query(event: QueryEvent) -> bytes:
     ).encode()
 
 
+def _open_exclusive(partial: Path) -> Any:
+    """``partial`` opened for writing from scratch, locked against a second lagrseq process that
+    would write the same trial (two identical runs at once): that one is refused, and the file
+    the first is writing is never truncated under it. A ``.partial`` left by a crash is not
+    locked, so a rerun writes it anew."""
+    descriptor = os.open(partial, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        if fcntl is not None:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        os.ftruncate(descriptor, 0)
+    except BlockingIOError:
+        os.close(descriptor)
+        raise LogError(
+            f"{partial} is being written by another lagrseq process; wait for it to finish "
+            "(a rerun then skips the trial) or give another --out or --name"
+        ) from None
+    except BaseException:
+        os.close(descriptor)
+        raise
+    return os.fdopen(descriptor, "wb")
+
+
 class McapSink:
     """Write one trial's events. Use as a context manager; ``write(topic, record, log_time)``."""
 
@@ -157,7 +184,7 @@ class McapSink:
         self.path = Path(path)
         self.partial = self.path.with_name(self.path.name + PARTIAL_SUFFIX)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._stream = self.partial.open("wb")
+        self._stream = _open_exclusive(self.partial)
         self._writer = LeanWriter(self._stream, library="lagrseq", profile=PROFILE)
         self._channels: dict[str, int] = {}
         self._sequence: dict[str, int] = {}
