@@ -17,11 +17,15 @@ Runtime form: a diskcache ``Cache`` directory whose keys and values are JSON onl
 every read-modify-write inside ``transact()``, so several processes can record into one store at
 once without losing a sample. diskcache's default disk pickles, and even its ``JSONDisk`` will
 unpickle a row whose stored mode says "pickle" (CVE-2025-69872); :class:`JSONOnlyDisk` refuses such
-rows, so a store directory someone else could write to cannot run code here.
+rows, so a store directory someone else could write to cannot run code here. Reading never
+writes: rows are read through a read-only SQLite connection (:class:`ReadOnlyDatabase`), and the
+diskcache that writes is opened only for the first write, so a read-only store can be read. Every
+row is checked when read and every sample before it is written (:mod:`lagrseq.llm.records`).
 
 Portable form: JSONL, one sample per line (``recorded_llm/README.md`` documents it), written by
-:func:`export_jsonl` in a stable order and read back by :func:`import_jsonl`. Sample ids make
-imports idempotent: importing the same file twice adds nothing.
+:func:`export_jsonl` in a stable order and read back by :func:`import_jsonl`, which checks
+every line before it writes any. Sample ids make imports idempotent: importing the same file
+twice adds nothing.
 
 Which sample a query receives is :func:`pick_index` of (run seed, key, occurrence): the same
 trial asking the same key for the n-th time always gets the same sample from the same store.
