@@ -14,7 +14,8 @@ therefore handed ``prompt_for(key) -> str`` (the task's own prompt rendering, wi
 command line), so imported answers are keyed exactly like the queries a run sends. ``prompt_for``
 raises ``ValueError`` for a key that does not fit the task (wrong shape, unknown cube); such
 entries are skipped with a warning, as are answers of an unknown type or of another shape than
-their key. Answers are stored as samples: the raw text where the cache has text; an array or list
+their key, and answers a store may not hold (longer than ``MAX_ANSWER_CHARS``, or text that is
+not valid Unicode). Answers are stored as samples: the raw text where the cache has text; an array or list
 written out as text and marked ``recorded_as="array"`` / ``"list"``.
 """
 
@@ -33,6 +34,7 @@ import numpy as np
 
 from lagrseq.errors import StoreError
 from lagrseq.llm.base import Message, Query, RecordedAs
+from lagrseq.llm.records import SAMPLE_SCHEMA, problems
 from lagrseq.llm.store import RecordStore, Sample, query_key
 
 ALLOWED_GLOBALS = frozenset(
@@ -192,6 +194,10 @@ def import_authors_cache(
             recorded_as=recorded_as,
             provenance=f"{path.name} pair {index} (sha256 {digest[:12]})",
         )
+        wrong = problems(sample.to_json(), SAMPLE_SCHEMA, root="answer", limit=1)
+        if wrong:  # e.g. longer than MAX_ANSWER_CHARS, or text that is not valid Unicode
+            skip(index, wrong[0])
+            continue
         groups.setdefault(record_key, (request, []))[1].append(sample)
     imported = 0
     for record_key, (request, samples) in groups.items():

@@ -111,6 +111,8 @@ class RecordingProvider:
         self.chooser = SampleChooser(run_seed)
         self.name = f"recorded+{inner.name}"
         self._may_record = mode in ("new", "all") or (mode == "once" and len(store) == 0)
+        if self._may_record:
+            store.writer()  # a store that cannot be written fails now, before any answer is bought
 
     def wanted(self, entry: Entry | None) -> int:
         """How many new answers this mode asks for, given what the key holds."""

@@ -17,11 +17,15 @@ Runtime form: a diskcache ``Cache`` directory whose keys and values are JSON onl
 every read-modify-write inside ``transact()``, so several processes can record into one store at
 once without losing a sample. diskcache's default disk pickles, and even its ``JSONDisk`` will
 unpickle a row whose stored mode says "pickle" (CVE-2025-69872); :class:`JSONOnlyDisk` refuses such
-rows, so a store directory someone else could write to cannot run code here.
+rows, so a store directory someone else could write to cannot run code here. Reading never
+writes: rows are read through a read-only SQLite connection (:class:`ReadOnlyDatabase`), and the
+diskcache that writes is opened only for the first write, so a read-only store can be read. Every
+row is checked when read and every sample before it is written (:mod:`lagrseq.llm.records`).
 
 Portable form: JSONL, one sample per line (``recorded_llm/README.md`` documents it), written by
-:func:`export_jsonl` in a stable order and read back by :func:`import_jsonl`. Sample ids make
-imports idempotent: importing the same file twice adds nothing.
+:func:`export_jsonl` in a stable order and read back by :func:`import_jsonl`, which checks
+every line before it writes any. Sample ids make imports idempotent: importing the same file
+twice adds nothing.
 
 Which sample a query receives is :func:`pick_index` of (run seed, key, occurrence): the same
 trial asking the same key for the n-th time always gets the same sample from the same store.
@@ -35,13 +39,15 @@ import hashlib
 import json
 import os
 import sqlite3
+import tempfile
+import threading
 import time
 import zlib
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import IO, Any
-from urllib.parse import urlsplit
+from urllib.parse import quote, urlsplit
 
 import diskcache
 import numpy as np
@@ -49,11 +55,21 @@ from diskcache.core import MODE_BINARY, MODE_PICKLE, MODE_RAW
 
 from lagrseq.errors import StoreError
 from lagrseq.llm.base import Answer, Query, RecordedAs, Usage
+from lagrseq.llm.records import (
+    ENTRY_SCHEMA,
+    JSONL_FORMAT,
+    KEY_VERSION,
+    MAX_ANSWER_CHARS,  # noqa: F401 - re-exported: the longest answer a store holds
+    MAX_LINE_BYTES,
+    RECORD_SCHEMA,
+    describe,
+    normalise_request,
+    normalise_sample,
+    problems,
+)
 from lagrseq.llm.servers import DEFAULT_BASE_URL  # noqa: F401 - re-exported for callers
 
-KEY_VERSION = 1
 STORE_FORMAT = "lagrseq.recorded-store"
-JSONL_FORMAT = "lagrseq.recorded/1"
 META_KEY = "lagrseq-store"
 _DEFAULT_PORTS = {"http": 80, "https": 443}
 
@@ -252,7 +268,8 @@ class JSONOnlyDisk(diskcache.JSONDisk):
 
     JSONDisk writes keys as raw bytes and values as bytes (modes raw and binary), but it reads with
     the base class, which unpickles a key row whose ``raw`` flag is 0 and a value row whose mode is
-    "pickle". Rows like that can only come from another writer; refuse them.
+    "pickle". Rows like that can only come from another writer; refuse them. A value kept in a
+    file must lie inside the store directory.
     """
 
     def get(self, key: Any, raw: bool) -> Any:
@@ -269,6 +286,13 @@ class JSONOnlyDisk(diskcache.JSONDisk):
                 f"store {self._directory} holds a value stored as {'pickle' if mode == MODE_PICKLE else f'mode {mode}'}; "
                 "lagrseq stores are JSON only and never unpickle. Do not use this directory as a lagrseq store"
             )
+        if filename is not None:
+            root = os.path.realpath(self._directory)
+            if not isinstance(filename, str) or not os.path.realpath(os.path.join(root, filename)).startswith(root + os.sep):
+                raise StoreError(
+                    f"store {self._directory} points a value at {filename!r}, outside the store directory; "
+                    "do not use this directory as a lagrseq store"
+                )
         return self._json(diskcache.Disk.fetch(self, mode, filename, value, read), "value")
 
     def _json(self, data: Any, what: str) -> Any:
@@ -276,7 +300,7 @@ class JSONOnlyDisk(diskcache.JSONDisk):
             if not isinstance(data, bytes):
                 raise TypeError(type(data).__name__)
             return json.loads(zlib.decompress(data).decode("utf-8"))
-        except (TypeError, zlib.error, UnicodeDecodeError, ValueError):
+        except (TypeError, zlib.error, UnicodeDecodeError, ValueError, RecursionError):
             raise StoreError(
                 f"store {self._directory} holds a {what} that lagrseq did not write (not compressed "
                 "JSON); do not use this directory as a lagrseq store"
@@ -286,6 +310,15 @@ class JSONOnlyDisk(diskcache.JSONDisk):
 _FOREIGN = (sqlite3.Error, diskcache.Timeout, OSError, json.JSONDecodeError, UnicodeDecodeError, ValueError)
 
 
+def _read_only_error(exc: BaseException) -> bool:
+    """Whether ``exc`` says the store cannot be written (a read-only directory, file or disk)."""
+    if isinstance(exc, PermissionError) or (isinstance(exc, OSError) and exc.errno == 30):  # EROFS
+        return True
+    name = str(getattr(exc, "sqlite_errorname", ""))
+    text = str(exc).lower()
+    return name.startswith("SQLITE_READONLY") or "readonly" in text or "read-only" in text
+
+
 @contextlib.contextmanager
 def _translated(directory: Path, action: str) -> Iterator[None]:
     try:
@@ -293,68 +326,239 @@ def _translated(directory: Path, action: str) -> Iterator[None]:
     except StoreError:
         raise
     except _FOREIGN as exc:
+        writing = action.startswith(("write", "open it for writing"))
+        if writing and (_read_only_error(exc) or ("unable to open" in str(exc) and (directory / "cache.db").is_file())):
+            raise StoreError(
+                f"store {directory} cannot be written ({type(exc).__name__}: {exc}): it is read-only; it can "
+                "still be read (recorded runs, cache list, cache export), but to record or import into it make "
+                "it writable, or use another store"
+            ) from None
         raise StoreError(f"store {directory}: could not {action} ({type(exc).__name__}: {exc})") from None
+
+
+def _cannot_open_writable(exc: sqlite3.Error) -> bool:
+    """Whether a ``mode=ro`` connection failed only because SQLite could not create its
+    ``-wal``/``-shm`` files beside a WAL database (a read-only directory)."""
+    name = str(getattr(exc, "sqlite_errorname", ""))
+    text = str(exc).lower()
+    return name.startswith(("SQLITE_READONLY", "SQLITE_CANTOPEN")) or "readonly" in text or "unable to open" in text
+
+
+class ReadOnlyDatabase:
+    """Read access to a store's SQLite database that never writes.
+
+    The database is opened ``mode=ro``: SQLite refuses every write on that connection. A store
+    in a read-only directory (where SQLite cannot create the ``-wal``/``-shm`` files a WAL database
+    needs for shared reading) is opened ``immutable=1`` instead, which reads the file as it is;
+    nobody can be writing into a directory that cannot be written. Keys and values are decoded by
+    :class:`JSONOnlyDisk`, so nothing read here is ever unpickled.
+    """
+
+    SELECT_VALUE = (
+        "SELECT mode, filename, value FROM Cache WHERE key = ? AND raw = ?"
+        " AND (expire_time IS NULL OR expire_time > ?)"
+    )
+
+    def __init__(self, directory: Path, timeout_s: float = 60.0) -> None:
+        self.directory = directory
+        self.path = directory / "cache.db"
+        self.timeout_s = timeout_s
+        self.disk = JSONOnlyDisk(str(directory))
+        self.immutable = False
+        self._lock = threading.Lock()
+        self._pid = os.getpid()
+        self._connection: sqlite3.Connection | None = None
+        self._connection = self._connect()
+
+    def uri(self, immutable: bool) -> str:
+        """The SQLite URI of the database, read-only (and immutable when asked)."""
+        target = quote(os.path.abspath(self.path), safe="/")
+        return f"file:{target}?mode=ro" + ("&immutable=1" if immutable else "")
+
+    def _open(self, immutable: bool) -> sqlite3.Connection:
+        connection = sqlite3.connect(
+            self.uri(immutable), uri=True, timeout=self.timeout_s, isolation_level=None, check_same_thread=False
+        )
+        try:
+            tables = {name for (name,) in connection.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+        except BaseException:
+            connection.close()
+            raise
+        if tables - {"Cache", "Settings"}:  # diskcache makes these two (and nothing else) before any row
+            connection.close()
+            raise StoreError(f"{self.directory} holds an SQLite database that is not a lagrseq store; use another directory")
+        return connection
+
+    def _connect(self) -> sqlite3.Connection:
+        with _translated(self.directory, "open it"):
+            try:
+                return self._open(immutable=False)
+            except sqlite3.OperationalError as exc:
+                if not _cannot_open_writable(exc):
+                    raise
+            connection = self._open(immutable=True)
+            self.immutable = True
+            return connection
+
+    def _rows(self, sql: str, parameters: tuple[Any, ...] = (), empty: list[Any] | None = None) -> list[Any]:
+        """The rows of a query; ``empty`` (default ``[]``) while the store is still being created by
+        another process (its tables do not exist yet)."""
+        with self._lock:
+            if self._connection is None or self._pid != os.getpid():  # closed, or inherited by fork
+                self._pid = os.getpid()
+                self._connection = self._connect()
+            try:
+                return self._connection.execute(sql, parameters).fetchall()
+            except sqlite3.OperationalError as exc:
+                if "no such table: Cache" not in str(exc):
+                    raise
+                return [] if empty is None else empty
+
+    def get(self, key: Any) -> Any:
+        """The decoded value of ``key``, or None."""
+        db_key, raw = self.disk.put(key)
+        for attempt in range(3):
+            rows = self._rows(self.SELECT_VALUE, (db_key, raw, time.time()))
+            if not rows:
+                return None
+            mode, filename, value = rows[0]
+            try:
+                return self.disk.fetch(mode, filename, value, False)
+            except FileNotFoundError:  # a writer replaced the value (and its file) meanwhile
+                if attempt == 2:
+                    raise
+        return None  # pragma: no cover - the loop returns or raises
+
+    def stored_keys(self) -> list[Any]:
+        return [self.disk.get(key, raw) for key, raw in self._rows("SELECT key, raw FROM Cache ORDER BY key, raw")]
+
+    def count(self) -> int:
+        return int(self._rows("SELECT count(*) FROM Cache", empty=[(0,)])[0][0])
+
+    def close(self) -> None:
+        with self._lock:
+            if self._connection is not None:
+                self._connection.close()
+                self._connection = None
+
+
+def entry_problems(key: str, value: Any) -> list[str]:
+    """What is wrong with a store row (``[]``: nothing); see :mod:`lagrseq.llm.records`."""
+    found = problems(value, ENTRY_SCHEMA, limit=3, whole="the entry")
+    if not found and key_of_request(value["request"]) != key:
+        found = ["the key is not the hash of its request (the request was changed)"]
+    return found
 
 
 class RecordStore:
     """A directory of recorded answers (module docstring). A context manager; ``close`` is
-    idempotent. ``create=False`` refuses a directory that is not already a store."""
+    idempotent. ``create=False`` refuses a directory that is not already a store.
 
-    def __init__(self, directory: str | Path, create: bool = True, timeout_s: float = 60.0) -> None:
+    Reading never writes: an existing store is read through a read-only SQLite connection
+    (:class:`ReadOnlyDatabase`), so a read-only store directory serves recorded runs, ``cache list``
+    and ``cache export``. The diskcache that writes is opened on the first write (:meth:`add`), or
+    at once when the store does not exist yet and ``create`` is true. ``readonly=True`` refuses
+    every write."""
+
+    def __init__(
+        self, directory: str | Path, create: bool = True, timeout_s: float = 60.0, readonly: bool = False
+    ) -> None:
         self.directory = Path(directory)
-        if not create and not (self.directory / "cache.db").is_file():
-            raise StoreError(
-                f"no recorded store at {self.directory}; create one with `lagrseq record` or "
-                "`lagrseq cache import`"
-            )
+        self.readonly = readonly
+        self.timeout_s = timeout_s
+        self._cache: diskcache.Cache | None = None
+        self._reader: ReadOnlyDatabase | None = None
+        self._closed = False
         if self.directory.exists() and not self.directory.is_dir():
             raise StoreError(f"store path {self.directory} is a file; expected a directory")
-        with _translated(self.directory, "open it"):
-            self._cache = diskcache.Cache(
-                str(self.directory),
-                disk=JSONOnlyDisk,
-                eviction_policy="none",
-                timeout=timeout_s,
-                statistics=False,
-                tag_index=False,
-            )
-        self._closed = False
+        if not (self.directory / "cache.db").is_file() and (
+            not create or readonly or (self.directory / "cache.db").exists()
+        ):
+            raise StoreError(
+                    f"no recorded store at {self.directory}; create one with `lagrseq record` or "
+                    "`lagrseq cache import`"
+                )
         try:
+            if not (self.directory / "cache.db").is_file():
+                self.writer()
+            self._reader = ReadOnlyDatabase(self.directory, timeout_s)
             self._check_header()
         except BaseException:
             self.close()
             raise
 
     def _check_header(self) -> None:
-        with _translated(self.directory, "read its header"), self._cache.transact(retry=True):
-            meta = self._cache.get(META_KEY)
+        with _translated(self.directory, "read its header"):
+            meta = self._read().get(META_KEY)
             if meta is None:
-                if len(self._cache):
+                if self._read().count():
                     raise StoreError(
                         f"{self.directory} holds a diskcache that is not a lagrseq store; use another directory"
                     )
-                self._cache.set(META_KEY, {"format": STORE_FORMAT, "version": 1})
             elif not isinstance(meta, dict) or meta.get("format") != STORE_FORMAT:
-                raise StoreError(f"{self.directory} is not a lagrseq store (header {meta!r})")
+                raise StoreError(f"{self.directory} is not a lagrseq store (header {describe(meta)})")
+
+    def writer(self) -> diskcache.Cache:
+        """The diskcache that writes, opened (and its header written) on first use. Call it
+        before buying answers, so that a store that cannot be written fails first."""
+        if self._closed:
+            raise StoreError(f"store {self.directory} is closed")
+        if self._cache is not None:
+            return self._cache
+        if self.readonly:
+            raise StoreError(f"store {self.directory} was opened read-only; nothing can be written to it")
+        with _translated(self.directory, "open it for writing"):
+            cache = diskcache.Cache(
+                str(self.directory),
+                disk=JSONOnlyDisk,
+                eviction_policy="none",
+                timeout=self.timeout_s,
+                statistics=False,
+                tag_index=False,
+            )
+        try:
+            with _translated(self.directory, "write its header"), cache.transact(retry=True):
+                meta = cache.get(META_KEY)
+                if meta is None:
+                    if len(cache):
+                        raise StoreError(
+                            f"{self.directory} holds a diskcache that is not a lagrseq store; use another directory"
+                        )
+                    cache.set(META_KEY, {"format": STORE_FORMAT, "version": 1})
+                elif not isinstance(meta, dict) or meta.get("format") != STORE_FORMAT:
+                    raise StoreError(f"{self.directory} is not a lagrseq store (header {describe(meta)})")
+        except BaseException:
+            cache.close()
+            raise
+        self._cache = cache
+        return cache
+
+    def _read(self) -> ReadOnlyDatabase:
+        if self._closed or self._reader is None:
+            raise StoreError(f"store {self.directory} is closed")
+        return self._reader
 
     # ------------------------------------------------------------------ reading
     def entry(self, key: str) -> Entry | None:
         with _translated(self.directory, f"read key {key[:12]}"):
-            value = self._cache.get(key)
+            value = self._read().get(key)
         return None if value is None else self._entry(key, value)
 
     def _entry(self, key: str, value: Any) -> Entry:
+        found = entry_problems(key, value)
+        if found:
+            raise StoreError(
+                f"store {self.directory}, key {key}: {'; '.join(found)}. This entry was not written by this "
+                "lagrseq (an older version, another program or a hand edit); move the store aside and "
+                "rebuild it with `lagrseq cache import` of your JSONL exports, or record the key again into a new store"
+            )
         where = f"store {self.directory}, key {key[:12]}"
-        if not isinstance(value, dict) or not isinstance(value.get("request"), dict):
-            raise StoreError(f"{where}: not a lagrseq entry")
-        samples = tuple(
-            Sample.from_json(s, f"{where}, sample {i}") for i, s in enumerate(value.get("samples", []))
-        )
+        samples = tuple(Sample.from_json(s, f"{where}, sample {i}") for i, s in enumerate(value["samples"]))
         return Entry(key, value["request"], value.get("task"), samples)
 
     def keys(self) -> list[str]:
         with _translated(self.directory, "list its keys"):
-            return sorted(k for k in self._cache.iterkeys() if isinstance(k, str) and k != META_KEY)
+            return sorted(k for k in self._read().stored_keys() if isinstance(k, str) and k != META_KEY)
 
     def entries(self) -> Iterator[Entry]:
         """Every entry, in key order."""
@@ -367,23 +571,60 @@ class RecordStore:
         return len(self.keys())
 
     # ------------------------------------------------------------------ writing
-    def add(self, key: str, request: dict[str, Any], task: str | None, samples: list[Sample] | tuple[Sample, ...]) -> int:
+    def add(self, key: str, request: dict[str, Any], task: str | None, samples: Sequence[Sample]) -> int:
         """Append the samples whose ids the key does not have yet, atomically (one transaction);
         return how many the key holds afterwards."""
+        self._check_new(key, request, task, samples)
+        with _translated(self.directory, f"write key {key[:12]}"):
+            cache = self.writer()
+            with cache.transact(retry=True):
+                return self._add_locked(cache, key, request, task, samples)[0]
+
+    def add_many(
+        self, groups: Mapping[str, tuple[dict[str, Any], str | None, Sequence[Sample]]], checked: bool = False
+    ) -> int:
+        """:meth:`add` for several keys ``{key: (request, task, samples)}`` in one transaction;
+        return how many samples were new. ``checked``: the caller has already checked every
+        request and sample against the schema (an import); keys are still recomputed."""
+        for key, (request, task, samples) in groups.items():
+            if checked:
+                if key_of_request(request) != key:
+                    raise StoreError(f"key {key[:12]} is not the hash of its request; refusing to store it")
+            else:
+                self._check_new(key, request, task, samples)
+        with _translated(self.directory, f"write {len(groups)} keys"):
+            cache = self.writer()
+            with cache.transact(retry=True):
+                return sum(self._add_locked(cache, key, *group)[1] for key, group in groups.items())
+
+    def _check_new(self, key: str, request: dict[str, Any], task: str | None, samples: Sequence[Sample]) -> None:
         if key_of_request(request) != key:
             raise StoreError(f"key {key[:12]} is not the hash of its request; refusing to store it")
-        with _translated(self.directory, f"write key {key[:12]}"), self._cache.transact(retry=True):
-            value = self._cache.get(key)
-            if value is None:
-                value = {"request": request, "task": task, "samples": []}
-            have = {s.get("id") for s in value["samples"] if isinstance(s, dict)}
-            added = [s.to_json() for s in samples if s.id not in have]
-            if added:
-                value["samples"] = list(value["samples"]) + added
-                if value.get("task") is None:
-                    value["task"] = task
-                self._cache.set(key, value)
-            return len(value["samples"])
+        found = problems({"request": request, "task": task, "samples": [s.to_json() for s in samples]}, ENTRY_SCHEMA, limit=3)
+        if found:
+            raise StoreError(f"refusing to store key {key[:12]} in {self.directory}: {'; '.join(found)}")
+
+    def _add_locked(
+        self, cache: diskcache.Cache, key: str, request: dict[str, Any], task: str | None, samples: Sequence[Sample]
+    ) -> tuple[int, int]:
+        """Inside a transaction: append the new samples of ``key``; (samples held, samples added)."""
+        value = cache.get(key)
+        if value is None:
+            value = {"request": request, "task": task, "samples": []}
+        else:
+            self._entry(key, value)  # a damaged row is named, never extended
+        have = {s["id"] for s in value["samples"]}
+        added = []
+        for sample in samples:
+            if sample.id not in have:
+                have.add(sample.id)
+                added.append(sample.to_json())
+        if added:
+            value["samples"] = list(value["samples"]) + added
+            if value.get("task") is None:
+                value["task"] = task
+            cache.set(key, value)
+        return len(value["samples"]), len(added)
 
     # ------------------------------------------------------------------ misses
     def nearest(self, request: dict[str, Any], task: str | None = None, limit: int = 3) -> list[tuple[Entry, str]]:
@@ -415,7 +656,10 @@ class RecordStore:
     def close(self) -> None:
         if not self._closed:
             self._closed = True
-            self._cache.close()
+            if self._reader is not None:
+                self._reader.close()
+            if self._cache is not None:
+                self._cache.close()
 
     def __enter__(self) -> RecordStore:
         return self
@@ -487,7 +731,10 @@ class JsonlReport:
 
 
 def export_jsonl(store: RecordStore, out: IO[str]) -> JsonlReport:
-    """Write every sample as one JSON line to ``out``."""
+    """Write every sample as one JSON line to ``out``. Every entry is checked first, so a
+    damaged store writes nothing (not half an export)."""
+    for _ in store.entries():
+        pass
     lines = 0
     keys: set[str] = set()
     for line in jsonl_lines(store):
@@ -497,43 +744,182 @@ def export_jsonl(store: RecordStore, out: IO[str]) -> JsonlReport:
     return JsonlReport(lines=lines, keys=len(keys))
 
 
+MAX_BAD_LINES_SHOWN = 5
+_PICKLE_HINT = "if it is an authors' cache pickle, import it with --format pkl (and --task, --model, --temperature)"
+
+
+def _read_lines(source: IO[str] | IO[bytes], name: str) -> Iterator[tuple[int, str | None, str | None]]:
+    """``(number, text, None)`` for each line of ``source`` (text or bytes), or ``(number, None,
+    why)`` for a line that cannot be read: longer than :data:`MAX_LINE_BYTES` (never held in
+    memory whole) or not UTF-8."""
+    number = 0
+    while True:
+        try:
+            chunk: str | bytes = source.readline(MAX_LINE_BYTES + 1)
+            if not chunk:
+                return
+            number += 1
+            if number == 1 and isinstance(chunk, bytes) and chunk[:1] == b"\x80":
+                raise StoreError(f"{name} is a pickle (binary data starting with byte 0x80), not JSONL; {_PICKLE_HINT}")
+            newline: str | bytes = b"\n" if isinstance(chunk, bytes) else "\n"
+            if len(chunk) > MAX_LINE_BYTES and not chunk.endswith(newline):  # type: ignore[arg-type]
+                rest = chunk
+                while rest and not rest.endswith(newline):  # type: ignore[arg-type]
+                    rest = source.readline(1 << 16)
+                yield number, None, f"longer than {MAX_LINE_BYTES} bytes (the longest line read); a line holds one answer"
+                continue
+        except UnicodeDecodeError as exc:
+            raise StoreError(
+                f"{name}: not UTF-8 text (line {number + 1}: {exc.reason}); a JSONL export is UTF-8; {_PICKLE_HINT}"
+            ) from None
+        if isinstance(chunk, bytes):
+            try:
+                text = chunk.decode("utf-8")
+            except UnicodeDecodeError as exc:
+                yield number, None, f"not UTF-8 (byte 0x{chunk[exc.start]:02x} at byte {exc.start + 1})"
+                continue
+        else:
+            text = chunk
+        yield number, text.removeprefix("\ufeff") if number == 1 else text, None
+
+
+def _check_line(text: str) -> tuple[dict[str, Any] | None, str | None]:
+    """A JSONL line as ``(record, None)`` (checked, numbers normalised) or ``(None, why)``."""
+    try:
+        record = json.loads(text)
+    except json.JSONDecodeError as exc:
+        return None, f"not JSON ({exc.msg} at column {exc.colno})"
+    except RecursionError:
+        return None, "not a record (JSON nested too deeply)"
+    except ValueError as exc:  # e.g. an integer of more digits than Python converts
+        return None, f"not JSON ({str(exc)[:80]})"
+    if not isinstance(record, dict):
+        return None, f"expected a {JSONL_FORMAT!r} record (a JSON object), found {describe(record)}"
+    if record.get("format") != JSONL_FORMAT:
+        return None, f"expected a {JSONL_FORMAT!r} record, found format {describe(record.get('format'))}"
+    found = problems(record, RECORD_SCHEMA, limit=4)
+    if found:
+        more = f" (and {len(found) - 3} more)" if len(found) > 3 else ""
+        return None, "; ".join(found[:3]) + more
+    record["request"] = normalise_request(record["request"])
+    record["sample"] = normalise_sample(record["sample"])
+    return record, None
+
+
+def _check_jsonl(
+    source: IO[str] | IO[bytes], name: str, spool: IO[str], warn: Callable[[str], None] | None
+) -> tuple[int, int]:
+    """Pass one of an import: check every line, writing the checked records to ``spool``;
+    raise one :class:`StoreError` listing the bad lines (nothing is written to the store).
+    Returns (records, distinct keys)."""
+    bad: list[str] = []
+    bad_count = 0
+    not_utf8 = False
+    records = 0
+    keys: set[str] = set()
+    mismatched: list[str] = []
+    for number, text, why in _read_lines(source, name):
+        record = None
+        if text is not None:
+            if not text.strip():
+                continue
+            record, why = _check_line(text)
+        if record is None:
+            bad_count += 1
+            not_utf8 = not_utf8 or (why or "").startswith("not UTF-8")
+            if len(bad) < MAX_BAD_LINES_SHOWN:
+                bad.append(f"line {number}: {why}")
+            continue
+        records += 1
+        request = record["request"]
+        key = key_of_request(request)
+        keys.add(key)
+        if "key" in record and record["key"] != key and len(mismatched) <= MAX_BAD_LINES_SHOWN:
+            mismatched.append(f"{name} line {number}: key {record['key'][:12]} does not match its request; filed under {key[:12]}")
+        task = record.get("task")
+        if not bad_count:
+            spool.write(json.dumps([key, task, request, record["sample"]]) + "\n")
+    if bad_count:
+        shown = f" (first {MAX_BAD_LINES_SHOWN} shown)" if bad_count > len(bad) else ""
+        hint = f"; {_PICKLE_HINT}" if not_utf8 else ""
+        raise StoreError(
+            f"{name}: {bad_count} bad line{'s' if bad_count != 1 else ''} of {records + bad_count}, nothing "
+            f"imported: {'; '.join(bad)}{shown}{hint}"
+        )
+    if warn is not None:
+        for message in mismatched[:MAX_BAD_LINES_SHOWN]:
+            warn(message)
+        if len(mismatched) > MAX_BAD_LINES_SHOWN:
+            warn(f"{name}: more keys that do not match their request (first {MAX_BAD_LINES_SHOWN} shown)")
+    return records, len(keys)
+
+
+def _write_checked(spool: IO[str], store: RecordStore, batch_size: int = 1000) -> int:
+    """Pass two of an import: add the checked records to ``store``, ``batch_size`` lines per
+    transaction; return how many samples were new."""
+    added = 0
+    batch: dict[str, tuple[dict[str, Any], str | None, list[Sample]]] = {}
+    pending = 0
+    for line in spool:
+        key, task, request, sample = json.loads(line)
+        batch.setdefault(key, (request, task, []))[2].append(Sample.from_json(sample))
+        pending += 1
+        if pending >= batch_size:
+            added += store.add_many(batch, checked=True)
+            batch, pending = {}, 0
+    if batch:
+        added += store.add_many(batch, checked=True)
+    return added
+
+
 def import_jsonl(
-    source: IO[str], store: RecordStore, name: str = "JSONL", warn: Callable[[str], None] | None = None
+    source: IO[str] | IO[bytes],
+    store: RecordStore | str | Path,
+    name: str = "JSONL",
+    warn: Callable[[str], None] | None = None,
 ) -> JsonlReport:
     """Add every sample of a JSONL export to ``store`` (samples already there are skipped).
 
+    Every line is checked (:mod:`lagrseq.llm.records`) before anything is written: one bad line
+    rejects the file with a :class:`StoreError` naming the bad lines and what is wrong with them,
+    and the store is left as it was. ``source`` may be text or bytes; lines are read one at a
+    time (at most :data:`MAX_LINE_BYTES` each), so a large file needs little memory. ``store`` may
+    be a directory, opened (and created) only once the file has passed.
+
     The key of each line is recomputed from its request, which is the truth: a hand-edited request
     files its samples under the new key (with a warning naming the line)."""
-    groups: dict[str, tuple[dict[str, Any], str | None, list[Sample]]] = {}
-    lines = 0
-    for number, raw in enumerate(source, 1):
-        if not raw.strip():
-            continue
-        where = f"{name} line {number}"
-        try:
-            record = json.loads(raw)
-        except json.JSONDecodeError as exc:
-            raise StoreError(f"{where}: not JSON ({exc.msg} at column {exc.colno})") from None
-        if not isinstance(record, dict) or record.get("format") != JSONL_FORMAT:
-            found = record.get("format") if isinstance(record, dict) else type(record).__name__
-            raise StoreError(f"{where}: expected a {JSONL_FORMAT!r} record, found format {found!r}")
-        request = record.get("request")
-        if not isinstance(request, dict) or not isinstance(request.get("messages"), list):
-            raise StoreError(f"{where}: 'request' must be an object with 'messages'")
-        if request.get("key_version") != KEY_VERSION:
-            raise StoreError(
-                f"{where}: key_version {request.get('key_version')!r}; this lagrseq reads version {KEY_VERSION}"
-            )
-        key = key_of_request(request)
-        if record.get("key") != key and warn is not None:
-            warn(f"{where}: key {str(record.get('key'))[:12]} does not match its request; filed under {key[:12]}")
-        sample = Sample.from_json(record.get("sample"), where)
-        task = record.get("task")
-        groups.setdefault(key, (request, task if isinstance(task, str) else None, []))[2].append(sample)
-        lines += 1
-    added = 0
-    for key, (request, task, samples) in groups.items():
-        before = store.entry(key)
-        count_before = len(before.samples) if before else 0
-        added += store.add(key, request, task, samples) - count_before
-    return JsonlReport(lines=lines, keys=len(groups), added=added, already_present=lines - added)
+    try:
+        with tempfile.TemporaryFile(mode="w+", encoding="utf-8") as spool:
+            records, keys = _check_jsonl(source, name, spool, warn)
+            spool.flush()
+            spool.seek(0)
+            if isinstance(store, RecordStore):
+                added = _write_checked(spool, store)
+            else:
+                with RecordStore(store) as opened:
+                    added = _write_checked(spool, opened)
+    except OSError as exc:  # reading the file, or the temporary copy of its checked lines
+        raise StoreError(f"cannot import {name}: {exc.strerror or exc}") from None
+    return JsonlReport(lines=records, keys=keys, added=added, already_present=records - added)
+
+
+def import_jsonl_file(
+    path: str | Path,
+    store: RecordStore | str | Path,
+    name: str | None = None,
+    warn: Callable[[str], None] | None = None,
+) -> JsonlReport:
+    """:func:`import_jsonl` of the file at ``path`` (read as bytes, so a line that is not UTF-8
+    is named with its number). Every failure is one :class:`StoreError` line: a missing or
+    unreadable file, a directory, a pickle given as JSONL, bad lines. ``store`` may be a directory,
+    which is opened (and created) only once the whole file has passed."""
+    path = Path(path)
+    name = name or str(path)
+    if path.is_dir():
+        raise StoreError(f"{path} is a directory; expected a JSONL file (a lagrseq export)")
+    try:
+        handle = path.open("rb")
+    except OSError as exc:
+        raise StoreError(f"cannot read {path}: {exc.strerror or exc}") from None
+    with handle:
+        return import_jsonl(handle, store, name, warn)

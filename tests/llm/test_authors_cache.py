@@ -140,3 +140,20 @@ def test_grid_answers_are_written_as_text_and_marked_as_arrays(tmp_path: Path) -
         sample = by_prompt[prompt_for(key)].samples[0]
         assert sample.recorded_as == "array"
         assert np.array_equal(np.array(json.loads(sample.text)), answer)
+
+
+def test_answers_a_store_may_not_hold_are_skipped_with_a_warning(tmp_path: Path) -> None:
+    from lagrseq.llm.records import MAX_ANSWER_CHARS
+
+    path = tmp_path / "hostile.pkl"
+    path.write_bytes(pickle.dumps([[4], "['e','f']", [5], "x" * (MAX_ANSWER_CHARS + 1), [6], "bad \ud800 text"]))
+    warnings: list[str] = []
+    with RecordStore(tmp_path / "store") as store:
+        report = import_authors_cache(
+            path, store, lambda key: f"prompt {key}", task="cube-stacking", model="gpt-3.5-turbo",
+            temperature=0.0, endpoint=ENDPOINT, max_tokens=256, warn=warnings.append,
+        )
+        assert (report.imported, report.skipped) == (1, 2)
+        assert sum(len(e.samples) for e in store.entries()) == 1
+    assert f"pair 1: answer.text is a string of {MAX_ANSWER_CHARS + 1} characters" in warnings[0]
+    assert "pair 2: answer.text holds a lone surrogate" in warnings[1]

@@ -309,8 +309,8 @@ def test_a_hand_edited_request_is_filed_under_its_new_key(tmp_path: Path) -> Non
     [
         ("{not json", "line 2: not JSON"),
         ('{"format": "other"}', "line 2: expected a 'lagrseq.recorded/1' record"),
-        ('{"format": "lagrseq.recorded/1", "request": {"messages": [], "key_version": 9}, "sample": {}}', "key_version 9"),
-        ('{"format": "lagrseq.recorded/1", "request": {"messages": [], "key_version": 1}, "sample": {"id": "x"}}', "'text' must be a string"),
+        ('{"format": "lagrseq.recorded/1", "request": {"messages": [], "key_version": 9}, "sample": {}}', "line 2: request lacks fields 'endpoint'.*request.key_version is 9, expected 1"),
+        ('{"format": "lagrseq.recorded/1", "request": {"messages": [], "key_version": 1}, "sample": {"id": "x"}}', "sample lacks fields 'text', 'origin'"),
     ],
 )
 def test_a_bad_jsonl_line_is_named(tmp_path: Path, line: str, message: str) -> None:
