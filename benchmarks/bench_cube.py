@@ -1,7 +1,9 @@
 """Cube stacking speed: seconds per trial with and without MCAP logging, env steps per second.
 
 8 cubes, upstream preset (100 episodes x 50 steps per trial), mock provider, one core.
-Targets (issue 2): <= 0.5 s per trial with logging; logging overhead <= 30 %.
+Targets: <= 0.5 s per trial with logging; logging overhead <= 30 %, measured as the ratio of
+logged to unlogged time in the same run. Logged and unlogged trials alternate (A B A B ...), so
+a machine whose load changes during the run slows both alike.
 For scale: the released code needs about 0.4 s per LaGR-SEQ trial and about 39 s per Q-learning
 trial (its permutation-ranking state index), measured on this kind of machine.
 
@@ -33,24 +35,28 @@ def main() -> None:
         for method in ("baseline", "lagr", "lagr-seq"):
             config = cfg.load("cube-stacking", method, "upstream")
             run_one(config, 999, 1, "mock", Path(tmp) / "warm.mcap")  # imports, caches
-            seconds: dict[bool, float] = {}
-            for log in (False, True):
-                times, steps, size = [], 0, 0
-                for trial in range(args.trials):
+            times: dict[bool, list[float]] = {False: [], True: []}
+            steps = {False: 0, True: 0}
+            size = 0
+            for trial in range(args.trials):
+                for log in (False, True):
                     path = Path(tmp) / f"{method}-{trial}.mcap"
                     started = time.perf_counter()
                     result = run_one(config, trial, 0, "mock", path, log=log)
-                    times.append(time.perf_counter() - started)
-                    steps += result.steps
+                    times[log].append(time.perf_counter() - started)
+                    steps[log] += result.steps
                     size += path.stat().st_size if log else 0
-                seconds[log] = statistics.mean(times)
+            for log in (False, True):
                 print(
-                    f"{method:<10} {'yes' if log else 'no':<4} {seconds[log]:>8.3f} "
-                    f"{steps / sum(times):>10.0f} {size / args.trials / 1e6:>9.3f}"
+                    f"{method:<10} {'yes' if log else 'no':<4} {statistics.mean(times[log]):>8.3f} "
+                    f"{steps[log] / sum(times[log]):>10.0f} {size / args.trials / 1e6 if log else 0:>9.3f}"
                 )
-            overhead = seconds[True] / seconds[False] - 1
-            print(f"{method:<10} logging overhead {overhead:+.0%} (target <= 30%), "
-                  f"{seconds[True]:.3f} s per logged trial (target <= 0.5 s)")
+            # the median of per-pair ratios: robust to a trial that a busy machine slowed down
+            ratio = statistics.median(b / a for a, b in zip(times[False], times[True]))
+            print(
+                f"{method:<10} logging overhead {ratio - 1:+.0%} (target <= 30%), "
+                f"{statistics.mean(times[True]):.3f} s per logged trial (target <= 0.5 s)"
+            )
 
 
 if __name__ == "__main__":

@@ -217,17 +217,14 @@ def import_answers(
 ) -> str:
     """``lagrseq cache import``: a JSONL export, or an authors' pickle whose keys are rebuilt
     from the task descriptor. Returns the line to print."""
-    from lagrseq.llm.store import RecordStore, endpoint_of, import_jsonl
+    from lagrseq.llm.store import RecordStore, endpoint_of, import_jsonl_file
 
     fmt = fmt if fmt != "auto" else ("jsonl" if file.suffix == ".jsonl" else "pkl")
     if not file.is_file():
         raise UsageError(f"{file}: no such file")
     if fmt == "jsonl":
-        try:
-            with RecordStore(store_path) as store, file.open(encoding="utf-8") as handle:
-                lines = import_jsonl(handle, store, file.name, warn=warn)
-        except UnicodeDecodeError:
-            raise UsageError(f"{file}: not UTF-8 text, so not a JSONL export; for an authors' pickle use --format pkl") from None
+        # The whole file is checked before the store is created or written.
+        lines = import_jsonl_file(file, store_path, file.name, warn=warn)
         return f"{file}: {lines.lines} answers under {lines.keys} keys; {lines.added} added, {lines.already_present} already in {store_path}"
     missing = [flag for flag, value in (("--task", task), ("--model", model), ("--temperature", temperature)) if value is None]
     if missing or task is None or model is None or temperature is None:
@@ -272,6 +269,10 @@ def export_answers(store_path: Path, out: str, stdout: Any) -> str:
                 with contextlib.suppress(OSError):
                     partial.unlink()
                 raise UsageError(f"cannot write {path}: {exc.strerror or exc}") from None
+            except BaseException:  # a damaged store: no half-written export is left behind
+                with contextlib.suppress(OSError):
+                    partial.unlink()
+                raise
     return f"{report.lines} answers under {report.keys} keys written to {out}"
 
 

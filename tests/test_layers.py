@@ -27,7 +27,7 @@ UPPER = ("lagrseq.experiment", "lagrseq.adapters", "lagrseq.lagr", "lagrseq.seq"
 BASE = ("lagrseq.tasks", "lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", "lagrseq.suite", *UPPER)
 
 LAYERS: dict[str, tuple[str, ...]] = {
-    # config, errors, seeding, paths: stdlib + numpy; anyone may import them
+    # config, errors, seeding, paths, tomlfile: stdlib + numpy; anyone may import them
     "lagrseq": BASE + HEAVY + ("mcap", "pandas", "matplotlib"),
     "lagrseq.__main__": (),  # ``python -m lagrseq``: the command line, nothing else
     "lagrseq.cli": ("lagrseq.experiment", "lagrseq.wiring", *HEAVY, "mcap", "pandas", "matplotlib"),
@@ -50,7 +50,7 @@ LAYERS: dict[str, tuple[str, ...]] = {
     "lagrseq.recording": ("lagrseq.analysis", "lagrseq.runner", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),
     "lagrseq.reproduce": ("lagrseq.cli", *HEAVY),
 }
-ANYONE = ("lagrseq.config", "lagrseq.errors", "lagrseq.seeding", "lagrseq.paths")
+ANYONE = ("lagrseq.config", "lagrseq.errors", "lagrseq.seeding", "lagrseq.paths", "lagrseq.tomlfile")
 
 
 def modules() -> list[str]:

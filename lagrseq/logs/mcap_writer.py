@@ -21,7 +21,6 @@ from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
 from mcap.records import (
     Channel,
-    Chunk,
     ChunkIndex,
     DataEnd,
     Footer,
@@ -39,6 +38,18 @@ _MESSAGE = struct.Struct("<BQHIQQ")  # opcode, record length, channel, sequence,
 _MESSAGE_FIXED = 2 + 4 + 8 + 8
 
 __all__ = ["LeanWriter", "MessageEncoding", "SchemaEncoding"]
+
+
+_CHUNK_HEAD = struct.Struct("<BQQQQII")  # opcode, record length, start, end, size, crc, len("zstd")
+
+
+def _chunk_record(start: int, end: int, raw_size: int, crc: int, compression: bytes, data: bytes) -> bytes:
+    """A Chunk record (the same bytes as ``mcap.records.Chunk.write``), packed at once: the
+    reference builder seeks and packs field by field, which costs more than a small chunk's
+    compression."""
+    length = 8 + 8 + 8 + 4 + 4 + len(compression) + 8 + len(data)
+    head = _CHUNK_HEAD.pack(Opcode.CHUNK, length, start, end, raw_size, crc, len(compression))
+    return head + compression + struct.pack("<Q", len(data)) + data
 
 
 def _message_index(channel_id: int, records: list[tuple[int, int]]) -> bytes:
@@ -109,7 +120,9 @@ class LeanWriter:
         self._metadata_indexes.append(MetadataIndex(offset=start, length=length, name=name))
 
     # ------------------------------------------------------------------ messages
-    def add_message(self, channel_id: int, log_time: int, data: bytes, sequence: int) -> None:
+    def add_message(self, channel_id: int, log_time: int, data: bytes, sequence: int | None = None) -> None:
+        """Add one message to the current chunk; ``sequence`` defaults to the channel's count of
+        messages so far (what every lagrseq topic uses)."""
         chunk = self._chunk
         if self._chunk_count_messages == 0:
             self._chunk_start = self._chunk_end = log_time
@@ -117,11 +130,20 @@ class LeanWriter:
             self._chunk_start = log_time
         if log_time > self._chunk_end:
             self._chunk_end = log_time
+        counts = self._counts
+        count = counts[channel_id]
+        counts[channel_id] = count + 1
         self._index[channel_id].append((log_time, len(chunk)))
-        chunk += _MESSAGE.pack(Opcode.MESSAGE, _MESSAGE_FIXED + len(data), channel_id, sequence, log_time, log_time)
+        chunk += _MESSAGE.pack(
+            Opcode.MESSAGE, _MESSAGE_FIXED + len(data), channel_id, count if sequence is None else sequence, log_time, log_time
+        )
         chunk += data
         self._chunk_count_messages += 1
-        self._counts[channel_id] += 1
+
+    @property
+    def messages(self) -> int:
+        """Messages added so far."""
+        return sum(self._counts.values())
 
     def flush(self) -> None:
         """Close the current chunk (if it holds messages) and push bytes to the OS."""
@@ -132,15 +154,9 @@ class LeanWriter:
     def _finish_chunk(self) -> None:
         raw = bytes(self._chunk)
         compressed = self._compressor.compress(raw)
-        chunk = Chunk(
-            compression="zstd",
-            data=compressed,
-            message_start_time=self._chunk_start,
-            message_end_time=self._chunk_end,
-            uncompressed_crc=zlib.crc32(raw),
-            uncompressed_size=len(raw),
-        )
-        chunk_start, chunk_length = self._record(chunk)
+        record = _chunk_record(self._chunk_start, self._chunk_end, len(raw), zlib.crc32(raw), b"zstd", compressed)
+        chunk_start, chunk_length = self._offset, len(record)
+        self._write(record)
         offsets: dict[int, int] = {}
         pieces: list[bytes] = []
         position = self._offset

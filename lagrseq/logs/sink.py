@@ -58,25 +58,10 @@ def _encode(record: dict[str, Any]) -> bytes:
         raise LogError(f"record is not JSON-serialisable ({exc}): {sorted(record)}") from None
 
 
-_TRANSITION = (
-    '{"trial":%d,"episode":%d,"step":%d,"global_step":%d,"state":%s,"action":%d,'
-    '"reward":%s,"terminated":%s,"truncated":%s,"guided":%s}'
-)
+_HEAD = b'{"trial":%d,"episode":%d,"step":%d,"global_step":%d,'
 _BOOL = {True: "true", False: "false"}
-
-_STATE_TEXT: dict[tuple[int, ...], str] = {}
-
-
-def _state_text(state: tuple[int, ...] | list[int]) -> str:
-    """JSON of a flat integer pattern, memoised for tuples (cube stacks repeat all the time)."""
-    if type(state) is tuple:
-        text = _STATE_TEXT.get(state)
-        if text is None:
-            text = "[" + ",".join(map(str, state)) + "]"
-            if len(_STATE_TEXT) < 100_000:
-                _STATE_TEXT[state] = text
-        return text
-    return "[" + ",".join(map(str, state)) + "]"
+_CACHE_LIMIT = 100_000
+"""Most distinct tails memoised per process (cube stacks and their rewards repeat all the time)."""
 
 
 def _flat_ints(state: Any) -> bool:
@@ -84,70 +69,80 @@ def _flat_ints(state: Any) -> bool:
     return isinstance(state, (tuple, list)) and (not state or type(state[0]) is int)
 
 
-def _encode_transition(event: Transition) -> bytes:
-    """The hot path: one transition per environment step. The same bytes as ``_encode`` for the
-    contract's fields, several times faster; anything unusual (grids' nested states, a
-    non-finite reward) takes the slow path, which also refuses what JSON cannot hold."""
-    trial, episode, step, global_step, state, action, reward, terminated, truncated, guided = event
-    if type(reward) is not float or not math.isfinite(reward) or not _flat_ints(state):
-        return _encode(to_record(event))
+def _state_text(state: tuple[int, ...] | list[int]) -> str:
+    return "[" + ",".join(map(str, state)) + "]"
+
+
+_TRANSITION_TAILS: dict[tuple[Any, ...], bytes] = {}
+
+
+def _transition_tail(event: Transition) -> bytes | None:
+    """The JSON of a transition from ``state`` on, or None when it needs the slow path."""
+    _, _, _, _, state, action, reward, terminated, truncated, guided = event
+    if type(reward) is not float or not math.isfinite(reward) or not _flat_ints(state) or type(action) is not int:
+        return None
     return (
-        _TRANSITION
-        % (
-            trial,
-            episode,
-            step,
-            global_step,
-            _state_text(state),
-            action,
-            repr(reward),
-            _BOOL[terminated],
-            _BOOL[truncated],
-            _BOOL[guided],
-        )
+        f'"state":{_state_text(state)},"action":{action},"reward":{reward!r},"terminated":{_BOOL[terminated]},'
+        f'"truncated":{_BOOL[truncated]},"guided":{_BOOL[guided]}}}'
     ).encode()
 
 
+def _encode_transition(event: Transition) -> bytes:
+    """The hot path: one transition per environment step. The same bytes as ``_encode``, several
+    times faster: the part from ``state`` on repeats (a cube trial meets a few hundred distinct
+    ones) and is memoised; anything unusual (grids' nested states, a non-finite reward) takes
+    the slow path, which also refuses what JSON cannot hold."""
+    key = event[4:]
+    try:
+        tail = _TRANSITION_TAILS[key] if type(event[6]) is float else None
+    except KeyError:
+        tail = _transition_tail(event)
+        if tail is not None and len(_TRANSITION_TAILS) < _CACHE_LIMIT:
+            _TRANSITION_TAILS[key] = tail
+    except TypeError:  # an unhashable state: a grid's nested lists
+        tail = None
+    if tail is None:
+        return _encode(to_record(event))
+    return _HEAD % event[:4] + tail
+
+
 # A decision not to query (most /query messages): every field after ``decision`` is at its
-# default except ``query_reward``, so the JSON is a template with slots for the variable fields.
+# default except ``query_reward``, so the JSON from ``state`` on depends on (state, decision,
+# query_reward) alone and is memoised like a transition's.
 _QUERY_FIELDS = QueryEvent._fields[:-1]  # the contract's; ``extra`` follows them
 _REWARD_AT = QueryEvent._fields.index("query_reward")
 _SKIP_HEAD = QueryEvent(0, 0, 0, 0, (), 0)[6:_REWARD_AT]
 _SKIP_TAIL = QueryEvent(0, 0, 0, 0, (), 0)[_REWARD_AT + 1 :]
-_SKIP = (
-    '{"trial":%d,"episode":%d,"step":%d,"global_step":%d,"state":%s,"decision":%d,'
-    + ",".join(f'"{k}":{json.dumps(v)}' for k, v in zip(_QUERY_FIELDS[6:_REWARD_AT], _SKIP_HEAD))
-    + ',"query_reward":%s,'
-    + ",".join(
-        f'"{k}":{json.dumps(v)}' for k, v in zip(_QUERY_FIELDS[_REWARD_AT + 1 :], _SKIP_TAIL)
-    )
-    + "}"
-)
+_SKIP_MIDDLE = ",".join(f'"{k}":{json.dumps(v)}' for k, v in zip(_QUERY_FIELDS[6:_REWARD_AT], _SKIP_HEAD))
+_SKIP_END = ",".join(f'"{k}":{json.dumps(v)}' for k, v in zip(_QUERY_FIELDS[_REWARD_AT + 1 :], _SKIP_TAIL))
+_SKIP_TAILS: dict[tuple[Any, ...], bytes] = {}
+
+
+def _skip_tail(event: QueryEvent) -> bytes | None:
+    state, decision, reward = event[4], event[5], event[_REWARD_AT]
+    if type(reward) is not float or not math.isfinite(reward) or not _flat_ints(state) or type(decision) is not int:
+        return None
+    return (
+        f'"state":{_state_text(state)},"decision":{decision},{_SKIP_MIDDLE},"query_reward":{reward!r},{_SKIP_END}}}'
+    ).encode()
 
 
 def _encode_query(event: QueryEvent) -> bytes:
-    """A decision not to query through the template; every other record through json."""
-    reward = event[_REWARD_AT]
-    if (
-        event[6:_REWARD_AT] != _SKIP_HEAD
-        or event[_REWARD_AT + 1 :] != _SKIP_TAIL
-        or type(reward) is not float
-        or not math.isfinite(reward)
-        or not _flat_ints(event.state)
-    ):
+    """A decision not to query through the memoised tail; every other record through json."""
+    if event[6:_REWARD_AT] != _SKIP_HEAD or event[_REWARD_AT + 1 :] != _SKIP_TAIL:
         return _encode(to_record(event))
-    return (
-        _SKIP
-        % (
-            event.trial,
-            event.episode,
-            event.step,
-            event.global_step,
-            _state_text(event.state),
-            event.decision,
-            repr(reward),
-        )
-    ).encode()
+    key = (event[4], event[5], event[_REWARD_AT])
+    try:
+        tail = _SKIP_TAILS[key] if type(event[_REWARD_AT]) is float else None
+    except KeyError:
+        tail = _skip_tail(event)
+        if tail is not None and len(_SKIP_TAILS) < _CACHE_LIMIT:
+            _SKIP_TAILS[key] = tail
+    except TypeError:
+        tail = None
+    if tail is None:
+        return _encode(to_record(event))
+    return _HEAD % event[:4] + tail
 
 
 def _open_exclusive(partial: Path) -> Any:
@@ -187,7 +182,6 @@ class McapSink:
         self._stream = _open_exclusive(self.partial)
         self._writer = LeanWriter(self._stream, library="lagrseq", profile=PROFILE)
         self._channels: dict[str, int] = {}
-        self._sequence: dict[str, int] = {}
         for topic, schema in TOPICS.items():
             schema_id = self._writer.register_schema(
                 name=schema["title"], encoding="jsonschema", data=schema_bytes(schema)
@@ -200,18 +194,17 @@ class McapSink:
             self._channels[topic] = self._writer.register_channel(
                 topic=topic, message_encoding="json", schema_id=schema_id
             )
-        self._sequence = {topic: 0 for topic in self._channels}
+        self._transition_channel = self._channels[TRANSITION_TOPIC]
         self._writer.add_metadata(RUN_METADATA, metadata)
         self._pending: list[tuple[str, bytes, int]] = []
         self._finished = False
-        self.messages = 0
 
     def write(self, event: Event) -> None:
         """Add one event. Transitions and pictures go to the current chunk; queries and episodes
         are held until :meth:`flush` writes them into a chunk of their own."""
         kind = type(event)
         if kind is Transition:
-            self._add(TRANSITION_TOPIC, _encode_transition(event), event[3])  # type: ignore[arg-type,misc]
+            self._writer.add_message(self._transition_channel, event[3], _encode_transition(event))  # type: ignore[arg-type,misc]
         elif kind is QueryEvent:
             self._pending.append((QUERY_TOPIC, _encode_query(event), event[3]))  # type: ignore[arg-type,misc]
         elif kind is EpisodeEvent:
@@ -231,10 +224,12 @@ class McapSink:
             self._pending.append((topic, _encode(record), log_time))
 
     def _add(self, topic: str, data: bytes, log_time: int) -> None:
-        sequence = self._sequence[topic]
-        self._sequence[topic] = sequence + 1
-        self._writer.add_message(self._channels[topic], log_time, data, sequence)
-        self.messages += 1
+        self._writer.add_message(self._channels[topic], log_time, data)
+
+    @property
+    def messages(self) -> int:
+        """Messages written so far (every topic)."""
+        return self._writer.messages
 
     def flush(self) -> None:
         """End of an episode: close the transition chunk, write the held messages as their own

@@ -23,3 +23,26 @@ def test_check_env(env_id: str) -> None:
         pytest.skip(str(exc))
     check_env(env.unwrapped, skip_render_check=False)
     env.close()
+
+
+@pytest.mark.parametrize(
+    "code",
+    [
+        # the documented way: importing lagrseq.envs registers every id, as gymnasium_robotics does
+        "import gymnasium as gym, lagrseq.envs; env = gym.make('lagrseq/CubeStacking-v0')",
+        # gymnasium's own module:id syntax imports the module first, so nothing else is needed
+        "import gymnasium as gym; env = gym.make('lagrseq.envs:lagrseq/ObjectArrangement-v0')",
+    ],
+)
+def test_the_documented_ways_to_make_an_env_work_in_a_fresh_interpreter(code: str) -> None:
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    done = subprocess.run(
+        [sys.executable, "-c", code + "; env.reset(seed=0); print(env.spec.id)"],
+        capture_output=True, text=True, env={"PYTHONPATH": str(root)}, timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().startswith("lagrseq/")

@@ -158,3 +158,15 @@ def test_lean_message_index_equals_the_reference_library() -> None:
     builder = RecordBuilder()
     MessageIndex(channel_id=3, records=[(1, 2), (5, 99), (2**40, 7)]).write(builder)
     assert _message_index(3, [(1, 2), (5, 99), (2**40, 7)]) == builder.end()
+
+
+def test_lean_chunk_record_equals_the_reference_library() -> None:
+    from mcap.data_stream import RecordBuilder
+    from mcap.records import Chunk
+
+    from lagrseq.logs.mcap_writer import _chunk_record
+
+    builder = RecordBuilder()
+    Chunk(message_start_time=3, message_end_time=2**40, uncompressed_size=77, uncompressed_crc=12345,
+          compression="zstd", data=b"\x00compressed bytes").write(builder)
+    assert _chunk_record(3, 2**40, 77, 12345, b"zstd", b"\x00compressed bytes") == builder.end()

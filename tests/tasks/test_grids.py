@@ -252,10 +252,32 @@ def test_mock_answers_contain_the_observed_cells_and_sample_when_warm() -> None:
 
 
 def test_mock_is_target_blind() -> None:
+    """The mock is called with the same prompt under runs with different targets: it answers the
+    same, because the prompt is all it sees (the target never reaches it)."""
+    from lagrseq import config as cfg
+    from lagrseq.lagr import query_for
+    from lagrseq.llm.mock import MockProvider
+    from lagrseq.wiring import extrapolator, make_task
+
     pattern = np.zeros((5, 5), dtype=np.int8)
     pattern[1, 1] = pattern[1, 3] = pattern[3, 2] = 1
-    prompts = {object_arrangement(target).prompt(pattern) for target in ("diamond", "square", "x")}
-    assert len(prompts) == 1  # the target never reaches the prompt, the mock's only input
+    answers, prompts = set(), set()
+    for target in ("diamond", "square", "x"):
+        config = cfg.load("object-arrangement", "lagr", "upstream", overrides=[f'task.target="{target}"'])
+        query = query_for(make_task(config), config.llm, pattern)
+        prompts.add(query.prompt)
+        mock = MockProvider(extrapolator(config), np.random.default_rng(0), name="mock")
+        answers.add(mock.complete(query).text)
+    assert len(prompts) == 1, "the target never reaches the prompt"
+    assert len(answers) == 1, "the same prompt gets the same answer whatever the target"
+    image = np.zeros((10, 10), dtype=np.int8)
+    image[0, 0] = image[1, 1] = 1
+    texts = set()
+    for target in ("x", "plus"):
+        config = cfg.load("image-completion", "lagr", "upstream", overrides=[f'task.target="{target}"'])
+        query = query_for(make_task(config), config.llm, image)
+        texts.add(MockProvider(extrapolator(config), np.random.default_rng(0), name="mock").complete(query).text)
+    assert len(texts) == 1
 
 
 def test_mock_accepts_like_gpt4_did_on_the_authors_states() -> None:
