@@ -81,7 +81,7 @@ def test_acceptance_is_evaluation_at_least_threshold(threshold: float) -> None:
     wrong = TASK.target[:6] + (TASK.target[7], TASK.target[6])
     result = consult(TASK, Fixed(letters(wrong)), LLM, threshold, (4,))
     assert result.evaluation == pytest.approx(0.75)
-    assert result.accepted == (0.75 >= threshold)
+    assert result.accepted == (threshold <= 0.75)
     exactly = consult(TASK, Fixed(letters(wrong)), LLM, 0.75, (4,))
     assert exactly.accepted, "E == threshold is accepted (>=)"
 
