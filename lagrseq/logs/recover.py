@@ -277,17 +277,17 @@ def recover(path: str | Path, out: str | Path | None = None) -> Recovered:
         else:
             advice = "recover never overwrites a log: give --out a new file name or another directory"
         raise LogError(f"{target} exists already; {advice}")
+    try:
+        plan = _plan(source)
+    except _Cannot as exc:
+        error = _Intact if exc.intact else LogError
+        raise error(f"{source}: {exc.detail}; {exc.advice}") from None
     backup = source.with_name(source.name + BACKUP_SUFFIX) if in_place else None
     if backup is not None and backup.exists():
         raise LogError(
             f"{backup} exists already (a copy kept by an earlier recovery); move it away, or "
             "pass --out to write the recovered log elsewhere"
         )
-    try:
-        plan = _plan(source)
-    except _Cannot as exc:
-        error = _Intact if exc.intact else LogError
-        raise error(f"{source}: {exc.detail}; {exc.advice}") from None
 
     kept = plan.keep()
     episodes = plan.episodes(kept)
