@@ -6,7 +6,10 @@ configuration (its digest, i.e. the run directory's suffix). Everything comes fr
 so that no transition chunk is decompressed (:func:`lagrseq.logs.reader.read_topics`).
 
 Logs that are unfinished (``.mcap.partial``), unreadable, or whose trial did not complete are left
-out with a one-line warning each, never failing the whole load.
+out with a one-line warning each, never failing the whole load. A warning names the log by its
+full path and, where ``lagrseq recover`` can repair it, gives the command (quoted, to be run as
+written); the totals (:attr:`Logs.files`, :attr:`Logs.bytes`, :attr:`Logs.messages`) count only
+the logs that were used, :attr:`Logs.skipped` the others.
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ from typing import Any
 import pandas as pd
 
 from lagrseq.errors import LogError
-from lagrseq.logs.reader import ReadStats, read_log
+from lagrseq.logs.reader import ReadStats, full_path, read_log, recover_command
 from lagrseq.logs.schemas import ACCURACY_METHOD
 from lagrseq.logs.sink import PARTIAL_SUFFIX
 
@@ -138,15 +141,22 @@ class Logs:
     runs: tuple[Run, ...]
     warnings: tuple[str, ...]
     files: int
+    """Logs read into the runs (skipped ones are not counted)."""
     bytes: int
+    """Their size."""
     messages: dict[str, int] = field(default_factory=dict)
+    """Messages per topic in them."""
     stats: ReadStats = field(default_factory=ReadStats)
+    skipped: int = 0
+    """Logs left out with a warning: unfinished, unreadable, incomplete trials, duplicates."""
 
 
 @dataclass
 class _Trial:
     key: RunKey
     config: dict[str, Any]
+    path: Path
+    size: int
     display: str
     trial: int
     episodes: pd.DataFrame
@@ -172,16 +182,30 @@ def _find(roots: Sequence[str | Path]) -> tuple[list[tuple[Path, Path]], list[st
             for path in sorted(root.rglob("*.mcap")):
                 found.setdefault(path.resolve(), root)
             for path in sorted(root.rglob("*.mcap" + PARTIAL_SUFFIX)):
-                warnings.append(
-                    f"{_display(path, root)}: unfinished log (its trial crashed or is still "
-                    f"running); skipped: run `lagrseq recover` on it to keep its episodes"
-                )
+                warnings.append(_unfinished(path))
         elif root.is_file() and root.name.endswith(".mcap"):
             found.setdefault(root.resolve(), root)
         else:
             raise LogError(f"{root}: no such MCAP file or directory")
     ordered = sorted(found.items(), key=lambda kv: _display(kv[0], kv[1]))
     return ordered, warnings
+
+
+def _unfinished(path: Path) -> str:
+    from lagrseq.logs.recover import diagnose
+
+    verdict = diagnose(path)
+    if verdict.recoverable:
+        advice = (
+            f"once its trial is no longer running, run `{recover_command(path)}` to keep it "
+            f"({verdict.detail})"
+        )
+    else:
+        advice = f"`lagrseq recover` cannot repair it ({verdict.detail})"
+    return (
+        f"{full_path(path)}: unfinished log (its trial crashed or is still running); "
+        f"skipped: {advice}"
+    )
 
 
 def _read_trial(path: Path, root: Path, stats: ReadStats) -> _Trial:
@@ -193,7 +217,9 @@ def _read_trial(path: Path, root: Path, stats: ReadStats) -> _Trial:
     run = info.run
     method = run.get("method", "")
     if status != "complete":
-        raise LogError(f"{display}: trial {status} ({info.status.get('error', '')}); skipped")
+        raise LogError(
+            f"{full_path(path)}: trial {status} ({info.status.get('error', '')}); skipped"
+        )
     text = run["config"]
     digest = hashlib.sha256(text.encode()).hexdigest()[:8]
     samples = int(run.get("samples", 0)) if method == ACCURACY_METHOD else 0
@@ -209,6 +235,8 @@ def _read_trial(path: Path, root: Path, stats: ReadStats) -> _Trial:
     return _Trial(
         key=key,
         config=json.loads(text),
+        path=path,
+        size=path.stat().st_size,
         display=display,
         trial=int(run.get("trial", 0)),
         # Frames right away: a file's records as dicts are big, its columns are small.
@@ -233,37 +261,45 @@ def _concat(frames: list[pd.DataFrame], columns: Sequence[str]) -> pd.DataFrame:
 def load(roots: Sequence[str | Path]) -> Logs:
     """Read every ``*.mcap`` under ``roots`` (files or directories) into runs."""
     paths, warnings = _find(roots)
+    skipped = len(warnings)  # the unfinished logs
     stats = ReadStats()
     groups: dict[RunKey, list[_Trial]] = {}
-    size = 0
-    messages: dict[str, int] = {}
     for path, root in paths:
-        size += path.stat().st_size
         try:
             trial = _read_trial(path, root, stats)
         except LogError as exc:
-            text = str(exc).replace(str(path), _display(path, root))
+            text = str(exc)
             warnings.append(text if text.endswith("skipped") else f"{text}; skipped")
+            skipped += 1
             continue
-        except (KeyError, ValueError) as exc:
-            warnings.append(f"{_display(path, root)}: not a lagrseq trial log ({exc}); skipped")
+        except (KeyError, ValueError, RecursionError, OSError) as exc:
+            warnings.append(
+                f"{full_path(path)}: not a lagrseq trial log ({type(exc).__name__}: {exc}); skipped"
+            )
+            skipped += 1
             continue
-        for topic, count in trial.counts.items():
-            messages[topic] = messages.get(topic, 0) + count
         groups.setdefault(trial.key, []).append(trial)
 
     runs = []
+    used = size = 0
+    messages: dict[str, int] = {}
     for key in sorted(groups):
         trials: dict[int, _Trial] = {}
         for trial in sorted(groups[key], key=lambda t: t.display):
             if trial.trial in trials:
                 warnings.append(
-                    f"{trial.display}: trial {trial.trial} of {key.name} also in "
-                    f"{trials[trial.trial].display}; skipped"
+                    f"{full_path(trial.path)}: trial {trial.trial} of {key.name} also in "
+                    f"{full_path(trials[trial.trial].path)}; skipped"
                 )
+                skipped += 1
                 continue
             trials[trial.trial] = trial
         ordered = [trials[t] for t in sorted(trials)]
+        for trial in ordered:
+            used += 1
+            size += trial.size
+            for topic, count in trial.counts.items():
+                messages[topic] = messages.get(topic, 0) + count
         episodes = _concat([t.episodes for t in ordered], EPISODE_COLUMNS)
         queries = _concat([t.queries for t in ordered], QUERY_COLUMNS)
         runs.append(
@@ -281,8 +317,9 @@ def load(roots: Sequence[str | Path]) -> Logs:
     return Logs(
         runs=tuple(runs),
         warnings=tuple(sorted(set(warnings))),
-        files=len(paths),
+        files=used,
         bytes=size,
         messages=dict(sorted(messages.items())),
         stats=stats,
+        skipped=skipped,
     )

@@ -9,7 +9,10 @@ for a Markdown viewer). Items the logs do not cover get one line saying why.
 
 Same logs in, same bytes out: figures are saved without timestamps or software versions (PNG
 ``Software``, PDF dates, SVG ids from a fixed salt), runs and rows are sorted, floats have fixed
-formats, and no path outside the output directory or wall-clock time is written.
+formats, and no wall-clock time is written. No path outside the output directory is written
+either, except in the warnings about skipped logs, which name each log by its full path so that
+the command they suggest can be run as written. The header's totals count the logs read; skipped
+logs are counted apart.
 """
 
 from __future__ import annotations
@@ -243,10 +246,13 @@ def _summary_line(logs: loading.Logs) -> str:
     transitions = logs.messages.get("/transition", 0)
     queries = logs.messages.get("/query", 0)
     episodes = logs.messages.get("/episode", 0)
-    return (
+    line = (
         f"{logs.files} MCAP logs ({logs.bytes / 1e6:.1f} MB; {transitions} transitions, "
         f"{episodes} episodes, {queries} query records) in {len(logs.runs)} runs"
     )
+    if logs.skipped:  # said only when there are some: the line is otherwise as it always was
+        line += f", {logs.skipped} more skipped (see the warnings)"
+    return line
 
 
 def _how(report: ItemReport, produced_by: str) -> tuple[str, list[str]]:

@@ -1,42 +1,27 @@
 """Read lagrseq MCAP logs back: metadata, configuration and decoded messages.
 
-Only the ``mcap`` library and the standard library: replay needs neither gymnasium nor torch.
-Foreign errors (mcap, struct, json) become one-line :class:`~lagrseq.errors.LogError` messages.
+Only the ``mcap`` record classes and the standard library: replay needs neither gymnasium nor
+torch. Files are read through :class:`~lagrseq.logs.mcap_reader.McapFile`, which checks every
+length and offset against the file before it reads or allocates anything, so a damaged log costs
+at most its own size in memory. What goes wrong (damage, a message that is not JSON, an OS error)
+becomes one :class:`~lagrseq.errors.LogError` line naming the log's full path and saying whether
+``lagrseq recover`` can repair it, with the command to run.
 """
 
 from __future__ import annotations
 
 import json
-import struct
+import shlex
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mcap.data_stream import ReadDataStream
-from mcap.exceptions import McapError
-from mcap.reader import make_reader
-from mcap.records import Chunk, Message
-from mcap.stream_reader import CRCValidationError, breakup_chunk
+from mcap.records import Message
 
 from lagrseq.errors import LogError
+from lagrseq.logs.mcap_reader import MAGIC, Damage, McapFile, Summary
 from lagrseq.logs.sink import RUN_METADATA, STATUS_METADATA
-
-try:  # zstandard is what mcap decompresses chunks with; its errors enter here
-    from zstandard import ZstdError as _ZstdError
-except ImportError:  # pragma: no cover - mcap cannot read our files without it anyway
-    _ZstdError = McapError  # type: ignore[misc,assignment]
-
-_READ_ERRORS = (
-    McapError,
-    _ZstdError,
-    struct.error,
-    EOFError,
-    ValueError,
-    KeyError,
-    IndexError,
-    OSError,
-)
 
 
 @dataclass(frozen=True)
@@ -49,37 +34,104 @@ class LogInfo:
 
     @property
     def config(self) -> dict[str, Any]:
-        return json.loads(self.run["config"])
+        try:
+            config = json.loads(self.run["config"])
+        except (KeyError, ValueError, RecursionError) as exc:
+            raise LogError(
+                f"{self.path}: the log's {RUN_METADATA!r} metadata has no readable configuration "
+                f"({type(exc).__name__}); not a lagrseq trial log"
+            ) from None
+        if not isinstance(config, dict):
+            raise LogError(f"{self.path}: the logged configuration is not a table; not a lagrseq trial log")
+        return config
 
     @property
     def complete(self) -> bool:
         return self.status.get("status") == "complete"
 
 
-def _broken(path: Path, exc: BaseException) -> LogError:
-    if isinstance(exc, (CRCValidationError, _ZstdError)):
+def full_path(path: str | Path) -> Path:
+    """``path`` made absolute (what messages name, so that a suggested command runs anywhere)."""
+    return Path(path).absolute()
+
+
+def recover_command(path: str | Path) -> str:
+    """The shell command that repairs ``path``, quoted so it can be pasted as written."""
+    return f"lagrseq recover {shlex.quote(str(full_path(path)))}"
+
+
+def damaged(path: str | Path, damage: Damage | str) -> LogError:
+    """The one-line error for a damaged log: where it is damaged and, after checking what
+    :func:`lagrseq.logs.recover.recover` could do with it, either the command that repairs it or
+    that it cannot be repaired."""
+    from lagrseq.logs.recover import diagnose
+
+    full = full_path(path)
+    if isinstance(damage, Damage) and damage.offset == 0 and not _starts_with_magic(full):
         return LogError(
-            f"{path}: corrupt MCAP chunk ({type(exc).__name__}: {exc}); the file's bytes were "
-            "changed after it was written, restore it from a copy or rerun the trial"
+            f"{full}: not a readable MCAP log (it does not start with the MCAP magic bytes); "
+            "lagrseq logs are the .mcap files that `lagrseq run` writes"
         )
-    return LogError(
-        f"{path}: not a readable MCAP log ({type(exc).__name__}: {exc}); "
-        f"if a crash cut it short, run `lagrseq recover {path}`"
-    )
+    verdict = diagnose(full)
+    if verdict.recoverable:
+        advice = f"run `{recover_command(full)}` to repair it ({verdict.detail})"
+    else:
+        advice = (
+            f"`lagrseq recover` cannot repair it ({verdict.detail}): restore it from a copy or "
+            "rerun the trial"
+        )
+    return LogError(f"{full}: damaged MCAP log ({damage}); {advice}")
+
+
+def _starts_with_magic(path: Path) -> bool:
+    try:
+        with path.open("rb") as handle:
+            return handle.read(len(MAGIC)) == MAGIC
+    except OSError:
+        return False
+
+
+def _fail(path: Path, exc: Damage | OSError) -> LogError:
+    if isinstance(exc, OSError):
+        reason = exc.strerror or type(exc).__name__
+        return LogError(f"{full_path(path)}: cannot read the log ({reason}); check the path and its permissions")
+    return damaged(path, exc)
+
+
+def _json(message: Message, topic: str, offset: int) -> dict[str, Any]:
+    try:
+        record = json.loads(message.data)
+    except (ValueError, RecursionError) as exc:
+        raise Damage(offset, f"a {topic} message in this chunk is not JSON ({type(exc).__name__})") from None
+    if not isinstance(record, dict):
+        raise Damage(offset, f"a {topic} message in this chunk is not a JSON object")
+    return record
+
+
+def _info(path: Path, metadata: Sequence[Any]) -> LogInfo:
+    records = {m.name: dict(m.metadata) for m in metadata}
+    if RUN_METADATA not in records:
+        raise LogError(f"{full_path(path)}: MCAP file has no {RUN_METADATA!r} metadata; not a lagrseq log")
+    return LogInfo(path, records[RUN_METADATA], records.get(STATUS_METADATA, {}))
+
+
+def _summary(log: McapFile) -> Summary:
+    summary = log.summary()
+    if summary is None:
+        footer_offset = log.footer()[1]
+        raise Damage(footer_offset, "the file has no summary section")
+    return summary
 
 
 def read_info(path: str | Path) -> LogInfo:
-    """Metadata of a finished log (uses the summary section, no message data is read)."""
+    """Metadata of a finished log (through the summary's index; no message data is read)."""
     path = Path(path)
     try:
-        with path.open("rb") as handle:
-            reader = make_reader(handle)
-            records = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
-    except _READ_ERRORS as exc:
-        raise _broken(path, exc) from None
-    if RUN_METADATA not in records:
-        raise LogError(f"{path}: MCAP file has no {RUN_METADATA!r} metadata; not a lagrseq log")
-    return LogInfo(path, records[RUN_METADATA], records.get(STATUS_METADATA, {}))
+        with McapFile(path) as log:
+            metadata = log.metadata()
+    except (Damage, OSError) as exc:
+        raise _fail(path, exc) from None
+    return _info(path, metadata)
 
 
 def is_complete(path: str | Path) -> bool:
@@ -93,18 +145,34 @@ def is_complete(path: str | Path) -> bool:
 def iter_messages(
     path: str | Path, topics: Sequence[str] | None = None
 ) -> Iterator[tuple[str, dict[str, Any]]]:
-    """Decoded ``(topic, record)`` pairs in log-time order; ``topics`` restricts what is read
-    (chunks holding none of them are not decompressed)."""
+    """Decoded ``(topic, record)`` pairs in log-time order (ties in file order); ``topics``
+    restricts what is read (chunks holding none of them are not decompressed)."""
     path = Path(path)
+    found: list[tuple[int, int, int, str, dict[str, Any]]] = []
     try:
-        with path.open("rb") as handle:
-            reader = make_reader(handle)
-            for _schema, channel, message in reader.iter_messages(
-                topics=list(topics) if topics else None, log_time_order=True
-            ):
-                yield channel.topic, json.loads(message.data)
-    except _READ_ERRORS as exc:
-        raise _broken(path, exc) from None
+        with McapFile(path) as log:
+            summary = _summary(log)
+            wanted = {
+                cid: ch.topic
+                for cid, ch in summary.channels.items()
+                if topics is None or ch.topic in topics
+            }
+            for index in summary.chunk_indexes:
+                if index.message_index_offsets and not wanted.keys() & index.message_index_offsets.keys():
+                    continue
+                offset = index.chunk_start_offset
+                records = log.chunk_records(log.chunk(index), offset)
+                for position, item in enumerate(records):
+                    if isinstance(item, Message) and item.channel_id in wanted:
+                        topic = wanted[item.channel_id]
+                        found.append(
+                            (item.log_time, offset, position, topic, _json(item, topic, offset))
+                        )
+    except (Damage, OSError) as exc:
+        raise _fail(path, exc) from None
+    found.sort(key=lambda item: item[:3])
+    for _time, _offset, _position, topic, record in found:
+        yield topic, record
 
 
 @dataclass
@@ -137,13 +205,6 @@ class LogData:
     topics: dict[str, list[dict[str, Any]]]
 
 
-def _no_summary(path: Path) -> LogError:
-    return LogError(
-        f"{path}: MCAP file has no summary section (unfinished or cut short); "
-        f"run `lagrseq recover {path}`"
-    )
-
-
 def read_log(
     path: str | Path, topics: Sequence[str] = (), stats: ReadStats | None = None
 ) -> LogData:
@@ -157,12 +218,9 @@ def read_log(
     out: dict[str, list[dict[str, Any]]] = {topic: [] for topic in topics}
     local = ReadStats(files=1)
     try:
-        with path.open("rb") as handle:
-            reader = make_reader(handle)
-            summary = reader.get_summary()
-            if summary is None:
-                raise _no_summary(path)
-            records = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+        with McapFile(path) as log:
+            summary = _summary(log)
+            metadata = log.metadata()
             statistics = summary.statistics
             counts = {
                 ch.topic: int(statistics.channel_message_counts.get(cid, 0)) if statistics else 0
@@ -174,23 +232,20 @@ def read_log(
             for index in chunks:
                 if not wanted.keys() & index.message_index_offsets.keys():
                     continue
-                handle.seek(index.chunk_start_offset + 1 + 8)  # skip opcode and record length
-                chunk = Chunk.read(ReadDataStream(handle))
+                chunk = log.chunk(index)
                 local.chunks_decompressed += 1
                 local.bytes_decompressed += chunk.uncompressed_size
-                for record in breakup_chunk(chunk, validate_crc=True):
+                offset = index.chunk_start_offset
+                for record in log.chunk_records(chunk, offset):
                     if isinstance(record, Message) and record.channel_id in wanted:
-                        out[wanted[record.channel_id]].append(json.loads(record.data))
+                        topic = wanted[record.channel_id]
+                        out[topic].append(_json(record, topic, offset))
                         local.messages += 1
-    except LogError:
-        raise
-    except _READ_ERRORS as exc:
-        raise _broken(path, exc) from None
-    if RUN_METADATA not in records:
-        raise LogError(f"{path}: MCAP file has no {RUN_METADATA!r} metadata; not a lagrseq log")
+    except (Damage, OSError) as exc:
+        raise _fail(path, exc) from None
+    info = _info(path, metadata)
     if stats is not None:
         stats.add(local)
-    info = LogInfo(path, records[RUN_METADATA], records.get(STATUS_METADATA, {}))
     return LogData(info, counts, out)
 
 

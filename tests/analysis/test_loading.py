@@ -3,6 +3,7 @@ with one line each."""
 
 from __future__ import annotations
 
+import shlex
 import shutil
 from pathlib import Path
 
@@ -57,7 +58,8 @@ def test_bad_logs_are_skipped_with_one_line_each(
     lagr_seq = sorted(root.rglob("lagr-seq/*/trial-000.mcap"))[0]
     # a crash leftover, a cut copy, and a trial that was interrupted
     (lagr_seq.parent / "trial-007.mcap.partial").write_bytes(lagr_seq.read_bytes()[:5000])
-    (lagr_seq.parent / "trial-008.mcap").write_bytes(lagr_seq.read_bytes()[:5000])
+    data = lagr_seq.read_bytes()
+    (lagr_seq.parent / "trial-008.mcap").write_bytes(data[: len(data) // 2])
     config = cfg.load(
         "cube-stacking", "lagr-seq", "upstream", overrides=[f"run.episodes={EPISODES}"]
     )
@@ -72,10 +74,18 @@ def test_bad_logs_are_skipped_with_one_line_each(
     assert len(logs.warnings) == 3
     assert all("\n" not in w and w.endswith("skipped") or "skipped:" in w for w in logs.warnings)
     text = " ".join(logs.warnings)
+    # every log is named by its full path, and the recover command can be run as written
+    assert f"{lagr_seq.parent / 'trial-007.mcap.partial'}: unfinished log" in text
+    assert f"{lagr_seq.parent / 'trial-009.mcap'}: trial interrupted" in text
+    cut = lagr_seq.parent / "trial-008.mcap"
+    assert f"`lagrseq recover {shlex.quote(str(cut))}` to repair it" in text
+    # recover is suggested only where it can do something: the first 5000 bytes hold no episode
     assert "trial-007.mcap.partial: unfinished log" in text
-    assert "trial-008.mcap" in text and "lagrseq recover" in text
-    assert "trial-009.mcap: trial interrupted" in text
-    assert str(tmp_path) not in text, "warnings name logs relative to the directory given"
+    assert "`lagrseq recover` cannot repair it (no episode was flushed" in text
+    # skipped logs are not in the totals, they are counted apart
+    clean = loading.load([runs_dir])
+    assert logs.skipped == 3 and clean.skipped == 0 and logs.files == clean.files
+    assert (logs.bytes, logs.messages) == (clean.bytes, clean.messages)
     run = next(r for r in logs.runs if r.key.method == "lagr-seq")
     assert run.trials == tuple(range(TRIALS))
 
@@ -88,6 +98,10 @@ def test_the_same_trial_twice_is_counted_once(
     shutil.copytree(runs_dir, copy)
     logs = loading.load([runs_dir, copy])
     assert len([w for w in logs.warnings if "also in" in w]) == 3 * TRIALS + 1
+    clean = loading.load([runs_dir])
+    assert logs.skipped == 3 * TRIALS + 1 and logs.files == clean.files
+    assert logs.messages == clean.messages, "the skipped copies are not in the totals"
+    assert all(w.startswith(str(copy.resolve())) for w in logs.warnings)
     assert all(
         len(run.trials) == (1 if run.key.kind == "accuracy" else TRIALS) for run in logs.runs
     )

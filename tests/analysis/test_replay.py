@@ -112,6 +112,45 @@ def test_unfinished_and_damaged_logs_are_skipped_with_a_warning(
         ).read_bytes()
     page = (tmp_path / "out" / "index.html").read_text()
     assert "trial-005.mcap.partial" in page
+    # full paths, and a recover command that runs as written
+    assert any(w.startswith(f"warning: {trial.parent / 'trial-006.mcap'}: ") for w in warnings)
+    assert any(f"`lagrseq recover {trial.parent / 'trial-006.mcap'}` to repair it" in w for w in warnings)
+    assert any(
+        w.startswith(f"warning: {trial.parent / 'trial-007.mcap'}: trial 0 of ")
+        and w.endswith(f"also in {trial}; skipped")
+        for w in warnings
+    )
+    # the header's totals are those of the logs read; the skipped ones are counted apart
+    header = (tmp_path / "out" / "index.md").read_text().splitlines()[2]
+    clean_header = (clean.out / "index.md").read_text().splitlines()[2]
+    assert "skipped" not in clean_header
+    totals = clean_header.split("; lagrseq")[0]
+    assert header.startswith(f"{totals}, 3 more skipped (see the warnings); lagrseq")
+
+
+def test_a_flipped_chunk_length_skips_that_log_only(runs_dir: Path, tmp_path: Path) -> None:
+    """One flipped bit in a chunk's data length made replay die of MemoryError."""
+    from lagrseq.logs.mcap_reader import McapFile
+
+    root = tmp_path / "runs"
+    shutil.copytree(runs_dir, root)
+    trial = sorted(root.rglob("lagr-seq/*/trial-001.mcap"))[0]
+    with McapFile(trial) as log:
+        summary = log.summary()
+        assert summary is not None
+        episode = next(c for c, ch in summary.channels.items() if ch.topic == "/episode")
+        index = next(i for i in summary.chunk_indexes if episode in i.message_index_offsets)
+    data = bytearray(trial.read_bytes())
+    data[index.chunk_start_offset + 9 + 32 + len("zstd") + 7] ^= 0x40  # data length + 2**62
+    trial.write_bytes(bytes(data))
+    report = replay([root], tmp_path / "out")
+    assert (tmp_path / "out" / "index.html").is_file()
+    assert report.logs.skipped == 1
+    (warning,) = report.warnings
+    assert warning.startswith(f"{trial}: damaged MCAP log (")
+    assert "cannot repair it (corrupt at byte" in warning and warning.endswith("; skipped")
+    run = next(r for r in report.logs.runs if r.key.method == "lagr-seq")
+    assert 1 not in run.trials and len(run.trials) == 2
 
 
 def test_no_logs_is_one_line_and_status_2(tmp_path: Path) -> None:

@@ -171,3 +171,115 @@ def test_in_place_repair_keeps_the_original(tmp_path: Path) -> None:
     assert result.path == cut and result.backup == tmp_path / "cut.mcap.truncated"
     assert result.backup.read_bytes() == original
     assert read_info(cut).status["status"] == "recovered"
+
+
+# ------------------------------------------------------------------------------------------
+# Files that are not only cut short; several files; where the result goes; a full disk
+# ------------------------------------------------------------------------------------------
+GOLDEN = ROOT / "fixtures" / "golden" / "cube-stacking-lagr-seq-upstream-4ep.mcap"
+
+
+def test_a_cut_log_with_garbage_after_it_keeps_its_flushed_episodes(tmp_path: Path) -> None:
+    data = GOLDEN.read_bytes()
+    for tail in (b"\x00" * 700, b"\x05" + b"\xff" * 40, b"garbage " * 30):
+        partial = tmp_path / "trial-000.mcap.partial"
+        partial.write_bytes(data[:13000] + tail)
+        result = recover(partial)
+        kept = read_topics(result.path, ["/episode"])["/episode"]
+        assert 0 < len(kept) < 4 and result.episodes == len(kept)
+        assert kept == read_topics(GOLDEN, ["/episode"])["/episode"][: len(kept)]
+        assert read_info(result.path).status["status"] == "recovered"
+        result.path.unlink()
+
+
+def test_recover_all_goes_on_past_a_bad_file(tmp_path: Path) -> None:
+    from lagrseq.logs.recover import recover_all
+
+    data = GOLDEN.read_bytes()
+    junk = tmp_path / "a.mcap.partial"
+    junk.write_bytes(b"not an mcap file at all")
+    short = tmp_path / "b.mcap"
+    short.write_bytes(data[:-1])
+    intact = tmp_path / "c.mcap"
+    intact.write_bytes(data)
+    outcomes = recover_all([junk, short, intact])
+    assert [o.status for o in outcomes] == ["failed", "recovered", "intact"]
+    assert [o.ok for o in outcomes] == [False, True, True]
+    assert all("\n" not in o.message and str(o.source) in o.message for o in outcomes)
+    assert "not an MCAP file" in outcomes[0].message
+    assert outcomes[1].result is not None and read_info(short).complete
+    assert intact.read_bytes() == data and junk.read_bytes() == b"not an mcap file at all"
+
+
+def test_out_may_be_an_existing_directory(tmp_path: Path) -> None:
+    from lagrseq.errors import UsageError
+    from lagrseq.logs.recover import recover_all
+
+    data = GOLDEN.read_bytes()
+    partial = tmp_path / "trial-003.mcap.partial"
+    partial.write_bytes(data[:13000])
+    cut = tmp_path / "trial-004.mcap"
+    cut.write_bytes(data[:-5])
+    out = tmp_path / "out"
+    out.mkdir()
+    outcomes = recover_all([partial, cut], out)
+    assert [o.status for o in outcomes] == ["recovered", "recovered"]
+    assert read_info(out / "trial-003.mcap").status["status"] == "recovered"
+    assert read_info(out / "trial-004.mcap").complete
+    assert cut.read_bytes() == data[:-5], "with --out the source is left alone"
+    with pytest.raises(LogError, match=r"trial-003.mcap exists already; recover never overwrites a log: give --out a new file name or another directory"):
+        recover(partial, out)
+    with pytest.raises(UsageError, match="not an existing directory"):
+        recover_all([partial, cut], tmp_path / "one.mcap")
+
+
+def test_a_full_disk_leaves_the_original_and_no_temporary_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import errno
+
+    data = GOLDEN.read_bytes()[:-1]
+    cut = tmp_path / "trial-000.mcap"
+    cut.write_bytes(data)
+    real_write = os.write
+    calls = []
+
+    def full_disk(fd: int, chunk: bytes) -> int:
+        calls.append(len(chunk))
+        if len(calls) > 1:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return real_write(fd, bytes(chunk)[:100])  # a short write, then the disk is full
+
+    monkeypatch.setattr(os, "write", full_disk)
+    with pytest.raises(LogError) as info:
+        recover(cut)
+    monkeypatch.undo()
+    message = str(info.value)
+    assert "\n" not in message and "No space left on device" in message
+    assert "trial-000.mcap.recovering" in message and f"{cut} was left as it was" in message
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["trial-000.mcap"]
+    assert cut.read_bytes() == data
+
+    # the rename that swaps the files in fails: the original is put back
+    real_replace = os.replace
+
+    def no_rename(src: str | Path, dst: str | Path) -> None:
+        if str(src).endswith(".recovering"):
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(dst))
+        real_replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", no_rename)
+    with pytest.raises(LogError, match="Read-only file system"):
+        recover(cut)
+    monkeypatch.undo()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["trial-000.mcap"]
+    assert cut.read_bytes() == data
+
+
+def test_an_unwritable_out_is_one_line(tmp_path: Path) -> None:
+    partial = tmp_path / "trial-000.mcap.partial"
+    partial.write_bytes(GOLDEN.read_bytes()[:13000])
+    below_a_file = tmp_path / "trial-000.mcap.partial" / "x.mcap"
+    with pytest.raises(LogError, match=r"x.mcap.recovering: cannot write the recovered log \(Not a directory\)"):
+        recover(partial, below_a_file)
+    assert partial.read_bytes() == GOLDEN.read_bytes()[:13000]

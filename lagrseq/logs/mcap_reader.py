@@ -1,0 +1,449 @@
+"""Checked MCAP reading: every length and offset is validated before anything is allocated.
+
+The ``mcap`` library trusts the lengths a file states: one flipped bit in a chunk's length or
+uncompressed size makes it ask for exabytes (``MemoryError``), an offset past the end of the file
+makes it read garbage. A log is a file from outside, so this module reads it defensively:
+
+- a record's length must fit in what is left of the file (or of its section) before its body is
+  read, so no read is ever longer than the file;
+- fields inside a record are read from that record's bytes only, and a field that runs past its
+  record is damage (never a short read taken at face value);
+- a chunk's uncompressed size is capped (:data:`MAX_CHUNK_BYTES`), and the chunk is decompressed
+  in pieces of at most :data:`_PIECE` bytes, stopping as soon as more comes out than the chunk
+  says it holds, so memory follows what the data really holds, not what a field claims;
+- the summary is checked against its CRC and every index in it against the file's layout.
+
+What is wrong is raised as :class:`Damage` (an offset and what was found there); the public
+readers in :mod:`lagrseq.logs.reader` turn it into a one-line :class:`~lagrseq.errors.LogError`.
+Records are decoded with the ``mcap.records`` classes of the reference library.
+"""
+
+from __future__ import annotations
+
+import io
+import struct
+import zlib
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from mcap.data_stream import ReadDataStream
+from mcap.opcode import Opcode
+from mcap.records import (
+    Attachment,
+    AttachmentIndex,
+    Channel,
+    Chunk,
+    ChunkIndex,
+    DataEnd,
+    Footer,
+    Header,
+    McapRecord,
+    Message,
+    MessageIndex,
+    Metadata,
+    MetadataIndex,
+    Schema,
+    Statistics,
+    SummaryOffset,
+)
+
+MAGIC = b"\x89MCAP0\r\n"
+MAX_CHUNK_BYTES = 1 << 30
+"""The largest uncompressed chunk read (1 GiB). A lagrseq chunk holds one episode's transitions
+(or its queries and summary): a few megabytes at most; a bigger size is a damaged field."""
+_PIECE = 1 << 20
+_HEAD = struct.Struct("<BQ")
+_MESSAGE_HEAD = struct.Struct("<HIQQ")
+_FOOTER_LENGTH = 20
+_FOOTER_RECORD = 9 + _FOOTER_LENGTH
+_HEADER_MIN = 9 + 8  # a Header record with two empty strings
+
+_RECORDS: dict[int, Any] = {
+    Opcode.ATTACHMENT: Attachment,
+    Opcode.ATTACHMENT_INDEX: AttachmentIndex,
+    Opcode.CHANNEL: Channel,
+    Opcode.CHUNK: Chunk,
+    Opcode.CHUNK_INDEX: ChunkIndex,
+    Opcode.DATA_END: DataEnd,
+    Opcode.FOOTER: Footer,
+    Opcode.HEADER: Header,
+    Opcode.MESSAGE_INDEX: MessageIndex,
+    Opcode.METADATA: Metadata,
+    Opcode.METADATA_INDEX: MetadataIndex,
+    Opcode.SCHEMA: Schema,
+    Opcode.STATISTICS: Statistics,
+    Opcode.SUMMARY_OFFSET: SummaryOffset,
+}
+
+
+def opcode_name(opcode: int) -> str:
+    try:
+        return Opcode(opcode).name.lower().replace("_", " ")
+    except ValueError:
+        return f"unknown record (opcode {opcode:#04x})"
+
+
+class Damage(Exception):
+    """The file is not what an MCAP log must be at byte ``offset``."""
+
+    def __init__(self, offset: int, what: str) -> None:
+        super().__init__(f"{what} at byte {offset}")
+        self.offset = offset
+        self.what = what
+
+
+class _Fields(ReadDataStream):
+    """Reads the fields of one record from its bytes; a field running past them is damage."""
+
+    def __init__(self, body: bytes, offset: int, kind: str) -> None:
+        super().__init__(io.BytesIO(body))
+        self._size = len(body)
+        self._offset = offset
+        self._kind = kind
+
+    def read(self, length: int) -> bytes:
+        if length < 0 or length > self._size - self._count:
+            raise Damage(
+                self._offset,
+                f"{self._kind} record: a field of {length} bytes runs past the record "
+                f"({self._size - self._count} bytes left)",
+            )
+        data = self._stream.read(length)
+        self._count += len(data)
+        return data
+
+
+def parse(opcode: int, body: bytes, offset: int) -> McapRecord | None:
+    """Decode one record body (``None`` for an opcode this reader does not know)."""
+    kind = opcode_name(opcode)
+    stream = _Fields(body, offset, kind)
+    try:
+        if opcode == Opcode.MESSAGE:
+            return Message.read(stream, len(body))
+        cls = _RECORDS.get(opcode)
+        return None if cls is None else cls.read(stream)
+    except (struct.error, UnicodeDecodeError, ValueError, OverflowError) as exc:
+        raise Damage(offset, f"{kind} record unreadable ({type(exc).__name__}: {exc})") from None
+
+
+@dataclass
+class Summary:
+    """The summary section of a checked file."""
+
+    schemas: dict[int, Schema] = field(default_factory=dict)
+    channels: dict[int, Channel] = field(default_factory=dict)
+    statistics: Statistics | None = None
+    chunk_indexes: list[ChunkIndex] = field(default_factory=list)
+    metadata_indexes: list[MetadataIndex] = field(default_factory=list)
+    attachment_indexes: list[AttachmentIndex] = field(default_factory=list)
+
+
+def _decompress(compression: str, data: bytes, size: int, offset: int) -> bytes:
+    """``data`` decompressed, which must give exactly ``size`` bytes; never more is produced."""
+    if size > MAX_CHUNK_BYTES:
+        raise Damage(
+            offset,
+            f"chunk says it holds {size} bytes uncompressed, more than the "
+            f"{MAX_CHUNK_BYTES} any lagrseq chunk can hold",
+        )
+    if compression == "":
+        out = data
+    elif compression == "zstd":
+        import zstandard
+
+        pieces: list[bytes] = []
+        total = 0
+        try:
+            reader = zstandard.ZstdDecompressor().stream_reader(data, read_across_frames=True)
+            while total <= size:
+                piece = reader.read(min(_PIECE, size + 1 - total))
+                if not piece:
+                    break
+                pieces.append(piece)
+                total += len(piece)
+        except zstandard.ZstdError as exc:
+            raise Damage(offset, f"chunk data is not valid zstd ({exc})") from None
+        out = b"".join(pieces)
+    elif compression == "lz4":
+        try:
+            import lz4.frame
+        except ImportError:  # pragma: no cover - lagrseq writes zstd
+            raise Damage(offset, "chunk is lz4-compressed and the lz4 package is missing") from None
+        decompressor = lz4.frame.LZ4FrameDecompressor()
+        pieces = []
+        total = 0
+        try:
+            rest = data
+            while total <= size:
+                piece = decompressor.decompress(rest, max_length=min(_PIECE, size + 1 - total))
+                rest = b""
+                if not piece:
+                    break
+                pieces.append(piece)
+                total += len(piece)
+        except RuntimeError as exc:
+            raise Damage(offset, f"chunk data is not valid lz4 ({exc})") from None
+        out = b"".join(pieces)
+    else:
+        raise Damage(offset, f"chunk compression {compression[:40]!r} is not one MCAP knows")
+    if len(out) != size:
+        more = "more than" if len(out) > size else f"{len(out)} bytes, not"
+        raise Damage(offset, f"chunk decompresses to {more} the {size} bytes it says it holds")
+    return out
+
+
+class McapFile:
+    """An MCAP file opened for checked reading (a context manager)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._handle = self.path.open("rb")
+        try:
+            self.size = int(self._handle.seek(0, io.SEEK_END))
+        except OSError:
+            self._handle.close()
+            raise
+        self._footer: tuple[Footer, int] | None = None
+        self._summary: Summary | None = None
+
+    def __enter__(self) -> McapFile:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._handle.close()
+
+    # ------------------------------------------------------------------ raw reads
+    def read(self, offset: int, length: int, what: str = "data") -> bytes:
+        """``length`` bytes at ``offset``; both are checked against the file size first."""
+        if offset < 0 or length < 0 or offset + length > self.size:
+            raise Damage(
+                offset,
+                f"{what} of {length} bytes runs past the end of the file ({self.size} bytes)",
+            )
+        self._handle.seek(offset)
+        data = self._handle.read(length)
+        if len(data) != length:
+            raise Damage(offset, f"the file shrank while it was read ({what})")
+        return data
+
+    def record_at(self, offset: int, limit: int | None = None) -> tuple[int, bytes, int]:
+        """``(opcode, body, end)`` of the record at ``offset``, which must end by ``limit``
+        (default: the end of the file)."""
+        limit = self.size if limit is None else min(limit, self.size)
+        if offset + 9 > limit:
+            raise Damage(offset, f"a record header runs past byte {limit}")
+        opcode, length = _HEAD.unpack(self.read(offset, 9, "record header"))
+        if length > limit - offset - 9:
+            where = "the end of the file" if limit == self.size else f"its section (byte {limit})"
+            raise Damage(
+                offset,
+                f"{opcode_name(opcode)} record of {length} bytes runs past {where}",
+            )
+        return opcode, self.read(offset + 9, length, opcode_name(opcode)), offset + 9 + length
+
+    def parse_at(self, offset: int, opcode: int, limit: int | None = None) -> tuple[Any, int]:
+        """The record at ``offset``, which must have ``opcode``; returns it and its end."""
+        found, body, end = self.record_at(offset, limit)
+        if found != opcode:
+            raise Damage(
+                offset, f"expected a {opcode_name(opcode)} record, found {opcode_name(found)}"
+            )
+        return parse(found, body, offset), end
+
+    # ------------------------------------------------------------------ structure
+    def header(self) -> Header:
+        if self.read(0, len(MAGIC), "magic") != MAGIC:
+            raise Damage(0, "no MCAP magic at the start")
+        header, _ = self.parse_at(len(MAGIC), Opcode.HEADER)
+        return header  # type: ignore[no-any-return]
+
+    def footer(self) -> tuple[Footer, int]:
+        """The footer and its offset; the file must end with the footer and the magic."""
+        if self._footer is not None:
+            return self._footer
+        minimum = 2 * len(MAGIC) + _HEADER_MIN + _FOOTER_RECORD
+        if self.size < minimum:
+            raise Damage(0, f"{self.size} bytes is too short for a finished MCAP file")
+        if self.read(0, len(MAGIC), "magic") != MAGIC:
+            raise Damage(0, "no MCAP magic at the start")
+        end = self.size - len(MAGIC)
+        if self.read(end, len(MAGIC), "magic") != MAGIC:
+            raise Damage(end, "no MCAP magic at the end (cut short, or bytes appended)")
+        start = end - _FOOTER_RECORD
+        footer, _ = self.parse_at(start, Opcode.FOOTER, limit=end)
+        if footer.summary_start and not len(MAGIC) + _HEADER_MIN <= footer.summary_start <= start:
+            raise Damage(start, f"footer: summary start {footer.summary_start} is outside the file")
+        if footer.summary_offset_start and not (
+            footer.summary_start <= footer.summary_offset_start <= start
+        ):
+            raise Damage(
+                start, f"footer: summary offsets start {footer.summary_offset_start} is outside the summary"
+            )
+        self._footer = (footer, start)
+        return self._footer
+
+    def summary(self) -> Summary | None:
+        """The summary section (``None`` when the file has none), checked: CRC, and every
+        index pointing where a record of its kind can be."""
+        if self._summary is not None:
+            return self._summary
+        footer, footer_start = self.footer()
+        if footer.summary_start == 0:
+            return None
+        start = footer.summary_start
+        section = self.read(start, footer_start - start, "summary section")
+        if footer.summary_crc:
+            crc = zlib.crc32(self.read(footer_start, 1 + 8 + 16, "footer"), zlib.crc32(section))
+            if crc != footer.summary_crc:
+                raise Damage(start, f"summary CRC mismatch (stored {footer.summary_crc}, computed {crc})")
+        summary = Summary()
+        for offset, opcode, record in self._records_in(section, start):
+            if isinstance(record, Schema):
+                summary.schemas[record.id] = record
+            elif isinstance(record, Channel):
+                summary.channels[record.id] = record
+            elif isinstance(record, Statistics):
+                summary.statistics = record
+            elif isinstance(record, ChunkIndex):
+                self._check_chunk_index(record, offset, start)
+                summary.chunk_indexes.append(record)
+            elif isinstance(record, MetadataIndex):
+                self._check_span(record.offset, record.length, start, offset, "metadata index")
+                summary.metadata_indexes.append(record)
+            elif isinstance(record, AttachmentIndex):
+                self._check_span(record.offset, record.length, start, offset, "attachment index")
+                summary.attachment_indexes.append(record)
+            elif opcode in (Opcode.HEADER, Opcode.FOOTER, Opcode.CHUNK, Opcode.MESSAGE):
+                raise Damage(offset, f"a {opcode_name(opcode)} record inside the summary")
+        for cid, channel in summary.channels.items():
+            if channel.schema_id and channel.schema_id not in summary.schemas:
+                raise Damage(start, f"channel {cid} names schema {channel.schema_id}, which is not in the summary")
+        for index in summary.chunk_indexes:
+            unknown = index.message_index_offsets.keys() - summary.channels.keys()
+            if unknown:
+                raise Damage(
+                    index.chunk_start_offset, f"chunk index names unknown channels {sorted(unknown)}"
+                )
+        self._summary = summary
+        return summary
+
+    def _records_in(self, data: bytes, base: int) -> Iterator[tuple[int, int, McapRecord | None]]:
+        """``(offset, opcode, record)`` for the records packed in ``data`` (found at ``base``)."""
+        pos = 0
+        while pos < len(data):
+            if pos + 9 > len(data):
+                raise Damage(base + pos, f"a record header runs past its section ({len(data) - pos} bytes left)")
+            opcode, length = _HEAD.unpack_from(data, pos)
+            if length > len(data) - pos - 9:
+                raise Damage(base + pos, f"{opcode_name(opcode)} record of {length} bytes runs past its section")
+            yield base + pos, opcode, parse(opcode, data[pos + 9 : pos + 9 + length], base + pos)
+            pos += 9 + length
+
+    def _check_span(self, offset: int, length: int, end: int, where: int, what: str) -> None:
+        if not (len(MAGIC) <= offset and length >= 9 and offset + length <= end):
+            raise Damage(
+                where,
+                f"{what} points at bytes {offset}..{offset + length}, outside the data section (0..{end})",
+            )
+
+    def _check_chunk_index(self, index: ChunkIndex, where: int, end: int) -> None:
+        self._check_span(index.chunk_start_offset, index.chunk_length, end, where, "chunk index")
+        after = index.chunk_start_offset + index.chunk_length
+        for channel, offset in index.message_index_offsets.items():
+            if not after <= offset < after + index.message_index_length or offset >= end:
+                raise Damage(where, f"chunk index: message index of channel {channel} at {offset} is outside the chunk's indexes")
+        if index.compressed_size > index.chunk_length:
+            raise Damage(where, f"chunk index: compressed size {index.compressed_size} is larger than the chunk ({index.chunk_length} bytes)")
+        if index.uncompressed_size > MAX_CHUNK_BYTES:
+            raise Damage(where, f"chunk index: uncompressed size {index.uncompressed_size} is over the {MAX_CHUNK_BYTES}-byte cap")
+
+    # ------------------------------------------------------------------ content
+    def metadata(self) -> list[Metadata]:
+        """The metadata records, through the summary's index (a linear scan when the file has
+        no summary)."""
+        summary = self.summary()
+        if summary is None:
+            return [r for _, _, r in self.scan() if isinstance(r, Metadata)]
+        found = []
+        for index in summary.metadata_indexes:
+            record, end = self.parse_at(index.offset, Opcode.METADATA)
+            if end - index.offset != index.length:
+                raise Damage(index.offset, f"metadata record is {end - index.offset} bytes, its index says {index.length}")
+            found.append(record)
+        return found
+
+    def chunk(self, index: ChunkIndex) -> Chunk:
+        """The chunk an index points at (its length must be the index's)."""
+        chunk, end = self.parse_at(index.chunk_start_offset, Opcode.CHUNK)
+        if end - index.chunk_start_offset != index.chunk_length:
+            raise Damage(
+                index.chunk_start_offset,
+                f"chunk record is {end - index.chunk_start_offset} bytes, its index says {index.chunk_length}",
+            )
+        return chunk  # type: ignore[no-any-return]
+
+    def chunk_records(self, chunk: Chunk, offset: int) -> list[McapRecord]:
+        """Schemas, channels and messages in ``chunk`` (found at ``offset``), CRC checked."""
+        data = _decompress(chunk.compression, chunk.data, chunk.uncompressed_size, offset)
+        if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
+            raise Damage(offset, f"chunk CRC mismatch (stored {chunk.uncompressed_crc}, computed {zlib.crc32(data)})")
+        records: list[McapRecord] = []
+        pos, size = 0, len(data)
+        while pos < size:
+            if pos + 9 > size:
+                raise Damage(offset, f"chunk: a record header runs past the chunk's data (at {pos} of {size})")
+            opcode, length = _HEAD.unpack_from(data, pos)
+            if length > size - pos - 9:
+                raise Damage(offset, f"chunk: {opcode_name(opcode)} record of {length} bytes runs past the chunk's data (at {pos} of {size})")
+            if opcode == Opcode.MESSAGE:
+                if length < _MESSAGE_HEAD.size:
+                    raise Damage(offset, f"chunk: message record of {length} bytes is shorter than its fixed fields")
+                channel_id, sequence, log_time, publish_time = _MESSAGE_HEAD.unpack_from(data, pos + 9)
+                start = pos + 9 + _MESSAGE_HEAD.size
+                records.append(
+                    Message(
+                        channel_id=channel_id,
+                        log_time=log_time,
+                        data=data[start : pos + 9 + length],
+                        publish_time=publish_time,
+                        sequence=sequence,
+                    )
+                )
+            elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
+                record = parse(opcode, data[pos + 9 : pos + 9 + length], offset)
+                assert record is not None
+                records.append(record)
+            pos += 9 + length
+        return records
+
+    def scan(self) -> Iterator[tuple[int, int, McapRecord | None]]:
+        """``(offset, end, record)`` for every record from the header on, in file order, up to
+        and including the footer (chunks are yielded whole, not opened). Raises :class:`Damage`
+        where a record cannot be read."""
+        self.header()
+        offset = len(MAGIC)
+        while True:
+            opcode, body, end = self.record_at(offset)
+            record = parse(opcode, body, offset)
+            yield offset, end, record
+            if isinstance(record, Footer):
+                if self.read(end, len(MAGIC), "closing magic") != MAGIC:
+                    raise Damage(end, "no MCAP magic after the footer")
+                return
+            offset = end
+
+    def verify(self) -> Summary:
+        """Read everything a reader can ask for: footer, summary, metadata and every chunk.
+        Raises :class:`Damage` at the first thing that cannot be read."""
+        summary = self.summary()
+        if summary is None:
+            raise Damage(self.footer()[1], "the file has no summary section")
+        self.metadata()
+        for index in summary.chunk_indexes:
+            self.chunk_records(self.chunk(index), index.chunk_start_offset)
+        return summary
