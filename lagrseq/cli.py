@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from lagrseq import __version__
-from lagrseq.errors import LagrseqError, UsageError
+from lagrseq.errors import LagrseqError
 
 _RAW = argparse.RawDescriptionHelpFormatter
 
@@ -338,7 +338,7 @@ def _add_recover(sub: Any) -> None:
         ),
     )
     p.add_argument("files", nargs="+", type=Path, metavar="FILE", help="truncated .mcap or .mcap.partial files")
-    p.add_argument("--out", type=Path, default=None, metavar="PATH", help="where to write the recovered log: a file (one FILE only) or an existing directory")
+    p.add_argument("--out", type=Path, default=None, metavar="PATH", help="where to write: a new file (one FILE only) or an existing directory (DIR/NAME.mcap for each FILE)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -434,18 +434,15 @@ def _cache_list(args: argparse.Namespace) -> int:
 
 
 def cmd_recover(args: argparse.Namespace) -> int:
-    from lagrseq.logs.recover import recover
+    from lagrseq.logs.recover import recover_all
 
-    if args.out is not None and len(args.files) > 1 and not args.out.is_dir():
-        raise UsageError("--out names a file, which fits one FILE only; give an existing directory for several")
-    failed = 0
-    for path in args.files:  # one bad file does not stop the others
-        try:
-            print(recover(path, args.out).summary())
-        except LagrseqError as exc:
-            failed += 1
-            print(f"lagrseq recover: error: {exc}", file=sys.stderr)
-    return 2 if failed else 0
+    outcomes = recover_all(args.files, args.out)  # one bad file does not stop the others
+    for outcome in outcomes:
+        if outcome.ok:
+            print(outcome.message)
+        else:
+            print(f"lagrseq recover: error: {outcome.message}", file=sys.stderr)
+    return 0 if all(outcome.ok for outcome in outcomes) else 2
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
@@ -560,8 +557,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"lagrseq {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        from lagrseq.runner import exit_on_next_interrupt
+
+        exit_on_next_interrupt()
         kept = INTERRUPTED.get(args.command, "nothing finished is lost")
         print(f"lagrseq {args.command}: interrupted; {kept}", file=sys.stderr)
+        if argv is None:  # the program itself (not a caller's main([...])): leave now, because an
+            # interpreter shutdown joins worker threads and restores SIGINT's default action, so a
+            # second Ctrl-C in that time would kill the process mid-way
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(130)
         return 130
     except BrokenPipeError:  # pragma: no cover - e.g. piped into head
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())

@@ -162,12 +162,21 @@ def _ignore_interrupts() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def process_pool(jobs: int) -> ProcessPoolExecutor:
-    """A pool of ``jobs`` worker processes, spawned rather than forked: forking a process that
-    runs threads (the progress bar's, torch's) can deadlock."""
-    return ProcessPoolExecutor(
+@contextlib.contextmanager
+def process_pool(jobs: int) -> Iterator[ProcessPoolExecutor]:
+    """A pool of ``jobs`` worker processes, spawned rather than forked (forking a process that
+    runs threads, the progress bar's or torch's, can deadlock). Leaving it normally waits for
+    the trials; leaving it on an error or Ctrl-C stops them at once."""
+    pool = ProcessPoolExecutor(
         max_workers=jobs, mp_context=multiprocessing.get_context("spawn"), initializer=_ignore_interrupts
     )
+    try:
+        yield pool
+    except BaseException:
+        exit_on_next_interrupt()
+        stop_pool(pool)
+        raise
+    pool.shutdown(wait=True)
 
 
 def _run_trial_job(args: tuple[Any, ...]) -> TrialResult:
@@ -178,31 +187,24 @@ def _run_trial_job(args: tuple[Any, ...]) -> TrialResult:
 
 
 def stop_pool(pool: Executor) -> None:
-    """Cancel every trial not started and stop the worker processes now: a running trial's
-    ``.partial`` file keeps its flushed episodes (``lagrseq recover``)."""
-    pool.shutdown(wait=False, cancel_futures=True)
-    processes = getattr(pool, "_processes", None) or {}
-    for process in list(processes.values()):
+    """Stop the worker processes now and cancel every trial not started: a running trial's
+    ``.partial`` file keeps its flushed episodes (``lagrseq recover``). The workers are taken
+    before ``shutdown``, which forgets them."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    for process in processes:
         with contextlib.suppress(Exception):
             process.terminate()
-    for process in list(processes.values()):
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
         with contextlib.suppress(Exception):
             process.join(timeout=5)
 
 
-@contextlib.contextmanager
-def second_interrupt_exits() -> Iterator[None]:
-    """While cleaning up after a Ctrl-C, a second Ctrl-C ends the process at once (status 130)."""
-    previous = signal.getsignal(signal.SIGINT)
-    try:
+def exit_on_next_interrupt() -> None:
+    """Cleaning up after a Ctrl-C (or a failed trial): from now on a Ctrl-C ends the process at
+    once with status 130, whatever it is doing. The process is on its way out anyway."""
+    with contextlib.suppress(ValueError):  # not the main thread: nothing to install
         signal.signal(signal.SIGINT, lambda *_: os._exit(130))
-    except ValueError:  # not the main thread: nothing to install
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
 
 
 def run_trials(
@@ -253,10 +255,8 @@ def run_trials(
                     progress.update(per_trial)
         except BaseException:
             # Ctrl-C or a failed trial: nothing more starts, nothing half-made is renamed.
-            with second_interrupt_exits():
-                for future in futures:
-                    future.cancel()
-                stop_pool(pool)
+            exit_on_next_interrupt()
+            stop_pool(pool)
             raise
     return sorted(results, key=lambda r: r.trial)
 

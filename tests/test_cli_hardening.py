@@ -153,7 +153,11 @@ def _interrupt(extra: list[str], tmp_path: Path, twice: bool = False) -> tuple[i
     args = [sys.executable, "-m", "lagrseq", "run", "cube-stacking", "--method", "lagr-seq", "--trials", "8",
             "--out", str(tmp_path), "--set", "run.episodes=3000", "--quiet", *extra]
     env = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"}
-    process = subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    process = subprocess.Popen(
+        args, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+        # a shell that started this test in the background may have left SIGINT ignored
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     deadline = time.monotonic() + 120
     while not list(tmp_path.rglob("*.partial")) and time.monotonic() < deadline:
         time.sleep(0.1)
@@ -163,7 +167,11 @@ def _interrupt(extra: list[str], tmp_path: Path, twice: bool = False) -> tuple[i
     if twice:
         time.sleep(0.05)
         os.killpg(process.pid, signal.SIGINT)
-    _, err = process.communicate(timeout=60)
+    try:
+        _, err = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
     return process.returncode, time.monotonic() - started, err
 
 
