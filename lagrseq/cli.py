@@ -314,7 +314,7 @@ def _add_reproduce(sub: Any) -> None:
             "examples:\n"
             "  lagrseq reproduce --quick                # ./runs and ./reports, a few minutes\n"
             "  lagrseq reproduce --out results --jobs 8\n"
-            "  lagrseq reproduce --provider recorded:recorded_llm/cube.jsonl --items table2"
+            "  lagrseq reproduce --provider recorded:store-tau0/ --items table2   # a store made by lagrseq cache import"
         ),
         formatter_class=_RAW,
     )

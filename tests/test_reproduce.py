@@ -331,3 +331,34 @@ def test_estimate_counts_only_pending_trials(tmp_path: Path) -> None:
     reproduce.execute(plan, jobs=1)
     assert all(run.pending() == 0 for run in plan.runs)
     assert reproduce.estimate(plan, jobs=2) == 0
+
+
+def test_the_progress_bar_counts_grid_runs_in_steps_and_moves(tmp_path: Path) -> None:
+    """Grid trials have a step budget and no episode count: the bar counts their steps (it used to
+    count episodes, 0 of them, and stood still)."""
+    from lagrseq import reproduce
+    from lagrseq.suite import load_suite
+
+    pytest.importorskip("torch")
+    suite = load_suite().select(["fig5b"])
+    plan = reproduce.plan(suite, quick=True, provider=None, runs_dir=tmp_path, seed=0)
+    from dataclasses import replace
+
+    for run in plan.runs:
+        run.trials = 1
+        run.config = replace(run.config, run=replace(run.config.run, episodes=0, max_steps=120))
+    assert plan.runs and all(run.units() == runner.progress_unit(run.config)[1] * run.trials > 0 for run in plan.runs)
+
+    class Bar:
+        def __init__(self) -> None:
+            self.n = 0
+
+        def update(self, n: int = 1) -> None:
+            self.n += n
+
+        def set_description(self, _text: str) -> None:
+            return None
+
+    bar = Bar()
+    reproduce.execute(plan, jobs=1, bar=bar)
+    assert bar.n == sum(run.units() for run in plan.runs)
