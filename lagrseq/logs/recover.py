@@ -245,7 +245,8 @@ def diagnose(path: str | Path) -> Verdict:
     kept = plan.keep()
     if plan.complete:
         return Verdict(True, f"its data is intact: all {plan.episodes(kept)} episodes would be kept")
-    return Verdict(True, f"{plan.episodes(kept)} flushed episodes would be kept")
+    episodes = plan.episodes(kept)
+    return Verdict(True, f"{episodes} flushed episode{'' if episodes == 1 else 's'} would be kept")
 
 
 def _target(source: Path, out: str | Path | None) -> Path:

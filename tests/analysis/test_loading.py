@@ -56,7 +56,7 @@ def test_bad_logs_are_skipped_with_one_line_each(
     root = tmp_path / "runs"
     shutil.copytree(runs_dir, root)
     lagr_seq = sorted(root.rglob("lagr-seq/*/trial-000.mcap"))[0]
-    # a crash leftover, a cut copy, and a trial that was interrupted
+    # a crash leftover, a cut copy, and a trial that was interrupted (Ctrl-C leaves its .partial)
     (lagr_seq.parent / "trial-007.mcap.partial").write_bytes(lagr_seq.read_bytes()[:5000])
     data = lagr_seq.read_bytes()
     (lagr_seq.parent / "trial-008.mcap").write_bytes(data[: len(data) // 2])
@@ -76,7 +76,10 @@ def test_bad_logs_are_skipped_with_one_line_each(
     text = " ".join(logs.warnings)
     # every log is named by its full path, and the recover command can be run as written
     assert f"{lagr_seq.parent / 'trial-007.mcap.partial'}: unfinished log" in text
-    assert f"{lagr_seq.parent / 'trial-009.mcap'}: trial interrupted" in text
+    interrupted_partial = lagr_seq.parent / "trial-009.mcap.partial"
+    assert not interrupted.exists() and interrupted_partial.exists()
+    assert f"{interrupted_partial}: unfinished log" in text
+    assert f"`lagrseq recover {shlex.quote(str(interrupted_partial))}`" in text, "its flushed episode can be kept"
     cut = lagr_seq.parent / "trial-008.mcap"
     assert f"`lagrseq recover {shlex.quote(str(cut))}` to repair it" in text
     # recover is suggested only where it can do something: the first 5000 bytes hold no episode
