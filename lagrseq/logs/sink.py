@@ -196,6 +196,8 @@ class McapSink:
             )
         self._transition_channel = self._channels[TRANSITION_TOPIC]
         self._writer.add_metadata(RUN_METADATA, metadata)
+        self._chunk: list[tuple[int, int, bytes]] = []
+        """Transitions and pictures of the current episode: (channel id, log time, data)."""
         self._pending: list[tuple[str, bytes, int]] = []
         self._finished = False
 
@@ -204,13 +206,13 @@ class McapSink:
         are held until :meth:`flush` writes them into a chunk of their own."""
         kind = type(event)
         if kind is Transition:
-            self._writer.add_message(self._transition_channel, event[3], _encode_transition(event))  # type: ignore[arg-type,misc]
+            self._chunk.append((self._transition_channel, event[3], _encode_transition(event)))  # type: ignore[arg-type,misc]
         elif kind is QueryEvent:
             self._pending.append((QUERY_TOPIC, _encode_query(event), event[3]))  # type: ignore[arg-type,misc]
         elif kind is EpisodeEvent:
             self._pending.append((EPISODE_TOPIC, _encode(to_record(event)), max(event[-1] - 1, 0)))  # type: ignore[index,operator]
         elif kind is View:
-            self._add(event.topic, _encode(event.message), event.log_time)  # type: ignore[union-attr]
+            self._chunk.append((self._channels[event.topic], event.log_time, _encode(event.message)))  # type: ignore[union-attr]
         else:
             raise LogError(f"cannot log a {kind.__name__}; expected Transition, QueryEvent, EpisodeEvent or View")
 
@@ -219,7 +221,7 @@ class McapSink:
         if topic not in self._channels:
             raise LogError(f"topic {topic!r} is not registered in {self.path.name}")
         if topic == TRANSITION_TOPIC or topic.startswith("/view"):
-            self._add(topic, _encode(record), log_time)
+            self._chunk.append((self._channels[topic], log_time, _encode(record)))
         else:
             self._pending.append((topic, _encode(record), log_time))
 
@@ -234,7 +236,9 @@ class McapSink:
     def flush(self) -> None:
         """End of an episode: close the transition chunk, write the held messages as their own
         chunk, and push everything to the operating system."""
-        self._writer.flush()
+        self._writer.add_messages(self._chunk)
+        self._chunk.clear()
+        self._writer.flush(push=not self._pending)
         if self._pending:
             for topic, data, log_time in self._pending:
                 self._add(topic, data, log_time)
