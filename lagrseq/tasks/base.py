@@ -14,6 +14,27 @@ import numpy as np
 Pattern = Any
 Solution = Any
 
+MAX_ANSWER_CHARS = 16_000
+"""The longest answer text (in characters) a task's parser reads. Real answers are under 2 kB
+(a 10 x 10 matrix with prose, or 256 tokens of a small model's prose); anything longer is refused
+unread, as a wrong answer with :func:`oversized_answer`'s reason. The one place this limit lives:
+other layers that cap answers (the store, a live provider) use the same value."""
+
+
+def oversized_answer(text: str) -> str | None:
+    """The parse-error reason for an answer longer than :data:`MAX_ANSWER_CHARS`, else None."""
+    if len(text) <= MAX_ANSWER_CHARS:
+        return None
+    return (
+        f"answer of {len(text)} characters is longer than the {MAX_ANSWER_CHARS}-character limit "
+        "(MAX_ANSWER_CHARS in lagrseq/tasks/base.py); not read"
+    )
+
+
+def clip_token(token: str, width: int = 40) -> str:
+    """``repr`` of a token quoted in a parse-error reason, shortened to about ``width`` characters."""
+    return repr(token if len(token) <= width else token[: width - 3] + "...")
+
 
 @dataclass(frozen=True)
 class Parsed:

@@ -24,7 +24,7 @@ from functools import cached_property
 
 import numpy as np
 
-from lagrseq.tasks.base import Parsed
+from lagrseq.tasks.base import Parsed, clip_token, oversized_answer
 
 LETTERS = "abcdefghijklmnopqrstuvwxyz"
 
@@ -186,11 +186,18 @@ class CubeStacking:
         one word of letters such as ``efgabcdh``. Refuses, with the reason: no list found, a token
         that is not a cube of this table, a cube named twice, more cubes than the table has.
         Unlike the released parser, an unknown character never repeats the previous letter.
+        An answer longer than ``MAX_ANSWER_CHARS`` is refused unread. Time linear in the
+        answer's length.
         """
-        if not isinstance(text, str) or not text.strip():
+        if not isinstance(text, str):
+            return Parsed(None, "empty answer")
+        too_long = oversized_answer(text)
+        if too_long is not None:
+            return Parsed(None, too_long)
+        if not text.strip():
             return Parsed(None, "empty answer")
         known = {c.letter: i for i, c in enumerate(self.cubes)}
-        candidates = re.findall(r"\[([^\[\]]*)\]", text)
+        candidates = _LIST.findall(text)
         errors: list[str] = []
         for body in reversed(candidates):
             tokens = [t.strip().strip("'\"`").strip() for t in body.split(",")]
@@ -203,7 +210,7 @@ class CubeStacking:
             errors.append(result.error or "")
         if not candidates:
             stripped = text.strip().strip("`").strip()
-            words = re.findall(r"[A-Za-z]+", stripped)
+            words = _WORD.findall(stripped)
             if len(words) == 1 and len(words[0]) > 1:
                 return self._ids(list(words[0]), known)
             if words and all(len(w) == 1 for w in words):
@@ -218,7 +225,7 @@ class CubeStacking:
         for token in tokens:
             letter = token.lower()
             if letter not in known:
-                return Parsed(None, f"{token!r} is not a cube of this table")
+                return Parsed(None, f"{clip_token(token)} is not a cube of this table")
             if known[letter] in ids:
                 return Parsed(None, f"cube {letter!r} appears twice")
             ids.append(known[letter])
@@ -254,6 +261,12 @@ class CubeStacking:
         return nxt + 1
 
 
+# The answer parser's patterns; both linear-time (a bracketed body cannot hold a bracket, a word
+# is one run of letters).
+_LIST = re.compile(r"\[([^\[\]]*)\]")
+_WORD = re.compile(r"[A-Za-z]+")
+
+
 def _clip(text: str, width: int = 60) -> str:
     one = " ".join(text.split())
     return repr(one if len(one) <= width else one[: width - 3] + "...")
@@ -264,7 +277,7 @@ def _clip(text: str, width: int = 60) -> str:
 # descriptor and the partial stack. It never sees the target.
 # ------------------------------------------------------------------------------------------
 _CUBE_LINE = re.compile(r"- (\w+) cube of edge length (\d+)\s*cm \(represented by '(\w)'\)")
-_PARTIAL = re.compile(r"\(from bottom to top\):\s*\n?\s*(\[[^\]]*\])\s*`{3}")
+_PARTIAL = re.compile(r"\(from bottom to top\):\s*(\[[^\]]*\])\s*`{3}")
 
 
 def _rank_orders(cubes: list[Cube], partial: list[str]) -> list[tuple[str, list[str]]]:

@@ -17,7 +17,7 @@ from typing import Literal
 import numpy as np
 
 from lagrseq.tasks import shapes
-from lagrseq.tasks.base import Parsed
+from lagrseq.tasks.base import Parsed, clip_token, oversized_answer
 
 MatrixFormat = Literal["numpy", "comma"]
 GuidanceMode = Literal["cell-by-cell", "next-missing"]
@@ -51,9 +51,19 @@ def grid_of(rows: Sequence[str]) -> np.ndarray:
 # ------------------------------------------------------------------------------------------
 # Reading grids out of text (answers and prompts)
 # ------------------------------------------------------------------------------------------
+# Every pattern below runs in time linear in the text: no prefix can be matched in two ways, so
+# the backtracking engine retries each character a bounded number of times. A number is
+# -?\d+(\.\d*)?, and a line may hold numbers written one after another without a separator
+# (``010``, ``1.0-1``): such a run of numbers is one _RUN (inside it a point or a sign always lies
+# between two numbers, never an empty string), and runs are separated by at least one separator.
 _BINARY = re.compile(r"^[01](?:\.0*)?$")
 _NUMBER = re.compile(r"^-?\d+(?:\.\d*)?$")
-_MATRIX_LINE = re.compile(r"^[\s,;|]*(?:-?\d+(?:\.\d*)?[\s,;|]*)+$")
+_SEPARATOR = r"[\s,;|]"
+_RUN = r"-?\d+(?:\.-?\d+|-\d+)*\.?"
+_MATRIX_LINE = re.compile(rf"^{_SEPARATOR}*{_RUN}(?:{_SEPARATOR}+{_RUN})*{_SEPARATOR}*$")
+_COMPACT_ROW = re.compile(r"\d{2,}")
+_TOKEN_SEPARATORS = re.compile(r"[\s,;|'\"]+")
+_BRACKET = re.compile(r"[\[\]]")
 
 
 @dataclass(frozen=True)
@@ -66,22 +76,39 @@ class _Candidate:
 
 def _tokens(row: str) -> tuple[str, ...]:
     row = row.strip()
-    if re.fullmatch(r"\d{2,}", row):  # a compact row such as 00100
+    if not row:
+        return ()
+    if _COMPACT_ROW.fullmatch(row):  # a compact row such as 00100
         return tuple(row)
-    return tuple(t for t in re.split(r"[\s,;|'\"]+", row) if t)
+    return tuple(t for t in _TOKEN_SEPARATORS.split(row) if t)
 
 
-def _bracket_groups(text: str) -> list[tuple[int, int, int]]:
-    """(start, end, depth) of every balanced ``[...]`` group, ordered by start."""
-    groups: list[tuple[int, int, int]] = []
-    stack: list[int] = []
-    for i, ch in enumerate(text):
-        if ch == "[":
-            stack.append(i)
-        elif ch == "]" and stack:
-            start = stack.pop()
-            groups.append((start, i + 1, len(stack)))
-    return sorted(groups)
+# A balanced ``[...]`` group: (start, end, depth, children) where ``text[start:end]`` is the
+# group, depth counts the brackets open around it (unclosed ones too) and children are the spans
+# of its direct children (groups one level in), in order.
+_Group = tuple[int, int, int, list[tuple[int, int]]]
+
+
+def _bracket_groups(text: str) -> list[_Group]:
+    """Every balanced ``[...]`` group, ordered by start; one pass over the brackets.
+
+    A ``]`` closes the latest open ``[`` (a ``]`` with none open is ignored), so every ``[``
+    inside a closed group opens one of its descendants: a group is a leaf (no ``[`` inside)
+    exactly when it has no children.
+    """
+    slots: list[_Group | None] = []  # one per ``[``, in order: its group once it is closed
+    stack: list[tuple[int, int, list[tuple[int, int]]]] = []
+    for match in _BRACKET.finditer(text):
+        i = match.start()
+        if text[i] == "[":
+            stack.append((i, len(slots), []))
+            slots.append(None)
+        elif stack:
+            start, slot, children = stack.pop()
+            slots[slot] = (start, i + 1, len(stack), children)
+            if stack:
+                stack[-1][2].append((start, i + 1))
+    return [group for group in slots if group is not None]
 
 
 _SEPARATORS = re.compile(r"[\s,]*")
@@ -90,7 +117,7 @@ _SEPARATORS = re.compile(r"[\s,]*")
 def _rows_if_separated(text: str, spans: list[tuple[int, int]], start: int, end: int) -> bool:
     """True when only whitespace and commas lie between ``start``, the spans and ``end``."""
     edges = [start, *(p for span in spans for p in span), end]
-    return all(_SEPARATORS.fullmatch(text[edges[i] : edges[i + 1]]) for i in range(0, len(edges), 2))
+    return all(_SEPARATORS.fullmatch(text, edges[i], edges[i + 1]) for i in range(0, len(edges), 2))
 
 
 def _candidates(text: str) -> list[_Candidate]:
@@ -101,21 +128,22 @@ def _candidates(text: str) -> list[_Candidate]:
     - a run of flat top-level ``[...]`` groups separated the same way (one row per group);
     - a run of lines made only of numbers and separators (``0 1 0``, ``0,1,0``, ``| 0 | 1 |``,
       ``010``), e.g. inside a code fence.
+
+    Time linear in the length of ``text`` (each group is looked at as itself and as a child).
     """
     found: list[_Candidate] = []
     groups = _bracket_groups(text)
-    leaf = {(s, e): "[" not in text[s + 1 : e - 1] for s, e, _ in groups}
+    leaves = {(start, end) for start, end, _, children in groups if not children}
     in_matrix: set[tuple[int, int]] = set()
-    for start, end, depth in groups:
-        children = [(s, e) for s, e, d in groups if d == depth + 1 and start < s and e < end]
-        rows_only = children and all(leaf[c] for c in children)
+    for start, end, _, children in groups:
+        rows_only = children and all(child in leaves for child in children)
         if rows_only and _rows_if_separated(text, children, start + 1, end - 1):
             found.append(_Candidate(tuple(_tokens(text[s + 1 : e - 1]) for s, e in children), end))
             in_matrix.update(children)
     run: list[tuple[int, int]] = []
-    tops = [(s, e) for s, e, d in groups if d == 0 and leaf[(s, e)] and (s, e) not in in_matrix]
+    tops = [(s, e) for s, e, depth, _ in groups if depth == 0 and (s, e) in leaves and (s, e) not in in_matrix]
     for span in tops:
-        if run and not _SEPARATORS.fullmatch(text[run[-1][1] : span[0]]):
+        if run and not _SEPARATORS.fullmatch(text, run[-1][1], span[0]):
             found.append(_Candidate(tuple(_tokens(text[s + 1 : e - 1]) for s, e in run), run[-1][1]))
             run = []
         run.append(span)
@@ -155,7 +183,7 @@ def _as_grid(candidate: _Candidate, rows: int, cols: int) -> tuple[np.ndarray | 
         if not _BINARY.match(token):
             what = "value" if _NUMBER.match(token) else "token"
             return None, (
-                f"expected 0 or 1 in every cell, found {what} {token!r} at row "
+                f"expected 0 or 1 in every cell, found {what} {clip_token(token)} at row "
                 f"{index // cols + 1}, column {index % cols + 1}"
             )
     grid = np.array([int(float(t)) for t in cells], dtype=np.int8).reshape(rows, cols)
@@ -169,9 +197,15 @@ def read_grid(text: str, rows: int, cols: int) -> Parsed:
     ``0.``/``1.``), rows of digits or of spaced/comma-separated values, code fences and prose
     around any of them. When several matrices appear (a model repeating the initial grid before
     its answer), the last one of the right shape wins. Failure reasons: no matrix at all, the
-    wrong shape, a value other than 0 or 1.
+    wrong shape, a value other than 0 or 1, an answer longer than ``MAX_ANSWER_CHARS`` (not
+    read). Time linear in the answer's length.
     """
-    if not isinstance(text, str) or not text.strip():
+    if not isinstance(text, str):
+        return Parsed(None, "empty answer")
+    too_long = oversized_answer(text)
+    if too_long is not None:
+        return Parsed(None, too_long)
+    if not text.strip():
         return Parsed(None, "empty answer")
     failures: list[tuple[int, str]] = []
     for candidate in reversed(_candidates(text)):
