@@ -67,9 +67,13 @@ from lagrseq import __version__
 from lagrseq.errors import ConfigError, ProviderError
 from lagrseq.llm.base import Answer, Query, Usage
 from lagrseq.llm.pricing import PriceTable, prompt_token_bound
+from lagrseq.llm.records import MAX_ANSWER_CHARS
 from lagrseq.llm.redaction import Redactor, clip, redact_key_like
 from lagrseq.llm.servers import DEFAULT_BASE_URL, SERVER_KINDS
 from lagrseq.llm.store import endpoint_of
+
+CLIPPED = "lagrseq-clipped"
+"""``finish_reason`` of an answer cut to MAX_ANSWER_CHARS (the same limit as the task parsers')."""
 
 
 @dataclass(frozen=True)
@@ -592,6 +596,11 @@ class LiveProvider:
         fingerprint = show.optional(parsed.get("system_fingerprint"))
         response_id = show.optional(parsed.get("id"))
         answers = []
+        for index, (text, finish) in enumerate(texts):
+            if len(text) > MAX_ANSWER_CHARS:
+                # Nothing longer is stored or parsed: keep the start, and say so in finish_reason.
+                self._warn("clipped", f"an answer of {len(text)} characters was cut to {MAX_ANSWER_CHARS} (MAX_ANSWER_CHARS)")
+                texts[index] = (text[:MAX_ANSWER_CHARS], CLIPPED)
         for (text, finish), p, c, k in zip(
             texts,
             _split(usage.prompt_tokens, parts),

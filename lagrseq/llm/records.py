@@ -31,7 +31,9 @@ from jsonschema import Draft202012Validator
 from jsonschema.exceptions import ValidationError
 
 MAX_ANSWER_CHARS = 16_000
-"""Longest answer text (characters) a store holds; the task parsers refuse longer answers too."""
+"""Longest answer text (characters) a store holds; the same value as ``lagrseq.tasks.base``'s,
+whose parsers refuse longer answers (llm/ may not import tasks/: a test keeps the two equal). The
+live provider cuts a longer answer to this length and marks it ``finish_reason = "lagrseq-clipped"``."""
 MAX_TOKEN_COUNT = 10**7
 """Largest token count (prompt, completion, cached, max_tokens) believed."""
 MAX_LINE_BYTES = 1 << 20

@@ -292,3 +292,4 @@ def test_the_defaults_are_sane() -> None:
     settings = LiveSettings()
     assert settings.request_deadline_s == 300.0 and settings.read_timeout_s == 120.0
     assert settings.max_response_bytes == 4 * MIB
+

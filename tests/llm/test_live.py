@@ -282,3 +282,25 @@ def test_parse_retry_after() -> None:
     assert parse_retry_after({"retry-after": "Wed, 21 Oct 2015 07:28:10 GMT"}, now=1445412480.0) == 10.0
     assert parse_retry_after({"retry-after": "soon"}) is None
     assert parse_retry_after({}) is None
+
+
+def test_the_answer_cap_is_the_parsers_and_a_longer_live_answer_is_cut_and_marked(server: FakeOpenAI) -> None:
+    from lagrseq.llm import records
+    from lagrseq.llm.live import CLIPPED
+    from lagrseq.tasks import base
+
+    assert records.MAX_ANSWER_CHARS == base.MAX_ANSWER_CHARS, "llm/ mirrors the task parsers' limit"
+    long_text = "e,f,g,a,b,c,d,h " + "x" * (2 * records.MAX_ANSWER_CHARS)
+    body = {
+        "id": "c", "model": "gpt-4o-mini", "object": "chat.completion",
+        "choices": [{"index": 0, "message": {"role": "assistant", "content": long_text}, "finish_reason": "stop"}],
+        "usage": {"prompt_tokens": 10, "completion_tokens": 20, "total_tokens": 30},
+    }
+    server.script.append(Reply(body=body))
+    notes: list[str] = []
+    live = LiveProvider(fast_settings(server.url), rng=np.random.default_rng(0), on_retry=notes.append)
+    with live:
+        answer = live.complete(query())
+    assert len(answer.text) == records.MAX_ANSWER_CHARS and answer.finish_reason == CLIPPED
+    assert long_text.startswith(answer.text)
+    assert any("cut to 16000" in note for note in notes)
