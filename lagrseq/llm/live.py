@@ -596,7 +596,7 @@ class LiveProvider:
         fingerprint = show.optional(parsed.get("system_fingerprint"))
         response_id = show.optional(parsed.get("id"))
         answers = []
-        for index, (text, finish) in enumerate(texts):
+        for index, (text, _finish) in enumerate(texts):
             if len(text) > MAX_ANSWER_CHARS:
                 # Nothing longer is stored or parsed: keep the start, and say so in finish_reason.
                 self._warn("clipped", f"an answer of {len(text)} characters was cut to {MAX_ANSWER_CHARS} (MAX_ANSWER_CHARS)")
