@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 
 from lagrseq.adapters import PrimaryAgent, SecondaryAgent, Step
@@ -198,7 +199,8 @@ def _log_step(
 def query_event(event: QueryEvent, result: Consultation, provider: str, temperature: float, reward: float) -> QueryEvent:
     """A decision record completed with what the query sent and got back."""
     answer = result.answer
-    return event._replace(
+    return msgspec.structs.replace(
+        event,
         queried=True,
         prompt_sha256=result.prompt_sha256,
         answer=answer.text,

@@ -7,12 +7,14 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+import msgspec
+
 from lagrseq import seeding
 from lagrseq.config import ExperimentConfig
 from lagrseq.errors import UsageError
 from lagrseq.experiment import TrialResult, query_event
 from lagrseq.lagr import consult
-from lagrseq.logs.events import QueryEvent
+from lagrseq.logs.events import ProbeQueryEvent, QueryEvent
 from lagrseq.logs.schemas import ACCURACY_METHOD
 from lagrseq.logs.sink import McapSink, NullSink, Sink
 from lagrseq.seeding import Stream
@@ -50,7 +52,8 @@ def run_accuracy_probe(
                 result = consult(task, provider, config.llm, config.lagr.threshold, prefix)
                 decision = QueryEvent(0, 0, sample, index, prefix, 1)
                 event = query_event(decision, result, provider.name, config.llm.temperature, 0.0)
-                sink.write(event._replace(extra=(("prefix_length", length), ("fraction", length / len(target)))))
+                fields = msgspec.structs.asdict(event)
+                sink.write(ProbeQueryEvent(**fields, prefix_length=length, fraction=length / len(target)))
                 index += 1
             sink.flush()  # one chunk per prefix: a crash keeps every finished prefix
     return TrialResult(path, 0, 0, 0, index, 0.0, time.perf_counter() - started)

@@ -24,7 +24,6 @@ from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
 from mcap.records import (
     Channel,
-    ChunkIndex,
     DataEnd,
     Footer,
     Header,
@@ -59,6 +58,34 @@ def _chunk_record(start: int, end: int, raw_size: int, crc: int, compression: by
     return head + compression + struct.pack("<Q", len(data)) + data
 
 
+def _chunk_index_record(
+    start: int,
+    end: int,
+    chunk_offset: int,
+    chunk_length: int,
+    index_offsets: dict[int, int],
+    index_length: int,
+    compression: bytes,
+    compressed_size: int,
+    raw_size: int,
+) -> bytes:
+    """A ChunkIndex record (the same bytes as ``mcap.records.ChunkIndex.write``), packed at once."""
+    offsets = b"".join(struct.pack("<HQ", channel, offset) for channel, offset in index_offsets.items())
+    body = (
+        struct.pack("<QQQQI", start, end, chunk_offset, chunk_length, len(offsets))
+        + offsets
+        + struct.pack("<QI", index_length, len(compression))
+        + compression
+        + struct.pack("<QQ", compressed_size, raw_size)
+    )
+    return struct.pack("<BQ", Opcode.CHUNK_INDEX, len(body)) + body
+
+
+_SMALL_CHUNK = 1024
+"""Chunks smaller than this many bytes (an episode's summary messages) are stored uncompressed:
+zstd saves a few bytes there and costs more than writing them."""
+
+
 def _message_index(channel_id: int, flat: Sequence[int]) -> bytes:
     """A MessageIndex record (the same bytes as ``mcap.records.MessageIndex.write``) from the
     flat sequence log time, offset, log time, offset, ...; packed at once, not field by field."""
@@ -74,7 +101,7 @@ class LeanWriter:
 
     def __init__(self, stream: IO[bytes], library: str = "lagrseq", profile: str = "") -> None:
         self._stream = stream
-        self._compressor = zstandard.ZstdCompressor(level=3)
+        self._compressor = zstandard.ZstdCompressor(level=1)
         self._schemas: dict[int, Schema] = {}
         self._channels: dict[int, Channel] = {}
         self._chunk = bytearray()
@@ -82,7 +109,8 @@ class LeanWriter:
         """Per channel of the current chunk: log time, offset, log time, offset, ..."""
         self._chunk_start = self._chunk_end = 0
         self._chunk_count_messages = 0
-        self._chunk_indexes: list[ChunkIndex] = []
+        self._chunk_indexes: list[bytes] = []
+        """ChunkIndex records, packed as each chunk is written."""
         self._metadata_indexes: list[MetadataIndex] = []
         self._counts: dict[int, int] = defaultdict(int)
         self._message_count = 0
@@ -194,8 +222,9 @@ class LeanWriter:
 
     def _finish_chunk(self) -> None:
         raw = bytes(self._chunk)
-        compressed = self._compressor.compress(raw)
-        record = _chunk_record(self._chunk_start, self._chunk_end, len(raw), zlib.crc32(raw), b"zstd", compressed)
+        compression = b"" if len(raw) < _SMALL_CHUNK else b"zstd"
+        compressed = self._compressor.compress(raw) if compression else raw
+        record = _chunk_record(self._chunk_start, self._chunk_end, len(raw), zlib.crc32(raw), compression, compressed)
         chunk_start, chunk_length = self._offset, len(record)
         self._write(record)
         offsets: dict[int, int] = {}
@@ -209,16 +238,16 @@ class LeanWriter:
         index_data = b"".join(pieces)
         self._write(index_data)
         self._chunk_indexes.append(
-            ChunkIndex(
-                message_start_time=self._chunk_start,
-                message_end_time=self._chunk_end,
-                chunk_start_offset=chunk_start,
-                chunk_length=chunk_length,
-                message_index_offsets=offsets,
-                message_index_length=len(index_data),
-                compression="zstd",
-                compressed_size=len(compressed),
-                uncompressed_size=len(raw),
+            _chunk_index_record(
+                self._chunk_start,
+                self._chunk_end,
+                chunk_start,
+                chunk_length,
+                offsets,
+                len(index_data),
+                compression,
+                len(compressed),
+                len(raw),
             )
         )
         if self._message_count == 0:
@@ -247,7 +276,10 @@ class LeanWriter:
                 return
             begin = builder.count
             for record in records:
-                record.write(builder)
+                if isinstance(record, bytes):
+                    builder.write(record)
+                else:
+                    record.write(builder)
             offsets.append(SummaryOffset(opcode, summary_start + begin, builder.count - begin))
 
         group(Opcode.SCHEMA, list(self._schemas.values()))

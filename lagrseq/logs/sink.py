@@ -32,22 +32,24 @@ from lagrseq.logs.events import (
     EpisodeEvent,
     Event,
     NullSink,
+    ProbeQueryEvent,
     QueryEvent,
     Sink,
     Transition,
     View,
-    to_record,
+    encode,
 )
-
-__all__ = ["McapSink", "NullSink", "Sink"]
 from lagrseq.logs.mcap_writer import LeanWriter
 from lagrseq.logs.schemas import TOPICS, schema_bytes
+
+__all__ = ["McapSink", "NullSink", "Sink"]
 
 PROFILE = "lagrseq"
 RUN_METADATA = "lagrseq.run"
 STATUS_METADATA = "lagrseq.status"
 PARTIAL_SUFFIX = ".partial"
 
+_HUGE = float("inf")
 _dumps = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
 
 
@@ -58,91 +60,23 @@ def _encode(record: dict[str, Any]) -> bytes:
         raise LogError(f"record is not JSON-serialisable ({exc}): {sorted(record)}") from None
 
 
-_HEAD = b'{"trial":%d,"episode":%d,"step":%d,"global_step":%d,'
-_BOOL = {True: "true", False: "false"}
-_CACHE_LIMIT = 100_000
-"""Most distinct tails memoised per process (cube stacks and their rewards repeat all the time)."""
+def _finite(event: Any, fields: tuple[str, ...]) -> None:
+    """JSON holds no NaN or infinity (msgspec would write null): refuse them by name."""
+    for name in fields:
+        value = getattr(event, name)
+        if value is not None and not math.isfinite(value):
+            raise LogError(f"record is not JSON-serialisable (field {name} = {value}): {type(event).__name__}")
 
 
-def _flat_ints(state: Any) -> bool:
-    """Whether ``state`` is a flat tuple or list of ints (what the fast encoders format)."""
-    return isinstance(state, (tuple, list)) and (not state or type(state[0]) is int)
+_QUERY_FLOATS = ("evaluation", "query_reward", "temperature", "cost_usd", "latency_s")
+_EPISODE_FLOATS = ("return_", "epsilon")
 
 
-def _state_text(state: tuple[int, ...] | list[int]) -> str:
-    return "[" + ",".join(map(str, state)) + "]"
-
-
-_TRANSITION_TAILS: dict[tuple[Any, ...], bytes] = {}
-
-
-def _transition_tail(event: Transition) -> bytes | None:
-    """The JSON of a transition from ``state`` on, or None when it needs the slow path."""
-    _, _, _, _, state, action, reward, terminated, truncated, guided = event
-    if type(reward) is not float or not math.isfinite(reward) or not _flat_ints(state) or type(action) is not int:
-        return None
-    return (
-        f'"state":{_state_text(state)},"action":{action},"reward":{reward!r},"terminated":{_BOOL[terminated]},'
-        f'"truncated":{_BOOL[truncated]},"guided":{_BOOL[guided]}}}'
-    ).encode()
-
-
-def _encode_transition(event: Transition) -> bytes:
-    """The hot path: one transition per environment step. The same bytes as ``_encode``, several
-    times faster: the part from ``state`` on repeats (a cube trial meets a few hundred distinct
-    ones) and is memoised; anything unusual (grids' nested states, a non-finite reward) takes
-    the slow path, which also refuses what JSON cannot hold."""
-    key = event[4:]
+def _encode_event(event: Any) -> bytes:
     try:
-        tail = _TRANSITION_TAILS[key] if type(event[6]) is float else None
-    except KeyError:
-        tail = _transition_tail(event)
-        if tail is not None and len(_TRANSITION_TAILS) < _CACHE_LIMIT:
-            _TRANSITION_TAILS[key] = tail
-    except TypeError:  # an unhashable state: a grid's nested lists
-        tail = None
-    if tail is None:
-        return _encode(to_record(event))
-    return _HEAD % event[:4] + tail
-
-
-# A decision not to query (most /query messages): every field after ``decision`` is at its
-# default except ``query_reward``, so the JSON from ``state`` on depends on (state, decision,
-# query_reward) alone and is memoised like a transition's.
-_QUERY_FIELDS = QueryEvent._fields[:-1]  # the contract's; ``extra`` follows them
-_REWARD_AT = QueryEvent._fields.index("query_reward")
-_SKIP_HEAD = QueryEvent(0, 0, 0, 0, (), 0)[6:_REWARD_AT]
-_SKIP_TAIL = QueryEvent(0, 0, 0, 0, (), 0)[_REWARD_AT + 1 :]
-_SKIP_MIDDLE = ",".join(f'"{k}":{json.dumps(v)}' for k, v in zip(_QUERY_FIELDS[6:_REWARD_AT], _SKIP_HEAD))
-_SKIP_END = ",".join(f'"{k}":{json.dumps(v)}' for k, v in zip(_QUERY_FIELDS[_REWARD_AT + 1 :], _SKIP_TAIL))
-_SKIP_TAILS: dict[tuple[Any, ...], bytes] = {}
-
-
-def _skip_tail(event: QueryEvent) -> bytes | None:
-    state, decision, reward = event[4], event[5], event[_REWARD_AT]
-    if type(reward) is not float or not math.isfinite(reward) or not _flat_ints(state) or type(decision) is not int:
-        return None
-    return (
-        f'"state":{_state_text(state)},"decision":{decision},{_SKIP_MIDDLE},"query_reward":{reward!r},{_SKIP_END}}}'
-    ).encode()
-
-
-def _encode_query(event: QueryEvent) -> bytes:
-    """A decision not to query through the memoised tail; every other record through json."""
-    if event[6:_REWARD_AT] != _SKIP_HEAD or event[_REWARD_AT + 1 :] != _SKIP_TAIL:
-        return _encode(to_record(event))
-    key = (event[4], event[5], event[_REWARD_AT])
-    try:
-        tail = _SKIP_TAILS[key] if type(event[_REWARD_AT]) is float else None
-    except KeyError:
-        tail = _skip_tail(event)
-        if tail is not None and len(_SKIP_TAILS) < _CACHE_LIMIT:
-            _SKIP_TAILS[key] = tail
-    except TypeError:
-        tail = None
-    if tail is None:
-        return _encode(to_record(event))
-    return _HEAD % event[:4] + tail
+        return encode(event)
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise LogError(f"record is not JSON-serialisable ({exc}): {type(event).__name__}") from None
 
 
 def _open_exclusive(partial: Path) -> Any:
@@ -195,22 +129,35 @@ class McapSink:
                 topic=topic, message_encoding="json", schema_id=schema_id
             )
         self._transition_channel = self._channels[TRANSITION_TOPIC]
+        self._query_channel = self._channels[QUERY_TOPIC]
+        self._episode_channel = self._channels[EPISODE_TOPIC]
         self._writer.add_metadata(RUN_METADATA, metadata)
         self._chunk: list[tuple[int, int, bytes]] = []
         """Transitions and pictures of the current episode: (channel id, log time, data)."""
-        self._pending: list[tuple[str, bytes, int]] = []
+        self._pending: list[tuple[int, int, bytes]] = []
+        """Queries and episodes held until the episode ends: (channel id, log time, data)."""
         self._finished = False
 
     def write(self, event: Event) -> None:
         """Add one event. Transitions and pictures go to the current chunk; queries and episodes
         are held until :meth:`flush` writes them into a chunk of their own."""
         kind = type(event)
-        if kind is Transition:
-            self._chunk.append((self._transition_channel, event[3], _encode_transition(event)))  # type: ignore[arg-type,misc]
-        elif kind is QueryEvent:
-            self._pending.append((QUERY_TOPIC, _encode_query(event), event[3]))  # type: ignore[arg-type,misc]
-        elif kind is EpisodeEvent:
-            self._pending.append((EPISODE_TOPIC, _encode(to_record(event)), max(event[-1] - 1, 0)))  # type: ignore[index,operator]
+        try:
+            if kind is Transition:
+                reward = event.reward  # type: ignore[union-attr]
+                if not -_HUGE < reward < _HUGE:  # NaN and the infinities fail both comparisons
+                    _finite(event, ("reward",))
+                self._chunk.append((self._transition_channel, event.global_step, encode(event)))  # type: ignore[union-attr]
+                return
+            if kind is QueryEvent or kind is ProbeQueryEvent:
+                _finite(event, _QUERY_FLOATS)
+                self._pending.append((self._query_channel, event.global_step, encode(event)))  # type: ignore[union-attr]
+                return
+        except (TypeError, ValueError, OverflowError) as exc:
+            raise LogError(f"record is not JSON-serialisable ({exc}): {kind.__name__}") from None
+        if kind is EpisodeEvent:
+            _finite(event, _EPISODE_FLOATS)
+            self._pending.append((self._episode_channel, max(event.global_step - 1, 0), _encode_event(event)))  # type: ignore[union-attr]
         elif kind is View:
             self._chunk.append((self._channels[event.topic], event.log_time, _encode(event.message)))  # type: ignore[union-attr]
         else:
@@ -223,10 +170,7 @@ class McapSink:
         if topic == TRANSITION_TOPIC or topic.startswith("/view"):
             self._chunk.append((self._channels[topic], log_time, _encode(record)))
         else:
-            self._pending.append((topic, _encode(record), log_time))
-
-    def _add(self, topic: str, data: bytes, log_time: int) -> None:
-        self._writer.add_message(self._channels[topic], log_time, data)
+            self._pending.append((self._channels[topic], log_time, _encode(record)))
 
     @property
     def messages(self) -> int:
@@ -240,8 +184,7 @@ class McapSink:
         self._chunk.clear()
         self._writer.flush(push=not self._pending)
         if self._pending:
-            for topic, data, log_time in self._pending:
-                self._add(topic, data, log_time)
+            self._writer.add_messages(self._pending)
             self._pending.clear()
             self._writer.flush()
 

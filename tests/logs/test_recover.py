@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 import pytest
+from mcap.reader import make_reader
 
 import lagrseq
 from lagrseq import config as cfg
@@ -128,7 +129,13 @@ def test_truncation_anywhere_keeps_the_flushed_episodes(tmp_path: Path, fraction
 def test_flipped_bytes_mid_file_give_one_clear_line(tmp_path: Path) -> None:
     complete = _finished_log(tmp_path)
     data = bytearray(complete.read_bytes())
-    middle = len(data) // 2
+    with complete.open("rb") as handle:
+        summary = make_reader(handle).get_summary()
+    assert summary is not None
+    # the middle of the middle transitions chunk: damage inside the data, not a cut-off
+    chunks = sorted((i for i in summary.chunk_indexes if i.compression == "zstd"), key=lambda i: i.chunk_start_offset)
+    chunk = chunks[len(chunks) // 2]
+    middle = chunk.chunk_start_offset + chunk.chunk_length // 2
     for i in range(middle, middle + 64):
         data[i] ^= 0xFF
     damaged = tmp_path / "damaged.mcap"

@@ -6,12 +6,21 @@ import json
 from pathlib import Path
 
 import jsonschema
+import msgspec
 import pytest
 from mcap.reader import make_reader
 
 from lagrseq import config as cfg
 from lagrseq.errors import LogError
-from lagrseq.logs.events import EpisodeEvent, QueryEvent, Transition, log_time, to_record
+from lagrseq.logs.events import (
+    EpisodeEvent,
+    ProbeQueryEvent,
+    QueryEvent,
+    Transition,
+    encode,
+    log_time,
+    to_record,
+)
 from lagrseq.logs.reader import is_complete, iter_messages, read_info
 from lagrseq.logs.schemas import EPISODE, QUERY, TRANSITION
 from lagrseq.logs.sink import McapSink, NullSink
@@ -98,35 +107,42 @@ def test_unserialisable_record_is_a_log_error(tmp_path: Path) -> None:
         sink.write_record("/transition", {"reward": float("nan")}, 0)
 
 
-def test_fast_transition_encoding_equals_json() -> None:
-    from lagrseq.logs.sink import _encode, _encode_transition
+def test_event_encoding_equals_the_json_of_its_record() -> None:
+    """msgspec encodes an event as the standard library would encode its record (field order,
+    separators, number formats), for the values a trial produces."""
+    from lagrseq.logs.sink import _encode
 
-    event = Transition(1, 2, 3, 4, (4, 5, 6), 7, -0.125, False, True, True)
-    record = to_record(event)
-    assert list(record) == list(TRANSITION["properties"]), "contract order"
-    assert _encode_transition(event) == _encode(record), "byte for byte the slow path's JSON"
-    assert json.loads(_encode_transition(event)) == {**record, "state": [4, 5, 6]}
-    nested = event._replace(state=[[0, 1], [1, 0]], reward=1.0)
-    assert json.loads(_encode_transition(nested)) == to_record(nested)
-    assert json.loads(_encode_transition(event._replace(state=())))["state"] == []
-    with pytest.raises(LogError):
-        _encode_transition(event._replace(reward=float("inf")))
-
-
-def test_fast_query_encoding_equals_json() -> None:
-    from lagrseq.logs.sink import _encode, _encode_query
-
+    transitions = [
+        Transition(1, 2, 3, 4, (4, 5, 6), 7, -0.125, False, True, True),
+        Transition(0, 0, 0, 0, (), 0, 0.0, False, False, False),
+        Transition(0, 1, 2, 3, [[0, 1], [1, 0]], 5, 1.0, True, False, False),
+        Transition(0, 1, 2, 3, (1,), 5, 0.1 + 0.2, False, False, False),
+    ]
+    for event in transitions:
+        assert list(to_record(event)) == list(TRANSITION["properties"]), "contract order"
+        assert encode(event) == _encode(to_record(event)), event
     skip = QueryEvent(0, 1, 2, 3, (4, 5), 0)
-    assert list(to_record(skip)) == list(QUERY["properties"]), "contract order"
-    assert _encode_query(skip) == _encode(to_record(skip)), "the template is the slow path's JSON"
-    assert _encode_query(skip) == _encode(to_record(skip))  # the template, cached
-    assert json.loads(_encode_query(skip._replace(query_reward=-1.0)))["query_reward"] == -1.0
-    sent = skip._replace(queried=True, answer="['e']", decision=1)
-    assert json.loads(_encode_query(sent)) == {**to_record(sent), "state": [4, 5]}
-    odd = skip._replace(answer="not a skip after all")  # a field after the decision that is set
-    assert json.loads(_encode_query(odd))["answer"] == "not a skip after all"
-    extra = skip._replace(extra=(("prefix_length", 2), ("fraction", 0.25)))  # fields added after the contract's
-    assert json.loads(_encode_query(extra)) == {**to_record(skip), "state": [4, 5], "prefix_length": 2, "fraction": 0.25}
+    sent = msgspec.structs.replace(skip, queried=True, answer="['e'] \u00e9 \"quoted\"", decision=1, evaluation=0.75, cost_usd=1.5e-06)
+    for event in (skip, sent):
+        assert list(to_record(event)) == list(QUERY["properties"])
+        assert json.loads(encode(event)) == json.loads(_encode(to_record(event)))
+    probe = ProbeQueryEvent(**msgspec.structs.asdict(skip), prefix_length=2, fraction=0.25)
+    assert list(json.loads(encode(probe)))[-2:] == ["prefix_length", "fraction"], "added after the contract"
+
+
+def test_numpy_scalars_are_logged_as_numbers_and_non_finite_floats_refused(tmp_path: Path) -> None:
+    import numpy as np
+
+    event = Transition(0, 0, 0, 0, (np.int64(3),), 1, 1.0, False, False, False)
+    assert json.loads(encode(event))["state"] == [3]
+    with McapSink(tmp_path / "t.mcap", {"config": "{}"}) as sink:
+        for bad in (
+            Transition(0, 0, 0, 0, (), 0, float("nan"), False, False, False),
+            QueryEvent(0, 0, 0, 0, (), 1, evaluation=float("inf")),
+            EpisodeEvent(0, 0, float("-inf"), 1),
+        ):
+            with pytest.raises(LogError, match="not JSON-serialisable"):
+                sink.write(bad)
 
 
 def test_episode_event_keeps_the_return_field_name() -> None:
@@ -174,3 +190,27 @@ def test_lean_chunk_record_equals_the_reference_library() -> None:
     Chunk(message_start_time=3, message_end_time=2**40, uncompressed_size=77, uncompressed_crc=12345,
           compression="zstd", data=b"\x00compressed bytes").write(builder)
     assert _chunk_record(3, 2**40, 77, 12345, b"zstd", b"\x00compressed bytes") == builder.end()
+
+
+def test_lean_chunk_index_equals_the_reference_library() -> None:
+    from mcap.data_stream import RecordBuilder
+    from mcap.records import ChunkIndex
+
+    from lagrseq.logs.mcap_writer import _chunk_index_record
+
+    for compression in ("zstd", ""):
+        builder = RecordBuilder()
+        ChunkIndex(message_start_time=1, message_end_time=2**33, chunk_start_offset=99, chunk_length=1234,
+                   message_index_offsets={1: 5000, 3: 6000}, message_index_length=77, compression=compression,
+                   compressed_size=400, uncompressed_size=900).write(builder)
+        packed = _chunk_index_record(1, 2**33, 99, 1234, {1: 5000, 3: 6000}, 77, compression.encode(), 400, 900)
+        assert packed == builder.end()
+
+
+def test_small_chunks_are_stored_uncompressed_and_read_back(trial_log: Path) -> None:
+    with trial_log.open("rb") as handle:
+        summary = make_reader(handle).get_summary()
+    assert summary is not None
+    kinds = {index.compression for index in summary.chunk_indexes}
+    assert kinds == {"zstd", ""}, "transition chunks compressed, an episode's few summary messages not"
+    assert all(index.compression == "zstd" or index.uncompressed_size < 1024 for index in summary.chunk_indexes)
