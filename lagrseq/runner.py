@@ -188,9 +188,12 @@ def process_pool(jobs: int) -> Iterator[ProcessPoolExecutor]:
     )
     try:
         yield pool
-    except BaseException:
+    except KeyboardInterrupt:
         exit_on_next_interrupt()
         stop_pool(pool)
+        raise
+    except BaseException:
+        pool.shutdown(wait=True, cancel_futures=True)
         raise
     pool.shutdown(wait=True)
 
@@ -217,8 +220,8 @@ def stop_pool(pool: Executor) -> None:
 
 
 def exit_on_next_interrupt() -> None:
-    """Cleaning up after a Ctrl-C (or a failed trial): from now on a Ctrl-C ends the process at
-    once with status 130, whatever it is doing. The process is on its way out anyway."""
+    """Cleaning up after a Ctrl-C: from now on a Ctrl-C ends the process at once with status
+    130, whatever it is doing. The process is on its way out anyway."""
     with contextlib.suppress(ValueError):  # not the main thread: nothing to install
         signal.signal(signal.SIGINT, lambda *_: os._exit(130))
 
@@ -269,10 +272,15 @@ def run_trials(
                 results.append(future.result())
                 if progress is not None:
                     progress.update(per_trial)
-        except BaseException:
-            # Ctrl-C or a failed trial: nothing more starts, nothing half-made is renamed.
+        except KeyboardInterrupt:
+            # Ctrl-C: nothing more starts, the running trials stop, nothing half-made is renamed.
             exit_on_next_interrupt()
             stop_pool(pool)
+            raise
+        except BaseException:
+            # A failed trial: the queued ones never start, the running ones finish their logs.
+            for future in futures:
+                future.cancel()
             raise
     return sorted(results, key=lambda r: r.trial)
 
