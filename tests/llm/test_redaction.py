@@ -313,3 +313,41 @@ def test_a_key_that_cannot_go_in_a_header_is_one_line_naming_the_variable(
     assert KEY_ENV in message and what in message and "\n" not in message
     assert not leaks(message, value) and value.strip() not in message
     assert server.requests == []
+
+
+def test_a_live_run_and_a_recorded_run_log_no_key_fragment_to_mcap_or_stderr(
+    tmp_path: Path, server: FakeOpenAI, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """The whole path: ``lagrseq run --provider live`` (and ``recorded:`` with ``--on-miss live``)
+    against a server that echoes the key in every field writes MCAP logs, a store and stderr
+    with no fragment of it; /query.answer and /query.model come through, blanked."""
+    from mcap.reader import make_reader
+
+    from lagrseq import cli
+
+    monkeypatch.setenv(KEY_ENV, ECHO_KEY)
+    server.script.extend(echoing(echo_completion) for _ in range(400))
+    common = ["--base-url", server.url, "--api-key-env", KEY_ENV, "--trials", "1", "--set", "run.episodes=3", "--quiet"]
+    assert cli.main(["run", "cube-stacking", "--method", "lagr", "--provider", "live:gpt-4o-mini", "--out", str(tmp_path / "runs"), *common]) == 0
+    store = tmp_path / "store"
+    assert cli.main(["run", "cube-stacking", "--method", "lagr", "--provider", f"recorded:{store}", "--on-miss", "live",
+                     "--out", str(tmp_path / "runs2"), *common]) == 0
+    logs = sorted(tmp_path.rglob("*.mcap"))
+    assert len(logs) == 2 and server.requests
+    answers = []
+    for path in logs:  # the chunks are compressed: read every message and metadata record back
+        with path.open("rb") as handle:
+            reader = make_reader(handle)
+            for _, channel, message in reader.iter_messages():
+                assert leaks(message.data.decode()) == [], (path, channel.topic)
+                record = json.loads(message.data)
+                if channel.topic == "/query" and record["queried"]:
+                    answers.append(record)
+            for metadata in reader.iter_metadata():
+                assert leaks(json.dumps(metadata.metadata)) == []
+    assert answers and all(HARMLESS in a["answer"] and MARK in a["answer"] for a in answers)
+    assert all(MARK in (a["model"] or "") for a in answers)
+    found = {str(path): leaks(text) for path, text in files_and_contents(tmp_path) if leaks(text)}
+    assert found == {}, found
+    captured = capfd.readouterr()
+    assert leaks(captured.out + captured.err) == []
