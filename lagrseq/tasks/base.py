@@ -32,8 +32,10 @@ def oversized_answer(text: str) -> str | None:
 
 
 def clip_token(token: str, width: int = 40) -> str:
-    """``repr`` of a token quoted in a parse-error reason, shortened to about ``width`` characters."""
-    return repr(token if len(token) <= width else token[: width - 3] + "...")
+    """``repr`` of a token quoted in a parse-error reason: at most ``width`` + 2 characters, also
+    when escapes (``\x00`` for a NUL) make the repr longer than the token."""
+    shown = repr(token if len(token) <= width else token[: width - 3] + "...")
+    return shown if len(shown) <= width + 2 else shown[: width - 1] + "..."
 
 
 @dataclass(frozen=True)

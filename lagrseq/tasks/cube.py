@@ -268,8 +268,11 @@ _WORD = re.compile(r"[A-Za-z]+")
 
 
 def _clip(text: str, width: int = 60) -> str:
+    """``repr`` of an answer's start for a parse-error reason: at most ``width`` + 2 characters,
+    also when escapes (``\x00`` for a NUL) make the repr longer than the text."""
     one = " ".join(text.split())
-    return repr(one if len(one) <= width else one[: width - 3] + "...")
+    shown = repr(one if len(one) <= width else one[: width - 3] + "...")
+    return shown if len(shown) <= width + 2 else shown[: width - 1] + "..."
 
 
 # ------------------------------------------------------------------------------------------

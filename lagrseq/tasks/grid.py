@@ -215,8 +215,7 @@ def read_grid(text: str, rows: int, cols: int) -> Parsed:
         failures.append((sum(len(row) for row in candidate.rows), reason))
     if failures:  # explain the biggest matrix-like block, the one most likely meant as the answer
         return Parsed(None, max(failures, key=lambda f: f[0])[1])
-    one = " ".join(text.split())
-    return Parsed(None, f"no matrix found in {one[:57] + '...' if len(one) > 60 else one!r}")
+    return Parsed(None, f"no matrix found in {clip_token(' '.join(text.split()), 60)}")
 
 
 def read_any_grid(text: str) -> np.ndarray | None:

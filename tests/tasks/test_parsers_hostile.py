@@ -193,3 +193,10 @@ def test_long_tokens_are_clipped_in_reasons() -> None:
     assert grid_reason.error == f"expected 0 or 1 in every cell, found value '{'2' * 37}...' at row 5, column 5"
     cube_reason = cube.CubeStacking(8).parse("['e','" + "z1" * 5000 + "']")
     assert cube_reason.error == f"'{'z1' * 18}z...' is not a cube of this table"
+
+
+@pytest.mark.parametrize("text", ["\x00" * 44, "\x01\x02" * 500, "\U0010ffff" * 100, "a\x00" * 30 + " xyz"])
+def test_reasons_stay_short_when_escapes_lengthen_the_repr(text: str) -> None:
+    """Found by hypothesis on CI: 44 NUL characters made a 204-character reason."""
+    for parse in PARSERS.values():
+        check_parsed(parse(text))
