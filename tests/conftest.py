@@ -8,13 +8,14 @@ from pathlib import Path
 import pytest
 from hypothesis import settings
 
+from lagrseq.llm.authors_cache import read_pairs
+
 # CI explores the same examples on every run (a red CI is then reproducible), and keeps no
 # example database; a developer's run draws new examples each time and remembers failures.
 settings.register_profile("ci", derandomize=True, database=None, print_blob=True)
 if os.environ.get("CI"):
     settings.load_profile("ci")
 
-from lagrseq.llm.authors_cache import read_pairs
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 AUTHORS_CACHES = SHARED / "data" / "authors_caches"
