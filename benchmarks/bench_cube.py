@@ -7,7 +7,7 @@ a machine whose load changes during the run slows both alike.
 For scale: the released code needs about 0.4 s per LaGR-SEQ trial and about 39 s per Q-learning
 trial (its permutation-ranking state index), measured on this kind of machine.
 
-    python benchmarks/bench_cube.py [--trials 10]
+    python benchmarks/bench_cube.py [--trials 10] [--methods lagr-seq]
 """
 
 from __future__ import annotations
@@ -26,13 +26,14 @@ from lagrseq.runner import run_one
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--trials", type=int, default=10, help="trials per measurement (default 10)")
+    parser.add_argument("--methods", default="baseline,lagr,lagr-seq", help="comma-separated methods (default: all three)")
     args = parser.parse_args()
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})  # one core
     print(f"cube stacking, 8 cubes, upstream preset, {args.trials} trials per cell, one core")
     print(f"{'method':<10} {'log':<4} {'s/trial':>8} {'steps/s':>10} {'MB/trial':>9}")
     with tempfile.TemporaryDirectory() as tmp:
-        for method in ("baseline", "lagr", "lagr-seq"):
+        for method in args.methods.split(","):
             config = cfg.load("cube-stacking", method, "upstream")
             run_one(config, 999, 1, "mock", Path(tmp) / "warm.mcap")  # imports, caches
             times: dict[bool, list[float]] = {False: [], True: []}

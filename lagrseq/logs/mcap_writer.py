@@ -101,7 +101,7 @@ class LeanWriter:
 
     def __init__(self, stream: IO[bytes], library: str = "lagrseq", profile: str = "") -> None:
         self._stream = stream
-        self._compressor = zstandard.ZstdCompressor(level=3)
+        self._compressor = zstandard.ZstdCompressor(level=1)
         self._schemas: dict[int, Schema] = {}
         self._channels: dict[int, Channel] = {}
         self._chunk = bytearray()

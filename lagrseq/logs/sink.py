@@ -150,7 +150,10 @@ class McapSink:
                 self._chunk.append((self._transition_channel, event.global_step, encode(event)))  # type: ignore[union-attr]
                 return
             if kind is QueryEvent or kind is ProbeQueryEvent:
-                _finite(event, _QUERY_FLOATS)
+                e = event
+                for value in (e.evaluation, e.query_reward, e.temperature, e.cost_usd, e.latency_s):  # type: ignore[union-attr]
+                    if value is not None and not -_HUGE < value < _HUGE:
+                        _finite(event, _QUERY_FLOATS)
                 self._pending.append((self._query_channel, event.global_step, encode(event)))  # type: ignore[union-attr]
                 return
         except (TypeError, ValueError, OverflowError) as exc:
