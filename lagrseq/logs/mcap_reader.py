@@ -49,7 +49,8 @@ from mcap.records import (
     SummaryOffset,
 )
 
-MAGIC = b"\x89MCAP0\r\n"
+from lagrseq.logs.mcap_writer import MAGIC  # noqa: E402 - one definition of the file magic
+
 MAX_CHUNK_BYTES = 1 << 30
 """The largest uncompressed chunk read (1 GiB). A lagrseq chunk holds one episode's transitions
 (or its queries and summary): a few megabytes at most; a bigger size is a damaged field."""

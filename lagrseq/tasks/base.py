@@ -31,6 +31,17 @@ def oversized_answer(text: str) -> str | None:
     )
 
 
+def unreadable_answer(text: object) -> str | None:
+    """Why an answer cannot be read at all (not text, empty, longer than the cap), else None:
+    the check every parser makes first."""
+    if not isinstance(text, str):
+        return "empty answer"
+    too_long = oversized_answer(text)
+    if too_long is not None:
+        return too_long
+    return "empty answer" if not text.strip() else None
+
+
 def clip_token(token: str, width: int = 40) -> str:
     """``repr`` of a token quoted in a parse-error reason: at most ``width`` + 2 characters, also
     when escapes (``\x00`` for a NUL) make the repr longer than the token."""

@@ -24,7 +24,7 @@ from functools import cached_property
 
 import numpy as np
 
-from lagrseq.tasks.base import Parsed, clip_token, oversized_answer
+from lagrseq.tasks.base import Parsed, clip_token, unreadable_answer
 
 LETTERS = "abcdefghijklmnopqrstuvwxyz"
 
@@ -189,13 +189,9 @@ class CubeStacking:
         An answer longer than ``MAX_ANSWER_CHARS`` is refused unread. Time linear in the
         answer's length.
         """
-        if not isinstance(text, str):
-            return Parsed(None, "empty answer")
-        too_long = oversized_answer(text)
-        if too_long is not None:
-            return Parsed(None, too_long)
-        if not text.strip():
-            return Parsed(None, "empty answer")
+        problem = unreadable_answer(text)
+        if problem is not None:
+            return Parsed(None, problem)
         known = {c.letter: i for i, c in enumerate(self.cubes)}
         candidates = _LIST.findall(text)
         errors: list[str] = []

@@ -17,7 +17,7 @@ from typing import Literal
 import numpy as np
 
 from lagrseq.tasks import shapes
-from lagrseq.tasks.base import Parsed, clip_token, oversized_answer
+from lagrseq.tasks.base import Parsed, clip_token, unreadable_answer
 
 MatrixFormat = Literal["numpy", "comma"]
 GuidanceMode = Literal["cell-by-cell", "next-missing"]
@@ -200,13 +200,9 @@ def read_grid(text: str, rows: int, cols: int) -> Parsed:
     wrong shape, a value other than 0 or 1, an answer longer than ``MAX_ANSWER_CHARS`` (not
     read). Time linear in the answer's length.
     """
-    if not isinstance(text, str):
-        return Parsed(None, "empty answer")
-    too_long = oversized_answer(text)
-    if too_long is not None:
-        return Parsed(None, too_long)
-    if not text.strip():
-        return Parsed(None, "empty answer")
+    problem = unreadable_answer(text)
+    if problem is not None:
+        return Parsed(None, problem)
     failures: list[tuple[int, str]] = []
     for candidate in reversed(_candidates(text)):
         grid, reason = _as_grid(candidate, rows, cols)
