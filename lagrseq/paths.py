@@ -7,7 +7,6 @@ ends in one line naming the flag, the path and the fix, instead of a traceback h
 
 from __future__ import annotations
 
-import os
 import tempfile
 from pathlib import Path
 
@@ -28,14 +27,3 @@ def writable_directory(path: str | Path, flag: str = "--out") -> Path:
         raise UsageError(f"{flag} {path}: cannot write there ({reason}); give a writable directory") from None
     return path
 
-
-def readable_file(path: str | Path, flag: str) -> Path:
-    """``path`` as an existing regular file this process can open."""
-    path = Path(path)
-    if path.is_dir():
-        raise UsageError(f"{flag} {path} is a directory; give a file")
-    if not path.is_file():
-        raise UsageError(f"{flag} {path}: no such file")
-    if not os.access(path, os.R_OK):
-        raise UsageError(f"{flag} {path}: not readable (permission denied)")
-    return path

@@ -111,14 +111,6 @@ class View(NamedTuple):
 
 Event = Transition | QueryEvent | EpisodeEvent | View
 
-TOPICS: dict[type, str] = {
-    Transition: TRANSITION_TOPIC,
-    QueryEvent: QUERY_TOPIC,
-    ProbeQueryEvent: QUERY_TOPIC,
-    EpisodeEvent: EPISODE_TOPIC,
-}
-
-
 def _numpy_scalar(value: Any) -> Any:
     """msgspec's hook for what it cannot encode itself: numpy scalars become Python numbers."""
     if isinstance(value, np.generic):
@@ -130,13 +122,6 @@ _ENCODER = msgspec.json.Encoder(enc_hook=_numpy_scalar)
 encode = _ENCODER.encode
 """An event (or a JSON-ready object) as compact JSON bytes; non-finite floats are checked by
 the sink (msgspec would write them as null)."""
-
-
-def topic_of(event: Event) -> str:
-    """The MCAP topic an event goes to."""
-    if type(event) is View:
-        return event.topic
-    return TOPICS[type(event)]
 
 
 def log_time(event: Event) -> int:
