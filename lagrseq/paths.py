@@ -1,8 +1,9 @@
 """Output paths given on the command line, checked before anything is written.
 
-Every command that writes (run, reproduce, replay, recover, record, cache export) checks its
-output directory here first, so a path that is a file, lies below a file, or cannot be written
-ends in one line naming the flag, the path and the fix, instead of a traceback halfway through.
+``run``, ``reproduce`` and ``replay`` check their output directory here first, so a path that
+is a file, lies below a file, or cannot be written ends in one line naming the flag, the path and
+the fix, instead of a traceback halfway through (``recover`` and ``cache export`` check their own
+targets where they write).
 """
 
 from __future__ import annotations
