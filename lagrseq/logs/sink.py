@@ -72,13 +72,6 @@ _QUERY_FLOATS = ("evaluation", "query_reward", "temperature", "cost_usd", "laten
 _EPISODE_FLOATS = ("return_", "epsilon")
 
 
-def _encode_event(event: Any) -> bytes:
-    try:
-        return encode(event)
-    except (TypeError, ValueError, OverflowError) as exc:
-        raise LogError(f"record is not JSON-serialisable ({exc}): {type(event).__name__}") from None
-
-
 def _open_exclusive(partial: Path) -> Any:
     """``partial`` opened for writing from scratch, locked against a second lagrseq process that
     would write the same trial (two identical runs at once): that one is refused, and the file
@@ -156,12 +149,13 @@ class McapSink:
                         _finite(event, _QUERY_FLOATS)
                 self._pending.append((self._query_channel, event.global_step, encode(event)))  # type: ignore[union-attr]
                 return
+            if kind is EpisodeEvent:
+                _finite(event, _EPISODE_FLOATS)
+                self._pending.append((self._episode_channel, max(event.global_step - 1, 0), encode(event)))  # type: ignore[union-attr]
+                return
         except (TypeError, ValueError, OverflowError) as exc:
             raise LogError(f"record is not JSON-serialisable ({exc}): {kind.__name__}") from None
-        if kind is EpisodeEvent:
-            _finite(event, _EPISODE_FLOATS)
-            self._pending.append((self._episode_channel, max(event.global_step - 1, 0), _encode_event(event)))  # type: ignore[union-attr]
-        elif kind is View:
+        if kind is View:
             self._chunk.append((self._channels[event.topic], event.log_time, _encode(event.message)))  # type: ignore[union-attr]
         else:
             raise LogError(f"cannot log a {kind.__name__}; expected Transition, QueryEvent, EpisodeEvent or View")
