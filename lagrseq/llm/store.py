@@ -489,9 +489,12 @@ class RecordStore:
 
     def _check_header(self) -> None:
         with _translated(self.directory, "read its header"):
+            # Count first, then read the header: the header is the first row a store gets, so a
+            # count taken before it cannot race with another process creating the store.
+            rows = self._read().count()
             meta = self._read().get(META_KEY)
             if meta is None:
-                if self._read().count():
+                if rows:
                     raise StoreError(
                         f"{self.directory} holds a diskcache that is not a lagrseq store; use another directory"
                     )

@@ -440,6 +440,31 @@ def test_reading_a_store_opens_sqlite_read_only_and_never_the_writing_cache(
     assert set(after) - set(before) <= {"cache.db-wal"} and not after.get("cache.db-wal", (b"",))[0]
 
 
+def test_a_store_being_created_by_another_process_is_read_without_a_false_alarm(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A reader opening a store while another process creates it (the tables exist, the header
+    and the first answers land between the reader's two reads) must not call it a foreign cache.
+    The header is the first row a store gets, so the reader counts first and reads it after."""
+    store = tmp_path / "s"
+    diskcache.Cache(str(store), disk=JSONOnlyDisk).close()  # the creator's tables, no row yet
+    from lagrseq.llm import store as store_module
+
+    count = store_module.ReadOnlyDatabase.count
+    created: list[bool] = []
+
+    def count_then_let_the_creator_write(self: Any) -> int:
+        if not created:  # the other process writes its header and one answer just now
+            created.append(True)
+            with RecordStore(store) as writer:
+                writer.add(record(0)["key"], record(0)["request"], "cube-stacking", [Sample.from_json(record(0)["sample"])])
+        return count(self)
+
+    monkeypatch.setattr(store_module.ReadOnlyDatabase, "count", count_then_let_the_creator_write)
+    with RecordStore(store, create=False) as reader:
+        assert created and len(reader) == 1
+
+
 def test_store_paths_that_are_files_or_missing_are_one_line(tmp_path: Path) -> None:
     (tmp_path / "file").write_text("x")
     for create in (True, False):
