@@ -42,11 +42,13 @@ def _number_types() -> dict[str, Callable[[str], Any]]:
         "max_tokens": cfg.max_tokens_int,
         "seconds": cfg.number_type("seconds", gt=0, le=86_400),
         "bytes": cfg.number_type("bytes", integer=True, ge=1024, le=2**31),
+        "port": cfg.number_type("port", integer=True, ge=0, le=65535),
     }
 
 
 _N = _number_types()
 _COUNT, _SEED, _BUDGET, _LIMIT, _TEMPERATURE = _N["count"], _N["seed"], _N["budget"], _N["limit"], _N["temperature"]
+_PORT = _N["port"]
 
 
 def _formats(text: str) -> list[str]:
@@ -165,6 +167,7 @@ def _add_run(sub: Any) -> None:
             "  lagrseq run cube-stacking --method baseline --set task.stack_size=11\n"
             "  lagrseq run image-completion --method lagr-seq --preset paper --trials 2\n"
             "  lagrseq run object-arrangement --method lagr --set task.target=\"square\"\n"
+            "  lagrseq run arm-arrangement --preset paper --trials 5 --render frames   # the UR5e (arm extra)\n"
             "  lagrseq config cube-stacking --preset paper     # every field, its value and meaning"
         ),
         formatter_class=_RAW,
@@ -179,6 +182,26 @@ def _add_run(sub: Any) -> None:
     p.add_argument("--name", default=None, help="run directory name, one plain name (default: preset-provider-seed-digest)")
     p.add_argument("--jobs", type=_COUNT, default=1, help="trials run in parallel processes (default 1)")
     p.add_argument("--on-miss", choices=ON_MISS, default="error", help="recorded:STORE only, a query the store has no answer for: error = stop with a message naming the nearest recorded keys (default); mock = answer it with the rule-based mock (not stored); live = ask the live server and record the answer into STORE")
+    p.add_argument("--render", type=Path, default=None, metavar="DIR", help="arm-arrangement only: write PNG frames of every placement and an animated GIF of every episode to DIR/trial-NNN/ (headless; about 0.1 s a frame)")
+
+
+def _add_robot(sub: Any) -> None:
+    p = sub.add_parser(
+        "robot",
+        help="the robot service of arm-arrangement (gRPC): serve a simulated UR5e",
+        description=(
+            "Serve a robot over gRPC (lagrseq/robot/proto/robot.proto) for runs with "
+            "--set env.robot=\"remote:HOST:PORT\". A lab with a real UR5e serves the same service "
+            "with ur_rtde (see the README, 'Robot service')."
+        ),
+        epilog="example:\n  lagrseq robot serve --sim --port 50051 &\n  lagrseq run arm-arrangement --set env.robot=\"remote:127.0.0.1:50051\"",
+        formatter_class=_RAW,
+    )
+    actions = p.add_subparsers(dest="robot_command", required=True, metavar="ACTION")
+    serve = actions.add_parser("serve", help="serve a robot until interrupted (Ctrl-C)")
+    serve.add_argument("--sim", action="store_true", required=True, help="serve a simulated UR5e (pybullet; the only robot lagrseq itself drives)")
+    serve.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only; the service has no authentication)")
+    serve.add_argument("--port", type=_PORT, default=50051, help="TCP port (default 50051; 0 picks a free one and prints it)")
 
 
 def _add_config(sub: Any) -> None:
@@ -351,7 +374,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"lagrseq {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    for add in (_add_run, _add_config, _add_record, _add_cache, _add_reproduce, _add_replay, _add_recover):
+    for add in (_add_run, _add_config, _add_record, _add_cache, _add_reproduce, _add_replay, _add_recover, _add_robot):
         add(sub)
     return parser
 
@@ -378,8 +401,15 @@ def cmd_run(args: argparse.Namespace) -> int:
     )
     unit, per_trial = runner.progress_unit(config)
     with _bar(args.trials * per_trial, unit, f"{args.task} {args.method}", args.quiet) as bar:
-        results = runner.run_trials(config, args.trials, args.seed, args.provider, directory, args.jobs, bar, options)
+        results = runner.run_trials(config, args.trials, args.seed, args.provider, directory, args.jobs, bar, options, render_dir=args.render)
     print(runner.summary(results, directory))
+    return 0
+
+
+def cmd_robot(args: argparse.Namespace) -> int:
+    from lagrseq.robot.remote import serve_sim
+
+    serve_sim(args.host, args.port, say=lambda line: print(line, flush=True))
     return 0
 
 
@@ -537,6 +567,7 @@ COMMANDS = {
     "recover": cmd_recover,
     "replay": cmd_replay,
     "reproduce": cmd_reproduce,
+    "robot": cmd_robot,
 }
 INTERRUPTED = {
     "run": "finished trial logs are kept, unfinished ones left as .partial (lagrseq recover); run the same command to go on",

@@ -369,6 +369,61 @@ class ArrangementEnvConfig(_Section):
     """Reward bonus b at the goal. Paper and code: 1."""
 
 
+@dataclass(frozen=True)
+class ArmTaskConfig(_Section):
+    """[task] of object arrangement by a robot arm (the paper's UR5e experiment; the arm extra)."""
+
+    SECTION = "task"
+
+    name: Literal["arm-arrangement"] = "arm-arrangement"
+    """Task id."""
+    target: GridTarget = "diamond"
+    """Target arrangement. Paper: "diamond" (8 objects), as in the simulated task."""
+    goal_threshold: float = ranged(1.0, gt=0, le=1)
+    """E at which the bonus is paid and the episode ends. Paper: exact match, i.e. 1.0."""
+    prompt_matrix: Literal["numpy", "comma"] = "numpy"
+    """How the partial grid is written into the prompt: numpy's str() (code) or comma lists."""
+    guidance: Literal["cell-by-cell", "next-missing"] = "next-missing"
+    """pi_LLM: drop on the drawn cell when the solution has an object there (cell-by-cell), or
+    drop the solution's first missing object wherever the draw is (code: LLMgreedy)."""
+
+
+def _check_robot(spec: str) -> None:
+    if spec == "sim":
+        return
+    kind, _, address = spec.partition(":")
+    host, _, port = address.rpartition(":")
+    if kind == "remote" and host and port.isdigit() and 0 < int(port) < 65536 and host.isprintable() and " " not in host:
+        return
+    raise ConfigError(f'env.robot = {show_value(spec)}; expected "sim" or "remote:HOST:PORT" (a port in 1..65535)')
+
+
+@dataclass(frozen=True)
+class ArmEnvConfig(_Section):
+    """[env] of arm arrangement: the object-arrangement env plus the robot that executes it."""
+
+    SECTION = "env"
+
+    horizon: int = ranged(50, ge=1)
+    """Steps per episode (H). Paper and code: 50."""
+    bonus: float = ranged(1.0, ge=0)
+    """Reward bonus b at the goal. Paper and code: 1."""
+    robot: str = "sim"
+    """Who places the objects: "sim" (a UR5e in pybullet, in this process) or "remote:HOST:PORT"
+    (a robot service: `lagrseq robot serve --sim`, or a lab's UR5e server). Paper: a real UR5e
+    behind a gRPC server."""
+    robot_timeout_s: float = ranged(60.0, gt=0, le=3600)
+    """Seconds one call to a remote robot may take (a real placement takes seconds)."""
+    view_every: int = ranged(10, ge=0)
+    """Environment steps between camera frames on /view/arm (0: none); the joint state is
+    logged every step."""
+    view_width: int = ranged(320, ge=16, le=1920)
+    """Width of a camera frame in pixels (its height is 3/4 of it)."""
+
+    def _check(self) -> None:
+        _check_robot(self.robot)
+
+
 # --------------------------------------------------------------------------------------------
 # Agent sections
 # --------------------------------------------------------------------------------------------
@@ -640,8 +695,8 @@ max_tokens_int: Callable[[str], int] = field_type(LLMConfig, "max_tokens")
 """A completion token limit: an integer in [1, 1000000], the range of ``llm.max_tokens``."""
 
 
-TaskConfig = CubeTaskConfig | ImageTaskConfig | ArrangementTaskConfig
-EnvConfig = CubeEnvConfig | ImageEnvConfig | ArrangementEnvConfig
+TaskConfig = CubeTaskConfig | ImageTaskConfig | ArrangementTaskConfig | ArmTaskConfig
+EnvConfig = CubeEnvConfig | ImageEnvConfig | ArrangementEnvConfig | ArmEnvConfig
 PrimaryConfig = TabularConfig | DQNConfig
 SecondaryConfig = TabularSecondaryConfig | NeuralSecondaryConfig
 
@@ -692,6 +747,12 @@ SECTIONS: dict[str, dict[str, type]] = {
     "object-arrangement": {
         "task": ArrangementTaskConfig,
         "env": ArrangementEnvConfig,
+        "primary": DQNConfig,
+        "secondary": NeuralSecondaryConfig,
+    },
+    "arm-arrangement": {
+        "task": ArmTaskConfig,
+        "env": ArmEnvConfig,
         "primary": DQNConfig,
         "secondary": NeuralSecondaryConfig,
     },

@@ -26,7 +26,15 @@ from lagrseq.agents.schedules import EpsilonSchedule
 from lagrseq.config import ExperimentConfig
 from lagrseq.lagr import Consultation, QueryTrigger, consult, follows
 from lagrseq.llm.base import Provider
-from lagrseq.logs.events import EpisodeEvent, QueryEvent, Sink, Transition, View, jsonable
+from lagrseq.logs.events import (
+    ArmEpisodeEvent,
+    EpisodeEvent,
+    QueryEvent,
+    Sink,
+    Transition,
+    View,
+    jsonable,
+)
 from lagrseq.seq import query_reward
 from lagrseq.tasks.base import Task
 
@@ -66,6 +74,10 @@ class TrialParts:
     guidance_rng: np.random.Generator
     view: Callable[[Any, int], View] | None = None
     """A picture of the state after each step (grid tasks), so the run opens in Foxglove."""
+    robot_views: Callable[[dict[str, Any], int], list[View]] | None = None
+    """Arm tasks: the robot's camera frame and joint state after a step (from its info)."""
+    placements: bool = False
+    """Arm tasks: count the robot's placements (``info["placement"]``) in ``/episode``."""
 
 
 @dataclass
@@ -81,6 +93,8 @@ class _Episode:
     total: float = 0.0
     epsilon: float = 0.0
     last_reward: float = 0.0
+    placements: int = 0
+    failed_placements: int = 0
 
 
 def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] | None = None) -> TrialResult:
@@ -118,13 +132,15 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
                 global_step += 1
                 if terminated or truncated or _out_of_steps(config, global_step):
                     break
-            sink.write(
-                EpisodeEvent(
-                    parts.trial, number, float(episode.total), episode.steps, episode.queries,
-                    episode.accepted, float(episode.epsilon), bool(episode.solved),
-                    episode.guided_steps, global_step,
-                )
+            summary = (
+                parts.trial, number, float(episode.total), episode.steps, episode.queries,
+                episode.accepted, float(episode.epsilon), bool(episode.solved),
+                episode.guided_steps, global_step,
             )
+            if parts.placements:
+                sink.write(ArmEpisodeEvent(*summary, episode.placements, episode.failed_placements))
+            else:
+                sink.write(EpisodeEvent(*summary))
             sink.flush()  # one flush per episode: a crash keeps every finished episode
             episodes += 1
             queries += episode.queries
@@ -180,15 +196,22 @@ def _log_step(
     parts: TrialParts, episode: _Episode, global_step: int, pattern: Any, action: int, reward: float,
     terminated: bool, truncated: bool, guided: bool, next_info: dict[str, Any],
 ) -> None:
-    """Write the step's transition (and picture) and add it to the episode's counters."""
+    """Write the step's transition (and pictures) and add it to the episode's counters."""
+    placement = next_info.get("placement")  # arm tasks: what the robot did, never hidden
     parts.sink.write(
         Transition(
             parts.trial, episode.number, episode.steps, global_step, jsonable(pattern), int(action),
-            float(reward), bool(terminated), bool(truncated), guided,
+            float(reward), bool(terminated), bool(truncated), guided, placement,
         )
     )
     if parts.view is not None:
         parts.sink.write(parts.view(next_info["pattern"], global_step))
+    if parts.robot_views is not None:
+        for view in parts.robot_views(next_info, global_step):
+            parts.sink.write(view)
+    if placement is not None:
+        episode.placements += 1
+        episode.failed_placements += not placement["ok"]
     episode.total += reward
     episode.guided_steps += guided
     episode.last_reward = reward  # the paper's trigger: query only after a positive reward

@@ -73,9 +73,11 @@ def run_one(
     log: bool = True,
     on_episode: Callable[[int], None] | None = None,
     provider_options: ProviderOptions | None = None,
+    render_dir: Path | None = None,
 ) -> TrialResult:
     """Build trial ``trial``'s parts and run it into ``path`` (``log=False``: no file, for
-    benchmarks). ``on_episode(length)`` is called after every episode."""
+    benchmarks). ``on_episode(length)`` is called after every episode. ``render_dir``: arm
+    tasks write PNG frames and GIFs of the trial's episodes under it (``--render``)."""
     config = with_provider_model(config, provider_spec)  # live:MODEL asks MODEL, and the log says so
 
     def open_sink() -> Sink:
@@ -84,7 +86,7 @@ def run_one(
         metadata = run_metadata(config, trial, seed, provider_spec, provider_options)
         return McapSink(path, metadata, extra_topics=view_topics(config))
 
-    parts = trial_parts(config, trial, seed, provider_spec, open_sink, provider_options)
+    parts = trial_parts(config, trial, seed, provider_spec, open_sink, provider_options, render_dir)
     with _older_objects_frozen():
         return run_trial(parts, path, on_episode)
 
@@ -199,10 +201,10 @@ def process_pool(jobs: int) -> Iterator[ProcessPoolExecutor]:
 
 
 def _run_trial_job(args: tuple[Any, ...]) -> TrialResult:
-    config_dict, trial, seed, provider_spec, path, options = args
+    config_dict, trial, seed, provider_spec, path, options, render_dir = args
     from lagrseq.config import from_dict
 
-    return run_one(from_dict(config_dict), trial, seed, provider_spec, Path(path), provider_options=options)
+    return run_one(from_dict(config_dict), trial, seed, provider_spec, Path(path), provider_options=options, render_dir=render_dir)
 
 
 def stop_pool(pool: Executor) -> None:
@@ -236,9 +238,11 @@ def run_trials(
     progress: Any = None,
     provider_options: ProviderOptions | None = None,
     pool: Executor | None = None,
+    render_dir: Path | None = None,
 ) -> list[TrialResult]:
     """Run trials 0..trials-1 into ``directory``; trials whose log is complete (and made by this
-    very run) are skipped. ``pool``: an executor to reuse (``reproduce`` keeps one warm)."""
+    very run) are skipped. ``pool``: an executor to reuse (``reproduce`` keeps one warm).
+    ``render_dir``: arm tasks write PNG frames and GIFs there (``--render``)."""
     parse_provider(provider_spec)
     unit, per_trial = progress_unit(config)
     results: list[TrialResult] = []
@@ -258,7 +262,7 @@ def run_trials(
             on_episode = (lambda steps: progress.update(steps)) if unit == "step" else (lambda _: progress.update(1))
         for trial in todo:
             path = trial_path(directory, trial)
-            results.append(run_one(config, trial, seed, provider_spec, path, on_episode=on_episode, provider_options=provider_options))
+            results.append(run_one(config, trial, seed, provider_spec, path, on_episode=on_episode, provider_options=provider_options, render_dir=render_dir))
         return sorted(results, key=lambda r: r.trial)
     with contextlib.ExitStack() as stack:
         if pool is None:
@@ -266,7 +270,7 @@ def run_trials(
         futures: list[Future[TrialResult]] = []
         try:
             for trial in todo:
-                job = (config.to_dict(), trial, seed, provider_spec, str(trial_path(directory, trial)), provider_options)
+                job = (config.to_dict(), trial, seed, provider_spec, str(trial_path(directory, trial)), provider_options, render_dir)
                 futures.append(pool.submit(_run_trial_job, job))
             for future in as_completed(futures):
                 results.append(future.result())

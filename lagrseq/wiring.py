@@ -27,6 +27,8 @@ from lagrseq.adapters import (
 )
 from lagrseq.agents.schedules import EpsilonSchedule
 from lagrseq.config import (
+    ArmEnvConfig,
+    ArmTaskConfig,
     ArrangementEnvConfig,
     ArrangementTaskConfig,
     CubeEnvConfig,
@@ -48,7 +50,7 @@ from lagrseq.logs import foxglove
 from lagrseq.logs.events import Sink, View
 from lagrseq.seeding import Stream
 from lagrseq.tasks import cube, grid
-from lagrseq.tasks.arrangement import object_arrangement
+from lagrseq.tasks.arrangement import arm_arrangement, object_arrangement
 from lagrseq.tasks.base import Task
 from lagrseq.tasks.image import image_completion
 
@@ -244,12 +246,17 @@ def make_task(config: ExperimentConfig) -> Task:
         return image_completion(task.target, task.goal_threshold, task.prompt_matrix, task.guidance)
     if isinstance(task, ArrangementTaskConfig):
         return object_arrangement(task.target, task.goal_threshold, task.prompt_matrix, task.guidance)
+    if isinstance(task, ArmTaskConfig):
+        return arm_arrangement(task.target, task.goal_threshold, task.prompt_matrix, task.guidance)
     raise UsageError(f"unknown task {task.name!r}")  # pragma: no cover
 
 
-def make_env(config: ExperimentConfig) -> Any:
-    """The task's gymnasium env (imported here: ``lagrseq replay`` never needs gymnasium)."""
+def make_env(config: ExperimentConfig, render_dir: Path | None = None) -> Any:
+    """The task's gymnasium env (imported here: ``lagrseq replay`` never needs gymnasium).
+    ``render_dir``: arm tasks write PNG frames and a GIF per episode there (``--render``)."""
     task = config.task
+    if isinstance(task, ArmTaskConfig):
+        return make_arm_env(config, render_dir)
     if isinstance(task, CubeTaskConfig):
         from lagrseq.envs.cube_stacking import CubeStackingEnv
 
@@ -325,10 +332,42 @@ def make_secondary(config: ExperimentConfig, task: Task, seed: int, trial: int) 
     return TabularSeq(section.learning_rate)
 
 
+def make_arm_env(config: ExperimentConfig, render_dir: Path | None = None) -> Any:
+    """The arm-arrangement env with its robot (``env.robot``: sim or remote:HOST:PORT)."""
+    from lagrseq.envs.arm_arrangement import ArmArrangementEnv
+
+    section = _expect(config.env, ArmEnvConfig, "env")
+    task = _expect(config.task, ArmTaskConfig, "task")
+    try:
+        env = ArmArrangementEnv(
+            target=task.target,
+            horizon=section.horizon,
+            bonus=section.bonus,
+            goal_threshold=task.goal_threshold,
+            robot=section.robot,
+            robot_timeout_s=section.robot_timeout_s,
+            render_size=(section.view_width, section.view_width * 3 // 4),
+        )
+    except ImportError as exc:  # gymnasium's DependencyNotInstalled is one
+        raise UsageError(f"arm-arrangement: {exc}") from None
+    if render_dir is not None:
+        from lagrseq.robot.render import EpisodeRenderer
+
+        EpisodeRenderer(env, Path(render_dir)).attach()
+    return env
+
+
 def missing_dependency(config: ExperimentConfig) -> str:
     """Why ``config`` cannot run with the installed extras ("" when it can): the DQN agents of
-    the grid tasks need torch (the ``dqn`` extra)."""
+    the grid tasks need torch (the ``dqn`` extra), the simulated arm pybullet and airo-models
+    (the ``arm`` extra), a remote arm grpcio (also the ``arm`` extra)."""
     import importlib.util
+
+    if isinstance(config.env, ArmEnvConfig):
+        wanted = ("pybullet", "airo_models") if config.env.robot == "sim" else ("grpc", "google.protobuf")
+        absent = [name for name in wanted if importlib.util.find_spec(name.split(".")[0]) is None]
+        if absent:
+            return f"needs the arm extra ({', '.join(absent)} not installed): pip install 'lagrseq[arm]' (Python <= 3.11)"
 
     needs_torch = config.primary.kind == "dqn" or (config.method == "lagr-seq" and config.secondary.kind == "neural")
     if needs_torch and importlib.util.find_spec("torch") is None:
@@ -343,10 +382,37 @@ VIEWS: dict[str, tuple[str, Callable[[Any, int], dict[str, Any]], str]] = {
 }
 
 
+VIEWS["arm-arrangement"] = (foxglove.GRID_TOPIC, foxglove.grid, "grid")
+
+
 def view_topics(config: ExperimentConfig) -> dict[str, tuple[str, str, bytes]] | None:
-    """The picture topic of ``config``'s task for the sink (None: the task has none)."""
+    """The picture topics of ``config``'s task for the sink (None: the task has none)."""
     view = VIEWS.get(config.task.name)
-    return foxglove.view_topics(**{view[2]: True}) if view else None
+    topics = foxglove.view_topics(**{view[2]: True}) if view else None
+    if topics is not None and isinstance(config.env, ArmEnvConfig):
+        topics.update(foxglove.arm_topics())
+    return topics
+
+
+def robot_views(config: ExperimentConfig, env: Any) -> Callable[[dict[str, Any], int], list[View]] | None:
+    """Arm tasks: after every step the arm's joint state, and every ``env.view_every`` steps a
+    camera frame (PNG), both read from the env's robot."""
+    section = config.env
+    if not isinstance(section, ArmEnvConfig):
+        return None
+    robot = env.unwrapped.robot
+    every = section.view_every
+
+    def views(info: dict[str, Any], global_step: int) -> list[View]:
+        state = robot.joint_state()
+        out = [View(foxglove.JOINTS_TOPIC, foxglove.joint_state(state.names, state.positions, global_step), global_step)]
+        if every and global_step % every == 0:
+            picture = env.unwrapped.render_png()
+            if picture is not None:
+                out.append(View(foxglove.ARM_TOPIC, foxglove.compressed_image(picture, global_step), global_step))
+        return out
+
+    return views
 
 
 def _view(config: ExperimentConfig) -> Callable[[Any, int], View] | None:
@@ -364,12 +430,13 @@ def trial_parts(
     provider_spec: str,
     open_sink: Callable[[], Sink],
     provider_options: ProviderOptions | None = None,
+    render_dir: Path | None = None,
 ) -> TrialParts:
     """Everything trial ``trial`` of a run with seed ``seed`` runs on; each random stream is
     spawned from (seed, trial, component), so a trial is the same whatever else runs. The sink
     is opened last, so a part that cannot be built leaves no file behind."""
     task = make_task(config)
-    env = make_env(config)
+    env = make_env(config, None if render_dir is None else Path(render_dir) / f"trial-{trial:03d}")
     primary = make_primary(config, task, env, seed, trial)
     secondary = make_secondary(config, task, seed, trial)
     provider = make_provider(provider_spec, config, seeding.generator(seed, trial, Stream.LLM), provider_options)
@@ -389,4 +456,6 @@ def trial_parts(
         secondary_rng=seeding.generator(seed, trial, Stream.SECONDARY),
         guidance_rng=seeding.generator(seed, trial, Stream.GUIDANCE),
         view=_view(config),
+        robot_views=robot_views(config, env),
+        placements=isinstance(config.env, ArmEnvConfig),
     )

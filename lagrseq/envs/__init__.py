@@ -8,6 +8,8 @@ id                                        task
 ``lagrseq/CubeStacking11-v0``             11 cubes
 ``lagrseq/ImageCompletion-v0``            10 x 10 image, X target (``target`` kwarg)
 ``lagrseq/ObjectArrangement-v0``          5 x 5 table, diamond target (``target`` kwarg)
+``lagrseq/ArmArrangement-v0``             the same, placed by a UR5e (``robot`` kwarg;
+                                          the ``arm`` extra: pybullet, airo-models)
 ========================================  =========================================
 """
 
@@ -22,6 +24,7 @@ from lagrseq.envs.object_arrangement import ObjectArrangementEnv
 CUBE_ENTRY = "lagrseq.envs.cube_stacking:CubeStackingEnv"
 IMAGE_ENTRY = "lagrseq.envs.image_completion:ImageCompletionEnv"
 ARRANGEMENT_ENTRY = "lagrseq.envs.object_arrangement:ObjectArrangementEnv"
+ARM_ENTRY = "lagrseq.envs.arm_arrangement:ArmArrangementEnv"
 
 REGISTERED: dict[str, dict[str, object]] = {
     "lagrseq/CubeStacking-v0": {"entry_point": CUBE_ENTRY, "kwargs": {"stack_size": 8}},
@@ -29,6 +32,7 @@ REGISTERED: dict[str, dict[str, object]] = {
     "lagrseq/CubeStacking11-v0": {"entry_point": CUBE_ENTRY, "kwargs": {"stack_size": 11}},
     "lagrseq/ImageCompletion-v0": {"entry_point": IMAGE_ENTRY, "kwargs": {"target": "x"}},
     "lagrseq/ObjectArrangement-v0": {"entry_point": ARRANGEMENT_ENTRY, "kwargs": {"target": "diamond"}},
+    "lagrseq/ArmArrangement-v0": {"entry_point": ARM_ENTRY, "kwargs": {"target": "diamond", "robot": "sim"}},
 }
 
 

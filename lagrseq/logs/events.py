@@ -23,8 +23,9 @@ QUERY_TOPIC = "/query"
 EPISODE_TOPIC = "/episode"
 
 
-class Transition(msgspec.Struct, frozen=True, gc=False):
-    """One environment step of the primary agent (``/transition``)."""
+class Transition(msgspec.Struct, frozen=True, gc=False, omit_defaults=True):
+    """One environment step of the primary agent (``/transition``). Fields with a default are
+    written only when set (``placement``: arm tasks), so other tasks' records are unchanged."""
 
     trial: int
     episode: int
@@ -40,6 +41,9 @@ class Transition(msgspec.Struct, frozen=True, gc=False):
     truncated: bool
     guided: bool
     """The action came from the LLM's solution (pi_LLM)."""
+    placement: Any = None
+    """Arm tasks: what the robot did on this step (``lagrseq.robot.PlacementResult`` as a dict),
+    None when nothing was placed."""
 
 
 class QueryEvent(msgspec.Struct, frozen=True, gc=False):
@@ -101,6 +105,15 @@ class EpisodeEvent(msgspec.Struct, frozen=True, gc=False):
     """Steps of the trial so far, this episode's included."""
 
 
+class ArmEpisodeEvent(EpisodeEvent, frozen=True, gc=False):
+    """``/episode`` of an arm task: the summary plus the robot's placements."""
+
+    placements: int = 0
+    """Placements the robot executed in this episode."""
+    failed_placements: int = 0
+    """Of those, the ones that failed (unreachable, outside the cell, tipped, not resting)."""
+
+
 class View(NamedTuple):
     """A picture of the state for Foxglove (``foxglove.RawImage`` or ``foxglove.Grid``)."""
 
@@ -109,7 +122,7 @@ class View(NamedTuple):
     log_time: int
 
 
-Event = Transition | QueryEvent | EpisodeEvent | View
+Event = Transition | QueryEvent | EpisodeEvent | ArmEpisodeEvent | View
 
 def _numpy_scalar(value: Any) -> Any:
     """msgspec's hook for what it cannot encode itself: numpy scalars become Python numbers."""
@@ -128,8 +141,8 @@ def log_time(event: Event) -> int:
     """An event's logical log time: the trial's step counter (an episode ends at its last step)."""
     if type(event) is View:
         return event.log_time
-    if type(event) is EpisodeEvent:
-        return max(event.global_step - 1, 0)
+    if type(event) is EpisodeEvent or type(event) is ArmEpisodeEvent:
+        return max(event.global_step - 1, 0)  # type: ignore[union-attr]
     return event.global_step  # type: ignore[union-attr]
 
 
@@ -138,7 +151,7 @@ def to_record(event: Event) -> dict[str, Any]:
     if type(event) is View:
         return event.message
     record = msgspec.structs.asdict(event)  # type: ignore[arg-type]
-    if type(event) is EpisodeEvent:
+    if isinstance(event, EpisodeEvent):
         return {("return" if k == "return_" else k): v for k, v in record.items()}
     return record
 

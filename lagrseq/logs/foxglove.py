@@ -211,3 +211,60 @@ def decode(message: dict[str, Any]) -> np.ndarray:
     columns = message["column_count"]
     cells = data.reshape(-1, message["row_stride"])[:, :columns]
     return (cells[::-1] > 0).astype(np.uint8)
+
+
+# ------------------------------------------------------------------------------------------
+# The robot arm: camera frames (foxglove.CompressedImage, PNG) and joint states
+# ------------------------------------------------------------------------------------------
+ARM_TOPIC = "/view/arm"
+JOINTS_TOPIC = "/view/arm/joints"
+
+COMPRESSED_IMAGE_SCHEMA: dict[str, Any] = {
+    "title": "foxglove.CompressedImage",
+    "description": "A compressed image",
+    "type": "object",
+    "properties": {
+        "timestamp": {**_TIME, "description": "Timestamp of image"},
+        "frame_id": {"type": "string", "description": "Frame of reference for the image"},
+        "data": {"type": "string", "contentEncoding": "base64", "description": "Compressed image data"},
+        "format": {"type": "string", "description": "Image format: jpeg, png or webp"},
+    },
+}
+
+JOINT_STATE_SCHEMA: dict[str, Any] = {
+    "title": "lagrseq.JointState",
+    "description": "The arm's joint positions (radians), named as in the URDF (sensor_msgs/JointState's fields)",
+    "type": "object",
+    "properties": {
+        "timestamp": {**_TIME, "description": "Timestamp of the state"},
+        "name": {"type": "array", "items": {"type": "string"}},
+        "position": {"type": "array", "items": {"type": "number"}},
+    },
+}
+
+
+def arm_topics() -> dict[str, tuple[str, str, bytes]]:
+    """``extra_topics`` of an arm run: the camera and the joint state."""
+    return {
+        ARM_TOPIC: ("foxglove.CompressedImage", "jsonschema", _schema_bytes(COMPRESSED_IMAGE_SCHEMA)),
+        JOINTS_TOPIC: ("lagrseq.JointState", "jsonschema", _schema_bytes(JOINT_STATE_SCHEMA)),
+    }
+
+
+def compressed_image(png: bytes, log_time: int, frame_id: str = "camera") -> dict[str, Any]:
+    """A ``foxglove.CompressedImage`` of PNG bytes."""
+    return {
+        "timestamp": _timestamp(log_time),
+        "frame_id": frame_id,
+        "data": base64.b64encode(png).decode("ascii"),
+        "format": "png",
+    }
+
+
+def joint_state(names: Any, positions: Any, log_time: int) -> dict[str, Any]:
+    """The arm's joint state as JSON (``name`` and ``position`` as in sensor_msgs/JointState)."""
+    return {
+        "timestamp": _timestamp(log_time),
+        "name": [str(n) for n in names],
+        "position": [float(q) for q in positions],
+    }

@@ -92,6 +92,13 @@ EPISODE = _object(
     },
 )
 
+# Arm tasks add optional fields (written only by them).
+TRANSITION["properties"]["placement"] = _nullable(
+    {"type": "object", "description": "arm tasks: the robot's placement on this step (row, col, outcome, ok, offset_mm, ...)"}
+)
+EPISODE["properties"]["placements"] = {**_INT, "description": "arm tasks: placements executed"}
+EPISODE["properties"]["failed_placements"] = {**_INT, "description": "arm tasks: placements that failed"}
+
 ACCURACY_METHOD = "llm-accuracy"
 """``method`` in the ``lagrseq.run`` metadata of an accuracy-probe log (Fig. 4: the LLM alone,
 no RL): its ``/query`` records carry ``prefix_length`` and ``fraction`` of the sequence shown."""

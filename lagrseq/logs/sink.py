@@ -29,6 +29,7 @@ from lagrseq.logs.events import (
     EPISODE_TOPIC,
     QUERY_TOPIC,
     TRANSITION_TOPIC,
+    ArmEpisodeEvent,
     EpisodeEvent,
     Event,
     NullSink,
@@ -149,7 +150,7 @@ class McapSink:
                         _finite(event, _QUERY_FLOATS)
                 self._pending.append((self._query_channel, event.global_step, encode(event)))  # type: ignore[union-attr]
                 return
-            if kind is EpisodeEvent:
+            if kind is EpisodeEvent or kind is ArmEpisodeEvent:
                 _finite(event, _EPISODE_FLOATS)
                 self._pending.append((self._episode_channel, max(event.global_step - 1, 0), encode(event)))  # type: ignore[union-attr]
                 return

@@ -68,3 +68,20 @@ def object_arrangement(
         matrix_format=matrix_format,
         guidance_mode=guidance_mode,
     )
+
+
+ARM_NAME = "arm-arrangement"
+
+
+def arm_arrangement(
+    target: str = "diamond",
+    goal_threshold: float = 1.0,
+    matrix_format: MatrixFormat = "numpy",
+    guidance_mode: GuidanceMode = "next-missing",
+) -> GridTask:
+    """Object arrangement executed by a robot arm (the paper's UR5e experiment): the same task,
+    descriptor and prompt as :func:`object_arrangement` (recorded answers serve both), under its
+    own name."""
+    task = object_arrangement(target, goal_threshold, matrix_format, guidance_mode)
+    task.name = ARM_NAME
+    return task
