@@ -151,6 +151,8 @@ def to_record(event: Event) -> dict[str, Any]:
     if type(event) is View:
         return event.message
     record = msgspec.structs.asdict(event)  # type: ignore[arg-type]
+    if type(event) is Transition and record["placement"] is None:
+        del record["placement"]  # as encoded: written by arm tasks only
     if isinstance(event, EpisodeEvent):
         return {("return" if k == "return_" else k): v for k, v in record.items()}
     return record

@@ -119,8 +119,11 @@ def test_event_encoding_equals_the_json_of_its_record() -> None:
         Transition(0, 1, 2, 3, (1,), 5, 0.1 + 0.2, False, False, False),
     ]
     for event in transitions:
-        assert list(to_record(event)) == list(TRANSITION["properties"]), "contract order"
+        assert list(to_record(event)) == list(TRANSITION["required"]), "contract order"
         assert encode(event) == _encode(to_record(event)), event
+    arm = Transition(0, 1, 2, 3, (1,), 1, 0.04, False, False, True, {"row": 1, "col": 2, "outcome": "placed", "ok": True})
+    assert list(to_record(arm)) == list(TRANSITION["properties"]), "arm tasks add placement at the end"
+    assert encode(arm) == _encode(to_record(arm))
     skip = QueryEvent(0, 1, 2, 3, (4, 5), 0)
     sent = msgspec.structs.replace(skip, queried=True, answer="['e'] \u00e9 \"quoted\"", decision=1, evaluation=0.75, cost_usd=1.5e-06)
     for event in (skip, sent):
@@ -147,8 +150,13 @@ def test_numpy_scalars_are_logged_as_numbers_and_non_finite_floats_refused(tmp_p
 
 def test_episode_event_keeps_the_return_field_name() -> None:
     event = EpisodeEvent(0, 1, 12.5, 50, 3, 1, 0.05, True, 4, 100)
-    assert list(to_record(event)) == list(EPISODE["properties"])
+    assert list(to_record(event)) == list(EPISODE["required"])
     assert to_record(event)["return"] == 12.5 and log_time(event) == 99
+    from lagrseq.logs.events import ArmEpisodeEvent
+
+    arm = ArmEpisodeEvent(0, 1, 12.5, 50, 3, 1, 0.05, True, 4, 100, 8, 1)
+    assert list(to_record(arm)) == list(EPISODE["properties"]), "arm tasks add the placement counts at the end"
+    assert to_record(arm)["return"] == 12.5 and log_time(arm) == 99
 
 
 def test_null_sink_takes_every_event_and_writes_nothing(tmp_path: Path) -> None:
