@@ -31,6 +31,8 @@ from lagrseq.suite import RunSpec, Suite
 
 CALIBRATION_STEPS = 1000
 """Environment steps timed per distinct experiment to estimate the suite's duration."""
+ARM_CALIBRATION_STEPS = 100
+"""The same for the arm task, whose steps are placements by a simulated arm (about 50 ms each)."""
 
 
 @dataclass
@@ -181,7 +183,8 @@ def _calibrate(run: PlannedRun) -> tuple[float, float]:
         if run.kind == "accuracy":
             probe.run_accuracy_probe(run.config, 1, run.seed, "mock", path)
             return time.perf_counter() - started, 0.0
-        config = replace(run.config, run=replace(run.config.run, max_steps=CALIBRATION_STEPS))
+        steps = ARM_CALIBRATION_STEPS if run.config.task.name == "arm-arrangement" else CALIBRATION_STEPS
+        config = replace(run.config, run=replace(run.config.run, max_steps=steps))
         result = runner.run_one(config, 0, run.seed, "mock", path)
         seconds = time.perf_counter() - started
     steps = max(result.steps, 1)

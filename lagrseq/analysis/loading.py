@@ -113,6 +113,8 @@ class Run:
     """``/transition`` messages in the logs (from their statistics; none were decompressed)."""
     samples: int = 0
     """Accuracy probes: answers per prefix."""
+    paths: tuple[str, ...] = ()
+    """The log files themselves, in trial order (for pictures read from one trial's log)."""
 
     @property
     def episodes_per_trial(self) -> int:
@@ -307,6 +309,7 @@ def load(roots: Sequence[str | Path]) -> Logs:
                 key=key,
                 config=ordered[0].config,
                 files=tuple(t.display for t in ordered),
+                paths=tuple(str(t.path) for t in ordered),
                 trials=tuple(sorted(trials)),
                 episodes=episodes,
                 queries=queries,

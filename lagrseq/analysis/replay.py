@@ -56,6 +56,9 @@ class ItemReport:
     figure_data: str | None = None
     tables: list[tuple[Table, str, str]] = field(default_factory=list)
     method: str = ""
+    animation: str | None = None
+    """Arm items: a GIF of the arm in one episode (from the camera frames of a log)."""
+    animation_note: str = ""
 
     @property
     def status(self) -> str:
@@ -206,6 +209,7 @@ def replay(
             if built.figure_data is not None:
                 _write(out / "figures" / f"{item.id}.csv", to_csv(built.figure_data), written)
                 report.figure_data = f"figures/{item.id}.csv"
+            _arm_animation(report, out, written)
             for stem, table in built.tables:
                 _write(out / "tables" / f"{stem}.md", to_markdown(table), written)
                 _write(out / "tables" / f"{stem}.csv", to_csv(table.data), written)
@@ -222,6 +226,22 @@ def replay(
     _write(out / "index.html", _index_html(reports, extra, logs, produced_by), written)
     _write(out / "index.md", _index_markdown(reports, extra, logs, produced_by), written)
     return Report(out, logs, reports, written)
+
+
+def _arm_animation(report: ItemReport, out: Path, written: list[Path]) -> None:
+    """Arm items: a GIF of the last episode of the last trial of the item's first arm run."""
+    from lagrseq.analysis.arm_gif import episode_gif
+
+    for m in report.matched:
+        if m.run is None or not m.run.paths or m.run.config.get("task", {}).get("name") != "arm-arrangement":
+            continue
+        path = out / "figures" / f"{report.item.id}-arm.gif"
+        shown = episode_gif(m.run.paths[-1], path)
+        if shown is not None:
+            written.append(path)
+            report.animation = f"figures/{report.item.id}-arm.gif"
+            report.animation_note = f"The arm ({m.label}, trial {m.run.trials[-1]}): {shown}, from /view/arm."
+            return
 
 
 # ------------------------------------------------------------------------------------------
@@ -309,6 +329,9 @@ def _index_html(
                 + " · ".join(f'<a href="{e(h)}">{e(t)}</a>' for t, h in links)
                 + "</p>"
             )
+        if r.animation:
+            parts.append(f'<p><img src="{e(r.animation)}" alt="{e(r.animation_note)}"></p>')
+            parts.append(f'<p class="how">{e(r.animation_note)}</p>')
         for table, md, csv in r.tables:
             parts.append(to_html(table, [("Markdown", md), ("CSV", csv)]))
         how, run_lines = _how(r, produced_by)
@@ -357,6 +380,8 @@ def _index_markdown(
             continue
         if r.figure:
             lines += [f"![{r.item.title}]({r.figure})", ""]
+        if r.animation:
+            lines += [f"![{r.animation_note}]({r.animation})", "", r.animation_note, ""]
         for table, _md, _csv in r.tables:
             lines += [to_markdown(table)]
         how, run_lines = _how(r, produced_by)
