@@ -262,3 +262,65 @@ def test_png_from_a_server_is_checked() -> None:
     Image.new("RGB", (10, 10)).save(buffer, format="PNG")
     with pytest.raises(RobotError, match="expected a PNG of that size"):
         _decode_png(buffer.getvalue(), 64, 48, "x:1")
+
+
+# ------------------------------------------------------------------------------------------
+# Whole runs: the MCAP log, --render, and the same events in process and behind the service
+# ------------------------------------------------------------------------------------------
+def _run(tmp_path, *extra: str) -> list:
+    from lagrseq.cli import main
+    from lagrseq.logs.reader import find_logs
+
+    args = ["run", "arm-arrangement", "--method", "lagr-seq", "--preset", "paper", "--trials", "1",
+            "--seed", "0", "--quiet", "--set", "run.max_steps=24", "--set", "env.view_every=8",
+            "--set", "env.view_width=64", *extra]
+    assert main(args) == 0
+    return find_logs([tmp_path])
+
+
+def test_a_run_logs_placements_camera_frames_and_joints(tmp_path) -> None:
+    pytest.importorskip("torch")
+    from PIL import Image
+
+    from lagrseq.logs.reader import read_info, read_topic
+
+    out, frames = tmp_path / "runs", tmp_path / "frames"
+    (log,) = _run(out, "--out", str(out), "--render", str(frames))
+    placed = [t["placement"] for t in read_topic(log, "/transition") if "placement" in t]
+    assert placed and all(p["outcome"] in OUTCOMES for p in placed)
+    episodes = read_topic(log, "/episode")
+    assert sum(e["placements"] for e in episodes) == len(placed)
+    assert sum(e["failed_placements"] for e in episodes) == sum(not p["ok"] for p in placed)
+    cameras = read_topic(log, "/view/arm")
+    assert [c["timestamp"]["nsec"] for c in cameras] == [0, 8, 16]
+    import base64
+
+    with Image.open(io.BytesIO(base64.b64decode(cameras[0]["data"]))) as picture:
+        assert picture.format == "PNG" and picture.size == (64, 48)
+    joints = read_topic(log, "/view/arm/joints")
+    assert len(joints) == 24 and len(joints[0]["name"]) == 6
+    assert read_info(log).config["env"]["robot"] == "sim"
+    # --render: PNG frames of every placement's key poses and a GIF per episode
+    pngs, gifs = sorted(frames.rglob("*.png")), sorted(frames.rglob("*.gif"))
+    assert len(pngs) >= 4 * len(placed) and gifs
+    with Image.open(gifs[0]) as gif:
+        assert gif.format == "GIF" and gif.n_frames > 1
+
+
+def test_the_same_run_behind_the_service_logs_the_same_events(tmp_path) -> None:
+    pytest.importorskip("torch")
+    pytest.importorskip("grpc")
+    from lagrseq.logs.reader import read_topic
+    from lagrseq.robot.remote import start_server
+
+    (local,) = _run(tmp_path / "local", "--out", str(tmp_path / "local"))
+    served = SimRobot()
+    server, port = start_server(served, "127.0.0.1", 0)
+    try:
+        (remote,) = _run(tmp_path / "remote", "--out", str(tmp_path / "remote"), "--set", f'env.robot="remote:127.0.0.1:{port}"')
+    finally:
+        server.stop(grace=None)
+        served.close()
+    for topic in ("/transition", "/query", "/episode"):
+        assert read_topic(local, topic) == read_topic(remote, topic), topic
+    assert any("placement" in t for t in read_topic(remote, "/transition"))
