@@ -414,10 +414,10 @@ class ArmEnvConfig(_Section):
     behind a gRPC server."""
     robot_timeout_s: float = ranged(60.0, gt=0, le=3600)
     """Seconds one call to a remote robot may take (a real placement takes seconds)."""
-    view_every: int = ranged(10, ge=0)
-    """Environment steps between camera frames on /view/arm (0: none); the joint state is
-    logged every step."""
-    view_width: int = ranged(320, ge=16, le=1920)
+    view_every: int = ranged(1, ge=0)
+    """Environment steps between camera frames on /view/arm (0: none; 1: every step, so replay
+    can show any episode as a GIF; about 40 ms a frame). The joint state is logged every step."""
+    view_width: int = ranged(160, ge=16, le=1920)
     """Width of a camera frame in pixels (its height is 3/4 of it)."""
 
     def _check(self) -> None:

@@ -305,6 +305,13 @@ def test_a_run_logs_placements_camera_frames_and_joints(tmp_path) -> None:
     assert len(pngs) >= 4 * len(placed) and gifs
     with Image.open(gifs[0]) as gif:
         assert gif.format == "GIF" and gif.n_frames > 1
+    # replay's GIF, from the log alone (frames every 8 steps: the trial's last frames)
+    from lagrseq.analysis.arm_gif import episode_gif
+
+    shown = episode_gif(log, tmp_path / "replay.gif")
+    assert shown is not None and "3 frames" in shown
+    with Image.open(tmp_path / "replay.gif") as gif:
+        assert gif.n_frames == 3 and gif.size == (64, 48)
 
 
 def test_the_same_run_behind_the_service_logs_the_same_events(tmp_path) -> None:
