@@ -1,10 +1,10 @@
 """The arm items' animation: a GIF of one episode, made from the camera frames of its log.
 
 Arm-arrangement runs log a ``foxglove.CompressedImage`` (PNG) on ``/view/arm`` every
-``env.view_every`` steps. :func:`episode_gif` takes the last episode of one trial log and writes
-its frames as an animated GIF (Pillow, which matplotlib already needs); when that episode has
-fewer than two frames (frames every 10 steps, an 8-step episode) it takes the trial's last
-frames instead, and says which steps the GIF shows.
+``env.view_every`` steps (by default every step). :func:`episode_gif` takes the last solved
+episode of one trial log (else the last one) and writes its frames as an animated GIF (Pillow,
+which matplotlib already needs); when no episode has two frames (frames every 10 steps, 8-step
+episodes) it takes the trial's last frames instead, and says which steps the GIF shows.
 """
 
 from __future__ import annotations
@@ -22,8 +22,8 @@ FRAME_MS = 250
 
 
 def episode_gif(log: str | Path, out: Path) -> str | None:
-    """Write the GIF of ``log``'s last episode to ``out``; return what it shows (None: the log
-    has no camera frames)."""
+    """Write the GIF of ``log``'s last solved episode to ``out``; return what it shows (None: the
+    log has no camera frames)."""
     from PIL import Image
 
     frames = read_topic(log, ARM_TOPIC)
@@ -33,13 +33,16 @@ def episode_gif(log: str | Path, out: Path) -> str | None:
     steps = [_step(f) for f in frames]
     shown = list(range(len(frames)))
     what = ""
-    if episodes:
-        last = episodes[-1]
-        end, length = int(last["global_step"]), int(last["length"])
+    # the last solved episode (the one that is cut by the step budget shows less), else the last
+    candidates = sorted(episodes, key=lambda e: (bool(e.get("solved")), int(e["episode"])), reverse=True)
+    for episode in candidates:
+        end, length = int(episode["global_step"]), int(episode["length"])
         inside = [k for k, s in enumerate(steps) if end - length <= s < end]
         if len(inside) >= 2:
             shown = inside
-            what = f"episode {last['episode']} (steps {end - length}-{end - 1})"
+            solved = "solved" if episode.get("solved") else "not solved"
+            what = f"episode {episode['episode']} ({solved}, steps {end - length}-{end - 1})"
+            break
     if not what:
         shown = shown[-LAST_FRAMES:]
         what = f"the trial's last {len(shown)} camera frames (steps {steps[shown[0]]}-{steps[shown[-1]]})"

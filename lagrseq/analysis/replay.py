@@ -229,7 +229,7 @@ def replay(
 
 
 def _arm_animation(report: ItemReport, out: Path, written: list[Path]) -> None:
-    """Arm items: a GIF of the last episode of the last trial of the item's first arm run."""
+    """Arm items: a GIF of the last solved episode of the last trial of the item's first arm run."""
     from lagrseq.analysis.arm_gif import episode_gif
 
     for m in report.matched:
