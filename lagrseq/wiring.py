@@ -334,6 +334,8 @@ def make_secondary(config: ExperimentConfig, task: Task, seed: int, trial: int) 
 
 def make_arm_env(config: ExperimentConfig, render_dir: Path | None = None) -> Any:
     """The arm-arrangement env with its robot (``env.robot``: sim or remote:HOST:PORT)."""
+    import gymnasium as gym
+
     from lagrseq.envs.arm_arrangement import ArmArrangementEnv
 
     section = _expect(config.env, ArmEnvConfig, "env")
@@ -348,7 +350,7 @@ def make_arm_env(config: ExperimentConfig, render_dir: Path | None = None) -> An
             robot_timeout_s=section.robot_timeout_s,
             render_size=(section.view_width, section.view_width * 3 // 4),
         )
-    except ImportError as exc:  # gymnasium's DependencyNotInstalled is one
+    except (ImportError, gym.error.DependencyNotInstalled) as exc:
         raise UsageError(f"arm-arrangement: {exc}") from None
     if render_dir is not None:
         from lagrseq.robot.render import EpisodeRenderer

@@ -90,3 +90,15 @@ def test_a_static_transform_inverts(point, translation, yaw) -> None:  # type: i
     # distances are kept: a rigid motion
     origin = transform.apply((0.0, 0.0, 0.0))
     assert np.linalg.norm(transform.apply(point) - origin) == pytest.approx(np.linalg.norm(point), abs=1e-9)
+
+
+def test_making_the_env_without_pybullet_is_one_usage_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    import sys
+
+    from lagrseq.errors import UsageError
+    from lagrseq.wiring import make_env
+
+    monkeypatch.setitem(sys.modules, "pybullet", None)  # import pybullet -> ImportError
+    with pytest.raises(UsageError, match=r"arm-arrangement: .*pip install 'lagrseq\[arm\]'") as error:
+        make_env(cfg.load("arm-arrangement", "lagr-seq", "paper"))
+    assert "\n" not in str(error.value)
