@@ -47,7 +47,7 @@ def test_without_the_arm_extra_runs_say_what_to_install(monkeypatch: pytest.Monk
     _without(monkeypatch, "pybullet")
     assert "needs the arm extra" in missing_dependency(config) and "lagrseq[arm]" in missing_dependency(config)
     remote = cfg.load("arm-arrangement", "lagr-seq", "paper", overrides=['env.robot="remote:127.0.0.1:5"'])
-    assert "needs the arm extra" not in missing_dependency(remote)  # the client needs grpc only
+    assert "pybullet" not in missing_dependency(remote)  # the client needs grpc only
     _without(monkeypatch, "pybullet", "grpc")
     assert "grpc" in missing_dependency(remote)
 
