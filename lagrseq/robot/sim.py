@@ -30,7 +30,9 @@ state whatever happened before, so a run is the same in process and behind ``lag
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import math
+import os
 import re
 import tempfile
 import time
@@ -125,9 +127,10 @@ def _patched_urdf(light: bool = True) -> Path:
         text = text.replace('filename="visual/base_cable_labels.obj"', 'filename="collision/base.obj"')
         text = re.sub(r'filename="visual/(\w+)\.obj"', r'filename="collision/\1.obj"', text)
     text = re.sub(r'filename="(?!/)([^"]+)"', lambda m: f'filename="{source.parent / m.group(1)}"', text)
-    out = Path(tempfile.gettempdir()) / f"lagrseq-ur5e-{abs(hash(text)) & 0xFFFFFFFF:08x}.urdf"
+    digest = hashlib.sha256(text.encode()).hexdigest()[:16]  # one file per URDF text, every process
+    out = Path(tempfile.gettempdir()) / f"lagrseq-ur5e-{digest}.urdf"
     if not out.exists() or out.read_text() != text:
-        partial = out.with_suffix(f".{id(text)}.partial")
+        partial = out.with_suffix(f".{os.getpid()}.partial")
         partial.write_text(text)
         partial.replace(out)
     return out
