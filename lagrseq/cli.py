@@ -413,7 +413,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         with _bar(args.trials * per_trial, unit, f"{args.task} {args.method}", args.quiet) as bar:
             results = runner.run_trials(
                 config, args.trials, args.seed, args.provider, directory, args.jobs, bar, options,
-                pool=pool, say=lambda line: print(line, flush=True), warn=_warn("run"), retries=args.retries,
+                pool=pool, say=lambda line: print(line, flush=True), retries=args.retries,
+                # a failed trial is named at once above the bar; --quiet: only in the closing line
+                warn=None if args.quiet else (lambda line: bar.write(f"lagrseq run: warning: {line}", file=sys.stderr)),
             )
     print(runner.summary(results, directory))
     return 0
