@@ -79,9 +79,9 @@ class DaskExecutor(TrialExecutor):
                     threads_per_worker=1,
                     processes=True,
                     host="127.0.0.1",
-                    dashboard_address="127.0.0.1:0" if dashboard else None,
+                    dashboard_address="127.0.0.1:0",  # its HTTP server runs without bokeh too
                     memory_limit="auto",
-                    silence_logs=logging.ERROR,
+                    silence_logs=logging.CRITICAL,  # a failed trial is reported once, by the runner
                     env=WORKER_ENV,
                 )
             self.client = distributed.Client(self.cluster)
@@ -110,13 +110,14 @@ class DaskExecutor(TrialExecutor):
         return iter(distributed.as_completed(list(handles)))
 
     def result(self, handle: Any) -> Any:
-        return handle.result()
-
-    def cancel(self, handles: Iterable[Any]) -> None:
-        pending = [h for h in handles if h.status == "pending"]
-        if pending:
-            with contextlib.suppress(Exception):
-                self.client.cancel(pending)
+        """The finished task's value or error; the task is then released on the cluster, so a
+        later submission of its key (a rerun after a failure) runs it again."""
+        try:
+            return handle.result()
+        finally:
+            with contextlib.suppress(ValueError):
+                self.submitted.remove(handle)
+            handle.release()
 
     def interrupt(self) -> None:
         """Ctrl-C: cancel every future; a local cluster's workers are stopped at once (their

@@ -79,10 +79,6 @@ class TrialExecutor:
     def result(self, handle: Any) -> Any:
         raise NotImplementedError
 
-    def cancel(self, handles: Iterable[Any]) -> None:
-        """Drop the handles not started yet; running trials finish their logs."""
-        raise NotImplementedError
-
     def interrupt(self) -> None:
         """Ctrl-C: stop the running trials now (their ``.partial`` files stay) and drop the rest."""
         raise NotImplementedError
@@ -154,10 +150,6 @@ class LocalExecutor(TrialExecutor):
 
     def result(self, handle: Future[Any]) -> Any:
         return handle.result()
-
-    def cancel(self, handles: Iterable[Future[Any]]) -> None:
-        for handle in handles:
-            handle.cancel()
 
     def interrupt(self) -> None:
         stop_pool(self.pool)

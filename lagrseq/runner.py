@@ -237,8 +237,6 @@ class TrialFailure:
     seed: int
     digest: str
     error: str
-    budget: bool = False
-    """The run's budget stopped it (no further trial starts)."""
 
     def describe(self) -> str:
         return f"trial {self.trial} (seed {self.seed}, config {self.digest}) failed: {self.error}"
@@ -255,9 +253,10 @@ def _failed(failures: list[TrialFailure], total: int, directory: Path) -> Trials
     if total == 1 and len(failures) == 1:
         return TrialsFailed(failures[0].describe())
     shown = ", ".join(str(f.trial) for f in failures[:10]) + (", ..." if len(failures) > 10 else "")
+    others = f"the other logs in {directory} are complete" if len(failures) < total else "no trial finished"
     return TrialsFailed(
         f"{len(failures)} of {total} trials failed (trials {shown}; first: {failures[0].describe()}); "
-        f"the other logs in {directory} are complete; run the same command again to rerun the failed trials"
+        f"{others}; run the same command again to rerun the failed trials"
     )
 
 
@@ -280,10 +279,11 @@ def run_trials(
     starts. ``pool``: an executor to use (``reproduce`` keeps one warm; ``--executor dask``);
     without one, ``jobs > 1`` runs a local process pool and ``jobs = 1`` this process.
 
-    A trial that raises is tried again up to ``retries`` times; then it is reported to ``warn``
-    (with its config digest, seed and index) while the other trials go on, and
-    :class:`TrialsFailed` is raised at the end. A global budget stop (``BudgetExceeded``) starts
-    no further trial. Ctrl-C stops the running trials (their ``.partial`` files stay)."""
+    A trial that raises is tried again up to ``retries`` times (not after a budget stop); then it
+    is reported to ``warn`` (with its config digest, seed and index) while the other trials go on,
+    and :class:`TrialsFailed` is raised at the end. A spent run budget stops each trial at its
+    first paid request, so trials that need none still finish. Ctrl-C stops the running trials
+    (their ``.partial`` files stay)."""
     parse_provider(provider_spec)
     unit, per_trial = progress_unit(config)
     found = resume_plan(config, trials, seed, provider_spec, directory)
@@ -298,7 +298,7 @@ def run_trials(
     failures: list[TrialFailure] = []
 
     def failed(trial: int, exc: BaseException) -> None:
-        failure = TrialFailure(trial, seed, digest, _error_line(exc), isinstance(exc, BudgetExceeded))
+        failure = TrialFailure(trial, seed, digest, _error_line(exc))
         failures.append(failure)
         if warn is not None and len(todo) > 1:
             warn(failure.describe())
@@ -317,17 +317,11 @@ def run_trials(
                     if attempt == retries or isinstance(exc, BudgetExceeded):
                         failed(trial, exc)
                         break
-            if failures and failures[-1].budget:
-                break  # the run's budget is spent: start nothing more
     else:
         with contextlib.ExitStack() as stack:
             if pool is None:
                 pool = stack.enter_context(executors.LocalExecutor(jobs))
             _run_pooled(pool, config, todo, seed, provider_spec, directory, provider_options, retries, progress, per_trial, results, failed)
-    done = {r.trial for r in results} | {f.trial for f in failures}
-    for trial in todo:  # cancelled after a budget stop
-        if trial not in done:
-            failures.append(TrialFailure(trial, seed, digest, "not started: the run's budget was spent"))
     if failures:
         raise _failed(failures, len(todo), directory)
     return sorted(results, key=lambda r: r.trial)
@@ -360,24 +354,18 @@ def _run_pooled(
         return handle
 
     pending = [submit(trial, 0) for trial in todo]
-    stopped = False
     try:
         while pending:
             again: list[Any] = []
             for handle in pool.completed(pending):
                 trial, attempt = owners[handle]
-                if _cancelled(handle):
-                    continue
                 try:
                     results.append(pool.result(handle))
                 except Exception as exc:
-                    if not stopped and attempt < retries and not isinstance(exc, BudgetExceeded):
+                    if attempt < retries and not isinstance(exc, BudgetExceeded):
                         again.append(submit(trial, attempt + 1))
-                        continue
-                    failed(trial, exc)
-                    if isinstance(exc, BudgetExceeded) and not stopped:
-                        stopped = True  # the run's budget is spent: start nothing more
-                        pool.cancel(pending)
+                    else:
+                        failed(trial, exc)
                     continue
                 if progress is not None:
                     progress.update(per_trial)
@@ -387,12 +375,6 @@ def _run_pooled(
         exit_on_next_interrupt()
         pool.interrupt()
         raise
-
-
-def _cancelled(handle: Any) -> bool:
-    with contextlib.suppress(Exception):
-        return bool(handle.cancelled())
-    return False
 
 
 def _with_ledger(provider_spec: str, options: ProviderOptions | None, directory: Path) -> ProviderOptions | None:

@@ -32,7 +32,7 @@ pytestmark = pytest.mark.dask
 ROOT = Path(__file__).resolve().parents[2]
 TOPICS = ("/transition", "/query", "/episode")
 TRIALS = 4
-OVERRIDES = ["run.episodes=300"]
+OVERRIDES = ["run.episodes=150"]
 
 
 def events(directory: Path) -> dict[str, dict[str, list[dict[str, object]]]]:
@@ -66,7 +66,7 @@ def test_the_same_events_on_dask_as_on_the_local_pool_and_in_process(
 ) -> None:
     results = runner.run_trials(config(), TRIALS, 0, "mock", tmp_path / "dask", pool=pool)
     assert [r.trial for r in results] == list(range(TRIALS)) and not any(r.skipped for r in results)
-    assert all(r.episodes == 300 for r in results)  # a small plain record came back from each worker
+    assert all(r.episodes == 150 for r in results)  # a small plain record came back from each worker
     with LocalExecutor(2) as local:
         runner.run_trials(config(), TRIALS, 0, "mock", tmp_path / "local", pool=local)
     assert events(tmp_path / "dask") == reference
@@ -182,50 +182,64 @@ def test_ctrl_c_leaves_complete_logs_and_partials_that_recover_repairs(tmp_path:
 
 
 # ------------------------------------------------------------------------ shared LLM state
-@pytest.fixture
-def four_workers() -> Iterator[DaskExecutor]:
+@pytest.fixture(scope="module")
+def server() -> Iterator[FakeOpenAI]:
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv(KEY_ENV, "sk-test-dask-0123456789")  # the workers inherit it
+        fake = FakeOpenAI()
+        try:
+            yield fake
+        finally:
+            fake.close()
+
+
+@pytest.fixture(scope="module")
+def four_workers(server: FakeOpenAI) -> Iterator[DaskExecutor]:
+    """4 workers started after the key is set: workers take the environment they start with."""
     with DaskExecutor(4) as executor:
         yield executor
-
-
-@pytest.fixture
-def server(monkeypatch: pytest.MonkeyPatch) -> Iterator[FakeOpenAI]:
-    monkeypatch.setenv(KEY_ENV, "sk-test-dask-0123456789")  # the workers inherit it
-    fake = FakeOpenAI()
-    try:
-        yield fake
-    finally:
-        fake.close()
 
 
 def _live_queries(directory: Path) -> list[dict[str, object]]:
     return [r for p in find_logs([directory]) for r in read_topic(p, "/query") if r["queried"] and r["source"] == "live"]
 
 
-def test_four_workers_share_one_query_budget_and_one_store_losing_and_duplicating_nothing(
+def test_four_workers_recording_into_one_store_lose_and_duplicate_nothing(
     tmp_path: Path, four_workers: DaskExecutor, server: FakeOpenAI
 ) -> None:
     store = tmp_path / "store"
     config = cfg.load("cube-stacking", "lagr", "upstream", None, ["run.episodes=20", "llm.model=gpt-4o-mini", "llm.temperature=1.0"])
-    options = wiring.ProviderOptions(base_url=server.url, api_key_env=KEY_ENV, on_miss="live", max_queries=6)
-    with pytest.raises(TrialsFailed, match="--max-queries 6 reached"):
-        runner.run_trials(config, 8, 0, f"recorded:{store}", tmp_path / "runs", pool=four_workers, provider_options=options)
-    assert len(server.requests) == 6  # the sweep's budget, not 6 per trial or per worker
-    assert all(r.get("n", 1) == 1 for r in server.requests)
+    options = wiring.ProviderOptions(base_url=server.url, api_key_env=KEY_ENV, on_miss="live")
+    first = len(server.requests)
+    runner.run_trials(config, 8, 0, f"recorded:{store}", tmp_path / "runs", pool=four_workers, provider_options=options)
+    asked = server.requests[first:]
+    assert asked and all(r.get("n", 1) == 1 for r in asked)
     with RecordStore(store, create=False) as recorded:
         samples = [s for entry in recorded.entries() for s in entry.samples]
-    ids = [s.id for s in samples]
-    assert len(ids) == len(set(ids)) == 6  # every bought answer stored once
-    assert sorted(str(r["answer"]) for r in _live_queries(tmp_path / "runs")) == sorted(s.text for s in samples)
+    # each of the server's responses is in the store exactly once (no answer lost, none twice)
+    assert len({s.id for s in samples}) == len(samples) == len(asked)
+    assert sorted(str(s.provenance) for s in samples) == sorted(f"chatcmpl-{i}" for i in range(first + 1, first + len(asked) + 1))
+    assert {str(r["answer"]) for r in _live_queries(tmp_path / "runs")} <= {s.text for s in samples}
+
+
+def test_four_workers_share_one_query_budget(tmp_path: Path, four_workers: DaskExecutor, server: FakeOpenAI) -> None:
+    config = cfg.load("cube-stacking", "lagr", "upstream", None, ["run.episodes=20"])
+    options = wiring.ProviderOptions(base_url=server.url, api_key_env=KEY_ENV, max_queries=6)
+    first = len(server.requests)
+    with pytest.raises(TrialsFailed, match="--max-queries 6 reached"):
+        runner.run_trials(config, 8, 0, "live:gpt-4o-mini", tmp_path, pool=four_workers, provider_options=options)
+    assert len(server.requests) - first == 6  # the sweep's budget, not 6 per trial or per worker
+    assert len(_live_queries(tmp_path)) <= 6
 
 
 def test_four_workers_share_one_cost_budget(tmp_path: Path, four_workers: DaskExecutor, server: FakeOpenAI) -> None:
     config = cfg.load("cube-stacking", "lagr", "upstream", None, ["run.episodes=20"])
     limit = 0.002
     options = wiring.ProviderOptions(base_url=server.url, api_key_env=KEY_ENV, max_cost_usd=limit)
+    first = len(server.requests)
     with pytest.raises(TrialsFailed, match="--max-cost-usd 0.002 reached"):
         runner.run_trials(config, 8, 0, "live:gpt-4o-mini", tmp_path, pool=four_workers, provider_options=options)
     live = _live_queries(tmp_path)
     spent = sum(float(r["cost_usd"]) for r in live)  # type: ignore[arg-type]
-    assert live and len(live) == len(server.requests)
+    assert live and len(live) == len(server.requests) - first
     assert 0 < spent <= limit

@@ -22,7 +22,7 @@ def _answer(cost: float | None) -> Answer:
 
 
 def _spend(path: str, worker: int, tries: int, queue: multiprocessing.Queue) -> None:  # type: ignore[type-arg]
-    budget = SharedBudget(path, max_cost_usd=1.0, max_queries=50)
+    budget = SharedBudget(path, max_cost_usd=2.0, max_queries=50)
     granted = 0
     for _ in range(tries):
         try:
@@ -45,14 +45,27 @@ def test_four_processes_reserving_at_once_stop_exactly_at_the_limit(tmp_path: Pa
     granted = [queue.get(timeout=120) for _ in workers]
     for w in workers:
         w.join(timeout=60)
-    # 120 tries for 50 answers: the query limit binds (50 x $0.02 = $1.00, and each reservation
-    # of $0.03 must fit under $1 with the settled spending: 50 answers need 49 x 0.02 + 0.03 <= 1)
+    # 120 tries for 50 answers: the query limit binds, exactly (the cost limit, $2, does not)
     assert sum(granted) == 50
-    budget = SharedBudget(path, 1.0, 50)
+    budget = SharedBudget(path, 2.0, 50)
     assert budget.answers == 50 and budget.held_usd == 0.0
     assert budget.spent_usd == pytest.approx(1.0)
     with pytest.raises(BudgetExceeded, match="--max-queries 50 reached.*one budget for every trial"):
         budget.reserve(_query(), 1, 0.0)
+
+
+def test_the_cost_limit_counts_the_worst_case_of_the_next_request(tmp_path: Path) -> None:
+    budget = SharedBudget(tmp_path / "l.sqlite", max_cost_usd=1.0, max_queries=None)
+    granted = 0
+    while True:
+        try:
+            ticket = budget.reserve(_query(), 1, 0.03)
+        except BudgetExceeded as exc:
+            assert "--max-cost-usd 1 reached" in str(exc)
+            break
+        budget.settle(ticket, [_answer(0.02)])
+        granted += 1
+    assert granted == 49 and budget.spent_usd <= 1.0  # a 50th could cost 0.98 + 0.03 > 1
 
 
 def test_a_held_reservation_counts_at_its_worst_case_until_settled(tmp_path: Path) -> None:
