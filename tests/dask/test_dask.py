@@ -73,12 +73,20 @@ def test_the_same_events_on_dask_as_on_the_local_pool_and_in_process(
     assert events(tmp_path / "local") == reference
 
 
-def test_the_command_line_with_executor_dask(tmp_path: Path, capsys: pytest.CaptureFixture[str], reference: dict[str, object]) -> None:
+def test_the_command_line_with_executor_dask(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], pool: DaskExecutor, reference: dict[str, object]
+) -> None:
     args = ["run", "cube-stacking", "--method", "lagr-seq", "--trials", str(TRIALS), "--set", OVERRIDES[0], "--quiet"]
-    assert cli.main([*args, "--executor", "dask", "--jobs", "2", "--out", str(tmp_path)]) == 0
+    assert cli.main([*args, "--executor", "dask", "--jobs", "2", "--out", str(tmp_path / "local-cluster")]) == 0
     out = capsys.readouterr().out
     assert "dask: local cluster of 2 workers on 127.0.0.1" in out and f"{TRIALS} trial logs in" in out
-    assert events(tmp_path) == reference
+    assert events(tmp_path / "local-cluster") == reference
+    address = pool.client.scheduler.address  # an existing cluster, as dask scheduler / SLURMCluster give
+    assert cli.main([*args, "--executor", "dask", "--scheduler", address, "--out", str(tmp_path / "existing")]) == 0
+    assert f"dask: scheduler {address}, 2 workers now" in capsys.readouterr().out
+    assert events(tmp_path / "existing") == reference
+    assert cli.main([*args, "--executor", "dask", "--scheduler", "127.0.0.1:8786", "--out", str(tmp_path)]) == 2
+    assert "give tcp://HOST:PORT" in capsys.readouterr().err
     assert cli.main([*args, "--scheduler", "tcp://127.0.0.1:1", "--out", str(tmp_path)]) == 2
     assert "--scheduler applies to --executor dask only" in capsys.readouterr().err
 
