@@ -21,6 +21,8 @@ Pitfalls known from Dask users, and what is done about them:
   rescheduled by Dask, up to ``distributed.scheduler.allowed-failures`` times (default 3), then
   the trial fails with ``KilledWorker``; the dead worker's ``.partial`` file is rewritten by the
   next attempt, or left for ``lagrseq recover`` and rerun by the next ``lagrseq run``.
+- A local cluster's workers would outlive a lagrseq process killed outright (its scheduler and
+  nannies die with it, the worker processes do not): :class:`ExitWithParent` ends them.
 """
 
 from __future__ import annotations
@@ -28,7 +30,10 @@ from __future__ import annotations
 import contextlib
 import importlib.util
 import logging
+import os
 import signal
+import threading
+import time
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
@@ -62,6 +67,25 @@ def _interrupts_ignored_by_children() -> Iterator[None]:
         signal.signal(signal.SIGINT, previous)
 
 
+class ExitWithParent(distributed.WorkerPlugin):
+    """A local cluster's worker ends when the lagrseq process that started it is gone (killed,
+    even with SIGKILL, which leaves no time to stop the cluster): it checks every second
+    whether it has been handed to another parent. A trial it was running leaves its ``.partial``
+    file, as any crash does."""
+
+    name = "lagrseq-exit-with-parent"
+
+    def setup(self, worker: Any) -> None:
+        parent = os.getppid()
+
+        def watch() -> None:
+            while os.getppid() == parent:
+                time.sleep(1.0)
+            os._exit(1)
+
+        threading.Thread(target=watch, name="lagrseq-parent-watch", daemon=True).start()
+
+
 class DaskExecutor(TrialExecutor):
     """``jobs`` single-threaded worker processes on 127.0.0.1, or the workers of ``scheduler``."""
 
@@ -85,6 +109,7 @@ class DaskExecutor(TrialExecutor):
                     env=WORKER_ENV,
                 )
             self.client = distributed.Client(self.cluster)
+            self.client.register_plugin(ExitWithParent())
             self.workers = jobs
             if dashboard:
                 self.dashboard = self.client.dashboard_link
