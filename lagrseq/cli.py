@@ -111,12 +111,13 @@ def _executor_options() -> argparse.ArgumentParser:
     return p
 
 
-def _make_executor(args: argparse.Namespace) -> Any:
-    """The executor of ``--executor``/``--scheduler`` (None: the runner's own process pool)."""
+def _make_executor(args: argparse.Namespace, start: bool = True) -> Any:
+    """The executor of ``--executor``/``--scheduler`` (None: the runner's own process pool, or
+    nothing to ``start``)."""
     from lagrseq.executors import make_executor
 
-    if args.executor == "local":
-        if args.scheduler is not None:
+    if args.executor == "local" or not start:
+        if args.scheduler is not None and args.executor != "dask":
             from lagrseq.errors import UsageError
 
             raise UsageError("--scheduler applies to --executor dask only")
@@ -407,7 +408,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     )
     unit, per_trial = runner.progress_unit(config)
     with contextlib.ExitStack() as stack:
-        pool = _make_executor(args)
+        pending = runner.resume_plan(config, args.trials, args.seed, args.provider, directory).todo
+        pool = _make_executor(args, start=bool(pending))  # no cluster to start for nothing
         if pool is not None:
             stack.enter_context(pool)
         with _bar(args.trials * per_trial, unit, f"{args.task} {args.method}", args.quiet) as bar:
