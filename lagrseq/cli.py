@@ -8,6 +8,7 @@ code's own constants; each ``cmd_*`` handler parses, calls one function and prin
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
 from collections.abc import Callable, Sequence
@@ -100,6 +101,32 @@ def _live_options(per: str) -> argparse.ArgumentParser:
     return p
 
 
+def _executor_options() -> argparse.ArgumentParser:
+    """Where trials run: this machine's processes or Dask (run and reproduce)."""
+    from lagrseq.executors import EXECUTORS
+
+    p = argparse.ArgumentParser(add_help=False)
+    g = p.add_argument_group("execution")
+    g.add_argument("--executor", choices=EXECUTORS, default="local", help="local: a pool of --jobs processes on this machine (default); dask: Dask distributed, a local cluster of --jobs single-threaded workers on 127.0.0.1 (its dashboard link is printed) or the cluster of --scheduler (needs the dask extra: pip install 'lagrseq[dask]')")
+    g.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="with --executor dask: an existing Dask scheduler (dask scheduler / dask worker, or dask-jobqueue's SLURMCluster); its workers need this lagrseq installed and the output directory on a shared file system")
+    g.add_argument("--retries", type=_LIMIT, default=0, metavar="N", help="run a trial that raised up to N more times (default 0: trials are deterministic); a Dask worker that dies mid-trial is replaced and its trial rerun by Dask itself")
+    return p
+
+
+def _make_executor(args: argparse.Namespace, start: bool = True) -> Any:
+    """The executor of ``--executor``/``--scheduler`` (None: the runner's own process pool, or
+    nothing to ``start``)."""
+    from lagrseq.executors import make_executor
+
+    if args.executor == "local" or not start:
+        if args.scheduler is not None and args.executor != "dask":
+            from lagrseq.errors import UsageError
+
+            raise UsageError("--scheduler applies to --executor dask only")
+        return None
+    return make_executor(args.executor, args.jobs, args.scheduler, say=lambda line: print(line, flush=True))
+
+
 def _quiet() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(add_help=False)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -153,7 +180,7 @@ def _add_run(sub: Any) -> None:
 
     p = sub.add_parser(
         "run",
-        parents=[_experiment_options(), _live_options(per="trial"), _quiet()],
+        parents=[_experiment_options(), _live_options(per="run (every trial and worker together)"), _executor_options(), _quiet()],
         help="run trials of one task and method, logging every step to MCAP",
         description=(
             "Run TRIALS independent trials of one experiment and write one MCAP log per trial to "
@@ -166,6 +193,8 @@ def _add_run(sub: Any) -> None:
             "  lagrseq run cube-stacking --method lagr --set env.horizon=100 --set llm.temperature=1.0\n"
             "  lagrseq run cube-stacking --method baseline --set task.stack_size=11\n"
             "  lagrseq run image-completion --method lagr-seq --preset paper --trials 2\n"
+            "  lagrseq run cube-stacking --trials 32 --executor dask --jobs 4\n"
+            "  lagrseq run cube-stacking --trials 256 --executor dask --scheduler tcp://head:8786\n"
             "  lagrseq run object-arrangement --method lagr --set task.target=\"square\"\n"
             "  lagrseq run arm-arrangement --preset paper --trials 5 --render frames   # the UR5e (arm extra)\n"
             "  lagrseq config cube-stacking --preset paper     # every field, its value and meaning"
@@ -180,7 +209,7 @@ def _add_run(sub: Any) -> None:
     p.add_argument("--seed", type=_SEED, default=0, help="run seed, 0 <= S < 2**63; trial k uses a stream spawned from (seed, k) (default 0)")
     p.add_argument("--out", type=Path, default=Path("runs"), help="output directory (default: runs)")
     p.add_argument("--name", default=None, help="run directory name, one plain name (default: preset-provider-seed-digest)")
-    p.add_argument("--jobs", type=_COUNT, default=1, help="trials run in parallel processes (default 1)")
+    p.add_argument("--jobs", type=_COUNT, default=1, help="trials run in parallel processes, or workers of a local Dask cluster (default 1)")
     p.add_argument("--on-miss", choices=ON_MISS, default="error", help="recorded:STORE only, a query the store has no answer for: error = stop with a message naming the nearest recorded keys (default); mock = answer it with the rule-based mock (not stored); live = ask the live server and record the answer into STORE")
     p.add_argument("--render", type=Path, default=None, metavar="DIR", help="arm-arrangement only: write PNG frames of every placement and an animated GIF of every episode to DIR/trial-NNN/ (headless; about 0.1 s a frame)")
 
@@ -324,7 +353,7 @@ def _add_replay(sub: Any) -> None:
 def _add_reproduce(sub: Any) -> None:
     p = sub.add_parser(
         "reproduce",
-        parents=[_report_options(), _quiet()],
+        parents=[_report_options(), _executor_options(), _quiet()],
         help="run the paper's suite and build its report (figures, tables, costs)",
         description=(
             "Run every experiment of the paper's suite (lagrseq/experiments/paper_suite.toml) into "
@@ -337,6 +366,7 @@ def _add_reproduce(sub: Any) -> None:
             "examples:\n"
             "  lagrseq reproduce --quick                # ./runs and ./reports, a few minutes\n"
             "  lagrseq reproduce --out results --jobs 8\n"
+            "  lagrseq reproduce --executor dask --scheduler tcp://head:8786 --out /shared/results\n"
             "  lagrseq reproduce --provider recorded:store-tau0/ --items table2   # a store made by lagrseq cache import"
         ),
         formatter_class=_RAW,
@@ -400,8 +430,18 @@ def cmd_run(args: argparse.Namespace) -> int:
         args.provider, options, args.out, args.seed, args.name,
     )
     unit, per_trial = runner.progress_unit(config)
-    with _bar(args.trials * per_trial, unit, f"{args.task} {args.method}", args.quiet) as bar:
-        results = runner.run_trials(config, args.trials, args.seed, args.provider, directory, args.jobs, bar, options, render_dir=args.render)
+    with contextlib.ExitStack() as stack:
+        pending = runner.resume_plan(config, args.trials, args.seed, args.provider, directory).todo
+        pool = _make_executor(args, start=bool(pending))  # no cluster to start for nothing
+        if pool is not None:
+            stack.enter_context(pool)
+        with _bar(args.trials * per_trial, unit, f"{args.task} {args.method}", args.quiet) as bar:
+            results = runner.run_trials(
+                config, args.trials, args.seed, args.provider, directory, args.jobs, bar, options,
+                pool=pool, say=lambda line: print(line, flush=True), retries=args.retries, render_dir=args.render,
+                # a failed trial is named at once above the bar; --quiet: only in the closing line
+                warn=None if args.quiet else (lambda line: bar.write(f"lagrseq run: warning: {line}", file=sys.stderr)),
+            )
     print(runner.summary(results, directory))
     return 0
 
@@ -497,6 +537,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     report, elapsed = reproduce.reproduce(
         args.suite, items, args.quick, args.provider, args.out, args.jobs, args.seed,
         args.formats, _price_function(args.price_table), quiet=args.quiet, say=lambda line: print(line, flush=True),
+        executor=args.executor, scheduler=args.scheduler, retries=args.retries,
     )
     _print_report(report, elapsed, not_run_said=True)
     return 0

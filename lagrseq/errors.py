@@ -53,3 +53,7 @@ class BudgetExceeded(ProviderError):
 
 class LogError(LagrseqError):
     """An MCAP log that cannot be written or read."""
+
+
+class TrialsFailed(LagrseqError):
+    """Some trials of a sweep raised; the others ran to their end."""

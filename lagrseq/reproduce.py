@@ -5,8 +5,8 @@
    one-line reason.
 2. Estimate: time a short stretch of every distinct experiment on this machine (no logs, mock
    provider) and report the expected wall time before starting.
-3. Run: trials in parallel on local processes through :func:`lagrseq.runner.run_trials`;
-   trials whose log is complete are skipped, so a rerun resumes.
+3. Run: trials in parallel on local processes or Dask workers through
+   :func:`lagrseq.runner.run_trials`; trials whose log is complete are skipped, so a rerun resumes.
 4. Replay: :func:`lagrseq.analysis.replay.replay` over the run logs, from the MCAP files alone.
 """
 
@@ -213,13 +213,20 @@ def execute(
     jobs: int,
     bar: Any = None,
     on_run: Callable[[PlannedRun], None] | None = None,
+    executor: str = "local",
+    scheduler: str | None = None,
+    say: Callable[[str], None] | None = None,
+    retries: int = 0,
 ) -> list[TrialResult]:
-    """Run every planned run (complete trials are skipped), reusing one warm process pool."""
+    """Run every planned run (complete trials are skipped), reusing one warm process pool or
+    one Dask cluster (``executor``, ``scheduler``: see :func:`lagrseq.executors.make_executor`)."""
     results: list[TrialResult] = []
     with contextlib.ExitStack() as stack:
-        pool = stack.enter_context(runner.process_pool(jobs)) if jobs > 1 else None
+        pool = None
+        if executor != "local" or scheduler is not None or jobs > 1:
+            pool = stack.enter_context(runner.make_executor(executor, jobs, scheduler, say))
         for run in the_plan.runs:
-            results += _execute_run(run, jobs, bar, on_run, pool)
+            results += _execute_run(run, jobs, bar, on_run, pool, retries)
     return results
 
 
@@ -229,6 +236,7 @@ def _execute_run(
     bar: Any,
     on_run: Callable[[PlannedRun], None] | None,
     pool: Any,
+    retries: int = 0,
 ) -> list[TrialResult]:
     """One planned run: an accuracy probe (in this process) or its trials (in the pool)."""
     if on_run is not None:
@@ -242,7 +250,8 @@ def _execute_run(
             )
     else:
         results = runner.run_trials(
-            run.config, run.trials, run.seed, run.provider, run.path, jobs=jobs, progress=progress, pool=pool
+            run.config, run.trials, run.seed, run.provider, run.path, jobs=jobs, progress=progress, pool=pool,
+            retries=retries,
         )
     progress.finish()
     return results
@@ -269,6 +278,9 @@ def reproduce(
     price: Callable[[str, int, int], float | None] | None = None,
     quiet: bool = False,
     say: Callable[[str], None] = print,
+    executor: str = "local",
+    scheduler: str | None = None,
+    retries: int = 0,
 ) -> tuple[Any, float]:
     """``lagrseq reproduce``: plan the suite, say what will run and how long it should take, run
     it with one progress bar (episodes of cube runs, steps of grid runs), then replay the logs into
@@ -285,6 +297,8 @@ def reproduce(
     seed = suite.seed if seed is None else seed
     if provider is not None:
         wiring.parse_provider(provider)
+    if scheduler is not None and executor != "dask":
+        raise UsageError("--scheduler applies to --executor dask only")
     writable_directory(out)
     runs_dir, reports_dir = writable_directory(out / "runs"), writable_directory(out / "reports", "--out")
     started = time.perf_counter()
@@ -296,12 +310,16 @@ def reproduce(
     say(
         f"{'quick' if quick else 'full'} suite: {len(the_plan.runs)} runs, {trials} trial logs, "
         f"{pending} to run ({trials - pending} already complete); expected about "
-        f"{duration(estimate(the_plan, jobs))} on {jobs} process{'es' if jobs > 1 else ''} "
+        f"{duration(estimate(the_plan, jobs))} on {jobs} {'Dask worker' if executor == 'dask' else 'process'}"
+        f"{('s' if executor == 'dask' else 'es') if jobs > 1 else ''} "
         f"(timed on this machine; LLM latency of live providers not included)"
     )
     total = sum(run.units() for run in the_plan.runs)
     with tqdm(total=total, unit="it", disable=quiet, file=sys.stderr, dynamic_ncols=True) as bar:
-        execute(the_plan, jobs, bar, on_run=lambda run: bar.set_description(run.describe()))
+        execute(
+            the_plan, jobs, bar, on_run=lambda run: bar.set_description(run.describe()),
+            executor=executor, scheduler=scheduler, say=say, retries=retries,
+        )
     say(f"runs done in {duration(time.perf_counter() - started)}: {runs_dir}")
     report = replay(
         [runs_dir],

@@ -2,8 +2,10 @@
 
 A run writes ``OUT/<task>/<method>/<name>/trial-NNN.mcap``, one file per trial. A rerun skips a
 trial whose log is complete, but only if that log was made with the same configuration, seed and
-provider (``--name`` lets two configurations meet in one directory: that is refused). Trials run
-in this process (``jobs=1``) or in a pool of spawned worker processes; Ctrl-C cancels the trials
+provider (``--name`` lets two configurations meet in one directory: that is refused), and says
+how many trials are complete, missing or unfinished before it starts. Trials run in this process
+(``jobs=1``), in a pool of spawned worker processes, or on Dask (:mod:`lagrseq.executors`); a trial
+that raises is reported while the others go on; Ctrl-C cancels the trials
 not started, stops the running ones (their flushed episodes stay in ``.partial`` files that
 ``lagrseq recover`` turns into valid logs) and raises KeyboardInterrupt; a second Ctrl-C exits at
 once.
@@ -14,24 +16,20 @@ from __future__ import annotations
 import contextlib
 import gc
 import json
-import multiprocessing
-import os
 import platform
-import signal
 from collections.abc import Callable, Iterator
-from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from lagrseq import __version__
+from lagrseq import __version__, executors
 from lagrseq.config import ExperimentConfig
-from lagrseq.errors import UsageError
+from lagrseq.errors import BudgetExceeded, LagrseqError, TrialsFailed, UsageError
 from lagrseq.experiment import TrialResult, run_trial
 from lagrseq.logs.reader import is_complete, read_info
-from lagrseq.logs.sink import McapSink, NullSink, Sink
+from lagrseq.logs.sink import PARTIAL_SUFFIX, McapSink, NullSink, Sink
 from lagrseq.wiring import (
     ProviderOptions,
     parse_provider,
@@ -174,58 +172,95 @@ def progress_unit(config: ExperimentConfig) -> tuple[str, int]:
 # ------------------------------------------------------------------------------------------
 # Running trials
 # ------------------------------------------------------------------------------------------
-def _ignore_interrupts() -> None:
-    """Workers leave Ctrl-C to the parent, which stops them (SIGINT reaches the whole process
-    group; a worker that handled it itself would race the parent's cancellation)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+# The process pool lives in lagrseq.executors; these names stay importable from here.
+_ignore_interrupts = executors._ignore_interrupts
+exit_on_next_interrupt = executors.exit_on_next_interrupt
+stop_pool = executors.stop_pool
+make_executor = executors.make_executor
 
 
 @contextlib.contextmanager
-def process_pool(jobs: int) -> Iterator[ProcessPoolExecutor]:
-    """A pool of ``jobs`` worker processes, spawned rather than forked (forking a process that
-    runs threads, the progress bar's or torch's, can deadlock). Leaving it normally waits for
-    the trials; leaving it on an error or Ctrl-C stops them at once."""
-    pool = ProcessPoolExecutor(
-        max_workers=jobs, mp_context=multiprocessing.get_context("spawn"), initializer=_ignore_interrupts
-    )
-    try:
+def process_pool(jobs: int) -> Iterator[executors.TrialExecutor]:
+    """A local pool of ``jobs`` spawned worker processes (:class:`lagrseq.executors.LocalExecutor`).
+    Leaving it normally waits for the trials; leaving it on Ctrl-C stops them at once."""
+    with executors.LocalExecutor(jobs) as pool:
         yield pool
-    except KeyboardInterrupt:
-        exit_on_next_interrupt()
-        stop_pool(pool)
-        raise
-    except BaseException:
-        pool.shutdown(wait=True, cancel_futures=True)
-        raise
-    pool.shutdown(wait=True)
 
 
-def _run_trial_job(args: tuple[Any, ...]) -> TrialResult:
-    config_dict, trial, seed, provider_spec, path, options, render_dir = args
+def run_trial_job(job: executors.TrialJob) -> TrialResult:
+    """One trial as a task of an executor (a module-level function: spawned and Dask workers
+    import it). Returns the small result record, never the trial's objects."""
     from lagrseq.config import from_dict
 
-    return run_one(from_dict(config_dict), trial, seed, provider_spec, Path(path), provider_options=options, render_dir=render_dir)
+    render_dir = Path(job.render_dir) if job.render_dir is not None else None
+    return run_one(from_dict(job.config), job.trial, job.seed, job.provider_spec, Path(job.path), provider_options=job.options, render_dir=render_dir)
 
 
-def stop_pool(pool: Executor) -> None:
-    """Stop the worker processes now and cancel every trial not started: a running trial's
-    ``.partial`` file keeps its flushed episodes (``lagrseq recover``). The workers are taken
-    before ``shutdown``, which forgets them."""
-    processes = list((getattr(pool, "_processes", None) or {}).values())
-    for process in processes:
-        with contextlib.suppress(Exception):
-            process.terminate()
-    pool.shutdown(wait=False, cancel_futures=True)
-    for process in processes:
-        with contextlib.suppress(Exception):
-            process.join(timeout=5)
+@dataclass(frozen=True)
+class ResumePlan:
+    """What a (re)run finds in its directory before it starts."""
+
+    complete: list[int]
+    missing: list[int]
+    unfinished: list[int]
+    """A log or ``.partial`` file that is not a complete log: cut short, failed or recovered."""
+
+    @property
+    def todo(self) -> list[int]:
+        return sorted(self.missing + self.unfinished)
+
+    def describe(self) -> str:
+        return (
+            f"resuming: {len(self.complete)} trial{'s' if len(self.complete) != 1 else ''} complete (skipped), "
+            f"{len(self.missing)} missing and {len(self.unfinished)} unfinished (cut short, failed or recovered) to run"
+        )
 
 
-def exit_on_next_interrupt() -> None:
-    """Cleaning up after a Ctrl-C: from now on a Ctrl-C ends the process at once with status
-    130, whatever it is doing. The process is on its way out anyway."""
-    with contextlib.suppress(ValueError):  # not the main thread: nothing to install
-        signal.signal(signal.SIGINT, lambda *_: os._exit(130))
+def resume_plan(config: ExperimentConfig, trials: int, seed: int, provider_spec: str, directory: Path) -> ResumePlan:
+    """Sort trials 0..trials-1 by what their log says; a complete log made by another run is
+    refused (:func:`check_resumable`)."""
+    complete: list[int] = []
+    missing: list[int] = []
+    unfinished: list[int] = []
+    for trial in range(trials):
+        path = trial_path(directory, trial)
+        if is_complete(path):
+            check_resumable(path, config, seed, provider_spec, trial)
+            complete.append(trial)
+        elif path.exists() or path.with_name(path.name + PARTIAL_SUFFIX).exists():
+            unfinished.append(trial)
+        else:
+            missing.append(trial)
+    return ResumePlan(complete, missing, unfinished)
+
+
+@dataclass(frozen=True)
+class TrialFailure:
+    trial: int
+    seed: int
+    digest: str
+    error: str
+
+    def describe(self) -> str:
+        return f"trial {self.trial} (seed {self.seed}, config {self.digest}) failed: {self.error}"
+
+
+def _error_line(exc: BaseException) -> str:
+    text = str(exc) if isinstance(exc, LagrseqError) else f"{type(exc).__name__}: {exc}"
+    return " ".join(text.split())
+
+
+def _failed(failures: list[TrialFailure], total: int, directory: Path) -> TrialsFailed:
+    """The one line that ends a sweep in which some trials raised."""
+    failures = sorted(failures, key=lambda f: f.trial)
+    if total == 1 and len(failures) == 1:
+        return TrialsFailed(failures[0].describe())
+    shown = ", ".join(str(f.trial) for f in failures[:10]) + (", ..." if len(failures) > 10 else "")
+    others = f"the other logs in {directory} are complete" if len(failures) < total else "no trial finished"
+    return TrialsFailed(
+        f"{len(failures)} of {total} trials failed (trials {shown}; first: {failures[0].describe()}); "
+        f"{others}; run the same command again to rerun the failed trials"
+    )
 
 
 def run_trials(
@@ -237,56 +272,137 @@ def run_trials(
     jobs: int = 1,
     progress: Any = None,
     provider_options: ProviderOptions | None = None,
-    pool: Executor | None = None,
+    pool: executors.TrialExecutor | None = None,
+    say: Callable[[str], None] | None = None,
+    warn: Callable[[str], None] | None = None,
+    retries: int = 0,
     render_dir: Path | None = None,
 ) -> list[TrialResult]:
     """Run trials 0..trials-1 into ``directory``; trials whose log is complete (and made by this
-    very run) are skipped. ``pool``: an executor to reuse (``reproduce`` keeps one warm).
-    ``render_dir``: arm tasks write PNG frames and GIFs there (``--render``)."""
+    very run) are skipped, and ``say`` is told how many of each kind there are before anything
+    starts. ``pool``: an executor to use (``reproduce`` keeps one warm; ``--executor dask``);
+    without one, ``jobs > 1`` runs a local process pool and ``jobs = 1`` this process.
+
+    A trial that raises is tried again up to ``retries`` times (not after a budget stop); then it
+    is reported to ``warn`` (with its config digest, seed and index) while the other trials go on,
+    and :class:`TrialsFailed` is raised at the end. A spent run budget stops each trial at its
+    first paid request, so trials that need none still finish. Ctrl-C stops the running trials
+    (their ``.partial`` files stay). ``render_dir``: arm tasks write PNG frames and GIFs there
+    (``--render``)."""
     parse_provider(provider_spec)
     unit, per_trial = progress_unit(config)
-    results: list[TrialResult] = []
-    todo: list[int] = []
-    for trial in range(trials):
-        path = trial_path(directory, trial)
-        if is_complete(path):
-            check_resumable(path, config, seed, provider_spec, trial)
-            results.append(TrialResult(path, trial, 0, 0, 0, 0.0, 0.0, skipped=True))
-            if progress is not None:
-                progress.update(per_trial)
-        else:
-            todo.append(trial)
+    found = resume_plan(config, trials, seed, provider_spec, directory)
+    if say is not None and (found.complete or found.unfinished):
+        say(found.describe())
+    results = [TrialResult(trial_path(directory, t), t, 0, 0, 0, 0.0, 0.0, skipped=True) for t in found.complete]
+    if progress is not None and found.complete:
+        progress.update(per_trial * len(found.complete))
+    todo = found.todo
+    provider_options = _with_ledger(provider_spec, provider_options, directory)
+    digest = config.digest()
+    failures: list[TrialFailure] = []
+
+    def failed(trial: int, exc: BaseException) -> None:
+        failure = TrialFailure(trial, seed, digest, _error_line(exc))
+        failures.append(failure)
+        if warn is not None and len(todo) > 1:
+            warn(failure.describe())
+
     if pool is None and (jobs <= 1 or len(todo) <= 1):
         on_episode = None
         if progress is not None:
             on_episode = (lambda steps: progress.update(steps)) if unit == "step" else (lambda _: progress.update(1))
         for trial in todo:
             path = trial_path(directory, trial)
-            results.append(run_one(config, trial, seed, provider_spec, path, on_episode=on_episode, provider_options=provider_options, render_dir=render_dir))
-        return sorted(results, key=lambda r: r.trial)
-    with contextlib.ExitStack() as stack:
-        if pool is None:
-            pool = stack.enter_context(process_pool(jobs))
-        futures: list[Future[TrialResult]] = []
-        try:
-            for trial in todo:
-                job = (config.to_dict(), trial, seed, provider_spec, str(trial_path(directory, trial)), provider_options, render_dir)
-                futures.append(pool.submit(_run_trial_job, job))
-            for future in as_completed(futures):
-                results.append(future.result())
+            for attempt in range(retries + 1):
+                try:
+                    results.append(run_one(config, trial, seed, provider_spec, path, on_episode=on_episode, provider_options=provider_options, render_dir=render_dir))
+                    break
+                except Exception as exc:
+                    if attempt == retries or isinstance(exc, BudgetExceeded):
+                        failed(trial, exc)
+                        break
+    else:
+        with contextlib.ExitStack() as stack:
+            if pool is None:
+                pool = stack.enter_context(executors.LocalExecutor(jobs))
+            _run_pooled(pool, config, todo, seed, provider_spec, directory, provider_options, retries, progress, per_trial, results, failed, render_dir)
+    if failures:
+        raise _failed(failures, len(todo), directory)
+    return sorted(results, key=lambda r: r.trial)
+
+
+def _run_pooled(
+    pool: executors.TrialExecutor,
+    config: ExperimentConfig,
+    todo: list[int],
+    seed: int,
+    provider_spec: str,
+    directory: Path,
+    provider_options: ProviderOptions | None,
+    retries: int,
+    progress: Any,
+    per_trial: int,
+    results: list[TrialResult],
+    failed: Callable[[int, BaseException], None],
+    render_dir: Path | None = None,
+) -> None:
+    """The trials ``todo`` as tasks of ``pool``, each retried up to ``retries`` times."""
+    run_id = executors.run_digest(config.to_json(), seed, provider_spec, str(directory))
+    config_dict = config.to_dict()
+    owners: dict[Any, tuple[int, int]] = {}
+
+    def submit(trial: int, attempt: int) -> Any:
+        key = executors.task_key(run_id, trial, attempt)
+        job = executors.TrialJob(
+            config_dict, trial, seed, provider_spec, str(trial_path(directory, trial)), provider_options, key,
+            str(render_dir) if render_dir is not None else None,
+        )
+        handle = pool.submit(run_trial_job, job)
+        owners[handle] = (trial, attempt)
+        return handle
+
+    pending = [submit(trial, 0) for trial in todo]
+    try:
+        while pending:
+            again: list[Any] = []
+            for handle in pool.completed(pending):
+                trial, attempt = owners[handle]
+                try:
+                    results.append(pool.result(handle))
+                except Exception as exc:
+                    if attempt < retries and not isinstance(exc, BudgetExceeded):
+                        again.append(submit(trial, attempt + 1))
+                    else:
+                        failed(trial, exc)
+                    continue
                 if progress is not None:
                     progress.update(per_trial)
-        except KeyboardInterrupt:
-            # Ctrl-C: nothing more starts, the running trials stop, nothing half-made is renamed.
-            exit_on_next_interrupt()
-            stop_pool(pool)
-            raise
-        except BaseException:
-            # A failed trial: the queued ones never start, the running ones finish their logs.
-            for future in futures:
-                future.cancel()
-            raise
-    return sorted(results, key=lambda r: r.trial)
+            pending = again
+    except KeyboardInterrupt:
+        # Ctrl-C: nothing more starts, the running trials stop, nothing half-made is renamed.
+        exit_on_next_interrupt()
+        pool.interrupt()
+        raise
+
+
+def _with_ledger(provider_spec: str, options: ProviderOptions | None, directory: Path) -> ProviderOptions | None:
+    """A run that may spend money (live answers) under ``--max-cost-usd`` or ``--max-queries``
+    keeps one budget for all its trials and workers: a ledger file in the run directory
+    (:mod:`lagrseq.llm.ledger`)."""
+    if options is None or (options.max_cost_usd is None and options.max_queries is None):
+        return options
+    kind = parse_provider(provider_spec).kind
+    if kind != "live" and not (kind == "recorded" and options.on_miss == "live"):
+        return options
+    if options.budget_ledger is not None:
+        return options
+    directory.mkdir(parents=True, exist_ok=True)
+    return replace(options, budget_ledger=str(directory / LEDGER_NAME))
+
+
+LEDGER_NAME = "budget-ledger.sqlite"
+"""The run's shared budget ledger, in its run directory (only when a budget is set)."""
 
 
 def with_episodes(config: ExperimentConfig, episodes: int) -> ExperimentConfig:

@@ -110,22 +110,28 @@ class ProviderOptions:
     price_table: str | None = None
     """TOML file of prices over the built-in table."""
     max_cost_usd: float | None = None
-    """Per trial (live answers): stop before a request that could pass this many US dollars."""
+    """Live answers: stop before a request that could pass this many US dollars (per run with a
+    ``budget_ledger``: every trial and worker together; else per provider)."""
     max_queries: int | None = None
-    """Per trial (live answers): stop before a request that would pass this many answers."""
+    """Live answers: stop before a request that would pass this many answers (as above)."""
     read_timeout_s: float = 120.0
     """Seconds to wait for the next bytes of a response."""
     request_deadline_s: float = 300.0
     """Most seconds one request may take, from sending to the last byte (retried like a timeout)."""
     max_response_bytes: int = 4 * 1024 * 1024
     """Largest response body read, decompressed (a larger one fails at once, not retried)."""
+    budget_ledger: str | None = None
+    """SQLite file holding one budget for every trial and worker of a run (set by the runner when
+    a limit is given; not part of the metadata: it says where, not what)."""
 
     def __post_init__(self) -> None:
         if self.on_miss not in ON_MISS:
             raise UsageError(f"--on-miss {self.on_miss!r}; expected one of {', '.join(ON_MISS)}")
 
     def to_json(self) -> str:
-        return json.dumps(asdict(self), sort_keys=True)
+        fields = asdict(self)
+        fields.pop("budget_ledger")
+        return json.dumps(fields, sort_keys=True)
 
 
 def with_provider_model(config: ExperimentConfig, spec: str) -> ExperimentConfig:
@@ -197,6 +203,11 @@ def make_live(
     live = LiveProvider(settings, rng=rng, prices=prices, on_retry=on_retry)
     if not budgeted:
         return live
+    if options.budget_ledger is not None:
+        from lagrseq.llm.ledger import SharedBudget
+
+        shared = SharedBudget(options.budget_ledger, options.max_cost_usd, options.max_queries)
+        return BudgetedProvider(live, shared, prices)
     return BudgetedProvider(live, Budget(options.max_cost_usd, options.max_queries), prices)
 
 

@@ -45,17 +45,25 @@ LAYERS: dict[str, tuple[str, ...]] = {
     "lagrseq.experiment": (*PROVIDERS, "lagrseq.envs", "lagrseq.logs.mcap_writer", "lagrseq.analysis", *WIRING, *HEAVY),
     # wiring and the runners import the heavy parts lazily, where a trial needs them
     "lagrseq.wiring": ("lagrseq.analysis", "lagrseq.runner", "lagrseq.recording", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),
-    "lagrseq.runner": ("lagrseq.analysis", "lagrseq.recording", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),
+    "lagrseq.runner": ("lagrseq.analysis", "lagrseq.recording", "lagrseq.reproduce", "lagrseq.cli", "dask", "distributed", *HEAVY),
     "lagrseq.probe": ("lagrseq.analysis", "lagrseq.recording", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),
     "lagrseq.recording": ("lagrseq.analysis", "lagrseq.runner", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),
-    "lagrseq.reproduce": ("lagrseq.cli", *HEAVY),
+    "lagrseq.reproduce": ("lagrseq.cli", "dask", "distributed", *HEAVY),
+    # executors: the process pool and the interface; dask only in its own module, on demand
+    "lagrseq.executors": ("lagrseq.analysis", "lagrseq.recording", "lagrseq.reproduce", "lagrseq.cli", "dask", "distributed", *HEAVY),
+    "lagrseq.dask_executor": ("lagrseq.analysis", "lagrseq.recording", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),
     # the robot behind the arm env: no RL, no LLM, no logs; pybullet and grpc only when built
     "lagrseq.robot": ("lagrseq.tasks", "lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", "lagrseq.suite", *UPPER, *HEAVY, "grpc", "mcap", "gymnasium"),
     # the generated gRPC code imports protobuf and grpc themselves (the arm extra)
     "lagrseq.robot.proto": ("lagrseq.tasks", "lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", *UPPER, *HEAVY, "mcap"),
 }
-# Modules that import an optional extra at the top (generated code): not imported without it.
-NEEDS_EXTRA = {"lagrseq.robot.proto.robot_pb2": "google.protobuf", "lagrseq.robot.proto.robot_pb2_grpc": "grpc"}
+OPTIONAL = {
+    "lagrseq.dask_executor": ("distributed",),
+    "lagrseq.robot.proto.robot_pb2": ("google.protobuf",),
+    "lagrseq.robot.proto.robot_pb2_grpc": ("google.protobuf", "grpc"),
+}
+"""Modules that need an extra to import at all (the Dask executor, generated gRPC code): checked
+only where it is installed."""
 ANYONE = ("lagrseq.config", "lagrseq.errors", "lagrseq.seeding", "lagrseq.paths", "lagrseq.tomlfile")
 
 
@@ -120,7 +128,7 @@ def test_no_module_imports_what_its_layer_forbids() -> None:
             return False
 
     names = [m for m in modules() if m != "lagrseq.__main__"]  # importing it runs the command line
-    names = [m for m in names if m not in NEEDS_EXTRA or all(installed(x) for x in ("google.protobuf", "grpc"))]
+    names = [m for m in names if all(installed(x) for x in OPTIONAL.get(m, ()))]
     loaded = loaded_after_import(names)
     problems = {}
     for name in names:

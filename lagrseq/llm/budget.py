@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 from lagrseq.errors import BudgetExceeded
 from lagrseq.llm.base import Answer, Provider, Query, sample, samples_per_request
@@ -52,6 +53,23 @@ class Budget:
                 f"request could cost up to ${worst_cost:.4f} (not sent); raise the limit to go on"
             )
 
+    # The reservation protocol of a shared budget (lagrseq.llm.ledger.SharedBudget); a budget of
+    # one process needs no reservation: it checks before and charges after.
+    def reserve(self, query: Query, n: int, worst_cost: float | None) -> None:
+        self.check(query, n, worst_cost)
+
+    def settle(self, ticket: None, answers: list[Answer]) -> None:
+        self.charge(answers)
+
+    def release(self, ticket: None) -> None:
+        """A request that failed without answers costs nothing."""
+
+    def keep(self, ticket: None) -> None:
+        """An interrupted request: this process ends, its budget with it."""
+
+    def close(self) -> None:
+        """Nothing to release."""
+
     def charge(self, answers: list[Answer]) -> None:
         for answer in answers:
             self.answers += 1
@@ -64,7 +82,7 @@ class Budget:
 class BudgetedProvider:
     """``inner`` behind a budget check (a wrapper: the inner provider knows nothing of it)."""
 
-    def __init__(self, inner: Provider, budget: Budget, prices: PriceTable) -> None:
+    def __init__(self, inner: Provider, budget: Any, prices: PriceTable) -> None:
         self.inner = inner
         self.budget = budget
         self.prices = prices
@@ -79,13 +97,21 @@ class BudgetedProvider:
 
     def complete_n(self, query: Query, n: int) -> list[Answer]:
         requests = math.ceil(n / self.max_samples_per_request)
-        self.budget.check(query, n, self.prices.worst_case(query, n, requests))
-        answers = sample(self.inner, query, n)
-        self.budget.charge(answers)
+        ticket = self.budget.reserve(query, n, self.prices.worst_case(query, n, requests))
+        try:
+            answers = sample(self.inner, query, n)
+        except Exception:
+            self.budget.release(ticket)
+            raise
+        except BaseException:  # Ctrl-C mid-request: it may have been billed
+            self.budget.keep(ticket)
+            raise
+        self.budget.settle(ticket, answers)
         return answers
 
     def close(self) -> None:
         self.inner.close()
+        self.budget.close()
 
     def __enter__(self) -> BudgetedProvider:
         return self
