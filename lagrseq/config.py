@@ -448,9 +448,37 @@ class TabularSecondaryConfig(_Section):
     """p1 of the logistic query reward. Paper appendix: 20."""
     logistic_midpoint: float = ranged(0.9, ge=0, le=1)
     """p2 of the logistic query reward (on the normalised evaluation E/N). Paper appendix: 0.9."""
+    policy: Literal["seq", "never", "always", "random", "thompson", "oracle"] = "seq"
+    """When to ask, with method lagr-seq (lagrseq.policies): seq (the paper's bandit above), never,
+    always, random (ask with probability ask_probability), thompson (a posterior per context:
+    Beta-Bernoulli on acceptance with a binary query reward, Gaussian on the reward with the
+    logistic one; the context is the pattern's progress and how often this very pattern was
+    already answered wrongly, so it generalises across states) or oracle (asks only when the
+    answer would be accepted: it looks at the provider's answer first, uncounted; a lower bound
+    on queries, refused with live answers). Paper: seq."""
+    ask_probability: float = ranged(0.5, ge=0, le=1)
+    """policy = "random": probability of asking when triggered."""
+    query_cost: float = ranged(0.0, ge=0)
+    """lambda: a per-query cost subtracted from every query reward (When2Ask-style), so learning
+    policies (seq, thompson) ask only where an answer is worth it. Paper: 0."""
+    budget: int = ranged(0, ge=0)
+    """At most this many queries per budget_scope, whatever the policy decides (0: no budget)."""
+    budget_scope: Literal["trial", "episode"] = "trial"
+    """What the budget counts queries over."""
+    thompson_prior: tuple[float, ...] = ranged((1.0, 1.0), gt=0, le=1e6)
+    """policy = "thompson": Beta(a, b) prior on an answer being accepted at an unseen context (the
+    Gaussian posterior of the logistic reward starts at mean a / (a + b), variance 1 / (a + b))."""
 
     def _check(self) -> None:
         _check_epsilon(self.SECTION, self)
+        _check_policy(self.SECTION, self)
+
+
+def _check_policy(section: str, obj: Any) -> None:
+    if len(obj.thompson_prior) != 2:
+        raise ConfigError(
+            f"{section}.thompson_prior = {show_value(list(obj.thompson_prior))}; expected two numbers [a, b] > 0"
+        )
 
 
 def _check_network(section: str, hidden_sizes: tuple[int, ...], batch_size: int, buffer_size: int) -> None:
@@ -561,10 +589,31 @@ class NeuralSecondaryConfig(_Section):
     """p2 of the logistic query reward (on E/N). Paper appendix: 0.9."""
     device: Literal["cpu", "cuda", "auto"] = "cpu"
     """Where the network runs (as for the primary agent)."""
+    policy: Literal["seq", "never", "always", "random", "thompson", "oracle"] = "seq"
+    """When to ask, with method lagr-seq (lagrseq.policies): seq (the paper's bandit above), never,
+    always, random (ask with probability ask_probability), thompson (a posterior per context:
+    Beta-Bernoulli on acceptance with a binary query reward, Gaussian on the reward with the
+    logistic one; the context is the pattern's progress and how often this very pattern was
+    already answered wrongly, so it generalises across states) or oracle (asks only when the
+    answer would be accepted: it looks at the provider's answer first, uncounted; a lower bound
+    on queries, refused with live answers). Paper: seq."""
+    ask_probability: float = ranged(0.5, ge=0, le=1)
+    """policy = "random": probability of asking when triggered."""
+    query_cost: float = ranged(0.0, ge=0)
+    """lambda: a per-query cost subtracted from every query reward (When2Ask-style), so learning
+    policies (seq, thompson) ask only where an answer is worth it. Paper: 0."""
+    budget: int = ranged(0, ge=0)
+    """At most this many queries per budget_scope, whatever the policy decides (0: no budget)."""
+    budget_scope: Literal["trial", "episode"] = "trial"
+    """What the budget counts queries over."""
+    thompson_prior: tuple[float, ...] = ranged((1.0, 1.0), gt=0, le=1e6)
+    """policy = "thompson": Beta(a, b) prior on an answer being accepted at an unseen context (the
+    Gaussian posterior of the logistic reward starts at mean a / (a + b), variance 1 / (a + b))."""
 
     def _check(self) -> None:
         _check_network(self.SECTION, self.hidden_sizes, self.batch_size, self.buffer_size)
         _check_epsilon(self.SECTION, self)
+        _check_policy(self.SECTION, self)
 
 
 # --------------------------------------------------------------------------------------------

@@ -21,12 +21,13 @@ from typing import Any
 import msgspec
 import numpy as np
 
-from lagrseq.adapters import PrimaryAgent, SecondaryAgent, Step
+from lagrseq.adapters import PrimaryAgent, Step
 from lagrseq.agents.schedules import EpsilonSchedule
 from lagrseq.config import ExperimentConfig
 from lagrseq.lagr import Consultation, QueryTrigger, consult, follows
 from lagrseq.llm.base import Provider
 from lagrseq.logs.events import EpisodeEvent, QueryEvent, Sink, Transition, View, jsonable
+from lagrseq.policies import AskContext, AskingPolicy
 from lagrseq.seq import query_reward
 from lagrseq.tasks.base import Task
 
@@ -54,8 +55,9 @@ class TrialParts:
     task: Task
     env: Any
     primary: PrimaryAgent
-    secondary: SecondaryAgent | None
-    """None: LaGR without SEQ queries whenever triggered (``lagr``), or never (``baseline``)."""
+    secondary: AskingPolicy | None
+    """When to ask (``lagrseq.policies``): the configured policy of ``lagr-seq``, ``Always`` for
+    ``lagr``; None for ``baseline``, which never reaches a decision."""
     provider: Provider
     sink: Sink
     primary_epsilon: EpsilonSchedule
@@ -107,7 +109,7 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
                 # Exploration per episode (cube) or per step (grid DQNs); /episode logs the last.
                 episode.epsilon = parts.primary_epsilon.at(number, global_step)
                 if asks and solution is None and trigger.armed(task.progress(pattern), episode.last_reward):
-                    solution = _ask(parts, trigger, episode, pattern, global_step)
+                    solution = _ask(parts, trigger, episode, pattern, global_step, queries + episode.queries)
                 action, guided, observation, info = _act(parts, following, observation, info, episode.epsilon)
                 next_observation, reward, terminated, truncated, next_info = env.step(action)
                 # The released cube code does not update the primary agent on guided steps.
@@ -135,27 +137,36 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
     return TrialResult(path, parts.trial, episodes, global_step, queries, total_return, time.perf_counter() - started)
 
 
-def _ask(parts: TrialParts, trigger: QueryTrigger, episode: _Episode, pattern: Any, global_step: int) -> Any:
-    """SEQ + LaGR from the current state: the secondary agent decides; a query's answer is parsed,
-    evaluated and, above the threshold, accepted. Returns the accepted solution or None."""
-    config, secondary = parts.config, parts.secondary
-    epsilon = parts.secondary_epsilon.at(episode.number, global_step)
-    # LaGR without SEQ queries whenever triggered; SEQ draws from its own stream.
-    decision = 1 if secondary is None else secondary.decide(pattern, epsilon, parts.secondary_rng)
+def _ask(
+    parts: TrialParts, trigger: QueryTrigger, episode: _Episode, pattern: Any, global_step: int, queries: int
+) -> Any:
+    """SEQ + LaGR from the current state: the asking policy decides; a query's answer is parsed,
+    evaluated and, above the threshold, accepted. Returns the accepted solution or None.
+    ``queries``: the trial's queries so far."""
+    config, task, provider = parts.config, parts.task, parts.provider
+    policy = parts.secondary
+    assert policy is not None  # baseline never asks
+    context = AskContext(
+        pattern, task.progress(pattern), episode.number, episode.steps, global_step,
+        parts.secondary_epsilon.at(episode.number, global_step), parts.secondary_rng, queries, episode.queries,
+        lambda: consult(task, provider, config.llm, config.lagr.threshold, pattern),
+    )
+    decision = policy.decide(context)
     event = QueryEvent(parts.trial, episode.number, episode.steps, global_step, jsonable(pattern), int(decision))
     solution = None
     reward = 0.0  # not querying earns the neutral reward
     if decision == 1:
-        result = consult(parts.task, parts.provider, config.llm, config.lagr.threshold, pattern)
-        trigger.queried(parts.task.progress(pattern))
-        reward = query_reward(result.evaluation, result.accepted, config.secondary)
+        # The oracle's look at the answer becomes the query it decided to make.
+        result = context.peeked or consult(task, provider, config.llm, config.lagr.threshold, pattern)
+        trigger.queried(task.progress(pattern))
+        reward = query_reward(result.evaluation, result.accepted, config.secondary) - config.secondary.query_cost
+        context.evaluation, context.accepted = result.evaluation, result.accepted
         episode.queries += 1
         if result.accepted:
             episode.accepted += 1
             solution = result.parsed.solution
-        event = query_event(event, result, parts.provider.name, config.llm.temperature, reward)
-    if secondary is not None:
-        secondary.update(pattern, decision, reward)
+        event = query_event(event, result, provider.name, config.llm.temperature, reward)
+    policy.update(context, decision, reward)
     parts.sink.write(event)
     return solution
 

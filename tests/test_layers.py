@@ -40,6 +40,7 @@ LAYERS: dict[str, tuple[str, ...]] = {
     "lagrseq.suite": ("lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", *UPPER, *HEAVY),
     "lagrseq.lagr": (*PROVIDERS, "lagrseq.logs", "lagrseq.envs", "lagrseq.experiment", *WIRING, *HEAVY),
     "lagrseq.seq": ("lagrseq.llm", "lagrseq.logs", "lagrseq.envs", "lagrseq.tasks", "lagrseq.experiment", *WIRING, *HEAVY),
+    "lagrseq.policies": ("lagrseq.llm", "lagrseq.logs", "lagrseq.envs", "lagrseq.tasks", "lagrseq.agents", "lagrseq.experiment", *WIRING, *HEAVY),
     "lagrseq.adapters": ("lagrseq.llm", "lagrseq.logs", "lagrseq.envs", "lagrseq.experiment", *WIRING, *HEAVY),
     # the loop knows interfaces only: no concrete env, provider or sink implementation
     "lagrseq.experiment": (*PROVIDERS, "lagrseq.envs", "lagrseq.logs.mcap_writer", "lagrseq.analysis", *WIRING, *HEAVY),
