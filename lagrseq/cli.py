@@ -379,7 +379,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     unit, per_trial = runner.progress_unit(config)
     with _bar(args.trials * per_trial, unit, f"{args.task} {args.method}", args.quiet) as bar:
         results = runner.run_trials(config, args.trials, args.seed, args.provider, directory, args.jobs, bar, options)
-    print(runner.summary(results, directory))
+    print(runner.summary(results, directory, args.provider))
     return 0
 
 

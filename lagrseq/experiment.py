@@ -44,6 +44,9 @@ class TrialResult:
     total_return: float
     seconds: float
     skipped: bool = False
+    sources: tuple[tuple[str, int], ...] = ()
+    """Queries per answer source (``recorded``, ``mock``, ``live``), sorted: with
+    ``recorded:STORE``, answers from another source are store misses a fallback answered."""
 
 
 @dataclass(frozen=True)
@@ -81,6 +84,8 @@ class _Episode:
     accepted: int = 0
     guided_steps: int = 0
     total: float = 0.0
+    sources: dict[str, int] | None = None
+    """Queries per answer source (set at the first query)."""
     epsilon: float = 0.0
     last_reward: float = 0.0
 
@@ -94,6 +99,7 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
     solution: Any = None  # the accepted LLM solution (pi_LLM); None while there is none
     global_step = episodes = queries = 0
     total_return = 0.0
+    sources: dict[str, int] = {}
     with sink, parts.provider:
         for number in itertools.count():
             if _out_of_budget(config, number, global_step):
@@ -131,10 +137,16 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
             episodes += 1
             queries += episode.queries
             total_return += episode.total
+            if episode.sources:
+                for source, count in episode.sources.items():
+                    sources[source] = sources.get(source, 0) + count
             if on_episode is not None:
                 on_episode(episode.steps)
     env.close()
-    return TrialResult(path, parts.trial, episodes, global_step, queries, total_return, time.perf_counter() - started)
+    return TrialResult(
+        path, parts.trial, episodes, global_step, queries, total_return, time.perf_counter() - started,
+        sources=tuple(sorted(sources.items())),
+    )
 
 
 def _ask(
@@ -162,6 +174,10 @@ def _ask(
         reward = query_reward(result.evaluation, result.accepted, config.secondary) - config.secondary.query_cost
         context.evaluation, context.accepted = result.evaluation, result.accepted
         episode.queries += 1
+        if episode.sources is None:
+            episode.sources = {}
+        source = result.answer.source
+        episode.sources[source] = episode.sources.get(source, 0) + 1
         if result.accepted:
             episode.accepted += 1
             solution = result.parsed.solution

@@ -324,7 +324,23 @@ def prepare(
     return config, run_directory(out, config, provider_spec, seed, name)
 
 
-def summary(results: list[TrialResult], directory: Path) -> str:
+def miss_report(results: list[TrialResult], provider_spec: str) -> list[str]:
+    """With ``recorded:STORE``: ``answers: N from the store, M from the fallback mock (P% missed
+    the store)``; nothing for other providers."""
+    if parse_provider(provider_spec).kind != "recorded":
+        return []
+    totals: dict[str, int] = {}
+    for result in results:
+        for source, count in result.sources:
+            totals[source] = totals.get(source, 0) + count
+    stored = totals.pop("recorded", 0)
+    missed = sum(totals.values())
+    share = 100.0 * missed / (stored + missed) if stored + missed else 0.0
+    fallback = ", ".join(f"{n} from the fallback {source}" for source, n in sorted(totals.items())) or "none from a fallback"
+    return [f"answers: {stored} from the store, {fallback} ({share:.1f}% missed the store)"]
+
+
+def summary(results: list[TrialResult], directory: Path, provider_spec: str = "") -> str:
     """What ``lagrseq run`` prints at the end: where the logs are, queries and return per trial."""
     ran = [r for r in results if not r.skipped]
     skipped = len(results) - len(ran)
@@ -338,4 +354,6 @@ def summary(results: list[TrialResult], directory: Path) -> str:
             f"return per trial {returns.mean():.1f}, "
             f"{np.mean([r.seconds for r in ran]):.2f} s per trial"
         )
+        if provider_spec:
+            lines.extend(miss_report(ran, provider_spec))
     return "\n".join(lines)

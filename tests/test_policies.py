@@ -14,7 +14,7 @@ import pytest
 
 from lagrseq import config as cfg
 from lagrseq.errors import UsageError
-from lagrseq.logs.reader import iter_messages, read_topic
+from lagrseq.logs.reader import iter_messages, read_info, read_topic
 from lagrseq.policies import (
     Always,
     AskContext,
@@ -225,3 +225,30 @@ def test_query_cost_reaches_the_logged_reward(tmp_path: Path) -> None:
     assert queries
     for q in queries:
         assert q["query_reward"] == pytest.approx((1.0 if q["accepted"] else -1.0) - 0.25)
+
+
+def test_miss_report_counts_store_and_fallback_answers(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from lagrseq import cli
+    from tests.llm.conftest import authors_cache
+
+    store = tmp_path / "store"
+    path = authors_cache("cube_stacking_cache0.0.pkl")
+    assert cli.main(["cache", "import", str(path), "--task", "cube-stacking", "--model", "gpt-3.5-turbo",
+                     "--temperature", "0", "--store", str(store)]) == 0
+    common = ["run", "cube-stacking", "--method", "lagr", "--provider", f"recorded:{store}", "--on-miss", "mock",
+              "--trials", "1", "--out", str(tmp_path / "runs"), "--quiet", "--set", "run.episodes=8"]
+    capsys.readouterr()
+    assert cli.main(common) == 0  # 8 cubes: the cache holds every prefix
+    hit = capsys.readouterr().out
+    assert cli.main([*common, "--set", "task.stack_size=5"]) == 0  # 5 cubes: no key is in the store
+    miss = capsys.readouterr().out
+    counts = {}
+    for log in sorted((tmp_path / "runs").rglob("*.mcap")):
+        sent = [q for q in read_topic(log, "/query") if q["queried"]]
+        counts[read_info(log).config["task"]["stack_size"]] = (
+            sum(q["source"] == "recorded" for q in sent), sum(q["source"] == "mock" for q in sent))
+    stored, _ = counts[8]
+    _, fallback = counts[5]
+    assert counts[8][1] == 0 and counts[5][0] == 0 and stored > 0 and fallback > 0
+    assert f"answers: {stored} from the store, none from a fallback (0.0% missed the store)" in hit
+    assert f"answers: 0 from the store, {fallback} from the fallback mock (100.0% missed the store)" in miss
