@@ -46,6 +46,7 @@ LAYERS: dict[str, tuple[str, ...]] = {
     "lagrseq.experiment": (*PROVIDERS, "lagrseq.envs", "lagrseq.logs.mcap_writer", "lagrseq.analysis", *WIRING, *HEAVY),
     # wiring and the runners import the heavy parts lazily, where a trial needs them
     "lagrseq.wiring": ("lagrseq.analysis", "lagrseq.runner", "lagrseq.recording", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),
+    "lagrseq.frontier": ("lagrseq.analysis", "lagrseq.cli", *HEAVY),
     "lagrseq.runner": ("lagrseq.analysis", "lagrseq.recording", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),
     "lagrseq.probe": ("lagrseq.analysis", "lagrseq.recording", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),
     "lagrseq.recording": ("lagrseq.analysis", "lagrseq.runner", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),

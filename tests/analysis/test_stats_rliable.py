@@ -56,3 +56,15 @@ def test_performance_profile_is_the_fraction_above_each_threshold() -> None:
     assert profile.tolist() == [1.0, 0.5, 0.0]
     # above 0 and above 4 no resample differs; above 2.5 exactly stratum two counts (always half)
     assert low.tolist() == [1.0, 0.5, 0.0] and high.tolist() == [1.0, 0.5, 0.0]
+
+
+def test_vectorised_intervals_match_the_generic_stratified_bootstrap() -> None:
+    strata = [[3.0, 1.0, 4.0, 1.0, 5.0], [9.0, 2.0, 6.0]]
+    _, low, high = stats.iqm_ci(strata, np.random.default_rng(3), 800)
+    generic = stats.stratified_bootstrap_ci(strata, lambda gs: stats.iqm(np.concatenate(gs)), np.random.default_rng(3), 800)
+    assert (low, high) == pytest.approx(generic)
+    x, y = [[1.0, 4.0, 2.0, 8.0]], [[3.0, 3.0, 5.0]]
+    _, low, high = stats.probability_of_improvement_ci(x, y, np.random.default_rng(4), 600)
+    # pairs: 1<3,1<3,1<5, 4>3,4>3,4<5, 2<3,2<3,2<5, 8>3,8>3,8>5 -> 5 of 12
+    assert stats.probability_of_improvement(x, y) == pytest.approx(5 / 12)
+    assert low <= 5 / 12 <= high and 0.0 <= low < high <= 1.0
