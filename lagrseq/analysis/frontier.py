@@ -102,7 +102,8 @@ def _panel_key(run: Run) -> tuple[str, str, str, int]:
 
 def _dollars(run: Run, price: Price | None, fallback_tokens: tuple[float, float] | None) -> tuple[np.ndarray, bool]:
     """What each trial's queries would cost live: a live answer's logged cost; else its logged
-    token usage at ``price``; else ``fallback_tokens`` (estimated)."""
+    token usage (a mock's estimate) at ``price`` for the configured ``llm.model``; else
+    ``fallback_tokens`` (estimated)."""
     trials = list(run.trials)
     q = run.queries
     if q.empty:
@@ -110,6 +111,7 @@ def _dollars(run: Run, price: Price | None, fallback_tokens: tuple[float, float]
     sent = q[q["queried"].astype(bool)]
     per_trial = dict.fromkeys(trials, 0.0)
     estimated = False
+    asked = str(run.config.get("llm", {}).get("model", ""))  # what a live run would pay for
     for trial, model, source, cost, prompt, completion in zip(
         sent["trial"], sent["model"], sent["source"], sent["cost_usd"], sent["prompt_tokens"],
         sent["completion_tokens"], strict=True,
@@ -124,7 +126,7 @@ def _dollars(run: Run, price: Price | None, fallback_tokens: tuple[float, float]
             elif fallback_tokens is not None:
                 tokens, estimated = fallback_tokens, True
             if tokens is not None and price is not None:
-                usd = price(str(model), int(tokens[0]), int(tokens[1]))
+                usd = price(asked or str(model), int(tokens[0]), int(tokens[1]))
         per_trial[int(trial)] += math.nan if usd is None else usd
     return np.array([per_trial[t] for t in trials]), estimated
 
