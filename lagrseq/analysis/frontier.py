@@ -121,7 +121,7 @@ def _dollars(run: Run, price: Price | None, fallback_tokens: tuple[float, float]
             usd = float(cost)
         else:
             tokens: tuple[float, float] | None = None
-            if not _nan(prompt):
+            if not _nan(prompt) and float(prompt) > 0:  # imported answers log no usage (0)
                 tokens = (float(prompt), 0.0 if _nan(completion) else float(completion))
             elif fallback_tokens is not None:
                 tokens, estimated = fallback_tokens, True
@@ -170,7 +170,7 @@ def _median_tokens(runs: Sequence[Run]) -> tuple[float, float] | None:
     usage); without any, the task's estimate (:func:`estimated_tokens`)."""
     frames = [r.queries for r in runs if not r.queries.empty]
     q = pd.concat(frames) if frames else pd.DataFrame(columns=["queried", "prompt_tokens"])
-    q = q[q["queried"].astype(bool) & q["prompt_tokens"].notna()]
+    q = q[q["queried"].astype(bool) & (q["prompt_tokens"].fillna(0).astype(float) > 0)]
     if q.empty:
         return estimated_tokens(runs[0].config) if runs else None
     return float(q["prompt_tokens"].astype(float).median()), float(q["completion_tokens"].fillna(0).astype(float).median())
