@@ -268,13 +268,21 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD) -> Ta
     return Table(title, columns, tuple(rows), pd.DataFrame(data))
 
 
-def _curves(points: Sequence[Point]) -> dict[str, list[Point]]:
-    families: dict[str, list[Point]] = {}
+def _curves(points: Sequence[Point]) -> list[tuple[str, list[Point]]]:
+    """One curve per policy and swept knob (``thompson`` over cost, ``thompson`` over budget...);
+    the policy's point without knobs starts every one of its curves (cost 0, no budget)."""
+    plain = {p.policy: p for p in points if not p.knobs}
+    curves: dict[tuple[str, str], list[Point]] = {}
     for p in points:
-        families.setdefault(p.policy, []).append(p)
-    for family in families.values():
-        family.sort(key=lambda p: (p.summary["queries"][0], p.summary["returns"][0]))
-    return families
+        names = " ".join(p.knobs.split()[0::2])
+        curves.setdefault((p.policy, names), []).append(p)
+    out = []
+    for (policy, names), members in curves.items():
+        if names and policy in plain:
+            members = [plain[policy], *members]
+        members.sort(key=lambda p: (p.summary["queries"][0], p.summary["returns"][0]))
+        out.append((policy, members))
+    return out
 
 
 def draw(points: Sequence[Point], title: str, miss_threshold: float = MISS_THRESHOLD) -> Figure:
@@ -283,30 +291,33 @@ def draw(points: Sequence[Point], title: str, miss_threshold: float = MISS_THRES
     markers: more than ``miss_threshold`` of the answers came from a fallback."""
     figure = Figure(figsize=(11.5, 8.4), layout="constrained")
     axes = figure.subplots(2, 2)
-    families = _curves(points)
+    curves = _curves(points)
+    colors = {name: COLORS[i % len(COLORS)] for i, name in enumerate(dict.fromkeys(p.policy for p in points))}
     for (row, y_name, y_label) in ((0, "returns", "Return per trial"), (1, "steps_to_solve", "Steps to the first solved episode")):
         for (col, x_name, x_label) in ((0, "queries", "LLM queries per trial"), (1, "dollars", "US dollars per trial")):
             ax = axes[row][col]
-            for i, (name, family) in enumerate(families.items()):
-                color = COLORS[i % len(COLORS)]
+            for _, family in curves:
                 xs = [p.summary[x_name][0] for p in family]
                 ys = [p.summary[y_name][0] for p in family]
                 if len(family) > 1:
-                    ax.plot(xs, ys, "-", color=color, alpha=0.6, linewidth=1.2)
-                for p, x, y in zip(family, xs, ys, strict=True):
-                    _, xl, xh = p.summary[x_name]
-                    _, yl, yh = p.summary[y_name]
-                    xerr = [[max(x - xl, 0)], [max(xh - x, 0)]] if not math.isnan(xl) else None
-                    yerr = [[max(y - yl, 0)], [max(yh - y, 0)]] if not math.isnan(yl) else None
-                    hollow = p.miss_share > miss_threshold
-                    marker = "*" if p.policy in PAPER_ROWS and not p.knobs else "o"
-                    ax.errorbar(
-                        [x], [y], xerr=xerr, yerr=yerr, fmt=marker, color=color, markersize=9 if marker == "*" else 6,
-                        markerfacecolor="white" if hollow else color, capsize=2, linewidth=0.8,
-                        label=name if p is family[0] else None,
-                    )
-                    if p.knobs:
-                        ax.annotate(p.knobs, (x, y), textcoords="offset points", xytext=(4, 4), fontsize=7, color=color)
+                    ax.plot(xs, ys, "-", color=colors[family[0].policy], alpha=0.6, linewidth=1.2)
+            seen: set[str] = set()
+            for p in points:
+                color = colors[p.policy]
+                x, xl, xh = p.summary[x_name]
+                y, yl, yh = p.summary[y_name]
+                xerr = [[max(x - xl, 0)], [max(xh - x, 0)]] if not math.isnan(xl) else None
+                yerr = [[max(y - yl, 0)], [max(yh - y, 0)]] if not math.isnan(yl) else None
+                hollow = p.miss_share > miss_threshold
+                marker = "*" if p.policy in PAPER_ROWS and not p.knobs else "o"
+                ax.errorbar(
+                    [x], [y], xerr=xerr, yerr=yerr, fmt=marker, color=color, markersize=10 if marker == "*" else 6,
+                    markerfacecolor="white" if hollow else color, capsize=2, linewidth=0.8,
+                    label=p.policy if p.policy not in seen else None,
+                )
+                seen.add(p.policy)
+                if p.knobs:
+                    ax.annotate(p.knobs, (x, y), textcoords="offset points", xytext=(4, 4), fontsize=7, color=color)
             ax.set_xlabel(x_label + (" (estimated)" if x_name == "dollars" and any(p.estimated_dollars for p in points) else ""))
             ax.set_ylabel(y_label)
             if row == 0 and col == 0:
