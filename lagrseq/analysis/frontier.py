@@ -318,12 +318,31 @@ def draw(points: Sequence[Point], title: str, miss_threshold: float = MISS_THRES
                 seen.add(p.policy)
                 if p.knobs:
                     ax.annotate(p.knobs, (x, y), textcoords="offset points", xytext=(4, 4), fontsize=7, color=color)
+            _zoom(ax, points, y_name)
             ax.set_xlabel(x_label + (" (estimated)" if x_name == "dollars" and any(p.estimated_dollars for p in points) else ""))
             ax.set_ylabel(y_label)
             if row == 0 and col == 0:
                 ax.legend(loc="best", title="policy (* = paper's)")
     figure.suptitle(title + f"\nhollow: > {100 * miss_threshold:.0f}% of answers from the fallback; bars: 95% bootstrap CI")
     return figure
+
+
+def _zoom(ax: Any, points: Sequence[Point], y_name: str) -> None:
+    """When a point that never asks lies far from every asking policy (the plain RL agent's
+    return is often a small fraction of a guided one's), zoom on the asking policies so their
+    differences show, and name the points left off the axis."""
+    asking = [p for p in points if p.summary["queries"][0] > 0]
+    if len(asking) < 2:
+        return
+    bounds = [v for p in asking for v in p.summary[y_name] if not math.isnan(v)]
+    low, high = min(bounds), max(bounds)
+    span = max(high - low, 1e-9)
+    off = [p for p in points if not low - 2 * span <= p.summary[y_name][0] <= high + 2 * span]
+    if not off:
+        return
+    ax.set_ylim(low - 0.15 * span, high + 0.25 * span)
+    text = "; ".join(f"{p.label}: {p.summary[y_name][0]:.4g}" for p in off)
+    ax.text(0.01, 0.01, f"off the axis: {text}", transform=ax.transAxes, fontsize=7, va="bottom")
 
 
 def draw_profiles(points: Sequence[Point], title: str) -> Figure:
