@@ -349,8 +349,11 @@ def draw_profiles(points: Sequence[Point], title: str) -> Figure:
     """Performance profiles of the per-trial return (fraction of trials above each return)."""
     figure = Figure(figsize=(6.4, 4.4), layout="constrained")
     ax = figure.add_subplot()
-    every = np.concatenate([p.returns for p in points]) if points else np.zeros(1)
-    taus = np.linspace(float(every.min()), float(every.max()), 60)
+    asking = [p for p in points if p.summary.get("queries", (1.0,))[0] > 0] or list(points)
+    every = np.concatenate([p.returns for p in asking]) if asking else np.zeros(1)
+    least, most = float(every.min()), float(every.max())
+    pad = max(most - least, 1e-9) * 0.05
+    taus = np.linspace(least - pad, most + pad, 80)  # over the asking policies' returns (never's are often far below)
     for i, p in enumerate(points):
         profile, low, high = stats.performance_profile_ci([p.returns], taus, stats.generator(f"frontier/{p.label}/profile"), 500)
         color = COLORS[i % len(COLORS)]
