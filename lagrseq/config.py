@@ -720,8 +720,34 @@ class ExperimentConfig:
         return json.dumps(self.to_dict(), sort_keys=True)
 
     def digest(self) -> str:
-        """Short sha256 of the configuration, for directory names."""
-        return hashlib.sha256(self.to_json().encode()).hexdigest()[:8]
+        """Short sha256 of the configuration, for directory names (and the seeds of replay's
+        bootstraps). The asking-policy fields of ``[secondary]`` count only when they differ
+        from their defaults, so a configuration made before they existed keeps its digest."""
+        return config_digest(json.loads(self.to_json()))
+
+
+POLICY_DEFAULTS: dict[str, Any] = {
+    "policy": "seq",
+    "ask_probability": 0.5,
+    "query_cost": 0.0,
+    "budget": 0,
+    "budget_scope": "trial",
+    "thompson_prior": (1.0, 1.0),
+}
+"""The asking-policy fields of ``[secondary]`` and their defaults (see ``digest``)."""
+
+
+def config_digest(data: dict[str, Any]) -> str:
+    """Short sha256 of a configuration as JSON data (``ExperimentConfig.to_json`` read back):
+    the asking-policy fields count only when they differ from their defaults, so a configuration
+    made before they existed keeps its digest (run directories, replay's bootstrap seeds)."""
+    data = {k: dict(v) if isinstance(v, dict) else v for k, v in data.items()}
+    secondary = data.get("secondary")
+    if isinstance(secondary, dict):
+        for name, default in POLICY_DEFAULTS.items():
+            if name in secondary and secondary[name] == (list(default) if isinstance(default, tuple) else default):
+                del secondary[name]
+    return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:8]
 
 
 # Which dataclass reads each section, per task.

@@ -146,9 +146,15 @@ def _differences(logged: dict[str, Any], wanted: dict[str, Any], prefix: str = "
 def check_resumable(path: Path, config: ExperimentConfig, seed: int, provider_spec: str, trial: int) -> None:
     """A complete log may stand for trial ``trial`` of this run only if it was made with the
     same configuration, seed and provider; otherwise the rerun is refused."""
+    from lagrseq import config as cfg
+    from lagrseq.errors import ConfigError
+
     info = read_info(path)
     wanted = json.loads(config.to_json())
-    differences = _differences(info.config, wanted)
+    logged = info.config
+    with contextlib.suppress(ConfigError):  # a log made before a field existed holds its default
+        logged = json.loads(cfg.from_dict(logged).to_json())
+    differences = _differences(logged, wanted)
     for key, value in (("seed", str(seed)), ("provider", provider_spec), ("trial", str(trial))):
         if info.run.get(key) != value:
             differences.append(f"{key}: {json.dumps(info.run.get(key))} -> {json.dumps(value)}")

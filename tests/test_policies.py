@@ -252,3 +252,18 @@ def test_miss_report_counts_store_and_fallback_answers(tmp_path: Path, capsys: p
     assert counts[8][1] == 0 and counts[5][0] == 0 and stored > 0 and fallback > 0
     assert f"answers: {stored} from the store, none from a fallback (0.0% missed the store)" in hit
     assert f"answers: 0 from the store, {fallback} from the fallback mock (100.0% missed the store)" in miss
+
+
+def test_digest_ignores_policy_fields_at_their_defaults() -> None:
+    config = cfg.load("cube-stacking", "lagr-seq", "upstream")
+    data = json.loads(config.to_json())
+    old = {k: dict(v) if isinstance(v, dict) else v for k, v in data.items()}
+    for name in cfg.POLICY_DEFAULTS:
+        del old["secondary"][name]  # a configuration logged before the fields existed
+    assert cfg.config_digest(old) == cfg.config_digest(data) == config.digest()
+    other = cfg.load("cube-stacking", "lagr-seq", "upstream", None, ['secondary.policy="thompson"'])
+    assert other.digest() != config.digest()
+    # and a log without the fields is resumable by a run that has them at their defaults
+    from lagrseq.runner import _differences
+
+    assert _differences(json.loads(cfg.from_dict(old).to_json()), data) == []
