@@ -233,6 +233,51 @@ def _add_robot(sub: Any) -> None:
     serve.add_argument("--port", type=_PORT, default=50051, help="TCP port (default 50051; 0 picks a free one and prints it)")
 
 
+def _add_frontier(sub: Any) -> None:
+    from lagrseq.frontier import KNOBS, NAMES
+    from lagrseq.wiring import ON_MISS
+
+    p = sub.add_parser(
+        "frontier",
+        parents=[_experiment_options(), _live_options(per="trial"), _quiet()],
+        help="run asking policies on one task and draw return against queries and dollars",
+        description=(
+            "Run every asking policy of --policies (and --sweep) on TASK with one provider, as "
+            "ordinary runs under OUT (resumable, MCAP logs), then write OUT/frontier/: the "
+            "frontier PNG (return and steps to the first solved episode against queries and US "
+            "dollars per trial, 95%% bootstrap intervals on both axes, a swept knob as a curve), "
+            "performance profiles, and a Markdown/CSV table (mean, IQM with a stratified "
+            "bootstrap interval, probability of improvement over always, fallback answers) with "
+            "the paper's SEQ and LaGR rows marked. never = --method baseline, always = --method "
+            "lagr, the others = --method lagr-seq with secondary.policy. --replay DIR rebuilds the "
+            "report from the logs under DIR alone (no trial runs). With recorded:STORE nothing is "
+            "ever sent unless --on-miss live is given."
+        ),
+        epilog=(
+            "examples:\n"
+            "  lagrseq frontier cube-stacking --provider recorded:store --on-miss mock \\\n"
+            "      --policies never,always,seq,oracle,thompson --sweep thompson:query_cost=0.25,0.5 --trials 10 --out fr\n"
+            "  lagrseq frontier object-arrangement --provider recorded:store --on-miss mock \\\n"
+            "      --policies always,seq,thompson:query_cost=0.5,random:ask_probability=0.1 --trials 5 --out fr\n"
+            "  lagrseq frontier --replay fr --out fr/frontier     # the report again, from the logs"
+        ),
+        formatter_class=_RAW,
+    )
+    from lagrseq.config import tasks
+
+    p.add_argument("task", metavar="TASK", nargs="?", choices=tasks(), help=f"one of: {', '.join(tasks())} (not with --replay)")
+    p.add_argument("--policies", default="never,always,seq,thompson,oracle", metavar="LIST", help=f"comma-separated NAME or NAME:FIELD=VALUE[:FIELD=VALUE]; names: {', '.join(NAMES)}; fields: {', '.join(KNOBS)} (default: never,always,seq,thompson,oracle)")
+    p.add_argument("--sweep", action="append", default=[], metavar="NAME:FIELD=V1,V2", help="one variant per value, drawn as a curve (repeatable), e.g. thompson:query_cost=0.25,0.5,0.75")
+    p.add_argument("--provider", default="mock", metavar="SPEC", help="mock, mock:PROFILE, recorded:STORE or live[:MODEL] (default: mock)")
+    p.add_argument("--on-miss", choices=ON_MISS, default="error", help="recorded:STORE only: what answers a query the store lacks (default: error)")
+    p.add_argument("--trials", type=_COUNT, default=5, help="trials per policy (default 5)")
+    p.add_argument("--seed", type=_SEED, default=0, help="run seed (default 0)")
+    p.add_argument("--jobs", type=_COUNT, default=1, help="trials run in parallel processes (default 1)")
+    p.add_argument("--out", type=Path, default=Path("frontier"), help="runs go to OUT/<task>/<method>/..., the report to OUT/frontier (default: frontier)")
+    p.add_argument("--replay", type=Path, default=None, metavar="DIR", help="rebuild the report from the logs under DIR (writes to --out) and run nothing")
+    p.add_argument("--miss-threshold", type=_N["budget"], default=0.1, metavar="F", help="mark points whose share of fallback answers exceeds F (default 0.1)")
+
+
 def _add_config(sub: Any) -> None:
     from lagrseq.config import METHODS
 
@@ -404,7 +449,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"lagrseq {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    for add in (_add_run, _add_config, _add_record, _add_cache, _add_reproduce, _add_replay, _add_recover, _add_robot):
+    for add in (_add_run, _add_config, _add_record, _add_cache, _add_reproduce, _add_replay, _add_recover, _add_robot, _add_frontier):
         add(sub)
     return parser
 
@@ -442,7 +487,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                 # a failed trial is named at once above the bar; --quiet: only in the closing line
                 warn=None if args.quiet else (lambda line: bar.write(f"lagrseq run: warning: {line}", file=sys.stderr)),
             )
-    print(runner.summary(results, directory))
+    print(runner.summary(results, directory, args.provider))
     return 0
 
 
@@ -530,6 +575,46 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_frontier(args: argparse.Namespace) -> int:
+    import time
+
+    from lagrseq import frontier
+    from lagrseq.analysis.frontier import report
+    from lagrseq.errors import UsageError
+    from lagrseq.paths import writable_directory
+
+    started = time.perf_counter()
+    price = _price_function(args.price_table)
+    if args.replay is not None:
+        if not args.replay.is_dir():
+            raise UsageError(f"--replay {args.replay}: not a directory of run logs")
+        out = writable_directory(args.out)
+        roots = [args.replay]
+    else:
+        if args.task is None:
+            raise UsageError("frontier needs a TASK (or --replay DIR)")
+        variants = frontier.parse_policies(args.policies)
+        for sweep in args.sweep:
+            variants += [v for v in frontier.parse_sweep(sweep) if v not in variants]
+        base = writable_directory(args.out)
+        options = _provider_options(args)
+        directories = frontier.run_frontier(
+            args.task, variants, args.provider, options, base, args.trials, args.seed, args.preset, args.config,
+            args.overrides, args.jobs, progress=lambda desc, total, unit: _bar(total, unit, desc, args.quiet),
+        )
+        frontier.write_index(base, variants, directories)
+        out, roots = base / "frontier", directories
+    made = report(roots, out, price, args.miss_threshold)
+    for warning in made.warnings:
+        print(f"lagrseq frontier: warning: {warning}", file=sys.stderr)
+    for table in made.tables:
+        print(table.title)
+        for row in table.rows:
+            print(f"  {row[0]:<32} queries {row[3]:<24} return {row[5]:<28} fallback {row[10]}")
+    print(f"{len(made.written)} files in {out} ({time.perf_counter() - started:.1f} s)")
+    return 0
+
+
 def cmd_reproduce(args: argparse.Namespace) -> int:
     from lagrseq import reproduce
 
@@ -609,11 +694,13 @@ COMMANDS = {
     "replay": cmd_replay,
     "reproduce": cmd_reproduce,
     "robot": cmd_robot,
+    "frontier": cmd_frontier,
 }
 INTERRUPTED = {
     "run": "finished trial logs are kept, unfinished ones left as .partial (lagrseq recover); run the same command to go on",
     "record": "answers recorded so far are kept in the store; run the same command to go on",
     "reproduce": "finished trial logs are kept, unfinished ones left as .partial; run the same command to go on",
+    "frontier": "finished trial logs are kept, unfinished ones left as .partial; run the same command to go on",
 }
 
 

@@ -503,9 +503,37 @@ class TabularSecondaryConfig(_Section):
     """p1 of the logistic query reward. Paper appendix: 20."""
     logistic_midpoint: float = ranged(0.9, ge=0, le=1)
     """p2 of the logistic query reward (on the normalised evaluation E/N). Paper appendix: 0.9."""
+    policy: Literal["seq", "never", "always", "random", "thompson", "oracle"] = "seq"
+    """When to ask, with method lagr-seq (lagrseq.policies): seq (the paper's bandit above), never,
+    always, random (ask with probability ask_probability), thompson (a posterior per context:
+    Beta-Bernoulli on acceptance with a binary query reward, Gaussian on the reward with the
+    logistic one; the context is the pattern's progress and how often this very pattern was
+    already answered wrongly, so it generalises across states) or oracle (asks only when the
+    answer would be accepted: it looks at the provider's answer first, uncounted; a lower bound
+    on queries, refused with live answers). Paper: seq."""
+    ask_probability: float = ranged(0.5, ge=0, le=1)
+    """policy = "random": probability of asking when triggered."""
+    query_cost: float = ranged(0.0, ge=0)
+    """lambda: a per-query cost subtracted from every query reward (When2Ask-style), so learning
+    policies (seq, thompson) ask only where an answer is worth it. Paper: 0."""
+    budget: int = ranged(0, ge=0)
+    """At most this many queries per budget_scope, whatever the policy decides (0: no budget)."""
+    budget_scope: Literal["trial", "episode"] = "trial"
+    """What the budget counts queries over."""
+    thompson_prior: tuple[float, ...] = ranged((1.0, 1.0), gt=0, le=1e6)
+    """policy = "thompson": Beta(a, b) prior on an answer being accepted at an unseen context (the
+    Gaussian posterior of the logistic reward starts at mean a / (a + b), variance 1 / (a + b))."""
 
     def _check(self) -> None:
         _check_epsilon(self.SECTION, self)
+        _check_policy(self.SECTION, self)
+
+
+def _check_policy(section: str, obj: Any) -> None:
+    if len(obj.thompson_prior) != 2:
+        raise ConfigError(
+            f"{section}.thompson_prior = {show_value(list(obj.thompson_prior))}; expected two numbers [a, b] > 0"
+        )
 
 
 def _check_network(section: str, hidden_sizes: tuple[int, ...], batch_size: int, buffer_size: int) -> None:
@@ -616,10 +644,31 @@ class NeuralSecondaryConfig(_Section):
     """p2 of the logistic query reward (on E/N). Paper appendix: 0.9."""
     device: Literal["cpu", "cuda", "auto"] = "cpu"
     """Where the network runs (as for the primary agent)."""
+    policy: Literal["seq", "never", "always", "random", "thompson", "oracle"] = "seq"
+    """When to ask, with method lagr-seq (lagrseq.policies): seq (the paper's bandit above), never,
+    always, random (ask with probability ask_probability), thompson (a posterior per context:
+    Beta-Bernoulli on acceptance with a binary query reward, Gaussian on the reward with the
+    logistic one; the context is the pattern's progress and how often this very pattern was
+    already answered wrongly, so it generalises across states) or oracle (asks only when the
+    answer would be accepted: it looks at the provider's answer first, uncounted; a lower bound
+    on queries, refused with live answers). Paper: seq."""
+    ask_probability: float = ranged(0.5, ge=0, le=1)
+    """policy = "random": probability of asking when triggered."""
+    query_cost: float = ranged(0.0, ge=0)
+    """lambda: a per-query cost subtracted from every query reward (When2Ask-style), so learning
+    policies (seq, thompson) ask only where an answer is worth it. Paper: 0."""
+    budget: int = ranged(0, ge=0)
+    """At most this many queries per budget_scope, whatever the policy decides (0: no budget)."""
+    budget_scope: Literal["trial", "episode"] = "trial"
+    """What the budget counts queries over."""
+    thompson_prior: tuple[float, ...] = ranged((1.0, 1.0), gt=0, le=1e6)
+    """policy = "thompson": Beta(a, b) prior on an answer being accepted at an unseen context (the
+    Gaussian posterior of the logistic reward starts at mean a / (a + b), variance 1 / (a + b))."""
 
     def _check(self) -> None:
         _check_network(self.SECTION, self.hidden_sizes, self.batch_size, self.buffer_size)
         _check_epsilon(self.SECTION, self)
+        _check_policy(self.SECTION, self)
 
 
 # --------------------------------------------------------------------------------------------
@@ -726,8 +775,34 @@ class ExperimentConfig:
         return json.dumps(self.to_dict(), sort_keys=True)
 
     def digest(self) -> str:
-        """Short sha256 of the configuration, for directory names."""
-        return hashlib.sha256(self.to_json().encode()).hexdigest()[:8]
+        """Short sha256 of the configuration, for directory names (and the seeds of replay's
+        bootstraps). The asking-policy fields of ``[secondary]`` count only when they differ
+        from their defaults, so a configuration made before they existed keeps its digest."""
+        return config_digest(json.loads(self.to_json()))
+
+
+POLICY_DEFAULTS: dict[str, Any] = {
+    "policy": "seq",
+    "ask_probability": 0.5,
+    "query_cost": 0.0,
+    "budget": 0,
+    "budget_scope": "trial",
+    "thompson_prior": (1.0, 1.0),
+}
+"""The asking-policy fields of ``[secondary]`` and their defaults (see ``digest``)."""
+
+
+def config_digest(data: dict[str, Any]) -> str:
+    """Short sha256 of a configuration as JSON data (``ExperimentConfig.to_json`` read back):
+    the asking-policy fields count only when they differ from their defaults, so a configuration
+    made before they existed keeps its digest (run directories, replay's bootstrap seeds)."""
+    data = {k: dict(v) if isinstance(v, dict) else v for k, v in data.items()}
+    secondary = data.get("secondary")
+    if isinstance(secondary, dict):
+        for name, default in POLICY_DEFAULTS.items():
+            if name in secondary and secondary[name] == (list(default) if isinstance(default, tuple) else default):
+                del secondary[name]
+    return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:8]
 
 
 # Which dataclass reads each section, per task.

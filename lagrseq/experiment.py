@@ -21,7 +21,7 @@ from typing import Any
 import msgspec
 import numpy as np
 
-from lagrseq.adapters import PrimaryAgent, SecondaryAgent, Step
+from lagrseq.adapters import PrimaryAgent, Step
 from lagrseq.agents.schedules import EpsilonSchedule
 from lagrseq.config import ExperimentConfig
 from lagrseq.lagr import Consultation, QueryTrigger, consult, follows
@@ -35,6 +35,7 @@ from lagrseq.logs.events import (
     View,
     jsonable,
 )
+from lagrseq.policies import AskContext, AskingPolicy
 from lagrseq.seq import query_reward
 from lagrseq.tasks.base import Task
 
@@ -51,6 +52,9 @@ class TrialResult:
     total_return: float
     seconds: float
     skipped: bool = False
+    sources: tuple[tuple[str, int], ...] = ()
+    """Queries per answer source (``recorded``, ``mock``, ``live``), sorted: with
+    ``recorded:STORE``, answers from another source are store misses a fallback answered."""
 
 
 @dataclass(frozen=True)
@@ -62,8 +66,9 @@ class TrialParts:
     task: Task
     env: Any
     primary: PrimaryAgent
-    secondary: SecondaryAgent | None
-    """None: LaGR without SEQ queries whenever triggered (``lagr``), or never (``baseline``)."""
+    secondary: AskingPolicy | None
+    """When to ask (``lagrseq.policies``): the configured policy of ``lagr-seq``, ``Always`` for
+    ``lagr``; None for ``baseline``, which never reaches a decision."""
     provider: Provider
     sink: Sink
     primary_epsilon: EpsilonSchedule
@@ -91,6 +96,8 @@ class _Episode:
     accepted: int = 0
     guided_steps: int = 0
     total: float = 0.0
+    sources: dict[str, int] | None = None
+    """Queries per answer source (set at the first query)."""
     epsilon: float = 0.0
     last_reward: float = 0.0
     placements: int = 0
@@ -106,6 +113,7 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
     solution: Any = None  # the accepted LLM solution (pi_LLM); None while there is none
     global_step = episodes = queries = 0
     total_return = 0.0
+    sources: dict[str, int] = {}
     with sink, parts.provider:
         for number in itertools.count():
             if _out_of_budget(config, number, global_step):
@@ -121,7 +129,7 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
                 # Exploration per episode (cube) or per step (grid DQNs); /episode logs the last.
                 episode.epsilon = parts.primary_epsilon.at(number, global_step)
                 if asks and solution is None and trigger.armed(task.progress(pattern), episode.last_reward):
-                    solution = _ask(parts, trigger, episode, pattern, global_step)
+                    solution = _ask(parts, trigger, episode, pattern, global_step, queries + episode.queries)
                 action, guided, observation, info = _act(parts, following, observation, info, episode.epsilon)
                 next_observation, reward, terminated, truncated, next_info = env.step(action)
                 # The released cube code does not update the primary agent on guided steps.
@@ -145,33 +153,52 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
             episodes += 1
             queries += episode.queries
             total_return += episode.total
+            if episode.sources:
+                for source, count in episode.sources.items():
+                    sources[source] = sources.get(source, 0) + count
             if on_episode is not None:
                 on_episode(episode.steps)
     env.close()
-    return TrialResult(path, parts.trial, episodes, global_step, queries, total_return, time.perf_counter() - started)
+    return TrialResult(
+        path, parts.trial, episodes, global_step, queries, total_return, time.perf_counter() - started,
+        sources=tuple(sorted(sources.items())),
+    )
 
 
-def _ask(parts: TrialParts, trigger: QueryTrigger, episode: _Episode, pattern: Any, global_step: int) -> Any:
-    """SEQ + LaGR from the current state: the secondary agent decides; a query's answer is parsed,
-    evaluated and, above the threshold, accepted. Returns the accepted solution or None."""
-    config, secondary = parts.config, parts.secondary
-    epsilon = parts.secondary_epsilon.at(episode.number, global_step)
-    # LaGR without SEQ queries whenever triggered; SEQ draws from its own stream.
-    decision = 1 if secondary is None else secondary.decide(pattern, epsilon, parts.secondary_rng)
+def _ask(
+    parts: TrialParts, trigger: QueryTrigger, episode: _Episode, pattern: Any, global_step: int, queries: int
+) -> Any:
+    """SEQ + LaGR from the current state: the asking policy decides; a query's answer is parsed,
+    evaluated and, above the threshold, accepted. Returns the accepted solution or None.
+    ``queries``: the trial's queries so far."""
+    config, task, provider = parts.config, parts.task, parts.provider
+    policy = parts.secondary
+    assert policy is not None  # baseline never asks
+    context = AskContext(
+        pattern, task.progress(pattern), episode.number, episode.steps, global_step,
+        parts.secondary_epsilon.at(episode.number, global_step), parts.secondary_rng, queries, episode.queries,
+        lambda: consult(task, provider, config.llm, config.lagr.threshold, pattern),
+    )
+    decision = policy.decide(context)
     event = QueryEvent(parts.trial, episode.number, episode.steps, global_step, jsonable(pattern), int(decision))
     solution = None
     reward = 0.0  # not querying earns the neutral reward
     if decision == 1:
-        result = consult(parts.task, parts.provider, config.llm, config.lagr.threshold, pattern)
-        trigger.queried(parts.task.progress(pattern))
-        reward = query_reward(result.evaluation, result.accepted, config.secondary)
+        # The oracle's look at the answer becomes the query it decided to make.
+        result = context.peeked or consult(task, provider, config.llm, config.lagr.threshold, pattern)
+        trigger.queried(task.progress(pattern))
+        reward = query_reward(result.evaluation, result.accepted, config.secondary) - config.secondary.query_cost
+        context.evaluation, context.accepted = result.evaluation, result.accepted
         episode.queries += 1
+        if episode.sources is None:
+            episode.sources = {}
+        source = result.answer.source
+        episode.sources[source] = episode.sources.get(source, 0) + 1
         if result.accepted:
             episode.accepted += 1
             solution = result.parsed.solution
-        event = query_event(event, result, parts.provider.name, config.llm.temperature, reward)
-    if secondary is not None:
-        secondary.update(pattern, decision, reward)
+        event = query_event(event, result, provider.name, config.llm.temperature, reward)
+    policy.update(context, decision, reward)
     parts.sink.write(event)
     return solution
 

@@ -146,9 +146,15 @@ def _differences(logged: dict[str, Any], wanted: dict[str, Any], prefix: str = "
 def check_resumable(path: Path, config: ExperimentConfig, seed: int, provider_spec: str, trial: int) -> None:
     """A complete log may stand for trial ``trial`` of this run only if it was made with the
     same configuration, seed and provider; otherwise the rerun is refused."""
+    from lagrseq import config as cfg
+    from lagrseq.errors import ConfigError
+
     info = read_info(path)
     wanted = json.loads(config.to_json())
-    differences = _differences(info.config, wanted)
+    logged = info.config
+    with contextlib.suppress(ConfigError):  # a log made before a field existed holds its default
+        logged = json.loads(cfg.from_dict(logged).to_json())
+    differences = _differences(logged, wanted)
     for key, value in (("seed", str(seed)), ("provider", provider_spec), ("trial", str(trial))):
         if info.run.get(key) != value:
             differences.append(f"{key}: {json.dumps(info.run.get(key))} -> {json.dumps(value)}")
@@ -444,7 +450,23 @@ def prepare(
     return config, run_directory(out, config, provider_spec, seed, name)
 
 
-def summary(results: list[TrialResult], directory: Path) -> str:
+def miss_report(results: list[TrialResult], provider_spec: str) -> list[str]:
+    """With ``recorded:STORE``: ``answers: N from the store, M from the fallback mock (P% missed
+    the store)``; nothing for other providers."""
+    if parse_provider(provider_spec).kind != "recorded":
+        return []
+    totals: dict[str, int] = {}
+    for result in results:
+        for source, count in result.sources:
+            totals[source] = totals.get(source, 0) + count
+    stored = totals.pop("recorded", 0)
+    missed = sum(totals.values())
+    share = 100.0 * missed / (stored + missed) if stored + missed else 0.0
+    fallback = ", ".join(f"{n} from the fallback {source}" for source, n in sorted(totals.items())) or "none from a fallback"
+    return [f"answers: {stored} from the store, {fallback} ({share:.1f}% missed the store)"]
+
+
+def summary(results: list[TrialResult], directory: Path, provider_spec: str = "") -> str:
     """What ``lagrseq run`` prints at the end: where the logs are, queries and return per trial."""
     ran = [r for r in results if not r.skipped]
     skipped = len(results) - len(ran)
@@ -458,4 +480,6 @@ def summary(results: list[TrialResult], directory: Path) -> str:
             f"return per trial {returns.mean():.1f}, "
             f"{np.mean([r.seconds for r in ran]):.2f} s per trial"
         )
+        if provider_spec:
+            lines.extend(miss_report(ran, provider_spec))
     return "\n".join(lines)

@@ -21,7 +21,6 @@ from lagrseq.adapters import (
     DQNPrimary,
     NeuralSeq,
     PrimaryAgent,
-    SecondaryAgent,
     TabularPrimary,
     TabularSeq,
 )
@@ -48,6 +47,7 @@ from lagrseq.llm.mock import MockProvider
 from lagrseq.llm.servers import DEFAULT_BASE_URL
 from lagrseq.logs import foxglove
 from lagrseq.logs.events import Sink, View
+from lagrseq.policies import Always, AskingPolicy, make_policy
 from lagrseq.seeding import Stream
 from lagrseq.tasks import cube, grid
 from lagrseq.tasks.arrangement import arm_arrangement, object_arrangement
@@ -178,6 +178,13 @@ def _say(message: str) -> None:
 def check_provider(spec: str, config: ExperimentConfig, options: ProviderOptions | None = None) -> None:
     """Build the provider once and close it, so that a missing API key or store fails before any
     trial starts (nothing is sent)."""
+    options = options or ProviderOptions()
+    paid = parse_provider(spec).kind == "live" or options.on_miss == "live"
+    if paid and config.method == "lagr-seq" and config.secondary.policy == "oracle":
+        raise UsageError(
+            "secondary.policy = oracle looks at every answer before deciding, so it would pay for "
+            "answers it does not use; run it on recorded:STORE (--on-miss mock|error) or mock"
+        )
     make_provider(spec, config, np.random.default_rng(0), options).close()
 
 
@@ -333,14 +340,21 @@ def make_primary(config: ExperimentConfig, task: Task, env: Any, seed: int, tria
     return TabularPrimary(section, _expect(task, cube.CubeStacking, "task"))
 
 
-def make_secondary(config: ExperimentConfig, task: Task, seed: int, trial: int) -> SecondaryAgent | None:
-    """The SEQ agent of ``lagr-seq``; None for ``lagr`` (always asks) and ``baseline`` (never)."""
-    if config.method != "lagr-seq":
+def make_secondary(config: ExperimentConfig, task: Task, seed: int, trial: int) -> AskingPolicy | None:
+    """The asking policy: ``secondary.policy`` for ``lagr-seq`` (``seq``: the paper's SEQ agent),
+    always for ``lagr``, None for ``baseline`` (it never reaches a decision)."""
+    if config.method == "baseline":
         return None
+    if config.method == "lagr":
+        return Always()
     section = config.secondary
-    if isinstance(section, NeuralSecondaryConfig):
-        return NeuralSeq(section, _expect(task, grid.GridTask, "task").cells, seed, trial)
-    return TabularSeq(section.learning_rate)
+
+    def seq_agent() -> Any:
+        if isinstance(section, NeuralSecondaryConfig):
+            return NeuralSeq(section, _expect(task, grid.GridTask, "task").cells, seed, trial)
+        return TabularSeq(section.learning_rate)
+
+    return make_policy(section, seq_agent)
 
 
 def make_arm_env(config: ExperimentConfig, render_dir: Path | None = None) -> Any:
@@ -382,7 +396,9 @@ def missing_dependency(config: ExperimentConfig) -> str:
         if absent:
             return f"needs the arm extra ({', '.join(absent)} not installed): pip install 'lagrseq[arm]' (Python <= 3.11)"
 
-    needs_torch = config.primary.kind == "dqn" or (config.method == "lagr-seq" and config.secondary.kind == "neural")
+    needs_torch = config.primary.kind == "dqn" or (
+        config.method == "lagr-seq" and config.secondary.kind == "neural" and config.secondary.policy == "seq"
+    )
     if needs_torch and importlib.util.find_spec("torch") is None:
         return "needs torch, which is not installed (pip install 'lagrseq[dqn]')"
     return ""

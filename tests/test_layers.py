@@ -40,11 +40,13 @@ LAYERS: dict[str, tuple[str, ...]] = {
     "lagrseq.suite": ("lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", *UPPER, *HEAVY),
     "lagrseq.lagr": (*PROVIDERS, "lagrseq.logs", "lagrseq.envs", "lagrseq.experiment", *WIRING, *HEAVY),
     "lagrseq.seq": ("lagrseq.llm", "lagrseq.logs", "lagrseq.envs", "lagrseq.tasks", "lagrseq.experiment", *WIRING, *HEAVY),
+    "lagrseq.policies": ("lagrseq.llm", "lagrseq.logs", "lagrseq.envs", "lagrseq.tasks", "lagrseq.agents", "lagrseq.experiment", *WIRING, *HEAVY),
     "lagrseq.adapters": ("lagrseq.llm", "lagrseq.logs", "lagrseq.envs", "lagrseq.experiment", *WIRING, *HEAVY),
     # the loop knows interfaces only: no concrete env, provider or sink implementation
     "lagrseq.experiment": (*PROVIDERS, "lagrseq.envs", "lagrseq.logs.mcap_writer", "lagrseq.analysis", *WIRING, *HEAVY),
     # wiring and the runners import the heavy parts lazily, where a trial needs them
     "lagrseq.wiring": ("lagrseq.analysis", "lagrseq.runner", "lagrseq.recording", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),
+    "lagrseq.frontier": ("lagrseq.analysis", "lagrseq.cli", *HEAVY),
     "lagrseq.runner": ("lagrseq.analysis", "lagrseq.recording", "lagrseq.reproduce", "lagrseq.cli", "dask", "distributed", *HEAVY),
     "lagrseq.probe": ("lagrseq.analysis", "lagrseq.recording", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),
     "lagrseq.recording": ("lagrseq.analysis", "lagrseq.runner", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),

@@ -23,6 +23,7 @@ from typing import Any
 
 import pandas as pd
 
+from lagrseq.config import config_digest
 from lagrseq.errors import LogError
 from lagrseq.logs.reader import ReadStats, full_path, read_log, recover_command
 from lagrseq.logs.schemas import ACCURACY_METHOD
@@ -223,7 +224,10 @@ def _read_trial(path: Path, root: Path, stats: ReadStats) -> _Trial:
             f"{full_path(path)}: trial {status} ({info.status.get('error', '')}); skipped"
         )
     text = run["config"]
-    digest = hashlib.sha256(text.encode()).hexdigest()[:8]
+    try:
+        digest = config_digest(json.loads(text))
+    except (ValueError, RecursionError, AttributeError):
+        digest = hashlib.sha256(text.encode()).hexdigest()[:8]
     samples = int(run.get("samples", 0)) if method == ACCURACY_METHOD else 0
     key = RunKey(
         task=run.get("task", ""),

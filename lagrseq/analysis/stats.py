@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 import zlib
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -136,3 +136,137 @@ def paired_ratios(numerator: Mapping[int, float], denominator: Mapping[int, floa
     (trial k of two runs with one seed share their environment seed)."""
     trials = sorted(set(numerator) & set(denominator))
     return np.array([numerator[t] / denominator[t] for t in trials], dtype=float)
+
+
+# --------------------------------------------------------------------------------------------
+# rliable's statistics (Agarwal et al., 2021) in numpy: interquartile mean, stratified bootstrap,
+# probability of improvement, performance profiles. A *stratum* is one task (or one setting):
+# the per-trial scores of one policy there. Bootstraps resample trials within each stratum.
+# --------------------------------------------------------------------------------------------
+Strata = Sequence[Sequence[float] | np.ndarray]
+
+
+def _strata(strata: Strata) -> list[np.ndarray]:
+    out = [np.asarray(s, dtype=float).ravel() for s in strata]
+    if not out or any(s.size == 0 for s in out):
+        raise ValueError("every stratum needs at least one score")
+    return out
+
+
+def iqm(values: Sequence[float] | np.ndarray) -> float:
+    """Interquartile mean: the mean of the scores left after cutting ``floor(n / 4)`` from each
+    end of the sorted scores (``scipy.stats.trim_mean(x, 0.25)``, as rliable computes it)."""
+    x = np.sort(np.asarray(values, dtype=float).ravel())
+    if x.size == 0:
+        return math.nan
+    cut = int(0.25 * x.size)
+    return float(x[cut : x.size - cut].mean())
+
+
+def stratified_bootstrap_ci(
+    strata: Strata,
+    statistic: Callable[[list[np.ndarray]], float],
+    rng: np.random.Generator,
+    resamples: int = RESAMPLES,
+    confidence: float = CONFIDENCE,
+) -> tuple[float, float]:
+    """Percentile interval of ``statistic(strata)`` over ``resamples`` stratified bootstrap
+    resamples: each stratum's scores are drawn with replacement within that stratum. NaN when
+    every stratum has fewer than 2 scores (there is nothing to resample)."""
+    groups = _strata(strata)
+    if all(g.size < 2 for g in groups):
+        return math.nan, math.nan
+    picks = [rng.integers(0, g.size, size=(resamples, g.size)) for g in groups]
+    values = np.array([statistic([g[p[i]] for g, p in zip(groups, picks, strict=True)]) for i in range(resamples)])
+    tail = (1.0 - confidence) / 2.0
+    low, high = np.quantile(values, [tail, 1.0 - tail])
+    return float(low), float(high)
+
+
+def iqm_ci(
+    strata: Strata, rng: np.random.Generator, resamples: int = RESAMPLES, confidence: float = CONFIDENCE
+) -> tuple[float, float, float]:
+    """IQM of every score of every stratum, with its stratified bootstrap interval."""
+    groups = _strata(strata)
+    value = iqm(np.concatenate(groups))
+    if all(g.size < 2 for g in groups):
+        return value, math.nan, math.nan
+    # vectorised: every resample at once, sorted per row, the middle half averaged
+    drawn = np.sort(np.concatenate([g[rng.integers(0, g.size, size=(resamples, g.size))] for g in groups], axis=1), axis=1)
+    cut = int(0.25 * drawn.shape[1])
+    values = drawn[:, cut : drawn.shape[1] - cut].mean(axis=1)
+    tail = (1.0 - confidence) / 2.0
+    low, high = np.quantile(values, [tail, 1.0 - tail])
+    return value, float(low), float(high)
+
+
+def _improvement(x: np.ndarray, y: np.ndarray) -> float:
+    """P(X > Y) + P(X = Y) / 2 over every pair of a score of X and a score of Y (the
+    Mann-Whitney U statistic divided by the number of pairs)."""
+    greater = (x[:, None] > y[None, :]).sum()
+    ties = (x[:, None] == y[None, :]).sum()
+    return float((greater + 0.5 * ties) / (x.size * y.size))
+
+
+def probability_of_improvement(x: Strata, y: Strata) -> float:
+    """P(X > Y): the chance that a trial of X scores above a trial of Y in the same stratum
+    (ties count half), averaged over the strata."""
+    xs, ys = _strata(x), _strata(y)
+    if len(xs) != len(ys):
+        raise ValueError(f"{len(xs)} strata against {len(ys)}")
+    return float(np.mean([_improvement(a, b) for a, b in zip(xs, ys, strict=True)]))
+
+
+def probability_of_improvement_ci(
+    x: Strata, y: Strata, rng: np.random.Generator, resamples: int = RESAMPLES, confidence: float = CONFIDENCE
+) -> tuple[float, float, float]:
+    """P(X > Y) with a stratified bootstrap interval (X and Y resampled independently)."""
+    xs, ys = _strata(x), _strata(y)
+    value = probability_of_improvement(xs, ys)
+    if len(xs) != len(ys) or all(g.size < 2 for g in [*xs, *ys]):
+        return value, math.nan, math.nan
+    # vectorised per stratum: (resamples, n) against (resamples, m)
+    total = np.zeros(resamples)
+    for a, b in zip(xs, ys, strict=True):
+        ra = a[rng.integers(0, a.size, size=(resamples, a.size))]
+        rb = b[rng.integers(0, b.size, size=(resamples, b.size))]
+        greater = (ra[:, :, None] > rb[:, None, :]).sum(axis=(1, 2))
+        ties = (ra[:, :, None] == rb[:, None, :]).sum(axis=(1, 2))
+        total += (greater + 0.5 * ties) / (a.size * b.size)
+    values = total / len(xs)
+    tail = (1.0 - confidence) / 2.0
+    low, high = np.quantile(values, [tail, 1.0 - tail])
+    return value, float(low), float(high)
+
+
+def performance_profile(scores: Sequence[float] | np.ndarray, thresholds: Sequence[float] | np.ndarray) -> np.ndarray:
+    """The fraction of scores above each threshold tau (rliable's run-score distribution)."""
+    x = np.asarray(scores, dtype=float).ravel()
+    taus = np.asarray(thresholds, dtype=float)
+    if x.size == 0:
+        return np.full(taus.shape, math.nan)
+    return (x[None, :] > taus[:, None]).mean(axis=1)
+
+
+def performance_profile_ci(
+    strata: Strata,
+    thresholds: Sequence[float] | np.ndarray,
+    rng: np.random.Generator,
+    resamples: int = 2000,
+    confidence: float = CONFIDENCE,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The performance profile of every score of every stratum, with pointwise stratified
+    bootstrap intervals: (profile, low, high), one value per threshold."""
+    groups = _strata(strata)
+    taus = np.asarray(thresholds, dtype=float)
+    profile = performance_profile(np.concatenate(groups), taus)
+    if all(g.size < 2 for g in groups):
+        nan = np.full(taus.shape, math.nan)
+        return profile, nan, nan
+    picks = [rng.integers(0, g.size, size=(resamples, g.size)) for g in groups]
+    curves = np.array(
+        [performance_profile(np.concatenate([g[p[i]] for g, p in zip(groups, picks, strict=True)]), taus) for i in range(resamples)]
+    )
+    tail = (1.0 - confidence) / 2.0
+    low, high = np.quantile(curves, [tail, 1.0 - tail], axis=0)
+    return profile, low, high

@@ -1,0 +1,80 @@
+"""Frontier benchmark: how long ``lagrseq frontier`` takes, and what the asking-policy call costs
+in the loop.
+
+    PYTHONPATH=. python benchmarks/bench_frontier.py                       # cube, mock answers
+    PYTHONPATH=. python benchmarks/bench_frontier.py --provider recorded:STORE --on-miss mock \\
+        --task object-arrangement --trials 2 --policies always,seq,thompson:query_cost=0.5
+
+Prints three timings measured in this run:
+1. the whole frontier (every policy's trials, logged to MCAP, then the report);
+2. the report alone, rebuilt from the logs (``lagrseq frontier --replay``);
+3. a cube trial unlogged with ``--method lagr`` against the same trial with ``--method lagr-seq``
+   and ``secondary.policy = always`` (the same decisions, through the policy interface and its
+   per-decision context): their ratio is the interface's overhead on the hot loop.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+from lagrseq import cli
+from lagrseq import config as cfg
+from lagrseq.runner import run_one
+
+
+def timed(argv: list[str]) -> float:
+    started = time.perf_counter()
+    code = cli.main(argv)
+    if code != 0:
+        raise SystemExit(f"lagrseq {' '.join(argv)} failed with status {code}")
+    return time.perf_counter() - started
+
+
+def overhead(repeats: int) -> tuple[float, float]:
+    """Best-of seconds of one unlogged cube trial: lagr, and always through the policy interface."""
+    plain = cfg.load("cube-stacking", "lagr", "upstream")
+    policy = cfg.load("cube-stacking", "lagr-seq", "upstream", None, ['secondary.policy="always"'])
+    best = [float("inf"), float("inf")]
+    for _ in range(repeats):
+        for i, config in enumerate((plain, policy)):
+            started = time.perf_counter()
+            run_one(config, 0, 0, "mock:authors-t0", Path("unused.mcap"), log=False)
+            best[i] = min(best[i], time.perf_counter() - started)
+    return best[0], best[1]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--task", default="cube-stacking")
+    parser.add_argument("--provider", default="mock:authors-t0")
+    parser.add_argument("--on-miss", default=None)
+    parser.add_argument("--policies", default="never,always,seq,thompson,oracle")
+    parser.add_argument("--sweep", default="thompson:query_cost=0.25,0.5")
+    parser.add_argument("--trials", type=int, default=5)
+    parser.add_argument("--set", dest="overrides", action="append", default=[])
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "fr"
+        argv = [
+            "frontier", args.task, "--provider", args.provider, "--policies", args.policies, "--sweep", args.sweep,
+            "--trials", str(args.trials), "--out", str(out), "--quiet",
+        ]
+        argv += ["--on-miss", args.on_miss] if args.on_miss else []
+        for override in args.overrides:
+            argv += ["--set", override]
+        variants = len(args.policies.split(",")) + len(args.sweep.split("=", 1)[1].split(","))
+        whole = timed(argv)
+        report = timed(["frontier", "--replay", str(out), "--out", str(Path(tmp) / "again")])
+    plain, policy = overhead(args.repeats)
+    print(f"\nfrontier of {variants} policy variants x {args.trials} trials ({args.task}, {args.provider}): {whole:.1f} s")
+    print(f"report alone, from the logs: {report:.1f} s")
+    print(f"one unlogged cube trial: lagr {plain:.3f} s, always through the policy interface {policy:.3f} s "
+          f"(ratio {policy / plain:.3f})")
+
+
+if __name__ == "__main__":
+    main()

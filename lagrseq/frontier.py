@@ -1,0 +1,137 @@
+"""``lagrseq frontier``: run asking policies on one task and provider, then draw the frontier.
+
+Each policy variant is an ordinary run (``lagrseq run``'s directories and resume): ``never`` is
+``--method baseline``, ``always`` is ``--method lagr``, every other policy is ``--method lagr-seq``
+with ``secondary.policy`` and its knobs set. The report (``lagrseq.analysis.frontier``) is rebuilt
+from the MCAP logs alone, by the same command with ``--replay``.
+
+A policy item is ``NAME`` or ``NAME:FIELD=VALUE[:FIELD=VALUE...]`` with FIELD a ``[secondary]``
+field (``thompson:query_cost=0.5``, ``random:ask_probability=0.1``, ``seq:budget=20``); a sweep
+``NAME:FIELD=V1,V2,...`` adds one variant per value (drawn as a curve).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from lagrseq.errors import UsageError
+from lagrseq.policies import POLICIES
+
+NAMES = ("never", "always", *[p for p in POLICIES if p not in ("never", "always")])
+KNOBS = ("ask_probability", "query_cost", "budget", "budget_scope", "thompson_prior", "query_reward", "learning_rate")
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One point of the frontier: a method and the ``--set`` overrides that make its policy."""
+
+    policy: str
+    knobs: tuple[tuple[str, str], ...] = ()
+
+    @property
+    def method(self) -> str:
+        if self.policy == "never" and not self.knobs:
+            return "baseline"
+        if self.policy == "always" and not self.knobs:
+            return "lagr"
+        return "lagr-seq"
+
+    def overrides(self) -> list[str]:
+        sets = [] if self.method != "lagr-seq" else [f'secondary.policy="{self.policy}"']
+        return sets + [f"secondary.{field}={value}" for field, value in self.knobs]
+
+    def __str__(self) -> str:
+        return ":".join([self.policy, *(f"{k}={v}" for k, v in self.knobs)])
+
+
+def _item(text: str) -> tuple[str, list[tuple[str, str]]]:
+    name, *parts = text.strip().split(":")
+    if name not in NAMES:
+        raise UsageError(f"policy {name!r} in {text!r}; expected one of {', '.join(NAMES)} (optionally NAME:FIELD=VALUE)")
+    knobs = []
+    for part in parts:
+        field, sep, value = part.partition("=")
+        if not sep or field not in KNOBS or not value:
+            raise UsageError(f"{text!r}: expected NAME:FIELD=VALUE with FIELD one of {', '.join(KNOBS)}")
+        knobs.append((field, value))
+    return name, knobs
+
+
+def parse_policies(text: str) -> list[Variant]:
+    """``never,always,seq,thompson:query_cost=0.5`` -> variants (duplicates dropped)."""
+    variants: list[Variant] = []
+    for item in text.split(","):
+        if not item.strip():
+            continue
+        name, knobs = _item(item)
+        variant = Variant(name, tuple(knobs))
+        if variant not in variants:
+            variants.append(variant)
+    if not variants:
+        raise UsageError("--policies is empty; expected e.g. never,always,seq,thompson")
+    return variants
+
+
+def parse_sweep(text: str) -> list[Variant]:
+    """``thompson:query_cost=0.2,0.5,1`` -> one variant per value (other knobs first, as given)."""
+    head, sep, tail = text.rpartition("=")
+    if not sep or ":" not in head:
+        raise UsageError(f"--sweep {text!r}: expected NAME:FIELD=V1,V2,... e.g. thompson:query_cost=0.2,0.5,1")
+    prefix, _, field = head.rpartition(":")
+    values = [v.strip() for v in tail.split(",") if v.strip()]
+    if not values:
+        raise UsageError(f"--sweep {text!r}: no values after '='")
+    out = []
+    for value in values:
+        name, knobs = _item(f"{prefix}:{field}={value}")
+        out.append(Variant(name, tuple(knobs)))
+    return out
+
+
+def run_frontier(
+    task: str,
+    variants: Sequence[Variant],
+    provider: str,
+    options: Any,
+    out: Path,
+    trials: int,
+    seed: int,
+    preset: str,
+    config_file: Path | None,
+    overrides: Sequence[str],
+    jobs: int,
+    progress: Callable[[str, int, str], Any] | None = None,
+    say: Callable[[str], None] = print,
+) -> list[Path]:
+    """Run every variant (skipping finished trials) into ``out``; returns the run directories.
+    ``progress(label, total, unit)`` makes a progress bar (a context manager with ``update``)."""
+    from lagrseq import runner
+
+    prepared = []
+    for variant in variants:  # every configuration is checked before any trial starts
+        config, directory = runner.prepare(
+            task, variant.method, preset, config_file, [*overrides, *variant.overrides()], provider, options, out, seed
+        )
+        prepared.append((variant, config, directory))
+    for variant, config, directory in prepared:
+        unit, per_trial = runner.progress_unit(config)
+        if progress is None:
+            results = runner.run_trials(config, trials, seed, provider, directory, jobs, None, options)
+        else:
+            with progress(f"{task} {variant}", trials * per_trial, unit) as bar:
+                results = runner.run_trials(config, trials, seed, provider, directory, jobs, bar, options)
+        say(f"{variant}: " + runner.summary(results, directory, provider).replace("\n", "; "))
+    return [d for _, _, d in prepared]
+
+
+def write_index(out: Path, variants: Sequence[Variant], directories: Sequence[Path]) -> Path:
+    """``frontier.json``: which run directory holds which policy (the report itself needs only
+    the logs)."""
+    path = out / "frontier.json"
+    entries = [{"policy": str(v), "method": v.method, "directory": str(d)} for v, d in zip(variants, directories, strict=True)]
+    path.write_text(json.dumps(entries, indent=1) + "\n", encoding="utf-8")
+    return path

@@ -1,0 +1,287 @@
+"""When to ask: asking policies, the secondary agent generalised.
+
+The loop (``lagrseq.experiment``) calls ``policy.decide(context)`` wherever the trigger allows a
+query and no accepted solution is held, then ``policy.update(context, asked, query_reward)`` with
+the query reward (0 when it did not ask). An :class:`AskContext` holds only what the agent may
+know: the pattern, its progress, the step and episode counters, the query counts so far, and,
+after a query, the evaluation and acceptance of the answer. It never holds the target; the oracle
+alone may look at the provider's answer first (:meth:`AskContext.peek`), which is not a query.
+
+Policies (config field ``secondary.policy`` with ``--method lagr-seq``):
+
+- ``never`` / ``always``: what ``baseline`` and ``lagr`` do;
+- ``random``: ask with probability ``ask_probability``;
+- ``seq``: the paper's tabular or neural bandit (:class:`SeqPolicy` wraps it unchanged);
+- ``thompson``: a posterior per context (:class:`ThompsonPolicy`);
+- ``oracle``: ask only when the answer would be accepted (a lower bound on queries);
+- any of them behind :class:`Budget` (``secondary.budget`` > 0): at most N queries per trial or
+  per episode.
+
+A per-query cost lambda (``secondary.query_cost``) is subtracted from the query reward by the
+loop, so it reaches every learning policy (and the ``/query`` log) the same way.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Hashable
+from typing import Any, Protocol
+
+import numpy as np
+
+
+class AskContext:
+    """What an asking policy may know at one decision (never the target)."""
+
+    __slots__ = (
+        "pattern", "progress", "episode", "episode_step", "global_step", "epsilon", "rng",
+        "queries_trial", "queries_episode", "evaluation", "accepted", "peeked", "_peek",
+    )
+
+    def __init__(
+        self,
+        pattern: Any,
+        progress: int,
+        episode: int,
+        episode_step: int,
+        global_step: int,
+        epsilon: float,
+        rng: np.random.Generator,
+        queries_trial: int,
+        queries_episode: int,
+        peek: Callable[[], Any] | None = None,
+    ) -> None:
+        self.pattern = pattern
+        self.progress = progress
+        """How far the pattern has come (stack height, cells on): ``Task.progress``."""
+        self.episode = episode
+        self.episode_step = episode_step
+        self.global_step = global_step
+        self.epsilon = epsilon
+        """The secondary agent's exploration rate at this step (its schedule)."""
+        self.rng = rng
+        """The secondary agent's random stream (SECONDARY)."""
+        self.queries_trial = queries_trial
+        self.queries_episode = queries_episode
+        self.evaluation: float | None = None
+        """After a query: the normalised evaluation E of the answer."""
+        self.accepted: bool | None = None
+        """After a query: whether the answer was accepted."""
+        self.peeked: Any = None
+        """The consultation the oracle looked at (the loop reuses it if the oracle asks)."""
+        self._peek = peek
+
+    def peek(self) -> Any:
+        """The provider's answer to this pattern, parsed and evaluated, without it counting as a
+        query (the oracle only). Asked once per decision."""
+        if self._peek is None:
+            raise RuntimeError("this loop offers no peek at answers (the oracle needs one)")
+        if self.peeked is None:
+            self.peeked = self._peek()
+        return self.peeked
+
+
+class AskingPolicy(Protocol):
+    """Whether to query the LLM now, and what to learn from the outcome."""
+
+    def decide(self, context: AskContext) -> int: ...
+
+    def update(self, context: AskContext, asked: int, query_reward: float) -> None: ...
+
+
+class SecondaryAgent(Protocol):
+    """The paper's SEQ agent (tabular or neural bandit over patterns)."""
+
+    def decide(self, pattern: Any, epsilon: float, rng: np.random.Generator) -> int: ...
+
+    def update(self, pattern: Any, decision: int, reward: float) -> None: ...
+
+
+def pattern_key(pattern: Any) -> Hashable:
+    """A hashable key of one exact pattern (a cube stack or a grid)."""
+    if isinstance(pattern, np.ndarray):
+        return (pattern.shape, pattern.tobytes())
+    return tuple(pattern)
+
+
+class Never:
+    """Never ask (``baseline``'s choice, logged as decisions 0)."""
+
+    def decide(self, context: AskContext) -> int:
+        return 0
+
+    def update(self, context: AskContext, asked: int, query_reward: float) -> None:
+        return None
+
+
+class Always:
+    """Ask whenever triggered (``lagr``)."""
+
+    def decide(self, context: AskContext) -> int:
+        return 1
+
+    def update(self, context: AskContext, asked: int, query_reward: float) -> None:
+        return None
+
+
+class RandomAsk:
+    """Ask with probability p (one draw from the secondary stream per decision)."""
+
+    def __init__(self, probability: float) -> None:
+        self.probability = probability
+
+    def decide(self, context: AskContext) -> int:
+        return int(context.rng.random() < self.probability)
+
+    def update(self, context: AskContext, asked: int, query_reward: float) -> None:
+        return None
+
+
+class SeqPolicy:
+    """The paper's SEQ bandit, exactly as before: epsilon-greedy on its values, bandit update."""
+
+    def __init__(self, agent: SecondaryAgent) -> None:
+        self.agent = agent
+
+    def decide(self, context: AskContext) -> int:
+        return self.agent.decide(context.pattern, context.epsilon, context.rng)
+
+    def update(self, context: AskContext, asked: int, query_reward: float) -> None:
+        self.agent.update(context.pattern, asked, query_reward)
+
+
+class Oracle:
+    """Ask only when the answer would be accepted: it looks at the answer first (uncounted), so
+    its query count is the lower bound for the return that guidance gives."""
+
+    def decide(self, context: AskContext) -> int:
+        return int(bool(context.peek().accepted))
+
+    def update(self, context: AskContext, asked: int, query_reward: float) -> None:
+        return None
+
+
+class ThompsonPolicy:
+    """Thompson sampling over contexts that generalise across states.
+
+    The context of a decision is (progress, how often this exact pattern was already answered
+    and rejected, capped at 2): a taller stack or fuller grid shares what was learnt at that
+    progress, and a pattern whose answer was already rejected is its own context (at temperature
+    0 a repeated question gets the same answer). Binary query reward: a Beta(a, b) posterior per
+    context on acceptance; the sampled acceptance rate theta gives the expected reward
+    theta * reward_correct + (1 - theta) * reward_wrong - cost. Logistic reward: a Gaussian
+    posterior on the reward itself (prior mean a / (a + b), precision a + b, noise precision 4:
+    rewards lie in [0, 1]). Ask when the sampled net reward is above 0, the reward of not asking.
+    """
+
+    NOISE_PRECISION = 4.0
+    REJECTED_CAP = 2
+
+    def __init__(
+        self,
+        prior: tuple[float, float],
+        reward: str = "binary",
+        reward_correct: float = 1.0,
+        reward_wrong: float = 0.0,
+        cost: float = 0.0,
+    ) -> None:
+        self.prior_a, self.prior_b = float(prior[0]), float(prior[1])
+        self.logistic = reward == "logistic"
+        self.reward_correct, self.reward_wrong, self.cost = reward_correct, reward_wrong, cost
+        self.posterior: dict[Hashable, list[float]] = {}
+        """Binary: [a, b]; logistic: [mean, precision]."""
+        self.rejected: dict[Hashable, int] = {}
+
+    def context_key(self, context: AskContext) -> Hashable:
+        rejected = self.rejected.get(pattern_key(context.pattern), 0)
+        return (int(context.progress), min(rejected, self.REJECTED_CAP))
+
+    def _row(self, key: Hashable) -> list[float]:
+        row = self.posterior.get(key)
+        if row is None:
+            a, b = self.prior_a, self.prior_b
+            row = self.posterior[key] = [a / (a + b), a + b] if self.logistic else [a, b]
+        return row
+
+    def decide(self, context: AskContext) -> int:
+        row = self._row(self.context_key(context))
+        if self.logistic:
+            value = row[0] + context.rng.standard_normal() / math.sqrt(row[1])
+        else:
+            theta = context.rng.beta(row[0], row[1])
+            value = theta * self.reward_correct + (1.0 - theta) * self.reward_wrong
+        return int(value - self.cost > 0.0)
+
+    def update(self, context: AskContext, asked: int, query_reward: float) -> None:
+        if not asked:
+            return
+        key = self.context_key(context)
+        row = self._row(key)
+        if self.logistic:
+            reward = query_reward + self.cost  # the loop subtracted the cost; learn the reward
+            precision = row[1] + self.NOISE_PRECISION
+            row[0] = (row[0] * row[1] + reward * self.NOISE_PRECISION) / precision
+            row[1] = precision
+        elif context.accepted:
+            row[0] += 1.0
+        else:
+            row[1] += 1.0
+        if not context.accepted:
+            exact = pattern_key(context.pattern)
+            self.rejected[exact] = self.rejected.get(exact, 0) + 1
+
+
+class Budget:
+    """At most ``limit`` queries per trial or per episode, whatever ``inner`` decides. Once spent,
+    the inner policy is not consulted (nor updated) and the decision is 0."""
+
+    def __init__(self, inner: AskingPolicy, limit: int, scope: str = "trial") -> None:
+        self.inner = inner
+        self.limit = limit
+        self.per_episode = scope == "episode"
+
+    def spent(self, context: AskContext) -> bool:
+        used = context.queries_episode if self.per_episode else context.queries_trial
+        return used >= self.limit
+
+    def decide(self, context: AskContext) -> int:
+        if self.spent(context):
+            return 0
+        return self.inner.decide(context)
+
+    def update(self, context: AskContext, asked: int, query_reward: float) -> None:
+        if asked or not self.spent(context):
+            self.inner.update(context, asked, query_reward)
+
+
+POLICIES = ("seq", "never", "always", "random", "thompson", "oracle")
+
+
+def make_policy(section: Any, seq_agent: Callable[[], SecondaryAgent]) -> AskingPolicy:
+    """The asking policy of a ``[secondary]`` section; ``seq_agent`` builds the paper's bandit
+    (only called for ``policy = "seq"``, so other policies never need torch)."""
+    name = section.policy
+    policy: AskingPolicy
+    if name == "seq":
+        policy = SeqPolicy(seq_agent())
+    elif name == "never":
+        policy = Never()
+    elif name == "always":
+        policy = Always()
+    elif name == "random":
+        policy = RandomAsk(section.ask_probability)
+    elif name == "thompson":
+        policy = ThompsonPolicy(
+            (section.thompson_prior[0], section.thompson_prior[1]),
+            section.query_reward,
+            section.reward_correct,
+            section.reward_wrong,
+            section.query_cost,
+        )
+    elif name == "oracle":
+        policy = Oracle()
+    else:  # pragma: no cover - the config's Literal allows only POLICIES
+        raise ValueError(f"unknown policy {name!r}")
+    if section.budget > 0:
+        policy = Budget(policy, section.budget, section.budget_scope)
+    return policy

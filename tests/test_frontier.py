@@ -1,0 +1,64 @@
+"""lagrseq frontier: policies run as ordinary runs, the report rebuilt from the logs alone."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from lagrseq import cli
+from lagrseq.errors import UsageError
+from lagrseq.frontier import Variant, parse_policies, parse_sweep
+
+
+def test_policy_items_and_sweeps() -> None:
+    variants = parse_policies("never,always,seq,thompson:query_cost=0.5,random:ask_probability=0.1:budget=3,seq")
+    assert [v.method for v in variants] == ["baseline", "lagr", "lagr-seq", "lagr-seq", "lagr-seq"]
+    assert variants[3].overrides() == ['secondary.policy="thompson"', "secondary.query_cost=0.5"]
+    assert variants[4].knobs == (("ask_probability", "0.1"), ("budget", "3"))
+    assert parse_sweep("thompson:budget=5:query_cost=0.2,0.4") == [
+        Variant("thompson", (("budget", "5"), ("query_cost", "0.2"))),
+        Variant("thompson", (("budget", "5"), ("query_cost", "0.4"))),
+    ]
+    for bad in ("sometimes", "seq:colour=red", "seq:query_cost", ""):
+        with pytest.raises(UsageError):
+            parse_policies(bad)
+    with pytest.raises(UsageError):
+        parse_sweep("thompson")
+
+
+def test_frontier_runs_policies_and_replay_rebuilds_the_same_table(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "fr"
+    args = [
+        "frontier", "cube-stacking", "--provider", "mock:authors-t0", "--policies", "never,always,seq,oracle",
+        "--sweep", "thompson:query_cost=0,0.5", "--trials", "2", "--set", "run.episodes=6", "--out", str(out), "--quiet",
+    ]
+    assert cli.main(args) == 0
+    printed = capsys.readouterr().out
+    assert "thompson (cost 0.5)" in printed and "files in" in printed
+    report = out / "frontier"
+    (csv,) = report.glob("*.csv")
+    table = pd.read_csv(csv, keep_default_na=False)
+    assert list(table["policy"]) == ["never", "always", "seq", "thompson", "thompson", "oracle"]
+    assert dict(zip(table["policy"], table["paper"], strict=False))["seq"] == "SEQ (paper)"
+    assert table.loc[table["policy"] == "always", "paper"].item() == "LaGR (paper)"
+    assert table.loc[table["policy"] == "never", "queries_mean"].item() == 0
+    # the oracle asks only for answers it knows are accepted: at most always's queries
+    oracle = table.loc[table["policy"] == "oracle", "queries_mean"].item()
+    assert 0 < oracle <= table.loc[table["policy"] == "always", "queries_mean"].item()
+    # mock answers carry estimated token usage, priced for gpt-3.5-turbo: dollars grow with queries
+    assert table.loc[table["policy"] == "always", "usd_mean"].item() > 0
+    assert {p.suffix for p in report.iterdir()} == {".csv", ".md", ".png"}
+    # resume: nothing runs again; and the report from the logs alone is byte-identical
+    assert cli.main(args) == 0
+    again = tmp_path / "again"
+    assert cli.main(["frontier", "--replay", str(out), "--out", str(again)]) == 0
+    assert (again / csv.name).read_bytes() == csv.read_bytes()
+    assert (again / csv.with_suffix(".md").name).read_text() == csv.with_suffix(".md").read_text()
+
+
+def test_frontier_refuses_a_task_less_run_and_the_oracle_on_live(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(["frontier", "--out", str(tmp_path)]) == 2
+    assert cli.main(["frontier", "cube-stacking", "--provider", "live", "--policies", "oracle", "--out", str(tmp_path)]) == 2
+    assert "oracle" in capsys.readouterr().err

@@ -1,0 +1,269 @@
+"""Asking policies (lagrseq.policies): decisions and updates on hand-worked cases, the budget's
+cap, the oracle's lower bound, and the paper's SEQ through the new interface giving the very
+events it gave before the interface existed."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from lagrseq import config as cfg
+from lagrseq.errors import UsageError
+from lagrseq.logs.reader import iter_messages, read_info, read_topic
+from lagrseq.policies import (
+    Always,
+    AskContext,
+    Budget,
+    Never,
+    Oracle,
+    RandomAsk,
+    SeqPolicy,
+    ThompsonPolicy,
+    make_policy,
+)
+from lagrseq.runner import run_one
+from lagrseq.seq import TabularSecondary
+from lagrseq.wiring import ProviderOptions, check_provider
+
+
+def context(pattern=(4, 5), progress=2, rng=None, trial=0, episode=0, epsilon=0.0, peek=None) -> AskContext:
+    return AskContext(
+        pattern, progress, 0, 0, 0, epsilon, rng or np.random.default_rng(0), trial, episode, peek
+    )
+
+
+def test_never_and_always() -> None:
+    c = context()
+    assert [Never().decide(c), Always().decide(c)] == [0, 1]
+    Never().update(c, 0, 0.0)
+    Always().update(c, 1, 1.0)
+
+
+def test_random_asks_with_its_probability_from_the_secondary_stream() -> None:
+    # default_rng(0).random() draws 0.6369616873214543, 0.2697867137638703, 0.04097352393619469
+    policy = RandomAsk(0.5)
+    c = context(rng=np.random.default_rng(0))
+    assert [policy.decide(c) for _ in range(3)] == [0, 1, 1]
+    assert RandomAsk(0.0).decide(c) == 0 and RandomAsk(1.0).decide(c) == 1
+
+
+class _Bandit:
+    """The tabular SEQ adapter's contract on a plain TabularSecondary."""
+
+    def __init__(self) -> None:
+        self.bandit = TabularSecondary(0.1)
+
+    def decide(self, pattern, epsilon, rng):
+        return self.bandit.decide(tuple(pattern), epsilon, rng)
+
+    def update(self, pattern, decision, reward):
+        self.bandit.update(tuple(pattern), decision, reward)
+
+
+def test_seq_policy_is_the_bandit_unchanged() -> None:
+    policy = SeqPolicy(_Bandit())
+    c = context(epsilon=0.0)
+    assert policy.decide(c) == 0  # ties go to "do not query"
+    policy.update(c, 1, 1.0)  # Q2[s, 1] = 0 + 0.1 (1 - 0) = 0.1 > Q2[s, 0] = 0
+    assert policy.agent.bandit.table[(4, 5)].tolist() == [0.0, pytest.approx(0.1)]
+    assert policy.decide(c) == 1
+    policy.update(c, 1, -1.0)  # 0.1 + 0.1 (-1 - 0.1) = -0.01
+    assert policy.agent.bandit.table[(4, 5)][1] == pytest.approx(-0.01)
+    assert policy.decide(c) == 0
+
+
+def test_thompson_binary_posterior_per_progress_and_rejections() -> None:
+    policy = ThompsonPolicy((1.0, 1.0), "binary", reward_correct=1.0, reward_wrong=-1.0)
+    c = context(pattern=(4, 5, 6), progress=3)
+    assert policy.context_key(c) == (3, 0)
+    c.accepted = True
+    policy.update(c, 1, 1.0)
+    assert policy.posterior[(3, 0)] == [2.0, 1.0]
+    c.accepted = False
+    policy.update(c, 1, -1.0)
+    assert policy.posterior[(3, 0)] == [2.0, 2.0]
+    # the rejected pattern is now its own context; another pattern at progress 3 shares (3, 0)
+    assert policy.context_key(c) == (3, 1)
+    assert policy.context_key(context(pattern=(4, 5, 7), progress=3)) == (3, 0)
+    policy.update(c, 0, 0.0)  # not asking teaches nothing
+    assert policy.posterior[(3, 0)] == [2.0, 2.0] and (3, 1) not in policy.posterior
+
+
+def test_thompson_decides_on_the_sampled_net_reward() -> None:
+    rng = np.random.default_rng(5)
+    # reward_wrong = 0 (grids): theta > 0 always, so without a cost it always asks ...
+    free = ThompsonPolicy((1.0, 1.0), "binary", 1.0, 0.0, cost=0.0)
+    assert all(free.decide(context(rng=rng)) == 1 for _ in range(50))
+    # ... and with a cost above the best reward it never does
+    dear = ThompsonPolicy((1.0, 1.0), "binary", 1.0, 0.0, cost=1.0)
+    assert all(dear.decide(context(rng=rng)) == 0 for _ in range(50))
+    # the decision equals the hand-computed draw: theta ~ Beta(1, 1), ask iff 2 theta - 1 > 0.3
+    policy = ThompsonPolicy((1.0, 1.0), "binary", 1.0, -1.0, cost=0.3)
+    mine, theirs = np.random.default_rng(9), np.random.default_rng(9)
+    for _ in range(20):
+        theta = theirs.beta(1.0, 1.0)
+        assert policy.decide(context(rng=mine)) == int(2 * theta - 1 - 0.3 > 0)
+
+
+def test_thompson_logistic_gaussian_update() -> None:
+    policy = ThompsonPolicy((1.0, 1.0), "logistic", cost=0.1)
+    c = context(progress=4)
+    c.accepted = False
+    policy.update(c, 1, 0.9 - 0.1)  # the loop passes the reward net of the cost
+    # prior mean 1/2, precision 2; one reward 0.9 with noise precision 4
+    mean, precision = policy.posterior[(4, 0)]
+    assert precision == 6.0 and mean == pytest.approx((0.5 * 2 + 0.9 * 4) / 6)
+
+
+def test_budget_caps_queries_per_trial_and_per_episode() -> None:
+    trial = Budget(Always(), 2, "trial")
+    assert [trial.decide(context(trial=n)) for n in range(4)] == [1, 1, 0, 0]
+    episode = Budget(Always(), 1, "episode")
+    assert [episode.decide(context(trial=9, episode=n)) for n in range(3)] == [1, 0, 0]
+    # once spent, the inner policy is neither asked nor updated
+    inner = ThompsonPolicy((1.0, 1.0), "binary", 1.0, -1.0)
+    capped = Budget(inner, 1)
+    spent = context(trial=1)
+    assert capped.decide(spent) == 0
+    capped.update(spent, 0, 0.0)
+    assert inner.posterior == {}
+
+
+def test_oracle_asks_exactly_when_the_peeked_answer_is_accepted() -> None:
+    looks: list[int] = []
+
+    def peek(accepted: bool):
+        def look():
+            looks.append(1)
+            return SimpleNamespace(accepted=accepted)
+        return look
+
+    yes, no = context(peek=peek(True)), context(peek=peek(False))
+    assert Oracle().decide(yes) == 1 and Oracle().decide(no) == 0
+    yes.peek()  # the look is made once per decision
+    assert len(looks) == 2 and yes.peeked.accepted
+
+
+def test_make_policy_from_the_section_with_budget() -> None:
+    section = cfg.load("cube-stacking", "lagr-seq", "upstream", None, ['secondary.policy="random"', "secondary.budget=3"]).secondary
+    policy = make_policy(section, lambda: pytest.fail("seq's agent is built only for policy seq"))
+    assert isinstance(policy, Budget) and isinstance(policy.inner, RandomAsk) and policy.limit == 3
+
+
+def test_config_refuses_a_bad_prior_and_the_oracle_on_live_answers() -> None:
+    with pytest.raises(cfg.ConfigError, match="thompson_prior"):
+        cfg.load("cube-stacking", "lagr-seq", "upstream", None, ["secondary.thompson_prior=[1.0]"])
+    config = cfg.load("cube-stacking", "lagr-seq", "upstream", None, ['secondary.policy="oracle"'])
+    with pytest.raises(UsageError, match="oracle"):
+        check_provider("live", config, ProviderOptions())
+
+
+# ------------------------------------------------------------------------------------------
+# Runs
+# ------------------------------------------------------------------------------------------
+def _digest(path: Path) -> str:
+    h = hashlib.sha256()
+    for topic, record in iter_messages(path, ["/transition", "/query", "/episode"]):
+        h.update(topic.encode())
+        h.update(json.dumps(record, sort_keys=True).encode())
+    return h.hexdigest()
+
+
+# Computed with the code before asking policies existed (commit ebb29d7), trial 1 of seed 7.
+FROZEN = [
+    ("lagr-seq", "upstream", ["run.episodes=25"], "mock:authors-t0",
+     "c277c4c2d059d0704e190456393fb18a9dc495badc69e855fcc0f6fb34a27793"),
+    ("lagr-seq", "paper", ["run.episodes=20", 'secondary.query_reward="logistic"'], "mock",
+     "8bd8d18f9c6657a1cf8af27620a44c8887ce11a4ad73fccd82e9f3ffe433bd39"),
+    ("lagr", "upstream", ["run.episodes=15"], "mock",
+     "c7766beee0f1df08151105fc9af06751636ec2c8ce4564ae09087fc536b60ec2"),
+    ("baseline", "upstream", ["run.episodes=10"], "mock",
+     "e4dfef4661a3baeb3036b2b3a66bd921bc2e8f2b70023ab37ef3a73d72b2dda0"),
+]
+
+
+@pytest.mark.parametrize(("method", "preset", "sets", "provider", "digest"), FROZEN)
+def test_the_paper_seq_and_the_old_methods_give_the_same_events_as_before(
+    tmp_path: Path, method: str, preset: str, sets: list[str], provider: str, digest: str
+) -> None:
+    config = cfg.load("cube-stacking", method, preset, None, sets)
+    path = tmp_path / "trial.mcap"
+    run_one(config, 1, 7, provider, path)
+    assert _digest(path) == digest
+
+
+def _run(tmp_path: Path, name: str, sets: list[str], method: str = "lagr-seq", episodes: int = 30) -> list[dict]:
+    config = cfg.load("cube-stacking", method, "upstream", None, [f"run.episodes={episodes}", *sets])
+    path = tmp_path / f"{name}.mcap"
+    run_one(config, 0, 3, "mock:authors-t0", path)
+    return read_topic(path, "/query")
+
+
+def test_oracle_is_the_lower_bound_and_budget_caps_a_run(tmp_path: Path) -> None:
+    always = [q for q in _run(tmp_path, "always", [], method="lagr") if q["queried"]]
+    oracle = [q for q in _run(tmp_path, "oracle", ['secondary.policy="oracle"']) if q["queried"]]
+    # every query the oracle makes is accepted: no policy needs fewer for the same guidance
+    assert oracle and all(q["accepted"] for q in oracle)
+    assert len(oracle) < len(always)
+    assert sum(q["accepted"] for q in always) <= len(always)
+    capped = _run(tmp_path, "capped", ["secondary.budget=1", 'secondary.budget_scope="episode"'])
+    per_episode: dict[int, int] = {}
+    for q in capped:
+        per_episode[q["episode"]] = per_episode.get(q["episode"], 0) + int(q["queried"])
+    assert max(per_episode.values()) == 1
+    trial = _run(tmp_path, "trial-budget", ['secondary.policy="always"', "secondary.budget=5"])
+    assert sum(q["queried"] for q in trial) == 5
+
+
+def test_query_cost_reaches_the_logged_reward(tmp_path: Path) -> None:
+    queries = [q for q in _run(tmp_path, "cost", ['secondary.policy="thompson"', "secondary.query_cost=0.25"]) if q["queried"]]
+    assert queries
+    for q in queries:
+        assert q["query_reward"] == pytest.approx((1.0 if q["accepted"] else -1.0) - 0.25)
+
+
+def test_miss_report_counts_store_and_fallback_answers(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from lagrseq import cli
+    from tests.llm.conftest import authors_cache
+
+    store = tmp_path / "store"
+    path = authors_cache("cube_stacking_cache0.0.pkl")
+    assert cli.main(["cache", "import", str(path), "--task", "cube-stacking", "--model", "gpt-3.5-turbo",
+                     "--temperature", "0", "--store", str(store)]) == 0
+    common = ["run", "cube-stacking", "--method", "lagr", "--provider", f"recorded:{store}", "--on-miss", "mock",
+              "--trials", "1", "--out", str(tmp_path / "runs"), "--quiet", "--set", "run.episodes=8"]
+    capsys.readouterr()
+    assert cli.main(common) == 0  # 8 cubes: the cache holds every prefix
+    hit = capsys.readouterr().out
+    assert cli.main([*common, "--set", "task.stack_size=5"]) == 0  # 5 cubes: no key is in the store
+    miss = capsys.readouterr().out
+    counts = {}
+    for log in sorted((tmp_path / "runs").rglob("*.mcap")):
+        sent = [q for q in read_topic(log, "/query") if q["queried"]]
+        counts[read_info(log).config["task"]["stack_size"]] = (
+            sum(q["source"] == "recorded" for q in sent), sum(q["source"] == "mock" for q in sent))
+    stored, _ = counts[8]
+    _, fallback = counts[5]
+    assert counts[8][1] == 0 and counts[5][0] == 0 and stored > 0 and fallback > 0
+    assert f"answers: {stored} from the store, none from a fallback (0.0% missed the store)" in hit
+    assert f"answers: 0 from the store, {fallback} from the fallback mock (100.0% missed the store)" in miss
+
+
+def test_digest_ignores_policy_fields_at_their_defaults() -> None:
+    config = cfg.load("cube-stacking", "lagr-seq", "upstream")
+    data = json.loads(config.to_json())
+    old = {k: dict(v) if isinstance(v, dict) else v for k, v in data.items()}
+    for name in cfg.POLICY_DEFAULTS:
+        del old["secondary"][name]  # a configuration logged before the fields existed
+    assert cfg.config_digest(old) == cfg.config_digest(data) == config.digest()
+    other = cfg.load("cube-stacking", "lagr-seq", "upstream", None, ['secondary.policy="thompson"'])
+    assert other.digest() != config.digest()
+    # and a log without the fields is resumable by a run that has them at their defaults
+    from lagrseq.runner import _differences
+
+    assert _differences(json.loads(cfg.from_dict(old).to_json()), data) == []
