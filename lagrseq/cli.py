@@ -314,7 +314,8 @@ def _add_reproduce(sub: Any) -> None:
             "examples:\n"
             "  lagrseq reproduce --quick                # ./runs and ./reports, a few minutes\n"
             "  lagrseq reproduce --out results --jobs 8\n"
-            "  lagrseq reproduce --provider recorded:store-tau0/ --items table2   # a store made by lagrseq cache import"
+            "  lagrseq reproduce --provider recorded:store-tau0/ --items table2   # a store made by lagrseq cache import\n"
+            "  lagrseq reproduce --quick --authors-caches ../LaGRSEQ   # add the authors' recorded GPT answers"
         ),
         formatter_class=_RAW,
     )
@@ -324,6 +325,12 @@ def _add_reproduce(sub: Any) -> None:
     p.add_argument("--jobs", type=_COUNT, default=os.cpu_count() or 1, help="trials run in parallel (default: the number of cores)")
     p.add_argument("--seed", type=_SEED, default=None, help="run seed (default: the suite's, 0)")
     p.add_argument("--items", default=None, metavar="ID,ID", help="only these suite items (default: all)")
+    p.add_argument(
+        "--authors-caches", type=Path, default=None, metavar="DIR",
+        help="a clone of GKthom/LaGRSEQ or a folder of its cache pickles (any names; identified by content): "
+        "imported into OUT/authors-answers, and every item they cover gets a line or row on the authors' "
+        "recorded GPT answers (misses answered by the mock, counted beside each number)",
+    )
 
 
 def _add_recover(sub: Any) -> None:
@@ -467,6 +474,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     report, elapsed = reproduce.reproduce(
         args.suite, items, args.quick, args.provider, args.out, args.jobs, args.seed,
         args.formats, _price_function(args.price_table), quiet=args.quiet, say=lambda line: print(line, flush=True),
+        authors_caches=args.authors_caches,
     )
     _print_report(report, elapsed, not_run_said=True)
     return 0

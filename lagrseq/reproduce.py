@@ -27,7 +27,7 @@ from lagrseq.config import ExperimentConfig
 from lagrseq.errors import ConfigError, UsageError
 from lagrseq.experiment import TrialResult
 from lagrseq.logs.reader import is_complete
-from lagrseq.suite import RunSpec, Suite
+from lagrseq.suite import RunSpec, Suite, is_authors_provider
 
 CALIBRATION_STEPS = 1000
 """Environment steps timed per distinct experiment to estimate the suite's duration."""
@@ -46,6 +46,8 @@ class PlannedRun:
     path: Path
     """Run directory (trials) or log file (accuracy probe)."""
     items: list[str] = field(default_factory=list)
+    options: wiring.ProviderOptions | None = None
+    """How the provider is set up (runs on the authors' answers: misses go to the mock)."""
 
     def pending(self) -> int:
         """Trials (or probe files) whose log is not complete yet."""
@@ -111,6 +113,8 @@ def plan(suite: Suite, quick: bool, provider: str | None, runs_dir: Path, seed: 
                 run = planned[path] = PlannedRun(
                     spec.kind, config, spec_provider, seed, trials, samples, path
                 )
+                if is_authors_provider(spec_provider):
+                    run.options = wiring.ProviderOptions(on_miss="mock")
             run.trials = max(run.trials, trials)
             if item.id not in run.items:
                 run.items.append(item.id)
@@ -239,7 +243,8 @@ def _execute_run(
             )
     else:
         results = runner.run_trials(
-            run.config, run.trials, run.seed, run.provider, run.path, jobs=jobs, progress=progress, pool=pool
+            run.config, run.trials, run.seed, run.provider, run.path, jobs=jobs, progress=progress, pool=pool,
+            provider_options=run.options,
         )
     progress.finish()
     return results
@@ -266,6 +271,7 @@ def reproduce(
     price: Callable[[str, int, int], float | None] | None = None,
     quiet: bool = False,
     say: Callable[[str], None] = print,
+    authors_caches: Path | None = None,
 ) -> tuple[Any, float]:
     """``lagrseq reproduce``: plan the suite, say what will run and how long it should take, run
     it with one progress bar (episodes of cube runs, steps of grid runs), then replay the logs into
@@ -285,7 +291,10 @@ def reproduce(
     writable_directory(out)
     runs_dir, reports_dir = writable_directory(out / "runs"), writable_directory(out / "reports", "--out")
     started = time.perf_counter()
-    the_plan = plan(suite, quick, provider, runs_dir, seed)
+    planned_suite = suite
+    if authors_caches is not None:
+        planned_suite = with_authors_answers(suite, authors_caches, out, say)
+    the_plan = plan(planned_suite, quick, provider, runs_dir, seed)
     for item_id, reason in the_plan.not_run.items():
         say(f"{item_id}: not run: {reason}")
     pending = sum(run.pending() for run in the_plan.runs)
@@ -311,3 +320,17 @@ def reproduce(
         price=price,
     )
     return report, time.perf_counter() - started
+
+
+def with_authors_answers(suite: Suite, caches: Path, out: Path, say: Callable[[str], None] = print) -> Suite:
+    """``reproduce --authors-caches DIR``: import every authors' cache found in DIR into
+    ``OUT/authors-answers`` and add a recorded-GPT run to every item they cover. Replay finds
+    those runs in the logs by their provider (no suite change is needed to rebuild them)."""
+    from lagrseq import authors
+    from lagrseq.suite import with_recorded
+
+    found = authors.find_caches(caches, warn=lambda line: say(f"warning: {line}"))
+    for line in authors.import_caches(found, out, warn=lambda line: say(f"note: {line}")):
+        say(f"authors' answers: {line}")
+    covers = {cache.covers for cache in found}
+    return with_recorded(suite, authors.provider_spec(out), covers)

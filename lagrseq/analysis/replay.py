@@ -31,7 +31,7 @@ from lagrseq import __version__
 from lagrseq.analysis import costs, figures, items, loading, stats
 from lagrseq.analysis.tables import Table, plus_minus, to_csv, to_html, to_markdown
 from lagrseq.errors import LogError, UsageError
-from lagrseq.suite import Item, Suite, load_suite
+from lagrseq.suite import AUTHORS_HINT, Item, Suite, is_authors_provider, load_suite, with_recorded
 
 FORMATS = ("png", "svg", "pdf")
 DPI = 150
@@ -180,6 +180,7 @@ def replay(
     if not logs.runs:
         detail = f" ({'; '.join(logs.warnings)})" if logs.warnings else ""
         raise LogError(f"no complete lagrseq trial logs under {', '.join(map(str, roots))}{detail}")
+    suite = with_logged_authors_runs(suite, logs.runs)
     out = Path(out)
     (out / "figures").mkdir(parents=True, exist_ok=True)
     (out / "tables").mkdir(parents=True, exist_ok=True)
@@ -222,6 +223,28 @@ def replay(
     _write(out / "index.html", _index_html(reports, extra, logs, produced_by), written)
     _write(out / "index.md", _index_markdown(reports, extra, logs, produced_by), written)
     return Report(out, logs, reports, written)
+
+
+def with_logged_authors_runs(suite: Suite, runs: Sequence[loading.Run]) -> Suite:
+    """The suite with a recorded-GPT line on every item the logged runs on the authors' answers
+    cover (``reproduce --authors-caches``), found from the logs alone by their provider."""
+    covers: dict[str, set[tuple[str, int]]] = {}
+    for run in runs:
+        if is_authors_provider(run.key.provider):
+            task = run.config.get("task", {})
+            size = task.get("stack_size", 0) if isinstance(task, Mapping) else 0
+            covers.setdefault(run.key.provider, set()).add((run.key.task, int(size or 0)))
+    if not covers:
+        return suite
+    provider = sorted(covers)[0]  # one store's runs (two output folders replayed together: the first)
+    return with_recorded(suite, provider, covers[provider])
+
+
+def _authors_hint(report: ItemReport) -> str:
+    """The line saying how to add the recorded-GPT line, for a covered item that has none."""
+    if not report.item.recorded or any(is_authors_provider(m.provider) for m in report.matched):
+        return ""
+    return AUTHORS_HINT
 
 
 # ------------------------------------------------------------------------------------------
@@ -318,6 +341,8 @@ def _index_html(
         )
         if r.item.note:
             parts.append(f'<p class="how">Note: {e(r.item.note)}</p>')
+        if _authors_hint(r):
+            parts.append(f'<p class="how">{e(_authors_hint(r))}</p>')
         for line in r.missing():
             parts.append(f'<p class="missing">Missing — {e(line)}</p>')
         parts.append("</section>")
@@ -363,6 +388,8 @@ def _index_markdown(
         lines += [f"{how} Runs:", "", *(f"- {line}" for line in run_lines), ""]
         if r.item.note:
             lines += [f"Note: {r.item.note}", ""]
+        if _authors_hint(r):
+            lines += [_authors_hint(r), ""]
         lines += [f"Missing — {line}  " for line in r.missing()]
         lines.append("")
     for _stem, table in extra:
