@@ -325,6 +325,8 @@ AUTHORS_STORE_NAME = "authors-answers"
 replay recognises runs on the authors' answers by a ``recorded:`` provider ending in this name."""
 RECORDED_NAME = "authors' GPT answers"
 """How a line or row on the authors' recorded answers is named."""
+PAPER_MODEL_ROWS = {"gpt-4": "GPT4", "gpt-3.5-turbo": "GPT3"}
+"""The paper's row names of its models (Table 3): a recorded run of that model fills that row."""
 AUTHORS_HINT = (
     "Recorded GPT line: add it with `lagrseq reproduce --authors-caches DIR` (DIR: a clone of "
     "GKthom/LaGRSEQ or a folder of its cache pickles)."
@@ -376,7 +378,10 @@ def with_recorded(suite: Suite, provider: str, covers: set[tuple[str, int]]) -> 
         rows = {spec.row for spec in eligible if spec.row is not None}
         for spec in item.runs:
             if spec.row is not None and spec.row in rows:
-                row = _recorded_label(spec.row) if "{provider}" in spec.row else f"{spec.row} ({RECORDED_NAME})"
+                row = f"{spec.row} ({RECORDED_NAME})"
+                if "{provider}" in spec.row:  # a row per model (Table 3): the paper's row of that model
+                    model = spec.resolve().llm.model
+                    row = spec.row.replace("{provider}", PAPER_MODEL_ROWS.get(model, RECORDED_NAME))
                 copy = replace(
                     spec,
                     label=_recorded_label(spec.label),
