@@ -64,18 +64,14 @@ def audited_fields(task: str) -> list[tuple[str, Any, Any]]:
         for name in up:
             if name in pa and up[name] != pa[name] and name not in seen:
                 seen[name] = (up[name], pa[name])
-    for name, values in EXTRA_FIELDS.items():
+    for name in EXTRA_FIELDS:
         if name in seen:
             continue
         up = _flat(preset_dict(task, "lagr", "upstream")).get(name)
         pa = _flat(preset_dict(task, "lagr", "paper")).get(name)
         if up is None or pa is None:
             continue
-        if up == pa:
-            other = next(v for v in values if v != up)
-            seen[name] = (up, other)  # both presets switch to the value neither uses
-        else:
-            seen[name] = (up, pa)
+        seen[name] = (up, pa)  # where they agree, both presets switch to the value neither uses
     return [(name, up, pa) for name, (up, pa) in seen.items()]
 
 
