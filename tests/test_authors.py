@@ -108,6 +108,7 @@ task = "cube-stacking"
 preset = "upstream"
 trials = 2
 episodes = 10
+reference = { "0|LaGR-SEQ" = "126 ± 2.94", "0|LaGR" = "284 ± 0.94" }
 
 [[items.runs]]
 label = "LaGR-SEQ"
@@ -142,6 +143,15 @@ def test_reproduce_with_the_authors_caches_adds_rows_that_replay_rebuilds_from_l
     again = replay([out / "runs"], tmp_path / "again", suite=load_suite(suite_path))
     assert (again.out / "tables" / "t2.md").read_text() == table
     assert "--authors-caches" not in (again.out / "index.md").read_text()
+    # the scoreboard: each paper value beside every source (the mock and the authors' answers),
+    # with the reduction SEQ brings; rebuilt by replay from the logs alone
+    board = (out / "reports" / "scoreboard.md").read_text()
+    assert board == (again.out / "scoreboard.md").read_text()
+    rows = [line for line in board.splitlines() if line.startswith("| queries")]
+    assert len(rows) == 6 and sum("authors' GPT answers" in r for r in rows) == 3
+    assert all(("inside" in r) != ("✗ outside" in r) for r in rows)
+    html = (out / "reports" / "index.html").read_text()
+    assert html.index('id="scoreboard"') < html.index("<ul>")
     # without the option the item says in one line how to add the recorded row
     plain, _ = reproduce(suite_path, None, False, None, tmp_path / "plain", 1, None, ["png"], quiet=True, say=said.append)
     assert "lagrseq reproduce --authors-caches DIR" in (plain.out / "index.md").read_text()
