@@ -308,6 +308,8 @@ def reproduce(
     total = sum(run.units() for run in the_plan.runs)
     with tqdm(total=total, unit="it", disable=quiet, file=sys.stderr, dynamic_ncols=True) as bar:
         execute(the_plan, jobs, bar, on_run=lambda run: bar.set_description(run.describe()))
+    if suite_path is None and not items and "cube-stacking" in cfg.tasks():  # the paper's whole suite
+        run_cube_audit(runs_dir, quick, jobs, seed, quiet, say)
     say(f"runs done in {duration(time.perf_counter() - started)}: {runs_dir}")
     report = replay(
         [runs_dir],
@@ -334,3 +336,25 @@ def with_authors_answers(suite: Suite, caches: Path, out: Path, say: Callable[[s
         say(f"authors' answers: {line}")
     covers = {cache.covers for cache in found}
     return with_recorded(suite, authors.provider_spec(out), covers)
+
+
+AUDIT_TRIALS = {True: 3, False: 10}
+"""Trials per run of the cube audit that ``reproduce`` includes (--quick, full)."""
+
+
+def run_cube_audit(runs_dir: Path, quick: bool, jobs: int, seed: int, quiet: bool, say: Callable[[str], None]) -> None:
+    """The audit of the cube task (``lagrseq audit cube-stacking``) at the suite's length, into the
+    suite's runs, so that replay adds its table and figure (the preset runs are the suite's own)."""
+    from tqdm import tqdm
+
+    from lagrseq.audit import plan as audit_plan
+
+    trials = AUDIT_TRIALS[quick]
+    runs = audit_plan("cube-stacking", "mock", trials, 100, -1, runs_dir, seed, say)
+    say(f"cube audit: {len(runs)} runs of {trials} trials, one field switched each (lagrseq audit)")
+    with contextlib.ExitStack() as stack:
+        pool = stack.enter_context(runner.process_pool(jobs)) if jobs > 1 else None
+        bar = stack.enter_context(tqdm(total=len(runs), unit="run", disable=quiet, file=sys.stderr, dynamic_ncols=True))
+        for r in runs:
+            runner.run_trials(r.config, trials, seed, r.provider, r.path, jobs=jobs, pool=pool)
+            bar.update(1)

@@ -67,11 +67,11 @@ def audited_fields(task: str) -> list[tuple[str, Any, Any]]:
     for name in EXTRA_FIELDS:
         if name in seen:
             continue
-        up = _flat(preset_dict(task, "lagr", "upstream")).get(name)
-        pa = _flat(preset_dict(task, "lagr", "paper")).get(name)
-        if up is None or pa is None:
+        up_value = _flat(preset_dict(task, "lagr", "upstream")).get(name)
+        pa_value = _flat(preset_dict(task, "lagr", "paper")).get(name)
+        if up_value is None or pa_value is None:
             continue
-        seen[name] = (up, pa)  # where they agree, both presets switch to the value neither uses
+        seen[name] = (up_value, pa_value)  # where they agree, both presets switch to the value neither uses
     return [(name, up, pa) for name, (up, pa) in seen.items()]
 
 
@@ -223,8 +223,11 @@ def build(runs: Sequence[Run]) -> list[Audit]:
                 if switched is None:
                     continue
                 # a method whose runs cannot read the field keeps the preset's run
-                merged = {m: switched.get(m) or (base.get(m) if not relevant(name, m) else None) for m in METHODS}
-                merged = {m: r for m, r in merged.items() if r is not None}
+                merged: dict[str, Run] = {}
+                for m in METHODS:
+                    chosen = switched.get(m) or (base.get(m) if not relevant(name, m) else None)
+                    if chosen is not None:
+                        merged[m] = chosen
                 value = switched_value(name, preset, fields)
                 for q in QUANTITIES:
                     a, b = q.per_trial(merged), q.per_trial(base)

@@ -127,11 +127,11 @@ def build(items: Sequence[tuple[Item, Sequence[Match]]], audit_tasks: Sequence[s
                 for m in present:
                     if m.spec.column != numerator or not _fits(m, row):
                         continue
-                    bottom = next((b for b in present if b.spec.column == denominator and b.row == m.row), None)
-                    if bottom is None or m.run is None or bottom.run is None:
+                    under = next((b for b in present if b.spec.column == denominator and b.row == m.row), None)
+                    if under is None or m.run is None or under.run is None:
                         continue
-                    ratios = stats.paired_ratios(m.run.total_per_trial("return"), bottom.run.total_per_trial("return"))
-                    s = stats.summarize(ratios, stats.generator(f"{m.run.key.name}/{bottom.run.key.name}/ratio"))
+                    ratios = stats.paired_ratios(m.run.total_per_trial("return"), under.run.total_per_trial("return"))
+                    s = stats.summarize(ratios, stats.generator(f"{m.run.key.name}/{under.run.key.name}/ratio"))
                     add(item, f"{row} cubes: performance ratio", str(paper), m, s.mean, s.ci_low, s.ci_high, s.n, 3)
     display = []
     for r in rows:
