@@ -155,3 +155,32 @@ def test_reproduce_with_the_authors_caches_adds_rows_that_replay_rebuilds_from_l
     # without the option the item says in one line how to add the recorded row
     plain, _ = reproduce(suite_path, None, False, None, tmp_path / "plain", 1, None, ["png"], quiet=True, say=said.append)
     assert "lagrseq reproduce --authors-caches DIR" in (plain.out / "index.md").read_text()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("task", "trials", "steps"), [("object-arrangement", 5, 200), ("image-completion", 3, 2000)])
+def test_the_grid_profile_runs_like_the_recorded_answers(tmp_path: Path, task: str, trials: int, steps: int) -> None:
+    """mock:authors-gpt4 against the authors' GPT-4 answers (misses answered by the mock), upstream
+    preset, queries per trial with and without SEQ: the two runs' 95% bootstrap intervals overlap."""
+    pytest.importorskip("torch")
+    from lagrseq import config as cfg
+    from lagrseq import runner
+    from lagrseq.analysis import stats
+    from lagrseq.wiring import ProviderOptions
+
+    caches = _caches()
+    found = [c for c in authors.find_caches(caches) if c.task == task]
+    authors.import_caches(found, tmp_path)
+    recorded = authors.provider_spec(tmp_path)
+    for method in ("lagr", "lagr-seq"):
+        config = cfg.load(task, method, "upstream", None, [f"run.max_steps={steps}"])
+        summaries = []
+        for provider in ("mock:authors-gpt4", recorded):
+            options = ProviderOptions(on_miss="mock") if provider == recorded else None
+            queries = [
+                runner.run_one(config, t, 0, provider, tmp_path / "x.mcap", log=False, provider_options=options).queries
+                for t in range(trials)
+            ]
+            summaries.append(stats.summarize(np.array(queries, dtype=float), stats.generator(f"{task}/{method}/{provider}")))
+        profile, authors_run = summaries
+        assert profile.ci_low <= authors_run.ci_high and authors_run.ci_low <= profile.ci_high, (method, profile, authors_run)
