@@ -314,7 +314,7 @@ def _add_reproduce(sub: Any) -> None:
             "examples:\n"
             "  lagrseq reproduce --quick                # ./runs and ./reports, a few minutes\n"
             "  lagrseq reproduce --out results --jobs 8\n"
-            "  lagrseq reproduce --provider recorded:store-tau0/ --items table2   # a store made by lagrseq cache import\n"
+            "  lagrseq reproduce --provider recorded:store-tau0/ --items fig6a   # a store made by lagrseq cache import\n"
             "  lagrseq reproduce --quick --authors-caches ../LaGRSEQ   # add the authors' recorded GPT answers"
         ),
         formatter_class=_RAW,
