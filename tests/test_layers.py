@@ -49,7 +49,7 @@ LAYERS: dict[str, tuple[str, ...]] = {
     "lagrseq.probe": ("lagrseq.analysis", "lagrseq.recording", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),
     "lagrseq.recording": ("lagrseq.analysis", "lagrseq.runner", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),
     "lagrseq.reproduce": ("lagrseq.cli", *HEAVY),
-    "lagrseq.audit": ("lagrseq.runner", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),
+    "lagrseq.audit": ("lagrseq.reproduce", "lagrseq.cli", *HEAVY),
     "lagrseq.authors": ("lagrseq.analysis", "lagrseq.runner", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),
 }
 ANYONE = ("lagrseq.config", "lagrseq.errors", "lagrseq.seeding", "lagrseq.paths", "lagrseq.tomlfile")
