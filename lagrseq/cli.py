@@ -412,7 +412,8 @@ def _add_reproduce(sub: Any) -> None:
             "  lagrseq reproduce --quick                # ./runs and ./reports, a few minutes\n"
             "  lagrseq reproduce --out results --jobs 8\n"
             "  lagrseq reproduce --executor dask --scheduler tcp://head:8786 --out /shared/results\n"
-            "  lagrseq reproduce --provider recorded:store-tau0/ --items table2   # a store made by lagrseq cache import"
+            "  lagrseq reproduce --provider recorded:store-tau0/ --items fig6a   # a store made by lagrseq cache import\n"
+            "  lagrseq reproduce --quick --authors-caches ../LaGRSEQ   # add the authors' recorded GPT answers"
         ),
         formatter_class=_RAW,
     )
@@ -422,6 +423,38 @@ def _add_reproduce(sub: Any) -> None:
     p.add_argument("--jobs", type=_COUNT, default=os.cpu_count() or 1, help="trials run in parallel (default: the number of cores)")
     p.add_argument("--seed", type=_SEED, default=None, help="run seed (default: the suite's, 0)")
     p.add_argument("--items", default=None, metavar="ID,ID", help="only these suite items (default: all)")
+    p.add_argument(
+        "--authors-caches", type=Path, default=None, metavar="DIR",
+        help="a clone of GKthom/LaGRSEQ or a folder of its cache pickles (any names; identified by content): "
+        "imported into OUT/authors-answers, and every item they cover gets a line or row on the authors' "
+        "recorded GPT answers (misses answered by the mock, counted beside each number)",
+    )
+
+
+def _add_audit(sub: Any) -> None:
+    p = sub.add_parser(
+        "audit",
+        parents=[_quiet()],
+        help="measure what each deviation between the upstream and paper presets does",
+        description=(
+            "For every field where the upstream and paper presets differ (and lagr.solution_scope), "
+            "run the upstream preset with only that field set to the paper's value and the paper "
+            "preset with only that field set back, for baseline, lagr and lagr-seq; then report each "
+            "field's effect on queries with and without SEQ, total return, the performance ratio and "
+            "the steps to the first solved episode, with 95%% bootstrap intervals. Writes "
+            "OUT/runs and OUT/reports/audit-TASK.md/.csv/.png; lagrseq replay rebuilds it from the logs."
+        ),
+        epilog="examples:\n  lagrseq audit cube-stacking --trials 5 --out audit\n  lagrseq audit cube-stacking --provider mock:authors-t0",
+        formatter_class=_RAW,
+    )
+    _task_argument(p)
+    p.add_argument("--provider", default="mock", metavar="SPEC", help="provider of the lagr and lagr-seq runs (default mock; the baseline never asks)")
+    p.add_argument("--trials", type=_COUNT, default=5, help="trials per run (default 5)")
+    p.add_argument("--episodes", type=int, default=0, help="episodes per trial (default 0: the preset's)")
+    p.add_argument("--max-steps", type=int, default=-1, help="step budget per trial (default -1: the preset's)")
+    p.add_argument("--out", type=Path, default=Path("audit"), metavar="DIR", help="writes DIR/runs and DIR/reports (default: ./audit)")
+    p.add_argument("--jobs", type=_COUNT, default=os.cpu_count() or 1, help="trials run in parallel (default: the number of cores)")
+    p.add_argument("--seed", type=_SEED, default=0, help="run seed (default 0)")
 
 
 def _add_recover(sub: Any) -> None:
@@ -449,7 +482,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"lagrseq {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    for add in (_add_run, _add_config, _add_record, _add_cache, _add_reproduce, _add_replay, _add_recover, _add_robot, _add_frontier):
+    for add in (_add_run, _add_config, _add_record, _add_cache, _add_reproduce, _add_replay, _add_recover, _add_robot, _add_frontier, _add_audit):
         add(sub)
     return parser
 
@@ -623,6 +656,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         args.suite, items, args.quick, args.provider, args.out, args.jobs, args.seed,
         args.formats, _price_function(args.price_table), quiet=args.quiet, say=lambda line: print(line, flush=True),
         executor=args.executor, scheduler=args.scheduler, retries=args.retries,
+        authors_caches=args.authors_caches,
     )
     _print_report(report, elapsed, not_run_said=True)
     return 0
@@ -685,7 +719,22 @@ def _price_function(price_table: str | None) -> Any:
     return lambda model, prompt, completion: table.cost(Usage(prompt, completion), model)
 
 
+def cmd_audit(args: argparse.Namespace) -> int:
+    from lagrseq.analysis.tables import to_markdown
+    from lagrseq.audit import run_audit
+
+    made = run_audit(
+        args.task, args.provider, args.trials, args.episodes, args.max_steps, args.out, args.jobs, args.seed,
+        ["png"], quiet=args.quiet, say=lambda line: print(line, flush=True),
+    )
+    for audit in made:
+        print(to_markdown(audit.table))
+        print(f"written: {args.out / 'reports' / f'audit-{audit.task}'}.md, .csv, .png")
+    return 0
+
+
 COMMANDS = {
+    "audit": cmd_audit,
     "run": cmd_run,
     "config": cmd_config,
     "record": cmd_record,

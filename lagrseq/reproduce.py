@@ -27,7 +27,7 @@ from lagrseq.config import ExperimentConfig
 from lagrseq.errors import ConfigError, UsageError
 from lagrseq.experiment import TrialResult
 from lagrseq.logs.reader import is_complete
-from lagrseq.suite import RunSpec, Suite
+from lagrseq.suite import RunSpec, Suite, is_authors_provider
 
 CALIBRATION_STEPS = 1000
 """Environment steps timed per distinct experiment to estimate the suite's duration."""
@@ -48,6 +48,8 @@ class PlannedRun:
     path: Path
     """Run directory (trials) or log file (accuracy probe)."""
     items: list[str] = field(default_factory=list)
+    options: wiring.ProviderOptions | None = None
+    """How the provider is set up (runs on the authors' answers: misses go to the mock)."""
 
     def pending(self) -> int:
         """Trials (or probe files) whose log is not complete yet."""
@@ -113,6 +115,8 @@ def plan(suite: Suite, quick: bool, provider: str | None, runs_dir: Path, seed: 
                 run = planned[path] = PlannedRun(
                     spec.kind, config, spec_provider, seed, trials, samples, path
                 )
+                if is_authors_provider(spec_provider):
+                    run.options = wiring.ProviderOptions(on_miss="mock")
             run.trials = max(run.trials, trials)
             if item.id not in run.items:
                 run.items.append(item.id)
@@ -252,6 +256,7 @@ def _execute_run(
         results = runner.run_trials(
             run.config, run.trials, run.seed, run.provider, run.path, jobs=jobs, progress=progress, pool=pool,
             retries=retries,
+            provider_options=run.options,
         )
     progress.finish()
     return results
@@ -281,6 +286,7 @@ def reproduce(
     executor: str = "local",
     scheduler: str | None = None,
     retries: int = 0,
+    authors_caches: Path | None = None,
 ) -> tuple[Any, float]:
     """``lagrseq reproduce``: plan the suite, say what will run and how long it should take, run
     it with one progress bar (episodes of cube runs, steps of grid runs), then replay the logs into
@@ -302,7 +308,10 @@ def reproduce(
     writable_directory(out)
     runs_dir, reports_dir = writable_directory(out / "runs"), writable_directory(out / "reports", "--out")
     started = time.perf_counter()
-    the_plan = plan(suite, quick, provider, runs_dir, seed)
+    planned_suite = suite
+    if authors_caches is not None:
+        planned_suite = with_authors_answers(suite, authors_caches, out, say)
+    the_plan = plan(planned_suite, quick, provider, runs_dir, seed)
     for item_id, reason in the_plan.not_run.items():
         say(f"{item_id}: not run: {reason}")
     pending = sum(run.pending() for run in the_plan.runs)
@@ -320,6 +329,8 @@ def reproduce(
             the_plan, jobs, bar, on_run=lambda run: bar.set_description(run.describe()),
             executor=executor, scheduler=scheduler, say=say, retries=retries,
         )
+    if suite_path is None and not items and "cube-stacking" in cfg.tasks():  # the paper's whole suite
+        run_cube_audit(runs_dir, quick, jobs, seed, quiet, say)
     say(f"runs done in {duration(time.perf_counter() - started)}: {runs_dir}")
     report = replay(
         [runs_dir],
@@ -332,3 +343,39 @@ def reproduce(
         price=price,
     )
     return report, time.perf_counter() - started
+
+
+def with_authors_answers(suite: Suite, caches: Path, out: Path, say: Callable[[str], None] = print) -> Suite:
+    """``reproduce --authors-caches DIR``: import every authors' cache found in DIR into
+    ``OUT/authors-answers`` and add a recorded-GPT run to every item they cover. Replay finds
+    those runs in the logs by their provider (no suite change is needed to rebuild them)."""
+    from lagrseq import authors
+    from lagrseq.suite import with_recorded
+
+    found = authors.find_caches(caches, warn=lambda line: say(f"warning: {line}"))
+    for line in authors.import_caches(found, out, warn=lambda line: say(f"note: {line}")):
+        say(f"authors' answers: {line}")
+    covers = {cache.covers for cache in found}
+    return with_recorded(suite, authors.provider_spec(out), covers)
+
+
+AUDIT_TRIALS = {True: 3, False: 10}
+"""Trials per run of the cube audit that ``reproduce`` includes (--quick, full)."""
+
+
+def run_cube_audit(runs_dir: Path, quick: bool, jobs: int, seed: int, quiet: bool, say: Callable[[str], None]) -> None:
+    """The audit of the cube task (``lagrseq audit cube-stacking``) at the suite's length, into the
+    suite's runs, so that replay adds its table and figure (the preset runs are the suite's own)."""
+    from tqdm import tqdm
+
+    from lagrseq.audit import plan as audit_plan
+
+    trials = AUDIT_TRIALS[quick]
+    runs = audit_plan("cube-stacking", "mock", trials, 100, -1, runs_dir, seed, say)
+    say(f"cube audit: {len(runs)} runs of {trials} trials, one field switched each (lagrseq audit)")
+    with contextlib.ExitStack() as stack:
+        pool = stack.enter_context(runner.process_pool(jobs)) if jobs > 1 else None
+        bar = stack.enter_context(tqdm(total=len(runs), unit="run", disable=quiet, file=sys.stderr, dynamic_ncols=True))
+        for r in runs:
+            runner.run_trials(r.config, trials, seed, r.provider, r.path, jobs=jobs, pool=pool)
+            bar.update(1)

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -47,7 +47,7 @@ _INHERITED = _RUN_KEYS - {"label", "row", "column"}
 _OPTIONS = ("x", "band", "window", "ylabel", "numerator", "denominator", "reference", "row_header")
 _CHOICES = {"x": ("episode", "global_step"), "band": ("std", "se")}
 _TEXT_KEYS = ("title", "caption", "note", "label", "provider", "ylabel", "numerator", "denominator", "row_header")
-_ITEM_KEYS = {"id", "title", "caption", "render", "runs", "note", *_OPTIONS} | _INHERITED
+_ITEM_KEYS = {"id", "title", "caption", "render", "runs", "note", "recorded", *_OPTIONS} | _INHERITED
 
 
 @dataclass(frozen=True)
@@ -123,6 +123,9 @@ class Item:
     """How lagrseq makes it, where that differs from the paper."""
     options: Mapping[str, Any] = field(default_factory=dict)
     """Renderer options: x, band, window, ylabel, numerator, denominator, reference."""
+    recorded: bool = False
+    """Whether the authors' recorded GPT answers cover this item (``reproduce --authors-caches``
+    adds a recorded-GPT line or row to it; see :func:`with_recorded`)."""
 
 
 @dataclass(frozen=True)
@@ -274,6 +277,9 @@ def load_suite(path: str | Path | None = None) -> Suite:
         if not runs:
             raise ConfigError(f"suite item {item_id!r} lists no runs")
         options = _options(f"suite item {item_id!r}", raw)
+        recorded = raw.get("recorded", False)
+        if not isinstance(recorded, bool):
+            raise ConfigError(f"suite item {item_id!r}: recorded = {cfg.show_value(recorded)}; expected true or false")
         items.append(
             Item(
                 id=item_id,
@@ -283,6 +289,7 @@ def load_suite(path: str | Path | None = None) -> Suite:
                 caption=str(raw.get("caption", "")),
                 note=str(raw.get("note", "")),
                 options=options,
+                recorded=recorded,
             )
         )
     return Suite(seed=seed, provider=str(provider), items=tuple(items))
@@ -308,3 +315,86 @@ def matches(stored: Mapping[str, Any], resolved: Mapping[str, Any]) -> bool:
         elif other != values:
             return False
     return True
+
+
+# ------------------------------------------------------------------------------------------
+# The authors' recorded GPT answers (``lagrseq reproduce --authors-caches DIR``)
+# ------------------------------------------------------------------------------------------
+AUTHORS_STORE_NAME = "authors-answers"
+"""The store under ``--out`` that ``reproduce --authors-caches`` imports the authors' caches into;
+replay recognises runs on the authors' answers by a ``recorded:`` provider ending in this name."""
+RECORDED_NAME = "authors' GPT answers"
+"""How a line or row on the authors' recorded answers is named."""
+PAPER_MODEL_ROWS = {"gpt-4": "GPT4", "gpt-3.5-turbo": "GPT3"}
+"""The paper's row names of its models (Table 3): a recorded run of that model fills that row."""
+AUTHORS_HINT = (
+    "Recorded GPT line: add it with `lagrseq reproduce --authors-caches DIR` (DIR: a clone of "
+    "GKthom/LaGRSEQ or a folder of its cache pickles)."
+)
+
+
+def is_authors_provider(spec: str) -> bool:
+    """Whether a provider spec reads the store ``reproduce --authors-caches`` made."""
+    kind, _, argument = spec.partition(":")
+    return kind == "recorded" and Path(argument).name == AUTHORS_STORE_NAME
+
+
+def covered_by(resolved: cfg.ExperimentConfig) -> tuple[str, int]:
+    """(task, stack size or 0): what an authors' cache must cover for this run to be made on it."""
+    return resolved.task.name, int(getattr(resolved.task, "stack_size", 0) or 0)
+
+
+def _recorded_label(text: str) -> str:
+    if "{provider}" in text:
+        return text.replace("{provider}", RECORDED_NAME)
+    return f"{text}, {RECORDED_NAME}"
+
+
+def with_recorded(suite: Suite, provider: str, covers: set[tuple[str, int]]) -> Suite:
+    """``suite`` with a recorded-GPT line or row added to every item marked ``recorded``.
+
+    A run is copied onto ``provider`` when it would use the suite's default provider (or a mock
+    profile standing for GPT), asks at temperature 0, is not the baseline, and its (task, stack
+    size) is in ``covers``. In tables, the copied run's row is copied whole (a ratio's denominator
+    comes along unchanged) under the row name with the recorded name added.
+    """
+    items = []
+    for item in suite.items:
+        if not item.recorded:
+            items.append(item)
+            continue
+        eligible: list[RunSpec] = []
+        for spec in item.runs:
+            if spec.method == "baseline" or not (spec.provider is None or spec.provider.startswith("mock")):
+                continue
+            try:
+                resolved = spec.resolve()
+            except ConfigError:
+                continue
+            if resolved.llm.temperature == 0 and covered_by(resolved) in covers:
+                eligible.append(spec)
+        added: list[RunSpec] = []
+        seen: set[tuple[str | None, str | None, str]] = set()
+        rows = {spec.row for spec in eligible if spec.row is not None}
+        for spec in item.runs:
+            if spec.row is not None and spec.row in rows:
+                row = f"{spec.row} ({RECORDED_NAME})"
+                if "{provider}" in spec.row:  # a row per model (Table 3): the paper's row of that model
+                    model = spec.resolve().llm.model
+                    row = spec.row.replace("{provider}", PAPER_MODEL_ROWS.get(model, RECORDED_NAME))
+                copy = replace(
+                    spec,
+                    label=_recorded_label(spec.label),
+                    row=row,
+                    provider=provider if spec in eligible else spec.provider,
+                )
+            elif spec in eligible and spec.row is None:
+                copy = replace(spec, label=_recorded_label(spec.label), provider=provider)
+            else:
+                continue
+            key = (copy.row, copy.column, json.dumps(copy.resolved_dict(), sort_keys=True))
+            if key not in seen:
+                seen.add(key)
+                added.append(copy)
+        items.append(replace(item, runs=(*item.runs, *added)) if added else item)
+    return Suite(suite.seed, suite.provider, tuple(items))

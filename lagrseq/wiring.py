@@ -49,7 +49,7 @@ from lagrseq.logs import foxglove
 from lagrseq.logs.events import Sink, View
 from lagrseq.policies import Always, AskingPolicy, make_policy
 from lagrseq.seeding import Stream
-from lagrseq.tasks import cube, grid
+from lagrseq.tasks import cube, grid, grid_profiles
 from lagrseq.tasks.arrangement import arm_arrangement, object_arrangement
 from lagrseq.tasks.base import Task
 from lagrseq.tasks.image import image_completion
@@ -76,8 +76,8 @@ class ProviderSpec:
 
 
 def mock_profiles() -> tuple[str, ...]:
-    """Names accepted by ``--provider mock:PROFILE``."""
-    return tuple(cube.PROFILES)
+    """Names accepted by ``--provider mock:PROFILE`` (cube profiles, then grid profiles)."""
+    return (*cube.PROFILES, *grid_profiles.PROFILES)
 
 
 def parse_provider(spec: str) -> ProviderSpec:
@@ -231,11 +231,15 @@ def extrapolator(config: ExperimentConfig, profile: str = "ideal") -> Callable[[
     same prompt text a real LLM would see."""
     task = make_task(config)
     if isinstance(task, cube.CubeStacking):
+        if profile in grid_profiles.PROFILES:
+            raise UsageError(f"mock profile {profile!r} is calibrated for the grid tasks; cube stacking has: {', '.join(cube.PROFILES)}")
         return cube.profile_extrapolator(task, profile)
+    if profile in grid_profiles.PROFILES and isinstance(task, grid.GridTask):
+        return grid_profiles.profile_extrapolator(task, profile, config.lagr.threshold)
     if profile != "ideal":
         raise UsageError(
             f"mock profile {profile!r} is calibrated for cube stacking only; "
-            f"{config.task.name} has the ideal mock (--provider mock)"
+            f"{config.task.name} has the ideal mock (--provider mock) and: {', '.join(grid_profiles.PROFILES)}"
         )
     return grid.extrapolate
 

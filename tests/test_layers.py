@@ -58,6 +58,8 @@ LAYERS: dict[str, tuple[str, ...]] = {
     "lagrseq.robot": ("lagrseq.tasks", "lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", "lagrseq.suite", *UPPER, *HEAVY, "grpc", "mcap", "gymnasium"),
     # the generated gRPC code imports protobuf and grpc themselves (the arm extra)
     "lagrseq.robot.proto": ("lagrseq.tasks", "lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", *UPPER, *HEAVY, "mcap"),
+    "lagrseq.audit": ("lagrseq.reproduce", "lagrseq.cli", *HEAVY),
+    "lagrseq.authors": ("lagrseq.analysis", "lagrseq.runner", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),
 }
 OPTIONAL = {
     "lagrseq.dask_executor": ("distributed",),

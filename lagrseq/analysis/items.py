@@ -38,6 +38,8 @@ class Match:
     reason: str = ""
     provider: str = ""
     """The provider spec shown for this run (replaces ``{provider}`` in its row name)."""
+    note: str = ""
+    """Recorded runs: how many answers were misses answered by another source (e.g. the mock)."""
 
     @property
     def row(self) -> str:
@@ -115,8 +117,24 @@ def match(
                 r.key.name,
             ),
         )[0]
-        out.append(Match(spec, spec.display_label(best.key.provider), best, "", best.key.provider))
+        note = recorded_misses(best)
+        label = spec.display_label(best.key.provider) + (f" [{note}]" if note else "")
+        out.append(Match(spec, label, best, "", best.key.provider, note))
     return out
+
+
+def recorded_misses(run: Run) -> str:
+    """For a run on a recorded store: "K of N answers not recorded (mock)" from its queries'
+    ``source`` column; empty for other runs."""
+    if not run.key.provider.startswith("recorded:") or run.queries.empty:
+        return ""
+    asked = run.queries[run.queries["queried"].fillna(False).astype(bool)]
+    sources = asked["source"].fillna("").astype(str)
+    misses = sources[sources != "recorded"]
+    if len(asked) == 0:
+        return "no queries"
+    kinds = "/".join(sorted(set(misses))) or "mock"
+    return f"{len(misses)} of {len(asked)} answers not recorded ({kinds})"
 
 
 def run_line(m: Match) -> str:
@@ -291,9 +309,11 @@ def build_query_table(item: Item, matched: Sequence[Match]) -> Built:
         if "|" in str(key) and row not in rows:
             rows.append(row)  # a row the paper has and these runs do not: its values, for scale
     cells: dict[tuple[str, str], stats.Summary] = {}
+    notes: dict[tuple[str, str], str] = {}
     data = []
     for m, run in _present(matched):
         row, column = m.row, m.spec.column or ""
+        notes[(row, column)] = m.note
         values = np.array(list(run.total_per_trial("queries").values()))
         summary, record = _summary_row(m.label, values, f"{run.key.name}/queries")
         cells[(row, column)] = summary
@@ -306,7 +326,8 @@ def build_query_table(item: Item, matched: Sequence[Match]) -> Built:
         line = [row]
         for column in columns:
             s = cells.get((row, column))
-            line.append("not run" if s is None else f"{plus_minus(s.mean, s.se)} (n={s.n})")
+            note = notes.get((row, column), "")
+            line.append("not run" if s is None else f"{plus_minus(s.mean, s.se)} (n={s.n})" + (f"; {note}" if note else ""))
         line += [_reference(item, f"{row}|{column}") or "—" for column in columns]
         display.append(tuple(line))
     table = Table(
@@ -325,6 +346,7 @@ def build_ratio_table(item: Item, matched: Sequence[Match]) -> Built:
     denominator = str(item.options.get("denominator", ""))
     rows, _ = _rows_columns(matched)
     runs = {(m.row, m.spec.column): run for m, run in _present(matched)}
+    notes = {(m.row, m.spec.column): m.note for m in matched}
     display = []
     data = []
     for row in rows:
@@ -343,7 +365,7 @@ def build_ratio_table(item: Item, matched: Sequence[Match]) -> Built:
         display.append(
             (
                 row,
-                f"{plus_minus(s.mean, s.se, 3)} (n={s.n})",
+                f"{plus_minus(s.mean, s.se, 3)} (n={s.n})" + (f"; {notes[(row, numerator)]}" if notes.get((row, numerator)) else ""),
                 plus_minus(t_mean, t_se, 1),
                 plus_minus(b_mean, b_se, 1),
                 paper or "—",

@@ -28,10 +28,10 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from lagrseq import __version__
-from lagrseq.analysis import costs, figures, items, loading, stats
+from lagrseq.analysis import audit, costs, figures, items, loading, scoreboard, stats
 from lagrseq.analysis.tables import Table, plus_minus, to_csv, to_html, to_markdown
 from lagrseq.errors import LogError, UsageError
-from lagrseq.suite import Item, Suite, load_suite
+from lagrseq.suite import AUTHORS_HINT, Item, Suite, is_authors_provider, load_suite, with_recorded
 
 FORMATS = ("png", "svg", "pdf")
 DPI = 150
@@ -183,6 +183,7 @@ def replay(
     if not logs.runs:
         detail = f" ({'; '.join(logs.warnings)})" if logs.warnings else ""
         raise LogError(f"no complete lagrseq trial logs under {', '.join(map(str, roots))}{detail}")
+    suite = with_logged_authors_runs(suite, logs.runs)
     out = Path(out)
     (out / "figures").mkdir(parents=True, exist_ok=True)
     (out / "tables").mkdir(parents=True, exist_ok=True)
@@ -223,8 +224,21 @@ def replay(
     for stem, table in extra:
         _write(out / "tables" / f"{stem}.md", to_markdown(table), written)
         _write(out / "tables" / f"{stem}.csv", to_csv(table.data), written)
-    _write(out / "index.html", _index_html(reports, extra, logs, produced_by), written)
-    _write(out / "index.md", _index_markdown(reports, extra, logs, produced_by), written)
+    audits = audit.build(logs.runs)
+    board = scoreboard.build([(r.item, r.matched) for r in reports if r.status != "not run"], [a.task for a in audits])
+    _write(out / "scoreboard.md", to_markdown(board), written)
+    _write(out / "tables" / "scoreboard.csv", to_csv(board.data), written)
+    for made in audits:  # lagrseq audit runs in these logs: what each deviation does
+        stem = f"audit-{made.task}"
+        _write(out / "tables" / f"{stem}.md", to_markdown(made.table), written)
+        _write(out / "tables" / f"{stem}.csv", to_csv(made.data), written)
+        fig = audit.figure(made)
+        path = out / "figures" / f"{stem}.png"
+        fig.savefig(path, format="png", dpi=DPI, metadata=_SAVE_METADATA["png"])
+        written.append(path)
+        extra.append((stem, made.table))
+    _write(out / "index.html", _index_html(reports, extra, logs, produced_by, board), written)
+    _write(out / "index.md", _index_markdown(reports, extra, logs, produced_by, board), written)
     return Report(out, logs, reports, written)
 
 
@@ -242,6 +256,28 @@ def _arm_animation(report: ItemReport, out: Path, written: list[Path]) -> None:
             report.animation = f"figures/{report.item.id}-arm.gif"
             report.animation_note = f"The arm ({m.label}, trial {m.run.trials[-1]}): {shown}, from /view/arm."
             return
+
+
+def with_logged_authors_runs(suite: Suite, runs: Sequence[loading.Run]) -> Suite:
+    """The suite with a recorded-GPT line on every item the logged runs on the authors' answers
+    cover (``reproduce --authors-caches``), found from the logs alone by their provider."""
+    covers: dict[str, set[tuple[str, int]]] = {}
+    for run in runs:
+        if is_authors_provider(run.key.provider):
+            task = run.config.get("task", {})
+            size = task.get("stack_size", 0) if isinstance(task, Mapping) else 0
+            covers.setdefault(run.key.provider, set()).add((run.key.task, int(size or 0)))
+    if not covers:
+        return suite
+    provider = sorted(covers)[0]  # one store's runs (two output folders replayed together: the first)
+    return with_recorded(suite, provider, covers[provider])
+
+
+def _authors_hint(report: ItemReport) -> str:
+    """The line saying how to add the recorded-GPT line, for a covered item that has none."""
+    if not report.item.recorded or any(is_authors_provider(m.provider) for m in report.matched):
+        return ""
+    return AUTHORS_HINT
 
 
 # ------------------------------------------------------------------------------------------
@@ -281,11 +317,30 @@ def _how(report: ItemReport, produced_by: str) -> tuple[str, list[str]]:
     return how, [items.run_line(m) for m in report.matched if m.run is not None]
 
 
+def _scoreboard_html(board: Table) -> list[str]:
+    """The scoreboard at the top of the page: a table whose last column links the explanation."""
+    e = html.escape
+    parts = ['<section id="scoreboard">', f"<h2>{e(board.title)}</h2>"]
+    if not board.rows:
+        parts += ["<p>No run of these logs stands for a number the paper states.</p>", "</section>"]
+        return parts
+    parts.append("<table><thead><tr>" + "".join(f"<th>{e(c)}</th>" for c in board.columns) + "</tr></thead><tbody>")
+    for row in board.rows:
+        cells = [f"<td>{e(c)}</td>" for c in row[:-2]]
+        outside = row[-2].startswith("✗")
+        cells.append(f'<td class="{"missing" if outside else ""}">{e(row[-2])}</td>')
+        cells.append(f'<td><a href="{e(row[-1])}">{e(row[-1].lstrip("#"))}</a></td>')
+        parts.append("<tr>" + "".join(cells) + "</tr>")
+    parts += ["</tbody></table>", '<p class="links"><a href="scoreboard.md">Markdown</a> · <a href="tables/scoreboard.csv">CSV</a></p>', "</section>"]
+    return parts
+
+
 def _index_html(
     reports: Sequence[ItemReport],
     extra: Sequence[tuple[str, Table]],
     logs: loading.Logs,
     produced_by: str,
+    board: Table | None = None,
 ) -> str:
     e = html.escape
     parts = [
@@ -297,6 +352,7 @@ def _index_html(
         "<h1>LaGR-SEQ: the paper's figures and tables, rebuilt from MCAP logs</h1>",
         f"<p>{e(_summary_line(logs))}; lagrseq {e(__version__)}. Every number below was "
         f"computed offline from these logs by <code>{e(produced_by)}</code>.</p>",
+        *(_scoreboard_html(board) if board is not None else []),
         "<ul>",
     ]
     for r in reports:
@@ -341,12 +397,16 @@ def _index_html(
         )
         if r.item.note:
             parts.append(f'<p class="how">Note: {e(r.item.note)}</p>')
+        if _authors_hint(r):
+            parts.append(f'<p class="how">{e(_authors_hint(r))}</p>')
         for line in r.missing():
             parts.append(f'<p class="missing">Missing — {e(line)}</p>')
         parts.append("</section>")
     for stem, table in extra:
         anchor = "costs" if stem == "costs-by-run" else ("runs" if stem == "runs" else stem)
         parts.append(f'<section id="{e(anchor)}">')
+        if stem.startswith("audit-"):
+            parts.append(f'<h2>{e(table.title)}</h2><img src="figures/{e(stem)}.png" alt="{e(table.title)}">')
         parts.append(
             to_html(table, [("Markdown", f"tables/{stem}.md"), ("CSV", f"tables/{stem}.csv")])
         )
@@ -364,6 +424,7 @@ def _index_markdown(
     extra: Sequence[tuple[str, Table]],
     logs: loading.Logs,
     produced_by: str,
+    board: Table | None = None,
 ) -> str:
     lines = [
         "# LaGR-SEQ: the paper's figures and tables, rebuilt from MCAP logs",
@@ -371,6 +432,8 @@ def _index_markdown(
         f"{_summary_line(logs)}; lagrseq {__version__}. Made offline from these logs by `{produced_by}`.",
         "",
     ]
+    if board is not None:
+        lines += [to_markdown(board)]
     for r in reports:
         lines += [f"## {r.item.title} ({r.status})", ""]
         if r.item.caption:
@@ -388,6 +451,8 @@ def _index_markdown(
         lines += [f"{how} Runs:", "", *(f"- {line}" for line in run_lines), ""]
         if r.item.note:
             lines += [f"Note: {r.item.note}", ""]
+        if _authors_hint(r):
+            lines += [_authors_hint(r), ""]
         lines += [f"Missing — {line}  " for line in r.missing()]
         lines.append("")
     for _stem, table in extra:

@@ -378,6 +378,24 @@ def extrapolate(prompt: str, temperature: float, rng: np.random.Generator) -> st
 # the rule-based extrapolator, a profile knows the target: it stands for a model of known accuracy.
 # ------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
+class TemperatureModel:
+    """ASSUMPTION (no answers above tau = 0 were published): P(correct | shown, tau) =
+    P(correct | shown, 0) x (1 - tau^power x drop), where ``drop`` is ``short_drop`` while at most
+    ``short_fraction`` of the stack is shown and ``long_drop`` after, tau capped at 1. It encodes
+    the paper's Fig. 4 text (at tau = 1 short prefixes fail, longer ones are right but not
+    uniformly) and Table 2's direction (queries rise with tau, with and without SEQ)."""
+
+    short_fraction: float
+    short_drop: float
+    long_drop: float
+    power: float = 1.0
+
+    def factor(self, fraction: float, temperature: float) -> float:
+        drop = self.short_drop if fraction <= self.short_fraction else self.long_drop
+        return max(0.0, 1.0 - min(temperature, 1.0) ** self.power * drop)
+
+
+@dataclass(frozen=True)
 class AccuracyProfile:
     """P(right completion) by prefix length, per stack size it was measured on."""
 
@@ -387,10 +405,19 @@ class AccuracyProfile:
     """Where the numbers come from and how they were obtained."""
     accuracy: tuple[tuple[int, tuple[float, ...]], ...]
     """(stack size, P(correct) for prefix lengths 1..stack size) pairs."""
+    temperature: TemperatureModel | None = None
+    """How accuracy falls at temperature > 0 (an assumption: no answers above 0 were published)."""
 
-    def probability(self, shown: int, stack_size: int) -> float:
-        """P(correct) after seeing ``shown`` of ``stack_size`` cubes. Stack sizes without data use
-        the table measured on the nearest size, at the nearest fraction of the stack shown."""
+    def probability(self, shown: int, stack_size: int, temperature: float = 0.0) -> float:
+        """P(correct) after seeing ``shown`` of ``stack_size`` cubes at ``temperature``. Stack sizes
+        without data use the table measured on the nearest size, at the nearest fraction of the
+        stack shown; temperatures above 0 scale it by the profile's :class:`TemperatureModel`."""
+        p = self._probability_t0(shown, stack_size)
+        if self.temperature is not None and temperature > 0:
+            p *= self.temperature.factor(shown / stack_size, temperature)
+        return p
+
+    def _probability_t0(self, shown: int, stack_size: int) -> float:
         tables = dict(self.accuracy)
         if stack_size in tables:
             table = tables[stack_size]
@@ -430,6 +457,7 @@ AUTHORS_T0 = AccuracyProfile(
         (8, (0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 0.0, 0.0)),
         (11, (0.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.3, 1.0, 1.0, 1.0, 1.0)),
     ),
+    temperature=TemperatureModel(short_fraction=0.25, short_drop=1.0, long_drop=0.3),
 )
 ORACLE = AccuracyProfile(
     name="oracle",
@@ -468,7 +496,7 @@ def profile_extrapolator(task: CubeStacking, profile: str) -> Callable[[str, flo
 
     def answer(prompt: str, temperature: float, rng: np.random.Generator) -> str:
         shown = partial_stack(prompt)
-        p = chosen.probability(len(shown), task.stack_size)
+        p = chosen.probability(len(shown), task.stack_size, temperature)
         right = p >= 1.0 or (p > 0.0 and rng.random() < p)
         if right:
             order = target

@@ -1,0 +1,119 @@
+"""``lagrseq audit TASK``: run every one-field switch between the ``upstream`` and ``paper`` presets
+and report what each deviation does (the numbers come from :mod:`lagrseq.analysis.audit`, which
+rebuilds them from the logs alone; ``lagrseq replay`` does the same for any logs holding such runs).
+
+Runs: both presets as they are, then for every audited field the upstream preset with that field
+set to the paper's value and the paper preset with it set back, each for the baseline, LaGR and
+LaGR-SEQ (a method whose trials cannot read the field, e.g. the baseline for ``lagr.*``, keeps
+the preset's run). The baseline always uses the plain mock provider (it never asks).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from lagrseq import config as cfg
+from lagrseq import runner, wiring
+from lagrseq.config import ExperimentConfig
+from lagrseq.errors import ConfigError
+from lagrseq.logs.reader import is_complete
+
+
+@dataclass(frozen=True)
+class AuditRun:
+    preset: str
+    field: str | None
+    method: str
+    config: ExperimentConfig
+    provider: str
+    path: Path
+
+
+def plan(task: str, provider: str, trials: int, episodes: int, max_steps: int, runs_dir: Path, seed: int, say: Callable[[str], None]) -> list[AuditRun]:
+    from lagrseq.analysis.audit import (
+        METHODS,
+        PRESETS,
+        audited_fields,
+        override,
+        relevant,
+        switched_value,
+    )
+
+    length = ([f"run.episodes={episodes}"] if episodes > 0 else []) + ([f"run.max_steps={max_steps}"] if max_steps >= 0 else [])
+    fields = audited_fields(task)
+    out: list[AuditRun] = []
+    for preset in PRESETS:
+        for field in [None, *(name for name, _, _ in fields)]:
+            for method in METHODS:
+                if field is not None and not relevant(field, method):
+                    continue
+                sets = list(length)
+                if field is not None:
+                    sets.append(override(field, switched_value(field, preset, fields)))
+                try:
+                    config = cfg.load(task, method, preset, None, sets)
+                except ConfigError as exc:
+                    say(f"{preset} + {field}: cannot be switched alone ({exc}); left out")
+                    break
+                spec = "mock" if method == "baseline" else provider
+                path = runner.run_directory(runs_dir, config, spec, seed)
+                out.append(AuditRun(preset, field, method, config, spec, path))
+    return out
+
+
+def run_audit(
+    task: str,
+    provider: str,
+    trials: int,
+    episodes: int,
+    max_steps: int,
+    out: Path,
+    jobs: int,
+    seed: int,
+    formats: list[str],
+    quiet: bool = False,
+    say: Callable[[str], None] = print,
+) -> list[Any]:
+    """Run the audit of ``task`` into ``OUT/runs`` and write ``OUT/reports/audit-TASK.*``;
+    returns the audits built from the logs."""
+    from tqdm import tqdm
+
+    from lagrseq.paths import writable_directory
+
+    wiring.parse_provider(provider)
+    writable_directory(out)
+    runs_dir, reports = writable_directory(out / "runs"), writable_directory(out / "reports", "--out")
+    runs = plan(task, provider, trials, episodes, max_steps, runs_dir, seed, say)
+    pending = sum(not is_complete(runner.trial_path(r.path, t)) for r in runs for t in range(trials))
+    fields = len({r.field for r in runs if r.field})
+    say(f"audit of {task}: {fields} fields x 2 presets, {len(runs)} runs of {trials} trials ({pending} trials to run)")
+    with contextlib.ExitStack() as stack:
+        pool = stack.enter_context(runner.process_pool(jobs)) if jobs > 1 else None
+        bar = stack.enter_context(tqdm(total=len(runs), unit="run", disable=quiet, file=sys.stderr, dynamic_ncols=True))
+        for r in runs:
+            bar.set_description(f"{r.preset} {r.field or '(preset)'} {r.method}")
+            runner.run_trials(r.config, trials, seed, r.provider, r.path, jobs=jobs, pool=pool)
+            bar.update(1)
+    return write_audit([runs_dir], reports, formats, task)
+
+
+def write_audit(roots: list[Path], reports: Path, formats: list[str], task: str | None = None) -> list[Any]:
+    """Build the audits from the logs under ``roots`` and write table (Markdown, CSV) and figure."""
+    from lagrseq.analysis import audit, loading
+    from lagrseq.analysis.tables import to_csv, to_markdown
+
+    logs = loading.load(roots)
+    made = [a for a in audit.build(logs.runs) if task is None or a.task == task]
+    for a in made:
+        stem = reports / f"audit-{a.task}"
+        stem.with_suffix(".md").write_text(to_markdown(a.table), encoding="utf-8")
+        stem.with_suffix(".csv").write_text(to_csv(a.data), encoding="utf-8")
+        fig = audit.figure(a)
+        for fmt in formats:
+            fig.savefig(stem.with_suffix(f".{fmt}"), format=fmt, dpi=150, metadata={"Software": None} if fmt == "png" else None)
+    return made
