@@ -137,14 +137,51 @@ def record(
     mode: str,
     options: ProviderOptions,
     bar: Any = None,
+    provider: str = "live",
+    concurrency: int = 1,
 ) -> RecordingReport:
     """Top every query up to ``samples`` answers in ``store_path`` from the live server of
-    ``options`` (mode ``none`` asks nobody and only counts). ``bar``: a tqdm-like progress bar
-    (``update``, ``write``, ``set_postfix_str``) or None."""
-    from lagrseq.llm.recorded import RecordingProvider, record_queries
-    from lagrseq.llm.store import RecordStore, endpoint_of, query_key
+    ``options`` (mode ``none`` asks nobody and only counts), with up to ``concurrency`` requests
+    in flight. ``provider``: ``live``, or ``local[:MODEL]`` for a llama.cpp server started for the
+    recording (its answers are keyed under the endpoint ``local``). ``bar``: a tqdm-like progress
+    bar (``update``, ``write``, ``set_postfix_str``) or None."""
+    from lagrseq.llm.store import endpoint_of
+    from lagrseq.wiring import local_settings, parse_provider
 
-    endpoint = endpoint_of(options.base_url)
+    spec = parse_provider(provider)
+    if spec.kind not in ("live", "local"):
+        raise UsageError(f"lagrseq record asks a live or local model, not {provider!r}; expected live or local[:MODEL.gguf]")
+    if spec.kind == "live" or mode == "none":
+        endpoint = endpoint_of(options.base_url) if spec.kind == "live" else _local_endpoint()
+        return _record(queries, store_path, samples, mode, options, bar, endpoint, concurrency)
+    from lagrseq.llm.local import LocalServer
+
+    say = bar.write if bar is not None else (lambda message: print(message, file=sys.stderr))
+    settings = local_settings(spec.argument, options)
+    with LocalServer(settings, on_line=lambda line: say(f"  {line}")) as server:
+        local = replace(options, base_url=server.base_url, server="llama.cpp")
+        return _record(queries, store_path, samples, mode, local, bar, _local_endpoint(), concurrency, settings.model_name)
+
+
+def _local_endpoint() -> str:
+    from lagrseq.llm.local import LOCAL_ENDPOINT
+
+    return LOCAL_ENDPOINT
+
+
+def _record(
+    queries: Sequence[Query],
+    store_path: Path,
+    samples: int,
+    mode: str,
+    options: ProviderOptions,
+    bar: Any,
+    endpoint: str,
+    concurrency: int,
+    local_model: str | None = None,
+) -> RecordingReport:
+    from lagrseq.llm.recorded import RecordingProvider, record_queries
+    from lagrseq.llm.store import RecordStore, query_key
 
     def held(store: RecordStore) -> int:
         entries = [store.entry(query_key(q, endpoint)[0]) for q in queries]
@@ -156,7 +193,8 @@ def record(
     # The retry jitter's generator: seeded per process, so concurrent recorders back off apart.
     jitter = np.random.default_rng([os.getpid()])
     say = bar.write if bar is not None else (lambda message: print(message, file=sys.stderr))
-    live = make_live(options, jitter, budgeted=True, on_retry=lambda message: say(f"  {message}"))
+    environ: dict[str, str] | None = {} if local_model is not None else None  # a local server: no key
+    live = make_live(options, jitter, budgeted=True, on_retry=lambda message: say(f"  {message}"), environ=environ, local_model=local_model)
     budget = live.budget
 
     def show(_answers: Any) -> None:
@@ -165,11 +203,24 @@ def record(
             bar.set_postfix_str(f"{budget.answers} new answers, ${budget.spent_usd:.4f}{unpriced}")
 
     stopped: BudgetExceeded | None = None
+    on_query = lambda _q: bar.update(1) if bar is not None else None  # noqa: E731
+    if concurrency > 1:
+        from lagrseq.llm.concurrent import record_concurrently
+        from lagrseq.llm.live import SharedBackoff
+
+        live.inner.backoff = SharedBackoff()  # a 429 pauses every request in flight
+        with RecordingProvider(RecordStore(store_path), live.inner, endpoint, mode, samples) as recorder:  # type: ignore[arg-type]
+            try:
+                record_concurrently(recorder, list(queries), budget, live.prices, concurrency, on_answers=show, on_query=on_query)
+            except BudgetExceeded as exc:
+                stopped = exc
+            full = held(recorder.store)
+        return RecordingReport(
+            len(queries), full, samples, store_path, budget.answers, budget.spent_usd, budget.unpriced, stopped
+        )
     with RecordingProvider(RecordStore(store_path), live, endpoint, mode, samples) as recorder:  # type: ignore[arg-type]
         try:
-            record_queries(
-                recorder, list(queries), on_answers=show, on_query=lambda _q: bar.update(1) if bar is not None else None
-            )
+            record_queries(recorder, list(queries), on_answers=show, on_query=on_query)
         except BudgetExceeded as exc:
             stopped = exc
         full = held(recorder.store)

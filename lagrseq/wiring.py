@@ -52,9 +52,9 @@ from lagrseq.tasks.arrangement import object_arrangement
 from lagrseq.tasks.base import Task
 from lagrseq.tasks.image import image_completion
 
-PROVIDER_KINDS = ("mock", "recorded", "live")
+PROVIDER_KINDS = ("mock", "recorded", "live", "local")
 ON_MISS = ("error", "mock", "live")
-PROVIDER_HELP = "mock, mock:PROFILE, recorded:STORE, live or live:MODEL"
+PROVIDER_HELP = "mock, mock:PROFILE, recorded:STORE, live, live:MODEL, local or local:MODEL.gguf"
 
 
 # ------------------------------------------------------------------------------------------
@@ -65,9 +65,10 @@ class ProviderSpec:
     """A parsed ``--provider`` value: ``kind[:argument]``."""
 
     kind: str
-    """mock | recorded | live"""
+    """mock | recorded | live | local"""
     argument: str = ""
-    """The mock's profile, the recorded store's directory, or the live model."""
+    """The mock's profile, the recorded store's directory (or JSONL file), the live model, or
+    the local model's GGUF file."""
 
     def __str__(self) -> str:
         return f"{self.kind}:{self.argument}" if self.argument else self.kind
@@ -117,6 +118,10 @@ class ProviderOptions:
     """Most seconds one request may take, from sending to the last byte (retried like a timeout)."""
     max_response_bytes: int = 4 * 1024 * 1024
     """Largest response body read, decompressed (a larger one fails at once, not retried)."""
+    local_n_ctx: int = 2048
+    """local[:MODEL] only: the llama.cpp server's context size in tokens."""
+    local_threads: int = 0
+    """local[:MODEL] only: the llama.cpp server's threads (0: every core this process may use)."""
 
     def __post_init__(self) -> None:
         if self.on_miss not in ON_MISS:
@@ -131,6 +136,10 @@ def with_provider_model(config: ExperimentConfig, spec: str) -> ExperimentConfig
     provider = parse_provider(spec)
     if provider.kind == "live" and provider.argument and provider.argument != config.llm.model:
         return replace(config, llm=replace(config.llm, model=provider.argument))
+    if provider.kind == "local":  # the local model is asked by its own name (logs and keys say so)
+        from lagrseq.llm.local import model_name
+
+        return replace(config, llm=replace(config.llm, model=model_name(provider.argument)))
     return config
 
 
@@ -152,6 +161,8 @@ def make_provider(
         return MockProvider(extrapolator(config, provider.argument or "ideal"), rng, name=spec)
     if provider.kind == "live":
         return make_live(options, rng, budgeted=True, on_retry=_say)
+    if provider.kind == "local":
+        return make_local(provider.argument, options, rng)
     store = RecordStore(provider.argument, create=options.on_miss == "live")
     endpoint = endpoint_of(options.base_url)
     run_seed = int(rng.integers(2**63))
@@ -169,8 +180,39 @@ def _say(message: str) -> None:
 
 def check_provider(spec: str, config: ExperimentConfig, options: ProviderOptions | None = None) -> None:
     """Build the provider once and close it, so that a missing API key or store fails before any
-    trial starts (nothing is sent)."""
+    trial starts (nothing is sent). A local server is not started here: its model file and the
+    extra are checked."""
+    if parse_provider(spec).kind == "local":
+        local_settings(parse_provider(spec).argument, options or ProviderOptions())
+        return
     make_provider(spec, config, np.random.default_rng(0), options).close()
+
+
+def local_settings(argument: str, options: ProviderOptions, port: int = 0) -> Any:
+    """The local server's settings for ``local[:MODEL]``; raises UsageError (one line) when the
+    extra is missing or the model file is not there."""
+    from lagrseq.llm.local import ServerSettings, missing_extra, resolve_model
+
+    problem = missing_extra()
+    if problem:
+        raise UsageError(problem)
+    model, name = resolve_model(argument)
+    return ServerSettings(model=model, model_name=name, port=port, n_ctx=options.local_n_ctx, n_threads=options.local_threads)
+
+
+def make_local(argument: str, options: ProviderOptions, rng: np.random.Generator) -> Provider:
+    """A llama.cpp server started for this provider (stopped by its ``close``), asked through the
+    live provider as ``--server llama.cpp`` with no API key."""
+    from lagrseq.llm.local import LocalProvider, LocalServer
+
+    server = LocalServer(local_settings(argument, options), on_line=_say).start()
+    try:
+        local = replace(options, base_url=server.base_url, server="llama.cpp")
+        inner = make_live(local, rng, budgeted=True, on_retry=_say, environ={}, local_model=server.settings.model_name)
+    except BaseException:
+        server.stop()
+        raise
+    return LocalProvider(server, inner)  # type: ignore[return-value]
 
 
 def make_live(
@@ -178,12 +220,21 @@ def make_live(
     rng: np.random.Generator,
     budgeted: bool = False,
     on_retry: Callable[[str], None] | None = None,
+    environ: dict[str, str] | None = None,
+    local_model: str | None = None,
 ) -> Any:
-    """The live provider of ``options``, behind a budget guard when asked (one budget per call)."""
+    """The live provider of ``options``, behind a budget guard when asked (one budget per call).
+    ``environ``: where the API key is looked up (default the process environment; ``{}`` for a
+    local server, which is sent no key). ``local_model``: a model served on this machine, priced
+    at zero (so ``--max-cost-usd`` holds without a price table)."""
     from lagrseq.llm.budget import Budget, BudgetedProvider
     from lagrseq.llm.live import LiveProvider, LiveSettings
 
     prices = load_prices(options.price_table)
+    if local_model is not None:
+        from lagrseq.llm.pricing import Price, PriceTable
+
+        prices = PriceTable([*prices.prices.values(), Price(local_model, 0.0, 0.0, None, "served locally by llama.cpp: no charge", "2026-12-01")])
     settings = LiveSettings(
         base_url=options.base_url,
         api_key_env=options.api_key_env,
@@ -192,7 +243,7 @@ def make_live(
         request_deadline_s=options.request_deadline_s,
         max_response_bytes=options.max_response_bytes,
     )
-    live = LiveProvider(settings, rng=rng, prices=prices, on_retry=on_retry)
+    live = LiveProvider(settings, rng=rng, prices=prices, on_retry=on_retry, environ=environ)
     if not budgeted:
         return live
     return BudgetedProvider(live, Budget(options.max_cost_usd, options.max_queries), prices)

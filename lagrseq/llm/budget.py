@@ -31,12 +31,19 @@ class Budget:
     """Answers received so far."""
     unpriced: int = 0
     """Answers whose model has no price (their cost is not in ``spent_usd``)."""
+    in_flight_answers: int = 0
+    """Answers asked by requests sent and not yet answered (concurrent recording)."""
+    in_flight_usd: float = 0.0
+    """The worst-case cost of those requests."""
 
     def check(self, query: Query, n: int, worst_cost: float | None) -> None:
-        """Raise :class:`BudgetExceeded` if asking ``n`` more answers could pass a limit."""
-        if self.max_queries is not None and self.answers + n > self.max_queries:
+        """Raise :class:`BudgetExceeded` if asking ``n`` more answers could pass a limit, counting
+        the requests in flight at their worst case."""
+        so_far = self.answers + self.in_flight_answers
+        if self.max_queries is not None and so_far + n > self.max_queries:
+            flight = f" ({self.in_flight_answers} of them in flight)" if self.in_flight_answers else ""
             raise BudgetExceeded(
-                f"--max-queries {self.max_queries} reached: {self.answers} answers so far and the next "
+                f"--max-queries {self.max_queries} reached: {so_far} answers so far{flight} and the next "
                 f"request asks for {n} more (not sent); raise the limit to go on"
             )
         if self.max_cost_usd is None:
@@ -46,11 +53,26 @@ class Budget:
                 f"model {query.model!r} has no price in the price table, so --max-cost-usd cannot be "
                 "enforced (nothing sent); add its price with --price-table FILE"
             )
-        if self.spent_usd + worst_cost > self.max_cost_usd:
+        if self.spent_usd + self.in_flight_usd + worst_cost > self.max_cost_usd:
+            flight = f" (and up to ${self.in_flight_usd:.4f} in flight)" if self.in_flight_answers else ""
             raise BudgetExceeded(
-                f"--max-cost-usd {self.max_cost_usd:g} reached: ${self.spent_usd:.4f} spent and the next "
+                f"--max-cost-usd {self.max_cost_usd:g} reached: ${self.spent_usd:.4f} spent{flight} and the next "
                 f"request could cost up to ${worst_cost:.4f} (not sent); raise the limit to go on"
             )
+
+    def reserve(self, query: Query, n: int, worst_cost: float | None) -> float:
+        """:meth:`check`, then count the request as in flight; returns what :meth:`settle` takes back."""
+        self.check(query, n, worst_cost)
+        reserved = worst_cost or 0.0
+        self.in_flight_answers += n
+        self.in_flight_usd += reserved
+        return reserved
+
+    def settle(self, n: int, reserved: float, answers: list[Answer]) -> None:
+        """A request in flight has ended (``answers`` empty when it failed): charge what came."""
+        self.in_flight_answers -= n
+        self.in_flight_usd = max(self.in_flight_usd - reserved, 0.0)
+        self.charge(answers)
 
     def charge(self, answers: list[Answer]) -> None:
         for answer in answers:
