@@ -11,8 +11,8 @@ thread) is the only one that touches the budget and the store:
   flight count), so ``--max-queries`` and ``--max-cost-usd`` hold however many are in flight; a
   request that could pass a limit is not sent, the ones in flight are waited for and stored, and
   then :class:`~lagrseq.errors.BudgetExceeded` is raised;
-- each request's answers are stored as soon as it returns (one transaction per request), in the
-  order requests finish, so an interrupted recording loses nothing already answered.
+- each request's answers are stored as soon as it returns (requests that end together: one
+  transaction), so an interrupted recording loses nothing already answered.
 
 A failed request (after the live provider's own retries) stops the dispatch the same way: what is
 in flight is waited for and stored, then the error is raised.
@@ -24,13 +24,14 @@ import concurrent.futures as cf
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from typing import Any
 
 from lagrseq.errors import BudgetExceeded
 from lagrseq.llm.base import Answer, Provider, Query, sample, samples_per_request
 from lagrseq.llm.budget import Budget
 from lagrseq.llm.pricing import PriceTable
 from lagrseq.llm.recorded import RecordingProvider, RecordReport
-from lagrseq.llm.store import query_key, sample_from_answer
+from lagrseq.llm.store import Sample, query_key, sample_from_answer
 
 
 @dataclass
@@ -79,9 +80,28 @@ def record_concurrently(
     def ask(unit: _Unit) -> list[Answer]:
         return sample(inner, unit.query, unit.n)
 
+    def store(arrived: list[tuple[_Unit, list[Answer]]]) -> int:
+        """Store what arrived together in one transaction; tell the callbacks."""
+        groups: dict[str, tuple[dict[str, Any], str | None, list[Sample]]] = {}
+        for unit, batch in arrived:
+            key, request = query_key(unit.query, recorder.endpoint)
+            groups.setdefault(key, (request, unit.query.task, []))[2].extend(sample_from_answer(a, key) for a in batch)
+        if groups:
+            recorder.store.add_many(groups)
+        for unit, batch in arrived:
+            if on_answers is not None:
+                key = query_key(unit.query, recorder.endpoint)[0]
+                on_answers([replace(a, record_key=key) for a in batch])
+            left[unit.index] -= 1
+            if left[unit.index] == 0 and on_query is not None:
+                on_query(unit.query)
+        return sum(len(batch) for _, batch in arrived)
+
+    arrived: list[tuple[_Unit, list[Answer]]] = []
     pool = cf.ThreadPoolExecutor(max_workers=concurrency, thread_name_prefix="lagrseq-record")
     try:
         while True:
+            # first send what the finished requests made room for, then store their answers
             while stop is None and len(flying) < concurrency:
                 unit = next(pending, None)
                 if unit is None:
@@ -93,6 +113,8 @@ def record_concurrently(
                     stop = exc
                     break
                 flying[pool.submit(ask, unit)] = unit
+            answers += store(arrived)
+            arrived = []
             if not flying:
                 break
             done, _ = cf.wait(flying, timeout=poll_s, return_when=cf.FIRST_COMPLETED)
@@ -101,19 +123,13 @@ def record_concurrently(
                 error = future.exception()
                 batch = [] if error is not None else future.result()
                 budget.settle(unit.n, unit.reserved, batch)
-                if error is not None:
-                    if stop is None or isinstance(stop, BudgetExceeded):  # a failure outranks a budget stop
-                        stop = error
-                    continue
-                key, request = query_key(unit.query, recorder.endpoint)
-                recorder.store.add(key, request, unit.query.task, [sample_from_answer(a, key) for a in batch])
-                answers += len(batch)
-                if on_answers is not None:
-                    on_answers([replace(a, record_key=key) for a in batch])
-                left[unit.index] -= 1
-                if left[unit.index] == 0 and on_query is not None:
-                    on_query(unit.query)
+                if error is None:
+                    arrived.append((unit, batch))
+                elif stop is None or isinstance(stop, BudgetExceeded):  # a failure outranks a budget stop
+                    stop = error
     finally:
+        if arrived:  # interrupted between a request's end and its storing: keep what was paid for
+            store(arrived)
         # on Ctrl-C nothing new starts; requests in flight end on their own deadline
         pool.shutdown(wait=not flying, cancel_futures=True)
     if stop is not None:
