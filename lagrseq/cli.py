@@ -287,6 +287,19 @@ def _add_cache(sub: Any) -> None:
     exp.add_argument("--out", required=True, metavar="FILE.jsonl", help="output file, or - for standard output")
     lst = actions.add_parser("list", help="one line per recorded key", description="List the keys of STORE: key, task, model, temperature, samples, the partial pattern's end of the prompt.")
     lst.add_argument("--store", type=Path, required=True, metavar="STORE")
+    par = actions.add_parser(
+        "parse",
+        parents=[_experiment_options()],
+        help="run every recorded answer through the task's parser and count the outcomes",
+        description=(
+            "Read every answer of STORE (or of a JSONL export) recorded for TASK through the task's "
+            "parser and print a Markdown table per key: correct, wrong, partial (too few cubes) and "
+            "the refusals by kind (no list, prose, repeated letter, wrong size, not a cube, other), "
+            "and the accuracy. Give --set task fields as the answers were recorded (e.g. the stack size)."
+        ),
+    )
+    par.add_argument("source", type=Path, metavar="STORE|FILE.jsonl")
+    par.add_argument("--task", choices=tasks(), required=True)
 
 
 def _add_replay(sub: Any) -> None:
@@ -447,7 +460,7 @@ def cmd_record(args: argparse.Namespace) -> int:
 
 
 def cmd_cache(args: argparse.Namespace) -> int:
-    return {"import": _cache_import, "export": _cache_export, "list": _cache_list}[args.action](args)
+    return {"import": _cache_import, "export": _cache_export, "list": _cache_list, "parse": _cache_parse}[args.action](args)
 
 
 def _cache_import(args: argparse.Namespace) -> int:
@@ -502,6 +515,18 @@ def cmd_serve_llm(args: argparse.Namespace) -> int:
         lines = server.log_tail().strip().splitlines()
         raise LagrseqError(f"the llama.cpp server exited by itself: {lines[-1] if lines else 'no output'}")
     return 0  # pragma: no cover
+
+
+def _cache_parse(args: argparse.Namespace) -> int:
+    from lagrseq import recording
+
+    config = recording.record_config(args.task, args.preset, args.config, args.overrides)
+    rows = recording.answer_census(args.source, config)
+    if not rows:
+        raise LagrseqError(f"{args.source} holds no {args.task} answers")
+    for line in recording.census_lines(rows):
+        print(line)
+    return 0
 
 
 def cmd_recover(args: argparse.Namespace) -> int:

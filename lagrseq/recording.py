@@ -341,3 +341,89 @@ def list_answers(store_path: Path) -> list[str]:
                 f"{len(entry.samples):3d} samples  ...{tail}"
             )
     return lines
+
+
+# ------------------------------------------------------------------------------------------
+# Recorded answers through the task's parser: what a real model's text does to it
+# ------------------------------------------------------------------------------------------
+REFUSALS = ("no list", "prose", "repeated letter", "wrong size", "not a cube", "other")
+"""How a parser refusal is classified (``prose``: no list, in an answer of 8 words or more)."""
+PROSE_WORDS = 8
+
+
+def classify(task: Task, text: str) -> tuple[str, Any]:
+    """(class, parsed solution or None) of one answer: ``correct``, ``wrong`` (a solution, not the
+    target), ``partial`` (a cube list shorter than the stack), or one of :data:`REFUSALS`."""
+    parsed = task.parse(text)
+    if parsed.ok:
+        solution = parsed.solution
+        if isinstance(task, cube.CubeStacking) and len(solution) != task.stack_size:  # type: ignore[arg-type]
+            return "partial", solution
+        return ("correct" if task.evaluate(solution) >= 1.0 else "wrong"), solution
+    error = parsed.error or ""
+    if error.startswith("no list") or error.startswith("no matrix"):
+        return ("prose" if len(text.split()) >= PROSE_WORDS else "no list"), None
+    if "appears twice" in error:
+        return "repeated letter", None
+    if "cubes listed" in error or "rows" in error or "columns" in error or "shape" in error:
+        return "wrong size", None
+    if "is not a cube" in error:
+        return "not a cube", None
+    return "other", None
+
+
+@dataclass(frozen=True)
+class CensusRow:
+    """The answers of one recorded key, classified."""
+
+    key: str
+    temperature: float
+    shown: int
+    """Cube stacking: cubes in the prompt's partial stack (-1 for other tasks)."""
+    counts: dict[str, int]
+
+    @property
+    def total(self) -> int:
+        return sum(self.counts.values())
+
+
+def answer_census(store_path: Path, config: ExperimentConfig) -> list[CensusRow]:
+    """Every answer in the store (or a JSONL export) of ``config``'s task through its parser.
+    Raises nothing on any answer text (the parsers never raise)."""
+    from lagrseq.llm.store import RecordStore
+
+    task = make_task(config)
+    rows: list[CensusRow] = []
+    with contextlib.ExitStack() as stack:
+        if store_path.suffix == ".jsonl":
+            from lagrseq.llm.recorded import JsonlRecordedProvider
+
+            opened = stack.enter_context(JsonlRecordedProvider(store_path, "local", 0)).store
+        else:
+            opened = stack.enter_context(RecordStore(store_path, create=False))
+        for entry in opened.entries():
+            if entry.task != config.task.name:
+                continue
+            counts: dict[str, int] = {}
+            for recorded in entry.samples:
+                name, _ = classify(task, recorded.text)
+                counts[name] = counts.get(name, 0) + 1
+            shown = len(cube.partial_stack(entry.prompt)) if isinstance(task, cube.CubeStacking) else -1
+            rows.append(CensusRow(entry.key, float(entry.request["temperature"]), shown, counts))
+    return sorted(rows, key=lambda r: (r.temperature, r.shown, r.key))
+
+
+def census_lines(rows: Sequence[CensusRow]) -> list[str]:
+    """A Markdown table of :func:`answer_census`, one row per key and a total per temperature."""
+    classes = ["correct", "wrong", "partial", *REFUSALS]
+    lines = ["| τ | shown | answers | " + " | ".join(classes) + " | accuracy |", "|" + "---|" * (len(classes) + 4)]
+    for temperature in sorted({r.temperature for r in rows}):
+        group = [r for r in rows if r.temperature == temperature]
+        for r in group:
+            cells = " | ".join(str(r.counts.get(c, 0)) for c in classes)
+            lines.append(f"| {temperature:g} | {r.shown if r.shown >= 0 else r.key[:12]} | {r.total} | {cells} | {r.counts.get('correct', 0) / max(r.total, 1):.2f} |")
+        total = {c: sum(r.counts.get(c, 0) for r in group) for c in classes}
+        answers = sum(total.values())
+        cells = " | ".join(str(total[c]) for c in classes)
+        lines.append(f"| {temperature:g} | all | {answers} | {cells} | {total['correct'] / max(answers, 1):.2f} |")
+    return lines

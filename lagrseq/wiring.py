@@ -88,8 +88,23 @@ def parse_provider(spec: str) -> ProviderSpec:
     if kind == "mock" and argument and argument not in mock_profiles():
         raise UsageError(f"unknown mock profile {argument!r}; expected one of: {', '.join(mock_profiles())}")
     if kind == "recorded" and not argument:
-        raise UsageError("provider 'recorded' needs a store: recorded:STORE (a directory)")
+        raise UsageError("provider 'recorded' needs a store: recorded:STORE (a directory) or recorded:FILE.jsonl")
+    if kind == "recorded" and argument.endswith(".jsonl"):
+        recorded_file(argument)  # a JSONL export that is not there: one line now, not per trial
     return ProviderSpec(kind, argument)
+
+
+def recorded_file(argument: str) -> Path:
+    """The JSONL export of ``recorded:FILE.jsonl``: FILE as given, or, for a relative path that is
+    not there, FILE in the source checkout lagrseq runs from (the packaged suite's
+    ``recorded_llm/`` files)."""
+    path = Path(argument).expanduser()
+    if path.is_file():
+        return path
+    checkout = Path(__file__).resolve().parents[1] / argument
+    if not path.is_absolute() and checkout.is_file():
+        return checkout
+    raise UsageError(f"recorded answers {argument!r}: no such JSONL file (relative paths are looked up here and in the lagrseq source checkout)")
 
 
 @dataclass(frozen=True)
@@ -163,8 +178,16 @@ def make_provider(
         return make_live(options, rng, budgeted=True, on_retry=_say)
     if provider.kind == "local":
         return make_local(provider.argument, options, rng)
-    store = RecordStore(provider.argument, create=options.on_miss == "live")
     endpoint = endpoint_of(options.base_url)
+    if provider.argument.endswith(".jsonl"):  # a JSONL export, replayed from a temporary store
+        from lagrseq.llm.recorded import JsonlRecordedProvider
+
+        if options.on_miss == "live":
+            raise UsageError("--on-miss live records into a store directory; a JSONL export is read only (import it with lagrseq cache import)")
+        seed = int(rng.integers(2**63))
+        fallback = MockProvider(extrapolator(config), rng, name="mock") if options.on_miss == "mock" else None
+        return JsonlRecordedProvider(recorded_file(provider.argument), endpoint, seed, fallback)
+    store = RecordStore(provider.argument, create=options.on_miss == "live")
     run_seed = int(rng.integers(2**63))
     if options.on_miss == "live":
         # A miss is asked live and recorded (one sample), so the next run finds it.
