@@ -115,15 +115,15 @@ def resolve_model(argument: str) -> tuple[Path, str]:
         magic = handle.read(4)
     if magic != b"GGUF":
         raise UsageError(f"local model {argument!r} is not a GGUF file (it does not start with 'GGUF'); llama.cpp reads GGUF models only")
-    name = path.name[:-5] if path.name.lower().endswith(".gguf") else path.name
-    return path, name
+    return path, model_name(argument)
 
 
 def model_name(argument: str) -> str:
-    """The model name queries of ``local[:MODEL]`` ask for (no file is opened)."""
-    if not argument:
-        return DEFAULT_MODEL_NAME
+    """The model name queries of ``local[:MODEL]`` ask for (no file is opened): the file's name
+    without ``.gguf``; the packaged model's file, wherever it lies, is SmolLM2-135M-Instruct."""
     name = Path(argument).name
+    if not argument or name == MODEL_FILE:
+        return DEFAULT_MODEL_NAME
     return name[:-5] if name.lower().endswith(".gguf") else name
 
 
