@@ -215,3 +215,23 @@ def test_lagrseq_killed_outright_takes_its_server_along(fake: Path, tmp_path: Pa
     finally:
         with contextlib.suppress(ProcessLookupError):
             os.kill(helper, signal.SIGKILL)  # the stand-in's helper is the server's child, not ours
+
+
+def test_record_with_the_local_server_keys_answers_under_local(fake: Path, tmp_path: Path) -> None:
+    from lagrseq import runner
+    from lagrseq.llm.store import RecordStore
+
+    store = tmp_path / "s"
+    code = cli.main(["record", "cube-stacking", "--provider", f"local:{fake}", "--temperature", "1", "--samples", "2",
+                     "--concurrency", "2", "--store", str(store), "--quiet"])
+    assert code == 0
+    with RecordStore(store, create=False) as opened:
+        entries = list(opened.entries())
+    assert len(entries) == 8 and {e.request["endpoint"] for e in entries} == {"local"}
+    assert {e.request["model"] for e in entries} == {"tiny-model"}
+    assert all(len(e.samples) == 2 and all(s.origin == "live" for s in e.samples) for e in entries)
+    config = cfg.load("cube-stacking", "lagr", "upstream", None, ["run.episodes=3", "llm.model=tiny-model", "llm.temperature=1.0"])
+    options = wiring.ProviderOptions(base_url="local")
+    assert runner.run_one(config, 0, 0, f"recorded:{store}", tmp_path / "a.mcap", log=False, provider_options=options).queries > 0
+    assert cli.main(["cache", "export", "--store", str(store), "--out", str(tmp_path / "s.jsonl")]) == 0
+    assert runner.run_one(config, 0, 0, f"recorded:{tmp_path / 's.jsonl'}", tmp_path / "b.mcap", log=False).queries > 0
