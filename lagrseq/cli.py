@@ -107,7 +107,7 @@ def _local_options(p: argparse.ArgumentParser) -> None:
     """The local llama.cpp server (--provider local, serve-llm)."""
     g = p.add_argument_group("local model (--provider local[:MODEL.gguf], the local-llm extra)")
     g.add_argument("--n-ctx", dest="local_n_ctx", type=_N["context"], default=2048, metavar="N", help="context size of the local llama.cpp server in tokens (default 2048)")
-    g.add_argument("--threads", dest="local_threads", type=_N["threads"], default=0, metavar="N", help="CPU threads of the local llama.cpp server (default 0: every core this process may use)")
+    g.add_argument("--threads", dest="local_threads", type=_N["threads"], default=0, metavar="N", help="CPU threads of the local llama.cpp server (default 0: half the cores, at least 1; more threads than free cores makes llama.cpp much slower)")
 
 
 def _quiet() -> argparse.ArgumentParser:

@@ -136,7 +136,7 @@ class ProviderOptions:
     local_n_ctx: int = 2048
     """local[:MODEL] only: the llama.cpp server's context size in tokens."""
     local_threads: int = 0
-    """local[:MODEL] only: the llama.cpp server's threads (0: every core this process may use)."""
+    """local[:MODEL] only: the llama.cpp server's threads (0: half the cores, at least 1)."""
 
     def __post_init__(self) -> None:
         if self.on_miss not in ON_MISS:

@@ -57,7 +57,7 @@ def server_pid(text: str) -> int:
 
 
 def settings(**changes: object) -> ServerSettings:
-    values: dict[str, object] = {"model": packaged_model(), "n_threads": 2}
+    values: dict[str, object] = {"model": packaged_model(), "n_threads": 1}
     values.update(changes)
     return ServerSettings(**values)  # type: ignore[arg-type]
 
@@ -66,7 +66,7 @@ def test_one_cube_prefix_answered_by_the_real_model_and_the_server_stopped() -> 
     config = wiring.with_provider_model(cfg.load("cube-stacking", "lagr", "upstream"), "local")
     assert config.llm.model == "SmolLM2-135M-Instruct"
     task = wiring.make_task(config)
-    provider = wiring.make_provider("local", config, __import__("numpy").random.default_rng(0), wiring.ProviderOptions(local_threads=2))
+    provider = wiring.make_provider("local", config, __import__("numpy").random.default_rng(0), wiring.ProviderOptions(local_threads=1))
     pid = provider.server.process.pid  # type: ignore[attr-defined]
     try:
         assert alive(pid)
@@ -102,7 +102,7 @@ def test_start_errors_are_one_line_and_leave_nothing(tmp_path: Path) -> None:
 
 def test_sigint_stops_the_run_and_its_server(tmp_path: Path) -> None:
     command = [sys.executable, "-m", "lagrseq", "run", "cube-stacking", "--method", "lagr", "--provider", "local",
-               "--threads", "2", "--trials", "1", "--set", "run.episodes=100", "--out", str(tmp_path / "runs"), "--quiet"]
+               "--threads", "1", "--trials", "1", "--set", "run.episodes=100", "--out", str(tmp_path / "runs"), "--quiet"]
     process = subprocess.Popen(command, env=ENV, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=tmp_path)
     assert process.stderr is not None
     seen = ""
@@ -157,7 +157,7 @@ def test_run_against_the_real_model_logs_live_queries(tmp_path: Path) -> None:
     """The issue's done criterion, one trial of 5 episodes."""
     config = cfg.load("cube-stacking", "lagr-seq", "upstream", None, ["run.episodes=5"])
     results = runner.run_trials(
-        wiring.with_provider_model(config, "local"), 1, 0, "local", tmp_path / "run", provider_options=wiring.ProviderOptions(local_threads=2)
+        wiring.with_provider_model(config, "local"), 1, 0, "local", tmp_path / "run", provider_options=wiring.ProviderOptions(local_threads=1)
     )
     assert results[0].episodes == 5
     queries = [q for p in find_logs([tmp_path / "run"]) for q in read_topic(p, "/query") if q.get("queried")]
