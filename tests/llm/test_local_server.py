@@ -215,6 +215,7 @@ def test_lagrseq_killed_outright_takes_its_server_along(fake: Path, tmp_path: Pa
     finally:
         with contextlib.suppress(ProcessLookupError):
             os.kill(helper, signal.SIGKILL)  # the stand-in's helper is the server's child, not ours
+        log.unlink(missing_ok=True)  # nobody was left to remove the temporary log
 
 
 def test_record_with_the_local_server_keys_answers_under_local(fake: Path, tmp_path: Path) -> None:
