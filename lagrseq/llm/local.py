@@ -22,6 +22,7 @@ import atexit
 import contextlib
 import importlib.util
 import os
+import secrets
 import signal
 import socket
 import subprocess
@@ -182,6 +183,10 @@ class LocalServer:
         self.on_line = on_line
         self.python = python
         self.port = settings.port
+        # llama-cpp-python's server samples from a fixed seed unless told otherwise, so every
+        # start would replay the same "random" answers (found by recording twice): a fresh seed
+        # per start keeps answers recorded in separate runs independent.
+        self.seed = secrets.randbelow(2**31 - 1)
         self.process: subprocess.Popen[bytes] | None = None
         self._own_log = log is None
         self.log = log
@@ -201,6 +206,7 @@ class LocalServer:
             "--port", str(self.port),
             "--n_ctx", str(s.n_ctx),
             "--n_threads", str(s.threads()),
+            "--seed", str(self.seed),
         ]
 
     def start(self) -> LocalServer:

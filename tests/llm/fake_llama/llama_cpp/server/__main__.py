@@ -20,8 +20,8 @@ ANSWER = "Let me think step by step. The human stacks the red cubes first.\n['a'
 
 def main() -> None:
     parser = argparse.ArgumentParser()
-    for name in ("--model", "--model_alias", "--host", "--port", "--n_ctx", "--n_threads"):
-        parser.add_argument(name, required=name != "--model_alias")
+    for name in ("--model", "--model_alias", "--host", "--port", "--n_ctx", "--n_threads", "--seed"):
+        parser.add_argument(name, required=name not in ("--model_alias", "--seed"))
     args = parser.parse_args()
     model = Path(args.model)
     if not model.is_file() or model.read_bytes()[:8] != b"GGUF\x03\x00\x00\x00":
