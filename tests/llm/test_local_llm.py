@@ -128,7 +128,10 @@ def test_a_killed_parent_takes_its_server_along(tmp_path: Path) -> None:
     process = subprocess.Popen([sys.executable, "-c", code], env=ENV, stdout=subprocess.PIPE, text=True)
     assert process.stdout is not None
     pid = 0
+    log = None
     for line in process.stdout:
+        found = re.search(r"; log (\S+)\)", line)
+        log = Path(found.group(1)) if found else log
         if line.startswith("pid-of-server"):
             pid = int(line.split()[1])
             break
@@ -136,6 +139,8 @@ def test_a_killed_parent_takes_its_server_along(tmp_path: Path) -> None:
     process.kill()  # SIGKILL: no finally, no atexit; the kernel's parent-death signal remains
     process.wait()
     assert gone(pid)
+    if log is not None:
+        log.unlink(missing_ok=True)  # nobody was left to remove the temporary log
 
 
 def test_serve_llm_answers_until_sigterm(tmp_path: Path) -> None:
