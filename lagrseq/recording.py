@@ -137,14 +137,51 @@ def record(
     mode: str,
     options: ProviderOptions,
     bar: Any = None,
+    provider: str = "live",
+    concurrency: int = 1,
 ) -> RecordingReport:
     """Top every query up to ``samples`` answers in ``store_path`` from the live server of
-    ``options`` (mode ``none`` asks nobody and only counts). ``bar``: a tqdm-like progress bar
-    (``update``, ``write``, ``set_postfix_str``) or None."""
-    from lagrseq.llm.recorded import RecordingProvider, record_queries
-    from lagrseq.llm.store import RecordStore, endpoint_of, query_key
+    ``options`` (mode ``none`` asks nobody and only counts), with up to ``concurrency`` requests
+    in flight. ``provider``: ``live``, or ``local[:MODEL]`` for a llama.cpp server started for the
+    recording (its answers are keyed under the endpoint ``local``). ``bar``: a tqdm-like progress
+    bar (``update``, ``write``, ``set_postfix_str``) or None."""
+    from lagrseq.llm.store import endpoint_of
+    from lagrseq.wiring import local_settings, parse_provider
 
-    endpoint = endpoint_of(options.base_url)
+    spec = parse_provider(provider)
+    if spec.kind not in ("live", "local"):
+        raise UsageError(f"lagrseq record asks a live or local model, not {provider!r}; expected live or local[:MODEL.gguf]")
+    if spec.kind == "live" or mode == "none":
+        endpoint = endpoint_of(options.base_url) if spec.kind == "live" else _local_endpoint()
+        return _record(queries, store_path, samples, mode, options, bar, endpoint, concurrency)
+    from lagrseq.llm.local import LocalServer
+
+    say = bar.write if bar is not None else (lambda message: print(message, file=sys.stderr))
+    settings = local_settings(spec.argument, options)
+    with LocalServer(settings, on_line=lambda line: say(f"  {line}")) as server:
+        local = replace(options, base_url=server.base_url, server="llama.cpp")
+        return _record(queries, store_path, samples, mode, local, bar, _local_endpoint(), concurrency, settings.model_name)
+
+
+def _local_endpoint() -> str:
+    from lagrseq.llm.local import LOCAL_ENDPOINT
+
+    return LOCAL_ENDPOINT
+
+
+def _record(
+    queries: Sequence[Query],
+    store_path: Path,
+    samples: int,
+    mode: str,
+    options: ProviderOptions,
+    bar: Any,
+    endpoint: str,
+    concurrency: int,
+    local_model: str | None = None,
+) -> RecordingReport:
+    from lagrseq.llm.recorded import RecordingProvider, record_queries
+    from lagrseq.llm.store import RecordStore, query_key
 
     def held(store: RecordStore) -> int:
         entries = [store.entry(query_key(q, endpoint)[0]) for q in queries]
@@ -156,7 +193,8 @@ def record(
     # The retry jitter's generator: seeded per process, so concurrent recorders back off apart.
     jitter = np.random.default_rng([os.getpid()])
     say = bar.write if bar is not None else (lambda message: print(message, file=sys.stderr))
-    live = make_live(options, jitter, budgeted=True, on_retry=lambda message: say(f"  {message}"))
+    environ: dict[str, str] | None = {} if local_model is not None else None  # a local server: no key
+    live = make_live(options, jitter, budgeted=True, on_retry=lambda message: say(f"  {message}"), environ=environ, local_model=local_model)
     budget = live.budget
 
     def show(_answers: Any) -> None:
@@ -165,11 +203,24 @@ def record(
             bar.set_postfix_str(f"{budget.answers} new answers, ${budget.spent_usd:.4f}{unpriced}")
 
     stopped: BudgetExceeded | None = None
+    on_query = lambda _q: bar.update(1) if bar is not None else None  # noqa: E731
+    if concurrency > 1:
+        from lagrseq.llm.concurrent import record_concurrently
+        from lagrseq.llm.live import SharedBackoff
+
+        live.inner.backoff = SharedBackoff()  # a 429 pauses every request in flight
+        with RecordingProvider(RecordStore(store_path), live.inner, endpoint, mode, samples) as recorder:  # type: ignore[arg-type]
+            try:
+                record_concurrently(recorder, list(queries), budget, live.prices, concurrency, on_answers=show, on_query=on_query)
+            except BudgetExceeded as exc:
+                stopped = exc
+            full = held(recorder.store)
+        return RecordingReport(
+            len(queries), full, samples, store_path, budget.answers, budget.spent_usd, budget.unpriced, stopped
+        )
     with RecordingProvider(RecordStore(store_path), live, endpoint, mode, samples) as recorder:  # type: ignore[arg-type]
         try:
-            record_queries(
-                recorder, list(queries), on_answers=show, on_query=lambda _q: bar.update(1) if bar is not None else None
-            )
+            record_queries(recorder, list(queries), on_answers=show, on_query=on_query)
         except BudgetExceeded as exc:
             stopped = exc
         full = held(recorder.store)
@@ -289,4 +340,90 @@ def list_answers(store_path: Path) -> list[str]:
                 f"{entry.key[:12]}  {entry.task or '-'}  {r['model']}  t={r['temperature']}  {r['endpoint']}  "
                 f"{len(entry.samples):3d} samples  ...{tail}"
             )
+    return lines
+
+
+# ------------------------------------------------------------------------------------------
+# Recorded answers through the task's parser: what a real model's text does to it
+# ------------------------------------------------------------------------------------------
+REFUSALS = ("no list", "prose", "repeated letter", "wrong size", "not a cube", "other")
+"""How a parser refusal is classified (``prose``: no list, in an answer of 8 words or more)."""
+PROSE_WORDS = 8
+
+
+def classify(task: Task, text: str) -> tuple[str, Any]:
+    """(class, parsed solution or None) of one answer: ``correct``, ``wrong`` (a solution, not the
+    target), ``partial`` (a cube list shorter than the stack), or one of :data:`REFUSALS`."""
+    parsed = task.parse(text)
+    if parsed.ok:
+        solution = parsed.solution
+        if isinstance(task, cube.CubeStacking) and len(solution) != task.stack_size:  # type: ignore[arg-type]
+            return "partial", solution
+        return ("correct" if task.evaluate(solution) >= 1.0 else "wrong"), solution
+    error = parsed.error or ""
+    if error.startswith("no list") or error.startswith("no matrix"):
+        return ("prose" if len(text.split()) >= PROSE_WORDS else "no list"), None
+    if "appears twice" in error:
+        return "repeated letter", None
+    if "cubes listed" in error or "rows" in error or "columns" in error or "shape" in error:
+        return "wrong size", None
+    if "is not a cube" in error:
+        return "not a cube", None
+    return "other", None
+
+
+@dataclass(frozen=True)
+class CensusRow:
+    """The answers of one recorded key, classified."""
+
+    key: str
+    temperature: float
+    shown: int
+    """Cube stacking: cubes in the prompt's partial stack (-1 for other tasks)."""
+    counts: dict[str, int]
+
+    @property
+    def total(self) -> int:
+        return sum(self.counts.values())
+
+
+def answer_census(store_path: Path, config: ExperimentConfig) -> list[CensusRow]:
+    """Every answer in the store (or a JSONL export) of ``config``'s task through its parser.
+    Raises nothing on any answer text (the parsers never raise)."""
+    from lagrseq.llm.store import RecordStore
+
+    task = make_task(config)
+    rows: list[CensusRow] = []
+    with contextlib.ExitStack() as stack:
+        if store_path.suffix == ".jsonl":
+            from lagrseq.llm.recorded import JsonlRecordedProvider
+
+            opened = stack.enter_context(JsonlRecordedProvider(store_path, "local", 0)).store
+        else:
+            opened = stack.enter_context(RecordStore(store_path, create=False))
+        for entry in opened.entries():
+            if entry.task != config.task.name:
+                continue
+            counts: dict[str, int] = {}
+            for recorded in entry.samples:
+                name, _ = classify(task, recorded.text)
+                counts[name] = counts.get(name, 0) + 1
+            shown = len(cube.partial_stack(entry.prompt)) if isinstance(task, cube.CubeStacking) else -1
+            rows.append(CensusRow(entry.key, float(entry.request["temperature"]), shown, counts))
+    return sorted(rows, key=lambda r: (r.temperature, r.shown, r.key))
+
+
+def census_lines(rows: Sequence[CensusRow]) -> list[str]:
+    """A Markdown table of :func:`answer_census`, one row per key and a total per temperature."""
+    classes = ["correct", "wrong", "partial", *REFUSALS]
+    lines = ["| τ | shown | answers | " + " | ".join(classes) + " | accuracy |", "|" + "---|" * (len(classes) + 4)]
+    for temperature in sorted({r.temperature for r in rows}):
+        group = [r for r in rows if r.temperature == temperature]
+        for r in group:
+            cells = " | ".join(str(r.counts.get(c, 0)) for c in classes)
+            lines.append(f"| {temperature:g} | {r.shown if r.shown >= 0 else r.key[:12]} | {r.total} | {cells} | {r.counts.get('correct', 0) / max(r.total, 1):.2f} |")
+        total = {c: sum(r.counts.get(c, 0) for r in group) for c in classes}
+        answers = sum(total.values())
+        cells = " | ".join(str(total[c]) for c in classes)
+        lines.append(f"| {temperature:g} | all | {answers} | {cells} | {total['correct'] / max(answers, 1):.2f} |")
     return lines

@@ -82,7 +82,9 @@ class Plan:
 
 def _provider_problem(spec: str) -> str | None:
     try:
-        wiring.parse_provider(spec)
+        parsed = wiring.parse_provider(spec)
+        if parsed.kind == "local":  # the extra and the model file, checked without starting a server
+            wiring.local_settings(parsed.argument, wiring.ProviderOptions())
     except UsageError as exc:
         return f"provider not available: {exc}"
     return None

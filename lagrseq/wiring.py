@@ -54,9 +54,9 @@ from lagrseq.tasks.arrangement import arm_arrangement, object_arrangement
 from lagrseq.tasks.base import Task
 from lagrseq.tasks.image import image_completion
 
-PROVIDER_KINDS = ("mock", "recorded", "live")
+PROVIDER_KINDS = ("mock", "recorded", "live", "local")
 ON_MISS = ("error", "mock", "live")
-PROVIDER_HELP = "mock, mock:PROFILE, recorded:STORE, live or live:MODEL"
+PROVIDER_HELP = "mock, mock:PROFILE, recorded:STORE, live, live:MODEL, local or local:MODEL.gguf"
 
 
 # ------------------------------------------------------------------------------------------
@@ -67,9 +67,10 @@ class ProviderSpec:
     """A parsed ``--provider`` value: ``kind[:argument]``."""
 
     kind: str
-    """mock | recorded | live"""
+    """mock | recorded | live | local"""
     argument: str = ""
-    """The mock's profile, the recorded store's directory, or the live model."""
+    """The mock's profile, the recorded store's directory (or JSONL file), the live model, or
+    the local model's GGUF file."""
 
     def __str__(self) -> str:
         return f"{self.kind}:{self.argument}" if self.argument else self.kind
@@ -89,8 +90,23 @@ def parse_provider(spec: str) -> ProviderSpec:
     if kind == "mock" and argument and argument not in mock_profiles():
         raise UsageError(f"unknown mock profile {argument!r}; expected one of: {', '.join(mock_profiles())}")
     if kind == "recorded" and not argument:
-        raise UsageError("provider 'recorded' needs a store: recorded:STORE (a directory)")
+        raise UsageError("provider 'recorded' needs a store: recorded:STORE (a directory) or recorded:FILE.jsonl")
+    if kind == "recorded" and argument.endswith(".jsonl"):
+        recorded_file(argument)  # a JSONL export that is not there: one line now, not per trial
     return ProviderSpec(kind, argument)
+
+
+def recorded_file(argument: str) -> Path:
+    """The JSONL export of ``recorded:FILE.jsonl``: FILE as given, or, for a relative path that is
+    not there, FILE in the source checkout lagrseq runs from (the packaged suite's
+    ``recorded_llm/`` files)."""
+    path = Path(argument).expanduser()
+    if path.is_file():
+        return path
+    checkout = Path(__file__).resolve().parents[1] / argument
+    if not path.is_absolute() and checkout.is_file():
+        return checkout
+    raise UsageError(f"recorded answers {argument!r}: no such JSONL file (relative paths are looked up here and in the lagrseq source checkout)")
 
 
 @dataclass(frozen=True)
@@ -123,6 +139,10 @@ class ProviderOptions:
     budget_ledger: str | None = None
     """SQLite file holding one budget for every trial and worker of a run (set by the runner when
     a limit is given; not part of the metadata: it says where, not what)."""
+    local_n_ctx: int = 2048
+    """local[:MODEL] only: the llama.cpp server's context size in tokens."""
+    local_threads: int = 0
+    """local[:MODEL] only: the llama.cpp server's threads (0: half the cores, at least 1)."""
 
     def __post_init__(self) -> None:
         if self.on_miss not in ON_MISS:
@@ -139,6 +159,10 @@ def with_provider_model(config: ExperimentConfig, spec: str) -> ExperimentConfig
     provider = parse_provider(spec)
     if provider.kind == "live" and provider.argument and provider.argument != config.llm.model:
         return replace(config, llm=replace(config.llm, model=provider.argument))
+    if provider.kind == "local":  # the local model is asked by its own name (logs and keys say so)
+        from lagrseq.llm.local import model_name
+
+        return replace(config, llm=replace(config.llm, model=model_name(provider.argument)))
     return config
 
 
@@ -160,8 +184,18 @@ def make_provider(
         return MockProvider(extrapolator(config, provider.argument or "ideal"), rng, name=spec)
     if provider.kind == "live":
         return make_live(options, rng, budgeted=True, on_retry=_say)
-    store = RecordStore(provider.argument, create=options.on_miss == "live")
+    if provider.kind == "local":
+        return make_local(provider.argument, options, rng)
     endpoint = endpoint_of(options.base_url)
+    if provider.argument.endswith(".jsonl"):  # a JSONL export, replayed from a temporary store
+        from lagrseq.llm.recorded import JsonlRecordedProvider
+
+        if options.on_miss == "live":
+            raise UsageError("--on-miss live records into a store directory; a JSONL export is read only (import it with lagrseq cache import)")
+        seed = int(rng.integers(2**63))
+        fallback = MockProvider(extrapolator(config), rng, name="mock") if options.on_miss == "mock" else None
+        return JsonlRecordedProvider(recorded_file(provider.argument), endpoint, seed, fallback)
+    store = RecordStore(provider.argument, create=options.on_miss == "live")
     run_seed = int(rng.integers(2**63))
     if options.on_miss == "live":
         # A miss is asked live and recorded (one sample), so the next run finds it.
@@ -177,8 +211,12 @@ def _say(message: str) -> None:
 
 def check_provider(spec: str, config: ExperimentConfig, options: ProviderOptions | None = None) -> None:
     """Build the provider once and close it, so that a missing API key or store fails before any
-    trial starts (nothing is sent)."""
+    trial starts (nothing is sent). A local server is not started here: its model file and the
+    extra are checked."""
     options = options or ProviderOptions()
+    if parse_provider(spec).kind == "local":
+        local_settings(parse_provider(spec).argument, options)
+        return
     paid = parse_provider(spec).kind == "live" or options.on_miss == "live"
     if paid and config.method == "lagr-seq" and config.secondary.policy == "oracle":
         raise UsageError(
@@ -188,17 +226,53 @@ def check_provider(spec: str, config: ExperimentConfig, options: ProviderOptions
     make_provider(spec, config, np.random.default_rng(0), options).close()
 
 
+def local_settings(argument: str, options: ProviderOptions, port: int = 0) -> Any:
+    """The local server's settings for ``local[:MODEL]``; raises UsageError (one line) when the
+    extra is missing or the model file is not there."""
+    from lagrseq.llm.local import ServerSettings, missing_extra, resolve_model
+
+    problem = missing_extra()
+    if problem:
+        raise UsageError(problem)
+    model, name = resolve_model(argument)
+    return ServerSettings(model=model, model_name=name, port=port, n_ctx=options.local_n_ctx, n_threads=options.local_threads)
+
+
+def make_local(argument: str, options: ProviderOptions, rng: np.random.Generator) -> Provider:
+    """A llama.cpp server started for this provider (stopped by its ``close``), asked through the
+    live provider as ``--server llama.cpp`` with no API key."""
+    from lagrseq.llm.local import LocalProvider, LocalServer
+
+    server = LocalServer(local_settings(argument, options), on_line=_say).start()
+    try:
+        local = replace(options, base_url=server.base_url, server="llama.cpp")
+        inner = make_live(local, rng, budgeted=True, on_retry=_say, environ={}, local_model=server.settings.model_name)
+    except BaseException:
+        server.stop()
+        raise
+    return LocalProvider(server, inner)  # type: ignore[return-value]
+
+
 def make_live(
     options: ProviderOptions,
     rng: np.random.Generator,
     budgeted: bool = False,
     on_retry: Callable[[str], None] | None = None,
+    environ: dict[str, str] | None = None,
+    local_model: str | None = None,
 ) -> Any:
-    """The live provider of ``options``, behind a budget guard when asked (one budget per call)."""
+    """The live provider of ``options``, behind a budget guard when asked (one budget per call).
+    ``environ``: where the API key is looked up (default the process environment; ``{}`` for a
+    local server, which is sent no key). ``local_model``: a model served on this machine, priced
+    at zero (so ``--max-cost-usd`` holds without a price table)."""
     from lagrseq.llm.budget import Budget, BudgetedProvider
     from lagrseq.llm.live import LiveProvider, LiveSettings
 
     prices = load_prices(options.price_table)
+    if local_model is not None:
+        from lagrseq.llm.pricing import Price, PriceTable
+
+        prices = PriceTable([*prices.prices.values(), Price(local_model, 0.0, 0.0, None, "served locally by llama.cpp: no charge", "2026-12-01")])
     settings = LiveSettings(
         base_url=options.base_url,
         api_key_env=options.api_key_env,
@@ -207,7 +281,7 @@ def make_live(
         request_deadline_s=options.request_deadline_s,
         max_response_bytes=options.max_response_bytes,
     )
-    live = LiveProvider(settings, rng=rng, prices=prices, on_retry=on_retry)
+    live = LiveProvider(settings, rng=rng, prices=prices, on_retry=on_retry, environ=environ)
     if not budgeted:
         return live
     if options.budget_ledger is not None:

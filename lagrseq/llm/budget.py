@@ -32,12 +32,19 @@ class Budget:
     """Answers received so far."""
     unpriced: int = 0
     """Answers whose model has no price (their cost is not in ``spent_usd``)."""
+    in_flight_answers: int = 0
+    """Answers asked by requests sent and not yet answered (concurrent recording)."""
+    in_flight_usd: float = 0.0
+    """The worst-case cost of those requests."""
 
     def check(self, query: Query, n: int, worst_cost: float | None) -> None:
-        """Raise :class:`BudgetExceeded` if asking ``n`` more answers could pass a limit."""
-        if self.max_queries is not None and self.answers + n > self.max_queries:
+        """Raise :class:`BudgetExceeded` if asking ``n`` more answers could pass a limit, counting
+        the requests in flight at their worst case."""
+        so_far = self.answers + self.in_flight_answers
+        if self.max_queries is not None and so_far + n > self.max_queries:
+            flight = f" ({self.in_flight_answers} of them in flight)" if self.in_flight_answers else ""
             raise BudgetExceeded(
-                f"--max-queries {self.max_queries} reached: {self.answers} answers so far and the next "
+                f"--max-queries {self.max_queries} reached: {so_far} answers so far{flight} and the next "
                 f"request asks for {n} more (not sent); raise the limit to go on"
             )
         if self.max_cost_usd is None:
@@ -47,25 +54,40 @@ class Budget:
                 f"model {query.model!r} has no price in the price table, so --max-cost-usd cannot be "
                 "enforced (nothing sent); add its price with --price-table FILE"
             )
-        if self.spent_usd + worst_cost > self.max_cost_usd:
+        if self.spent_usd + self.in_flight_usd + worst_cost > self.max_cost_usd:
+            flight = f" (and up to ${self.in_flight_usd:.4f} in flight)" if self.in_flight_answers else ""
             raise BudgetExceeded(
-                f"--max-cost-usd {self.max_cost_usd:g} reached: ${self.spent_usd:.4f} spent and the next "
+                f"--max-cost-usd {self.max_cost_usd:g} reached: ${self.spent_usd:.4f} spent{flight} and the next "
                 f"request could cost up to ${worst_cost:.4f} (not sent); raise the limit to go on"
             )
 
-    # The reservation protocol of a shared budget (lagrseq.llm.ledger.SharedBudget); a budget of
-    # one process needs no reservation: it checks before and charges after.
-    def reserve(self, query: Query, n: int, worst_cost: float | None) -> None:
+    # The reservation protocol, shared with lagrseq.llm.ledger.SharedBudget (one budget for the
+    # workers of a run): reserve before a request, then settle, release or keep its ticket.
+    def reserve(self, query: Query, n: int, worst_cost: float | None) -> tuple[int, float]:
+        """:meth:`check`, then count the request as in flight (concurrent recording counts the
+        requests in flight at their worst case); returns the ticket the other calls take back."""
         self.check(query, n, worst_cost)
+        reserved = worst_cost or 0.0
+        self.in_flight_answers += n
+        self.in_flight_usd += reserved
+        return n, reserved
 
-    def settle(self, ticket: None, answers: list[Answer]) -> None:
+    def _landed(self, ticket: tuple[int, float]) -> None:
+        n, reserved = ticket
+        self.in_flight_answers -= n
+        self.in_flight_usd = max(self.in_flight_usd - reserved, 0.0)
+
+    def settle(self, ticket: tuple[int, float], answers: list[Answer]) -> None:
+        """A request in flight has ended (``answers`` empty when it failed): charge what came."""
+        self._landed(ticket)
         self.charge(answers)
 
-    def release(self, ticket: None) -> None:
+    def release(self, ticket: tuple[int, float]) -> None:
         """A request that failed without answers costs nothing."""
+        self._landed(ticket)
 
-    def keep(self, ticket: None) -> None:
-        """An interrupted request: this process ends, its budget with it."""
+    def keep(self, ticket: tuple[int, float]) -> None:
+        """An interrupted request (it may have been billed) stays counted at its worst case."""
 
     def close(self) -> None:
         """Nothing to release."""

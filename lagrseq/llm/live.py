@@ -200,10 +200,41 @@ def _split(total: int, parts: int) -> list[int]:
 class _Retry(Exception):
     """Internal: this attempt failed in a way worth retrying."""
 
-    def __init__(self, reason: str, retry_after: float | None = None) -> None:
+    def __init__(self, reason: str, retry_after: float | None = None, status: int | None = None) -> None:
         super().__init__(reason)
         self.reason = reason
         self.retry_after = retry_after
+        self.status = status
+
+
+class SharedBackoff:
+    """One backoff for every request in flight (``lagrseq record --concurrency N``): when the
+    server answers 429, no request is sent by any thread until the wait is over, so N threads do
+    not each hammer a server that asked them all to slow down. ``sleep`` and ``clock`` are for
+    tests."""
+
+    def __init__(self, sleep: Callable[[float], None] = time.sleep, clock: Callable[[], float] = time.monotonic) -> None:
+        self._sleep = sleep
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._until = 0.0
+        self.holds = 0
+        """How many times a 429 paused everyone."""
+
+    def hold(self, delay: float) -> None:
+        """Pause every request (this one included) for ``delay`` seconds from now."""
+        with self._lock:
+            self._until = max(self._until, self._clock() + max(delay, 0.0))
+            self.holds += 1
+
+    def wait(self) -> None:
+        """Return once no pause is in force."""
+        while True:
+            with self._lock:
+                left = self._until - self._clock()
+            if left <= 0:
+                return
+            self._sleep(left)
 
 
 class _Watchdog:
@@ -313,8 +344,12 @@ class LiveProvider:
         on_retry: Callable[[str], None] | None = None,
         sleep: Callable[[float], None] = time.sleep,
         on_warning: Callable[[str], None] | None = None,
+        backoff: SharedBackoff | None = None,
     ) -> None:
         self.settings = settings or LiveSettings()
+        self.backoff = backoff
+        """Shared by the threads of a concurrent recording: a 429 pauses them all."""
+        self._rng_lock = threading.Lock()
         self.kind = SERVER_KINDS[self.settings.server]
         self.endpoint = endpoint_of(self.settings.base_url)
         self.url = self.settings.base_url.rstrip("/") + "/chat/completions"
@@ -414,6 +449,8 @@ class LiveProvider:
         attempts = self.settings.max_retries + 1
         last = ""
         for attempt in range(attempts):
+            if self.backoff is not None:
+                self.backoff.wait()
             try:
                 return self._attempt(query, body, n)
             except _Retry as retry:
@@ -421,9 +458,15 @@ class LiveProvider:
                 if attempt + 1 >= attempts:
                     break
                 delay = self._delay(attempt, retry.retry_after, retry.reason)
+                shared = self.backoff is not None and retry.status == 429
                 if self.on_retry is not None:
-                    self.on_retry(f"{retry.reason}; retrying in {delay:.2f} s ({attempt + 1}/{self.settings.max_retries})")
-                self._sleep(delay)
+                    everyone = " (every request in flight waits)" if shared else ""
+                    self.on_retry(f"{retry.reason}; retrying in {delay:.2f} s{everyone} ({attempt + 1}/{self.settings.max_retries})")
+                if shared:
+                    assert self.backoff is not None
+                    self.backoff.hold(delay)
+                else:
+                    self._sleep(delay)
         raise ProviderError(
             f"{self.url}: gave up after {attempts} attempt{'s' if attempts != 1 else ''}: {last}; "
             "check --base-url and the server, or try again later"
@@ -439,7 +482,9 @@ class LiveProvider:
             return retry_after
         s = self.settings
         delay = min(s.backoff_initial_s * 2.0**attempt, s.backoff_max_s)
-        return delay * (1.0 - s.jitter * float(self.rng.random()))
+        with self._rng_lock:  # one generator, several recording threads
+            draw = float(self.rng.random())
+        return delay * (1.0 - s.jitter * draw)
 
     def _attempt(self, query: Query, body: dict[str, Any], n: int) -> list[Answer]:
         s = self.settings
@@ -532,7 +577,7 @@ class LiveProvider:
             )
         retryable = status in (408, 409, 429) or status >= 500
         if should == "true" or (retryable and should != "false"):
-            raise _Retry(said, parse_retry_after(headers))
+            raise _Retry(said, parse_retry_after(headers), status)
         hint = {
             400: "the server rejected the request",
             401: f"the key in {self.settings.api_key_env} was refused; check it",

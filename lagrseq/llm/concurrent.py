@@ -1,0 +1,141 @@
+"""Concurrent recording: N requests in flight, one shared backoff, the budget counting them all.
+
+:func:`record_concurrently` is :func:`~lagrseq.llm.recorded.record_queries` at the server's pace:
+every request a recording needs (one per sample on servers that ignore ``n``) is a unit of work;
+up to ``concurrency`` of them are in flight on worker threads, sharing one HTTP client and one
+:class:`~lagrseq.llm.live.SharedBackoff` (a 429 pauses them all). The dispatcher (the calling
+thread) is the only one that touches the budget and the store:
+
+- before sending a request it reserves the request's worst case in the
+  :class:`~lagrseq.llm.budget.Budget` (answers asked and worst-case cost of every request in
+  flight count), so ``--max-queries`` and ``--max-cost-usd`` hold however many are in flight; a
+  request that could pass a limit is not sent, the ones in flight are waited for and stored, and
+  then :class:`~lagrseq.errors.BudgetExceeded` is raised;
+- each request's answers are stored as soon as it returns (requests that end together: one
+  transaction), so an interrupted recording loses nothing already answered.
+
+A failed request (after the live provider's own retries) stops the dispatch the same way: what is
+in flight is waited for and stored, then the error is raised.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+from lagrseq.errors import BudgetExceeded
+from lagrseq.llm.base import Answer, Provider, Query, sample, samples_per_request
+from lagrseq.llm.budget import Budget
+from lagrseq.llm.pricing import PriceTable
+from lagrseq.llm.recorded import RecordingProvider, RecordReport
+from lagrseq.llm.store import Sample, query_key, sample_from_answer
+
+
+@dataclass
+class _Unit:
+    """One request: ``n`` samples of query number ``index``."""
+
+    index: int
+    query: Query
+    n: int
+    reserved: float = 0.0
+
+
+def record_concurrently(
+    recorder: RecordingProvider,
+    queries: Sequence[Query],
+    budget: Budget,
+    prices: PriceTable,
+    concurrency: int,
+    on_answers: Callable[[list[Answer]], None] | None = None,
+    on_query: Callable[[Query], None] | None = None,
+    poll_s: float = 0.2,
+) -> RecordReport:
+    """Top every query up to the recorder's sample count with up to ``concurrency`` requests in
+    flight. ``recorder.inner`` must be the unbudgeted provider (thread-safe: the live one);
+    ``budget`` is checked and charged here."""
+    if concurrency < 1:
+        raise ValueError(f"concurrency must be at least 1, got {concurrency}")
+    inner: Provider = recorder.inner
+    per_request = samples_per_request(inner)
+    units: list[_Unit] = []
+    left: list[int] = []
+    for index, query in enumerate(queries):
+        need = recorder.wanted(recorder.store.entry(query_key(query, recorder.endpoint)[0]))
+        left.append(math.ceil(need / per_request) if need > 0 else 0)
+        while need > 0:
+            units.append(_Unit(index, query, min(need, per_request)))
+            need -= per_request
+    for index, query in enumerate(queries):  # queries with nothing to ask are done at once
+        if left[index] == 0 and on_query is not None:
+            on_query(query)
+    answers = 0
+    stop: BaseException | None = None
+    pending = iter(units)
+    flying: dict[cf.Future[list[Answer]], _Unit] = {}
+
+    def ask(unit: _Unit) -> list[Answer]:
+        return sample(inner, unit.query, unit.n)
+
+    def store(arrived: list[tuple[_Unit, list[Answer]]]) -> int:
+        """Store what arrived together in one transaction; tell the callbacks."""
+        groups: dict[str, tuple[dict[str, Any], str | None, list[Sample]]] = {}
+        for unit, batch in arrived:
+            key, request = query_key(unit.query, recorder.endpoint)
+            groups.setdefault(key, (request, unit.query.task, []))[2].extend(sample_from_answer(a, key) for a in batch)
+        if groups:
+            recorder.store.add_many(groups)
+        for unit, batch in arrived:
+            if on_answers is not None:
+                key = query_key(unit.query, recorder.endpoint)[0]
+                on_answers([replace(a, record_key=key) for a in batch])
+            left[unit.index] -= 1
+            if left[unit.index] == 0 and on_query is not None:
+                on_query(unit.query)
+        return sum(len(batch) for _, batch in arrived)
+
+    arrived: list[tuple[_Unit, list[Answer]]] = []
+    pool = cf.ThreadPoolExecutor(max_workers=concurrency, thread_name_prefix="lagrseq-record")
+    try:
+        while True:
+            # first send what the finished requests made room for, then store their answers
+            while stop is None and len(flying) < concurrency:
+                unit = next(pending, None)
+                if unit is None:
+                    break
+                requests = math.ceil(unit.n / per_request)
+                try:
+                    unit.reserved = budget.reserve(unit.query, unit.n, prices.worst_case(unit.query, unit.n, requests))
+                except BudgetExceeded as exc:
+                    stop = exc
+                    break
+                flying[pool.submit(ask, unit)] = unit
+            answers += store(arrived)
+            arrived = []
+            if not flying:
+                break
+            done, _ = cf.wait(flying, timeout=poll_s, return_when=cf.FIRST_COMPLETED)
+            for future in done:
+                unit = flying.pop(future)
+                error = future.exception()
+                batch = [] if error is not None else future.result()
+                budget.settle(unit.reserved, batch)
+                if error is None:
+                    arrived.append((unit, batch))
+                elif stop is None or isinstance(stop, BudgetExceeded):  # a failure outranks a budget stop
+                    stop = error
+    finally:
+        if arrived:  # interrupted between a request's end and its storing: keep what was paid for
+            store(arrived)
+        # on Ctrl-C nothing new starts; requests in flight end on their own deadline
+        pool.shutdown(wait=not flying, cancel_futures=True)
+    if stop is not None:
+        raise stop
+    complete = 0
+    for query in queries:
+        entry = recorder.store.entry(query_key(query, recorder.endpoint)[0])
+        complete += int(entry is not None and len(entry.samples) >= recorder.samples)
+    return RecordReport(queries=len(queries), complete=complete, answers=answers)

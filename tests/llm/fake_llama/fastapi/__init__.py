@@ -1,0 +1,1 @@
+"""Stand-in so that lagrseq finds the local-llm extra (tests only)."""

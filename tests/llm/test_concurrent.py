@@ -1,0 +1,124 @@
+"""`lagrseq record --concurrency N` against the scripted server on 127.0.0.1: N requests in flight,
+every answer stored, one shared backoff on 429, and a budget that counts the requests in flight."""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from lagrseq import cli
+from lagrseq.llm.budget import Budget
+from lagrseq.llm.live import SharedBackoff
+from lagrseq.llm.store import RecordStore
+from tests.llm.conftest import KEY_ENV, FakeOpenAI, Reply
+
+
+class Arrivals(list):  # type: ignore[type-arg]
+    """``FakeOpenAI.requests`` that also notes when each request arrived and how many were open."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.times: list[float] = []
+
+    def append(self, item: Any) -> None:
+        self.times.append(time.monotonic())
+        super().append(item)
+
+
+def record(server: FakeOpenAI, store: Path, *extra: str) -> int:
+    return cli.main([
+        "record", "cube-stacking", "--model", "gpt-4o-mini", "--temperature", "1", "--store", str(store),
+        "--base-url", server.url, "--api-key-env", KEY_ENV, "--server", "ollama", "--quiet", *extra,
+    ])
+
+
+def stored(store: Path) -> int:
+    with RecordStore(store, create=False) as opened:
+        return sum(len(e.samples) for e in opened.entries())
+
+
+def test_concurrent_recording_keeps_n_requests_in_flight_and_stores_every_answer(tmp_path: Path, server: FakeOpenAI) -> None:
+    open_now = 0
+    most = 0
+    lock = threading.Lock()
+    answer = server.responder
+
+    def slow(prompt: str, temperature: float) -> str:  # each request holds for 0.1 s: they overlap
+        nonlocal open_now, most
+        with lock:
+            open_now += 1
+            most = max(most, open_now)
+        time.sleep(0.1)
+        with lock:
+            open_now -= 1
+        return answer(prompt, temperature)
+
+    server.responder = slow
+    assert record(server, tmp_path / "s", "--samples", "3", "--concurrency", "4") == 0
+    assert len(server.requests) == 24 and stored(tmp_path / "s") == 24  # 8 prefixes x 3, one request each
+    assert most == 4  # never more than N, and N reached
+    assert record(server, tmp_path / "s", "--samples", "3", "--concurrency", "4") == 0
+    assert len(server.requests) == 24  # a rerun asks nothing
+
+
+def test_the_budget_counts_requests_in_flight(tmp_path: Path, server: FakeOpenAI, capsys: pytest.CaptureFixture[str]) -> None:
+    server.script.extend(Reply(delay_s=0.05) for _ in range(100))
+    code = record(server, tmp_path / "s", "--samples", "3", "--concurrency", "4", "--max-queries", "5")
+    assert code == 2 and "--max-queries 5 reached" in capsys.readouterr().err
+    # 4 in flight at once, yet exactly 5 sent: the 6th was refused while answers were still due
+    assert len(server.requests) == 5 and stored(tmp_path / "s") == 5
+
+
+def test_budget_reservations_are_checked_against_spent_plus_in_flight() -> None:
+    from lagrseq.llm.base import user_query
+
+    query = user_query("cube-stacking", "p", "gpt-4o-mini", 0.0, 10)
+    budget = Budget(max_cost_usd=1.0, max_queries=10)
+    held = [budget.reserve(query, 1, 0.3) for _ in range(3)]
+    with pytest.raises(Exception, match="in flight"):
+        budget.reserve(query, 1, 0.3)  # 0.9 in flight + 0.3 could pass 1.0
+    budget.settle(1, held[0], [])  # a failed request frees its reservation
+    assert budget.in_flight_answers == 2 and budget.in_flight_usd == pytest.approx(0.6)
+    budget.reserve(query, 1, 0.3)
+
+
+def test_a_429_pauses_every_request_in_flight(tmp_path: Path, server: FakeOpenAI, capsys: pytest.CaptureFixture[str]) -> None:
+    arrivals = Arrivals()
+    server.requests = arrivals
+    wait_s = 0.6
+    # The first request is told 429 (retry after 0.6 s) at once, the next three are answered 0.3 s
+    # later. With one shared backoff those three threads send nothing more until 0.6 s after the
+    # 429; each on its own would send again at about 0.3 s.
+    server.script.append(Reply(status=429, body={"error": {"message": "slow down", "type": "rate_limit"}}, headers={"retry-after-ms": str(int(wait_s * 1000))}))
+    server.script.extend(Reply(delay_s=0.3) for _ in range(3))
+    assert record(server, tmp_path / "s", "--samples", "2", "--concurrency", "4") == 0
+    captured = capsys.readouterr()
+    assert "every request in flight waits" in captured.out + captured.err
+    assert stored(tmp_path / "s") == 16 and len(arrivals) == 17
+    # The first request to arrive got the 429 (the script is served in arrival order). Requests
+    # already sent when the client received it may still arrive just after it (0.15 s allowed for
+    # a loaded machine); after that, nothing may arrive until the pause is over.
+    told = arrivals.times[0]
+    during = [t for t in arrivals.times if told + 0.15 < t < told + wait_s - 0.05]
+    assert during == []
+
+
+def test_shared_backoff_waits_until_the_longest_hold() -> None:
+    now = [0.0]
+    slept: list[float] = []
+
+    def sleep(seconds: float) -> None:
+        slept.append(seconds)
+        now[0] += seconds
+
+    backoff = SharedBackoff(sleep=sleep, clock=lambda: now[0])
+    backoff.wait()
+    assert slept == []
+    backoff.hold(2.0)
+    backoff.hold(0.5)  # a shorter hold does not shorten the pause
+    backoff.wait()
+    assert sum(slept) == pytest.approx(2.0) and backoff.holds == 2
