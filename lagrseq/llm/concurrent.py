@@ -41,7 +41,8 @@ class _Unit:
     index: int
     query: Query
     n: int
-    reserved: float = 0.0
+    reserved: tuple[int, float] = (0, 0.0)
+    """The budget ticket of the request in flight (answers asked, worst-case cost)."""
 
 
 def record_concurrently(
