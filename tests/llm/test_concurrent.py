@@ -81,9 +81,11 @@ def test_budget_reservations_are_checked_against_spent_plus_in_flight() -> None:
     held = [budget.reserve(query, 1, 0.3) for _ in range(3)]
     with pytest.raises(Exception, match="in flight"):
         budget.reserve(query, 1, 0.3)  # 0.9 in flight + 0.3 could pass 1.0
-    budget.settle(1, held[0], [])  # a failed request frees its reservation
+    budget.settle(held[0], [])  # a request that ended without answers frees its reservation
     assert budget.in_flight_answers == 2 and budget.in_flight_usd == pytest.approx(0.6)
     budget.reserve(query, 1, 0.3)
+    budget.release(held[1])  # the same through release (the shared ledger's protocol)
+    assert budget.in_flight_answers == 2 and budget.answers == 0
 
 
 def test_a_429_pauses_every_request_in_flight(tmp_path: Path, server: FakeOpenAI, capsys: pytest.CaptureFixture[str]) -> None:
