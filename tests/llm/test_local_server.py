@@ -125,7 +125,12 @@ def test_start_failures_are_one_line_and_leave_no_process(fake: Path, tmp_path: 
     (tmp_path / "notes.gguf").write_text("plain text")
     with pytest.raises(UsageError, match="not a GGUF file"):
         wiring.local_settings(str(tmp_path / "notes.gguf"), wiring.ProviderOptions())
-    slow = local.LocalServer(local.ServerSettings(fake, startup_timeout_s=0.01), python=sys.executable)
+    # a server that starts and never answers (a stand-in interpreter that only sleeps): the
+    # startup timeout ends it, whatever the machine's load
+    silent = tmp_path / "silent-python"
+    silent.write_text("#!/bin/sh\nexec sleep 60\n")
+    silent.chmod(0o755)
+    slow = local.LocalServer(local.ServerSettings(fake, startup_timeout_s=0.5), python=str(silent))
     with pytest.raises(ProviderError, match="did not answer"):
         slow.start()
     assert slow.process is None
