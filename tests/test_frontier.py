@@ -21,6 +21,8 @@ def test_policy_items_and_sweeps() -> None:
         Variant("thompson", (("budget", "5"), ("query_cost", "0.2"))),
         Variant("thompson", (("budget", "5"), ("query_cost", "0.4"))),
     ]
+    # the progress gate is a knob of any policy, always included (then a lagr-seq run)
+    assert parse_sweep("always:min_progress=3,4")[1].overrides() == ['secondary.policy="always"', "secondary.min_progress=4"]
     for bad in ("sometimes", "seq:colour=red", "seq:query_cost", ""):
         with pytest.raises(UsageError):
             parse_policies(bad)
