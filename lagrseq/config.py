@@ -520,6 +520,11 @@ class TabularSecondaryConfig(_Section):
     """At most this many queries per budget_scope, whatever the policy decides (0: no budget)."""
     budget_scope: Literal["trial", "episode"] = "trial"
     """What the budget counts queries over."""
+    min_progress: int = ranged(0, ge=0)
+    """Ask only once the pattern has come this far (Task.progress: stack height for the cube,
+    cells on for the grids), whatever the policy decides below it (a progress gate: answers to
+    barely begun patterns are rarely accepted). In progress units, not a fraction of the target,
+    so the gate never needs to know the target. 0: no gate. Paper: 0."""
     thompson_prior: tuple[float, ...] = ranged((1.0, 1.0), gt=0, le=1e6)
     """policy = "thompson": Beta(a, b) prior on an answer being accepted at an unseen context (the
     Gaussian posterior of the logistic reward starts at mean a / (a + b), variance 1 / (a + b))."""
@@ -661,6 +666,11 @@ class NeuralSecondaryConfig(_Section):
     """At most this many queries per budget_scope, whatever the policy decides (0: no budget)."""
     budget_scope: Literal["trial", "episode"] = "trial"
     """What the budget counts queries over."""
+    min_progress: int = ranged(0, ge=0)
+    """Ask only once the pattern has come this far (Task.progress: stack height for the cube,
+    cells on for the grids), whatever the policy decides below it (a progress gate: answers to
+    barely begun patterns are rarely accepted). In progress units, not a fraction of the target,
+    so the gate never needs to know the target. 0: no gate. Paper: 0."""
     thompson_prior: tuple[float, ...] = ranged((1.0, 1.0), gt=0, le=1e6)
     """policy = "thompson": Beta(a, b) prior on an answer being accepted at an unseen context (the
     Gaussian posterior of the logistic reward starts at mean a / (a + b), variance 1 / (a + b))."""
@@ -788,6 +798,7 @@ POLICY_DEFAULTS: dict[str, Any] = {
     "budget": 0,
     "budget_scope": "trial",
     "thompson_prior": (1.0, 1.0),
+    "min_progress": 0,
 }
 """The asking-policy fields of ``[secondary]`` and their defaults (see ``digest``)."""
 

@@ -22,7 +22,7 @@ from lagrseq.errors import UsageError
 from lagrseq.policies import POLICIES
 
 NAMES = ("never", "always", *[p for p in POLICIES if p not in ("never", "always")])
-KNOBS = ("ask_probability", "query_cost", "budget", "budget_scope", "thompson_prior", "query_reward", "learning_rate")
+KNOBS = ("ask_probability", "query_cost", "budget", "budget_scope", "min_progress", "thompson_prior", "query_reward", "learning_rate")
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,9 @@ Policies (config field ``secondary.policy`` with ``--method lagr-seq``):
 - ``thompson``: a posterior per context (:class:`ThompsonPolicy`);
 - ``oracle``: ask only when the answer would be accepted (a lower bound on queries);
 - any of them behind :class:`Budget` (``secondary.budget`` > 0): at most N queries per trial or
-  per episode.
+  per episode;
+- any of them behind :class:`ProgressGate` (``secondary.min_progress`` > 0): never ask before the
+  pattern has come this far (stack height, cells on), where answers are rarely accepted.
 
 A per-query cost lambda (``secondary.query_cost``) is subtracted from the query reward by the
 loop, so it reaches every learning policy (and the ``/query`` log) the same way.
@@ -254,6 +256,30 @@ class Budget:
             self.inner.update(context, asked, query_reward)
 
 
+class ProgressGate:
+    """Ask only once the pattern's progress (stack height, cells on) is at least ``min_progress``
+    (KnowNo / When2Ask-style: a query is worth its price where the answer is likely to be
+    accepted). Below it the inner policy is neither consulted (so it draws nothing from the
+    secondary stream) nor updated, and the decision is 0. Progress is what the agent sees of its
+    own pattern; the gate never looks at the target."""
+
+    def __init__(self, inner: AskingPolicy, min_progress: int) -> None:
+        self.inner = inner
+        self.min_progress = min_progress
+
+    def open(self, context: AskContext) -> bool:
+        return context.progress >= self.min_progress
+
+    def decide(self, context: AskContext) -> int:
+        if not self.open(context):
+            return 0
+        return self.inner.decide(context)
+
+    def update(self, context: AskContext, asked: int, query_reward: float) -> None:
+        if asked or self.open(context):
+            self.inner.update(context, asked, query_reward)
+
+
 POLICIES = ("seq", "never", "always", "random", "thompson", "oracle")
 
 
@@ -282,6 +308,8 @@ def make_policy(section: Any, seq_agent: Callable[[], SecondaryAgent]) -> Asking
         policy = Oracle()
     else:  # pragma: no cover - the config's Literal allows only POLICIES
         raise ValueError(f"unknown policy {name!r}")
+    if section.min_progress > 0:
+        policy = ProgressGate(policy, section.min_progress)
     if section.budget > 0:
         policy = Budget(policy, section.budget, section.budget_scope)
     return policy

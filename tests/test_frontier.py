@@ -8,6 +8,7 @@ import pandas as pd
 import pytest
 
 from lagrseq import cli
+from lagrseq.analysis.frontier import policy_of
 from lagrseq.errors import UsageError
 from lagrseq.frontier import Variant, parse_policies, parse_sweep
 
@@ -21,6 +22,11 @@ def test_policy_items_and_sweeps() -> None:
         Variant("thompson", (("budget", "5"), ("query_cost", "0.2"))),
         Variant("thompson", (("budget", "5"), ("query_cost", "0.4"))),
     ]
+    # the progress gate is a knob of any policy, always included (then a lagr-seq run)
+    assert parse_sweep("always:min_progress=3,4")[1].overrides() == ['secondary.policy="always"', "secondary.min_progress=4"]
+    # a gated row is named by its gate (and is no paper row)
+    gated = {"method": "lagr-seq", "secondary": {"policy": "always", "min_progress": 3, "query_cost": 0.5}}
+    assert policy_of(gated) == ("always", "cost 0.5 gate 3")
     for bad in ("sometimes", "seq:colour=red", "seq:query_cost", ""):
         with pytest.raises(UsageError):
             parse_policies(bad)

@@ -21,6 +21,7 @@ from lagrseq.policies import (
     Budget,
     Never,
     Oracle,
+    ProgressGate,
     RandomAsk,
     SeqPolicy,
     ThompsonPolicy,
@@ -132,6 +133,54 @@ def test_budget_caps_queries_per_trial_and_per_episode() -> None:
     assert capped.decide(spent) == 0
     capped.update(spent, 0, 0.0)
     assert inner.posterior == {}
+
+
+def test_progress_gate_asks_only_from_its_progress_on() -> None:
+    gate = ProgressGate(Always(), 3)
+    assert [gate.decide(context(progress=p)) for p in range(5)] == [0, 0, 0, 1, 1]
+    # below the gate the inner policy draws nothing from the secondary stream: random(p=0.5) on
+    # default_rng(0) draws 0.637 (no), 0.270 (yes); the gated calls at progress 1 and 2 draw none
+    rng = np.random.default_rng(0)
+    gated = ProgressGate(RandomAsk(0.5), 3)
+    decisions = [gated.decide(context(progress=p, rng=rng)) for p in (1, 3, 2, 3)]
+    assert decisions == [0, 0, 0, 1]
+    # nor learns: a Thompson posterior is untouched below the gate, updated from it on
+    inner = ThompsonPolicy((1.0, 1.0), "binary", 1.0, 0.0)
+    learner = ProgressGate(inner, 4)
+    low = context(progress=2)
+    learner.update(low, 0, 0.0)
+    assert inner.posterior == {}
+    high = context(progress=4)
+    high.accepted = True
+    learner.update(high, 1, 1.0)
+    assert inner.posterior == {(4, 0): [2.0, 1.0]}
+
+
+def test_make_policy_gates_then_budgets() -> None:
+    section = cfg.load(
+        "cube-stacking", "lagr-seq", "upstream", None,
+        ['secondary.policy="always"', "secondary.min_progress=2", "secondary.budget=1"],
+    ).secondary
+    policy = make_policy(section, lambda: pytest.fail("seq's agent is built only for policy seq"))
+    assert isinstance(policy, Budget) and isinstance(policy.inner, ProgressGate)
+    assert policy.inner.min_progress == 2 and isinstance(policy.inner.inner, Always)
+    # progress 1: gated; progress 2: asks; then the budget of 1 is spent
+    assert [policy.decide(context(progress=1)), policy.decide(context(progress=2)),
+            policy.decide(context(progress=3, trial=1))] == [0, 1, 0]
+    plain = cfg.load("cube-stacking", "lagr-seq", "upstream", None, ['secondary.policy="always"']).secondary
+    assert isinstance(make_policy(plain, lambda: pytest.fail("no seq")), Always)
+
+
+def test_min_progress_is_validated_and_leaves_default_digests_alone() -> None:
+    with pytest.raises(cfg.ConfigError, match="min_progress"):
+        cfg.load("object-arrangement", "lagr-seq", "upstream", None, ["secondary.min_progress=-1"])
+    base = cfg.load("object-arrangement", "lagr-seq", "upstream", None, [])
+    explicit = cfg.load("object-arrangement", "lagr-seq", "upstream", None, ["secondary.min_progress=0"])
+    gated = cfg.load("object-arrangement", "lagr-seq", "upstream", None, ["secondary.min_progress=4"])
+    assert base.digest() == explicit.digest() != gated.digest()
+    data = json.loads(base.to_json())
+    del data["secondary"]["min_progress"]  # a configuration made before the field existed
+    assert cfg.config_digest(data) == base.digest()
 
 
 def test_oracle_asks_exactly_when_the_peeked_answer_is_accepted() -> None:

@@ -39,7 +39,7 @@ MISS_THRESHOLD = 0.1
 """Default: a point whose answers came from a fallback for more than this share is marked."""
 PAPER_ROWS = {"seq": "SEQ (paper)", "always": "LaGR (paper)"}
 DPI = 150
-_DEFAULTS = {"query_cost": 0.0, "budget": 0, "ask_probability": 0.5, "thompson_prior": [1.0, 1.0]}
+_DEFAULTS = {"query_cost": 0.0, "budget": 0, "ask_probability": 0.5, "thompson_prior": [1.0, 1.0], "min_progress": 0}
 
 
 def policy_of(config: dict[str, Any]) -> tuple[str, str]:
@@ -61,13 +61,18 @@ def policy_of(config: dict[str, Any]) -> tuple[str, str]:
         knobs.append(f"cost {section['query_cost']:g}")
     if section.get("budget", 0):
         knobs.append(f"budget {section['budget']}/{section.get('budget_scope', 'trial')}")
+    if section.get("min_progress", 0):
+        knobs.append(f"gate {section['min_progress']}")
     return name, " ".join(knobs)
 
 
 def _knob_value(config: dict[str, Any]) -> float:
     """The value a policy's curve is ordered by (its swept knob, whichever differs)."""
     section = config.get("secondary", {})
-    return float(section.get("query_cost", 0.0)) + float(section.get("budget", 0)) * 1e-6 + float(section.get("ask_probability", 0.5)) * 1e-9
+    return (
+        float(section.get("query_cost", 0.0)) + float(section.get("budget", 0)) * 1e-6
+        + float(section.get("ask_probability", 0.5)) * 1e-9 + float(section.get("min_progress", 0)) * 1e-3
+    )
 
 
 @dataclass
