@@ -8,6 +8,7 @@ function of its numbers.
 from __future__ import annotations
 
 import math
+import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -107,12 +108,15 @@ def returns(
 def _legend_below(ax: Axes, entries: int, title: str | None = None) -> None:
     """A legend under the axes, so that it never hides a curve; as many columns as fit the
     figure's width (long labels stack), so the axes keep their size."""
-    labels = ax.get_legend_handles_labels()[1]
-    longest = max((len(label) for label in labels), default=0)
+    handles, labels = ax.get_legend_handles_labels()
+    labels = [textwrap.fill(label, 72) for label in labels]  # a longer one would leave the figure
+    longest = max((len(line) for label in labels for line in label.splitlines()), default=0)
     columns = entries if entries <= 3 else -(-entries // 2)
     while columns > 1 and columns * (longest + 6) > 90:
         columns -= 1
     ax.legend(
+        handles,
+        labels,
         loc="upper center",
         bbox_to_anchor=(0.5, -0.16),
         ncols=columns,
