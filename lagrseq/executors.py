@@ -73,17 +73,17 @@ class TrialExecutor:
     workers = 1
 
     def submit(self, fn: Callable[[TrialJob], Any], job: TrialJob) -> Any:
-        raise NotImplementedError
+        raise NotImplementedError  # abstract
 
     def completed(self, handles: Iterable[Any]) -> Iterator[Any]:
-        raise NotImplementedError
+        raise NotImplementedError  # abstract
 
     def result(self, handle: Any) -> Any:
-        raise NotImplementedError
+        raise NotImplementedError  # abstract
 
     def interrupt(self) -> None:
         """Ctrl-C: stop the running trials now (their ``.partial`` files stay) and drop the rest."""
-        raise NotImplementedError
+        raise NotImplementedError  # abstract
 
     def close(self) -> None:
         """Release the workers (waits for running trials)."""
