@@ -15,7 +15,6 @@ placement (about 120 steps) on an idle core.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import tempfile
 import time
@@ -27,19 +26,12 @@ from lagrseq import wiring
 from lagrseq.experiment import run_trial
 from lagrseq.logs.sink import McapSink
 from lagrseq.runner import run_metadata
+from lagrseq.tasks.shapes import diamond_cells
 
-DIAMOND = [(0, 2), (1, 1), (1, 3), (2, 0), (2, 4), (3, 1), (3, 3), (4, 2)]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_grids import pin_one_core  # noqa: E402  (the same one-core setup as the grid benchmark)
 
-
-def pin_one_core() -> str:
-    import torch
-
-    torch.set_num_threads(1)
-    if hasattr(os, "sched_setaffinity"):
-        cpu = min(os.sched_getaffinity(0))
-        os.sched_setaffinity(0, {cpu})
-        return f"CPU {cpu}, 1 torch thread"
-    return "1 torch thread"
+DIAMOND = diamond_cells(5)  # the arrangement target, placed in its reading order
 
 
 def placements(count: int) -> None:
