@@ -10,7 +10,6 @@ the preset's run). The baseline always uses the plain mock provider (it never as
 
 from __future__ import annotations
 
-import contextlib
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -92,13 +91,9 @@ def run_audit(
     pending = sum(not is_complete(runner.trial_path(r.path, t)) for r in runs for t in range(trials))
     fields = len({r.field for r in runs if r.field})
     say(f"audit of {task}: {fields} fields x 2 presets, {len(runs)} runs of {trials} trials ({pending} trials to run)")
-    with contextlib.ExitStack() as stack:
-        pool = stack.enter_context(runner.process_pool(jobs)) if jobs > 1 else None
-        bar = stack.enter_context(tqdm(total=len(runs), unit="run", disable=quiet, file=sys.stderr, dynamic_ncols=True))
-        for r in runs:
-            bar.set_description(f"{r.preset} {r.field or '(preset)'} {r.method}")
-            runner.run_trials(r.config, trials, seed, r.provider, r.path, jobs=jobs, pool=pool)
-            bar.update(1)
+    with tqdm(total=len(runs) * trials, unit="trial", disable=quiet, file=sys.stderr, dynamic_ncols=True) as bar:
+        sweep = [runner.SweepRun(r.config, trials, seed, r.provider, r.path, progress=runner.TrialCount(bar, r.config)) for r in runs]
+        runner.run_sweep(sweep, jobs)  # every run's trials in one pool: no worker waits on a run's last trial
     return write_audit([runs_dir], reports, formats, task)
 
 

@@ -285,7 +285,7 @@ def _add_frontier(sub: Any) -> None:
     p.add_argument("--on-miss", choices=ON_MISS, default="error", help="recorded:STORE only: what answers a query the store lacks (default: error)")
     p.add_argument("--trials", type=_COUNT, default=5, help="trials per policy (default 5)")
     p.add_argument("--seed", type=_SEED, default=0, help="run seed (default 0)")
-    p.add_argument("--jobs", type=_COUNT, default=1, help="trials run in parallel processes (default 1)")
+    p.add_argument("--jobs", type=_COUNT, default=os.cpu_count() or 1, help="trials run in parallel processes, every policy's trials in one pool (default: the number of cores)")
     p.add_argument("--out", type=Path, default=Path("frontier"), help="runs go to OUT/<task>/<method>/..., the report to OUT/frontier (default: frontier)")
     p.add_argument("--replay", type=Path, default=None, metavar="DIR", help="rebuild the report from the logs under DIR (writes to --out) and run nothing")
     p.add_argument("--miss-threshold", type=_N["budget"], default=0.1, metavar="F", help="mark points whose share of fallback answers exceeds F (default 0.1)")

@@ -12,6 +12,7 @@ field (``thompson:query_cost=0.5``, ``random:ask_probability=0.1``, ``seq:budget
 
 from __future__ import annotations
 
+import contextlib
 import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -108,7 +109,9 @@ def run_frontier(
     say: Callable[[str], None] = print,
 ) -> list[Path]:
     """Run every variant (skipping finished trials) into ``out``; returns the run directories.
-    ``progress(label, total, unit)`` makes a progress bar (a context manager with ``update``)."""
+    All variants' trials go to one pool at once, so with ``jobs`` workers no worker idles at the
+    end of one policy's trials. ``progress(label, total, unit)`` makes a progress bar (a context
+    manager with ``update``)."""
     from lagrseq import runner
 
     prepared = []
@@ -117,13 +120,15 @@ def run_frontier(
             task, variant.method, preset, config_file, [*overrides, *variant.overrides()], provider, options, out, seed
         )
         prepared.append((variant, config, directory))
-    for variant, config, directory in prepared:
-        unit, per_trial = runner.progress_unit(config)
-        if progress is None:
-            results = runner.run_trials(config, trials, seed, provider, directory, jobs, None, options)
-        else:
-            with progress(f"{task} {variant}", trials * per_trial, unit) as bar:
-                results = runner.run_trials(config, trials, seed, provider, directory, jobs, bar, options)
+    unit, per_trial = runner.progress_unit(prepared[0][1])  # one task and run length: one unit
+    with contextlib.ExitStack() as stack:
+        bar = None
+        if progress is not None:
+            label = f"{task}: {len(prepared)} polic{'ies' if len(prepared) != 1 else 'y'} x {trials} trials"
+            bar = stack.enter_context(progress(label, len(prepared) * trials * per_trial, unit))
+        sweep = [runner.SweepRun(config, trials, seed, provider, directory, options, progress=bar) for _, config, directory in prepared]
+        outcome = runner.run_sweep(sweep, jobs, say=say, warn=say)
+    for (variant, _, directory), results in zip(prepared, outcome, strict=True):
         say(f"{variant}: " + runner.summary(results, directory, provider).replace("\n", "; "))
     return [d for _, _, d in prepared]
 

@@ -154,9 +154,11 @@ def _calibration_key(run: PlannedRun) -> tuple[str, ...]:
 
 def estimate(the_plan: Plan, jobs: int) -> float:
     """Expected seconds for the pending trials, from a short timed stretch of each distinct
-    experiment on this machine (mock provider, logged to a scratch file)."""
+    experiment on this machine (mock provider, logged to a scratch file). Probes run one after
+    the other in this process; trials share ``jobs`` workers (:func:`execute` submits them all at
+    once), so their time is the work over the workers, or the longest trial if that is longer."""
     cache: dict[tuple[str, ...], tuple[float, float]] = {}
-    total = 0.0
+    serial = work = longest = 0.0
     for run in the_plan.runs:
         pending = run.pending()
         if pending == 0:
@@ -166,7 +168,7 @@ def estimate(the_plan: Plan, jobs: int) -> float:
             cache[key] = _calibrate(run)
         per_unit, steps_per_episode = cache[key]
         if run.kind == "accuracy":
-            total += per_unit * run.samples
+            serial += per_unit * run.samples
             continue
         episodes, max_steps = run.config.run.episodes, run.config.run.max_steps
         if episodes == 0:  # no episode limit: the step budget alone ends a trial (grid tasks)
@@ -175,9 +177,9 @@ def estimate(the_plan: Plan, jobs: int) -> float:
             steps = episodes * steps_per_episode
             if max_steps:
                 steps = min(steps, max_steps)
-        rounds = -(-pending // max(1, min(jobs, pending)))
-        total += rounds * steps * per_unit
-    return total
+        work += pending * steps * per_unit
+        longest = max(longest, steps * per_unit)
+    return serial + max(work / max(1, jobs), longest)
 
 
 def _calibrate(run: PlannedRun) -> tuple[float, float]:
@@ -224,15 +226,35 @@ def execute(
     say: Callable[[str], None] | None = None,
     retries: int = 0,
 ) -> list[TrialResult]:
-    """Run every planned run (complete trials are skipped), reusing one warm process pool or
-    one Dask cluster (``executor``, ``scheduler``: see :func:`lagrseq.executors.make_executor`)."""
+    """Run every planned run (complete trials are skipped): the accuracy probes in this process,
+    then the trials of every run through one warm process pool or one Dask cluster
+    (``executor``, ``scheduler``: see :func:`lagrseq.executors.make_executor`), all submitted at
+    once so that no worker waits for the last trial of one run before the next run starts.
+    Without a pool (``jobs = 1``) the runs go one after the other, ``on_run`` told of each."""
     results: list[TrialResult] = []
+    for run in the_plan.runs:
+        if run.kind == "accuracy":
+            results += _execute_run(run, jobs, bar, on_run, None, retries)
+    trial_runs = [run for run in the_plan.runs if run.kind != "accuracy"]
     with contextlib.ExitStack() as stack:
         pool = None
         if executor != "local" or scheduler is not None or jobs > 1:
             pool = stack.enter_context(runner.make_executor(executor, jobs, scheduler, say))
-        for run in the_plan.runs:
-            results += _execute_run(run, jobs, bar, on_run, pool, retries)
+        if pool is None:
+            for run in trial_runs:
+                results += _execute_run(run, jobs, bar, on_run, None, retries)
+            return results
+        if bar is not None and hasattr(bar, "set_description") and trial_runs:
+            bar.set_description(f"{len(trial_runs)} runs on {pool.describe()}")
+        shares = [_RunProgress(bar, run.units()) for run in trial_runs]
+        sweep = [
+            runner.SweepRun(run.config, run.trials, run.seed, run.provider, run.path, run.options, progress=share)
+            for run, share in zip(trial_runs, shares, strict=True)
+        ]
+        for outcome in runner.run_sweep(sweep, jobs, pool, retries=retries):
+            results += outcome
+        for share in shares:
+            share.finish()
     return results
 
 
@@ -244,7 +266,7 @@ def _execute_run(
     pool: Any,
     retries: int = 0,
 ) -> list[TrialResult]:
-    """One planned run: an accuracy probe (in this process) or its trials (in the pool)."""
+    """One planned run in this process: an accuracy probe, or its trials one after the other."""
     if on_run is not None:
         on_run(run)
     progress = _RunProgress(bar, run.units())
@@ -375,9 +397,7 @@ def run_cube_audit(runs_dir: Path, quick: bool, jobs: int, seed: int, quiet: boo
     trials = AUDIT_TRIALS[quick]
     runs = audit_plan("cube-stacking", "mock", trials, 100, -1, runs_dir, seed, say)
     say(f"cube audit: {len(runs)} runs of {trials} trials, one field switched each (lagrseq audit)")
-    with contextlib.ExitStack() as stack:
-        pool = stack.enter_context(runner.process_pool(jobs)) if jobs > 1 else None
-        bar = stack.enter_context(tqdm(total=len(runs), unit="run", disable=quiet, file=sys.stderr, dynamic_ncols=True))
-        for r in runs:
-            runner.run_trials(r.config, trials, seed, r.provider, r.path, jobs=jobs, pool=pool)
-            bar.update(1)
+    with tqdm(total=len(runs) * trials, unit="trial", disable=quiet, file=sys.stderr, dynamic_ncols=True) as bar:
+        sweep = [runner.SweepRun(r.config, trials, seed, r.provider, r.path, progress=runner.TrialCount(bar, r.config)) for r in runs]
+        runner.run_sweep(sweep, jobs)
+

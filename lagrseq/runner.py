@@ -295,101 +295,174 @@ def run_trials(
     first paid request, so trials that need none still finish. Ctrl-C stops the running trials
     (their ``.partial`` files stay). ``render_dir``: arm tasks write PNG frames and GIFs there
     (``--render``)."""
-    parse_provider(provider_spec)
-    unit, per_trial = progress_unit(config)
-    found = resume_plan(config, trials, seed, provider_spec, directory)
-    if say is not None and (found.complete or found.unfinished):
-        say(found.describe())
-    results = [TrialResult(trial_path(directory, t), t, 0, 0, 0, 0.0, 0.0, skipped=True) for t in found.complete]
-    if progress is not None and found.complete:
-        progress.update(per_trial * len(found.complete))
-    todo = found.todo
-    provider_options = _with_ledger(provider_spec, provider_options, directory)
-    digest = config.digest()
-    failures: list[TrialFailure] = []
+    run = SweepRun(config, trials, seed, provider_spec, directory, provider_options, render_dir, progress)
+    return run_sweep([run], jobs, pool, say, warn, retries)[0]
 
-    def failed(trial: int, exc: BaseException) -> None:
-        failure = TrialFailure(trial, seed, digest, _error_line(exc))
-        failures.append(failure)
-        if warn is not None and len(todo) > 1:
-            warn(failure.describe())
 
-    if pool is None and (jobs <= 1 or len(todo) <= 1):
-        on_episode = None
-        if progress is not None:
-            on_episode = (lambda steps: progress.update(steps)) if unit == "step" else (lambda _: progress.update(1))
-        for trial in todo:
-            path = trial_path(directory, trial)
-            for attempt in range(retries + 1):
-                try:
-                    results.append(run_one(config, trial, seed, provider_spec, path, on_episode=on_episode, provider_options=provider_options, render_dir=render_dir))
-                    break
-                except Exception as exc:
-                    if attempt == retries or isinstance(exc, BudgetExceeded):
-                        failed(trial, exc)
-                        break
+@dataclass
+class SweepRun:
+    """One run of a sweep: what :func:`run_trials` takes, as data. ``progress``: something with
+    ``update(n)`` that counts this run's steps or episodes (:func:`progress_unit`)."""
+
+    config: ExperimentConfig
+    trials: int
+    seed: int
+    provider_spec: str
+    directory: Path
+    provider_options: ProviderOptions | None = None
+    render_dir: Path | None = None
+    progress: Any = None
+
+
+@dataclass
+class _Todo:
+    """A run's trials still to run, and where their outcomes go."""
+
+    run: SweepRun
+    todo: list[int]
+    options: ProviderOptions | None
+    per_trial: int
+    results: list[TrialResult]
+    failures: list[TrialFailure]
+
+
+def run_sweep(
+    runs: list[SweepRun],
+    jobs: int = 1,
+    pool: executors.TrialExecutor | None = None,
+    say: Callable[[str], None] | None = None,
+    warn: Callable[[str], None] | None = None,
+    retries: int = 0,
+) -> list[list[TrialResult]]:
+    """Several runs' trials through one executor, as :func:`run_trials` runs one run's: every
+    pending trial of every run is submitted at once, so no worker waits for the last trial of one
+    run before the next run starts (a frontier's policies, a suite's runs). Each run's directory
+    is checked (resume plan, refused foreign logs) before any trial starts. Returns each run's
+    results, in the order of ``runs``; a trial that keeps failing is reported to ``warn`` while
+    the others go on, and one :class:`TrialsFailed` at the end names them all."""
+    plans: list[_Todo] = []
+    for run in runs:
+        parse_provider(run.provider_spec)
+        found = resume_plan(run.config, run.trials, run.seed, run.provider_spec, run.directory)
+        if say is not None and (found.complete or found.unfinished):
+            say(found.describe() if len(runs) == 1 else f"{run.directory}: {found.describe()}")
+        _, per_trial = progress_unit(run.config)
+        results = [TrialResult(trial_path(run.directory, t), t, 0, 0, 0, 0.0, 0.0, skipped=True) for t in found.complete]
+        if run.progress is not None and found.complete:
+            run.progress.update(per_trial * len(found.complete))
+        options = _with_ledger(run.provider_spec, run.provider_options, run.directory)
+        plans.append(_Todo(run, found.todo, options, per_trial, results, []))
+    pending = sum(len(p.todo) for p in plans)
+
+    def failed(plan: _Todo, trial: int, exc: BaseException) -> None:
+        failure = TrialFailure(trial, plan.run.seed, plan.run.config.digest(), _error_line(exc))
+        plan.failures.append(failure)
+        if warn is not None and pending > 1:
+            warn(failure.describe() if len(runs) == 1 else f"{plan.run.directory}: {failure.describe()}")
+
+    if pool is None and (jobs <= 1 or pending <= 1):
+        for plan in plans:
+            _run_here(plan, retries, failed)
     else:
         with contextlib.ExitStack() as stack:
             if pool is None:
                 pool = stack.enter_context(executors.LocalExecutor(jobs))
-            _run_pooled(pool, config, todo, seed, provider_spec, directory, provider_options, retries, progress, per_trial, results, failed, render_dir)
-    if failures:
-        raise _failed(failures, len(todo), directory)
-    return sorted(results, key=lambda r: r.trial)
+            _run_pooled(pool, plans, retries, failed)
+    broken = [p for p in plans if p.failures]
+    if len(broken) == 1 and len(runs) == 1:
+        raise _failed(broken[0].failures, len(broken[0].todo), broken[0].run.directory)
+    if broken:
+        lines = [str(_failed(p.failures, len(p.todo), p.run.directory)) for p in broken]
+        raise TrialsFailed(f"{len(broken)} of {len(runs)} runs had failed trials: " + " | ".join(lines))
+    return [sorted(p.results, key=lambda r: r.trial) for p in plans]
+
+
+def _run_here(plan: _Todo, retries: int, failed: Callable[[_Todo, int, BaseException], None]) -> None:
+    """A run's trials one after the other in this process, episode by episode on its bar."""
+    run = plan.run
+    unit, _ = progress_unit(run.config)
+    on_episode = None
+    if run.progress is not None:
+        bar = run.progress
+        on_episode = (lambda steps: bar.update(steps)) if unit == "step" else (lambda _: bar.update(1))
+    for trial in plan.todo:
+        path = trial_path(run.directory, trial)
+        for attempt in range(retries + 1):
+            try:
+                plan.results.append(run_one(
+                    run.config, trial, run.seed, run.provider_spec, path, on_episode=on_episode,
+                    provider_options=plan.options, render_dir=run.render_dir,
+                ))
+                break
+            except Exception as exc:
+                if attempt == retries or isinstance(exc, BudgetExceeded):
+                    failed(plan, trial, exc)
+                    break
 
 
 def _run_pooled(
     pool: executors.TrialExecutor,
-    config: ExperimentConfig,
-    todo: list[int],
-    seed: int,
-    provider_spec: str,
-    directory: Path,
-    provider_options: ProviderOptions | None,
+    plans: list[_Todo],
     retries: int,
-    progress: Any,
-    per_trial: int,
-    results: list[TrialResult],
-    failed: Callable[[int, BaseException], None],
-    render_dir: Path | None = None,
+    failed: Callable[[_Todo, int, BaseException], None],
 ) -> None:
-    """The trials ``todo`` as tasks of ``pool``, each retried up to ``retries`` times."""
-    run_id = executors.run_digest(config.to_json(), seed, provider_spec, str(directory))
-    config_dict = config.to_dict()
-    owners: dict[Any, tuple[int, int]] = {}
+    """The trials of ``plans`` as tasks of ``pool``, all submitted at once (in run order), each
+    retried up to ``retries`` times."""
+    owners: dict[Any, tuple[_Todo, int, int]] = {}
+    digests = {
+        id(plan): executors.run_digest(plan.run.config.to_json(), plan.run.seed, plan.run.provider_spec, str(plan.run.directory))
+        for plan in plans
+    }
+    dicts = {id(plan): plan.run.config.to_dict() for plan in plans}
 
-    def submit(trial: int, attempt: int) -> Any:
-        key = executors.task_key(run_id, trial, attempt)
+    def submit(plan: _Todo, trial: int, attempt: int) -> Any:
+        run = plan.run
+        key = executors.task_key(digests[id(plan)], trial, attempt)
         job = executors.TrialJob(
-            config_dict, trial, seed, provider_spec, str(trial_path(directory, trial)), provider_options, key,
-            str(render_dir) if render_dir is not None else None,
+            dicts[id(plan)], trial, run.seed, run.provider_spec, str(trial_path(run.directory, trial)), plan.options, key,
+            str(run.render_dir) if run.render_dir is not None else None,
         )
         handle = pool.submit(run_trial_job, job)
-        owners[handle] = (trial, attempt)
+        owners[handle] = (plan, trial, attempt)
         return handle
 
-    pending = [submit(trial, 0) for trial in todo]
+    pending = [submit(plan, trial, 0) for plan in plans for trial in plan.todo]
     try:
         while pending:
             again: list[Any] = []
             for handle in pool.completed(pending):
-                trial, attempt = owners[handle]
+                plan, trial, attempt = owners[handle]
                 try:
-                    results.append(pool.result(handle))
+                    plan.results.append(pool.result(handle))
                 except Exception as exc:
                     if attempt < retries and not isinstance(exc, BudgetExceeded):
-                        again.append(submit(trial, attempt + 1))
+                        again.append(submit(plan, trial, attempt + 1))
                     else:
-                        failed(trial, exc)
+                        failed(plan, trial, exc)
                     continue
-                if progress is not None:
-                    progress.update(per_trial)
+                if plan.run.progress is not None:
+                    plan.run.progress.update(plan.per_trial)
             pending = again
     except KeyboardInterrupt:
         # Ctrl-C: nothing more starts, the running trials stop, nothing half-made is renamed.
-        exit_on_next_interrupt()
+        executors.exit_on_next_interrupt()
         pool.interrupt()
         raise
+
+
+class TrialCount:
+    """A progress bar that counts whole trials, fed one run's progress units (episodes or steps,
+    :func:`progress_unit`): the ``progress`` of a :class:`SweepRun`."""
+
+    def __init__(self, bar: Any, config: ExperimentConfig) -> None:
+        self.bar = bar
+        self.per_trial = max(1, progress_unit(config)[1])
+        self.units = 0
+
+    def update(self, n: int = 1) -> None:
+        before = self.units // self.per_trial
+        self.units += n
+        self.bar.update(self.units // self.per_trial - before)
 
 
 def _with_ledger(provider_spec: str, options: ProviderOptions | None, directory: Path) -> ProviderOptions | None:

@@ -25,7 +25,7 @@ from typing import Any
 from lagrseq import config as cfg
 from lagrseq.errors import ConfigError
 
-RENDERERS = ("returns", "query-bars", "query-table", "ratio-table", "accuracy", "config-table")
+RENDERERS = ("returns", "query-bars", "query-table", "ratio-table", "accuracy", "config-table", "frontier")
 KINDS = ("trial", "accuracy")
 
 # The integer keys of a run and their ranges (0 episodes / -1 max_steps: the preset's).

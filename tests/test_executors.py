@@ -52,3 +52,48 @@ def test_a_failing_trial_in_the_pool_is_named_the_others_finish_and_a_rerun_runs
     out = capsys.readouterr().out
     assert "resuming: 2 trials complete (skipped), 1 missing and 0 unfinished (cut short, failed or recovered) to run" in out
     assert "3 trial logs in" in out and "(2 already complete, skipped)" in out
+
+
+def test_a_sweep_runs_several_runs_in_one_pool_with_the_logs_of_one_process(tmp_path: Path) -> None:
+    """run_sweep submits every run's trials at once (no worker waits for a run's last trial); the
+    logs are byte for byte those of the runs made one after the other in this process, each run's
+    progress counts exactly its own units, and a failing trial names its run while the others
+    finish."""
+    from lagrseq import config as cfg
+    from lagrseq import runner
+    from lagrseq.errors import TrialsFailed
+
+    def runs(root: Path, progress: list[list[int]] | None = None) -> list[runner.SweepRun]:
+        made = []
+        for i, (method, sets) in enumerate((("lagr", []), ("lagr-seq", ['secondary.policy="thompson"', "secondary.budget=3"]))):
+            config = cfg.load("cube-stacking", method, "upstream", overrides=["run.episodes=8", *sets])
+
+            class Count:
+                def __init__(self, box: list[int]) -> None:
+                    self.box = box
+
+                def update(self, n: int = 1) -> None:
+                    self.box.append(n)
+
+            bar = Count(progress[i]) if progress is not None else None
+            made.append(runner.SweepRun(config, 3, 0, "mock", runner.run_directory(root, config, "mock", 0), progress=bar))
+        return made
+
+    counted: list[list[int]] = [[], []]
+    pooled = runner.run_sweep(runs(tmp_path / "pool", counted), jobs=2)
+    here = runner.run_sweep(runs(tmp_path / "here"), jobs=1)
+    assert [[r.trial for r in results] for results in pooled] == [[0, 1, 2], [0, 1, 2]]
+    assert [sum(c) for c in counted] == [3 * 8, 3 * 8]  # episodes of each run's own trials
+    logs = {p.relative_to(tmp_path / "pool"): p.read_bytes() for p in (tmp_path / "pool").rglob("*.mcap")}
+    assert len(logs) == 6
+    assert logs == {p.relative_to(tmp_path / "here"): p.read_bytes() for p in (tmp_path / "here").rglob("*.mcap")}
+    assert [r.queries for r in pooled[1]] == [r.queries for r in here[1]] and all(r.queries <= 3 for r in pooled[1])
+
+    broken = runs(tmp_path / "broken")
+    (broken[1].directory / "trial-002.mcap.partial").mkdir(parents=True)  # that trial cannot open its log
+    warned: list[str] = []
+    with pytest.raises(TrialsFailed, match=r"1 of 2 runs had failed trials: 1 of 3 trials failed \(trials 2;") as caught:
+        runner.run_sweep(broken, jobs=2, warn=warned.append)
+    assert str(broken[1].directory) in str(caught.value) and str(broken[0].directory) not in str(caught.value)
+    assert len(warned) == 1 and warned[0].startswith(f"{broken[1].directory}: trial 2 (seed 0, config ")
+    assert len(list(broken[0].directory.glob("*.mcap"))) == 3 and len(list(broken[1].directory.glob("*.mcap"))) == 2

@@ -72,6 +72,41 @@ row = "0"
 column = "LaGR"
 
 [[items]]
+id = "asking"
+title = "When to ask"
+render = "frontier"
+task = "cube-stacking"
+preset = "upstream"
+trials = 4
+episodes = 30
+quick_trials = 2
+quick_episodes = 12
+
+[[items.runs]]
+label = "never"
+method = "baseline"
+provider = "mock"
+
+[[items.runs]]
+label = "always"
+method = "lagr"
+
+[[items.runs]]
+label = "seq"
+method = "lagr-seq"
+
+[[items.runs]]
+label = "thompson, budget 3"
+method = "lagr-seq"
+set = ['secondary.policy="thompson"', "secondary.budget=3"]
+
+[[items.runs]]
+label = "thompson, budget 3, calibrated mock"
+method = "lagr-seq"
+provider = "mock:authors-t0"
+set = ['secondary.policy="thompson"', "secondary.budget=3"]
+
+[[items]]
 id = "accuracy"
 title = "Accuracy"
 render = "accuracy"
@@ -137,14 +172,15 @@ def test_reproduce_reports_its_plan_and_what_it_could_not_run(reproduced) -> Non
     lines = result.stdout.splitlines()
     assert "grid: not run: task tower-of-hanoi not available" in lines
     plan = next(line for line in lines if line.startswith("quick suite:"))
-    # lagr-seq, baseline and lagr trials (2 each) + one probe; the GPT4 profile is not available
-    assert "4 runs, 7 trial logs, 7 to run (0 already complete); expected about" in plan
+    # lagr-seq, baseline and lagr trials (2 each, shared with the frontier), the frontier's two
+    # thompson runs (2 each) + one probe; the GPT4 profile is not available
+    assert "6 runs, 11 trial logs, 11 to run (0 already complete); expected about" in plan
     assert any(
         line.startswith("accuracy: partial; missing GPT4 profile: provider not available")
         for line in lines
     )
     assert (out / "reports" / "index.html").is_file()
-    assert len(list((out / "runs").rglob("*.mcap"))) == 7
+    assert len(list((out / "runs").rglob("*.mcap"))) == 11
     page = (out / "reports" / "index.html").read_text()
     assert "not run: task tower-of-hanoi not available" in page
     assert "lagrseq reproduce --quick" in page
@@ -164,12 +200,33 @@ def test_replaying_the_runs_gives_the_same_tables_and_figures(reproduced, tmp_pa
     assert [r["n"] for r in rows] == ["2", "2"]
 
 
+def test_a_frontier_item_draws_one_panel_per_provider_with_never_in_each(reproduced) -> None:  # type: ignore[no-untyped-def]
+    out, _suite, _ = reproduced
+    tables = out / "reports" / "tables"
+    main = list(csv.DictReader(io.StringIO((tables / "asking.csv").read_text())))
+    assert [(r["policy"], r["knobs"], r["paper"]) for r in main] == [
+        ("never", "", ""), ("always", "", "LaGR (paper)"), ("seq", "", "SEQ (paper)"), ("thompson", "budget 3/trial", ""),
+    ]
+    assert all(r["trials"] == "2" for r in main) and float(main[0]["queries_mean"]) == 0
+    assert float(main[3]["queries_mean"]) <= 3 < float(main[1]["queries_mean"])
+    other = list(csv.DictReader(io.StringIO((tables / "asking-mock-authors-t0.csv").read_text())))
+    assert [r["policy"] for r in other] == ["never", "thompson"]  # never (asks nothing) joins each panel
+    assert other[0]["return_mean"] == main[0]["return_mean"]
+    assert "mock:authors-t0" in (tables / "asking-mock-authors-t0.md").read_text().splitlines()[0]
+    figure = list(csv.DictReader(io.StringIO((out / "reports" / "figures" / "asking.csv").read_text())))
+    assert sorted({r["provider"] for r in figure}) == ["mock", "mock:authors-t0"] and len(figure) == 6
+    from PIL import Image
+
+    with Image.open(out / "reports" / "figures" / "asking.png") as png:
+        assert png.size[1] > 2 * 1000  # two 2 x 2 panels stacked
+
+
 def test_a_rerun_skips_complete_trials(reproduced) -> None:  # type: ignore[no-untyped-def]
     out, suite, _ = reproduced
     logs = {p: p.read_bytes() for p in (out / "runs").rglob("*.mcap")}
     result = _cli("reproduce", "--quick", "--suite", str(suite), "--out", str(out), "--quiet")
     assert result.returncode == 0, result.stderr
-    assert "0 to run (7 already complete)" in result.stdout
+    assert "0 to run (11 already complete)" in result.stdout
     assert {p: p.read_bytes() for p in (out / "runs").rglob("*.mcap")} == logs
 
 

@@ -207,6 +207,18 @@ def point_of(run: Run, price: Price | None, fallback_tokens: tuple[float, float]
     )
 
 
+ORDER = {"never": 0, "always": 1, "seq": 2, "random": 3, "thompson": 4, "oracle": 5}
+
+
+def points_of(runs: Sequence[Run], price: Price | None) -> list[Point]:
+    """One summarised point per run, in the tables' order (policy, then the swept knob)."""
+    tokens = _median_tokens(runs)
+    points = [point_of(run, price, tokens) for run in runs]
+    points.sort(key=lambda p: (ORDER.get(p.policy, 9), _knob_value(p.run.config), p.knobs))
+    summarise(points)
+    return points
+
+
 def summarise(points: Sequence[Point]) -> None:
     """Means with 95% bootstrap intervals (seeded per quantity and label)."""
     for p in points:
@@ -220,8 +232,9 @@ def summarise(points: Sequence[Point]) -> None:
             p.summary[name] = (mean, low, high)
 
 
-def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD) -> Table:
-    """The frontier table: one row per policy variant (paper rows marked)."""
+def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provider: str | None = None) -> Table:
+    """The frontier table: one row per policy variant (paper rows marked). ``provider``: the one
+    named in the title (default: the first point's)."""
     reference = next((p for p in points if p.policy == "always" and not p.knobs), None)
     columns = (
         "policy", "paper", "trials", "queries / trial [95% CI]", "USD / trial [95% CI]", "return / trial [95% CI]",
@@ -269,7 +282,8 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD) -> Ta
             "run": p.run.key.name,
         })
     first = points[0].run.key if points else None
-    title = f"Query-efficiency frontier: {first.task} ({first.preset}, {first.provider}, seed {first.seed})" if first else "Frontier"
+    shown = provider if provider is not None else (first.provider if first else "")
+    title = f"Query-efficiency frontier: {first.task} ({first.preset}, {shown}, seed {first.seed})" if first else "Frontier"
     return Table(title, columns, tuple(rows), pd.DataFrame(data))
 
 
@@ -290,14 +304,38 @@ def _curves(points: Sequence[Point]) -> list[tuple[str, list[Point]]]:
     return out
 
 
-def draw(points: Sequence[Point], title: str, miss_threshold: float = MISS_THRESHOLD) -> Figure:
+MARKERS = ("o", "s", "^", "D", "v", "P", "X", "h", "<", ">", "p", "d")
+"""A policy's variants, told apart by marker (one colour per policy); the paper's rows are stars."""
+
+
+def _markers(points: Sequence[Point]) -> dict[int, str]:
+    """id(point) -> marker: ``*`` for the paper's SEQ and LaGR rows, else the next free marker of
+    the point's policy."""
+    used: dict[str, int] = {}
+    out = {}
+    for p in points:
+        if p.policy in PAPER_ROWS and not p.knobs:
+            out[id(p)] = "*"
+            continue
+        n = used.get(p.policy, 0)
+        used[p.policy] = n + 1
+        out[id(p)] = MARKERS[n % len(MARKERS)]
+    return out
+
+
+def draw(points: Sequence[Point], title: str, miss_threshold: float = MISS_THRESHOLD, figure: Any = None) -> Figure:
     """2 x 2: return and steps to the first solved episode against queries and dollars per
-    trial; 95% bootstrap intervals on both axes; a policy's variants joined as a curve; hollow
-    markers: more than ``miss_threshold`` of the answers came from a fallback."""
-    figure = Figure(figsize=(11.5, 8.4), layout="constrained")
+    trial; 95% bootstrap intervals on both axes; a policy's variants joined as a curve, one colour
+    per policy and one marker per variant, named in a legend below the panels (labels beside
+    the points overlapped where policies cluster); hollow markers: more than ``miss_threshold``
+    of the answers came from a fallback. ``figure``: draw into this (sub)figure instead of a new
+    one; returns the figure drawn into."""
+    figure = figure if figure is not None else Figure(figsize=(11.5, 9.2), layout="constrained")
     axes = figure.subplots(2, 2)
     curves = _curves(points)
     colors = {name: COLORS[i % len(COLORS)] for i, name in enumerate(dict.fromkeys(p.policy for p in points))}
+    markers = _markers(points)
+    handles: dict[str, Any] = {}
     for (row, y_name, y_label) in ((0, "returns", "Return per trial"), (1, "steps_to_solve", "Steps to the first solved episode")):
         for (col, x_name, x_label) in ((0, "queries", "LLM queries per trial"), (1, "dollars", "US dollars per trial")):
             ax = axes[row][col]
@@ -306,7 +344,6 @@ def draw(points: Sequence[Point], title: str, miss_threshold: float = MISS_THRES
                 ys = [p.summary[y_name][0] for p in family]
                 if len(family) > 1:
                     ax.plot(xs, ys, "-", color=colors[family[0].policy], alpha=0.6, linewidth=1.2)
-            seen: set[str] = set()
             for p in points:
                 color = colors[p.policy]
                 x, xl, xh = p.summary[x_name]
@@ -314,22 +351,34 @@ def draw(points: Sequence[Point], title: str, miss_threshold: float = MISS_THRES
                 xerr = [[max(x - xl, 0)], [max(xh - x, 0)]] if not math.isnan(xl) else None
                 yerr = [[max(y - yl, 0)], [max(yh - y, 0)]] if not math.isnan(yl) else None
                 hollow = p.miss_share > miss_threshold
-                marker = "*" if p.policy in PAPER_ROWS and not p.knobs else "o"
-                ax.errorbar(
+                marker = markers[id(p)]
+                drawn = ax.errorbar(
                     [x], [y], xerr=xerr, yerr=yerr, fmt=marker, color=color, markersize=10 if marker == "*" else 6,
                     markerfacecolor="white" if hollow else color, capsize=2, linewidth=0.8,
-                    label=p.policy if p.policy not in seen else None,
                 )
-                seen.add(p.policy)
-                if p.knobs:
-                    ax.annotate(p.knobs, (x, y), textcoords="offset points", xytext=(4, 4), fontsize=7, color=color)
+                label = p.label + (f" = {PAPER_ROWS[p.policy]}" if marker == "*" else "") + (" †" if hollow else "")
+                handles.setdefault(label, drawn)
             _zoom(ax, points, y_name)
+            _spread(ax, [p.summary[x_name][0] for p in points])
             ax.set_xlabel(x_label + (" (estimated)" if x_name == "dollars" and any(p.estimated_dollars for p in points) else ""))
             ax.set_ylabel(y_label)
-            if row == 0 and col == 0:
-                ax.legend(loc="best", title="policy (* = paper's)")
-    figure.suptitle(title + f"\nhollow: > {100 * miss_threshold:.0f}% of answers from the fallback; bars: 95% bootstrap CI")
+    figure.legend(
+        list(handles.values()), list(handles), loc="outside lower center", ncols=min(3, max(1, len(handles))),
+        fontsize=8, title=f"policy (variant); * the paper's rows; † hollow: > {100 * miss_threshold:.0f}% of answers from the fallback",
+        title_fontsize=8,
+    )
+    figure.suptitle(title + "\nbars: 95% bootstrap CI of the mean over trials")
     return figure
+
+
+def _spread(ax: Any, xs: Sequence[float]) -> None:
+    """A symmetric-log x axis when the points span more than a factor of 5 (1 query and 30, or
+    $0.01 and $0.3, on one axis): the cheap policies, which cluster near zero, spread out, and a
+    point at 0 (never) stays on the axis (linear below the smallest positive value)."""
+    positive = [x for x in xs if not math.isnan(x) and x > 0]
+    if len(positive) >= 2 and max(positive) >= 5 * min(positive):
+        ax.set_xscale("symlog", linthresh=min(positive), linscale=0.5)
+        ax.set_xlim(left=-0.25 * min(positive))  # nothing is negative: no room for the mirror side
 
 
 def _zoom(ax: Any, points: Sequence[Point], y_name: str) -> None:
@@ -396,11 +445,7 @@ def report(
     tables: list[Table] = []
     with matplotlib.rc_context(STYLE):  # type: ignore[arg-type]
         for key, group in sorted(panels.items()):
-            tokens = _median_tokens(group)
-            points = [point_of(run, price, tokens) for run in group]
-            order = {"never": 0, "always": 1, "seq": 2, "random": 3, "thompson": 4, "oracle": 5}
-            points.sort(key=lambda p: (order.get(p.policy, 9), _knob_value(p.run.config), p.knobs))
-            summarise(points)
+            points = points_of(group, price)
             task, preset, provider, seed = key
             stem = "-".join([task, preset, _slug(provider), f"seed{seed}"])
             shown = table(points, miss_threshold)

@@ -24,6 +24,9 @@ from lagrseq.analysis.tables import Table, interval, number, plus_minus
 from lagrseq.errors import ConfigError
 from lagrseq.suite import Item, RunSpec, matches
 
+Price = Callable[[str, int, int], float | None]
+"""(model, prompt tokens, completion tokens) -> US dollars or None (unpriced)."""
+
 CURVE_POINTS = 200
 """Points of a return-vs-steps curve (one every max_step / 200 steps)."""
 
@@ -470,6 +473,55 @@ def build_config_table(item: Item, matched: Sequence[Match]) -> Built:
     )
     method = "Every field of each run's resolved configuration, read from the lagrseq.run metadata of its MCAP logs."
     return Built(None, None, [(item.id, table)], method)
+
+
+def build_frontier(item: Item, matched: Sequence[Match], price: Price | None = None) -> Built:
+    """The query-efficiency frontier of the item's asking-policy runs: ``lagrseq frontier``'s
+    picture and table, made from the suite's logs. One panel per provider (the suite's default,
+    and the authors' answers when ``reproduce --authors-caches`` added them); the ``never`` runs
+    (which ask nothing, so any provider's serve) join every panel."""
+    from matplotlib.figure import Figure
+
+    from lagrseq.analysis import frontier
+
+    present = _present(matched)
+    never = [run for _, run in present if run.key.method == "baseline"]
+    panels: dict[str, list[Run]] = {}
+    for _, run in present:
+        if run.key.method != "baseline":
+            panels.setdefault(run.key.provider, []).append(run)
+    if not panels:
+        panels[never[0].key.provider] = []
+    figure = Figure(figsize=(11.5, 9.2 * len(panels)), layout="constrained")
+    made: Any = figure.subfigures(len(panels), 1) if len(panels) > 1 else None
+    targets: list[Any] = [figure] if made is None else list(made)
+    tables: list[tuple[str, Table]] = []
+    frames = []
+    for n, (target, (provider, runs)) in enumerate(zip(targets, panels.items(), strict=True)):
+        points = frontier.points_of([*never, *runs], price)
+        shown = frontier.table(points, provider=provider)
+        frontier.draw(points, shown.title, figure=target)
+        tables.append((item.id if n == 0 else f"{item.id}-{_slug(provider)}", shown))
+        frames.append(shown.data.assign(provider=provider))
+    method = (
+        "One point per asking policy: mean LLM queries (and US dollars: logged cost, else logged or estimated "
+        "tokens at the price table) per trial against the mean return (and steps to the first solved episode), "
+        "95% percentile-bootstrap intervals on both axes; the table adds the interquartile mean with a stratified "
+        "bootstrap interval and the probability of improvement over always (lagrseq frontier --replay draws "
+        "the same from these logs)."
+    )
+    return Built(figure.axes[0], pd.concat(frames, ignore_index=True), tables, method)
+
+
+def _slug(text: str) -> str:
+    return "".join(ch if ch.isalnum() else "-" for ch in text).strip("-")[-40:]
+
+
+def build(item: Item, matched: Sequence[Match], price: Price | None = None) -> Built:
+    """The item's builder (``item.render``) applied to its matched runs."""
+    if item.render == "frontier":
+        return build_frontier(item, matched, price)
+    return BUILDERS[item.render](item, matched)
 
 
 BUILDERS: dict[str, Callable[[Item, Sequence[Match]], Built]] = {

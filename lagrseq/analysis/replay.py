@@ -198,7 +198,7 @@ def replay(
             reports.append(report)
             if report.status == "not run":
                 continue
-            built = items.BUILDERS[item.render](item, matched)
+            built = items.build(item, matched, price)
             report.method = built.method
             if built.axes is not None:
                 paths, report.figure_size = _save_figure(
