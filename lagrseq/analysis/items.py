@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import PurePath
 from typing import Any
 
 import numpy as np
@@ -513,7 +514,11 @@ def build_frontier(item: Item, matched: Sequence[Match], price: Price | None = N
     return Built(figure.axes[0], pd.concat(frames, ignore_index=True), tables, method)
 
 
-def _slug(text: str) -> str:
+def _slug(provider: str) -> str:
+    """A file-name part for a provider spec: ``mock-authors-t0``; a recorded store by its folder
+    or file name alone (``recorded-authors-answers``), so names do not depend on where it is."""
+    kind, _, argument = provider.partition(":")
+    text = f"{kind}-{PurePath(argument).name}" if kind == "recorded" else provider
     return "".join(ch if ch.isalnum() else "-" for ch in text).strip("-")[-40:]
 
 
