@@ -148,11 +148,13 @@ def port_taken(host: str, port: int) -> bool:
 
 
 def _die_with_parent() -> None:  # pragma: no cover - runs in the child between fork and exec
-    """Linux: the kernel sends SIGTERM to the server when the process that started it dies."""
+    """Linux: the kernel kills the server when the process that started it dies. SIGKILL, not
+    SIGTERM: on SIGTERM the server's web framework waits for the request in flight, and a
+    generation whose client is gone kept an orphaned server running for minutes."""
     with contextlib.suppress(Exception):
         import ctypes
 
-        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
 
 
 _RUNNING: set[LocalServer] = set()

@@ -188,6 +188,36 @@ def test_ctrl_c_stops_the_run_and_its_server(fake: Path, tmp_path: Path) -> None
     assert "interrupted" in rest and gone(pid) and gone(helper)
 
 
+def test_sigterm_stops_a_recording_and_its_server_keeping_the_answers(fake: Path, tmp_path: Path) -> None:
+    """kill, timeout and batch schedulers send SIGTERM: lagrseq treats it as Ctrl-C, so the server
+    is stopped (before, the recorder vanished and left its server running) and every answer
+    already returned stays in the store."""
+    from lagrseq.llm.store import RecordStore
+
+    store = tmp_path / "s"
+    process = subprocess.Popen(  # record says what its server does on stdout: read both streams as one
+        [sys.executable, "-m", "lagrseq", "record", "cube-stacking", "--provider", f"local:{fake}", "--temperature", "1",
+         "--samples", "500", "--store", str(store), "--quiet"],
+        cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )
+    assert process.stdout is not None
+    seen = ""
+    while "ready" not in seen:
+        line = process.stdout.readline()
+        assert line, f"ended before the server was ready: {seen}"
+        seen += line
+    pid, log = start_line(seen)
+    helper = helper_pid(log)
+    time.sleep(1.0)  # answers under way
+    process.send_signal(signal.SIGTERM)
+    rest, _ = process.communicate(timeout=60)
+    assert process.returncode == 130, seen + rest
+    assert "interrupted" in rest and gone(pid) and gone(helper)
+    with RecordStore(store, create=False) as opened:
+        kept = sum(len(e.samples) for e in opened.entries())
+    assert 0 < kept < 8 * 500
+
+
 def test_serve_llm_runs_until_sigterm(fake: Path, tmp_path: Path) -> None:
     import httpx
 
