@@ -217,7 +217,9 @@ def _add_run(sub: Any) -> None:
     )
     _task_argument(p)
     p.add_argument("--method", choices=METHODS, default="lagr-seq", help="baseline: the plain RL agent; lagr: query the LLM whenever triggered; lagr-seq: the secondary agent decides (default)")
-    profiles = "; ".join(f"{k}: {v}" for k, v in PROFILE_HELP.items())
+    from lagrseq.wiring import REFUSING, REFUSING_HELP
+
+    profiles = "; ".join(f"{k}: {v}" for k, v in {**PROFILE_HELP, REFUSING: REFUSING_HELP}.items())
     p.add_argument("--provider", default="mock", metavar="SPEC", help=f"LLM provider (default: mock): mock = the rule-based extrapolator (no key, no network); mock:PROFILE = a profile of it ({profiles}); recorded:STORE = answers recorded in the directory STORE (see --on-miss), or in a JSONL export FILE.jsonl; live or live:MODEL = an OpenAI-compatible server (see --base-url; MODEL overrides llm.model); local or local:MODEL.gguf = a llama.cpp server lagrseq starts on 127.0.0.1 and stops at the end (default model: SmolLM2-135M-Instruct from the local-llm extra; no key)")
     p.add_argument("--trials", type=_COUNT, default=10, help="number of independent trials (default 10)")
     p.add_argument("--seed", type=_SEED, default=0, help="run seed, 0 <= S < 2**63; trial k uses a stream spawned from (seed, k) (default 0)")

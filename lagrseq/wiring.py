@@ -76,9 +76,19 @@ class ProviderSpec:
         return f"{self.kind}:{self.argument}" if self.argument else self.kind
 
 
+REFUSING = "refuses"
+"""``--provider mock:refuses``: a model that is never right, on any task."""
+REFUSAL = "I am sorry, I cannot complete this pattern."
+REFUSING_HELP = (
+    "answers every prompt of every task with a refusal, so no answer is ever accepted: what SEQ "
+    "does when asking never pays, and the states a never-right model meets (to record a real "
+    "one's answers for them with lagrseq record --from-runs)"
+)
+
+
 def mock_profiles() -> tuple[str, ...]:
-    """Names accepted by ``--provider mock:PROFILE`` (cube profiles, then grid profiles)."""
-    return (*cube.PROFILES, *grid_profiles.PROFILES)
+    """Names accepted by ``--provider mock:PROFILE`` (cube profiles, grid profiles, refuses)."""
+    return (*cube.PROFILES, *grid_profiles.PROFILES, REFUSING)
 
 
 def parse_provider(spec: str) -> ProviderSpec:
@@ -303,6 +313,8 @@ def extrapolator(config: ExperimentConfig, profile: str = "ideal") -> Callable[[
     """What the mock provider answers with: the task's rule-based extrapolator (``ideal``) or a
     calibrated profile of it (``cube.PROFILES``). The mock itself stays task-free: it reads the
     same prompt text a real LLM would see."""
+    if profile == REFUSING:
+        return lambda prompt, temperature, rng: REFUSAL
     task = make_task(config)
     if isinstance(task, cube.CubeStacking):
         if profile in grid_profiles.PROFILES:

@@ -373,7 +373,9 @@ def test_the_packaged_suite_plans_each_configuration_once(tmp_path: Path) -> Non
     assert "fig5b" not in plan.not_run or "needs torch" in plan.not_run["fig5b"]
     assert "fig4" not in plan.not_run
     recorded = {f"recorded:recorded_llm/smollm2-135m-cube-t{t}.jsonl" for t in (0, 1)}  # SmolLM2's real answers
-    grids = {"mock:authors-gpt4"} if "fig5b" not in plan.not_run else set()  # the grid items' profile, with torch
+    grids = set()
+    if "fig5b" not in plan.not_run:  # with torch: the grid items' profile, and SmolLM2's image answers (Table 3)
+        grids = {"mock:authors-gpt4", "recorded:recorded_llm/smollm2-135m-image-t0.jsonl"}
     assert {run.provider for run in plan.runs} == {"mock", "mock:authors-t0", *recorded, *grids}
     assert not plan.unavailable
     # --provider replaces the default provider, never a run's explicit one (the baselines)

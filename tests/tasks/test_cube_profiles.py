@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lagrseq.logs.reader import read_topic
 from lagrseq.tasks import cube
 
 AUTHORS_CACHES = Path(__file__).resolve().parents[3] / "shared" / "data" / "authors_caches"
@@ -79,3 +80,29 @@ def test_coerce_pattern_accepts_cube_ids_and_says_what_is_wrong() -> None:
         with pytest.raises(ValueError, match=message):
             task.coerce_pattern(value)
     assert task.prefixes()[-1] == task.target and len(task.prefixes()) == 8
+
+
+@pytest.mark.parametrize("task", ["cube-stacking", "object-arrangement"])
+def test_the_refusing_profile_is_never_accepted_on_any_task(task: str, tmp_path: Path) -> None:
+    """mock:refuses: a never-right model for every task (what SEQ does when asking never pays, and
+    the states to record a real never-right model's answers for): every answer is refused by the
+    parser, nothing is accepted, and SEQ asks less than LaGR."""
+    from lagrseq import config as cfg
+    from lagrseq import wiring
+    from lagrseq.runner import run_one
+
+    if task != "cube-stacking":
+        pytest.importorskip("torch")
+    assert "refuses" in wiring.mock_profiles()
+    length = "run.episodes=30" if task == "cube-stacking" else "run.max_steps=300"
+    asked = {}
+    for method in ("lagr", "lagr-seq"):
+        config = cfg.load(task, method, "upstream", None, [length])
+        made = wiring.make_task(config)
+        answer = wiring.extrapolator(config, "refuses")("any prompt", 0.0, np.random.default_rng(0))
+        assert made.parse(answer).solution is None
+        result = run_one(config, 0, 0, "mock:refuses", tmp_path / f"{method}.mcap")
+        queries = [q for q in read_topic(tmp_path / f"{method}.mcap", "/query") if q.get("queried")]
+        assert queries and not any(q["accepted"] for q in queries)
+        asked[method] = result.queries
+    assert 0 < asked["lagr-seq"] < asked["lagr"]
