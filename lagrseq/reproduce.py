@@ -234,7 +234,7 @@ def execute(
     results: list[TrialResult] = []
     for run in the_plan.runs:
         if run.kind == "accuracy":
-            results += _execute_run(run, jobs, bar, on_run, None, retries)
+            results += _execute_run(run, bar, on_run, retries)
     trial_runs = [run for run in the_plan.runs if run.kind != "accuracy"]
     with contextlib.ExitStack() as stack:
         pool = None
@@ -242,7 +242,7 @@ def execute(
             pool = stack.enter_context(runner.make_executor(executor, jobs, scheduler, say))
         if pool is None:
             for run in trial_runs:
-                results += _execute_run(run, jobs, bar, on_run, None, retries)
+                results += _execute_run(run, bar, on_run, retries)
             return results
         if bar is not None and hasattr(bar, "set_description") and trial_runs:
             bar.set_description(f"{len(trial_runs)} runs on {pool.describe()}")
@@ -260,10 +260,8 @@ def execute(
 
 def _execute_run(
     run: PlannedRun,
-    jobs: int,
     bar: Any,
     on_run: Callable[[PlannedRun], None] | None,
-    pool: Any,
     retries: int = 0,
 ) -> list[TrialResult]:
     """One planned run in this process: an accuracy probe, or its trials one after the other."""
@@ -278,8 +276,7 @@ def _execute_run(
             )
     else:
         results = runner.run_trials(
-            run.config, run.trials, run.seed, run.provider, run.path, jobs=jobs, progress=progress, pool=pool,
-            retries=retries,
+            run.config, run.trials, run.seed, run.provider, run.path, progress=progress, retries=retries,
             provider_options=run.options,
         )
     progress.finish()

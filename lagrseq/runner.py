@@ -185,14 +185,6 @@ stop_pool = executors.stop_pool
 make_executor = executors.make_executor
 
 
-@contextlib.contextmanager
-def process_pool(jobs: int) -> Iterator[executors.TrialExecutor]:
-    """A local pool of ``jobs`` spawned worker processes (:class:`lagrseq.executors.LocalExecutor`).
-    Leaving it normally waits for the trials; leaving it on Ctrl-C stops them at once."""
-    with executors.LocalExecutor(jobs) as pool:
-        yield pool
-
-
 def run_trial_job(job: executors.TrialJob) -> TrialResult:
     """One trial as a task of an executor (a module-level function: spawned and Dask workers
     import it). Returns the small result record, never the trial's objects."""
