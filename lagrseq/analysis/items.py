@@ -536,4 +536,5 @@ BUILDERS: dict[str, Callable[[Item, Sequence[Match]], Built]] = {
     "ratio-table": build_ratio_table,
     "accuracy": build_accuracy,
     "config-table": build_config_table,
+    "frontier": build_frontier,  # also takes the price table (see :func:`build`)
 }

@@ -207,7 +207,11 @@ def test_sigterm_stops_a_recording_and_its_server_keeping_the_answers(fake: Path
         assert line, f"ended before the server was ready: {seen}"
         seen += line
     pid, log = start_line(seen)
-    helper = helper_pid(log)
+    try:
+        helper = helper_pid(log)
+    except AssertionError:
+        process.kill()
+        raise AssertionError(f"no helper pid in {log}; record said: {seen}") from None
     time.sleep(1.0)  # answers under way
     process.send_signal(signal.SIGTERM)
     rest, _ = process.communicate(timeout=60)
