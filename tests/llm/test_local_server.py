@@ -72,6 +72,19 @@ def helper_pid(log: Path) -> int:
     raise AssertionError(f"no helper pid in {log}")
 
 
+def group_members(pgid: int) -> list[int]:
+    """The processes of process group ``pgid`` (from /proc: no log file needed)."""
+    members = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[2]) == pgid:
+            members.append(int(stat.parent.name))
+    return members
+
+
 def start_line(text: str) -> tuple[int, Path]:
     match = re.search(r"\(pid (\d+), .*; log (\S+)\)", text)
     assert match, text
@@ -206,17 +219,16 @@ def test_sigterm_stops_a_recording_and_its_server_keeping_the_answers(fake: Path
         line = process.stdout.readline()
         assert line, f"ended before the server was ready: {seen}"
         seen += line
-    pid, log = start_line(seen)
-    try:
-        helper = helper_pid(log)
-    except AssertionError:
-        process.kill()
-        raise AssertionError(f"no helper pid in {log}; record said: {seen}") from None
+    pid, _ = start_line(seen)
+    group = group_members(pid)  # the server and the helper it started in its process group
     time.sleep(1.0)  # answers under way
     process.send_signal(signal.SIGTERM)
-    rest, _ = process.communicate(timeout=60)
+    try:
+        rest, _ = process.communicate(timeout=60)
+    finally:
+        process.kill()
     assert process.returncode == 130, seen + rest
-    assert "interrupted" in rest and gone(pid) and gone(helper)
+    assert "interrupted" in rest and all(gone(member) for member in group), (group, seen + rest)
     with RecordStore(store, create=False) as opened:
         kept = sum(len(e.samples) for e in opened.entries())
     assert 0 < kept < 8 * 500
