@@ -852,20 +852,12 @@ INTERRUPTED = {
 }
 
 
-def _terminated(*_: Any) -> None:
-    raise KeyboardInterrupt
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()
         return 2
-    if argv is None:  # the program itself: SIGTERM (kill, timeout, a batch scheduler) stops it as
-        # Ctrl-C does, so every cleanup runs (a local llama.cpp server is stopped, trials keep
-        # their flushed episodes) instead of the process vanishing mid-way
-        signal.signal(signal.SIGTERM, _terminated)
     try:
         return COMMANDS[args.command](args)
     except LagrseqError as exc:
