@@ -179,10 +179,13 @@ def lagrseq(*args: str, cwd: Path) -> subprocess.Popen[str]:
 
 
 def wait_ready(process: subprocess.Popen[str]) -> str:
-    assert process.stderr is not None
+    """What the process wrote up to its server's "ready" line (on stderr, or on stdout when stderr
+    is merged into it)."""
+    stream = process.stderr if process.stderr is not None else process.stdout
+    assert stream is not None
     seen = ""
     while "ready" not in seen:
-        line = process.stderr.readline()
+        line = stream.readline()
         assert line, f"ended before the server was ready: {seen}"
         seen += line
     return seen
@@ -215,12 +218,7 @@ def test_sigterm_ends_a_recording_and_its_server_keeping_the_answers(fake: Path,
          "--samples", "500", "--store", str(store), "--quiet"],
         cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )
-    assert process.stdout is not None
-    seen = ""
-    while "ready" not in seen:
-        line = process.stdout.readline()
-        assert line, f"ended before the server was ready: {seen}"
-        seen += line
+    seen = wait_ready(process)
     pid, _ = start_line(seen)
     group = group_members(pid)  # the server and the helper it started in its process group
     time.sleep(1.0)  # answers under way
