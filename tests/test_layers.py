@@ -20,7 +20,7 @@ import lagrseq
 
 ROOT = Path(__file__).resolve().parents[1]
 
-HEAVY = ("torch", "gymnasium", "httpx", "pybullet")
+HEAVY = ("torch", "gymnasium", "httpx", "httpcore", "pybullet")
 PROVIDERS = ("lagrseq.llm.mock", "lagrseq.llm.live", "lagrseq.llm.recorded", "lagrseq.llm.store")
 WIRING = ("lagrseq.wiring", "lagrseq.runner", "lagrseq.recording", "lagrseq.probe", "lagrseq.reproduce", "lagrseq.cli")
 UPPER = ("lagrseq.experiment", "lagrseq.adapters", "lagrseq.lagr", "lagrseq.seq", "lagrseq.analysis", *WIRING)

@@ -60,6 +60,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+import httpcore
 import httpx
 import numpy as np
 
@@ -275,6 +276,85 @@ class _Watchdog:
             self._timer.cancel()
 
 
+_DEADLINE = threading.local()
+"""``at``: the perf_counter time by which the request this thread is making must be over."""
+
+
+def _left(timeout: float | None, error: type[Exception]) -> float | None:
+    """``timeout`` cut to the time left before this thread's request deadline; ``error`` once it
+    has passed (so no connect, write or read, however the server drips its bytes, outlasts it)."""
+    deadline = getattr(_DEADLINE, "at", None)
+    if deadline is None:
+        return timeout
+    left = deadline - time.perf_counter()
+    if left <= 0:
+        raise error("the request deadline has passed")
+    return left if timeout is None else min(timeout, left)
+
+
+class _DeadlineStream(httpcore.NetworkStream):
+    """A connection whose every read and write waits no longer than the request deadline allows:
+    a server that sends its status line and headers a byte at a time (each within the read
+    timeout, before the response and its watchdog exist) is cut off at the deadline too."""
+
+    def __init__(self, inner: httpcore.NetworkStream) -> None:
+        self._inner = inner
+
+    def read(self, max_bytes: int, timeout: float | None = None) -> bytes:
+        return self._inner.read(max_bytes, _left(timeout, httpcore.ReadTimeout))
+
+    def write(self, buffer: bytes, timeout: float | None = None) -> None:
+        self._inner.write(buffer, _left(timeout, httpcore.WriteTimeout))
+
+    def close(self) -> None:
+        self._inner.close()
+
+    def start_tls(
+        self, ssl_context: Any, server_hostname: str | None = None, timeout: float | None = None
+    ) -> httpcore.NetworkStream:
+        return _DeadlineStream(self._inner.start_tls(ssl_context, server_hostname, _left(timeout, httpcore.ConnectTimeout)))
+
+    def get_extra_info(self, info: str) -> Any:
+        return self._inner.get_extra_info(info)
+
+
+class _DeadlineBackend(httpcore.NetworkBackend):
+    """httpcore's network backend with every connection a :class:`_DeadlineStream`."""
+
+    def __init__(self, inner: httpcore.NetworkBackend) -> None:
+        self._inner = inner
+
+    def connect_tcp(
+        self, host: str, port: int, timeout: float | None = None, local_address: str | None = None, socket_options: Any = None
+    ) -> httpcore.NetworkStream:
+        stream = self._inner.connect_tcp(host, port, _left(timeout, httpcore.ConnectTimeout), local_address, socket_options)
+        return _DeadlineStream(stream)
+
+    def connect_unix_socket(self, path: str, timeout: float | None = None, socket_options: Any = None) -> httpcore.NetworkStream:
+        return _DeadlineStream(self._inner.connect_unix_socket(path, _left(timeout, httpcore.ConnectTimeout), socket_options))
+
+    def sleep(self, seconds: float) -> None:
+        self._inner.sleep(seconds)
+
+
+def _bound_by_deadline(client: httpx.Client) -> bool:
+    """Put :class:`_DeadlineBackend` under every connection pool of ``client`` (the default
+    transport and any proxy's); False where a transport has no httpcore pool (a mock transport,
+    one passed in by an embedding program), which keeps the watchdog and the reader's checks."""
+    transports = [client._transport, *client._mounts.values()]
+    bound = True
+    for transport in transports:
+        pool = getattr(transport, "_pool", None)
+        backend = getattr(pool, "_network_backend", None)
+        if isinstance(backend, _DeadlineBackend):
+            continue
+        if isinstance(backend, httpcore.NetworkBackend):
+            pool._network_backend = _DeadlineBackend(backend)  # type: ignore[union-attr]
+        else:
+            bound = False
+    return bound
+
+
 class _Decoder:
     """Undoes the response's Content-Encoding (none, gzip or deflate) in steps that never produce
     more than the room left under the size cap, so a compressed bomb costs no more memory than the
@@ -377,6 +457,8 @@ class LiveProvider:
             pool=min(s.connect_timeout_s, s.request_deadline_s),
         )
         self._client = httpx.Client(timeout=self._timeout, transport=transport, follow_redirects=False)
+        self.deadline_bound = _bound_by_deadline(self._client)
+        """Every connect, write and read of a request ends by its deadline (module docstring)."""
         self._closed = False
 
     @property
@@ -491,6 +573,7 @@ class LiveProvider:
         started = time.perf_counter()
         deadline = started + s.request_deadline_s
         watchdog: _Watchdog | None = None
+        _DEADLINE.at = deadline
         try:
             with self._client.stream("POST", self.url, json=body, headers=self._headers()) as response:
                 watchdog = _Watchdog(response, deadline)
@@ -522,6 +605,8 @@ class LiveProvider:
                 f"{self.url}: cannot send the request ({type(exc).__name__}: {self._redactor.diagnostic(str(exc))}); "
                 "check --base-url"
             ) from None
+        finally:
+            _DEADLINE.at = None
         latency = time.perf_counter() - started
         if response.status_code != 200:
             self._refuse(response.status_code, response.headers, data, query)

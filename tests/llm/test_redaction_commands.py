@@ -1,0 +1,107 @@
+"""The API key stays out of every file and stream of every command that talks to a server, with the
+key in ``OPENAI_API_KEY`` (no ``--api-key-env``), against a server that echoes it in every field
+and header: ``record`` (also ``--concurrency``), ``run --provider live --jobs 2`` with a budget
+(its ledger file), ``run --provider recorded:S --on-miss live``, ``cache export``, ``cache list``
+and ``cache parse``. A key that cannot go in a header is one line, exit status 2."""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import zlib
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from lagrseq import cli
+from tests.llm.conftest import FakeOpenAI
+from tests.llm.test_redaction import ECHO_KEY, HARMLESS, echo_completion, echoing, leaks
+
+
+def written(root: Path) -> Iterator[tuple[Path, str]]:
+    """Every file under ``root`` as text (latin-1 of its bytes, and decompressed where it is zlib
+    data), and every value of every table of every SQLite file (stores, the budget ledger)."""
+    for path in sorted(p for p in root.rglob("*") if p.is_file()):
+        data = path.read_bytes()
+        yield path, data.decode("latin-1")
+        try:
+            yield path, zlib.decompress(data).decode("latin-1")
+        except zlib.error:
+            pass
+        if data.startswith(b"SQLite format 3"):
+            with sqlite3.connect(f"file:{path}?mode=ro", uri=True) as db:
+                tables = [row[0] for row in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")]
+                for table in tables:
+                    for row in db.execute(f'SELECT * FROM "{table}"'):
+                        for value in row:
+                            if isinstance(value, bytes):
+                                try:
+                                    yield path, zlib.decompress(value).decode("latin-1")
+                                except zlib.error:
+                                    yield path, value.decode("latin-1")
+                            else:
+                                yield path, str(value)
+
+
+@pytest.mark.slow
+def test_no_command_writes_or_prints_a_fragment_of_the_key(
+    tmp_path: Path, server: FakeOpenAI, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]
+) -> None:
+    from mcap.reader import make_reader
+
+    monkeypatch.setenv("OPENAI_API_KEY", ECHO_KEY)
+    server.script.extend(echoing(echo_completion) for _ in range(2000))
+    live = ["--base-url", server.url, "--max-cost-usd", "50", "--quiet"]
+    store = tmp_path / "store"
+    runs = ["--trials", "2", "--set", "run.episodes=2", "--set", "run.max_steps=30"]
+    commands = [
+        ["record", "cube-stacking", "--store", str(store), "--samples", "2", "--concurrency", "3", *live],
+        ["record", "cube-stacking", "--store", str(store), "--samples", "3", *live],
+        ["run", "cube-stacking", "--method", "lagr", "--provider", "live:gpt-4o-mini", "--jobs", "2",
+         "--out", str(tmp_path / "live-runs"), *runs, *live],
+        ["run", "cube-stacking", "--method", "lagr", "--provider", f"recorded:{tmp_path / 'empty-store'}", "--on-miss", "live",
+         "--out", str(tmp_path / "miss-runs"), *runs, *live],
+        ["cache", "export", "--store", str(store), "--out", str(tmp_path / "export.jsonl")],
+        ["cache", "list", "--store", str(store)],
+        ["cache", "parse", "--task", "cube-stacking", str(store)],
+    ]
+    for command in commands:
+        assert cli.main(command) == 0, command
+    assert server.requests and all(h.get("authorization") == f"Bearer {ECHO_KEY}" for h in server.headers)
+
+    # the answers came through (blanked), so the scan below reads what was really written
+    exported = [json.loads(line) for line in (tmp_path / "export.jsonl").read_text(encoding="utf-8").splitlines()]
+    assert exported and all(HARMLESS in line["sample"]["text"] for line in exported)
+    assert any(path.name == "budget-ledger.sqlite" for path in tmp_path.rglob("*")), "the budget ledger was not written"
+    logs = sorted(tmp_path.rglob("*.mcap"))
+    assert len(logs) == 4
+    for path in logs:
+        with path.open("rb") as handle:
+            reader = make_reader(handle)
+            for _, channel, message in reader.iter_messages():
+                assert leaks(message.data.decode()) == [], (path, channel.topic)
+            for metadata in reader.iter_metadata():
+                assert leaks(json.dumps(metadata.metadata)) == [], path
+    found = {str(path): leaks(text) for path, text in written(tmp_path) if leaks(text)}
+    assert found == {}, found
+    captured = capfd.readouterr()
+    assert leaks(captured.out + captured.err) == []
+
+
+@pytest.mark.parametrize("key", ["sk-tëst-0123456789abcdef", "sk-\u202eevil-0123456789", "sk-a\tb-0123456789abcdef"])
+@pytest.mark.parametrize("command", ["run", "record"])
+def test_a_key_that_cannot_go_in_a_header_is_one_line_exit_2(
+    tmp_path: Path, server: FakeOpenAI, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str], key: str, command: str
+) -> None:
+    monkeypatch.setenv("OPENAI_API_KEY", key)
+    argv = {
+        "run": ["run", "cube-stacking", "--method", "lagr", "--provider", "live:gpt-4o-mini", "--out", str(tmp_path / "runs"),
+                "--trials", "1", "--set", "run.episodes=1"],
+        "record": ["record", "cube-stacking", "--store", str(tmp_path / "store"), "--samples", "1"],
+    }[command]
+    assert cli.main([*argv, "--base-url", server.url, "--quiet"]) == 2
+    err = capfd.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "OPENAI_API_KEY" in err, err
+    assert key not in err and leaks(err, key) == []
+    assert server.requests == []
