@@ -52,6 +52,7 @@ import email.utils
 import json
 import math
 import os
+import re
 import socket
 import threading
 import time
@@ -353,6 +354,23 @@ def _bound_by_deadline(client: httpx.Client) -> bool:
         else:
             bound = False
     return bound
+
+
+def status_of(url: str, seconds: float) -> int | None:
+    """The HTTP status of ``GET url``, whatever the server does, within ``seconds`` in all
+    (connecting, sending, and every byte of the status line and headers); the body is not read.
+    None when no status came in time or the connection failed. For readiness probes (the local
+    llama.cpp server's ``/v1/models``), where a foreign server on the port might drip for ever."""
+    with httpx.Client(timeout=seconds, follow_redirects=False) as client:
+        _bound_by_deadline(client)
+        _DEADLINE.at = time.perf_counter() + seconds
+        try:
+            with client.stream("GET", url) as response:
+                return response.status_code
+        except httpx.HTTPError:
+            return None
+        finally:
+            _DEADLINE.at = None
 
 
 class _Decoder:
@@ -714,7 +732,7 @@ class LiveProvider:
             content = message.get("content")
             if content is not None and not isinstance(content, str):
                 raise ProviderError(f"{where} a message's content is not text ({type(content).__name__})")
-            texts.append((show.text(content or ""), show.optional(choice.get("finish_reason"))))
+            texts.append((_unicode(show.text(content or "")), _unicode(show.optional(choice.get("finish_reason")))))
         texts = texts[:n]
         usage, notes = believed_usage(parsed.get("usage"), query, n)
         for kind, note in notes:
@@ -722,9 +740,9 @@ class LiveProvider:
         # The server reports usage for the whole request; with several choices it is shared out
         # evenly (integer parts that sum to the totals), so summed costs equal the request's.
         parts = len(texts)
-        model = show.optional(parsed.get("model")) or query.model
-        fingerprint = show.optional(parsed.get("system_fingerprint"))
-        response_id = show.optional(parsed.get("id"))
+        model = _unicode(show.optional(parsed.get("model"))) or query.model
+        fingerprint = _unicode(show.optional(parsed.get("system_fingerprint")))
+        response_id = _unicode(show.optional(parsed.get("id")))
         answers = []
         for index, (text, _finish) in enumerate(texts):
             if len(text) > MAX_ANSWER_CHARS:
@@ -760,6 +778,21 @@ class LiveProvider:
             return
         self._warned.add(kind)
         self.on_warning(f"{self.url}: {message} (said once per run)")
+
+
+_SURROGATE = re.compile("[\ud800-\udfff]")
+
+
+def _unicode(text: str | None) -> str | None:
+    """``text`` as valid Unicode: JSON's ``\\ud800`` escapes can smuggle lone surrogates into a
+    string, which no store, log or terminal can write; each becomes U+FFFD."""
+    if text is None or text.isascii():
+        return text
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return _SURROGATE.sub("\ufffd", text)
+    return text
 
 
 def _choice_index(choice: Any) -> int:
