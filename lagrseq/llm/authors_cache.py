@@ -25,6 +25,7 @@ import hashlib
 import io
 import json
 import pickle
+import reprlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,7 +35,7 @@ import numpy as np
 
 from lagrseq.errors import StoreError
 from lagrseq.llm.base import Message, Query, RecordedAs
-from lagrseq.llm.records import SAMPLE_SCHEMA, problems
+from lagrseq.llm.records import MAX_ANSWER_CHARS, SAMPLE_SCHEMA, problems
 from lagrseq.llm.store import RecordStore, Sample, query_key
 
 ALLOWED_GLOBALS = frozenset(
@@ -97,12 +98,37 @@ def read_pairs(path: str | Path) -> list[tuple[Any, Any]]:
     return [(loaded[i], loaded[i + 1]) for i in range(0, len(loaded), 2)]
 
 
+_SHORT = reprlib.Repr()
+_SHORT.maxstring = _SHORT.maxother = _SHORT.maxlong = 40
+_SHORT.maxlist = _SHORT.maxtuple = _SHORT.maxdict = _SHORT.maxset = _SHORT.maxfrozenset = 12
+MAX_WARNINGS = 20
+"""Skipped pairs named one by one in warnings; the rest are counted in one more line."""
+
+
 def describe(value: Any) -> str:
-    """A short description of a cache item, for warnings."""
+    """A short description of a cache item, for warnings (in time and length bounded whatever
+    its size: a cache is untrusted input)."""
     if isinstance(value, np.ndarray):
         return f"{value.dtype} array of shape {value.shape}"
-    text = repr(value)
+    text = " ".join(_SHORT.repr(value).split())
     return text if len(text) <= 40 else text[:37] + "..."
+
+
+def oversized(answer: Any) -> str | None:
+    """Why ``answer`` cannot be written within MAX_ANSWER_CHARS, judged before writing it out
+    (an array of millions of values took minutes and gigabytes to turn into text); else None."""
+    if isinstance(answer, str):
+        count, least = len(answer), len(answer)
+    elif isinstance(answer, np.ndarray):
+        count, least = answer.size, 2 * answer.size - 1  # a digit and a comma per value at least
+    elif isinstance(answer, (list, tuple)):
+        count, least = len(answer), 3 * len(answer) - 2  # a character and ", " per item at least
+    else:
+        return None
+    if least <= MAX_ANSWER_CHARS:
+        return None
+    what = "characters" if isinstance(answer, str) else "values"
+    return f"answer of {count} {what} cannot be stored in {MAX_ANSWER_CHARS} characters (MAX_ANSWER_CHARS)"
 
 
 def array_text(array: np.ndarray) -> str:
@@ -116,7 +142,7 @@ def answer_text(answer: Any) -> tuple[str, RecordedAs] | None:
     """The text to store for a cached answer and how it was recorded; None for an unknown type."""
     if isinstance(answer, str):
         return answer, "text"
-    if isinstance(answer, np.ndarray):
+    if isinstance(answer, np.ndarray) and answer.dtype.kind in "biuf":  # not complex, object or structured
         return array_text(answer), "array"
     if isinstance(answer, (list, tuple)) and all(isinstance(x, (str, int)) and not isinstance(x, bool) for x in answer):
         return repr(list(answer)), "list"
@@ -160,7 +186,7 @@ def import_authors_cache(
     def skip(index: int, why: str) -> None:
         nonlocal skipped
         skipped += 1
-        if warn is not None:
+        if warn is not None and skipped <= MAX_WARNINGS:
             warn(f"{path.name}: skipping pair {index}: {why}")
 
     for index, (key, answer) in enumerate(pairs):
@@ -172,9 +198,13 @@ def import_authors_cache(
         if isinstance(answer, np.ndarray) and isinstance(key, np.ndarray) and answer.shape != key.shape:
             skip(index, f"answer shape {answer.shape} differs from key shape {key.shape}")
             continue
+        too_large = oversized(answer)
+        if too_large is not None:
+            skip(index, too_large)
+            continue
         written = answer_text(answer)
         if written is None:
-            skip(index, f"answer {describe(answer)} is neither text nor an array")
+            skip(index, f"answer {describe(answer)} is neither text nor a list or an array of numbers")
             continue
         text, recorded_as = written
         query = Query(
@@ -199,6 +229,8 @@ def import_authors_cache(
             skip(index, wrong[0])
             continue
         groups.setdefault(record_key, (request, []))[1].append(sample)
+    if warn is not None and skipped > MAX_WARNINGS:
+        warn(f"{path.name}: skipped {skipped - MAX_WARNINGS} more pairs (the first {MAX_WARNINGS} are named above)")
     imported = 0
     for record_key, (request, samples) in groups.items():
         before = store.entry(record_key)

@@ -128,10 +128,13 @@ class CubeStacking:
             value = value.tolist()
         if not isinstance(value, (list, tuple)):
             raise ValueError(f"expected a list of cube ids, found {type(value).__name__}")
+        if len(value) > self.stack_size:
+            raise ValueError(f"expected at most {self.stack_size} cube ids, found {len(value)}")
         ids = []
         for item in value:
             if isinstance(item, bool) or not isinstance(item, (int, np.integer)):
-                raise ValueError(f"expected cube ids (integers), found {item!r}")
+                shown = repr(item) if isinstance(item, (int, float, str, bytes, type(None))) else type(item).__name__
+                raise ValueError(f"expected cube ids (integers), found {shown if len(shown) <= 40 else shown[:37] + '...'}")
             if not 0 <= int(item) < self.stack_size:
                 raise ValueError(f"cube id {item} is not one of the {self.stack_size} cubes (0..{self.stack_size - 1})")
             ids.append(int(item))
