@@ -62,7 +62,7 @@ def run_import(tmp_path: Path, pairs: list[Any], task: Any = CUBE) -> tuple[Impo
 def test_an_answer_too_large_to_store_is_refused_before_it_is_written_out(tmp_path: Path, answer: Any) -> None:
     report, warnings, took = run_import(tmp_path, [[4], answer, [4, 5], "['e','f','g']"])
     assert report.imported == 1 and report.skipped == 1
-    assert len(warnings) == 1 and f"{MAX_ANSWER_CHARS} characters (MAX_ANSWER_CHARS)" in warnings[0]
+    assert len(warnings) == 1 and "(MAX_ANSWER_CHARS)" in warnings[0] and str(MAX_ANSWER_CHARS) in warnings[0]
     assert took < 1.0, f"{took:.2f} s"
 
 
@@ -98,10 +98,10 @@ def test_a_key_that_does_not_fit_makes_one_short_warning(tmp_path: Path, key: An
 
 
 def test_many_bad_pairs_make_a_bounded_number_of_warnings(tmp_path: Path) -> None:
-    bad = [[9, 9], "x"] * 5000  # the pickle memoises the repeated objects: a small file
+    bad = [[9, 9], "x"] * (MAX_WARNINGS + 500)  # the pickle memoises the repeated objects: a small file
     report, warnings, _ = run_import(tmp_path, [*bad, [4], "['e','f']"])
-    assert report.skipped == 5000 and report.imported == 1
-    assert len(warnings) == MAX_WARNINGS + 1 and f"skipped {5000 - MAX_WARNINGS} more pairs" in warnings[-1]
+    assert report.skipped == MAX_WARNINGS + 500 and report.imported == 1
+    assert len(warnings) == MAX_WARNINGS + 1 and "skipped 500 more pairs" in warnings[-1]
 
 
 values = st.recursive(
