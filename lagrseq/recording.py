@@ -408,7 +408,10 @@ def answer_census(store_path: Path, config: ExperimentConfig) -> list[CensusRow]
             for recorded in entry.samples:
                 name, _ = classify(task, recorded.text)
                 counts[name] = counts.get(name, 0) + 1
-            shown = len(cube.partial_stack(entry.prompt)) if isinstance(task, cube.CubeStacking) else -1
+            shown = -1  # the key stands in for the stack shown (grids, or a prompt that is not a cube prompt)
+            if isinstance(task, cube.CubeStacking):
+                with contextlib.suppress(ValueError):
+                    shown = len(cube.partial_stack(entry.prompt))
             rows.append(CensusRow(entry.key, float(entry.request["temperature"]), shown, counts))
     return sorted(rows, key=lambda r: (r.temperature, r.shown, r.key))
 

@@ -20,7 +20,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from lagrseq.tasks import cube, grid
-from lagrseq.tasks.arrangement import object_arrangement
+from lagrseq.recording import classify
+from lagrseq.tasks.arrangement import arm_arrangement, object_arrangement
 from lagrseq.tasks.base import MAX_ANSWER_CHARS, Parsed
 from lagrseq.tasks.image import image_completion
 
@@ -31,6 +32,11 @@ PARSERS: dict[str, Callable[[str], Parsed]] = {
     "cube 5": cube.CubeStacking(5).parse,
     "cube 8": cube.CubeStacking(8).parse,
     "cube 11": cube.CubeStacking(11).parse,
+    "arm 5x5": arm_arrangement().parse,
+}
+CLASSIFIERS: dict[str, Callable[[str], object]] = {  # ``lagrseq cache parse``: the parser and then the class
+    "classify cube 8": lambda text: classify(cube.CubeStacking(8), text),
+    "classify image": lambda text: classify(image_completion(), text),
 }
 
 PER_CALL_S = 1.0  # for answers up to MAX_ANSWER_CHARS; the new parsers take a few ms
@@ -68,6 +74,9 @@ FRAGMENTS = [
     *"abcdefghijk", "x", "A", "١", "\x00", "\u2028",  # an Arabic-Indic digit, NUL, a line separator
     "0.", "1.0", "-1", "[]", "[[", "]]", "], [", "[0, 1]", "[[0 1]\n [1 0]]", "'a', ", "```",
     "0 1 0\n", "01010\n", "| 0 | 1 |\n",
+    # unicode digits (\\d matches them, int() reads some), fences with a language, quoted letters
+    "０", "１", "¹", "²", "٠", "७", "𝟏", "\u00a0", "\u3000", "```python\n", "```json\n[[", "'e','f',", "e f g ", "efgabcdh",
+    "[['e'", "[1,[0,[1,[", "]]]]", "1.-1", "--1", "1e5", "[1 0 1\n", "\r",
 ]
 
 hostile = st.lists(
@@ -82,8 +91,31 @@ def test_every_parser_reads_hostile_answers_in_bounded_time(text: str) -> None:
         result, took = timed(parse, text)
         assert took < PER_CALL_S, f"{name}: {took:.2f} s on {len(text)} characters starting {text[:40]!r}"
         check_parsed(result)
-    _, took = timed(grid.read_any_grid, text)
-    assert took < PER_CALL_S
+    for name, work in [*CLASSIFIERS.items(), ("read_any_grid", grid.read_any_grid)]:
+        _, took = timed(work, text)
+        assert took < PER_CALL_S, f"{name}: {took:.2f} s on {len(text)} characters starting {text[:40]!r}"
+
+
+def long_line(piece: str) -> str:
+    return (piece * (MAX_ANSWER_CHARS // len(piece) + 1))[:MAX_ANSWER_CHARS]
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        long_line("١٢٣٤"), long_line("０ １ "), long_line("¹,²,"), long_line("𝟏 "), long_line("1,"), long_line("1."),
+        long_line("1.-"), long_line("```\n"), long_line("```python\n0 1 0\n```\n"), long_line("[1,"), long_line("[['e',"),
+        long_line("'e','f',"), long_line("a "), "a" * MAX_ANSWER_CHARS, long_line("[[0,1],[1,0]]"), long_line("0 1\u2028"),
+        long_line("\u3000"), long_line("[" + "0 " * 300 + "]\n"), ("0 " * 3000 + "\n") * 2, long_line("[x ") + "]",
+    ],
+    ids=lambda text: repr(text[:12]),
+)
+def test_long_lines_of_one_fragment_parse_quickly(text: str) -> None:
+    for name, work in [*PARSERS.items(), *CLASSIFIERS.items()]:
+        result, took = timed(work, text)
+        assert took < EXPLICIT_S, f"{name}: {took:.2f} s"
+        if isinstance(result, Parsed):
+            check_parsed(result)
 
 
 @settings(max_examples=200, deadline=None)
