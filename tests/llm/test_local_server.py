@@ -291,3 +291,16 @@ def test_record_with_the_local_server_keys_answers_under_local(fake: Path, tmp_p
     assert runner.run_one(config, 0, 0, f"recorded:{store}", tmp_path / "a.mcap", log=False, provider_options=options).queries > 0
     assert cli.main(["cache", "export", "--store", str(store), "--out", str(tmp_path / "s.jsonl")]) == 0
     assert runner.run_one(config, 0, 0, f"recorded:{tmp_path / 's.jsonl'}", tmp_path / "b.mcap", log=False).queries > 0
+
+
+def test_the_local_provider_has_the_live_limits(fake: Path) -> None:
+    """--provider local asks its server through the live provider with the same limits as any
+    server: the request deadline (on every read), the response size cap and the read timeout."""
+    options = wiring.ProviderOptions(request_deadline_s=7.0, max_response_bytes=12345, read_timeout_s=3.0)
+    provider = wiring.make_local(str(fake), options, np.random.default_rng(0))
+    try:
+        live = provider.inner.inner  # type: ignore[attr-defined]
+        assert live.settings.request_deadline_s == 7.0 and live.settings.max_response_bytes == 12345
+        assert live.settings.read_timeout_s == 3.0 and live.deadline_bound
+    finally:
+        provider.close()
