@@ -732,7 +732,7 @@ class LiveProvider:
             content = message.get("content")
             if content is not None and not isinstance(content, str):
                 raise ProviderError(f"{where} a message's content is not text ({type(content).__name__})")
-            texts.append((_unicode(show.text(content or "")), _unicode(show.optional(choice.get("finish_reason")))))
+            texts.append((_unicode(show.text(content or "")) or "", _unicode(show.optional(choice.get("finish_reason")))))
         texts = texts[:n]
         usage, notes = believed_usage(parsed.get("usage"), query, n)
         for kind, note in notes:

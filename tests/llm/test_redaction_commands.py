@@ -26,9 +26,11 @@ def written(root: Path) -> Iterator[tuple[Path, str]]:
         data = path.read_bytes()
         yield path, data.decode("latin-1")
         try:
-            yield path, zlib.decompress(data).decode("latin-1")
+            unpacked: str | None = zlib.decompress(data).decode("latin-1")
         except zlib.error:
-            pass
+            unpacked = None
+        if unpacked is not None:
+            yield path, unpacked
         if data.startswith(b"SQLite format 3"):
             with sqlite3.connect(f"file:{path}?mode=ro", uri=True) as db:
                 tables = [row[0] for row in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")]
@@ -105,3 +107,33 @@ def test_a_key_that_cannot_go_in_a_header_is_one_line_exit_2(
     assert len(err.strip().splitlines()) == 1 and "OPENAI_API_KEY" in err, err
     assert key not in err and leaks(err, key) == []
     assert server.requests == []
+
+
+@pytest.mark.parametrize(
+    "failure",
+    [
+        "HTTP 401", "HTTP 429 quota", "HTTP 400", "a choice without a message", "a body that is not JSON",
+        pytest.param("HTTP 429 then 500 then 503", marks=pytest.mark.slow),  # the default backoff: some 15 s
+    ],
+)
+@pytest.mark.parametrize("command", ["run", "record"])
+def test_a_failing_server_that_echoes_the_key_leaves_no_fragment_in_stderr_or_files(
+    tmp_path: Path, server: FakeOpenAI, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str], failure: str, command: str
+) -> None:
+    from tests.llm.test_redaction import FAILURES
+
+    monkeypatch.setenv("OPENAI_API_KEY", ECHO_KEY)
+    replies = FAILURES[failure]
+    server.script.extend([*replies, *(replies[-1:] * 20)])
+    argv = {
+        "run": ["run", "cube-stacking", "--method", "lagr", "--provider", "live:gpt-4o-mini", "--out", str(tmp_path / "runs"),
+                "--trials", "1", "--set", "run.episodes=1"],
+        "record": ["record", "cube-stacking", "--store", str(tmp_path / "store"), "--samples", "1", "--concurrency", "2"],
+    }[command]
+    status = cli.main([*argv, "--base-url", server.url, "--quiet"])
+    captured = capfd.readouterr()
+    assert status != 0 and server.requests
+    assert "Traceback" not in captured.err and leaks(captured.out + captured.err) == [], captured.err
+    assert captured.err.strip().splitlines()[-1].startswith(f"lagrseq {command}: ")
+    found = {str(path): leaks(text) for path, text in written(tmp_path) if leaks(text)}
+    assert found == {}, found

@@ -19,8 +19,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from lagrseq.tasks import cube, grid
 from lagrseq.recording import classify
+from lagrseq.tasks import cube, grid
 from lagrseq.tasks.arrangement import arm_arrangement, object_arrangement
 from lagrseq.tasks.base import MAX_ANSWER_CHARS, Parsed
 from lagrseq.tasks.image import image_completion
