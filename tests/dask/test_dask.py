@@ -262,3 +262,26 @@ def test_four_workers_share_one_cost_budget(tmp_path: Path, four_workers: DaskEx
     spent = sum(float(r["cost_usd"]) for r in live)  # type: ignore[arg-type]
     assert live and len(live) == len(server.requests) - first
     assert 0 < spent <= limit
+
+
+def test_a_live_run_on_dask_writes_no_fragment_of_the_key(
+    tmp_path: Path, server: FakeOpenAI, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """The key in OPENAI_API_KEY, a server that echoes it everywhere, trials on a Dask local
+    cluster with a budget: no log, ledger, worker scratch file or output holds a fragment."""
+    import dask
+
+    from tests.llm.test_redaction import ECHO_KEY, echo_completion, echoing, leaks
+    from tests.llm.test_redaction_commands import written
+
+    monkeypatch.setenv("OPENAI_API_KEY", ECHO_KEY)
+    server.script.extend(echoing(echo_completion) for _ in range(200))
+    args = ["run", "cube-stacking", "--method", "lagr", "--provider", "live:gpt-4o-mini", "--trials", "2", "--set", "run.episodes=2",
+            "--executor", "dask", "--jobs", "2", "--base-url", server.url, "--max-cost-usd", "5", "--quiet", "--out", str(tmp_path / "runs")]
+    with dask.config.set({"temporary-directory": str(tmp_path / "dask-scratch")}):
+        assert cli.main(args) == 0
+    assert server.requests and len(find_logs([tmp_path / "runs"])) == 2
+    found = {str(path): leaks(text) for path, text in written(tmp_path) if leaks(text)}
+    assert found == {}, found
+    captured = capfd.readouterr()
+    assert leaks(captured.out + captured.err) == []
