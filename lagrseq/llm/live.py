@@ -114,6 +114,7 @@ class LiveSettings:
             raise ConfigError(
                 f"unknown server kind {self.server!r}; expected one of {', '.join(SERVER_KINDS)}"
             )
+        _check_key_env(self.api_key_env)
         for name in ("connect_timeout_s", "read_timeout_s", "request_deadline_s"):
             _check_setting(name, getattr(self, name), "a finite number of seconds > 0", low=0.0, low_ok=False)
         for name in ("backoff_initial_s", "backoff_max_s", "max_retry_after_s"):
@@ -121,6 +122,24 @@ class LiveSettings:
         _check_setting("jitter", self.jitter, "a number from 0 to 1", low=0.0, high=1.0)
         _check_setting("max_retries", self.max_retries, "a whole number >= 0", low=0, integer=True)
         _check_setting("max_response_bytes", self.max_response_bytes, "a whole number of bytes >= 1", low=1, integer=True)
+
+
+_ENV_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,127}")
+
+
+def _check_key_env(name: Any) -> None:
+    """Raise ConfigError unless ``name`` can be the name of an environment variable and does not
+    look like an API key (someone passing the key itself to --api-key-env): the message never
+    repeats it, since the name appears in other messages."""
+    ok = isinstance(name, str) and _ENV_NAME.fullmatch(name) is not None
+    looks_like_key = ok and len(name) >= 20 and "_" not in name and not name.isupper() and any(c.isdigit() for c in name)
+    if not ok or looks_like_key:
+        what = "looks like an API key itself" if looks_like_key or (isinstance(name, str) and redact_key_like(name) != name) else (
+            "is not the name of an environment variable (letters, digits and _, not starting with a digit)")
+        raise ConfigError(
+            f"the value given to --api-key-env (api_key_env, {len(name) if isinstance(name, str) else 0} characters; not "
+            f"shown) {what}: export the key in a variable, e.g. OPENAI_API_KEY, and pass that variable's name"
+        )
 
 
 def _check_setting(

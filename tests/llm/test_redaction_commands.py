@@ -137,3 +137,23 @@ def test_a_failing_server_that_echoes_the_key_leaves_no_fragment_in_stderr_or_fi
     assert captured.err.strip().splitlines()[-1].startswith(f"lagrseq {command}: ")
     found = {str(path): leaks(text) for path, text in written(tmp_path) if leaks(text)}
     assert found == {}, found
+
+
+@pytest.mark.parametrize("value", [ECHO_KEY, ECHO_KEY[8:], "", "1BAD", "MY KEY", "x" * 200])
+@pytest.mark.parametrize("command", ["run", "record"])
+def test_the_key_given_to_api_key_env_is_refused_without_showing_it(
+    tmp_path: Path, server: FakeOpenAI, capfd: pytest.CaptureFixture[str], value: str, command: str
+) -> None:
+    """A careless user passes the key itself (or something that is no variable name) where the
+    NAME of its variable goes: one line, exit 2, the value not repeated, nothing sent or written
+    (old: "environment variable sk-proj-... is not set" printed the key)."""
+    argv = {
+        "run": ["run", "cube-stacking", "--method", "lagr", "--provider", "live:gpt-4o-mini", "--out", str(tmp_path / "runs"),
+                "--trials", "1", "--set", "run.episodes=1"],
+        "record": ["record", "cube-stacking", "--store", str(tmp_path / "store"), "--samples", "1"],
+    }[command]
+    assert cli.main([*argv, "--base-url", server.url, "--api-key-env", value, "--quiet"]) == 2
+    err = capfd.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "--api-key-env" in err and "not shown" in err, err
+    assert leaks(err) == [] and (len(value) < 4 or value not in err)
+    assert server.requests == [] and not (tmp_path / "runs").exists()
