@@ -44,7 +44,7 @@ from lagrseq.errors import ConfigError, UsageError
 from lagrseq.experiment import TrialParts
 from lagrseq.llm.base import Provider
 from lagrseq.llm.mock import MockProvider
-from lagrseq.llm.servers import DEFAULT_BASE_URL
+from lagrseq.llm.servers import DEFAULT_BASE_URL, base_url_problem
 from lagrseq.logs import foxglove
 from lagrseq.logs.events import Sink, View
 from lagrseq.policies import Always, AskingPolicy, make_policy
@@ -157,6 +157,9 @@ class ProviderOptions:
     def __post_init__(self) -> None:
         if self.on_miss not in ON_MISS:
             raise UsageError(f"--on-miss {self.on_miss!r}; expected one of {', '.join(ON_MISS)}")
+        problem = base_url_problem(self.base_url)
+        if problem is not None:
+            raise UsageError(problem)
 
     def to_json(self) -> str:
         fields = asdict(self)

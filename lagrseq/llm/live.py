@@ -71,7 +71,7 @@ from lagrseq.llm.base import Answer, Query, Usage
 from lagrseq.llm.pricing import PriceTable, prompt_token_bound
 from lagrseq.llm.records import MAX_ANSWER_CHARS
 from lagrseq.llm.redaction import Redactor, clip, redact_key_like
-from lagrseq.llm.servers import DEFAULT_BASE_URL, SERVER_KINDS
+from lagrseq.llm.servers import DEFAULT_BASE_URL, SERVER_KINDS, base_url_problem
 from lagrseq.llm.store import endpoint_of
 
 CLIPPED = "lagrseq-clipped"
@@ -115,6 +115,9 @@ class LiveSettings:
                 f"unknown server kind {self.server!r}; expected one of {', '.join(SERVER_KINDS)}"
             )
         _check_key_env(self.api_key_env)
+        problem = base_url_problem(self.base_url)
+        if problem is not None:
+            raise ConfigError(problem)
         for name in ("connect_timeout_s", "read_timeout_s", "request_deadline_s"):
             _check_setting(name, getattr(self, name), "a finite number of seconds > 0", low=0.0, low_ok=False)
         for name in ("backoff_initial_s", "backoff_max_s", "max_retry_after_s"):

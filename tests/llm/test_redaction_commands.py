@@ -157,3 +157,28 @@ def test_the_key_given_to_api_key_env_is_refused_without_showing_it(
     assert len(err.strip().splitlines()) == 1 and "--api-key-env" in err and "not shown" in err, err
     assert leaks(err) == [] and (len(value) < 4 or value not in err)
     assert server.requests == [] and not (tmp_path / "runs").exists()
+
+
+@pytest.mark.parametrize(
+    "url",
+    [f"http://user:{ECHO_KEY}@127.0.0.1:9/v1", f"http://127.0.0.1:9/v1?api-key={ECHO_KEY}", f"http://127.0.0.1:9/v1#{ECHO_KEY}",
+     f"http://{ECHO_KEY}@127.0.0.1:9/v1"],
+    ids=["user:password@", "query", "fragment", "user@"],
+)
+@pytest.mark.parametrize("provider", ["live:gpt-4o-mini", "recorded:STORE"])
+def test_a_base_url_carrying_a_key_is_refused_without_showing_it(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, url: str, provider: str
+) -> None:
+    """Credentials in --base-url would be printed in messages and written into every trial's
+    metadata (old: both): one line, exit 2, the URL not repeated, no log written."""
+    monkeypatch.setenv("OPENAI_API_KEY", "sk-other-0123456789abcdef")
+    provider = provider.replace("STORE", str(tmp_path / "store"))
+    argv = ["run", "cube-stacking", "--method", "lagr", "--provider", provider, "--on-miss", "mock", "--out", str(tmp_path / "runs"),
+            "--trials", "1", "--set", "run.episodes=1", "--base-url", url, "--quiet"]
+    if provider.startswith("live"):
+        argv.remove("--on-miss")
+        argv.remove("mock")
+    assert cli.main(argv) == 2
+    err = capfd.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "--base-url carries credentials" in err and leaks(err) == [], err
+    assert not (tmp_path / "runs").exists() or not list((tmp_path / "runs").rglob("*.mcap"))
