@@ -40,7 +40,7 @@ from typing import Any
 import distributed
 
 from lagrseq.errors import UsageError
-from lagrseq.executors import TrialExecutor, TrialJob
+from lagrseq.executors import TrialExecutor, TrialJob, quiet_resource_tracker
 
 WORKER_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
 
@@ -97,6 +97,7 @@ class DaskExecutor(TrialExecutor):
         self.submitted: list[Any] = []
         if scheduler is None:
             dashboard = importlib.util.find_spec("bokeh") is not None
+            quiet_resource_tracker()
             with _interrupts_ignored_by_children():
                 self.cluster = distributed.LocalCluster(
                     n_workers=jobs,

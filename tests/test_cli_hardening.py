@@ -149,9 +149,11 @@ def test_two_identical_runs_at_once_never_tear_a_log(tmp_path: Path) -> None:
 
 
 # ------------------------------------------------------------------------------------------ item 3
-def _interrupt(extra: list[str], tmp_path: Path, twice: bool = False) -> tuple[int, float, str]:
-    args = [sys.executable, "-m", "lagrseq", "run", "cube-stacking", "--method", "lagr-seq", "--trials", "8",
-            "--out", str(tmp_path), "--set", "run.episodes=3000", "--quiet", *extra]
+RUN_8 = ["run", "cube-stacking", "--method", "lagr-seq", "--trials", "8", "--set", "run.episodes=3000", "--quiet"]
+
+
+def _interrupt(extra: list[str], tmp_path: Path, twice: bool = False, command: list[str] = RUN_8) -> tuple[int, float, str]:
+    args = [sys.executable, "-m", "lagrseq", *command, "--out", str(tmp_path), *extra]
     env = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"}
     process = subprocess.Popen(
         args, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
@@ -168,11 +170,23 @@ def _interrupt(extra: list[str], tmp_path: Path, twice: bool = False) -> tuple[i
         time.sleep(0.05)
         os.killpg(process.pid, signal.SIGINT)
     try:
-        _, err = process.communicate(timeout=60)
+        _, err = process.communicate(timeout=60)  # also waits for every helper that holds stderr
     finally:
         if process.poll() is None:
             os.killpg(process.pid, signal.SIGKILL)
     return process.returncode, time.monotonic() - started, err
+
+
+def _left_only_complete_logs_and_partials(tmp_path: Path, trials: int) -> None:
+    finished = list(tmp_path.rglob("trial-*.mcap"))
+    partials = list(tmp_path.rglob("*.mcap.partial"))
+    assert partials, "the running trials leave their .partial files"
+    assert all(is_complete(p) for p in finished), "no half-made log under a final name"
+    assert len(finished) < trials, "pending trials were cancelled"
+    from lagrseq.logs.recover import recover
+
+    recovered = recover(partials[0])
+    assert read_info(recovered.path).status["status"] == "recovered"
 
 
 @pytest.mark.parametrize("jobs", ["1", "2"])
@@ -180,21 +194,51 @@ def test_one_ctrl_c_stops_promptly_leaving_complete_logs_and_partials(tmp_path: 
     code, seconds, err = _interrupt(["--jobs", jobs], tmp_path)
     assert code == 130, err
     assert seconds < 10, f"took {seconds:.1f} s to stop"
-    assert "interrupted" in err and "Traceback" not in err
-    finished = list(tmp_path.rglob("trial-*.mcap"))
-    partials = list(tmp_path.rglob("*.mcap.partial"))
-    assert partials, "the running trials leave their .partial files"
-    assert all(is_complete(p) for p in finished), "no half-made log under a final name"
-    assert len(finished) < 8, "pending trials were cancelled"
-    from lagrseq.logs.recover import recover
+    line = err.strip()
+    assert "\n" not in line and line.startswith("lagrseq run: interrupted;"), err  # no resource-tracker warning after it
+    _left_only_complete_logs_and_partials(tmp_path, 8)
 
-    recovered = recover(partials[0])
-    assert read_info(recovered.path).status["status"] == "recovered"
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("command", "trials"),
+    [
+        (["frontier", "cube-stacking", "--trials", "4", "--set", "run.episodes=3000", "--quiet"], 20),
+        (["audit", "cube-stacking", "--trials", "3", "--episodes", "3000", "--quiet"], 9),
+    ],
+    ids=["frontier", "audit"],
+)
+def test_one_ctrl_c_stops_the_sweep_commands_too(tmp_path: Path, command: list[str], trials: int) -> None:
+    code, seconds, err = _interrupt(["--jobs", "2"], tmp_path, command=command)
+    assert code == 130 and seconds < 10, (code, seconds, err)
+    line = err.strip()
+    assert "\n" not in line and line.startswith(f"lagrseq {command[0]}: interrupted; finished trial logs are kept"), err
+    _left_only_complete_logs_and_partials(tmp_path, trials)
 
 
 def test_a_second_ctrl_c_exits_at_once(tmp_path: Path) -> None:
     code, seconds, _ = _interrupt(["--jobs", "2"], tmp_path, twice=True)
     assert code == 130 and seconds < 10
+
+
+def test_leaving_at_once_after_a_pool_adds_no_resource_tracker_warning(tmp_path: Path) -> None:
+    """After a Ctrl-C the process ends with ``os._exit`` (its pool's semaphores unreleased): the
+    resource tracker releases them without two lines of ``UserWarning`` after the one line."""
+    script = (
+        "import os\n"
+        "from lagrseq.executors import LocalExecutor\n"
+        "if __name__ == '__main__':\n"
+        "    pool = LocalExecutor(1)\n"
+        "    assert pool.submit(abs, -1).result() == 1\n"
+        "    pool.interrupt()\n"
+        "    os._exit(130)\n"
+    )
+    (tmp_path / "leave.py").write_text(script)
+    done = subprocess.run(
+        [sys.executable, str(tmp_path / "leave.py")], capture_output=True, text=True, timeout=60,
+        env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"},
+    )
+    assert done.returncode == 130 and done.stderr == ""
 
 
 # ------------------------------------------------------------------------------------------ item 15
