@@ -260,3 +260,49 @@ def test_logged_provider_options_never_hold_a_key(tmp_path: Path) -> None:
     info = read_info(next(tmp_path.rglob("trial-000.mcap")))
     options = json.loads(info.run["provider_options"])
     assert options["api_key_env"] == "OPENAI_API_KEY" and "key" not in {k for k in options if k != "api_key_env"}
+
+
+# ------------------------------------------------------------------------------------------ full disk
+def _file_size_limit(limit: int) -> None:
+    """In the child: files may grow to ``limit`` bytes, then a write fails with EFBIG (as ENOSPC
+    on a full disk), not with the SIGXFSZ that would kill the process."""
+    import resource
+
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+
+@pytest.mark.parametrize("jobs", ["1", "2"])
+def test_a_full_disk_while_logging_is_one_line_and_keeps_the_flushed_episodes(tmp_path: Path, jobs: str) -> None:
+    out = tmp_path / "runs"
+    done = subprocess.run(
+        [sys.executable, "-m", "lagrseq", "run", "cube-stacking", "--method", "lagr-seq", "--trials", "1",
+         "--set", "run.episodes=100", "--out", str(out), "--quiet", "--jobs", jobs],
+        capture_output=True, text=True, timeout=300, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"},
+        preexec_fn=lambda: _file_size_limit(60_000),
+    )
+    line = one_line(done)
+    (partial,) = out.rglob("*.mcap.partial")
+    assert f"{partial}: cannot write the log (File too large)" in line and "free some space" in line
+    assert not list(out.rglob("*.mcap")), "no half-written log under a final name"
+    from lagrseq.logs.recover import recover
+
+    recovered = recover(partial)
+    assert recovered.episodes > 3, "the episodes flushed before the disk filled are kept"
+    assert read_info(recovered.path).status["status"] == "recovered"
+
+
+def test_a_full_disk_while_recovering_in_place_leaves_the_original_and_no_temporary_file(tmp_path: Path) -> None:
+    golden = ROOT / "fixtures" / "golden" / "cube-stacking-lagr-seq-upstream-4ep.mcap"
+    cut = tmp_path / "my logs" / "trial-000.mcap"
+    cut.parent.mkdir()
+    data = golden.read_bytes()[:-1]
+    cut.write_bytes(data)
+    done = subprocess.run(
+        [sys.executable, "-m", "lagrseq", "recover", str(cut)], capture_output=True, text=True, timeout=120,
+        env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"}, preexec_fn=lambda: _file_size_limit(len(data) // 2),
+    )
+    line = one_line(done)
+    assert "cannot write the recovered log (File too large)" in line and f"{cut} was left as it was" in line
+    assert sorted(p.name for p in cut.parent.iterdir()) == ["trial-000.mcap"]
+    assert cut.read_bytes() == data
