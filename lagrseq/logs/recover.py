@@ -269,7 +269,8 @@ def recover(path: str | Path, out: str | Path | None = None) -> Recovered:
     """
     source = Path(path)
     if not source.is_file():
-        raise LogError(f"{source}: no such file")
+        what = "a directory, not a log: give the .mcap or .mcap.partial files in it" if source.is_dir() else "no such file"
+        raise LogError(f"{source}: {what}")
     target = _target(source, out)
     in_place = target.absolute() == source.absolute()
     if not in_place and target.exists():
