@@ -160,3 +160,15 @@ def test_the_chunk_check_reads_no_chunk_data(tmp_path: Path) -> None:
     chunk_reads = [n for n in reads if n < 100]
     assert len(chunk_reads) >= 2 * len(summary.chunk_indexes)
     assert sum(chunk_reads) < 64 * len(summary.chunk_indexes)
+
+
+def test_record_from_runs_with_only_damaged_logs_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    damaged = tmp_path / "my runs" / "trial-000.mcap"
+    damaged.parent.mkdir()
+    damaged.write_bytes(DATA[:-1])
+    code = main(["record", "cube-stacking", "--store", str(tmp_path / "store"), "--from-runs", str(damaged.parent),
+                 "--mode", "none", "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert err[0].startswith(f"lagrseq record: error: no /query states in {damaged.parent} (1 log skipped; first: {damaged}: damaged")
+    assert f"lagrseq recover '{damaged}'" in err[0]
