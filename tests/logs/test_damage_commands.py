@@ -172,3 +172,39 @@ def test_record_from_runs_with_only_damaged_logs_is_one_line(tmp_path: Path, cap
     assert code == 2 and len(err) == 1, err
     assert err[0].startswith(f"lagrseq record: error: no /query states in {damaged.parent} (1 log skipped; first: {damaged}: damaged")
     assert f"lagrseq recover '{damaged}'" in err[0]
+
+
+@pytest.mark.slow
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(flips=st.lists(st.tuples(st.integers(0, len(DATA) - 1), st.integers(0, 7)), min_size=1, max_size=3))
+def test_random_damage_through_the_commands_is_a_warning_or_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], flips: list[tuple[int, int]]
+) -> None:
+    """``frontier --replay`` (the frontier report from logs; replay reads logs the same way) and
+    ``recover`` on a
+    directory with one good log and one with flipped bits: exit 0 with one warning line per log
+    left out, or exit 2 with one line."""
+    data = bytearray(DATA)
+    for offset, bit in flips:
+        data[offset] ^= 1 << bit
+    root = tmp_path / "my runs"
+    shutil.rmtree(root, ignore_errors=True)
+    (root / "a").mkdir(parents=True)
+    (root / "b").mkdir()
+    shutil.copy(GOLDEN, root / "a" / "trial-000.mcap")
+    path = root / "b" / "trial-000.mcap"
+    path.write_bytes(bytes(data))
+    capsys.readouterr()
+    for command in (
+        ["frontier", "--replay", str(root), "--out", str(tmp_path / "frontier")],
+        ["recover", str(path), "--out", str(tmp_path / "recovered.mcap")],
+    ):
+        shutil.rmtree(tmp_path / "frontier", ignore_errors=True)
+        (tmp_path / "recovered.mcap").unlink(missing_ok=True)
+        code = main(command)
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code in (0, 2) and "Traceback" not in "\n".join(err)
+        if code == 2:
+            assert len(err) == 1, (command, err)
+        else:
+            assert all(f"warning: {full_path(path)}" in line for line in err), (command, err)
