@@ -221,6 +221,34 @@ def test_a_second_ctrl_c_exits_at_once(tmp_path: Path) -> None:
     assert code == 130 and seconds < 10
 
 
+@pytest.mark.slow
+def test_sigkill_mid_run_then_a_rerun_gives_the_same_bytes_as_an_uninterrupted_run(tmp_path: Path) -> None:
+    """The whole process group killed (no cleanup at all) while two trials run in the pool: the
+    rerun runs the cut trials again and every log equals an uninterrupted run's, byte for byte."""
+    command = ["run", "cube-stacking", "--method", "lagr-seq", "--trials", "3", "--set", "run.episodes=400", "--quiet", "--jobs", "2"]
+    env = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"}
+    reference = tmp_path / "reference"
+    assert lagrseq(*command, "--out", str(reference)).returncode == 0
+    out = tmp_path / "killed"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "lagrseq", *command, "--out", str(out)], env=env, start_new_session=True,
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while not list(out.rglob("*.partial")) and time.monotonic() < deadline:
+            time.sleep(0.02)
+    finally:
+        os.killpg(process.pid, signal.SIGKILL)
+        process.wait(timeout=30)
+    assert list(out.rglob("*.partial")), "killed while trials ran"
+    again = lagrseq(*command, "--out", str(out))
+    assert again.returncode == 0 and "resuming:" in again.stdout, again.stderr
+    logs = {p.relative_to(reference): p.read_bytes() for p in reference.rglob("trial-*")}
+    assert len(logs) == 3
+    assert {p.relative_to(out): p.read_bytes() for p in out.rglob("trial-*")} == logs
+
+
 def test_leaving_at_once_after_a_pool_adds_no_resource_tracker_warning(tmp_path: Path) -> None:
     """After a Ctrl-C the process ends with ``os._exit`` (its pool's semaphores unreleased): the
     resource tracker releases them without two lines of ``UserWarning`` after the one line."""
