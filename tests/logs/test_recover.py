@@ -323,3 +323,19 @@ def test_the_recover_command_reports_every_bad_file_and_repairs_the_others(tmp_p
     assert read_info(short).complete and read_info(tail).complete
     assert inside.read_bytes() == bytes(flipped)
     assert not list(tmp_path.rglob("*.recovering"))
+
+
+def test_a_partial_file_still_being_written_is_refused(tmp_path: Path) -> None:
+    """A running trial holds its ``.partial`` locked; recovering it then would race the writer's
+    own rename, so recover says to wait, and writes nothing."""
+    from lagrseq.logs.sink import McapSink
+
+    path = tmp_path / "trial-000.mcap"
+    sink = McapSink(path, {"config": "{}"})
+    try:
+        sink.flush()
+        with pytest.raises(LogError, match=r"trial-000.mcap.partial is being written by a running lagrseq trial; wait"):
+            recover(sink.partial)
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["trial-000.mcap.partial"]
+    finally:
+        sink.abandon()
