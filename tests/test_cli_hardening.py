@@ -205,8 +205,9 @@ def test_one_ctrl_c_stops_promptly_leaving_complete_logs_and_partials(tmp_path: 
     [
         (["frontier", "cube-stacking", "--trials", "4", "--set", "run.episodes=3000", "--quiet"], 20),
         (["audit", "cube-stacking", "--trials", "3", "--episodes", "3000", "--quiet"], 9),
+        (["reproduce", "--quick", "--items", "table2", "--quiet"], 100),
     ],
-    ids=["frontier", "audit"],
+    ids=["frontier", "audit", "reproduce"],
 )
 def test_one_ctrl_c_stops_the_sweep_commands_too(tmp_path: Path, command: list[str], trials: int) -> None:
     code, seconds, err = _interrupt(["--jobs", "2"], tmp_path, command=command)
