@@ -292,6 +292,11 @@ def test_logged_provider_options_never_hold_a_key(tmp_path: Path) -> None:
 
 
 # ------------------------------------------------------------------------------------------ full disk
+LIMITED_ENV = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "PYTHONDONTWRITEBYTECODE": "1"}
+"""No bytecode cache from a process under a file-size limit: Python writes ``.pyc`` files with one
+raw write, and a write cut short by the limit would leave a truncated one for every later import."""
+
+
 def _file_size_limit(limit: int) -> None:
     """In the child: files may grow to ``limit`` bytes, then a write fails with EFBIG (as ENOSPC
     on a full disk), not with the SIGXFSZ that would kill the process."""
@@ -307,8 +312,7 @@ def test_a_full_disk_while_logging_is_one_line_and_keeps_the_flushed_episodes(tm
     done = subprocess.run(
         [sys.executable, "-m", "lagrseq", "run", "cube-stacking", "--method", "lagr-seq", "--trials", "1",
          "--set", "run.episodes=100", "--out", str(out), "--quiet", "--jobs", jobs],
-        capture_output=True, text=True, timeout=300, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"},
-        preexec_fn=lambda: _file_size_limit(60_000),
+        capture_output=True, text=True, timeout=300, env=LIMITED_ENV, preexec_fn=lambda: _file_size_limit(60_000),
     )
     line = one_line(done)
     (partial,) = out.rglob("*.mcap.partial")
@@ -329,7 +333,7 @@ def test_a_full_disk_while_recovering_in_place_leaves_the_original_and_no_tempor
     cut.write_bytes(data)
     done = subprocess.run(
         [sys.executable, "-m", "lagrseq", "recover", str(cut)], capture_output=True, text=True, timeout=120,
-        env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"}, preexec_fn=lambda: _file_size_limit(len(data) // 2),
+        env=LIMITED_ENV, preexec_fn=lambda: _file_size_limit(len(data) // 2),
     )
     line = one_line(done)
     assert "cannot write the recovered log (File too large)" in line and f"{cut} was left as it was" in line
