@@ -208,3 +208,16 @@ def test_random_damage_through_the_commands_is_a_warning_or_one_line(
             assert len(err) == 1, (command, err)
         else:
             assert all(f"warning: {full_path(path)}" in line for line in err), (command, err)
+
+
+def test_frontier_replay_of_only_damaged_logs_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """As replay: nothing to draw is an error naming each log left out, not an empty report."""
+    runs = tmp_path / "my runs"
+    runs.mkdir()
+    cut = runs / "trial 0.mcap"
+    cut.write_bytes(DATA[:-1])
+    code = main(["frontier", "--replay", str(runs), "--out", str(tmp_path / "frontier")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert err[0].startswith(f"lagrseq frontier: error: no complete lagrseq trial logs under {runs} ({cut}: damaged MCAP log")
+    assert f"`lagrseq recover '{cut}'`" in err[0]
