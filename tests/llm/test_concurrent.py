@@ -181,3 +181,32 @@ def test_one_ctrl_c_stops_a_concurrent_recording_at_once_keeping_every_answer_re
     server.responder = counted
     assert record(server, store, "--samples", "3", "--concurrency", "4") == 0
     assert again == stored(store) - kept, "the second run asks only for what the first did not keep"
+
+
+def test_a_ctrl_c_while_answers_are_stored_waits_for_the_transaction(
+    tmp_path: Path, server: FakeOpenAI, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """SIGINT arriving as a batch of answers is written: the batch is committed first, then the
+    recording stops (130). Cut inside the transaction, the connection stayed in it and the
+    store's next write retried its BEGIN for ever (a hang after Ctrl-C)."""
+    import os
+    import signal
+
+    real = RecordStore.add_many
+    batches: list[int] = []
+
+    def interrupted(self: RecordStore, groups: Any, checked: bool = False) -> int:
+        if not batches:
+            os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C as the first batch starts to be written
+        batches.append(sum(len(group[2]) for group in groups.values()))
+        return real(self, groups, checked)
+
+    monkeypatch.setattr(RecordStore, "add_many", interrupted)
+    handler = signal.getsignal(signal.SIGINT)
+    try:
+        code = record(server, tmp_path / "s", "--samples", "3", "--concurrency", "4")
+    finally:
+        signal.signal(signal.SIGINT, handler)  # main() leaves "exit at the next Ctrl-C" installed
+    monkeypatch.undo()
+    assert code == 130
+    assert batches and stored(tmp_path / "s") == sum(batches) > 0, "the batch being written when Ctrl-C came is kept"
