@@ -94,15 +94,21 @@ def run_audit(
     with tqdm(total=len(runs) * trials, unit="trial", disable=quiet, file=sys.stderr, dynamic_ncols=True) as bar:
         sweep = [runner.SweepRun(r.config, trials, seed, r.provider, r.path, progress=runner.TrialCount(bar, r.config)) for r in runs]
         runner.run_sweep(sweep, jobs)  # every run's trials in one pool: no worker waits on a run's last trial
-    return write_audit([runs_dir], reports, formats, task)
+    return write_audit([runs_dir], reports, formats, task, warn=lambda line: print(f"lagrseq audit: warning: {line}", file=sys.stderr))
 
 
-def write_audit(roots: list[Path], reports: Path, formats: list[str], task: str | None = None) -> list[Any]:
-    """Build the audits from the logs under ``roots`` and write table (Markdown, CSV) and figure."""
+def write_audit(
+    roots: list[Path], reports: Path, formats: list[str], task: str | None = None, warn: Callable[[str], None] | None = None
+) -> list[Any]:
+    """Build the audits from the logs under ``roots`` and write table (Markdown, CSV) and figure;
+    ``warn`` is told about each log left out (damaged, unfinished: one line naming its full path)."""
     from lagrseq.analysis import audit, loading
     from lagrseq.analysis.tables import to_csv, to_markdown
 
     logs = loading.load(roots)
+    for warning in logs.warnings:
+        if warn is not None:
+            warn(warning)
     made = [a for a in audit.build(logs.runs) if task is None or a.task == task]
     for a in made:
         stem = reports / f"audit-{a.task}"

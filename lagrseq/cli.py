@@ -848,6 +848,7 @@ INTERRUPTED = {
     "record": "answers recorded so far are kept in the store; run the same command to go on",
     "reproduce": "finished trial logs are kept, unfinished ones left as .partial; run the same command to go on",
     "frontier": "finished trial logs are kept, unfinished ones left as .partial; run the same command to go on",
+    "audit": "finished trial logs are kept, unfinished ones left as .partial; run the same command to go on",
     "serve-llm": "the server is stopped",
 }
 

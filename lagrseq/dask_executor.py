@@ -40,7 +40,7 @@ from typing import Any
 import distributed
 
 from lagrseq.errors import UsageError
-from lagrseq.executors import TrialExecutor, TrialJob
+from lagrseq.executors import TrialExecutor, TrialJob, quiet_resource_tracker
 
 WORKER_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
 
@@ -65,6 +65,24 @@ def _interrupts_ignored_by_children() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+def _wait_for_processes(count: int, timeout: float = 60.0) -> None:
+    """Until ``count`` worker processes of this process run (they then ignore SIGINT for good,
+    so this process need ignore it no longer: a Ctrl-C while the workers import and register
+    stops the run at once instead of being lost)."""
+    import psutil  # a dependency of distributed
+
+    me = psutil.Process()
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        started = 0
+        for child in me.children():
+            with contextlib.suppress(psutil.Error):
+                started += any("spawn_main" in part for part in child.cmdline())
+        if started >= count:
+            return
+        time.sleep(0.01)
 
 
 class ExitWithParent(distributed.WorkerPlugin):
@@ -97,9 +115,11 @@ class DaskExecutor(TrialExecutor):
         self.submitted: list[Any] = []
         if scheduler is None:
             dashboard = importlib.util.find_spec("bokeh") is not None
-            with _interrupts_ignored_by_children():
+            quiet_resource_tracker()
+            try:
+                # the scheduler alone first (no process: a Ctrl-C meanwhile stops lagrseq at once)
                 self.cluster = distributed.LocalCluster(
-                    n_workers=jobs,
+                    n_workers=0,
                     threads_per_worker=1,
                     processes=True,
                     host="127.0.0.1",
@@ -108,7 +128,14 @@ class DaskExecutor(TrialExecutor):
                     silence_logs=logging.CRITICAL,  # a failed trial is reported once, by the runner
                     env=WORKER_ENV,
                 )
-            self.client = distributed.Client(self.cluster)
+                with _interrupts_ignored_by_children():  # only until the worker processes exist
+                    self.cluster.scale(jobs)
+                    _wait_for_processes(jobs)
+                self.client = distributed.Client(self.cluster)
+                self.client.wait_for_workers(jobs, timeout=120)
+            except KeyboardInterrupt:  # Ctrl-C while the workers start: stop what was started
+                self.close(wait=False)
+                raise
             self.client.register_plugin(ExitWithParent())
             self.workers = jobs
             if dashboard:

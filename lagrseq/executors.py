@@ -22,6 +22,7 @@ import hashlib
 import multiprocessing
 import os
 import signal
+import sys
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
@@ -118,6 +119,20 @@ def exit_on_next_interrupt() -> None:
         signal.signal(signal.SIGINT, lambda *_: os._exit(130))
 
 
+TRACKER_QUIET = "ignore:resource_tracker:UserWarning"
+"""A warnings filter for multiprocessing's resource tracker (see :func:`quiet_resource_tracker`)."""
+
+
+def quiet_resource_tracker() -> None:
+    """After a Ctrl-C the process leaves at once (``os._exit``), without releasing its pool's
+    semaphores; the resource tracker, a helper process, then releases them and would add
+    ``UserWarning: resource_tracker: There appear to be N leaked semaphore objects`` (two lines)
+    to stderr after the one interrupt line. The tracker gets this process's ``-W`` options when
+    it starts, so the filter is added before the first pool makes it start."""
+    if TRACKER_QUIET not in sys.warnoptions:
+        sys.warnoptions.append(TRACKER_QUIET)
+
+
 def stop_pool(pool: ProcessPoolExecutor) -> None:
     """Stop the worker processes now and cancel every trial not started: a running trial's
     ``.partial`` file keeps its flushed episodes (``lagrseq recover``). The workers are taken
@@ -140,6 +155,7 @@ class LocalExecutor(TrialExecutor):
 
     def __init__(self, jobs: int) -> None:
         self.workers = jobs
+        quiet_resource_tracker()
         self.pool = ProcessPoolExecutor(
             max_workers=jobs, mp_context=multiprocessing.get_context("spawn"), initializer=_ignore_interrupts
         )

@@ -67,6 +67,7 @@ def record_patterns(
     wanted = json.loads(json.dumps(asdict(config.task)))
     patterns: list[Any] = []
     seen: set[str] = set()
+    skipped: list[str] = []
     for path in find_logs(runs):
         try:
             logged_task = read_info(path).config.get("task", {})
@@ -85,9 +86,12 @@ def record_patterns(
                 except ValueError as exc:
                     raise UsageError(f"{path}: state {marker[:60]} does not fit the task: {exc}") from None
         except LogError as exc:
-            warn(f"{exc}; skipped")
-    if not patterns:
-        raise UsageError(f"no {topic} states in {', '.join(map(str, runs))}")
+            skipped.append(f"{exc}; skipped")
+    if not patterns:  # one line: why there is nothing to ask, with the first log left out
+        first = f" ({len(skipped)} log{'s' if len(skipped) != 1 else ''} skipped; first: {skipped[0]})" if skipped else ""
+        raise UsageError(f"no {topic} states in {', '.join(map(str, runs))}{first}")
+    for line in skipped:
+        warn(line)
     return patterns
 
 

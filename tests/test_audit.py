@@ -64,3 +64,23 @@ def test_every_audit_run_differs_from_its_preset_in_exactly_the_field_it_switche
     again = write_audit([tmp_path / "runs"], tmp_path, ["png"])
     assert (tmp_path / "audit-cube-stacking.md").read_text() == (tmp_path / "reports" / "audit-cube-stacking.md").read_text()
     assert len(again) == 1
+
+
+def test_write_audit_names_each_log_it_leaves_out(tmp_path: Path) -> None:
+    """A damaged log under the audit's runs is reported (full path, recover command), not
+    dropped in silence."""
+    import shutil
+
+    from lagrseq.audit import write_audit
+    from lagrseq.logs.reader import full_path
+
+    golden = Path(__file__).resolve().parent.parent / "fixtures" / "golden" / "cube-stacking-lagr-seq-upstream-4ep.mcap"
+    runs = tmp_path / "my runs"
+    runs.mkdir()
+    shutil.copy(golden, runs / "trial-000.mcap")
+    cut = runs / "trial-001.mcap"
+    cut.write_bytes(golden.read_bytes()[:-1])
+    warnings: list[str] = []
+    write_audit([runs], tmp_path, ["png"], warn=warnings.append)
+    (warning,) = warnings
+    assert warning.startswith(f"{full_path(cut)}: damaged MCAP log") and "lagrseq recover '" in warning

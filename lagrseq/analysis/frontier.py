@@ -33,6 +33,7 @@ from lagrseq.analysis import stats
 from lagrseq.analysis.figures import COLORS, STYLE
 from lagrseq.analysis.loading import Run, load
 from lagrseq.analysis.tables import Table, interval, number, to_csv, to_markdown
+from lagrseq.errors import LogError
 
 Price = Callable[[str, int, int], float | None]
 MISS_THRESHOLD = 0.1
@@ -437,6 +438,9 @@ def report(
 
     logs = load(roots)
     runs = [r for r in logs.runs if r.key.kind == "trial"]
+    if not runs:  # one line, as replay: every log left out is named in it
+        detail = f" ({'; '.join(logs.warnings)})" if logs.warnings else ""
+        raise LogError(f"no complete lagrseq trial logs under {', '.join(map(str, roots))}{detail}")
     panels: dict[tuple[str, str, str, int], list[Run]] = {}
     for run in runs:
         panels.setdefault(_panel_key(run), []).append(run)

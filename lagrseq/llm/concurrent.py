@@ -21,8 +21,12 @@ in flight is waited for and stored, then the error is raised.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import math
-from collections.abc import Callable, Sequence
+import os
+import signal
+import threading
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -43,6 +47,30 @@ class _Unit:
     n: int
     reserved: tuple[int, float] = (0, 0.0)
     """The budget ticket of the request in flight (answers asked, worst-case cost)."""
+
+
+@contextlib.contextmanager
+def _interrupt_after() -> Iterator[None]:
+    """A Ctrl-C in here takes effect when the block has ended: a store transaction is never cut
+    between its BEGIN and its end (a connection left inside a transaction made the next write
+    retry its BEGIN for ever). A second Ctrl-C meanwhile ends the process at once (130)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+
+    def later(*_: Any) -> None:
+        if caught:
+            os._exit(130)
+        caught.append(1)
+
+    previous = signal.signal(signal.SIGINT, later)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if caught:
+        raise KeyboardInterrupt
 
 
 def record_concurrently(
@@ -114,8 +142,9 @@ def record_concurrently(
                     stop = exc
                     break
                 flying[pool.submit(ask, unit)] = unit
-            answers += store(arrived)
-            arrived = []
+            with _interrupt_after():
+                answers += store(arrived)
+                arrived = []
             if not flying:
                 break
             done, _ = cf.wait(flying, timeout=poll_s, return_when=cf.FIRST_COMPLETED)
@@ -130,7 +159,8 @@ def record_concurrently(
                     stop = error
     finally:
         if arrived:  # interrupted between a request's end and its storing: keep what was paid for
-            store(arrived)
+            with _interrupt_after():
+                store(arrived)
         # on Ctrl-C nothing new starts; requests in flight end on their own deadline
         pool.shutdown(wait=not flying, cancel_futures=True)
     if stop is not None:

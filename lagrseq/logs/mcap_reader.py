@@ -60,6 +60,8 @@ _MESSAGE_HEAD = struct.Struct("<HIQQ")
 _FOOTER_LENGTH = 20
 _FOOTER_RECORD = 9 + _FOOTER_LENGTH
 _HEADER_MIN = 9 + 8  # a Header record with two empty strings
+_CHUNK_HEAD = struct.Struct("<BQQQQII")  # opcode, length, start, end, uncompressed size, crc, len(compression)
+_MAX_COMPRESSION_NAME = 64
 
 _RECORDS: dict[int, Any] = {
     Opcode.ATTACHMENT: Attachment,
@@ -330,6 +332,7 @@ class McapFile:
                 raise Damage(
                     index.chunk_start_offset, f"chunk index names unknown channels {sorted(unknown)}"
                 )
+            self._check_chunk_head(index)
         self._summary = summary
         return summary
 
@@ -362,6 +365,29 @@ class McapFile:
             raise Damage(where, f"chunk index: compressed size {index.compressed_size} is larger than the chunk ({index.chunk_length} bytes)")
         if index.uncompressed_size > MAX_CHUNK_BYTES:
             raise Damage(where, f"chunk index: uncompressed size {index.uncompressed_size} is over the {MAX_CHUNK_BYTES}-byte cap")
+
+    def _check_chunk_head(self, index: ChunkIndex) -> None:
+        """The fixed fields of the chunk ``index`` points at agree with the index (a few dozen
+        bytes read, nothing decompressed): a damaged length or size in any chunk is found by
+        every reader, also in chunks a reader never opens (replay skips the transitions)."""
+        at = index.chunk_start_offset
+        if index.chunk_length < _CHUNK_HEAD.size + 8:
+            raise Damage(at, f"chunk index: a chunk of {index.chunk_length} bytes is shorter than a chunk's fixed fields")
+        opcode, length, start, end, size, _crc, name_length = _CHUNK_HEAD.unpack(self.read(at, _CHUNK_HEAD.size, "chunk header"))
+        if opcode != Opcode.CHUNK:
+            raise Damage(at, f"expected a chunk record, found {opcode_name(opcode)}")
+        if length != index.chunk_length - 9:
+            raise Damage(at, f"chunk record says it is {length + 9} bytes, its index says {index.chunk_length}")
+        if name_length > _MAX_COMPRESSION_NAME or _CHUNK_HEAD.size + name_length + 8 > index.chunk_length:
+            raise Damage(at, f"chunk record: a compression name of {name_length} bytes runs past its fixed fields")
+        tail = self.read(at + _CHUNK_HEAD.size, name_length + 8, "chunk header")
+        data_length = struct.unpack_from("<Q", tail, name_length)[0]
+        if data_length != index.chunk_length - _CHUNK_HEAD.size - name_length - 8:
+            raise Damage(at, f"chunk record: its data of {data_length} bytes does not fill the {index.chunk_length}-byte chunk")
+        if (size, start, end) != (index.uncompressed_size, index.message_start_time, index.message_end_time):
+            raise Damage(at, "chunk record: its size or times differ from its index's")
+        if data_length != index.compressed_size or tail[:name_length] != index.compression.encode():
+            raise Damage(at, "chunk record: its compressed size or compression differs from its index's")
 
     # ------------------------------------------------------------------ content
     def metadata(self) -> list[Metadata]:

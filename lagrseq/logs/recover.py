@@ -34,6 +34,11 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - not on Windows: no lock to look at
+    fcntl = None  # type: ignore[assignment]
+
 from mcap.records import Channel, Chunk, DataEnd, Header, Message, Metadata, Schema
 from mcap.writer import CompressionType, Writer
 
@@ -269,7 +274,8 @@ def recover(path: str | Path, out: str | Path | None = None) -> Recovered:
     """
     source = Path(path)
     if not source.is_file():
-        raise LogError(f"{source}: no such file")
+        what = "a directory, not a log: give the .mcap or .mcap.partial files in it" if source.is_dir() else "no such file"
+        raise LogError(f"{source}: {what}")
     target = _target(source, out)
     in_place = target.absolute() == source.absolute()
     if not in_place and target.exists():
@@ -278,6 +284,7 @@ def recover(path: str | Path, out: str | Path | None = None) -> Recovered:
         else:
             advice = "recover never overwrites a log: give --out a new file name or another directory"
         raise LogError(f"{target} exists already; {advice}")
+    _check_not_being_written(source)
     try:
         plan = _plan(source)
     except _Cannot as exc:
@@ -299,6 +306,22 @@ def recover(path: str | Path, out: str | Path | None = None) -> Recovered:
     )
     _commit(source, target, data, backup)
     return Recovered(source, target, episodes, count, dropped, backup, plan.complete)
+
+
+def _check_not_being_written(source: Path) -> None:
+    """A ``.partial`` file that a running trial holds locked (:mod:`lagrseq.logs.sink`) is
+    refused: its writer would rename its own file over the recovered one when it finishes."""
+    if fcntl is None or not source.name.endswith(PARTIAL_SUFFIX):
+        return
+    try:
+        with source.open("rb") as handle:
+            fcntl.flock(handle.fileno(), fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        raise LogError(
+            f"{source} is being written by a running lagrseq trial; wait for it to end (or stop it), then recover"
+        ) from None
+    except OSError:
+        return  # unreadable: _plan says why
 
 
 def recover_all(paths: list[Path] | tuple[Path, ...], out: str | Path | None = None) -> list[Outcome]:

@@ -219,9 +219,23 @@ class McapSink:
         return self
 
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
-        if exc_type is None:
-            self.finish()
-        elif exc_type is KeyboardInterrupt:
+        if exc_type is KeyboardInterrupt:
             self.abandon()
-        else:
-            self.finish("failed", f"{exc_type.__name__}: {exc}")
+            return
+        try:
+            if exc_type is None:
+                self.finish()
+            else:
+                self.finish("failed", f"{exc_type.__name__}: {exc}")
+        except OSError as error:  # a full disk, a file-size limit: one line naming the file
+            raise self._cannot_write(error) from None
+        if isinstance(exc, OSError) and exc.filename is None:  # the trial's own write failed
+            raise self._cannot_write(exc) from None
+
+    def _cannot_write(self, error: OSError) -> LogError:
+        reason = error.strerror or type(error).__name__
+        return LogError(
+            f"{self.partial}: cannot write the log ({reason}); it keeps the episodes written before "
+            f"(`lagrseq recover` makes them a log) and no file named {self.path.name} was made: "
+            "free some space and run the same command again"
+        )

@@ -5,6 +5,7 @@ Ctrl-C, and one budget and one store shared by 4 workers. ``tox -e dask``; skipp
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -198,6 +199,38 @@ def test_ctrl_c_leaves_complete_logs_and_partials_that_recover_repairs(tmp_path:
     from lagrseq.logs.recover import recover
 
     assert read_info(recover(partials[0]).path).status["status"] == "recovered"
+
+
+def test_a_ctrl_c_while_the_workers_start_is_not_lost(tmp_path: Path) -> None:
+    """Once the worker processes exist (they import and register for a second or more), a
+    Ctrl-C stops lagrseq at once; it used to be ignored until the cluster was up, and the run
+    went on to its end."""
+    import psutil
+
+    process = _start(tmp_path, "--set", "run.episodes=3000")
+    try:
+        me = psutil.Process(process.pid)
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            with_spawn = 0
+            for child in me.children():
+                with contextlib.suppress(psutil.Error):
+                    with_spawn += any("spawn_main" in part for part in child.cmdline())
+            if with_spawn >= 2:
+                break
+            time.sleep(0.01)
+        time.sleep(0.2)  # lagrseq's own check of its children (every 10 ms); the workers import for longer
+        assert not list(tmp_path.rglob("*.partial")), "the workers started before the check"
+        started = time.monotonic()
+        os.killpg(process.pid, signal.SIGINT)
+        _, err = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+    assert process.returncode == 130, err
+    assert time.monotonic() - started < 20
+    assert err.strip().startswith("lagrseq run: interrupted;") and "\n" not in err.strip(), err
+    assert not list(tmp_path.rglob("trial-*.mcap"))
 
 
 # ------------------------------------------------------------------------ shared LLM state

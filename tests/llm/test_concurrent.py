@@ -124,3 +124,89 @@ def test_shared_backoff_waits_until_the_longest_hold() -> None:
     backoff.hold(0.5)  # a shorter hold does not shorten the pause
     backoff.wait()
     assert sum(slept) == pytest.approx(2.0) and backoff.holds == 2
+
+
+def test_one_ctrl_c_stops_a_concurrent_recording_at_once_keeping_every_answer_received(tmp_path: Path, server: FakeOpenAI) -> None:
+    """Ctrl-C (SIGINT to the process group, as a terminal sends it) with 4 requests in flight:
+    exit status 130 with one line, the answers that came back are in the store, and a second
+    run asks only for the rest."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    answered = 0
+    lock = threading.Lock()
+    answer = server.responder
+
+    def slow(prompt: str, temperature: float) -> str:
+        nonlocal answered
+        time.sleep(0.2)
+        with lock:
+            answered += 1
+        return answer(prompt, temperature)
+
+    server.responder = slow
+    root = Path(__file__).resolve().parents[2]
+    store = tmp_path / "s"
+    args = [sys.executable, "-m", "lagrseq", "record", "cube-stacking", "--model", "gpt-4o-mini", "--temperature", "1",
+            "--store", str(store), "--base-url", server.url, "--api-key-env", KEY_ENV, "--server", "ollama", "--quiet",
+            "--samples", "3", "--concurrency", "4"]
+    env = {"PYTHONPATH": str(root), "PATH": "/usr/bin:/bin", KEY_ENV: "sk-test-interrupt-0123456789"}
+    process = subprocess.Popen(
+        args, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while answered < 8 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        os.killpg(process.pid, signal.SIGINT)
+        _, err = process.communicate(timeout=30)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+    assert process.returncode == 130, err
+    assert err.strip().startswith("lagrseq record: interrupted; answers recorded so far are kept") and "\n" not in err.strip()
+    kept = stored(store)
+    assert answered - 4 <= kept <= answered  # at most the 4 in flight are lost
+    again = 0
+
+    def counted(prompt: str, temperature: float) -> str:
+        nonlocal again
+        with lock:
+            again += 1
+        return answer(prompt, temperature)
+
+    server.responder = counted
+    assert record(server, store, "--samples", "3", "--concurrency", "4") == 0
+    assert again == stored(store) - kept, "the second run asks only for what the first did not keep"
+
+
+def test_a_ctrl_c_while_answers_are_stored_waits_for_the_transaction(
+    tmp_path: Path, server: FakeOpenAI, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """SIGINT arriving as a batch of answers is written: the batch is committed first, then the
+    recording stops (130). Cut inside the transaction, the connection stayed in it and the
+    store's next write retried its BEGIN for ever (a hang after Ctrl-C)."""
+    import os
+    import signal
+
+    real = RecordStore.add_many
+    batches: list[int] = []
+
+    def interrupted(self: RecordStore, groups: Any, checked: bool = False) -> int:
+        if not batches:
+            os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C as the first batch starts to be written
+        batches.append(sum(len(group[2]) for group in groups.values()))
+        return real(self, groups, checked)
+
+    monkeypatch.setattr(RecordStore, "add_many", interrupted)
+    handler = signal.getsignal(signal.SIGINT)
+    try:
+        code = record(server, tmp_path / "s", "--samples", "3", "--concurrency", "4")
+    finally:
+        signal.signal(signal.SIGINT, handler)  # main() leaves "exit at the next Ctrl-C" installed
+    monkeypatch.undo()
+    assert code == 130
+    assert batches and stored(tmp_path / "s") == sum(batches) > 0, "the batch being written when Ctrl-C came is kept"

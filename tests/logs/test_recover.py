@@ -290,3 +290,52 @@ def test_an_unwritable_out_is_one_line(tmp_path: Path) -> None:
     with pytest.raises(LogError, match=r"x.mcap.recovering: cannot write the recovered log \(Not a directory\)"):
         recover(partial, below_a_file)
     assert partial.read_bytes() == GOLDEN.read_bytes()[:13000]
+
+
+def test_the_recover_command_reports_every_bad_file_and_repairs_the_others(tmp_path: Path) -> None:
+    """One line on stderr per file it cannot repair (a directory, junk, a log damaged inside), each
+    repairable one repaired in place (one byte short, bytes appended), exit status 2, and no
+    ``.recovering`` file left anywhere."""
+    data = GOLDEN.read_bytes()
+    folder = tmp_path / "my logs"
+    folder.mkdir()
+    junk = folder / "junk.mcap"
+    junk.write_bytes(b"\x89MCAP0\r\n" + b"\xff" * 50)
+    short = folder / "short.mcap"
+    short.write_bytes(data[:-1])
+    tail = folder / "tail.mcap"
+    tail.write_bytes(data + b"\x07garbage that replay rejects")
+    flipped = bytearray(data)
+    flipped[4000] ^= 0xFF  # inside a chunk of a finished file: corruption, not a cut-off
+    inside = folder / "inside.mcap"
+    inside.write_bytes(bytes(flipped))
+    sub = folder / "sub.mcap"
+    sub.mkdir()
+    result = _cli("recover", str(junk), str(short), str(sub), str(tail), str(inside))
+    assert result.returncode == 2
+    errors = result.stderr.strip().splitlines()
+    assert len(errors) == 3 and "Traceback" not in result.stderr
+    assert errors[0].startswith(f"lagrseq recover: error: {junk}: not an MCAP file")
+    assert errors[1] == f"lagrseq recover: error: {sub}: a directory, not a log: give the .mcap or .mcap.partial files in it"
+    assert errors[2].startswith(f"lagrseq recover: error: {inside}: corrupt at byte") and "cannot repair it" in errors[2]
+    said = result.stdout.strip().splitlines()
+    assert len(said) == 2 and said[0].startswith(f"recovered {short} -> {short}") and said[1].startswith(f"recovered {tail}")
+    assert read_info(short).complete and read_info(tail).complete
+    assert inside.read_bytes() == bytes(flipped)
+    assert not list(tmp_path.rglob("*.recovering"))
+
+
+def test_a_partial_file_still_being_written_is_refused(tmp_path: Path) -> None:
+    """A running trial holds its ``.partial`` locked; recovering it then would race the writer's
+    own rename, so recover says to wait, and writes nothing."""
+    from lagrseq.logs.sink import McapSink
+
+    path = tmp_path / "trial-000.mcap"
+    sink = McapSink(path, {"config": "{}"})
+    try:
+        sink.flush()
+        with pytest.raises(LogError, match=r"trial-000.mcap.partial is being written by a running lagrseq trial; wait"):
+            recover(sink.partial)
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["trial-000.mcap.partial"]
+    finally:
+        sink.abandon()
