@@ -48,6 +48,9 @@ def _number_types() -> dict[str, Callable[[str], Any]]:
         "threads": cfg.number_type("threads", integer=True, ge=0, le=1024),
         "port": cfg.number_type("port", integer=True, ge=0, le=65535),
         "concurrency": cfg.number_type("requests", integer=True, ge=1, le=256),
+        "share": cfg.number_type("share", ge=0, le=1),
+        "episodes": cfg.number_type("episodes", integer=True, ge=0, le=10**7),
+        "steps": cfg.number_type("steps", integer=True, ge=-1, le=10**9),
     }
 
 
@@ -121,8 +124,10 @@ def _executor_options() -> argparse.ArgumentParser:
 def _make_executor(args: argparse.Namespace, start: bool = True) -> Any:
     """The executor of ``--executor``/``--scheduler`` (None: the runner's own process pool, or
     nothing to ``start``)."""
-    from lagrseq.executors import make_executor
+    from lagrseq.executors import check_scheduler, make_executor
 
+    if args.scheduler is not None:
+        check_scheduler(args.scheduler)
     if args.executor == "local" or not start:
         if args.scheduler is not None and args.executor != "dask":
             from lagrseq.errors import UsageError
@@ -156,8 +161,10 @@ def _report_options() -> argparse.ArgumentParser:
 
 
 def _provider_options(args: argparse.Namespace) -> Any:
-    from lagrseq.wiring import ProviderOptions
+    from lagrseq.wiring import ProviderOptions, load_prices
 
+    if args.price_table is not None:  # read now, whatever the provider: a bad file is one line before anything runs
+        load_prices(args.price_table)
     return ProviderOptions(
         base_url=args.base_url,
         api_key_env=args.api_key_env,
@@ -291,7 +298,7 @@ def _add_frontier(sub: Any) -> None:
     p.add_argument("--jobs", type=_COUNT, default=os.cpu_count() or 1, help="trials run in parallel processes, every policy's trials in one pool (default: the number of cores)")
     p.add_argument("--out", type=Path, default=Path("frontier"), help="runs go to OUT/<task>/<method>/..., the report to OUT/frontier (default: frontier)")
     p.add_argument("--replay", type=Path, default=None, metavar="DIR", help="rebuild the report from the logs under DIR (writes to --out) and run nothing")
-    p.add_argument("--miss-threshold", type=_N["budget"], default=0.1, metavar="F", help="mark points whose share of fallback answers exceeds F (default 0.1)")
+    p.add_argument("--miss-threshold", type=_N["share"], default=0.1, metavar="F", help="mark points whose share of fallback answers exceeds F, 0 to 1 (default 0.1)")
 
 
 def _add_config(sub: Any) -> None:
@@ -481,8 +488,8 @@ def _add_audit(sub: Any) -> None:
     _task_argument(p)
     p.add_argument("--provider", default="mock", metavar="SPEC", help="provider of the lagr and lagr-seq runs (default mock; the baseline never asks)")
     p.add_argument("--trials", type=_COUNT, default=5, help="trials per run (default 5)")
-    p.add_argument("--episodes", type=int, default=0, help="episodes per trial (default 0: the preset's)")
-    p.add_argument("--max-steps", type=int, default=-1, help="step budget per trial (default -1: the preset's)")
+    p.add_argument("--episodes", type=_N["episodes"], default=0, help="episodes per trial (default 0: the preset's)")
+    p.add_argument("--max-steps", type=_N["steps"], default=-1, help="step budget per trial (default -1: the preset's)")
     p.add_argument("--out", type=Path, default=Path("audit"), metavar="DIR", help="writes DIR/runs and DIR/reports (default: ./audit)")
     p.add_argument("--jobs", type=_COUNT, default=os.cpu_count() or 1, help="trials run in parallel (default: the number of cores)")
     p.add_argument("--seed", type=_SEED, default=0, help="run seed (default 0)")
@@ -558,6 +565,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from lagrseq import runner
 
     options = _provider_options(args)
+    _make_executor(args, start=False)  # --executor/--scheduler checked before anything is made
     config, directory = runner.prepare(
         args.task, args.method, args.preset, args.config, args.overrides,
         args.provider, options, args.out, args.seed, args.name,
@@ -715,7 +723,12 @@ def cmd_frontier(args: argparse.Namespace) -> int:
 
     started = time.perf_counter()
     price = _price_function(args.price_table)
+    variants = frontier.parse_policies(args.policies)  # checked with --replay too: nothing is ignored unseen
+    for sweep in args.sweep:
+        variants += [v for v in frontier.parse_sweep(sweep) if v not in variants]
     if args.replay is not None:
+        if args.task is not None:
+            raise UsageError(f"--replay rebuilds the report from the logs under {args.replay}; give no TASK with it")
         if not args.replay.is_dir():
             raise UsageError(f"--replay {args.replay}: not a directory of run logs")
         out = writable_directory(args.out)
@@ -723,10 +736,7 @@ def cmd_frontier(args: argparse.Namespace) -> int:
     else:
         if args.task is None:
             raise UsageError("frontier needs a TASK (or --replay DIR)")
-        variants = frontier.parse_policies(args.policies)
-        for sweep in args.sweep:
-            variants += [v for v in frontier.parse_sweep(sweep) if v not in variants]
-        base = writable_directory(args.out)
+        base = args.out  # made by run_frontier once every configuration is checked
         options = _provider_options(args)
         directories = frontier.run_frontier(
             args.task, variants, args.provider, options, base, args.trials, args.seed, args.preset, args.config,
@@ -748,7 +758,7 @@ def cmd_frontier(args: argparse.Namespace) -> int:
 def cmd_reproduce(args: argparse.Namespace) -> int:
     from lagrseq import reproduce
 
-    items = [i.strip() for i in args.items.split(",") if i.strip()] if args.items else None
+    items = [i.strip() for i in args.items.split(",") if i.strip()] if args.items is not None else None
     report, elapsed = reproduce.reproduce(
         args.suite, items, args.quick, args.provider, args.out, args.jobs, args.seed,
         args.formats, _price_function(args.price_table), quiet=args.quiet, say=lambda line: print(line, flush=True),

@@ -109,13 +109,25 @@ def provider_slug(spec: str) -> str:
     return "".join(ch if ch.isalnum() or ch in "-_." else "-" for ch in spec)
 
 
+MAX_NAME_BYTES = 200
+"""Longest ``--name`` (file systems allow 255 bytes a component; a margin for suffixes)."""
+
+
 def check_name(name: str) -> str:
     """A run directory name given with ``--name``: one path component, inside ``--out``."""
-    if not name or name in (".", "..") or any(ch in name for ch in "/\\\0") or Path(name).is_absolute():
+    if (
+        not name.strip()
+        or name != name.strip()
+        or name in (".", "..")
+        or any(ch in name for ch in "/\\") or any(ord(ch) < 32 or ord(ch) == 127 for ch in name)
+        or Path(name).is_absolute()
+    ):
         raise UsageError(
-            f"--name {name!r} is not a plain directory name; give one name without '/', '\\', '..' "
-            "(the run directory is always OUT/<task>/<method>/NAME)"
+            f"--name {name!r} is not a plain directory name; give one name without '/', '\\', '..', "
+            "control characters or surrounding spaces (the run directory is always OUT/<task>/<method>/NAME)"
         )
+    if len(name.encode("utf-8", "surrogatepass")) > MAX_NAME_BYTES:
+        raise UsageError(f"--name is {len(name.encode('utf-8', 'surrogateescape'))} bytes long; give a name of at most {MAX_NAME_BYTES} bytes")
     return name
 
 
