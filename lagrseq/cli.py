@@ -605,9 +605,11 @@ def cmd_record(args: argparse.Namespace) -> int:
     config = recording.record_config(args.task, args.preset, args.config, args.overrides, model, args.temperature)
     patterns = recording.record_patterns(config, args.from_runs or (), args.states_from, warn=_warn("record"))
     queries = recording.queries_for(config, patterns)
+    options = _provider_options(args)
+    recording.check_record(args.store, args.mode, options, args.provider)
     desc = f"record {args.task} {config.llm.model} t={config.llm.temperature:g}"
     with _bar(len(queries), "prompt", desc, args.quiet or args.mode == "none") as bar:
-        report = recording.record(queries, args.store, args.samples, args.mode, _provider_options(args), bar, args.provider, args.concurrency)
+        report = recording.record(queries, args.store, args.samples, args.mode, options, bar, args.provider, args.concurrency)
     print(report.summary())
     if report.stopped is not None:
         raise report.stopped

@@ -163,6 +163,26 @@ def record(
         return _record(queries, store_path, samples, mode, local, bar, _local_endpoint(), concurrency, settings.model_name)
 
 
+def check_record(store_path: Path, mode: str, options: ProviderOptions, provider: str = "live") -> None:
+    """What ``record`` needs, checked before its progress bar is drawn (one line, nothing asked):
+    the provider (a live server's key and URL, a local model file) and, unless mode ``none``, a
+    store that can be written (a read-only store, or one below a file, fails here)."""
+    from lagrseq.llm.store import RecordStore
+    from lagrseq.wiring import local_settings, parse_provider
+
+    spec = parse_provider(provider)
+    if spec.kind not in ("live", "local"):
+        raise UsageError(f"lagrseq record asks a live or local model, not {provider!r}; expected live or local[:MODEL.gguf]")
+    if mode == "none":
+        return
+    if spec.kind == "live":
+        make_live(options, np.random.default_rng(0)).close()
+    else:
+        local_settings(spec.argument, options)
+    with RecordStore(store_path) as store:
+        store.writer()
+
+
 def _local_endpoint() -> str:
     from lagrseq.llm.local import LOCAL_ENDPOINT
 

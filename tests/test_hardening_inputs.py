@@ -384,3 +384,30 @@ def test_jsonl_export_of_a_read_store_keeps_json_lines(tmp_path: Path) -> None:
     rows = [json.loads(x) for x in (tmp_path / "x.jsonl").read_text().splitlines()]
     assert len(rows) == len(RECORDED.read_text().splitlines())
     shutil.rmtree(store)
+
+
+# ----------------------------------------------------------------------------- record, --base-url
+def test_record_checks_key_url_model_and_store_before_its_progress_bar(tmp_path: Path, read_only_store: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    a_file = tmp_path / "file"
+    a_file.write_text("keep me")
+    head = ["record", "cube-stacking", "--mode", "new"]  # no --quiet: a bar drawn first would be a second line
+    monkeypatch.delenv("OPENAI_API_KEY", raising=False)
+    assert "OPENAI_API_KEY is not set" in refused(*head, "--store", str(tmp_path / "s"))
+    assert "local model" in refused(*head, "--store", str(tmp_path / "s"), "--provider", f"local:{tmp_path / 'none.gguf'}")
+    monkeypatch.setenv("OPENAI_API_KEY", "sk-test-not-a-key")
+    assert "http:// or https://" in refused(*head, "--store", str(tmp_path / "s"), "--base-url", "ftp://127.0.0.1")
+    assert "is not a URL" in refused(*head, "--store", str(tmp_path / "s"), "--base-url", "http://[::1")
+    assert str(a_file / "x") in refused(*head, "--store", str(a_file / "x"))
+    assert "/proc/lagrseq-x" in refused(*head, "--store", "/proc/lagrseq-x")
+    assert "read-only" in refused(*head, "--store", str(read_only_store))
+    assert a_file.read_text() == "keep me"
+
+
+@pytest.mark.parametrize("url", ["http://[bad", "http://[::1", "ftp://127.0.0.1/v1", "127.0.0.1:8080", "http://127.0.0.1:99999/v1", "http://", "http://a b/v1"])
+@pytest.mark.parametrize("command", ["run", "frontier"])
+def test_a_bad_base_url_is_one_line_before_any_trial(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, url: str, command: str) -> None:
+    monkeypatch.setenv("OPENAI_API_KEY", "sk-test-not-a-key")
+    extra = ["--policies", "always", "--jobs", "1"] if command == "frontier" else []
+    error = refused(command, "cube-stacking", "--provider", "live", "--base-url", url, "--trials", "1", "--out", str(tmp_path / "o"), *SMALL, *extra)
+    assert "URL" in error or "base URL" in error, error
+    assert not list(tmp_path.rglob("*.mcap*"))
