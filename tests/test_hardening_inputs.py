@@ -101,6 +101,25 @@ def test_a_reused_name_under_another_configuration_is_refused_for_each_differenc
     assert status == 0 and "2 already complete, skipped" in out
 
 
+def test_an_unfinished_log_of_another_configuration_is_not_overwritten_by_a_reused_name(tmp_path: Path) -> None:
+    """A crash leaves trial-000.mcap.partial (recoverable episodes); a rerun under the same
+    --name with another configuration must refuse rather than overwrite it. The same
+    configuration reruns the trial, as resume does."""
+    base = ["run", "cube-stacking", "--method", "lagr-seq", "--trials", "1", "--out", str(tmp_path), "--name", "mine", "--quiet"]
+    assert cli(*base, "--set", "run.episodes=20")[0] == 0
+    log = next(tmp_path.rglob("trial-000.mcap"))
+    data = log.read_bytes()
+    partial = log.with_name(log.name + ".partial")
+    partial.write_bytes(data[: len(data) * 2 // 3])  # cut short by a crash, its first episodes flushed
+    log.unlink()
+    before = files_under(tmp_path)
+    error = refused(*base, "--set", "run.episodes=3")
+    assert str(partial) in error and "run.episodes: 20 -> 3" in error and "unfinished" in error
+    assert files_under(tmp_path) == before
+    assert cli(*base, "--set", "run.episodes=20")[0] == 0
+    assert not partial.exists() and log.read_bytes() == data
+
+
 # ----------------------------------------------------------------------------- items 6 and 10
 @pytest.mark.parametrize(
     ("args", "message"),
