@@ -566,6 +566,13 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     options = _provider_options(args)
     _make_executor(args, start=False)  # --executor/--scheduler checked before anything is made
+    if args.render is not None:
+        from lagrseq.errors import UsageError
+        from lagrseq.paths import writable_directory
+
+        if args.task != "arm-arrangement":
+            raise UsageError(f"--render draws the arm of arm-arrangement only, not {args.task}; leave it out")
+        writable_directory(args.render, "--render")
     config, directory = runner.prepare(
         args.task, args.method, args.preset, args.config, args.overrides,
         args.provider, options, args.out, args.seed, args.name,

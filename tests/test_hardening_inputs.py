@@ -430,3 +430,28 @@ def test_a_bad_base_url_is_one_line_before_any_trial(tmp_path: Path, monkeypatch
     error = refused(command, "cube-stacking", "--provider", "live", "--base-url", url, "--trials", "1", "--out", str(tmp_path / "o"), *SMALL, *extra)
     assert "URL" in error or "base URL" in error, error
     assert not list(tmp_path.rglob("*.mcap*"))
+
+
+# ----------------------------------------------------------------------------- robot serve, --render
+@pytest.mark.parametrize("host", ["bad host", "", "10.255.255.1", "[::1", "a" * 300])
+def test_robot_serve_on_an_address_it_cannot_listen_on_is_one_line_before_the_simulator_starts(host: str) -> None:
+    error = refused("robot", "serve", "--sim", "--host", host, "--port", "0")
+    assert "cannot listen on" in error and "--host" in error
+
+
+def test_robot_serve_on_a_port_in_use_is_one_line() -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen(1)
+        port = taken.getsockname()[1]
+        assert f"cannot listen on 127.0.0.1:{port}" in refused("robot", "serve", "--sim", "--port", str(port))
+
+
+def test_render_is_checked_before_any_trial(tmp_path: Path) -> None:
+    a_file = tmp_path / "file"
+    a_file.write_text("keep me")
+    head = ["run", "--trials", "1", "--out", str(tmp_path / "r"), *SMALL]
+    assert "arm-arrangement only" in refused(head[0], "cube-stacking", *head[1:], "--render", str(tmp_path / "frames"))
+    for bad in (a_file, a_file / "below", Path("/proc/lagrseq-x")):
+        assert f"--render {bad}" in refused(head[0], "arm-arrangement", *head[1:], "--render", str(bad))
+    assert a_file.read_text() == "keep me" and not list(tmp_path.rglob("*.mcap*"))
