@@ -36,7 +36,9 @@ def _number_types() -> dict[str, Callable[[str], Any]]:
     from lagrseq import config as cfg
 
     return {
-        "count": cfg.positive_int,
+        "count": cfg.number_type("count", integer=True, ge=1, le=100_000),
+        "jobs": cfg.number_type("processes", integer=True, ge=1, le=1024),
+        "samples": cfg.number_type("answers", integer=True, ge=1, le=10_000),
         "seed": cfg.seed_int,
         "budget": cfg.nonneg_float,
         "limit": cfg.nonneg_int,
@@ -232,7 +234,7 @@ def _add_run(sub: Any) -> None:
     p.add_argument("--seed", type=_SEED, default=0, help="run seed, 0 <= S < 2**63; trial k uses a stream spawned from (seed, k) (default 0)")
     p.add_argument("--out", type=Path, default=Path("runs"), help="output directory (default: runs)")
     p.add_argument("--name", default=None, help="run directory name, one plain name (default: preset-provider-seed-digest)")
-    p.add_argument("--jobs", type=_COUNT, default=1, help="trials run in parallel processes, or workers of a local Dask cluster (default 1)")
+    p.add_argument("--jobs", type=_N["jobs"], default=1, help="trials run in parallel processes, or workers of a local Dask cluster (default 1)")
     p.add_argument("--on-miss", choices=ON_MISS, default="error", help="recorded:STORE only, a query the store has no answer for: error = stop with a message naming the nearest recorded keys (default); mock = answer it with the rule-based mock (not stored); live = ask the live server and record the answer into STORE")
     p.add_argument("--render", type=Path, default=None, metavar="DIR", help="arm-arrangement only: write PNG frames of every placement and an animated GIF of every episode to DIR/trial-NNN/ (headless; about 0.1 s a frame)")
 
@@ -295,7 +297,7 @@ def _add_frontier(sub: Any) -> None:
     p.add_argument("--on-miss", choices=ON_MISS, default="error", help="recorded:STORE only: what answers a query the store lacks (default: error)")
     p.add_argument("--trials", type=_COUNT, default=5, help="trials per policy (default 5)")
     p.add_argument("--seed", type=_SEED, default=0, help="run seed (default 0)")
-    p.add_argument("--jobs", type=_COUNT, default=os.cpu_count() or 1, help="trials run in parallel processes, every policy's trials in one pool (default: the number of cores)")
+    p.add_argument("--jobs", type=_N["jobs"], default=os.cpu_count() or 1, help="trials run in parallel processes, every policy's trials in one pool (default: the number of cores)")
     p.add_argument("--out", type=Path, default=Path("frontier"), help="runs go to OUT/<task>/<method>/..., the report to OUT/frontier (default: frontier)")
     p.add_argument("--replay", type=Path, default=None, metavar="DIR", help="rebuild the report from the logs under DIR (writes to --out) and run nothing")
     p.add_argument("--miss-threshold", type=_N["share"], default=0.1, metavar="F", help="mark points whose share of fallback answers exceeds F, 0 to 1 (default 0.1)")
@@ -343,7 +345,7 @@ def _add_record(sub: Any) -> None:
     p.add_argument("--store", type=Path, required=True, metavar="STORE", help="store directory (created if missing)")
     p.add_argument("--model", default=None, help="model to ask (default: the preset's llm.model)")
     p.add_argument("--temperature", type=_TEMPERATURE, default=None, metavar="T", help="sampling temperature, 0 to 2 (default: the preset's llm.temperature)")
-    p.add_argument("--samples", type=_COUNT, default=10, metavar="K", help="answers to keep per prompt (default 10, as the paper's authors recorded)")
+    p.add_argument("--samples", type=_N["samples"], default=10, metavar="K", help="answers to keep per prompt (default 10, as the paper's authors recorded)")
     p.add_argument("--mode", choices=RECORD_MODES, default="new", help="new: top every prompt up to K answers (default); once: record only into an empty store; none: ask nothing, report what is missing; all: ask K fresh answers for every prompt even if recorded")
     p.add_argument("--from-runs", nargs="+", default=None, metavar="RUN", help="MCAP logs or directories: ask from the states met there instead of the default prompt set (damaged logs are skipped with a warning)")
     p.add_argument("--states-from", choices=STATE_TOPICS, default="/query", help="with --from-runs: the states of /query records (where a query was decided, default) or of every /transition")
@@ -458,7 +460,7 @@ def _add_reproduce(sub: Any) -> None:
     p.add_argument("--quick", action="store_true", help="fewer trials, episodes and probe samples where it matters (each item's quick_* length)")
     p.add_argument("--out", type=Path, default=Path("."), metavar="DIR", help="writes DIR/runs and DIR/reports (default: .)")
     p.add_argument("--provider", default=None, metavar="SPEC", help="provider of the suite's default-provider runs (default: the suite's, mock)")
-    p.add_argument("--jobs", type=_COUNT, default=os.cpu_count() or 1, help="trials run in parallel (default: the number of cores)")
+    p.add_argument("--jobs", type=_N["jobs"], default=os.cpu_count() or 1, help="trials run in parallel (default: the number of cores)")
     p.add_argument("--seed", type=_SEED, default=None, help="run seed (default: the suite's, 0)")
     p.add_argument("--items", default=None, metavar="ID,ID", help="only these suite items (default: all)")
     p.add_argument(
@@ -491,7 +493,7 @@ def _add_audit(sub: Any) -> None:
     p.add_argument("--episodes", type=_N["episodes"], default=0, help="episodes per trial (default 0: the preset's)")
     p.add_argument("--max-steps", type=_N["steps"], default=-1, help="step budget per trial (default -1: the preset's)")
     p.add_argument("--out", type=Path, default=Path("audit"), metavar="DIR", help="writes DIR/runs and DIR/reports (default: ./audit)")
-    p.add_argument("--jobs", type=_COUNT, default=os.cpu_count() or 1, help="trials run in parallel (default: the number of cores)")
+    p.add_argument("--jobs", type=_N["jobs"], default=os.cpu_count() or 1, help="trials run in parallel (default: the number of cores)")
     p.add_argument("--seed", type=_SEED, default=0, help="run seed (default 0)")
 
 

@@ -455,3 +455,24 @@ def test_render_is_checked_before_any_trial(tmp_path: Path) -> None:
     for bad in (a_file, a_file / "below", Path("/proc/lagrseq-x")):
         assert f"--render {bad}" in refused(head[0], "arm-arrangement", *head[1:], "--render", str(bad))
     assert a_file.read_text() == "keep me" and not list(tmp_path.rglob("*.mcap*"))
+
+
+# ----------------------------------------------------------------------------- sizes and --set text
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["run", "cube-stacking", "--trials", "1000000000"], "argument --trials: expected an integer in [1, 100000]"),
+        (["run", "cube-stacking", "--jobs", "100000"], "argument --jobs: expected an integer in [1, 1024]"),
+        (["frontier", "cube-stacking", "--trials", str(10**9)], "argument --trials"),
+        (["audit", "cube-stacking", "--jobs", "5000"], "argument --jobs"),
+        (["reproduce", "--jobs", "5000"], "argument --jobs"),
+        (["record", "cube-stacking", "--store", "{tmp}/s", "--samples", "100000"], "argument --samples: expected an integer in [1, 10000]"),
+        (["config", "cube-stacking", "--set", "env.horizon=" + "9" * 5000], "--set env.horizon: the value cannot be read: a number of more than 4300 digits"),
+        (["config", "cube-stacking", "--set", "a" * 5000], "(5002 characters): expected section.field=value"),
+        (["config", "cube-stacking", "--set", "env." + "b" * 5000 + "=1"], "unknown field env."),
+    ],
+)
+def test_sizes_that_make_no_sense_and_huge_set_texts_are_one_short_line(tmp_path: Path, args: list[str], message: str) -> None:
+    error = refused(*[a.replace("{tmp}", str(tmp_path)) for a in args])
+    assert message in error and len(error) < 400, error
+    assert not list(tmp_path.iterdir())
