@@ -718,8 +718,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     started = time.perf_counter()
     suite = load_suite(args.suite)
+    price = _price_function(args.price_table)  # every input checked before OUT is made
     out = writable_directory(args.out)
-    report = replay(args.runs, out, args.formats, suite, provider=args.provider, price=_price_function(args.price_table))
+    report = replay(args.runs, out, args.formats, suite, provider=args.provider, price=price)
     _print_report(report, time.perf_counter() - started)
     return 0
 

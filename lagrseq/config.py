@@ -964,8 +964,7 @@ def parse_override(text: str) -> tuple[str, str, Any]:
     try:
         value = _toml_value(raw)
     except ValueError as exc:
-        reason = "a number of more than 4300 digits" if "digits" in str(exc) else str(exc)
-        raise ConfigError(f"--set {show_name(key.strip())}: the value cannot be read: {reason}") from None
+        raise ConfigError(f"--set {show_name(key.strip())}: the value cannot be read: {exc}") from None
     return parts[0], parts[1], value
 
 

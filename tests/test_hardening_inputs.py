@@ -290,7 +290,9 @@ def _bad_files(tmp_path: Path) -> dict[str, Path]:
     nested.write_text("a = " + "[" * 50_000 + "]" * 50_000 + "\n")
     tables = tmp_path / "tables.toml"
     tables.write_text("a = " + "{x = " * 3000 + "1" + "}" * 3000 + "\n")
-    return {"directory": tmp_path, "binary": binary, "nested": nested, "inline tables": tables, "missing": tmp_path / "none.toml"}
+    digits = tmp_path / "digits.toml"
+    digits.write_text("[env]\nhorizon = " + "9" * 5000 + "\n")
+    return {"directory": tmp_path, "binary": binary, "digits": digits, "nested": nested, "inline tables": tables, "missing": tmp_path / "none.toml"}
 
 
 @pytest.mark.parametrize("option", ["--price-table", "--config"])
@@ -467,7 +469,7 @@ def test_render_is_checked_before_any_trial(tmp_path: Path) -> None:
         (["audit", "cube-stacking", "--jobs", "5000"], "argument --jobs"),
         (["reproduce", "--jobs", "5000"], "argument --jobs"),
         (["record", "cube-stacking", "--store", "{tmp}/s", "--samples", "100000"], "argument --samples: expected an integer in [1, 10000]"),
-        (["config", "cube-stacking", "--set", "env.horizon=" + "9" * 5000], "--set env.horizon: the value cannot be read: a number of more than 4300 digits"),
+        (["config", "cube-stacking", "--set", "env.horizon=" + "9" * 5000], "--set env.horizon: the value cannot be read: it holds an integer of more than 4300 digits"),
         (["config", "cube-stacking", "--set", "a" * 5000], "(5002 characters): expected section.field=value"),
         (["config", "cube-stacking", "--set", "env." + "b" * 5000 + "=1"], "unknown field env."),
     ],
@@ -476,3 +478,12 @@ def test_sizes_that_make_no_sense_and_huge_set_texts_are_one_short_line(tmp_path
     error = refused(*[a.replace("{tmp}", str(tmp_path)) for a in args])
     assert message in error and len(error) < 400, error
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("option", ["--suite", "--price-table"])
+def test_replay_and_reproduce_refuse_every_bad_toml_file_in_one_line(tmp_path: Path, option: str) -> None:
+    golden = str(ROOT / "fixtures" / "golden")
+    for what, path in _bad_files(tmp_path).items():
+        assert str(path) in refused("replay", golden, "--out", str(tmp_path / "rep"), option, str(path)), what
+        assert str(path) in refused("reproduce", "--quick", "--items", "table2", "--out", str(tmp_path / "rp"), option, str(path)), what
+    assert not (tmp_path / "rep").exists() and not list(tmp_path.rglob("*.mcap*"))
