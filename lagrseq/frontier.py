@@ -53,7 +53,7 @@ def _item(text: str) -> tuple[str, list[tuple[str, str]]]:
     name, *parts = text.strip().split(":")
     if name not in NAMES:
         raise UsageError(f"policy {name!r} in {text!r}; expected one of {', '.join(NAMES)} (optionally NAME:FIELD=VALUE)")
-    knobs = []
+    knobs: list[tuple[str, str]] = []
     for part in parts:
         field, sep, value = part.partition("=")
         if not sep or field not in KNOBS or not value:

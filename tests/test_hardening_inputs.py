@@ -93,6 +93,7 @@ def test_a_reused_name_under_another_configuration_is_refused_for_each_differenc
         (["--set", "secondary.query_cost=0.5"], "secondary.query_cost: 0.0 -> 0.5"),
         (["--provider", "mock:authors-t0"], 'provider: "mock" -> "mock:authors-t0"'),
         (["--preset", "paper"], "env.horizon: 50 -> 100"),
+        (["--set", "run.episodes=3", "--executor", "dask", "--jobs", "1"], "run.episodes: 2 -> 3"),  # refused before a cluster starts
     ]:
         error = refused(*base, *extra)
         assert "made by another run" in error and shown in error, error
