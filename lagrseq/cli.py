@@ -612,6 +612,8 @@ def cmd_record(args: argparse.Namespace) -> int:
 
         model = model_name(args.provider.partition(":")[2])
     config = recording.record_config(args.task, args.preset, args.config, args.overrides, model, args.temperature)
+    if args.states_from != "/query" and not args.from_runs:
+        raise LagrseqError(f"--states-from {args.states_from} picks states of the logs of --from-runs; give --from-runs RUN, or leave --states-from out")
     patterns = recording.record_patterns(config, args.from_runs or (), args.states_from, warn=_warn("record"))
     queries = recording.queries_for(config, patterns)
     options = _provider_options(args)

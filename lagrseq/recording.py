@@ -294,6 +294,17 @@ def import_answers(
     if not file.is_file():
         raise UsageError(f"{file}: no such file")
     if fmt == "jsonl":
+        from lagrseq.llm.servers import DEFAULT_BASE_URL
+
+        given = [flag for flag, value in (("--task", task), ("--model", model), ("--temperature", temperature), ("--max-tokens", max_tokens)) if value is not None]
+        given += ["--base-url"] if base_url != DEFAULT_BASE_URL else []
+        given += ["--config"] if config_file is not None else []
+        given += ["--set"] if overrides else []
+        if given:
+            raise UsageError(
+                f"{' and '.join(given)} describe{'s' if len(given) == 1 else ''} the answers of a pickle; "
+                f"a JSONL export holds each answer's own request: leave {'it' if len(given) == 1 else 'them'} out (or give --format pkl for a pickle)"
+            )
         # The whole file is checked before the store is created or written.
         lines = import_jsonl_file(file, store_path, file.name, warn=warn)
         return f"{file}: {lines.lines} answers under {lines.keys} keys; {lines.added} added, {lines.already_present} already in {store_path}"

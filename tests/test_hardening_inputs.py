@@ -488,3 +488,24 @@ def test_replay_and_reproduce_refuse_every_bad_toml_file_in_one_line(tmp_path: P
         assert str(path) in refused("replay", golden, "--out", str(tmp_path / "rep"), option, str(path)), what
         assert str(path) in refused("reproduce", "--quick", "--items", "table2", "--out", str(tmp_path / "rp"), option, str(path)), what
     assert not (tmp_path / "rep").exists() and not list(tmp_path.rglob("*.mcap*"))
+
+
+# ----------------------------------------------------------------------------- item 14: combinations
+@pytest.mark.parametrize(
+    ("extra", "named"),
+    [
+        (["--model", "gpt-4", "--temperature", "1"], "--model and --temperature"),
+        (["--task", "cube-stacking"], "--task"),
+        (["--max-tokens", "64"], "--max-tokens"),
+        (["--base-url", "http://127.0.0.1:8080/v1"], "--base-url"),
+        (["--set", "task.stack_size=11"], "--set"),
+    ],
+)
+def test_pickle_only_options_with_a_jsonl_import_are_refused_before_the_store_is_made(tmp_path: Path, extra: list[str], named: str) -> None:
+    error = refused("cache", "import", str(RECORDED), "--store", str(tmp_path / "s"), *extra)
+    assert error.startswith(f"lagrseq cache: error: {named} describe") and "--format pkl" in error
+    assert not (tmp_path / "s").exists()
+
+
+def test_states_from_without_from_runs_is_refused(tmp_path: Path) -> None:
+    assert "give --from-runs" in refused("record", "cube-stacking", "--store", str(tmp_path / "s"), "--states-from", "/transition", "--mode", "none")
