@@ -509,3 +509,21 @@ def test_pickle_only_options_with_a_jsonl_import_are_refused_before_the_store_is
 
 def test_states_from_without_from_runs_is_refused(tmp_path: Path) -> None:
     assert "give --from-runs" in refused("record", "cube-stacking", "--store", str(tmp_path / "s"), "--states-from", "/transition", "--mode", "none")
+
+
+def test_authors_caches_that_are_a_file_or_a_folder_of_garbage_are_one_line_and_run_nothing(tmp_path: Path) -> None:
+    import pickle
+
+    garbage = tmp_path / "garbage"
+    (garbage / "sub").mkdir(parents=True)
+    (garbage / "cache0.0.pkl").write_bytes(b"\x80\x04" + os.urandom(64))
+    (garbage / "x.pkl").write_bytes(pickle.dumps([("k", os.getcwd)]))  # references a function: never loaded
+    (garbage / "sub" / "loop").symlink_to(garbage)
+    os.mkfifo(garbage / "fifo.pkl")  # opening it would block for ever
+    (garbage / "zero.pkl").symlink_to("/dev/zero")
+    a_file = tmp_path / "file.pkl"
+    a_file.write_bytes(b"not a pickle")
+    for caches in (a_file, garbage, tmp_path / "missing"):
+        error = refused("reproduce", "--quick", "--items", "table2", "--out", str(tmp_path / "out"), "--quiet", "--authors-caches", str(caches))
+        assert f"--authors-caches {caches}" in error
+    assert not list(tmp_path.rglob("*.mcap*"))
