@@ -355,7 +355,9 @@ def read_only_store(tmp_path: Path) -> Iterator[Path]:
                 path.chmod(0o755 if path.is_dir() else 0o644)
 
 
-def test_a_read_only_store_serves_parse_frontier_and_runs_and_refuses_writes_in_one_line(read_only_store: Path, tmp_path: Path) -> None:
+def test_a_read_only_store_serves_parse_frontier_and_runs_and_refuses_writes_in_one_line(
+    read_only_store: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     before = {p.name: p.read_bytes() for p in read_only_store.iterdir()}
     status, out, err = cli("cache", "parse", str(read_only_store), "--task", "cube-stacking")
     assert status == 0 and "accuracy" in out.lower(), err
@@ -366,7 +368,8 @@ def test_a_read_only_store_serves_parse_frontier_and_runs_and_refuses_writes_in_
     status, _, _ = cli("cache", "list", "--store", str(read_only_store))
     assert status == 0
     assert "read-only" in refused("cache", "import", str(RECORDED), "--store", str(read_only_store))
-    live_misses = [a if a != "mock" else "live" for a in recorded]
+    live_misses = [{"mock": "live", "local": "http://127.0.0.1:9/v1"}.get(a, a) for a in recorded]  # nothing is sent: it fails first
+    monkeypatch.setenv("OPENAI_API_KEY", "sk-test-not-a-key")
     assert "read-only" in refused("run", "cube-stacking", "--out", str(tmp_path / "live"), *live_misses)
     assert "cannot write" in refused("cache", "export", "--store", str(read_only_store), "--out", str(read_only_store / "x.jsonl"))
     assert {p.name: p.read_bytes() for p in read_only_store.iterdir()} == before
