@@ -36,7 +36,9 @@ def _number_types() -> dict[str, Callable[[str], Any]]:
     from lagrseq import config as cfg
 
     return {
-        "count": cfg.positive_int,
+        "count": cfg.number_type("count", integer=True, ge=1, le=100_000),
+        "jobs": cfg.number_type("processes", integer=True, ge=1, le=1024),
+        "samples": cfg.number_type("answers", integer=True, ge=1, le=10_000),
         "seed": cfg.seed_int,
         "budget": cfg.nonneg_float,
         "limit": cfg.nonneg_int,
@@ -48,6 +50,9 @@ def _number_types() -> dict[str, Callable[[str], Any]]:
         "threads": cfg.number_type("threads", integer=True, ge=0, le=1024),
         "port": cfg.number_type("port", integer=True, ge=0, le=65535),
         "concurrency": cfg.number_type("requests", integer=True, ge=1, le=256),
+        "share": cfg.number_type("share", ge=0, le=1),
+        "episodes": cfg.number_type("episodes", integer=True, ge=0, le=10**7),
+        "steps": cfg.number_type("steps", integer=True, ge=-1, le=10**9),
     }
 
 
@@ -121,8 +126,10 @@ def _executor_options() -> argparse.ArgumentParser:
 def _make_executor(args: argparse.Namespace, start: bool = True) -> Any:
     """The executor of ``--executor``/``--scheduler`` (None: the runner's own process pool, or
     nothing to ``start``)."""
-    from lagrseq.executors import make_executor
+    from lagrseq.executors import check_scheduler, make_executor
 
+    if args.scheduler is not None:
+        check_scheduler(args.scheduler)
     if args.executor == "local" or not start:
         if args.scheduler is not None and args.executor != "dask":
             from lagrseq.errors import UsageError
@@ -156,8 +163,10 @@ def _report_options() -> argparse.ArgumentParser:
 
 
 def _provider_options(args: argparse.Namespace) -> Any:
-    from lagrseq.wiring import ProviderOptions
+    from lagrseq.wiring import ProviderOptions, load_prices
 
+    if args.price_table is not None:  # read now, whatever the provider: a bad file is one line before anything runs
+        load_prices(args.price_table)
     return ProviderOptions(
         base_url=args.base_url,
         api_key_env=args.api_key_env,
@@ -225,7 +234,7 @@ def _add_run(sub: Any) -> None:
     p.add_argument("--seed", type=_SEED, default=0, help="run seed, 0 <= S < 2**63; trial k uses a stream spawned from (seed, k) (default 0)")
     p.add_argument("--out", type=Path, default=Path("runs"), help="output directory (default: runs)")
     p.add_argument("--name", default=None, help="run directory name, one plain name (default: preset-provider-seed-digest)")
-    p.add_argument("--jobs", type=_COUNT, default=1, help="trials run in parallel processes, or workers of a local Dask cluster (default 1)")
+    p.add_argument("--jobs", type=_N["jobs"], default=1, help="trials run in parallel processes, or workers of a local Dask cluster (default 1)")
     p.add_argument("--on-miss", choices=ON_MISS, default="error", help="recorded:STORE only, a query the store has no answer for: error = stop with a message naming the nearest recorded keys (default); mock = answer it with the rule-based mock (not stored); live = ask the live server and record the answer into STORE")
     p.add_argument("--render", type=Path, default=None, metavar="DIR", help="arm-arrangement only: write PNG frames of every placement and an animated GIF of every episode to DIR/trial-NNN/ (headless; about 0.1 s a frame)")
 
@@ -288,10 +297,10 @@ def _add_frontier(sub: Any) -> None:
     p.add_argument("--on-miss", choices=ON_MISS, default="error", help="recorded:STORE only: what answers a query the store lacks (default: error)")
     p.add_argument("--trials", type=_COUNT, default=5, help="trials per policy (default 5)")
     p.add_argument("--seed", type=_SEED, default=0, help="run seed (default 0)")
-    p.add_argument("--jobs", type=_COUNT, default=os.cpu_count() or 1, help="trials run in parallel processes, every policy's trials in one pool (default: the number of cores)")
+    p.add_argument("--jobs", type=_N["jobs"], default=os.cpu_count() or 1, help="trials run in parallel processes, every policy's trials in one pool (default: the number of cores)")
     p.add_argument("--out", type=Path, default=Path("frontier"), help="runs go to OUT/<task>/<method>/..., the report to OUT/frontier (default: frontier)")
     p.add_argument("--replay", type=Path, default=None, metavar="DIR", help="rebuild the report from the logs under DIR (writes to --out) and run nothing")
-    p.add_argument("--miss-threshold", type=_N["budget"], default=0.1, metavar="F", help="mark points whose share of fallback answers exceeds F (default 0.1)")
+    p.add_argument("--miss-threshold", type=_N["share"], default=0.1, metavar="F", help="mark points whose share of fallback answers exceeds F, 0 to 1 (default 0.1)")
 
 
 def _add_config(sub: Any) -> None:
@@ -336,7 +345,7 @@ def _add_record(sub: Any) -> None:
     p.add_argument("--store", type=Path, required=True, metavar="STORE", help="store directory (created if missing)")
     p.add_argument("--model", default=None, help="model to ask (default: the preset's llm.model)")
     p.add_argument("--temperature", type=_TEMPERATURE, default=None, metavar="T", help="sampling temperature, 0 to 2 (default: the preset's llm.temperature)")
-    p.add_argument("--samples", type=_COUNT, default=10, metavar="K", help="answers to keep per prompt (default 10, as the paper's authors recorded)")
+    p.add_argument("--samples", type=_N["samples"], default=10, metavar="K", help="answers to keep per prompt (default 10, as the paper's authors recorded)")
     p.add_argument("--mode", choices=RECORD_MODES, default="new", help="new: top every prompt up to K answers (default); once: record only into an empty store; none: ask nothing, report what is missing; all: ask K fresh answers for every prompt even if recorded")
     p.add_argument("--from-runs", nargs="+", default=None, metavar="RUN", help="MCAP logs or directories: ask from the states met there instead of the default prompt set (damaged logs are skipped with a warning)")
     p.add_argument("--states-from", choices=STATE_TOPICS, default="/query", help="with --from-runs: the states of /query records (where a query was decided, default) or of every /transition")
@@ -451,7 +460,7 @@ def _add_reproduce(sub: Any) -> None:
     p.add_argument("--quick", action="store_true", help="fewer trials, episodes and probe samples where it matters (each item's quick_* length)")
     p.add_argument("--out", type=Path, default=Path("."), metavar="DIR", help="writes DIR/runs and DIR/reports (default: .)")
     p.add_argument("--provider", default=None, metavar="SPEC", help="provider of the suite's default-provider runs (default: the suite's, mock)")
-    p.add_argument("--jobs", type=_COUNT, default=os.cpu_count() or 1, help="trials run in parallel (default: the number of cores)")
+    p.add_argument("--jobs", type=_N["jobs"], default=os.cpu_count() or 1, help="trials run in parallel (default: the number of cores)")
     p.add_argument("--seed", type=_SEED, default=None, help="run seed (default: the suite's, 0)")
     p.add_argument("--items", default=None, metavar="ID,ID", help="only these suite items (default: all)")
     p.add_argument(
@@ -481,10 +490,10 @@ def _add_audit(sub: Any) -> None:
     _task_argument(p)
     p.add_argument("--provider", default="mock", metavar="SPEC", help="provider of the lagr and lagr-seq runs (default mock; the baseline never asks)")
     p.add_argument("--trials", type=_COUNT, default=5, help="trials per run (default 5)")
-    p.add_argument("--episodes", type=int, default=0, help="episodes per trial (default 0: the preset's)")
-    p.add_argument("--max-steps", type=int, default=-1, help="step budget per trial (default -1: the preset's)")
+    p.add_argument("--episodes", type=_N["episodes"], default=0, help="episodes per trial (default 0: the preset's)")
+    p.add_argument("--max-steps", type=_N["steps"], default=-1, help="step budget per trial (default -1: the preset's)")
     p.add_argument("--out", type=Path, default=Path("audit"), metavar="DIR", help="writes DIR/runs and DIR/reports (default: ./audit)")
-    p.add_argument("--jobs", type=_COUNT, default=os.cpu_count() or 1, help="trials run in parallel (default: the number of cores)")
+    p.add_argument("--jobs", type=_N["jobs"], default=os.cpu_count() or 1, help="trials run in parallel (default: the number of cores)")
     p.add_argument("--seed", type=_SEED, default=0, help="run seed (default 0)")
 
 
@@ -558,6 +567,14 @@ def cmd_run(args: argparse.Namespace) -> int:
     from lagrseq import runner
 
     options = _provider_options(args)
+    _make_executor(args, start=False)  # --executor/--scheduler checked before anything is made
+    if args.render is not None:
+        from lagrseq.errors import UsageError
+        from lagrseq.paths import writable_directory
+
+        if args.task != "arm-arrangement":
+            raise UsageError(f"--render draws the arm of arm-arrangement only, not {args.task}; leave it out")
+        writable_directory(args.render, "--render")
     config, directory = runner.prepare(
         args.task, args.method, args.preset, args.config, args.overrides,
         args.provider, options, args.out, args.seed, args.name,
@@ -595,11 +612,15 @@ def cmd_record(args: argparse.Namespace) -> int:
 
         model = model_name(args.provider.partition(":")[2])
     config = recording.record_config(args.task, args.preset, args.config, args.overrides, model, args.temperature)
+    if args.states_from != "/query" and not args.from_runs:
+        raise LagrseqError(f"--states-from {args.states_from} picks states of the logs of --from-runs; give --from-runs RUN, or leave --states-from out")
     patterns = recording.record_patterns(config, args.from_runs or (), args.states_from, warn=_warn("record"))
     queries = recording.queries_for(config, patterns)
+    options = _provider_options(args)
+    recording.check_record(args.store, args.mode, options, args.provider)
     desc = f"record {args.task} {config.llm.model} t={config.llm.temperature:g}"
     with _bar(len(queries), "prompt", desc, args.quiet or args.mode == "none") as bar:
-        report = recording.record(queries, args.store, args.samples, args.mode, _provider_options(args), bar, args.provider, args.concurrency)
+        report = recording.record(queries, args.store, args.samples, args.mode, options, bar, args.provider, args.concurrency)
     print(report.summary())
     if report.stopped is not None:
         raise report.stopped
@@ -699,8 +720,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     started = time.perf_counter()
     suite = load_suite(args.suite)
+    price = _price_function(args.price_table)  # every input checked before OUT is made
     out = writable_directory(args.out)
-    report = replay(args.runs, out, args.formats, suite, provider=args.provider, price=_price_function(args.price_table))
+    report = replay(args.runs, out, args.formats, suite, provider=args.provider, price=price)
     _print_report(report, time.perf_counter() - started)
     return 0
 
@@ -715,7 +737,12 @@ def cmd_frontier(args: argparse.Namespace) -> int:
 
     started = time.perf_counter()
     price = _price_function(args.price_table)
+    variants = frontier.parse_policies(args.policies)  # checked with --replay too: nothing is ignored unseen
+    for sweep in args.sweep:
+        variants += [v for v in frontier.parse_sweep(sweep) if v not in variants]
     if args.replay is not None:
+        if args.task is not None:
+            raise UsageError(f"--replay rebuilds the report from the logs under {args.replay}; give no TASK with it")
         if not args.replay.is_dir():
             raise UsageError(f"--replay {args.replay}: not a directory of run logs")
         out = writable_directory(args.out)
@@ -723,10 +750,7 @@ def cmd_frontier(args: argparse.Namespace) -> int:
     else:
         if args.task is None:
             raise UsageError("frontier needs a TASK (or --replay DIR)")
-        variants = frontier.parse_policies(args.policies)
-        for sweep in args.sweep:
-            variants += [v for v in frontier.parse_sweep(sweep) if v not in variants]
-        base = writable_directory(args.out)
+        base = args.out  # made by run_frontier once every configuration is checked
         options = _provider_options(args)
         directories = frontier.run_frontier(
             args.task, variants, args.provider, options, base, args.trials, args.seed, args.preset, args.config,
@@ -748,7 +772,7 @@ def cmd_frontier(args: argparse.Namespace) -> int:
 def cmd_reproduce(args: argparse.Namespace) -> int:
     from lagrseq import reproduce
 
-    items = [i.strip() for i in args.items.split(",") if i.strip()] if args.items else None
+    items = [i.strip() for i in args.items.split(",") if i.strip()] if args.items is not None else None
     report, elapsed = reproduce.reproduce(
         args.suite, items, args.quick, args.provider, args.out, args.jobs, args.seed,
         args.formats, _price_function(args.price_table), quiet=args.quiet, say=lambda line: print(line, flush=True),

@@ -956,15 +956,15 @@ def parse_override(text: str) -> tuple[str, str, Any]:
     """Parse ``section.field=value``; the value is read as TOML (``100``, ``0.5``, ``true``,
     ``"text"``) and otherwise taken as a bare string."""
     if "=" not in text:
-        raise ConfigError(f"--set {text!r}: expected section.field=value")
+        raise ConfigError(f"--set {show_value(text)}: expected section.field=value")
     key, raw = text.split("=", 1)
     parts = key.strip().split(".")
     if len(parts) != 2 or not all(parts):
-        raise ConfigError(f"--set {text!r}: expected section.field=value, e.g. env.horizon=100")
+        raise ConfigError(f"--set {show_value(text)}: expected section.field=value, e.g. env.horizon=100")
     try:
         value = _toml_value(raw)
     except ValueError as exc:
-        raise ConfigError(f"--set {key.strip()}: the value cannot be read: {exc}") from None
+        raise ConfigError(f"--set {show_name(key.strip())}: the value cannot be read: {exc}") from None
     return parts[0], parts[1], value
 
 

@@ -46,9 +46,9 @@ WORKER_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THRE
 
 
 def _check_address(address: str) -> str:
-    if not address.startswith(("tcp://", "tls://", "inproc://", "ucx://")) or "\0" in address:
-        raise UsageError(f"--scheduler {address!r} is not a Dask scheduler address; give tcp://HOST:PORT")
-    return address
+    from lagrseq.executors import check_scheduler
+
+    return check_scheduler(address)
 
 
 @contextlib.contextmanager
@@ -148,6 +148,9 @@ class DaskExecutor(TrialExecutor):
                 self.client = distributed.Client(_check_address(scheduler), timeout=30)
             except OSError as exc:
                 raise UsageError(f"no Dask scheduler answered at {scheduler} ({exc}); start one with dask scheduler, or check the address") from None
+            except Exception as exc:  # noqa: BLE001 - something else answered there (garbage, another protocol)
+                reason = " ".join(f"{type(exc).__name__}: {exc}".split())[:200]
+                raise UsageError(f"no Dask scheduler answered at {scheduler} (what answered failed: {reason}); check the address") from None
             self.workers = max(1, len(self.client.scheduler_info().get("workers", {})))
             if say is not None:
                 say(f"dask: scheduler {scheduler}, {self.workers} worker{'s' if self.workers != 1 else ''} now")

@@ -176,6 +176,20 @@ class LocalExecutor(TrialExecutor):
         self.pool.shutdown(wait=True, cancel_futures=True)
 
 
+SCHEDULER_SCHEMES = ("tcp", "tls", "ucx")
+
+
+def check_scheduler(address: str) -> str:
+    """``--scheduler``: ``tcp://HOST:PORT`` (or tls, ucx), the port 1 to 65535; checked before
+    anything starts (Dask itself would fail deep inside with a traceback)."""
+    import re
+
+    match = re.fullmatch(r"([a-z]+)://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9._-]+):([0-9]{1,5})", address)
+    if match is None or match.group(1) not in SCHEDULER_SCHEMES or not 1 <= int(match.group(3)) <= 65535:
+        raise UsageError(f"--scheduler {address!r} is not a Dask scheduler address; give tcp://HOST:PORT (a port in 1..65535)")
+    return address
+
+
 def make_executor(kind: str, jobs: int, scheduler: str | None = None, say: Callable[[str], None] | None = None) -> TrialExecutor:
     """The executor ``--executor kind`` names (``scheduler``: an existing Dask scheduler's
     address). ``say`` receives one line about a started cluster (its dashboard)."""
@@ -183,6 +197,8 @@ def make_executor(kind: str, jobs: int, scheduler: str | None = None, say: Calla
         raise UsageError(f"unknown executor {kind!r}; expected one of: {', '.join(EXECUTORS)}")
     if scheduler is not None and kind != "dask":
         raise UsageError("--scheduler applies to --executor dask only")
+    if scheduler is not None:
+        check_scheduler(scheduler)
     if kind == "local":
         return LocalExecutor(jobs)
     import importlib.util

@@ -53,11 +53,13 @@ def _item(text: str) -> tuple[str, list[tuple[str, str]]]:
     name, *parts = text.strip().split(":")
     if name not in NAMES:
         raise UsageError(f"policy {name!r} in {text!r}; expected one of {', '.join(NAMES)} (optionally NAME:FIELD=VALUE)")
-    knobs = []
+    knobs: list[tuple[str, str]] = []
     for part in parts:
         field, sep, value = part.partition("=")
         if not sep or field not in KNOBS or not value:
             raise UsageError(f"{text!r}: expected NAME:FIELD=VALUE with FIELD one of {', '.join(KNOBS)}")
+        if any(field == seen for seen, _ in knobs):
+            raise UsageError(f"{text!r} sets {field} twice; give each field once (for several values: --sweep {name}:{field}=V1,V2)")
         knobs.append((field, value))
     return name, knobs
 

@@ -167,6 +167,26 @@ def record(
         return _record(queries, store_path, samples, mode, local, bar, _local_endpoint(), concurrency, settings.model_name)
 
 
+def check_record(store_path: Path, mode: str, options: ProviderOptions, provider: str = "live") -> None:
+    """What ``record`` needs, checked before its progress bar is drawn (one line, nothing asked):
+    the provider (a live server's key and URL, a local model file) and, unless mode ``none``, a
+    store that can be written (a read-only store, or one below a file, fails here)."""
+    from lagrseq.llm.store import RecordStore
+    from lagrseq.wiring import local_settings, parse_provider
+
+    spec = parse_provider(provider)
+    if spec.kind not in ("live", "local"):
+        raise UsageError(f"lagrseq record asks a live or local model, not {provider!r}; expected live or local[:MODEL.gguf]")
+    if mode == "none":
+        return
+    if spec.kind == "live":
+        make_live(options, np.random.default_rng(0)).close()
+    else:
+        local_settings(spec.argument, options)
+    with RecordStore(store_path) as store:
+        store.writer()
+
+
 def _local_endpoint() -> str:
     from lagrseq.llm.local import LOCAL_ENDPOINT
 
@@ -278,6 +298,17 @@ def import_answers(
     if not file.is_file():
         raise UsageError(f"{file}: no such file")
     if fmt == "jsonl":
+        from lagrseq.llm.servers import DEFAULT_BASE_URL
+
+        given = [flag for flag, value in (("--task", task), ("--model", model), ("--temperature", temperature), ("--max-tokens", max_tokens)) if value is not None]
+        given += ["--base-url"] if base_url != DEFAULT_BASE_URL else []
+        given += ["--config"] if config_file is not None else []
+        given += ["--set"] if overrides else []
+        if given:
+            raise UsageError(
+                f"{' and '.join(given)} describe{'s' if len(given) == 1 else ''} the answers of a pickle; "
+                f"a JSONL export holds each answer's own request: leave {'it' if len(given) == 1 else 'them'} out (or give --format pkl for a pickle)"
+            )
         # The whole file is checked before the store is created or written.
         lines = import_jsonl_file(file, store_path, file.name, warn=warn)
         return f"{file}: {lines.lines} answers under {lines.keys} keys; {lines.added} added, {lines.already_present} already in {store_path}"

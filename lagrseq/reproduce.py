@@ -319,13 +319,19 @@ def reproduce(
     from lagrseq.suite import load_suite
 
     suite = load_suite(suite_path)
-    if items:
+    if items is not None:
+        if not items:
+            raise UsageError("--items is empty; give suite item ids, e.g. --items fig6a,table2 (or leave --items out for all)")
         suite = suite.select(items)
     seed = suite.seed if seed is None else seed
     if provider is not None:
         wiring.parse_provider(provider)
     if scheduler is not None and executor != "dask":
         raise UsageError("--scheduler applies to --executor dask only")
+    if scheduler is not None:
+        from lagrseq.executors import check_scheduler
+
+        check_scheduler(scheduler)
     writable_directory(out)
     runs_dir, reports_dir = writable_directory(out / "runs"), writable_directory(out / "reports", "--out")
     started = time.perf_counter()
@@ -333,6 +339,7 @@ def reproduce(
     if authors_caches is not None:
         planned_suite = with_authors_answers(suite, authors_caches, out, say)
     the_plan = plan(planned_suite, quick, provider, runs_dir, seed)
+    check_providers(the_plan, provider)
     for item_id, reason in the_plan.not_run.items():
         say(f"{item_id}: not run: {reason}")
     pending = sum(run.pending() for run in the_plan.runs)
@@ -364,6 +371,18 @@ def reproduce(
         price=price,
     )
     return report, time.perf_counter() - started
+
+
+def check_providers(the_plan: Plan, provider: str | None) -> None:
+    """``--provider`` given: the runs that use it get it built once before any trial starts (a
+    missing store or API key is one line, nothing run); a provider the user did not choose only
+    sets its items aside (``Plan.not_run``)."""
+    if provider is None:
+        return
+    for run in the_plan.runs:
+        if run.provider == provider:
+            wiring.check_provider(run.provider, run.config, run.options)
+            return
 
 
 def with_authors_answers(suite: Suite, caches: Path, out: Path, say: Callable[[str], None] = print) -> Suite:

@@ -28,7 +28,7 @@ from lagrseq import __version__, executors
 from lagrseq.config import ExperimentConfig
 from lagrseq.errors import BudgetExceeded, LagrseqError, TrialsFailed, UsageError
 from lagrseq.experiment import TrialResult, run_trial
-from lagrseq.logs.reader import is_complete, read_info
+from lagrseq.logs.reader import LogInfo, is_complete, read_info
 from lagrseq.logs.sink import PARTIAL_SUFFIX, McapSink, NullSink, Sink
 from lagrseq.wiring import (
     ProviderOptions,
@@ -109,13 +109,25 @@ def provider_slug(spec: str) -> str:
     return "".join(ch if ch.isalnum() or ch in "-_." else "-" for ch in spec)
 
 
+MAX_NAME_BYTES = 200
+"""Longest ``--name`` (file systems allow 255 bytes a component; a margin for suffixes)."""
+
+
 def check_name(name: str) -> str:
     """A run directory name given with ``--name``: one path component, inside ``--out``."""
-    if not name or name in (".", "..") or any(ch in name for ch in "/\\\0") or Path(name).is_absolute():
+    if (
+        not name.strip()
+        or name != name.strip()
+        or name in (".", "..")
+        or any(ch in name for ch in "/\\") or any(ord(ch) < 32 or ord(ch) == 127 for ch in name)
+        or Path(name).is_absolute()
+    ):
         raise UsageError(
-            f"--name {name!r} is not a plain directory name; give one name without '/', '\\', '..' "
-            "(the run directory is always OUT/<task>/<method>/NAME)"
+            f"--name {name!r} is not a plain directory name; give one name without '/', '\\', '..', "
+            "control characters or surrounding spaces (the run directory is always OUT/<task>/<method>/NAME)"
         )
+    if len(name.encode("utf-8", "surrogatepass")) > MAX_NAME_BYTES:
+        raise UsageError(f"--name is {len(name.encode('utf-8', 'surrogateescape'))} bytes long; give a name of at most {MAX_NAME_BYTES} bytes")
     return name
 
 
@@ -143,15 +155,48 @@ def _differences(logged: dict[str, Any], wanted: dict[str, Any], prefix: str = "
     return out
 
 
-def check_resumable(path: Path, config: ExperimentConfig, seed: int, provider_spec: str, trial: int) -> None:
+def _unfinished_info(path: Path) -> LogInfo | None:
+    """What an unfinished log (a finished file with another status, or a ``.partial`` cut short
+    by a crash) says about its run: from its summary when it has one, else from the run metadata
+    record written at its start. None when neither can be read (nothing to protect then)."""
+    from mcap.records import Metadata
+
+    from lagrseq.logs.mcap_reader import Damage, McapFile
+    from lagrseq.logs.sink import RUN_METADATA
+
+    with contextlib.suppress(LagrseqError):
+        return read_info(path)
+    try:
+        with McapFile(path) as log:
+            for count, (_, _, record) in enumerate(log.scan()):
+                if isinstance(record, Metadata) and record.name == RUN_METADATA:
+                    return LogInfo(path, dict(record.metadata))
+                if count > 16:  # the run metadata follows the header and schemas
+                    break
+    except (Damage, OSError, LagrseqError):
+        pass
+    return None
+
+
+def check_resumable(
+    path: Path, config: ExperimentConfig, seed: int, provider_spec: str, trial: int, info: LogInfo | None = None
+) -> None:
     """A complete log may stand for trial ``trial`` of this run only if it was made with the
-    same configuration, seed and provider; otherwise the rerun is refused."""
+    same configuration, seed and provider; otherwise the rerun is refused. An unfinished log
+    (``info`` given) of another run is refused too: rerunning the trial would overwrite it."""
     from lagrseq import config as cfg
     from lagrseq.errors import ConfigError
 
-    info = read_info(path)
+    unfinished = info is not None
+    if info is None:
+        info = read_info(path)
     wanted = json.loads(config.to_json())
-    logged = info.config
+    try:
+        logged = info.config
+    except LagrseqError:
+        if not unfinished:
+            raise
+        return  # no configuration to compare: nothing recognisable to protect
     with contextlib.suppress(ConfigError):  # a log made before a field existed holds its default
         logged = json.loads(cfg.from_dict(logged).to_json())
     differences = _differences(logged, wanted)
@@ -160,8 +205,9 @@ def check_resumable(path: Path, config: ExperimentConfig, seed: int, provider_sp
             differences.append(f"{key}: {json.dumps(info.run.get(key))} -> {json.dumps(value)}")
     if differences:
         shown = "; ".join(differences[:3]) + (f"; and {len(differences) - 3} more" if len(differences) > 3 else "")
+        kept = " (unfinished: a rerun would overwrite it; lagrseq recover keeps its flushed episodes)" if unfinished else ""
         raise UsageError(
-            f"{path} was made by another run ({shown}); give another --name or --out, or remove "
+            f"{path} was made by another run ({shown}){kept}; give another --name or --out, or remove "
             f"{path.parent} to start over"
         )
 
@@ -226,6 +272,10 @@ def resume_plan(config: ExperimentConfig, trials: int, seed: int, provider_spec:
             check_resumable(path, config, seed, provider_spec, trial)
             complete.append(trial)
         elif path.exists() or path.with_name(path.name + PARTIAL_SUFFIX).exists():
+            for found in (path, path.with_name(path.name + PARTIAL_SUFFIX)):
+                info = _unfinished_info(found) if found.exists() else None
+                if info is not None:
+                    check_resumable(found, config, seed, provider_spec, trial, info)
             unfinished.append(trial)
         else:
             missing.append(trial)

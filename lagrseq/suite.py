@@ -30,10 +30,10 @@ KINDS = ("trial", "accuracy")
 
 # The integer keys of a run and their ranges (0 episodes / -1 max_steps: the preset's).
 _INT_RANGES = {
-    "trials": cfg.Range(ge=1),
+    "trials": cfg.Range(ge=1, le=100_000),
     "episodes": cfg.Range(ge=0),
     "max_steps": cfg.Range(ge=-1),
-    "quick_trials": cfg.Range(ge=1),
+    "quick_trials": cfg.Range(ge=1, le=100_000),
     "quick_episodes": cfg.Range(ge=0),
     "quick_max_steps": cfg.Range(ge=-1),
     "samples": cfg.Range(ge=1),

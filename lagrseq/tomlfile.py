@@ -44,6 +44,12 @@ def loads(text: str, where: str) -> dict[str, Any]:
         raise ConfigError(f"{where} is not valid TOML: {_one_line(str(exc))}") from None
     except RecursionError:
         raise ConfigError(f"{where} is not usable TOML: its arrays or tables are nested too deeply") from None
+    except ValueError as exc:  # an integer of more than 4300 digits (sys.get_int_max_str_digits)
+        raise ConfigError(f"{where} is not usable TOML: {_too_long(exc)}") from None
+
+
+def _too_long(exc: ValueError) -> str:
+    return "it holds an integer of more than 4300 digits" if "digits" in str(exc) else _one_line(str(exc))
 
 
 def read_toml(path: str | os.PathLike[str], what: str = "config", max_bytes: int = MAX_TOML_BYTES) -> dict[str, Any]:
@@ -88,4 +94,6 @@ def value_of(raw: str) -> Any:
         return raw.strip()
     except RecursionError:
         raise ValueError("its arrays or tables are nested too deeply") from None
+    except ValueError as exc:
+        raise ValueError(_too_long(exc)) from None
     return parsed["v"] if set(parsed) == {"v"} else raw.strip()

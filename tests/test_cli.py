@@ -73,7 +73,7 @@ def test_jobs_run_trials_in_parallel_processes(tmp_path: Path) -> None:
         (["run", "cube-stacking", "--provider", "gpt"], "unknown provider 'gpt'"),
         (["run", "cube-stacking", "--set", "env.horizn=3"], "unknown field env.horizn"),
         (["run", "cube-stacking", "--set", "lagr.trigger=never"], "lagr.trigger = 'never' is not allowed"),
-        (["run", "cube-stacking", "--trials", "0"], "argument --trials: expected an integer >= 1"),
+        (["run", "cube-stacking", "--trials", "0"], "argument --trials: expected an integer in [1, 100000]"),
         (["run", "cube-stacking", "--config", "/nonexistent.toml"], "does not exist"),
         (["run", "cube-stacking", "--provider", "live:gpt-4o"], "OPENAI_API_KEY is not set"),
         (["run", "cube-stacking", "--provider", "recorded:/nonexistent-store"], "no recorded store at /nonexistent-store"),

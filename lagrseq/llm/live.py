@@ -472,6 +472,8 @@ class LiveProvider:
         self._rng_lock = threading.Lock()
         self.kind = SERVER_KINDS[self.settings.server]
         self.endpoint = endpoint_of(self.settings.base_url)
+        if self.settings.base_url.split("://", 1)[0].lower() not in ("http", "https") or any(ord(ch) <= 32 for ch in self.settings.base_url):
+            raise ConfigError(f"--base-url {self.settings.base_url!r}: expected an http:// or https:// URL, e.g. https://api.openai.com/v1")
         self.url = self.settings.base_url.rstrip("/") + "/chat/completions"
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self.prices = prices if prices is not None else PriceTable()

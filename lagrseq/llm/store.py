@@ -80,7 +80,10 @@ _DEFAULT_PORTS = {"http": 80, "https": 443}
 def endpoint_of(base_url: str) -> str:
     """The endpoint part of a key: the lower-cased host, with the port when it is not the
     scheme's default (``https://api.openai.com/v1`` -> ``api.openai.com``)."""
-    parts = urlsplit(base_url if "://" in base_url else f"https://{base_url}")
+    try:
+        parts = urlsplit(base_url if "://" in base_url else f"https://{base_url}")
+    except ValueError as exc:  # e.g. an unclosed '[' of an IPv6 host
+        raise StoreError(f"base URL {base_url!r} is not a URL ({exc}); expected e.g. https://api.openai.com/v1") from None
     host = (parts.hostname or "").lower()
     if not host:
         raise StoreError(f"base URL {base_url!r} has no host; expected e.g. https://api.openai.com/v1")

@@ -220,8 +220,25 @@ def start_server(robot: Robot, host: str = "127.0.0.1", port: int = 0, descripti
     return server, bound
 
 
+def check_listen(host: str, port: int) -> None:
+    """``--host``/``--port``: an address of this machine with the port free; RobotError (one
+    line) otherwise."""
+    import socket
+
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+        family, kind, proto, _, address = infos[0]
+        with socket.socket(family, kind, proto) as probe:
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            probe.bind(address)
+    except (OSError, UnicodeError, ValueError) as exc:
+        reason = getattr(exc, "strerror", None) or type(exc).__name__
+        raise RobotError(f"cannot listen on {host}:{port} ({reason}); give an address of this machine (--host) and a free --port") from None
+
+
 def serve_sim(host: str, port: int, say: Callable[[str], None] = print) -> None:
     """``lagrseq robot serve --sim``: serve a simulated UR5e until Ctrl-C."""
+    check_listen(host, port)  # before pybullet and gRPC start (and print lines of their own)
     from lagrseq.robot.sim import SimRobot
 
     robot = SimRobot()
