@@ -718,6 +718,15 @@ class LLMConfig(_Section):
     max_tokens: int = ranged(256, ge=1, le=1_000_000)
     """Completion token limit sent with every query."""
 
+    def _check(self) -> None:
+        model = self.model
+        if not (0 < len(model) <= 200) or not model.isprintable() or model != model.strip():
+            shown = repr(model[:40]) + ("..." if len(model) > 40 else "")
+            raise ConfigError(
+                f"llm.model = {shown}; expected a model name of 1 to 200 printable characters "
+                "without surrounding spaces, e.g. gpt-4o-mini"
+            )
+
 
 @dataclass(frozen=True)
 class RunConfig(_Section):

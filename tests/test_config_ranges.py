@@ -123,6 +123,10 @@ def test_every_numeric_field_refuses_nan_inf_and_out_of_range(task: str) -> None
         ("image-completion", "primary.batch_size=20000", "primary.batch_size = 20000; expected at most primary.buffer_size = 10000"),
         ("object-arrangement", "task.goal_threshold=0", "task.goal_threshold = 0.0; expected a finite number in (0, 1]"),
         ("object-arrangement", "run.episodes=-3", "run.episodes = -3; expected an integer >= 0"),
+        ("cube-stacking", 'llm.model=""', "llm.model = ''; expected a model name of 1 to 200 printable characters"),
+        ("cube-stacking", 'llm.model="gpt\\u0000x"', "llm.model = 'gpt\\x00x'; expected a model name"),
+        ("cube-stacking", 'llm.model="gpt\\nx"', "llm.model = 'gpt\\nx'; expected a model name"),
+        ("cube-stacking", 'llm.model=" gpt-4"', "without surrounding spaces"),
     ],
 )
 def test_nonsense_values_are_refused_with_field_value_and_range(task: str, override: str, message: str) -> None:

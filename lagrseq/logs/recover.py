@@ -304,7 +304,7 @@ def recover(path: str | Path, out: str | Path | None = None) -> Recovered:
     dropped = max(plan.size - plan.good_end, 0) + sum(
         len(m.data) for messages in plan.chunks[kept:] for m in messages
     )
-    _commit(source, target, data, backup)
+    _commit(source, target, data, backup, elsewhere=out is None)
     return Recovered(source, target, episodes, count, dropped, backup, plan.complete)
 
 
@@ -360,9 +360,10 @@ def _write_all(path: Path, data: bytes) -> None:
         os.close(fd)
 
 
-def _commit(source: Path, target: Path, data: bytes, backup: Path | None) -> None:
+def _commit(source: Path, target: Path, data: bytes, backup: Path | None, elsewhere: bool = True) -> None:
     """Write ``data`` to ``target`` through a temporary file; on any OS error, remove the
-    temporary file, put the source back where it was, and raise one LogError line."""
+    temporary file, put the source back where it was, and raise one LogError line (which
+    suggests --out only where ``elsewhere``: none was given)."""
     tmp = target.with_name(target.name + TEMP_SUFFIX)
     moved = False
     try:
@@ -378,9 +379,11 @@ def _commit(source: Path, target: Path, data: bytes, backup: Path | None) -> Non
             with contextlib.suppress(OSError):
                 os.replace(backup, source)
         where = exc.filename if isinstance(exc.filename, str) else str(tmp)
+        fix = "free some space or pass --out to write elsewhere" if elsewhere else (
+            f"free some space in {target.parent} or give --out a writable place")
         raise LogError(
             f"{where}: cannot write the recovered log ({exc.strerror or type(exc).__name__}); "
-            f"{source} was left as it was: free some space or pass --out to write elsewhere"
+            f"{source} was left as it was: {fix}"
         ) from None
 
 

@@ -292,6 +292,14 @@ def test_an_unwritable_out_is_one_line(tmp_path: Path) -> None:
     assert partial.read_bytes() == GOLDEN.read_bytes()[:13000]
 
 
+def test_an_unwritable_out_never_suggests_passing_out(tmp_path: Path) -> None:
+    partial = tmp_path / "trial-000.mcap.partial"
+    partial.write_bytes(GOLDEN.read_bytes()[:13000])
+    with pytest.raises(LogError) as given:
+        recover(partial, tmp_path / "trial-000.mcap.partial" / "x.mcap")
+    assert "pass --out" not in str(given.value) and "give --out a writable place" in str(given.value)
+
+
 def test_the_recover_command_reports_every_bad_file_and_repairs_the_others(tmp_path: Path) -> None:
     """One line on stderr per file it cannot repair (a directory, junk, a log damaged inside), each
     repairable one repaired in place (one byte short, bytes appended), exit status 2, and no
