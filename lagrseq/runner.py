@@ -127,7 +127,7 @@ def check_name(name: str) -> str:
             "control characters or surrounding spaces (the run directory is always OUT/<task>/<method>/NAME)"
         )
     if len(name.encode("utf-8", "surrogatepass")) > MAX_NAME_BYTES:
-        raise UsageError(f"--name is {len(name.encode('utf-8', 'surrogateescape'))} bytes long; give a name of at most {MAX_NAME_BYTES} bytes")
+        raise UsageError(f"--name is {len(name.encode('utf-8', 'surrogatepass'))} bytes long; give a name of at most {MAX_NAME_BYTES} bytes")
     return name
 
 
