@@ -4,6 +4,7 @@ nothing already written is touched."""
 
 from __future__ import annotations
 
+import importlib.util
 import io
 import json
 import os
@@ -418,7 +419,10 @@ def test_record_checks_key_url_model_and_store_before_its_progress_bar(tmp_path:
     head = ["record", "cube-stacking", "--mode", "new"]  # no --quiet: a bar drawn first would be a second line
     monkeypatch.delenv("OPENAI_API_KEY", raising=False)
     assert "OPENAI_API_KEY is not set" in refused(*head, "--store", str(tmp_path / "s"))
-    assert "local model" in refused(*head, "--store", str(tmp_path / "s"), "--provider", f"local:{tmp_path / 'none.gguf'}")
+    # a missing model file, or (core environments) the missing extra: either way one line, before the bar
+    local = refused(*head, "--store", str(tmp_path / "s"), "--provider", f"local:{tmp_path / 'none.gguf'}")
+    extra = importlib.util.find_spec("llama_cpp") is not None
+    assert ("local model" if extra else "the local-llm extra is not installed") in local
     monkeypatch.setenv("OPENAI_API_KEY", "sk-test-not-a-key")
     assert "http:// or https://" in refused(*head, "--store", str(tmp_path / "s"), "--base-url", "ftp://127.0.0.1")
     assert "is not a URL" in refused(*head, "--store", str(tmp_path / "s"), "--base-url", "http://[::1")
