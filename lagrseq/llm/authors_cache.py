@@ -191,7 +191,8 @@ def import_authors_cache(
         try:
             prompt = prompt_for(key)
         except ValueError as exc:
-            skip(index, f"key {describe(key)} does not fit task {task}: {exc}")
+            why = " ".join(str(exc).split())
+            skip(index, f"key {describe(key)} does not fit task {task}: {why if len(why) <= 160 else why[:157] + '...'}")
             continue
         if isinstance(answer, np.ndarray) and isinstance(key, np.ndarray) and answer.shape != key.shape:
             skip(index, f"answer shape {answer.shape} differs from key shape {key.shape}")

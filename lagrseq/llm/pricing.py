@@ -190,7 +190,8 @@ def read_price_table(path: str | Path, base: PriceTable | None = None) -> PriceT
         known = {"input_usd_per_mtok", "output_usd_per_mtok", "cached_input_usd_per_mtok", "source", "date"}
         unknown = sorted(set(entry) - known)
         if unknown:
-            raise ConfigError(f"{where}: unknown field {unknown[0]!r}; fields are {', '.join(sorted(known))}")
+            field = ascii(unknown[0]) if len(unknown[0]) <= 40 else f"of {len(unknown[0])} characters"
+            raise ConfigError(f"{where}: unknown field {field}; fields are {', '.join(sorted(known))}")
         date: Any = entry.get("date")
         if date is not None and hasattr(date, "isoformat"):  # TOML dates arrive as datetime.date
             date = date.isoformat()

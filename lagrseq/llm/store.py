@@ -184,7 +184,7 @@ class Sample:
         names = {f for f in cls.__dataclass_fields__}
         unknown = sorted(set(data) - names)
         if unknown:
-            raise StoreError(f"{where}: unknown field {unknown[0]!r}; fields are {', '.join(sorted(names))}")
+            raise StoreError(f"{where}: unknown field {describe(unknown[0])}; fields are {', '.join(sorted(names))}")
         for required in ("id", "text", "origin"):
             if not isinstance(data.get(required), str):
                 raise StoreError(f"{where}: field {required!r} must be a string, found {data.get(required)!r}")

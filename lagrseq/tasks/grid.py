@@ -307,7 +307,9 @@ class GridTask:
         if array.shape != (self.rows, self.cols):
             raise ValueError(f"expected a {self.rows}x{self.cols} grid of 0/1, found shape {array.shape}")
         if not np.isin(array, (0.0, 1.0)).all():
-            raise ValueError(f"expected only 0 and 1 in the grid, found {sorted(set(array.ravel()) - {0.0, 1.0})}")
+            others = np.unique(array[~np.isin(array, (0.0, 1.0))])  # one nan, however many there are
+            shown = ", ".join(f"{v:g}" for v in others[:5]) + (f" and {len(others) - 5} more" if len(others) > 5 else "")
+            raise ValueError(f"expected only 0 and 1 in the grid, found {shown}")
         return array.astype(np.int8)
 
     # ---------------------------------------------------------------- prompt and parser

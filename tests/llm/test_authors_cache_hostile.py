@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from lagrseq.config import LLMConfig
@@ -118,6 +118,7 @@ values = st.recursive(
 
 @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(pairs=st.lists(st.tuples(values, values), max_size=6))
+@example(pairs=[(np.full((5, 5), np.nan), 0)])  # 25 NaNs are 25 distinct set members: a 566-character line once
 def test_any_pickled_data_imports_or_is_refused_in_one_line(tmp_path: Path, pairs: list[tuple[Any, Any]]) -> None:
     flat = [item for pair in pairs for item in pair]
     for task in (CUBE, GRID):
@@ -128,3 +129,9 @@ def test_any_pickled_data_imports_or_is_refused_in_one_line(tmp_path: Path, pair
             continue
         assert report.pairs == len(pairs) and report.skipped + report.imported + report.already_present >= report.pairs
         assert len(warnings) <= MAX_WARNINGS + 1
+
+
+def test_a_key_of_many_nans_is_one_short_warning(tmp_path: Path) -> None:
+    _, warnings, _ = run_import(tmp_path, [np.full((5, 5), np.nan), 0, np.full((5, 5), 7.0), 0], GRID)
+    assert len(warnings) == 2 and all(len(line) <= WARNING_WIDTH for line in warnings)
+    assert "found nan" in warnings[0] and "found 7" in warnings[1]

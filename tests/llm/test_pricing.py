@@ -88,6 +88,14 @@ def test_a_bad_table_is_one_clear_error(tmp_path: Path, text: str, message: str)
     assert str(info.value).startswith(f"price table file {path}") and "\n" not in str(info.value)
 
 
+def test_a_huge_unknown_field_name_is_not_repeated(tmp_path: Path) -> None:
+    path = tmp_path / "prices.toml"
+    path.write_text('[models."m"]\n' + "k" * 500_000 + " = 1\n")
+    with pytest.raises(ConfigError, match="unknown field of 500000 characters") as info:
+        read_price_table(path)
+    assert len(str(info.value)) < 400
+
+
 def test_a_missing_table_file() -> None:
     with pytest.raises(ConfigError, match="does not exist"):
         read_price_table("/nonexistent/prices.toml")
