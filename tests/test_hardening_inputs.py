@@ -10,7 +10,6 @@ import json
 import os
 import shutil
 import socket
-import subprocess
 import threading
 from collections.abc import Iterator
 from contextlib import redirect_stderr, redirect_stdout, suppress
@@ -26,7 +25,7 @@ from lagrseq import frontier
 from lagrseq.cli import main
 from lagrseq.errors import ConfigError, UsageError
 from lagrseq.executors import check_scheduler
-from tests.llm.test_store_hardening import THE_ISSUES_VALUES, _set, line, record
+from tests.llm.test_store_hardening import THE_ISSUES_VALUES, _set, line, made_read_only, record
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ["--set", "run.episodes=2", "--quiet"]
@@ -333,27 +332,8 @@ def read_only_store(tmp_path: Path) -> Iterator[Path]:
     """A store whose directory and files nobody may write (root: chattr +i, as root ignores modes)."""
     store = tmp_path / "store"
     assert cli("cache", "import", str(RECORDED), "--store", str(store))[0] == 0
-    targets = [store, *store.rglob("*")]
-    if os.geteuid() == 0:
-        try:
-            subprocess.run(["chattr", "+i", *map(str, targets)], check=True, capture_output=True)
-        except (OSError, subprocess.CalledProcessError):
-            pytest.skip("root ignores permissions and chattr +i is not available here")
-        undo: list[str] = ["chattr", "-i", *map(str, targets)]
-    else:
-        for path in reversed(targets):
-            path.chmod(0o555 if path.is_dir() else 0o444)
-        undo = []
-    try:
-        with pytest.raises(OSError):
-            (store / "probe").write_text("x")
+    with made_read_only(store):
         yield store
-    finally:
-        if undo:
-            subprocess.run(undo, check=False, capture_output=True)
-        for path in targets:
-            if path.exists():
-                path.chmod(0o755 if path.is_dir() else 0o644)
 
 
 def test_a_read_only_store_serves_parse_frontier_and_runs_and_refuses_writes_in_one_line(

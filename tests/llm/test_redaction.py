@@ -197,9 +197,9 @@ FAILURES: dict[str, list[Reply]] = {
 }
 
 
-def files_and_contents(root: Path) -> Iterator[tuple[Path, str]]:
-    """Every file under ``root`` as text (latin-1 of its bytes), plus what it holds compressed:
-    the zlib-compressed JSON values of a store's SQLite database and of its value files."""
+def written(root: Path) -> Iterator[tuple[Path, str]]:
+    """Every file under ``root`` as text (latin-1 of its bytes, and decompressed where it is zlib
+    data), and every value of every table of every SQLite file (stores, the budget ledger)."""
     for path in sorted(p for p in root.rglob("*") if p.is_file()):
         data = path.read_bytes()
         yield path, data.decode("latin-1")
@@ -211,15 +211,17 @@ def files_and_contents(root: Path) -> Iterator[tuple[Path, str]]:
             yield path, unpacked
         if data.startswith(b"SQLite format 3"):
             with sqlite3.connect(f"file:{path}?mode=ro", uri=True) as db:
-                for key, value in db.execute("SELECT key, value FROM Cache"):
-                    for blob in (key, value):
-                        if isinstance(blob, bytes):
-                            try:
-                                yield path, zlib.decompress(blob).decode("utf-8")
-                            except zlib.error:
-                                yield path, blob.decode("latin-1")
-                        elif blob is not None:
-                            yield path, str(blob)
+                tables = [row[0] for row in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")]
+                for table in tables:
+                    for row in db.execute(f'SELECT * FROM "{table}"'):
+                        for value in row:
+                            if isinstance(value, bytes):
+                                try:
+                                    yield path, zlib.decompress(value).decode("latin-1")
+                                except zlib.error:
+                                    yield path, value.decode("latin-1")
+                            else:
+                                yield path, str(value)
 
 
 def test_a_server_echoing_the_key_everywhere_leaks_nothing(
@@ -274,7 +276,7 @@ def test_a_server_echoing_the_key_everywhere_leaks_nothing(
 
     found = {}
     seen_harmless = seen_mark = False
-    for path, text in files_and_contents(tmp_path):
+    for path, text in written(tmp_path):
         seen_harmless |= HARMLESS in text and path.parent == store_dir
         seen_mark |= MARK in text
         if leaks(text):
@@ -347,7 +349,7 @@ def test_a_live_run_and_a_recorded_run_log_no_key_fragment_to_mcap_or_stderr(
                 assert leaks(json.dumps(metadata.metadata)) == []
     assert answers and all(HARMLESS in a["answer"] and MARK in a["answer"] for a in answers)
     assert all(MARK in (a["model"] or "") for a in answers)
-    found = {str(path): leaks(text) for path, text in files_and_contents(tmp_path) if leaks(text)}
+    found = {str(path): leaks(text) for path, text in written(tmp_path) if leaks(text)}
     assert found == {}, found
     captured = capfd.readouterr()
     assert leaks(captured.out + captured.err) == []

@@ -7,43 +7,13 @@ and ``cache parse``. A key that cannot go in a header is one line, exit status 2
 from __future__ import annotations
 
 import json
-import sqlite3
-import zlib
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from lagrseq import cli
 from tests.llm.conftest import FakeOpenAI
-from tests.llm.test_redaction import ECHO_KEY, HARMLESS, echo_completion, echoing, leaks
-
-
-def written(root: Path) -> Iterator[tuple[Path, str]]:
-    """Every file under ``root`` as text (latin-1 of its bytes, and decompressed where it is zlib
-    data), and every value of every table of every SQLite file (stores, the budget ledger)."""
-    for path in sorted(p for p in root.rglob("*") if p.is_file()):
-        data = path.read_bytes()
-        yield path, data.decode("latin-1")
-        try:
-            unpacked: str | None = zlib.decompress(data).decode("latin-1")
-        except zlib.error:
-            unpacked = None
-        if unpacked is not None:
-            yield path, unpacked
-        if data.startswith(b"SQLite format 3"):
-            with sqlite3.connect(f"file:{path}?mode=ro", uri=True) as db:
-                tables = [row[0] for row in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")]
-                for table in tables:
-                    for row in db.execute(f'SELECT * FROM "{table}"'):
-                        for value in row:
-                            if isinstance(value, bytes):
-                                try:
-                                    yield path, zlib.decompress(value).decode("latin-1")
-                                except zlib.error:
-                                    yield path, value.decode("latin-1")
-                            else:
-                                yield path, str(value)
+from tests.llm.test_redaction import ECHO_KEY, HARMLESS, echo_completion, echoing, leaks, written
 
 
 @pytest.mark.slow

@@ -3,6 +3,7 @@ damaged store rows give one line naming the key, and a read-only store is read w
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import io
 import json
@@ -372,12 +373,12 @@ def test_a_store_row_pointing_outside_the_store_is_refused(tmp_path: Path) -> No
 
 
 # ------------------------------------------------------------------------------ defect 12: read-only stores
-@pytest.fixture
-def read_only(tmp_path: Path) -> Iterator[Path]:
-    """A store in a directory nobody can write, not even root: ``chattr +i`` where the file
-    system allows it, plain permissions for other users; skipped where neither holds."""
-    store = tmp_path / "ro"
-    import_jsonl(io.StringIO(line(record(0)) + "\n" + line(record(1, "other")) + "\n"), store)
+
+@contextlib.contextmanager
+def made_read_only(store: Path) -> Iterator[Path]:
+    """``store`` (a directory) and everything in it unwritable, not even by root: ``chattr +i``
+    where the file system allows it, plain permissions for other users; the test is skipped where
+    neither holds. Writable again afterwards."""
     targets = [store, *store.rglob("*")]
     if os.geteuid() == 0:
         try:
@@ -399,6 +400,16 @@ def read_only(tmp_path: Path) -> Iterator[Path]:
         for path in targets:
             if path.exists():
                 path.chmod(0o755 if path.is_dir() else 0o644)
+
+
+@pytest.fixture
+def read_only(tmp_path: Path) -> Iterator[Path]:
+    """A store in a directory nobody can write, not even root: ``chattr +i`` where the file
+    system allows it, plain permissions for other users; skipped where neither holds."""
+    store = tmp_path / "ro"
+    import_jsonl(io.StringIO(line(record(0)) + "\n" + line(record(1, "other")) + "\n"), store)
+    with made_read_only(store):
+        yield store
 
 
 def test_a_read_only_store_serves_list_export_and_recorded_runs(read_only: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
