@@ -179,19 +179,25 @@ def test_a_worker_killed_mid_trial_is_replaced_and_its_trial_rerun_by_dask(
     assert events(tmp_path) == reference
 
 
+def _interrupt(process: subprocess.Popen[str]) -> tuple[str, float]:
+    """Ctrl-C to the process group, as a terminal sends it: stderr and the seconds to the exit."""
+    started = time.monotonic()
+    os.killpg(process.pid, signal.SIGINT)
+    _, err = process.communicate(timeout=60)
+    return err, time.monotonic() - started
+
+
 def test_ctrl_c_leaves_complete_logs_and_partials_that_recover_repairs(tmp_path: Path) -> None:
     process = _start(tmp_path, "--set", "run.episodes=3000")
     try:
         _wait_for(tmp_path, "*.partial")
         time.sleep(1.0)  # some episodes flushed
-        started = time.monotonic()
-        os.killpg(process.pid, signal.SIGINT)
-        _, err = process.communicate(timeout=60)
+        err, took = _interrupt(process)
     finally:
         if process.poll() is None:
             os.killpg(process.pid, signal.SIGKILL)
     assert process.returncode == 130, err
-    assert time.monotonic() - started < 20
+    assert took < 20
     assert "interrupted" in err and "Traceback" not in err
     finished = list(tmp_path.rglob("trial-*.mcap"))
     partials = list(tmp_path.rglob("*.mcap.partial"))
@@ -221,14 +227,12 @@ def test_a_ctrl_c_while_the_workers_start_is_not_lost(tmp_path: Path) -> None:
             time.sleep(0.01)
         time.sleep(0.2)  # lagrseq's own check of its children (every 10 ms); the workers import for longer
         assert not list(tmp_path.rglob("*.partial")), "the workers started before the check"
-        started = time.monotonic()
-        os.killpg(process.pid, signal.SIGINT)
-        _, err = process.communicate(timeout=60)
+        err, took = _interrupt(process)
     finally:
         if process.poll() is None:
             os.killpg(process.pid, signal.SIGKILL)
     assert process.returncode == 130, err
-    assert time.monotonic() - started < 20
+    assert took < 20
     assert err.strip().startswith("lagrseq run: interrupted;") and "\n" not in err.strip(), err
     assert not list(tmp_path.rglob("trial-*.mcap"))
 
