@@ -1,0 +1,143 @@
+"""The small-sample inference behind every verdict: t quantiles, coverage, equivalence,
+non-inferiority and Holm, on hand-made cases and by simulation."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from lagrseq.analysis import inference as inf
+
+# Student's t quantiles from published tables (two-sided 95%: the 0.975 quantile).
+TABLE = [(1, 12.7062047), (2, 4.30265273), (3, 3.18244631), (4, 2.77644511), (9, 2.26215716),
+         (29, 2.04522964), (100, 1.98397152)]
+
+
+@pytest.mark.parametrize(("df", "quantile"), TABLE)
+def test_t_quantiles_match_the_tables(df: int, quantile: float) -> None:
+    assert inf.t_ppf(0.975, df) == pytest.approx(quantile, rel=1e-7)
+    assert inf.t_ppf(0.025, df) == pytest.approx(-quantile, rel=1e-7)
+    assert inf.t_cdf(quantile, df) == pytest.approx(0.975, abs=1e-9)
+
+
+@settings(max_examples=60, deadline=None)
+@given(p=st.floats(0.001, 0.999), df=st.floats(0.5, 500))
+def test_quantile_and_cdf_are_inverse(p: float, df: float) -> None:
+    assert inf.t_cdf(inf.t_ppf(p, df), df) == pytest.approx(p, abs=1e-9)
+
+
+def test_agrees_with_scipy_where_installed() -> None:
+    stats = pytest.importorskip("scipy.stats")
+    for df in (1.5, 2, 3.7, 7, 40):
+        for p in (0.6, 0.9, 0.95, 0.975, 0.995):
+            assert inf.t_ppf(p, df) == pytest.approx(stats.t.ppf(p, df), rel=1e-8)
+
+
+@pytest.mark.parametrize("n", [3, 5, 10])
+def test_the_t_interval_covers_at_its_nominal_level_on_normal_data(n: int) -> None:
+    """The issue's requirement: nominal 95% covers at least 93% at n = 5 on normal data (the
+    percentile bootstrap covers about 84% there). 4,000 simulated experiments per n."""
+    rng = np.random.default_rng(12345 + n)
+    samples = rng.normal(10.0, 3.0, size=(4000, n))
+    covered = 0
+    for row in samples:
+        interval = inf.t_interval(row, 0.95)
+        covered += interval.low <= 10.0 <= interval.high
+    assert covered / 4000 >= 0.93
+
+
+def test_the_percentile_bootstrap_under_covers_at_small_n_which_is_why_it_is_not_used() -> None:
+    from lagrseq.analysis.stats import bootstrap_ci
+
+    rng = np.random.default_rng(7)
+    samples = rng.normal(0.0, 1.0, size=(600, 5))
+    boot = np.random.default_rng(8)
+    covered = sum(lo <= 0.0 <= hi for lo, hi in (bootstrap_ci(row, boot, resamples=2000) for row in samples))
+    assert covered / 600 < 0.90
+
+
+def test_interval_of_one_value_has_no_bounds_and_nan_values_are_dropped() -> None:
+    one = inf.t_interval([4.0])
+    assert one.n == 1 and one.mean == 4.0 and math.isnan(one.low)
+    assert inf.t_interval([1.0, float("nan"), 3.0]).n == 2
+
+
+# -- equivalence: reproduced, differs, inconclusive -------------------------------------------------
+
+
+def test_tight_trials_near_the_paper_value_are_reproduced() -> None:
+    verdict = inf.equivalence([99.0, 100.0, 101.0, 100.5, 99.5, 100.0], target=100.0, margin=10.0)
+    assert verdict.verdict == inf.REPRODUCED
+    assert verdict.interval.level == pytest.approx(0.90)
+
+
+def test_tight_trials_far_from_the_paper_value_differ() -> None:
+    verdict = inf.equivalence([59.0, 60.0, 61.0, 60.0, 60.5], target=100.0, margin=10.0)
+    assert verdict.verdict == inf.DIFFERS
+
+
+def test_wide_trials_are_inconclusive() -> None:
+    verdict = inf.equivalence([60.0, 140.0, 100.0, 80.0, 120.0], target=100.0, margin=10.0)
+    assert verdict.verdict == inf.INCONCLUSIVE
+
+
+def test_never_reproduced_below_the_minimum_number_of_trials() -> None:
+    verdict = inf.equivalence([100.0, 100.1, 99.9], target=100.0, margin=10.0)
+    assert verdict.verdict == inf.INCONCLUSIVE and "3 < 5" in verdict.reason
+    assert inf.equivalence([100.0], 100.0, 10.0).verdict == inf.INCONCLUSIVE
+
+
+def test_the_margin_is_ten_percent_or_the_papers_spread() -> None:
+    assert inf.margin_for(284.0) == pytest.approx(28.4)
+    assert inf.margin_for(59.5, 30.0) == 30.0
+    assert inf.margin_for(-50.0, None) == pytest.approx(5.0)
+
+
+# -- non-inferiority ------------------------------------------------------------------------------
+
+
+def test_non_inferior_inferior_and_inconclusive() -> None:
+    rng = np.random.default_rng(3)
+    control = rng.normal(100.0, 5.0, 12)
+    same = rng.normal(100.0, 5.0, 12)
+    worse = rng.normal(60.0, 5.0, 12)
+    noisy = rng.normal(92.0, 40.0, 12)
+    assert inf.noninferiority(same, control, margin=15.0).verdict == inf.NON_INFERIOR
+    assert inf.noninferiority(worse, control, margin=15.0).verdict == inf.INFERIOR
+    assert inf.noninferiority(noisy, control, margin=15.0).verdict == inf.INCONCLUSIVE
+
+
+def test_lower_is_better_outcomes_flip_the_direction() -> None:
+    control = [500.0, 520.0, 480.0, 510.0, 490.0, 505.0, 495.0, 515.0, 485.0, 500.0]
+    slower = [x + 300.0 for x in control]
+    faster = [x - 100.0 for x in control]
+    assert inf.noninferiority(slower, control, 50.0, higher_is_better=False).verdict == inf.INFERIOR
+    assert inf.noninferiority(faster, control, 50.0, higher_is_better=False).verdict == inf.NON_INFERIOR
+
+
+def test_fewer_than_ten_trials_is_never_a_verdict() -> None:
+    result = inf.noninferiority([100.0] * 3 + [101.0] * 2, [100.0, 99.0, 101.0, 100.0, 100.0], 10.0)
+    assert result.verdict == inf.INCONCLUSIVE and result.n_treatment == 5
+
+
+# -- Holm -----------------------------------------------------------------------------------------
+
+
+def test_holm_matches_a_worked_example_and_is_monotone() -> None:
+    adjusted = inf.holm([0.01, 0.04, 0.03, 0.005, float("nan")])
+    # sorted: 0.005*4=0.02, 0.01*3=0.03, 0.03*2=0.06, 0.04*1 -> max(0.06, 0.04)=0.06
+    assert adjusted[:4] == pytest.approx([0.03, 0.06, 0.06, 0.02])
+    assert math.isnan(adjusted[4])
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.lists(st.floats(0.0, 1.0), min_size=1, max_size=40))
+def test_holm_never_lowers_a_p_value_and_keeps_order(ps: list[float]) -> None:
+    adjusted = inf.holm(ps)
+    assert np.all(adjusted >= np.asarray(ps) - 1e-15) and np.all(adjusted <= 1.0)
+    order = np.argsort(ps, kind="stable")
+    assert np.all(np.diff(adjusted[order]) >= -1e-15)
