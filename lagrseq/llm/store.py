@@ -68,6 +68,7 @@ from lagrseq.llm.records import (
     problems,
 )
 from lagrseq.llm.servers import DEFAULT_BASE_URL  # noqa: F401 - re-exported for callers
+from lagrseq.paths import kind_of, open_input
 
 STORE_FORMAT = "lagrseq.recorded-store"
 META_KEY = "lagrseq-store"
@@ -473,7 +474,7 @@ class RecordStore:
         self._reader: ReadOnlyDatabase | None = None
         self._closed = False
         if self.directory.exists() and not self.directory.is_dir():
-            raise StoreError(f"store path {self.directory} is a file; expected a directory")
+            raise StoreError(f"store path {self.directory} is {kind_of(self.directory.stat().st_mode)}; expected a directory")
         if not (self.directory / "cache.db").is_file() and (
             not create or readonly or (self.directory / "cache.db").exists()
         ):
@@ -923,9 +924,6 @@ def import_jsonl_file(
     name = name or str(path)
     if path.is_dir():
         raise StoreError(f"{path} is a directory; expected a JSONL file (a lagrseq export)")
-    try:
-        handle = path.open("rb")
-    except OSError as exc:
-        raise StoreError(f"cannot read {path}: {exc.strerror or exc}") from None
+    handle = open_input(path, "JSONL file", StoreError)  # a FIFO or device is refused, not read for ever
     with handle:
         return import_jsonl(handle, store, name, warn)
