@@ -53,6 +53,7 @@ def _number_types() -> dict[str, Callable[[str], Any]]:
         "share": cfg.number_type("share", ge=0, le=1),
         "episodes": cfg.number_type("episodes", integer=True, ge=0, le=10**7),
         "steps": cfg.number_type("steps", integer=True, ge=-1, le=10**9),
+        "objects": cfg.number_type("objects", integer=True, ge=1, le=10_000),
     }
 
 
@@ -254,8 +255,12 @@ def _add_robot(sub: Any) -> None:
     actions = p.add_subparsers(dest="robot_command", required=True, metavar="ACTION")
     serve = actions.add_parser("serve", help="serve a robot until interrupted (Ctrl-C)")
     serve.add_argument("--sim", action="store_true", required=True, help="serve a simulated UR5e (pybullet; the only robot lagrseq itself drives)")
-    serve.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only; the service has no authentication)")
+    serve.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only); any other address needs --token-file and --tls-cert/--tls-key")
     serve.add_argument("--port", type=_PORT, default=50051, help="TCP port (default 50051; 0 picks a free one and prints it)")
+    serve.add_argument("--token-file", default=None, metavar="FILE", help="a shared secret (one line, chmod 600) every call must carry; clients set env.robot_token_file to the same file")
+    serve.add_argument("--tls-cert", default=None, metavar="FILE.pem", help="serve TLS with this certificate (chain); clients use env.robot=\"remote+tls:HOST:PORT\" and env.robot_tls_ca")
+    serve.add_argument("--tls-key", default=None, metavar="FILE.pem", help="the private key of --tls-cert")
+    serve.add_argument("--max-objects", type=_N["objects"], default=64, metavar="N", help="objects the table may hold; Place on a full table is refused until Clear (default 64)")
 
 
 def _add_frontier(sub: Any) -> None:
@@ -597,9 +602,11 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_robot(args: argparse.Namespace) -> int:
-    from lagrseq.robot.remote import serve_sim
+    from lagrseq.robot.remote import check_listen, security_for, serve_sim
 
-    serve_sim(args.host, args.port, say=lambda line: print(line, flush=True))
+    check_listen(args.host, args.port)  # an address this machine cannot listen on is said first
+    security = security_for(args.host, args.token_file, args.tls_cert, args.tls_key, args.max_objects)
+    serve_sim(args.host, args.port, say=lambda line: print(line, flush=True), security=security)
     return 0
 
 

@@ -393,9 +393,9 @@ def _check_robot(spec: str) -> None:
         return
     kind, _, address = spec.partition(":")
     host, _, port = address.rpartition(":")
-    if kind == "remote" and host and port.isdigit() and 0 < int(port) < 65536 and host.isprintable() and " " not in host:
+    if kind in ("remote", "remote+tls") and host and port.isdigit() and 0 < int(port) < 65536 and host.isprintable() and " " not in host:
         return
-    raise ConfigError(f'env.robot = {show_value(spec)}; expected "sim" or "remote:HOST:PORT" (a port in 1..65535)')
+    raise ConfigError(f'env.robot = {show_value(spec)}; expected "sim", "remote:HOST:PORT" or "remote+tls:HOST:PORT" (a port in 1..65535)')
 
 
 @dataclass(frozen=True)
@@ -414,6 +414,13 @@ class ArmEnvConfig(_Section):
     behind a gRPC server."""
     robot_timeout_s: float = ranged(60.0, gt=0, le=3600)
     """Seconds one call to a remote robot may take (a real placement takes seconds)."""
+    robot_token_file: str = ""
+    """A remote robot's shared secret: a file (chmod 600) holding the token the service was
+    started with (`robot serve --token-file`); sent on every call, only over TLS or to loopback.
+    The path is logged, the token never."""
+    robot_tls_ca: str = ""
+    """For "remote+tls:HOST:PORT": the PEM certificate to trust (a self-signed server's own
+    certificate, or its CA); empty: the system's roots."""
     view_every: int = ranged(1, ge=0)
     """Environment steps between camera frames on /view/arm (0: none; 1: every step, so replay
     can show any episode as a GIF; about 40 ms a frame). The joint state is logged every step."""
@@ -422,6 +429,12 @@ class ArmEnvConfig(_Section):
 
     def _check(self) -> None:
         _check_robot(self.robot)
+        for name in ("robot_token_file", "robot_tls_ca"):
+            value = getattr(self, name)
+            if len(value) > 4096 or not value.isprintable():
+                raise ConfigError(f"env.{name} = {show_value(value)}; expected a file path")
+        if self.robot_tls_ca and not self.robot.startswith("remote+tls:"):
+            raise ConfigError(f"env.robot_tls_ca is set but env.robot = {show_value(self.robot)}; write remote+tls:HOST:PORT")
 
 
 # --------------------------------------------------------------------------------------------

@@ -47,6 +47,7 @@ from lagrseq.llm.mock import MockProvider
 from lagrseq.llm.servers import DEFAULT_BASE_URL, base_url_problem
 from lagrseq.logs import foxglove
 from lagrseq.logs.events import Sink, View
+from lagrseq.paths import expand_user, input_path
 from lagrseq.policies import Always, AskingPolicy, make_policy
 from lagrseq.seeding import Stream
 from lagrseq.tasks import cube, grid, grid_profiles
@@ -110,9 +111,9 @@ def recorded_file(argument: str) -> Path:
     """The JSONL export of ``recorded:FILE.jsonl``: FILE as given, or, for a relative path that is
     not there, FILE in the source checkout lagrseq runs from (the packaged suite's
     ``recorded_llm/`` files)."""
-    path = Path(argument).expanduser()
-    if path.is_file():
-        return path
+    path = expand_user(argument, "recorded answers")
+    if path.exists():
+        return input_path(path, "recorded answers", "file")  # a FIFO or a directory: one line
     checkout = Path(__file__).resolve().parents[1] / argument
     if not path.is_absolute() and checkout.is_file():
         return checkout
@@ -466,6 +467,8 @@ def make_arm_env(config: ExperimentConfig, render_dir: Path | None = None) -> An
             goal_threshold=task.goal_threshold,
             robot=section.robot,
             robot_timeout_s=section.robot_timeout_s,
+            robot_token_file=section.robot_token_file,
+            robot_tls_ca=section.robot_tls_ca,
             render_size=(section.view_width, section.view_width * 3 // 4),
         )
     except (ImportError, gym.error.DependencyNotInstalled) as exc:
