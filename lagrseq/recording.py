@@ -318,6 +318,7 @@ def import_answers(
     from lagrseq.llm.authors_cache import import_authors_cache
 
     config = record_config(task, preset, config_file, overrides, model, temperature, max_tokens)
+    endpoint = endpoint_of(base_url)  # a URL carrying a key is refused before the store is made
     with RecordStore(store_path) as store:
         report = import_authors_cache(
             file,
@@ -326,7 +327,7 @@ def import_answers(
             task=task,
             model=model,
             temperature=temperature,
-            endpoint=endpoint_of(base_url),
+            endpoint=endpoint,
             max_tokens=config.llm.max_tokens,
             warn=warn,
         )

@@ -67,7 +67,7 @@ from lagrseq.llm.records import (
     normalise_sample,
     problems,
 )
-from lagrseq.llm.servers import DEFAULT_BASE_URL  # noqa: F401 - re-exported for callers
+from lagrseq.llm.servers import DEFAULT_BASE_URL, base_url_problem  # noqa: F401 - DEFAULT_BASE_URL re-exported for callers
 from lagrseq.paths import kind_of, open_input
 
 STORE_FORMAT = "lagrseq.recorded-store"
@@ -80,7 +80,11 @@ _DEFAULT_PORTS = {"http": 80, "https": 443}
 # ------------------------------------------------------------------------------------------
 def endpoint_of(base_url: str) -> str:
     """The endpoint part of a key: the lower-cased host, with the port when it is not the
-    scheme's default (``https://api.openai.com/v1`` -> ``api.openai.com``)."""
+    scheme's default (``https://api.openai.com/v1`` -> ``api.openai.com``). A URL carrying
+    credentials or a key-like segment is refused without being shown (:func:`base_url_problem`)."""
+    problem = base_url_problem(base_url)
+    if problem is not None:
+        raise StoreError(problem)
     try:
         parts = urlsplit(base_url if "://" in base_url else f"https://{base_url}")
     except ValueError as exc:  # e.g. an unclosed '[' of an IPv6 host
