@@ -255,16 +255,18 @@ def local_settings(argument: str, options: ProviderOptions, port: int = 0) -> An
 def make_local(argument: str, options: ProviderOptions, rng: np.random.Generator) -> Provider:
     """A llama.cpp server started for this provider (stopped by its ``close``), asked through the
     live provider as ``--server llama.cpp`` with no API key."""
-    from lagrseq.llm.local import LocalProvider, LocalServer
+    from lagrseq.llm.local import LocalProvider, LocalServer, Supervisor
 
     server = LocalServer(local_settings(argument, options), on_line=_say).start()
+    supervisor = Supervisor(server, _say)  # a server dying mid-run: restarted once, then one line
     try:
         local = replace(options, base_url=server.base_url, server="llama.cpp")
-        inner = make_live(local, rng, budgeted=True, on_retry=_say, environ={}, local_model=server.settings.model_name)
+        inner = make_live(local, rng, budgeted=True, on_retry=supervisor.on_retry, environ={}, local_model=server.settings.model_name)
     except BaseException:
+        supervisor.close()
         server.stop()
         raise
-    return LocalProvider(server, inner)  # type: ignore[return-value]
+    return LocalProvider(server, inner, supervisor)  # type: ignore[return-value]
 
 
 def make_live(

@@ -124,7 +124,7 @@ def test_start_failures_are_one_line_and_leave_no_process(fake: Path, tmp_path: 
     broken.write_bytes(b"GGUF" + bytes(4))  # the magic, then nothing a loader accepts
     lines: list[str] = []
     server = local.LocalServer(local.ServerSettings(broken), on_line=lines.append)
-    with pytest.raises(ProviderError, match=r"exited with status 1 before answering: llama_model_load: error loading model"):
+    with pytest.raises(ProviderError, match=r"exited with status 1 before answering: broken.gguf is not a GGUF model"):
         server.start()
     assert gone(start_line(lines[0])[0]) and server.process is None
     with socket.socket() as taken:
