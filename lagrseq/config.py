@@ -610,7 +610,8 @@ class DQNConfig(_Section):
     cpu_threads: int = ranged(1, ge=0, le=1024)
     """torch's intra-op CPU threads for the whole process (torch.set_num_threads), 0 = leave
     torch's default (all cores). Networks this small run fastest on one thread: on a 2-core
-    machine the default made a trial 3x slower, and parallel trials oversubscribe the cores."""
+    machine the default made a trial 3x slower, and parallel trials oversubscribe the cores.
+    Capped at the cores the process may use (1024 threads on 2 cores: 65x slower updates)."""
 
     def _check(self) -> None:
         _check_network(self.SECTION, self.hidden_sizes, self.batch_size, self.buffer_size)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -98,3 +99,20 @@ def test_defaults_and_presets_stay_inside_the_limits() -> None:
                     assert "method" in str(error), error
                     continue
                 assert dataclasses.is_dataclass(resolved)
+
+
+def test_cpu_threads_at_its_limit_is_capped_at_the_usable_cores() -> None:
+    """The probe's hanging ``--set`` value: primary.cpu_threads = 1024 (inside its range) gave
+    torch 1024 threads on a 2-core machine, and every update became 65 times slower (1.9 against
+    121 updates/s, benchmarked with the DQN's network shape under load): a run seemed to hang.
+    The agent now gives torch at most the cores the process may use."""
+    torch = pytest.importorskip("torch")
+    from lagrseq.agents.dqn import DQN, usable_cores
+
+    before = torch.get_num_threads()
+    try:
+        DQN(observation_size=4, n_actions=2, hidden_sizes=(8,), learning_rate=1e-3, discount=0.9, batch_size=4,
+                 buffer_size=16, target_update_interval=0, seed=0, cpu_threads=1024)
+        assert torch.get_num_threads() == min(1024, usable_cores()) <= (os.cpu_count() or 1)
+    finally:
+        torch.set_num_threads(before)
