@@ -74,7 +74,7 @@ RUN = ["run", "cube-stacking", "--method", "lagr", "--trials", "4", "--jobs", "2
 COMMANDS = {
     "run": RUN,
     "frontier": ["frontier", "cube-stacking", "--policies", "always,never", "--trials", "2", "--jobs", "2", "--set", "run.episodes=100000", "--quiet"],
-    "reproduce": ["reproduce", "--quick", "--jobs", "2", "--quiet"],
+    "reproduce": ["reproduce", "--quick", "--items", "fig5a", "--jobs", "2", "--quiet"],
     "audit": ["audit", "cube-stacking", "--jobs", "2", "--episodes", "100000", "--trials", "2", "--quiet"],
 }
 
