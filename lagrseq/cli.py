@@ -1,5 +1,6 @@
 """The ``lagrseq`` command line. Exit status: 0 success, 2 bad usage or bad input (one line on
-stderr), 130 interrupted, 1 an unexpected failure.
+stderr), 130 interrupted by Ctrl-C (SIGINT), 143 stopped by SIGTERM (a batch scheduler, ``kill``:
+the same clean stop as Ctrl-C, logs kept), 1 an unexpected failure.
 
 The parsers are declared once per option group (parent parsers) and take their choices from the
 code's own constants; each ``cmd_*`` handler parses, calls one function and prints.
@@ -40,8 +41,9 @@ def _number_types() -> dict[str, Callable[[str], Any]]:
         "jobs": cfg.number_type("processes", integer=True, ge=1, le=1024),
         "samples": cfg.number_type("answers", integer=True, ge=1, le=10_000),
         "seed": cfg.seed_int,
-        "budget": cfg.nonneg_float,
-        "limit": cfg.nonneg_int,
+        "budget": cfg.number_type("US dollars", ge=0, le=1e6),
+        "limit": cfg.number_type("queries", integer=True, ge=0, le=10**9),
+        "retries": cfg.number_type("retries", integer=True, ge=0, le=100),
         "temperature": cfg.temperature_float,
         "max_tokens": cfg.max_tokens_int,
         "seconds": cfg.number_type("seconds", gt=0, le=86_400),
@@ -53,6 +55,7 @@ def _number_types() -> dict[str, Callable[[str], Any]]:
         "share": cfg.number_type("share", ge=0, le=1),
         "episodes": cfg.number_type("episodes", integer=True, ge=0, le=10**7),
         "steps": cfg.number_type("steps", integer=True, ge=-1, le=10**9),
+        "objects": cfg.number_type("objects", integer=True, ge=1, le=10_000),
     }
 
 
@@ -119,7 +122,7 @@ def _executor_options() -> argparse.ArgumentParser:
     g = p.add_argument_group("execution")
     g.add_argument("--executor", choices=EXECUTORS, default="local", help="local: a pool of --jobs processes on this machine (default); dask: Dask distributed, a local cluster of --jobs single-threaded workers on 127.0.0.1 (its dashboard link is printed) or the cluster of --scheduler (needs the dask extra: pip install 'lagrseq[dask]')")
     g.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="with --executor dask: an existing Dask scheduler (dask scheduler / dask worker, or dask-jobqueue's SLURMCluster); its workers need this lagrseq installed and the output directory on a shared file system")
-    g.add_argument("--retries", type=_LIMIT, default=0, metavar="N", help="run a trial that raised up to N more times (default 0: trials are deterministic); a Dask worker that dies mid-trial is replaced and its trial rerun by Dask itself")
+    g.add_argument("--retries", type=_N["retries"], default=0, metavar="N", help="run a trial that raised up to N more times (default 0: trials are deterministic); a Dask worker that dies mid-trial is replaced and its trial rerun by Dask itself")
     return p
 
 
@@ -254,8 +257,12 @@ def _add_robot(sub: Any) -> None:
     actions = p.add_subparsers(dest="robot_command", required=True, metavar="ACTION")
     serve = actions.add_parser("serve", help="serve a robot until interrupted (Ctrl-C)")
     serve.add_argument("--sim", action="store_true", required=True, help="serve a simulated UR5e (pybullet; the only robot lagrseq itself drives)")
-    serve.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only; the service has no authentication)")
+    serve.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only); any other address needs --token-file and --tls-cert/--tls-key")
     serve.add_argument("--port", type=_PORT, default=50051, help="TCP port (default 50051; 0 picks a free one and prints it)")
+    serve.add_argument("--token-file", default=None, metavar="FILE", help="a shared secret (one line, chmod 600) every call must carry; clients set env.robot_token_file to the same file")
+    serve.add_argument("--tls-cert", default=None, metavar="FILE.pem", help="serve TLS with this certificate (chain); clients use env.robot=\"remote+tls:HOST:PORT\" and env.robot_tls_ca")
+    serve.add_argument("--tls-key", default=None, metavar="FILE.pem", help="the private key of --tls-cert")
+    serve.add_argument("--max-objects", type=_N["objects"], default=64, metavar="N", help="objects the table may hold; Place on a full table is refused until Clear (default 64)")
 
 
 def _add_frontier(sub: Any) -> None:
@@ -597,9 +604,11 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_robot(args: argparse.Namespace) -> int:
-    from lagrseq.robot.remote import serve_sim
+    from lagrseq.robot.remote import check_listen, security_for, serve_sim
 
-    serve_sim(args.host, args.port, say=lambda line: print(line, flush=True))
+    check_listen(args.host, args.port)  # an address this machine cannot listen on is said first
+    security = security_for(args.host, args.token_file, args.tls_cert, args.tls_key, args.max_objects)
+    serve_sim(args.host, args.port, say=lambda line: print(line, flush=True), security=security)
     return 0
 
 
@@ -670,10 +679,6 @@ def cmd_serve_llm(args: argparse.Namespace) -> int:
 
     options = ProviderOptions(local_n_ctx=args.local_n_ctx, local_threads=args.local_threads)
     settings = local_settings(args.model, options, port=args.port)
-    def interrupt(*_: Any) -> None:
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGTERM, interrupt)  # SIGTERM (a scheduler, kill) stops it as Ctrl-C does
 
     def say(line: str) -> None:
         print(f"lagrseq serve-llm: {line}", file=sys.stderr, flush=True)
@@ -874,7 +879,16 @@ INTERRUPTED = {
     "frontier": "finished trial logs are kept, unfinished ones left as .partial; run the same command to go on",
     "audit": "finished trial logs are kept, unfinished ones left as .partial; run the same command to go on",
     "serve-llm": "the server is stopped",
+    "robot": "the service is stopped",
 }
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the main thread is, so it stops a command as Ctrl-C does."""
+
+
+def _terminate(*_: Any) -> None:
+    raise Terminated
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -883,24 +897,41 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
+    previous = None
+    with contextlib.suppress(ValueError):  # not the main thread (a caller's own thread): left alone
+        previous = signal.signal(signal.SIGTERM, _terminate)  # a batch scheduler's stop: as Ctrl-C
+        # a wrapper that blocked SIGTERM (or SIGINT) hands the mask down across exec: undo that,
+        # or the stop would never arrive (the handler above also replaces an inherited SIG_IGN)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGTERM, signal.SIGINT})
+    try:
+        return _dispatch(args, argv)
+    finally:
+        if previous is not None and argv is not None:  # a caller's main([...]): its handler back
+            with contextlib.suppress(ValueError):
+                signal.signal(signal.SIGTERM, previous)
+
+
+def _dispatch(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
     try:
         return COMMANDS[args.command](args)
     except LagrseqError as exc:
         print(f"lagrseq {args.command}: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as stop:
         from lagrseq.runner import exit_on_next_interrupt
 
         exit_on_next_interrupt()
         kept = INTERRUPTED.get(args.command, "nothing finished is lost")
-        print(f"lagrseq {args.command}: interrupted; {kept}", file=sys.stderr)
+        terminated = isinstance(stop, Terminated)
+        status = 143 if terminated else 130
+        print(f"lagrseq {args.command}: {'stopped by SIGTERM' if terminated else 'interrupted'}; {kept}", file=sys.stderr)
         if argv is None:  # the program itself (not a caller's main([...])): leave now, because an
             # interpreter shutdown joins worker threads and restores SIGINT's default action, so a
             # second Ctrl-C in that time would kill the process mid-way
             sys.stdout.flush()
             sys.stderr.flush()
-            os._exit(130)
-        return 130
+            os._exit(status)
+        return status
     except BrokenPipeError:  # pragma: no cover - e.g. piped into head
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 1

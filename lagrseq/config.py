@@ -252,9 +252,9 @@ class CubeEnvConfig(_Section):
 
     SECTION = "env"
 
-    horizon: int = ranged(100, ge=1)
+    horizon: int = ranged(100, ge=1, le=100_000)
     """Steps per episode (H). Paper: 100; released code: 50."""
-    bonus: float = ranged(1.0, ge=0)
+    bonus: float = ranged(1.0, ge=0, le=1e6)
     """Reward bonus b for the complete stack. Paper and code: 1."""
     bonus_on: Literal["next-state", "either-state"] = "next-state"
     """When b is paid: when s' is complete (paper) or when s or s' is complete (code, which also
@@ -338,9 +338,9 @@ class ImageEnvConfig(_Section):
 
     SECTION = "env"
 
-    scans: int = ranged(5, ge=1)
+    scans: int = ranged(5, ge=1, le=1000)
     """Raster scans of the 100 pixels per episode. Paper: H = 500 steps; code: 5 scans."""
-    bonus: float = ranged(1.0, ge=0)
+    bonus: float = ranged(1.0, ge=0, le=1e6)
     """Reward bonus b at the goal. Paper and code: 1."""
     goal_ends: Literal["episode", "scan"] = "episode"
     """What reaching the goal ends: the episode, or (code) only the current scan; the next scan
@@ -363,9 +363,9 @@ class ArrangementEnvConfig(_Section):
 
     SECTION = "env"
 
-    horizon: int = ranged(50, ge=1)
+    horizon: int = ranged(50, ge=1, le=100_000)
     """Steps per episode (H). Paper and code: 50."""
-    bonus: float = ranged(1.0, ge=0)
+    bonus: float = ranged(1.0, ge=0, le=1e6)
     """Reward bonus b at the goal. Paper and code: 1."""
 
 
@@ -393,9 +393,9 @@ def _check_robot(spec: str) -> None:
         return
     kind, _, address = spec.partition(":")
     host, _, port = address.rpartition(":")
-    if kind == "remote" and host and port.isdigit() and 0 < int(port) < 65536 and host.isprintable() and " " not in host:
+    if kind in ("remote", "remote+tls") and host and port.isdigit() and 0 < int(port) < 65536 and host.isprintable() and " " not in host:
         return
-    raise ConfigError(f'env.robot = {show_value(spec)}; expected "sim" or "remote:HOST:PORT" (a port in 1..65535)')
+    raise ConfigError(f'env.robot = {show_value(spec)}; expected "sim", "remote:HOST:PORT" or "remote+tls:HOST:PORT" (a port in 1..65535)')
 
 
 @dataclass(frozen=True)
@@ -404,9 +404,9 @@ class ArmEnvConfig(_Section):
 
     SECTION = "env"
 
-    horizon: int = ranged(50, ge=1)
+    horizon: int = ranged(50, ge=1, le=100_000)
     """Steps per episode (H). Paper and code: 50."""
-    bonus: float = ranged(1.0, ge=0)
+    bonus: float = ranged(1.0, ge=0, le=1e6)
     """Reward bonus b at the goal. Paper and code: 1."""
     robot: str = "sim"
     """Who places the objects: "sim" (a UR5e in pybullet, in this process) or "remote:HOST:PORT"
@@ -414,7 +414,14 @@ class ArmEnvConfig(_Section):
     behind a gRPC server."""
     robot_timeout_s: float = ranged(60.0, gt=0, le=3600)
     """Seconds one call to a remote robot may take (a real placement takes seconds)."""
-    view_every: int = ranged(1, ge=0)
+    robot_token_file: str = ""
+    """A remote robot's shared secret: a file (chmod 600) holding the token the service was
+    started with (`robot serve --token-file`); sent on every call, only over TLS or to loopback.
+    The path is logged, the token never."""
+    robot_tls_ca: str = ""
+    """For "remote+tls:HOST:PORT": the PEM certificate to trust (a self-signed server's own
+    certificate, or its CA); empty: the system's roots."""
+    view_every: int = ranged(1, ge=0, le=1_000_000)
     """Environment steps between camera frames on /view/arm (0: none; 1: every step, so replay
     can show any episode as a GIF; about 40 ms a frame). The joint state is logged every step."""
     view_width: int = ranged(160, ge=16, le=1920)
@@ -422,6 +429,12 @@ class ArmEnvConfig(_Section):
 
     def _check(self) -> None:
         _check_robot(self.robot)
+        for name in ("robot_token_file", "robot_tls_ca"):
+            value = getattr(self, name)
+            if len(value) > 4096 or not value.isprintable():
+                raise ConfigError(f"env.{name} = {show_value(value)}; expected a file path")
+        if self.robot_tls_ca and not self.robot.startswith("remote+tls:"):
+            raise ConfigError(f"env.robot_tls_ca is set but env.robot = {show_value(self.robot)}; write remote+tls:HOST:PORT")
 
 
 # --------------------------------------------------------------------------------------------
@@ -449,12 +462,12 @@ class TabularConfig(_Section):
     """Initial epsilon. Paper and code: 1."""
     epsilon_min: float = ranged(0.05, ge=0, le=1)
     """Minimum epsilon. Paper and code: 0.05."""
-    epsilon_decay: float = ranged(0.0, ge=0)
+    epsilon_decay: float = ranged(0.0, ge=0, le=1e6)
     """Linear: episodes to go from start to minimum (0 = half of run.episodes); exponential: the
     per-episode factor. Paper: linear, length not given."""
     epsilon_unit: Literal["episode", "step"] = "episode"
     """What the schedule counts: episodes (cube paper and code) or environment steps."""
-    epsilon_warmup: int = ranged(0, ge=0)
+    epsilon_warmup: int = ranged(0, ge=0, le=10**9)
     """Steps at the start of a trial during which epsilon stays at epsilon_start."""
     invalid_actions: Literal["mask", "resample"] = "mask"
     """Adding a cube that is already in the stack: choose among valid actions only (mask) or, as the
@@ -486,18 +499,18 @@ class TabularSecondaryConfig(_Section):
     """Initial epsilon. Paper and code: 1."""
     epsilon_min: float = ranged(0.05, ge=0, le=1)
     """Minimum epsilon. Paper and code: 0.05."""
-    epsilon_decay: float = ranged(0.0, ge=0)
+    epsilon_decay: float = ranged(0.0, ge=0, le=1e6)
     """As for the primary agent."""
     epsilon_unit: Literal["episode", "step"] = "episode"
     """As for the primary agent."""
-    epsilon_warmup: int = ranged(0, ge=0)
+    epsilon_warmup: int = ranged(0, ge=0, le=10**9)
     """As for the primary agent."""
     query_reward: Literal["binary", "logistic"] = "binary"
     """Reward of a query: binary (reward_correct / reward_wrong) or the paper's appendix logistic
     1 / (1 + exp(-steepness (E/N - midpoint)))."""
-    reward_correct: float = ranged(1.0)
+    reward_correct: float = ranged(1.0, ge=-1e6, le=1e6)
     """Binary query reward for an accepted answer. Paper and code: +1."""
-    reward_wrong: float = ranged(-1.0)
+    reward_wrong: float = ranged(-1.0, ge=-1e6, le=1e6)
     """Binary query reward for a rejected answer. Cube paper and code: -1 (grids: 0)."""
     logistic_steepness: float = ranged(20.0, ge=0, le=500)
     """p1 of the logistic query reward. Paper appendix: 20."""
@@ -513,14 +526,14 @@ class TabularSecondaryConfig(_Section):
     on queries, refused with live answers). Paper: seq."""
     ask_probability: float = ranged(0.5, ge=0, le=1)
     """policy = "random": probability of asking when triggered."""
-    query_cost: float = ranged(0.0, ge=0)
+    query_cost: float = ranged(0.0, ge=0, le=1e6)
     """lambda: a per-query cost subtracted from every query reward (When2Ask-style), so learning
     policies (seq, thompson) ask only where an answer is worth it. Paper: 0."""
-    budget: int = ranged(0, ge=0)
+    budget: int = ranged(0, ge=0, le=10**9)
     """At most this many queries per budget_scope, whatever the policy decides (0: no budget)."""
     budget_scope: Literal["trial", "episode"] = "trial"
     """What the budget counts queries over."""
-    min_progress: int = ranged(0, ge=0)
+    min_progress: int = ranged(0, ge=0, le=1_000_000)
     """Ask only once the pattern has come this far (Task.progress: stack height for the cube,
     cells on for the grids), whatever the policy decides below it (a progress gate: answers to
     barely begun patterns are rarely accepted). In progress units, not a fraction of the target,
@@ -566,12 +579,12 @@ class DQNConfig(_Section):
     """Adam step size. Paper and code: 1e-3."""
     discount: float = ranged(0.95, ge=0, le=1)
     """Discount gamma. Paper and code: 0.95."""
-    batch_size: int = ranged(32, ge=1)
+    batch_size: int = ranged(32, ge=1, le=65_536)
     """Minibatch of one optimiser step (one step per environment step). Paper: 32 (image), 16
     (arrangement); code: 64 (image), 16, each sample fitted separately."""
     buffer_size: int = ranged(10000, ge=1, le=1_000_000)
     """Replay buffer capacity in transitions. Paper and code: 10000."""
-    target_update_interval: int = ranged(0, ge=0)
+    target_update_interval: int = ranged(0, ge=0, le=10**9)
     """Optimiser steps between copies of the online network into the target network; 0 = no
     target network (bootstrap from the online network, as the released code does)."""
     normalise_observations: bool = True
@@ -584,12 +597,12 @@ class DQNConfig(_Section):
     """Initial epsilon. Paper and code: 1."""
     epsilon_min: float = ranged(0.1, ge=0, le=1)
     """Minimum epsilon. Paper and code: 0.1."""
-    epsilon_decay: float = ranged(0.998, ge=0)
+    epsilon_decay: float = ranged(0.998, ge=0, le=1e6)
     """Per-unit factor of the exponential schedule (linear: its length). Paper: 0.998."""
     epsilon_unit: Literal["episode", "step"] = "step"
     """What the schedule counts. Paper: not said; per step (per episode, 0.998 would leave epsilon
     above 0.9 for a whole 10000-step trial). Code: inverse-episode counts episodes."""
-    epsilon_warmup: int = ranged(0, ge=0)
+    epsilon_warmup: int = ranged(0, ge=0, le=10**9)
     """Steps during which epsilon stays at epsilon_start. Code: the batch size (epsilon is set
     inside the replay step, which waits for a full batch)."""
     device: Literal["cpu", "cuda", "auto"] = "cpu"
@@ -597,7 +610,8 @@ class DQNConfig(_Section):
     cpu_threads: int = ranged(1, ge=0, le=1024)
     """torch's intra-op CPU threads for the whole process (torch.set_num_threads), 0 = leave
     torch's default (all cores). Networks this small run fastest on one thread: on a 2-core
-    machine the default made a trial 3x slower, and parallel trials oversubscribe the cores."""
+    machine the default made a trial 3x slower, and parallel trials oversubscribe the cores.
+    Capped at the cores the process may use (1024 threads on 2 cores: 65x slower updates)."""
 
     def _check(self) -> None:
         _check_network(self.SECTION, self.hidden_sizes, self.batch_size, self.buffer_size)
@@ -620,7 +634,7 @@ class NeuralSecondaryConfig(_Section):
     """Widths of the ReLU hidden layers. Code: 128, 128 (image), 64, 64 (arrangement)."""
     learning_rate: float = ranged(0.001, gt=0, le=1)
     """Adam step size. Paper and code: 1e-3."""
-    batch_size: int = ranged(32, ge=1)
+    batch_size: int = ranged(32, ge=1, le=65_536)
     """Minibatch of one optimiser step per decision. Code: 64 (image), 16 (arrangement)."""
     buffer_size: int = ranged(10000, ge=1, le=1_000_000)
     """Replay buffer capacity in decisions. Code: 10000."""
@@ -631,17 +645,17 @@ class NeuralSecondaryConfig(_Section):
     """Initial epsilon. Paper and code: 1."""
     epsilon_min: float = ranged(0.1, ge=0, le=1)
     """Minimum epsilon. Paper: 0.1."""
-    epsilon_decay: float = ranged(0.998, ge=0)
+    epsilon_decay: float = ranged(0.998, ge=0, le=1e6)
     """Per-unit factor of the exponential schedule. Paper: 0.998."""
     epsilon_unit: Literal["episode", "step"] = "step"
     """What the schedule counts (environment steps or episodes)."""
-    epsilon_warmup: int = ranged(0, ge=0)
+    epsilon_warmup: int = ranged(0, ge=0, le=10**9)
     """Steps during which epsilon stays at epsilon_start."""
     query_reward: Literal["binary", "logistic"] = "binary"
     """Reward of a query: binary or the paper appendix's logistic on E/N (N = cells)."""
-    reward_correct: float = ranged(1.0)
+    reward_correct: float = ranged(1.0, ge=-1e6, le=1e6)
     """Binary query reward for an accepted answer. Paper and code: 1."""
-    reward_wrong: float = ranged(0.0)
+    reward_wrong: float = ranged(0.0, ge=-1e6, le=1e6)
     """Binary query reward for a rejected answer. Grids, paper and code: 0."""
     logistic_steepness: float = ranged(20.0, ge=0, le=500)
     """p1 of the logistic query reward. Paper appendix: 20."""
@@ -659,14 +673,14 @@ class NeuralSecondaryConfig(_Section):
     on queries, refused with live answers). Paper: seq."""
     ask_probability: float = ranged(0.5, ge=0, le=1)
     """policy = "random": probability of asking when triggered."""
-    query_cost: float = ranged(0.0, ge=0)
+    query_cost: float = ranged(0.0, ge=0, le=1e6)
     """lambda: a per-query cost subtracted from every query reward (When2Ask-style), so learning
     policies (seq, thompson) ask only where an answer is worth it. Paper: 0."""
-    budget: int = ranged(0, ge=0)
+    budget: int = ranged(0, ge=0, le=10**9)
     """At most this many queries per budget_scope, whatever the policy decides (0: no budget)."""
     budget_scope: Literal["trial", "episode"] = "trial"
     """What the budget counts queries over."""
-    min_progress: int = ranged(0, ge=0)
+    min_progress: int = ranged(0, ge=0, le=1_000_000)
     """Ask only once the pattern has come this far (Task.progress: stack height for the cube,
     cells on for the grids), whatever the policy decides below it (a progress gate: answers to
     barely begun patterns are rarely accepted). In progress units, not a fraction of the target,
@@ -734,9 +748,9 @@ class RunConfig(_Section):
 
     SECTION = "run"
 
-    episodes: int = ranged(100, ge=0)
+    episodes: int = ranged(100, ge=0, le=10**7)
     """Episodes per trial, 0 for no limit (then max_steps ends the trial). Cube code: 100."""
-    max_steps: int = ranged(0, ge=0)
+    max_steps: int = ranged(0, ge=0, le=10**9)
     """Global environment-step budget per trial, 0 for none. Grid code: 10001 (image), 5001."""
 
     def _check(self) -> None:

@@ -108,15 +108,50 @@ class TrialExecutor:
 # ------------------------------------------------------------------------------------------
 def _ignore_interrupts() -> None:
     """Workers leave Ctrl-C to the parent, which stops them (SIGINT reaches the whole process
-    group; a worker that handled it itself would race the parent's cancellation)."""
+    group; a worker that handled it itself would race the parent's cancellation), and die with
+    their parent (:func:`die_with_parent`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    die_with_parent()
+
+
+PR_SET_PDEATHSIG = 1
+
+
+def die_with_parent(poll_s: float = 1.0) -> None:
+    """End this process when the process that started it dies, however it dies (SIGKILL
+    included), so no worker outlives a stopped run; with no worker left, multiprocessing's
+    resource tracker (which reads until every holder of its pipe is gone) ends too.
+
+    Linux: the kernel sends SIGKILL at the parent's death (``prctl(PR_SET_PDEATHSIG)``); the
+    parent may have died before the call, so the parent is checked once after it. Elsewhere, and
+    as a second line on Linux, a daemon thread polls ``os.getppid()`` every ``poll_s``."""
+    import threading
+
+    parent = os.getppid()
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(Exception):
+            import ctypes
+
+            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    if os.getppid() != parent or parent == 1:
+        os._exit(143)
+
+    def watch() -> None:
+        import time
+
+        while os.getppid() == parent:
+            time.sleep(poll_s)
+        os._exit(143)
+
+    threading.Thread(target=watch, name="lagrseq-parent-watch", daemon=True).start()
 
 
 def exit_on_next_interrupt() -> None:
-    """Cleaning up after a Ctrl-C: from now on a Ctrl-C ends the process at once with status
-    130, whatever it is doing. The process is on its way out anyway."""
+    """Cleaning up after a Ctrl-C (or SIGTERM): from now on a Ctrl-C ends the process at once
+    with status 130, a SIGTERM with 143, whatever it is doing. The process is on its way out."""
     with contextlib.suppress(ValueError):  # not the main thread: nothing to install
         signal.signal(signal.SIGINT, lambda *_: os._exit(130))
+        signal.signal(signal.SIGTERM, lambda *_: os._exit(143))
 
 
 TRACKER_QUIET = "ignore:resource_tracker:UserWarning"

@@ -1,22 +1,41 @@
-"""Output paths given on the command line, checked before anything is written.
+"""Paths given from outside, checked before anything is opened or written.
 
-``run``, ``reproduce`` and ``replay`` check their output directory here first, so a path that
-is a file, lies below a file, or cannot be written ends in one line naming the flag, the path and
-the fix, instead of a traceback halfway through (``recover`` and ``cache export`` check their own
-targets where they write).
+Output directories (``run``, ``reproduce`` and ``replay`` check theirs here first, so a path
+that is a file, lies below a file, or cannot be written ends in one line naming the flag, the
+path and the fix, instead of a traceback halfway through; ``recover`` and ``cache export`` check
+their own targets where they write).
+
+Input paths (logs, stores, JSONL exports, pickles, TOML files, GGUF models, token and TLS files):
+:func:`input_path` checks one BEFORE it is opened: ``~`` is expanded (HOME unset is one line, not
+``RuntimeError``), a symlink loop is one line, and the path must be a regular file (or a
+directory where one is expected): a FIFO, a socket or a device would block the reader forever or
+hand it endless bytes. :func:`open_input` opens a file without blocking and checks what it opened
+(a file swapped for a FIFO between the check and the open is still refused).
+:func:`walk_files` lists a directory tree without ever following a symlink loop: every real
+directory is entered once.
+
+Every failure is a :class:`~lagrseq.errors.LagrseqError` (one line, exit status 2); callers pass
+the subclass their layer uses (LogError, StoreError, ConfigError).
 """
 
 from __future__ import annotations
 
+import errno
+import os
+import stat
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
+from typing import BinaryIO, Literal
 
-from lagrseq.errors import UsageError
+from lagrseq.errors import LagrseqError, UsageError
+
+Expect = Literal["file", "directory", "any"]
 
 
 def writable_directory(path: str | Path, flag: str = "--out") -> Path:
     """``path`` as a directory this process can write into (created if missing)."""
-    path = Path(path)
+    path = expand_user(path, flag)
     if path.exists() and not path.is_dir():
         raise UsageError(f"{flag} {path} is a file, not a directory; give a directory path")
     try:
@@ -28,3 +47,106 @@ def writable_directory(path: str | Path, flag: str = "--out") -> Path:
         raise UsageError(f"{flag} {path}: cannot write there ({reason}); give a writable directory") from None
     return path
 
+
+def expand_user(path: str | os.PathLike[str], what: str = "path", error: type[LagrseqError] = UsageError) -> Path:
+    """``path`` with a leading ``~`` expanded; one line when it cannot be (HOME unset and no
+    home directory known for the user)."""
+    text = os.fspath(path)
+    if not text.startswith("~"):
+        return Path(text)
+    try:
+        return Path(text).expanduser()
+    except RuntimeError:
+        raise error(f"{what} {text}: '~' cannot be expanded (HOME is not set and the user has no home directory); give the full path") from None
+
+
+def kind_of(mode: int) -> str:
+    """What a stat mode is, in words."""
+    for test, name in (
+        (stat.S_ISREG, "a file"), (stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+        (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+    ):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def _stat(path: Path, what: str, error: type[LagrseqError]) -> os.stat_result:
+    try:
+        return os.stat(path)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise error(f"{what} {path}: a symlink loop (the link points back at itself); fix or remove the link") from None
+        if exc.errno in (errno.ENOENT, errno.ENOTDIR):
+            raise error(f"cannot read {what} {path}: no such file or directory") from None
+        if exc.errno == errno.EACCES:
+            raise error(f"cannot read {what} {path}: permission denied; make it readable or give another path") from None
+        raise error(f"{what} {path}: cannot be read ({exc.strerror or type(exc).__name__})") from None
+    except ValueError:  # a NUL byte in the path
+        raise error(f"{what} {str(path)!r}: not a valid path (it holds a NUL byte)") from None
+
+
+def input_path(
+    path: str | os.PathLike[str], what: str = "input", expect: Expect = "file", error: type[LagrseqError] = UsageError,
+) -> Path:
+    """``path`` (``~`` expanded) after checking, without opening it, that it is a regular file
+    (``expect="file"``), a directory (``"directory"``) or either (``"any"``)."""
+    resolved = expand_user(path, what, error)
+    mode = _stat(resolved, what, error).st_mode
+    is_file, is_dir = stat.S_ISREG(mode), stat.S_ISDIR(mode)
+    wanted = {"file": is_file, "directory": is_dir, "any": is_file or is_dir}[expect]
+    if not wanted:
+        expected = {"file": "a regular file", "directory": "a directory", "any": "a regular file or a directory"}[expect]
+        raise error(f"{what} {resolved} is {kind_of(mode)}; expected {expected}")
+    return resolved
+
+
+def open_input(path: str | os.PathLike[str], what: str = "input", error: type[LagrseqError] = UsageError) -> BinaryIO:
+    """A regular file opened for binary reading: checked first (:func:`input_path`), opened
+    with ``O_NONBLOCK`` (a FIFO does not block the open) and checked again on the descriptor."""
+    checked = input_path(path, what, "file", error)
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
+    try:
+        descriptor = os.open(checked, flags)
+    except OSError as exc:
+        raise error(f"{what} {checked}: cannot be read ({exc.strerror or type(exc).__name__})") from None
+    try:
+        mode = os.fstat(descriptor).st_mode
+        if not stat.S_ISREG(mode):
+            raise error(f"{what} {checked} is {kind_of(mode)}; expected a regular file")
+        if hasattr(os, "set_blocking"):
+            os.set_blocking(descriptor, True)
+        return os.fdopen(descriptor, "rb")
+    except BaseException:
+        os.close(descriptor)
+        raise
+
+
+def walk_files(root: str | os.PathLike[str], match: Callable[[str], bool]) -> list[Path]:
+    """Every entry under the directory ``root`` whose name ``match`` accepts (whatever it is: the
+    caller checks it with :func:`input_path`), sorted. Symlinked directories are followed, but
+    every real directory is entered once, so a symlink loop ends the walk instead of recursing;
+    a link that loops onto itself is listed when its name matches (and refused by the check)."""
+    found: list[Path] = []
+    seen: set[tuple[int, int]] = set()
+    pending = [Path(root)]
+    while pending:
+        directory = pending.pop()
+        try:
+            info = os.stat(directory)
+            entries = list(os.scandir(directory))
+        except OSError:
+            continue  # a loop or an unreadable directory: nothing to list there
+        if (info.st_dev, info.st_ino) in seen:
+            continue
+        seen.add((info.st_dev, info.st_ino))
+        for entry in entries:
+            try:
+                is_dir = entry.is_dir(follow_symlinks=True)
+            except OSError:
+                is_dir = False  # a symlink loop: not a directory to enter
+            if is_dir:
+                pending.append(Path(entry.path))
+            elif match(entry.name):
+                found.append(Path(entry.path))
+    return sorted(found)

@@ -158,13 +158,17 @@ def record(
     if spec.kind == "live" or mode == "none":
         endpoint = endpoint_of(options.base_url) if spec.kind == "live" else _local_endpoint()
         return _record(queries, store_path, samples, mode, options, bar, endpoint, concurrency)
-    from lagrseq.llm.local import LocalServer
+    from lagrseq.llm.local import LocalServer, Supervisor
 
     say = bar.write if bar is not None else (lambda message: print(message, file=sys.stderr))
     settings = local_settings(spec.argument, options)
     with LocalServer(settings, on_line=lambda line: say(f"  {line}")) as server:
-        local = replace(options, base_url=server.base_url, server="llama.cpp")
-        return _record(queries, store_path, samples, mode, local, bar, _local_endpoint(), concurrency, settings.model_name)
+        supervisor = Supervisor(server, lambda line: say(f"  {line}"))  # a dying server: restarted once, then one line
+        try:
+            local = replace(options, base_url=server.base_url, server="llama.cpp")
+            return _record(queries, store_path, samples, mode, local, bar, _local_endpoint(), concurrency, settings.model_name, supervisor.on_retry)
+        finally:
+            supervisor.close()
 
 
 def check_record(store_path: Path, mode: str, options: ProviderOptions, provider: str = "live") -> None:
@@ -203,6 +207,7 @@ def _record(
     endpoint: str,
     concurrency: int,
     local_model: str | None = None,
+    on_retry: Callable[[str], None] | None = None,
 ) -> RecordingReport:
     from lagrseq.llm.recorded import RecordingProvider, record_queries
     from lagrseq.llm.store import RecordStore, query_key
@@ -218,7 +223,7 @@ def _record(
     jitter = np.random.default_rng([os.getpid()])
     say = bar.write if bar is not None else (lambda message: print(message, file=sys.stderr))
     environ: dict[str, str] | None = {} if local_model is not None else None  # a local server: no key
-    live = make_live(options, jitter, budgeted=True, on_retry=lambda message: say(f"  {message}"), environ=environ, local_model=local_model)
+    live = make_live(options, jitter, budgeted=True, on_retry=on_retry or (lambda message: say(f"  {message}")), environ=environ, local_model=local_model)
     budget = live.budget
 
     def show(_answers: Any) -> None:
@@ -318,6 +323,7 @@ def import_answers(
     from lagrseq.llm.authors_cache import import_authors_cache
 
     config = record_config(task, preset, config_file, overrides, model, temperature, max_tokens)
+    endpoint = endpoint_of(base_url)  # a URL carrying a key is refused before the store is made
     with RecordStore(store_path) as store:
         report = import_authors_cache(
             file,
@@ -326,7 +332,7 @@ def import_answers(
             task=task,
             model=model,
             temperature=temperature,
-            endpoint=endpoint_of(base_url),
+            endpoint=endpoint,
             max_tokens=config.llm.max_tokens,
             warn=warn,
         )

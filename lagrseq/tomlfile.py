@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import os
 import sys
-from pathlib import Path
 from typing import Any
 
 from lagrseq.errors import ConfigError
+from lagrseq.paths import expand_user, kind_of
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -57,9 +57,11 @@ def read_toml(path: str | os.PathLike[str], what: str = "config", max_bytes: int
     ``price table``). Every failure is one ConfigError line naming the path and the problem."""
     where = f"{what} file {shown(path)}"
     try:
-        file = Path(path)
+        file = expand_user(path, f"{what} file", ConfigError)
         if file.is_dir():
             raise ConfigError(f"{where} is a directory; expected a TOML file")
+        if file.exists() and not file.is_file() and str(file) != os.devnull:  # a FIFO or a device (/dev/null: empty)
+            raise ConfigError(f"{where} is {kind_of(file.stat().st_mode)}; expected a TOML file")
         with file.open("rb") as handle:
             data = handle.read(max_bytes + 1)
     except ConfigError:

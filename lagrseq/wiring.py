@@ -47,6 +47,7 @@ from lagrseq.llm.mock import MockProvider
 from lagrseq.llm.servers import DEFAULT_BASE_URL, base_url_problem
 from lagrseq.logs import foxglove
 from lagrseq.logs.events import Sink, View
+from lagrseq.paths import expand_user, input_path
 from lagrseq.policies import Always, AskingPolicy, make_policy
 from lagrseq.seeding import Stream
 from lagrseq.tasks import cube, grid, grid_profiles
@@ -110,9 +111,9 @@ def recorded_file(argument: str) -> Path:
     """The JSONL export of ``recorded:FILE.jsonl``: FILE as given, or, for a relative path that is
     not there, FILE in the source checkout lagrseq runs from (the packaged suite's
     ``recorded_llm/`` files)."""
-    path = Path(argument).expanduser()
-    if path.is_file():
-        return path
+    path = expand_user(argument, "recorded answers")
+    if path.exists():
+        return input_path(path, "recorded answers", "file")  # a FIFO or a directory: one line
     checkout = Path(__file__).resolve().parents[1] / argument
     if not path.is_absolute() and checkout.is_file():
         return checkout
@@ -254,16 +255,18 @@ def local_settings(argument: str, options: ProviderOptions, port: int = 0) -> An
 def make_local(argument: str, options: ProviderOptions, rng: np.random.Generator) -> Provider:
     """A llama.cpp server started for this provider (stopped by its ``close``), asked through the
     live provider as ``--server llama.cpp`` with no API key."""
-    from lagrseq.llm.local import LocalProvider, LocalServer
+    from lagrseq.llm.local import LocalProvider, LocalServer, Supervisor
 
     server = LocalServer(local_settings(argument, options), on_line=_say).start()
+    supervisor = Supervisor(server, _say)  # a server dying mid-run: restarted once, then one line
     try:
         local = replace(options, base_url=server.base_url, server="llama.cpp")
-        inner = make_live(local, rng, budgeted=True, on_retry=_say, environ={}, local_model=server.settings.model_name)
+        inner = make_live(local, rng, budgeted=True, on_retry=supervisor.on_retry, environ={}, local_model=server.settings.model_name)
     except BaseException:
+        supervisor.close()
         server.stop()
         raise
-    return LocalProvider(server, inner)  # type: ignore[return-value]
+    return LocalProvider(server, inner, supervisor)  # type: ignore[return-value]
 
 
 def make_live(
@@ -466,6 +469,8 @@ def make_arm_env(config: ExperimentConfig, render_dir: Path | None = None) -> An
             goal_threshold=task.goal_threshold,
             robot=section.robot,
             robot_timeout_s=section.robot_timeout_s,
+            robot_token_file=section.robot_token_file,
+            robot_tls_ca=section.robot_tls_ca,
             render_size=(section.view_width, section.view_width * 3 // 4),
         )
     except (ImportError, gym.error.DependencyNotInstalled) as exc:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,6 +29,7 @@ from lagrseq.errors import LogError
 from lagrseq.logs.reader import ReadStats, full_path, read_log, recover_command
 from lagrseq.logs.schemas import ACCURACY_METHOD
 from lagrseq.logs.sink import PARTIAL_SUFFIX
+from lagrseq.paths import expand_user, input_path, walk_files
 
 EPISODE_COLUMNS = (
     "trial",
@@ -180,13 +182,23 @@ def _find(roots: Sequence[str | Path]) -> tuple[list[tuple[Path, Path]], list[st
     found: dict[Path, Path] = {}
     warnings = []
     for item in roots:
-        root = Path(item)
+        if not os.path.lexists(expand_user(item, "logs", LogError)):
+            raise LogError(f"{item}: no such MCAP file or directory")
+        root = input_path(item, "logs", "any", LogError)
         if root.is_dir():
-            for path in sorted(root.rglob("*.mcap")):
-                found.setdefault(path.resolve(), root)
-            for path in sorted(root.rglob("*.mcap" + PARTIAL_SUFFIX)):
-                warnings.append(_unfinished(path))
-        elif root.is_file() and root.name.endswith(".mcap"):
+            # every match checked before it is opened or resolved: a FIFO named *.mcap would block
+            # the reader, a symlink loop would make resolve() raise; loops of directories are
+            # entered once
+            names = walk_files(root, lambda name: name.endswith((".mcap", ".mcap" + PARTIAL_SUFFIX)))
+            for path in names:
+                input_path(path, "log", "file", LogError)
+            for path in names:
+                if path.name.endswith(".mcap"):
+                    found.setdefault(path.resolve(), root)
+            for path in names:
+                if path.name.endswith(PARTIAL_SUFFIX):
+                    warnings.append(_unfinished(path))
+        elif root.name.endswith(".mcap"):
             found.setdefault(root.resolve(), root)
         else:
             raise LogError(f"{root}: no such MCAP file or directory")

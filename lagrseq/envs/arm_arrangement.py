@@ -12,9 +12,10 @@ from lagrseq.envs.object_arrangement import ObjectArrangementEnv
 from lagrseq.robot import PlacementResult, Robot, RobotError
 
 
-def make_robot(spec: str | Robot, timeout_s: float = 30.0) -> Robot:
+def make_robot(spec: str | Robot, timeout_s: float = 30.0, token_file: str = "", tls_ca: str = "") -> Robot:
     """``sim`` (a :class:`~lagrseq.robot.sim.SimRobot` in this process), ``remote:HOST:PORT``
-    (a :class:`~lagrseq.robot.remote.RemoteRobot`), or a Robot as it is."""
+    or ``remote+tls:HOST:PORT`` (a :class:`~lagrseq.robot.remote.RemoteRobot`; ``token_file``:
+    the service's shared secret, ``tls_ca``: the CA certificate to trust), or a Robot as it is."""
     if not isinstance(spec, str):
         return spec
     if spec == "sim":
@@ -27,12 +28,14 @@ def make_robot(spec: str | Robot, timeout_s: float = 30.0) -> Robot:
         from lagrseq.robot.sim import SimRobot
 
         return SimRobot()
-    if spec.startswith("remote:"):
+    if spec.startswith(("remote:", "remote+tls:")):
         from lagrseq.robot.remote import RemoteRobot, parse_address
 
         host, port = parse_address(spec)
-        return RemoteRobot(host, port, timeout_s=timeout_s)
-    raise RobotError(f"robot {spec!r}; expected sim or remote:HOST:PORT")
+        return RemoteRobot(
+            host, port, timeout_s=timeout_s, tls=spec.startswith("remote+tls:"), tls_ca=tls_ca or None, token_file=token_file or None,
+        )
+    raise RobotError(f"robot {spec!r}; expected sim, remote:HOST:PORT or remote+tls:HOST:PORT")
 
 
 class ArmArrangementEnv(ObjectArrangementEnv):
@@ -96,6 +99,8 @@ class ArmArrangementEnv(ObjectArrangementEnv):
         guided_goal_threshold: float | None = None,
         robot: str | Robot = "sim",
         robot_timeout_s: float = 30.0,
+        robot_token_file: str = "",
+        robot_tls_ca: str = "",
         render_mode: str | None = None,
         render_size: tuple[int, int] = (320, 240),
     ) -> None:
@@ -105,7 +110,7 @@ class ArmArrangementEnv(ObjectArrangementEnv):
         self.render_mode = render_mode
         self.task.name = "arm-arrangement"
         self.render_size = render_size
-        self.robot: Robot = make_robot(robot, robot_timeout_s)
+        self.robot: Robot = make_robot(robot, robot_timeout_s, robot_token_file, robot_tls_ca)
         if (self.robot.rows, self.robot.cols) != (self.rows, self.cols):
             raise RobotError(f"the robot's grid is {self.robot.rows}x{self.robot.cols}; this task needs {self.rows}x{self.cols}")
         self._placement: PlacementResult | None = None

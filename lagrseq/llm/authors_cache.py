@@ -37,6 +37,7 @@ from lagrseq.errors import StoreError
 from lagrseq.llm.base import Message, Query, RecordedAs
 from lagrseq.llm.records import MAX_ANSWER_CHARS, SAMPLE_SCHEMA, problems
 from lagrseq.llm.store import RecordStore, Sample, query_key
+from lagrseq.paths import open_input
 
 ALLOWED_GLOBALS = frozenset(
     {
@@ -83,7 +84,8 @@ def read_pairs(path: str | Path) -> list[tuple[Any, Any]]:
     """The (key, answer) pairs of an authors' cache file, read with the restricted unpickler."""
     path = Path(path)
     try:
-        data = path.read_bytes()
+        with open_input(path, "authors' cache", StoreError) as handle:
+            data = handle.read()
     except OSError as exc:
         raise StoreError(f"cannot read {path}: {exc.strerror or exc}") from None
     try:
@@ -177,7 +179,8 @@ def import_authors_cache(
     """Import every usable pair of an authors' cache into ``store`` (module docstring)."""
     path = Path(path)
     pairs = read_pairs(path)
-    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    with open_input(path, "authors' cache", StoreError) as handle:
+        digest = hashlib.sha256(handle.read()).hexdigest()
     groups: dict[str, tuple[dict[str, Any], list[Sample]]] = {}
     skipped = 0
 

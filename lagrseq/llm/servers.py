@@ -3,16 +3,40 @@ can list them without importing httpx)."""
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
-from urllib.parse import urlsplit
+from urllib.parse import unquote, urlsplit
 
 DEFAULT_BASE_URL = "https://api.openai.com/v1"
+
+_KEY_PREFIX = re.compile(r"(^|[^A-Za-z0-9])(sk|pk|rk|key|token|secret|api[_-]?key|bearer)[-_=:][A-Za-z0-9_\-*.~+/=]{6,}", re.IGNORECASE)
+"""A segment that starts like an API key: ``sk-...``, ``key_...``, ``api-key=...``, ``token:...``."""
+_RANDOM_RUN = re.compile(r"[A-Za-z0-9_\-+=]{32,}")
+"""A long run of token characters (an unprefixed key, a JWT part, a base64 secret)."""
+
+
+def key_like(text: str) -> bool:
+    """``text`` (a host label or a path segment, percent-decoded) looks like a secret: an API key's
+    prefix followed by at least 6 token characters, or a long run of token characters mixing
+    digits and letters: at least 32 with both cases, or at least 40 (model names such as
+    ``gpt-4o-mini-2024-07-18`` are shorter; a Cloudflare account id, 32 lower-case hex digits, is
+    not taken for a key)."""
+    decoded = unquote(text)
+    if _KEY_PREFIX.search(decoded):
+        return True
+    for run in (m.group(0) for m in _RANDOM_RUN.finditer(decoded)):
+        letters, digits = any(c.isalpha() for c in run), any(c.isdigit() for c in run)
+        both_cases = any(c.isupper() for c in run) and any(c.islower() for c in run)
+        if letters and digits and (both_cases or len(run) >= 40):
+            return True
+    return False
 
 
 def base_url_problem(base_url: str) -> str | None:
     """Why ``base_url`` may not be used (it carries credentials: ``user:password@``, a query
-    string or a fragment, which would be printed in messages and written into every trial's
-    metadata), or None. The message never repeats the URL."""
+    string, a fragment, or a key-like segment in its host or path (:func:`key_like`), which would
+    be printed in messages and written into every trial's metadata), or None. The message never
+    repeats the URL."""
     try:
         parts = urlsplit(base_url if "://" in base_url else f"https://{base_url}")
         userinfo = parts.username is not None or parts.password is not None
@@ -23,6 +47,14 @@ def base_url_problem(base_url: str) -> str | None:
             "--base-url carries credentials or parameters (user:password@, ?... or #...; the URL is not "
             "shown): they would be written into every log, so give the API root alone, e.g. "
             "https://api.openai.com/v1, and the key in an environment variable (--api-key-env)"
+        )
+    pieces = [*(parts.hostname or "").split("."), *(p for segment in parts.path.split("/") for p in segment.split(";"))]
+    if any(key_like(piece) for piece in pieces if piece):
+        return (
+            "--base-url carries what looks like an API key in its host or path (the URL is not shown): it "
+            "would be printed and written into every log, so give the API root without it, e.g. "
+            "https://api.openai.com/v1, and the key in an environment variable (--api-key-env); a gateway "
+            "that needs the key in its path cannot be used"
         )
     return None
 

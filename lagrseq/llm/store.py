@@ -67,7 +67,8 @@ from lagrseq.llm.records import (
     normalise_sample,
     problems,
 )
-from lagrseq.llm.servers import DEFAULT_BASE_URL  # noqa: F401 - re-exported for callers
+from lagrseq.llm.servers import DEFAULT_BASE_URL, base_url_problem  # noqa: F401 - DEFAULT_BASE_URL re-exported for callers
+from lagrseq.paths import kind_of, open_input
 
 STORE_FORMAT = "lagrseq.recorded-store"
 META_KEY = "lagrseq-store"
@@ -79,7 +80,11 @@ _DEFAULT_PORTS = {"http": 80, "https": 443}
 # ------------------------------------------------------------------------------------------
 def endpoint_of(base_url: str) -> str:
     """The endpoint part of a key: the lower-cased host, with the port when it is not the
-    scheme's default (``https://api.openai.com/v1`` -> ``api.openai.com``)."""
+    scheme's default (``https://api.openai.com/v1`` -> ``api.openai.com``). A URL carrying
+    credentials or a key-like segment is refused without being shown (:func:`base_url_problem`)."""
+    problem = base_url_problem(base_url)
+    if problem is not None:
+        raise StoreError(problem)
     try:
         parts = urlsplit(base_url if "://" in base_url else f"https://{base_url}")
     except ValueError as exc:  # e.g. an unclosed '[' of an IPv6 host
@@ -473,7 +478,7 @@ class RecordStore:
         self._reader: ReadOnlyDatabase | None = None
         self._closed = False
         if self.directory.exists() and not self.directory.is_dir():
-            raise StoreError(f"store path {self.directory} is a file; expected a directory")
+            raise StoreError(f"store path {self.directory} is {kind_of(self.directory.stat().st_mode)}; expected a directory")
         if not (self.directory / "cache.db").is_file() and (
             not create or readonly or (self.directory / "cache.db").exists()
         ):
@@ -923,9 +928,6 @@ def import_jsonl_file(
     name = name or str(path)
     if path.is_dir():
         raise StoreError(f"{path} is a directory; expected a JSONL file (a lagrseq export)")
-    try:
-        handle = path.open("rb")
-    except OSError as exc:
-        raise StoreError(f"cannot read {path}: {exc.strerror or exc}") from None
+    handle = open_input(path, "JSONL file", StoreError)  # a FIFO or device is refused, not read for ever
     with handle:
         return import_jsonl(handle, store, name, warn)

@@ -49,7 +49,9 @@ from mcap.records import (
     SummaryOffset,
 )
 
+from lagrseq.errors import LogError  # noqa: E402
 from lagrseq.logs.mcap_writer import MAGIC  # noqa: E402 - one definition of the file magic
+from lagrseq.paths import open_input  # noqa: E402
 
 MAX_CHUNK_BYTES = 1 << 30
 """The largest uncompressed chunk read (1 GiB). A lagrseq chunk holds one episode's transitions
@@ -202,7 +204,7 @@ class McapFile:
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
-        self._handle = self.path.open("rb")
+        self._handle = open_input(self.path, "log", LogError)
         try:
             self.size = int(self._handle.seek(0, io.SEEK_END))
         except OSError:

@@ -11,6 +11,7 @@ becomes one :class:`~lagrseq.errors.LogError` line naming the log's full path an
 from __future__ import annotations
 
 import json
+import os
 import shlex
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -22,6 +23,7 @@ from mcap.records import Message
 from lagrseq.errors import LogError
 from lagrseq.logs.mcap_reader import MAGIC, Damage, McapFile, Summary
 from lagrseq.logs.sink import RUN_METADATA, STATUS_METADATA
+from lagrseq.paths import expand_user, input_path, open_input, walk_files
 
 
 @dataclass(frozen=True)
@@ -85,9 +87,9 @@ def damaged(path: str | Path, damage: Damage | str) -> LogError:
 
 def _starts_with_magic(path: Path) -> bool:
     try:
-        with path.open("rb") as handle:
+        with open_input(path, "log", LogError) as handle:
             return handle.read(len(MAGIC)) == MAGIC
-    except OSError:
+    except (OSError, LogError):
         return False
 
 
@@ -270,10 +272,13 @@ def find_logs(paths: Sequence[str | Path]) -> list[Path]:
     """Every ``*.mcap`` file under the given files and directories, sorted."""
     found: list[Path] = []
     for item in paths:
-        item = Path(item)
+        if not os.path.lexists(expand_user(item, "logs", LogError)):
+            raise LogError(f"{item}: no such MCAP file or directory")
+        item = input_path(item, "logs", "any", LogError)
         if item.is_dir():
-            found.extend(sorted(item.rglob("*.mcap")))
-        elif item.suffix == ".mcap" and item.exists():
+            # every match checked before anything opens it: a FIFO named *.mcap would block the reader
+            found.extend(input_path(path, "log", "file", LogError) for path in walk_files(item, lambda name: name.endswith(".mcap")))
+        elif item.suffix == ".mcap":
             found.append(item)
         else:
             raise LogError(f"{item}: no such MCAP file or directory")

@@ -45,6 +45,7 @@ from mcap.writer import CompressionType, Writer
 from lagrseq.errors import LogError, UsageError
 from lagrseq.logs.mcap_reader import Damage, McapFile
 from lagrseq.logs.sink import PARTIAL_SUFFIX, PROFILE, STATUS_METADATA
+from lagrseq.paths import expand_user, input_path
 
 # Topics written as the episode runs (transitions, picture views): kept only up to the last flush.
 _STEP_TOPICS = ("/transition",)
@@ -272,10 +273,10 @@ def recover(path: str | Path, out: str | Path | None = None) -> Recovered:
     inside a finished file, or holds no flushed episode, and when the result cannot be written
     (the source is then left as it was and no temporary file remains).
     """
-    source = Path(path)
-    if not source.is_file():
-        what = "a directory, not a log: give the .mcap or .mcap.partial files in it" if source.is_dir() else "no such file"
-        raise LogError(f"{source}: {what}")
+    source = expand_user(path, "log", LogError)
+    if source.is_dir():
+        raise LogError(f"{source}: a directory, not a log: give the .mcap or .mcap.partial files in it")
+    source = input_path(source, "log", "file", LogError)  # a FIFO or device would block the reader
     target = _target(source, out)
     in_place = target.absolute() == source.absolute()
     if not in_place and target.exists():
