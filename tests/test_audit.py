@@ -24,8 +24,20 @@ def test_the_plan_switches_one_field_per_run(tmp_path: Path) -> None:
     for r in runs:
         preset = _flat(json.loads(cfg.load("cube-stacking", r.method, r.preset).to_json()))
         differs = sorted(k for k, v in _flat(json.loads(r.config.to_json())).items() if preset.get(k) != v)
-        assert differs == ([] if r.field is None else [r.field])
+        assert differs == ([] if r.field is None else sorted(r.field.split(" + ")))
         assert r.provider == ("mock" if r.method == "baseline" else "mock")
+    # the interaction runs: every combination of two or three of the three fields, on the upstream
+    # preset, for the methods that read all of the combination (the others' corners exist already)
+    together = {(r.field, r.method) for r in runs if r.field and " + " in r.field}
+    eps, guided, seq_eps = audit.INTERACTIONS["cube-stacking"]
+    assert together == {
+        (" + ".join(sorted((eps, guided))), "lagr"),
+        (" + ".join(sorted((eps, guided))), "lagr-seq"),
+        (" + ".join(sorted((eps, seq_eps))), "lagr-seq"),
+        (" + ".join(sorted((guided, seq_eps))), "lagr-seq"),
+        (" + ".join(sorted((eps, guided, seq_eps))), "lagr-seq"),
+    }
+    assert all(r.preset == "upstream" for r in runs if r.field and " + " in r.field)
 
 
 @pytest.mark.slow
@@ -43,7 +55,10 @@ def test_every_audit_run_differs_from_its_preset_in_exactly_the_field_it_switche
         preset = _flat(json.loads(cfg.load(run.key.task, run.key.method, run.key.preset).to_json()))
         logged = _flat(run.config)
         differs = sorted(k for k in preset if logged.get(k) != preset[k])
-        assert len(differs) <= 1, (run.key.name, differs)
+        if len(differs) > 1:  # an interaction run: fields of INTERACTIONS switched together, upstream only
+            assert run.key.preset == "upstream" and set(differs) <= set(audit.INTERACTIONS["cube-stacking"]), (run.key.name, differs)
+            assert audit.classify(run, fields) is None and audit.classify_variant(run, fields) == ("upstream", frozenset(differs))
+            continue
         kind = audit.classify(run, fields)
         assert kind == (run.key.preset, differs[0] if differs else None)
         seen.add((run.key.preset, kind[1], run.key.method))
@@ -56,6 +71,15 @@ def test_every_audit_run_differs_from_its_preset_in_exactly_the_field_it_switche
     data = made[0].data
     assert set(data["field"]) == names and set(data["preset"]) == set(audit.PRESETS)
     assert np.all(data["ci_low"] <= data["effect"] + 1e-9) and np.all(data["effect"] <= data["ci_high"] + 1e-9)
+    assert data["indicative"].all() and not data["marked"].any()  # 2 trials: indicative, never marked
+    assert (data["family_size"] == np.isfinite(data["p"]).sum()).all()
+    assert "indicative" in made[0].table.rows[-1][1] and "n=2" in made[0].table.rows[-1][1]
+    # the interaction runs: all 8 corners and the 3 pairwise + 1 three-way contrasts
+    corners = made[0].corners
+    assert corners is not None and corners["corner"].nunique() == 8
+    assert made[0].interactions is not None and made[0].interactions["contrast"].nunique() == 4
+    assert (tmp_path / "reports" / "audit-cube-stacking-interactions.png").stat().st_size > 0
+    assert "interaction " in (tmp_path / "reports" / "audit-cube-stacking-interactions.md").read_text()
     scope = data[(data["field"] == "lagr.solution_scope")]["switched_to"].unique().tolist()
     assert scope == ['"trial"']  # both presets keep the solution one episode; the audit tries the whole trial
     # the report is rebuilt from the logs alone

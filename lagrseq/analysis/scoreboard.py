@@ -4,7 +4,9 @@ For each reference value of a table item (Table 2, Table 3, the stack-size ratio
 reductions those tables imply (1 - LaGR-SEQ / LaGR), one row per source the logs hold (the mock,
 a calibrated mock profile, the authors' recorded answers, any other recorded store): lagrseq's
 mean with its 95% percentile-bootstrap interval, and whether the paper's value falls inside it.
-The last column links what explains the gap (the audit, where the logs hold one, else the item).
+The last column says what explains the gap (:func:`lagrseq.analysis.audit.gap_explained_by`: the
+audit rows that account for it, with their sum, or ``unexplained``, where the logs hold an audit of
+the row's task; else a link to the item).
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from lagrseq.analysis import stats
+from lagrseq.analysis import audit, stats
 from lagrseq.analysis.items import Match
 from lagrseq.analysis.loading import Run
 from lagrseq.analysis.tables import Table
@@ -62,14 +64,16 @@ def _reduction(seq: np.ndarray, lagr: np.ndarray, rng: np.random.Generator) -> t
     return float(point), float(low), float(high)
 
 
-def build(items: Sequence[tuple[Item, Sequence[Match]]], audit_tasks: Sequence[str] = ()) -> Table:
+def build(items: Sequence[tuple[Item, Sequence[Match]]], audits: Sequence[audit.Audit] = ()) -> Table:
     rows: list[dict[str, Any]] = []
 
     def add(item: Item, what: str, paper: str, m: Match, mean: float, low: float, high: float, n: int, digits: int) -> None:
         value = paper_number(paper)
         inside = value is not None and low <= value <= high
         task = m.spec.task
-        explain = f"#audit-{task}" if task in audit_tasks else f"#{item.id}"
+        temperature = m.run.config.get("llm", {}).get("temperature") if m.run is not None else None
+        quantity = audit.QUERY_COLUMNS.get(m.spec.column or "") if what.endswith("queries per run") else None
+        explain = audit.gap_explained_by(audits, task, m.spec.preset, quantity, mean, paper, temperature) or f"#{item.id}"
         rows.append(
             {
                 "item": item.id,
