@@ -272,6 +272,9 @@ class Audit:
     """The provider of the audit's LaGR and LaGR-SEQ runs."""
     temperature: float | None = None
     """The LLM temperature the audit's runs used."""
+    preset_configs: dict[str, dict[str, Any]] | None = None
+    """Per preset, the flat configuration (``section.field``) of its LaGR-SEQ (else LaGR) run: a
+    scoreboard row whose run differs from it (another stack size, temperature) was not audited."""
     corners: pd.DataFrame | None = None
     """Interaction runs: one row per (corner: the fields switched together, quantity), with the mean."""
     interactions: pd.DataFrame | None = None
@@ -351,7 +354,13 @@ def build(runs: Sequence[Run]) -> list[Audit]:
         data = mark(pd.DataFrame(rows))
         provider, temperature = _provider_of(variants)
         length = _length_note(task, next(iter(_variant_runs(variants, PRESETS[0], frozenset()).values()), None))
-        made = Audit(task, _table(task, data, length), data, provider, temperature, length=length)
+        configs = {}
+        for preset in PRESETS:
+            own = _variant_runs(variants, preset, frozenset())
+            chosen = own.get("lagr-seq") or own.get("lagr")
+            if chosen is not None:
+                configs[preset] = _flat(chosen.config)
+        made = Audit(task, _table(task, data, length), data, provider, temperature, preset_configs=configs, length=length)
         _add_interactions(made, variants, fields)
         audits.append(made)
     return audits
@@ -576,6 +585,8 @@ def headline(audit: Audit) -> str:
 
 QUERY_COLUMNS = {"LaGR-SEQ": "queries with SEQ", "LaGR (without SEQ)": "queries without SEQ"}
 """The audit quantity behind a query table's column."""
+RATIO_QUANTITY = "performance ratio (LaGR-SEQ / baseline)"
+"""The audit quantity behind a ratio table whose numerator is LaGR-SEQ and denominator the baseline."""
 _PAPER = re.compile(r"([-+]?\d+(?:\.\d+)?)\s*(?:±|\+-|\+/-)?\s*(\d+(?:\.\d+)?)?")
 
 
@@ -590,7 +601,7 @@ def gap_explained_by(
     quantity: str | None,
     measured: float,
     paper: str,
-    temperature: float | None = None,
+    config: dict[str, Any] | None = None,
 ) -> str | None:
     """What accounts for the gap between a measured value and the paper's (a scoreboard row):
     the audit rows of ``task`` whose measured effects on ``quantity``, from ``preset``, add up to
@@ -599,16 +610,25 @@ def gap_explained_by(
     their sum; or the interaction run that does so (fields switched together); or ``partly``, or
     ``unexplained``. Only effects marked by the audit (Holm, enough trials) count, or, where none
     is marked, intervals that exclude 0 on fewer trials (said to be indicative). A row the audit
-    never measured (another quantity, another temperature) says so. None where the logs hold no
-    audit of ``task``."""
+    never measured (another quantity; a run whose ``config`` differs from the audited preset's,
+    such as another temperature or stack size) says so. None where the logs hold no audit of
+    ``task``."""
     made = next((a for a in audits if a.task == task), None)
     if made is None:
         return None
     anchor = f"audit-{task}"
     if quantity is None:
         return f"not audited: {anchor} does not measure this quantity"
-    if temperature is not None and made.temperature is not None and abs(temperature - made.temperature) > 1e-9:
-        return f"not audited: τ = {temperature:g} was never audited ({anchor} ran at τ = {made.temperature:g})"
+    if config is not None:
+        audited = (made.preset_configs or {}).get(preset, {})
+        row = _flat(config)
+        temperature = row.get("llm.temperature")
+        if isinstance(temperature, (int, float)) and made.temperature is not None and abs(float(temperature) - made.temperature) > 1e-9:
+            return f"not audited: τ = {float(temperature):g} was never audited ({anchor} ran at τ = {made.temperature:g})"
+        differs = sorted(k for k in row if k in audited and row[k] != audited[k])
+        if differs:
+            shown = ", ".join(f"{k} = {json.dumps(row[k])}" for k in differs)
+            return f"not audited: this run's {shown} differs from the audited {preset} preset ({anchor})"
     found = _PAPER.search(paper)
     if found is None or not math.isfinite(measured):
         return f"not audited: no paper number to compare ({anchor})"

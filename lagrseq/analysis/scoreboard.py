@@ -67,13 +67,14 @@ def _reduction(seq: np.ndarray, lagr: np.ndarray, rng: np.random.Generator) -> t
 def build(items: Sequence[tuple[Item, Sequence[Match]]], audits: Sequence[audit.Audit] = ()) -> Table:
     rows: list[dict[str, Any]] = []
 
-    def add(item: Item, what: str, paper: str, m: Match, mean: float, low: float, high: float, n: int, digits: int) -> None:
+    def add(
+        item: Item, what: str, paper: str, m: Match, mean: float, low: float, high: float, n: int, digits: int, quantity: str | None = None
+    ) -> None:
         value = paper_number(paper)
         inside = value is not None and low <= value <= high
         task = m.spec.task
-        temperature = m.run.config.get("llm", {}).get("temperature") if m.run is not None else None
-        quantity = audit.QUERY_COLUMNS.get(m.spec.column or "") if what.endswith("queries per run") else None
-        explain = audit.gap_explained_by(audits, task, m.spec.preset, quantity, mean, paper, temperature) or f"#{item.id}"
+        config = m.run.config if m.run is not None else None
+        explain = audit.gap_explained_by(audits, task, m.spec.preset, quantity, mean, paper, config) or f"#{item.id}"
         rows.append(
             {
                 "item": item.id,
@@ -106,7 +107,7 @@ def build(items: Sequence[tuple[Item, Sequence[Match]]], audits: Sequence[audit.
                     if m.spec.column == column and _fits(m, row):
                         assert m.run is not None
                         s = stats.summarize(_queries(m.run), stats.generator(f"{m.run.key.name}/queries"))
-                        add(item, f"{row}, {column}: queries per run", str(paper), m, s.mean, s.ci_low, s.ci_high, s.n, 1)
+                        add(item, f"{row}, {column}: queries per run", str(paper), m, s.mean, s.ci_low, s.ci_high, s.n, 1, audit.QUERY_COLUMNS.get(column))
             # the query reduction SEQ brings, where the paper gives both columns of a row
             columns = sorted({k.split("|", 1)[1] for k in reference if "|" in k})
             if len(columns) == 2:
@@ -136,7 +137,8 @@ def build(items: Sequence[tuple[Item, Sequence[Match]]], audits: Sequence[audit.
                         continue
                     ratios = stats.paired_ratios(m.run.total_per_trial("return"), under.run.total_per_trial("return"))
                     s = stats.summarize(ratios, stats.generator(f"{m.run.key.name}/{under.run.key.name}/ratio"))
-                    add(item, f"{row} cubes: performance ratio", str(paper), m, s.mean, s.ci_low, s.ci_high, s.n, 3)
+                    ratio = audit.RATIO_QUANTITY if numerator == "LaGR-SEQ" and denominator == "Q-learning" else None
+                    add(item, f"{row} cubes: performance ratio", str(paper), m, s.mean, s.ci_low, s.ci_high, s.n, 3, ratio)
     display = []
     for r in rows:
         d = r["digits"]

@@ -184,7 +184,8 @@ def _audit(effects: dict[str, tuple[float, int, float]], temperature: float = 0.
         for f, (e, n, p) in effects.items()
     ]
     data = audit.mark(pd.DataFrame(rows))
-    return audit.Audit(TASK, audit._table(TASK, data), data, "mock:authors-t0", temperature, corners=corners)
+    configs = {p: audit._flat(json.loads(cfg.load(TASK, "lagr-seq", p).to_json())) for p in audit.PRESETS}
+    return audit.Audit(TASK, audit._table(TASK, data), data, "mock:authors-t0", temperature, corners=corners, preset_configs=configs)
 
 
 def test_the_gap_is_explained_by_the_rows_that_add_up_to_it() -> None:
@@ -211,8 +212,16 @@ def test_the_gap_is_explained_by_the_rows_that_add_up_to_it() -> None:
 
 def test_rows_the_audit_never_measured_say_so() -> None:
     made = _audit({"a": (150.0, 10, 1e-6)})
-    text = audit.gap_explained_by([made], TASK, "upstream", "queries without SEQ", 100.0, "294.3 ± 3.2", temperature=0.5)
+    tau = json.loads(cfg.load(TASK, "lagr", "upstream", None, ["llm.temperature=0.5"]).to_json())
+    text = audit.gap_explained_by([made], TASK, "upstream", "queries without SEQ", 100.0, "294.3 ± 3.2", tau)
     assert text == "not audited: τ = 0.5 was never audited (audit-cube-stacking ran at τ = 0)"
+    cubes = json.loads(cfg.load(TASK, "lagr-seq", "upstream", None, ["task.stack_size=5"]).to_json())
+    text = audit.gap_explained_by([made], TASK, "upstream", audit.RATIO_QUANTITY, 1.0, "1.5 ± 0.1", cubes)
+    assert text == "not audited: this run's task.stack_size = 5 differs from the audited upstream preset (audit-cube-stacking)"
+    # the audited preset's own configuration is covered
+    same = json.loads(cfg.load(TASK, "lagr", "upstream").to_json())
+    text = audit.gap_explained_by([made], TASK, "upstream", "queries without SEQ", 100.0, "250 ± 1", same)
+    assert text is not None and text.startswith("a (+150) = +150 of gap +150")
     text = audit.gap_explained_by([made], TASK, "upstream", None, 0.5, "44%")
     assert text is not None and text.startswith("not audited:")
     assert audit.gap_explained_by([made], "image-completion", "upstream", "queries with SEQ", 1.0, "59.5") is None
