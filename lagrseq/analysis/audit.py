@@ -213,6 +213,13 @@ def _solved(runs: dict[str, Run]) -> np.ndarray | None:
     return None if run is None else np.array(list(first_solved(run).values()), dtype=float)
 
 
+def reads(quantity: str, field: str) -> bool:
+    """Whether ``quantity`` can change when ``field`` is switched: the method it is measured on
+    (LaGR for "queries without SEQ", else LaGR-SEQ) reads the field. A quantity that cannot is no
+    comparison (its effect is 0 by construction) and is left out of the tables and the family."""
+    return relevant(field, "lagr" if quantity == "queries without SEQ" else "lagr-seq")
+
+
 QUANTITIES = (
     Quantity("queries with SEQ", _total("lagr-seq", "queries")),
     Quantity("queries without SEQ", _total("lagr", "queries")),
@@ -328,7 +335,7 @@ def build(runs: Sequence[Run]) -> list[Audit]:
                 value = switched_value(name, preset, fields)
                 for q in QUANTITIES:
                     a, b = q.per_trial(merged), q.per_trial(base)
-                    if a is None or b is None:
+                    if a is None or b is None or not reads(q.name, name):
                         continue
                     interval, p = contrast([(1.0, a), (-1.0, b)])
                     rows.append(
@@ -418,6 +425,8 @@ def _add_interactions(made: Audit, variants: dict[tuple[str, frozenset[str]], di
     rows = []
     for name, design in designs:
         for q in QUANTITIES:
+            if not all(reads(q.name, f) for _, s in design for f in s):
+                continue  # a method that cannot read one of the fields: 0 by construction, no comparison
             groups = [(w, values.get((s, q.name))) for w, s in design]
             if any(v is None for _, v in groups):
                 continue
