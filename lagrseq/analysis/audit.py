@@ -540,7 +540,7 @@ def figure(audit: Audit, quantity: str | None = None) -> Figure:
         ax.set_title(f"{direction}", fontsize=9)
     m = int(data["family_size"].iloc[0]) if len(data) else 0
     axes[-1].set_xlabel(
-        f"effect on {quantity} (switched − preset, Welch 95% CI; red: Holm p < 0.05 over m = {m}; hatched: n < {MIN_N_MARK}, indicative)",
+        f"effect on {quantity} (switched − preset, Welch 95% CI)\nred: Holm-adjusted p < 0.05 over m = {m} comparisons; hatched: n < {MIN_N_MARK}, indicative",
         fontsize=8,
     )
     fig.suptitle(f"Audit of {audit.task}: what each deviation does", fontsize=11)
