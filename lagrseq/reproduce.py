@@ -434,7 +434,13 @@ def run_suite_audit(task: str, runs_dir: Path, quick: bool, jobs: int, seed: int
     chosen = SUITE_AUDITS[task]
     trials, episodes, max_steps = chosen.quick if quick else chosen.full
     runs = audit_plan(task, chosen.provider, trials, episodes, max_steps, runs_dir, seed, say, chosen.quick_presets if quick else None)
-    say(f"{task} audit: {len(runs)} runs of {trials} trials, one field switched each, and the interaction runs (lagrseq audit)")
+    together = sum(1 for r in runs if r.field and " + " in r.field)
+    say(
+        f"{task} audit: {len(runs)} runs of {trials} trials"
+        + (f" of {max_steps} steps" if max_steps >= 0 else "")
+        + (" (reduced: upstream -> paper only)" if quick and chosen.quick_presets != ("upstream", "paper") else "")
+        + f", one field switched each{f' and {together} interaction runs' if together else ''} (lagrseq audit)"
+    )
     with tqdm(total=len(runs) * trials, unit="trial", disable=quiet, file=sys.stderr, dynamic_ncols=True) as bar:
         sweep = [runner.SweepRun(r.config, trials, seed, r.provider, r.path, progress=runner.TrialCount(bar, r.config)) for r in runs]
         runner.run_sweep(sweep, jobs)
