@@ -557,7 +557,7 @@ def interaction_figure(audit: Audit) -> Figure | None:
     shown = [q for q in ("queries without SEQ", "queries with SEQ", "total return (LaGR-SEQ)") if q in set(corners["quantity"])]
     if not shown:
         return None
-    fig = Figure(figsize=(9, 1.5 + 2.4 * len(shown)))
+    fig = Figure(figsize=(10, 1.5 + 4.2 * len(shown)))
     axes = fig.subplots(len(shown), 1, squeeze=False)[:, 0]
     for ax, q in zip(axes, shown, strict=True):
         rows = corners[corners["quantity"] == q]
@@ -565,9 +565,10 @@ def interaction_figure(audit: Audit) -> Figure | None:
         mean = rows["mean"].to_numpy()
         err = np.nan_to_num(np.vstack([mean - rows["ci_low"].to_numpy(), rows["ci_high"].to_numpy() - mean]))
         ax.barh(y, mean, xerr=np.abs(err), color="#4c72b0", capsize=2)
-        ax.set_yticks(y, [f"{c} (n={int(n)})" for c, n in zip(rows["corner"], rows["trials"], strict=True)], fontsize=7)
+        labels = [f"{c.replace(' + ', ' +' + chr(10))} (n={int(n)})" for c, n in zip(rows["corner"], rows["trials"], strict=True)]
+        ax.set_yticks(y, labels, fontsize=7)
         ax.set_title(q, fontsize=9)
-    axes[-1].set_xlabel(f"mean per trial, 95% t-interval ({INTERACTION_PRESET} preset, fields switched together)", fontsize=8)
+    axes[-1].set_xlabel(f"mean per trial, 95% t-interval\n({INTERACTION_PRESET} preset, fields switched together)", fontsize=8)
     fig.suptitle(f"Audit of {audit.task}: interaction runs", fontsize=11)
     fig.tight_layout()
     return fig
