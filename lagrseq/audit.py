@@ -5,7 +5,11 @@ rebuilds them from the logs alone; ``lagrseq replay`` does the same for any logs
 Runs: both presets as they are, then for every audited field the upstream preset with that field
 set to the paper's value and the paper preset with it set back, each for the baseline, LaGR and
 LaGR-SEQ (a method whose trials cannot read the field, e.g. the baseline for ``lagr.*``, keeps
-the preset's run). The baseline always uses the plain mock provider (it never asks).
+the preset's run). Then, where the task names interaction fields
+(:data:`lagrseq.analysis.audit.INTERACTIONS`), every combination of two or more of them switched
+together on the upstream preset (again only for the methods that read at least two of them; the
+others' corners are runs already made). The baseline always uses the plain mock provider (it never
+asks).
 """
 
 from __future__ import annotations
@@ -33,21 +37,37 @@ class AuditRun:
     path: Path
 
 
-def plan(task: str, provider: str, trials: int, episodes: int, max_steps: int, runs_dir: Path, seed: int, say: Callable[[str], None]) -> list[AuditRun]:
+def plan(
+    task: str,
+    provider: str,
+    trials: int,
+    episodes: int,
+    max_steps: int,
+    runs_dir: Path,
+    seed: int,
+    say: Callable[[str], None],
+    presets: tuple[str, ...] | None = None,
+) -> list[AuditRun]:
+    """The audit's runs; ``presets`` limits the one-field switches to those presets' directions
+    (default both; both presets' own runs are always planned)."""
     from lagrseq.analysis.audit import (
+        INTERACTION_PRESET,
         METHODS,
         PRESETS,
         audited_fields,
+        interaction_sets,
         override,
         relevant,
+        relevant_part,
         switched_value,
     )
 
     length = ([f"run.episodes={episodes}"] if episodes > 0 else []) + ([f"run.max_steps={max_steps}"] if max_steps >= 0 else [])
     fields = audited_fields(task)
     out: list[AuditRun] = []
+    directions = PRESETS if presets is None else presets
     for preset in PRESETS:
-        for field in [None, *(name for name, _, _ in fields)]:
+        for field in [None, *(name for name, _, _ in fields if preset in directions)]:
             for method in METHODS:
                 if field is not None and not relevant(field, method):
                     continue
@@ -62,6 +82,19 @@ def plan(task: str, provider: str, trials: int, episodes: int, max_steps: int, r
                 spec = "mock" if method == "baseline" else provider
                 path = runner.run_directory(runs_dir, config, spec, seed)
                 out.append(AuditRun(preset, field, method, config, spec, path))
+    for together in interaction_sets(task, fields):
+        for method in METHODS:
+            if relevant_part(together, method) != together:
+                continue  # its corner is the run of the part it reads, planned already
+            sets = list(length) + [override(f, switched_value(f, INTERACTION_PRESET, fields)) for f in sorted(together)]
+            try:
+                config = cfg.load(task, method, INTERACTION_PRESET, None, sets)
+            except ConfigError as exc:
+                say(f"{INTERACTION_PRESET} + {' + '.join(sorted(together))}: cannot be switched together ({exc}); left out")
+                continue
+            spec = "mock" if method == "baseline" else provider
+            path = runner.run_directory(runs_dir, config, spec, seed)
+            out.append(AuditRun(INTERACTION_PRESET, " + ".join(sorted(together)), method, config, spec, path))
     return out
 
 
@@ -89,8 +122,13 @@ def run_audit(
     runs_dir, reports = writable_directory(out / "runs"), writable_directory(out / "reports", "--out")
     runs = plan(task, provider, trials, episodes, max_steps, runs_dir, seed, say)
     pending = sum(not is_complete(runner.trial_path(r.path, t)) for r in runs for t in range(trials))
-    fields = len({r.field for r in runs if r.field})
-    say(f"audit of {task}: {fields} fields x 2 presets, {len(runs)} runs of {trials} trials ({pending} trials to run)")
+    fields = len({r.field for r in runs if r.field and " + " not in r.field})
+    together = len([r for r in runs if r.field and " + " in r.field])
+    say(
+        f"audit of {task}: {fields} fields x 2 presets"
+        + (f" and {together} interaction runs (fields switched together)" if together else "")
+        + f", {len(runs)} runs of {trials} trials ({pending} trials to run)"
+    )
     with tqdm(total=len(runs) * trials, unit="trial", disable=quiet, file=sys.stderr, dynamic_ncols=True) as bar:
         sweep = [runner.SweepRun(r.config, trials, seed, r.provider, r.path, progress=runner.TrialCount(bar, r.config)) for r in runs]
         runner.run_sweep(sweep, jobs)  # every run's trials in one pool: no worker waits on a run's last trial
@@ -111,10 +149,10 @@ def write_audit(
             warn(warning)
     made = [a for a in audit.build(logs.runs) if task is None or a.task == task]
     for a in made:
-        stem = reports / f"audit-{a.task}"
-        stem.with_suffix(".md").write_text(to_markdown(a.table), encoding="utf-8")
-        stem.with_suffix(".csv").write_text(to_csv(a.data), encoding="utf-8")
-        fig = audit.figure(a)
-        for fmt in formats:
-            fig.savefig(stem.with_suffix(f".{fmt}"), format=fmt, dpi=150, metadata={"Software": None} if fmt == "png" else None)
+        for stem, table, fig in audit.outputs(a):
+            path = reports / stem
+            path.with_suffix(".md").write_text(to_markdown(table), encoding="utf-8")
+            path.with_suffix(".csv").write_text(to_csv(table.data), encoding="utf-8")
+            for fmt in formats:
+                fig.savefig(path.with_suffix(f".{fmt}"), format=fmt, dpi=150, metadata={"Software": None} if fmt == "png" else None)
     return made

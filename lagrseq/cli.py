@@ -489,10 +489,18 @@ def _add_audit(sub: Any) -> None:
             "run the upstream preset with only that field set to the paper's value and the paper "
             "preset with only that field set back, for baseline, lagr and lagr-seq; then report each "
             "field's effect on queries with and without SEQ, total return, the performance ratio and "
-            "the steps to the first solved episode, with 95%% bootstrap intervals. Writes "
-            "OUT/runs and OUT/reports/audit-TASK.md/.csv/.png; lagrseq replay rebuilds it from the logs."
+            "the steps to the first solved episode, with Welch 95%% t-intervals and n; marks are "
+            "Holm-corrected over the table's comparisons, and runs of fewer than 10 trials are "
+            "indicative (never marked). On cube-stacking it also runs the primary's epsilon schedule, "
+            "learning on guided steps and the secondary's epsilon schedule switched together (2x2x2) "
+            "and reports their interaction contrasts. Writes OUT/runs and "
+            "OUT/reports/audit-TASK[-interactions].md/.csv/.png; lagrseq replay rebuilds them from the logs."
         ),
-        epilog="examples:\n  lagrseq audit cube-stacking --trials 5 --out audit\n  lagrseq audit cube-stacking --provider mock:authors-t0",
+        epilog=(
+            "examples:\n  lagrseq audit cube-stacking --trials 10 --episodes 100 --provider mock:authors-t0\n"
+            "  lagrseq audit object-arrangement --trials 3 --max-steps 1000 --out audit\n"
+            "  lagrseq audit image-completion --provider mock:authors-gpt4 --trials 3 --max-steps 1000"
+        ),
         formatter_class=_RAW,
     )
     _task_argument(p)
@@ -888,8 +896,10 @@ def cmd_audit(args: argparse.Namespace) -> int:
         ["png"], quiet=args.quiet, say=lambda line: print(line, flush=True),
     )
     for audit in made:
-        print(to_markdown(audit.table))
-        print(f"written: {args.out / 'reports' / f'audit-{audit.task}'}.md, .csv, .png")
+        for stem, table in ((f"audit-{audit.task}", audit.table), (f"audit-{audit.task}-interactions", audit.interaction_table)):
+            if table is not None:
+                print(to_markdown(table))
+                print(f"written: {args.out / 'reports' / stem}.md, .csv, .png")
     return 0
 
 

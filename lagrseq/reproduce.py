@@ -357,8 +357,10 @@ def reproduce(
             the_plan, jobs, bar, on_run=lambda run: bar.set_description(run.describe()),
             executor=executor, scheduler=scheduler, say=say, retries=retries,
         )
-    if suite_path is None and not items and "cube-stacking" in cfg.tasks():  # the paper's whole suite
-        run_cube_audit(runs_dir, quick, jobs, seed, quiet, say)
+    if suite_path is None and not items:  # the paper's whole suite: the audits of every task that has one
+        for task in SUITE_AUDITS:
+            if task in cfg.tasks():
+                run_suite_audit(task, runs_dir, quick, jobs, seed, quiet, say)
     say(f"runs done in {duration(time.perf_counter() - started)}: {runs_dir}")
     report = replay(
         [runs_dir],
@@ -399,20 +401,46 @@ def with_authors_answers(suite: Suite, caches: Path, out: Path, say: Callable[[s
     return with_recorded(suite, authors.provider_spec(out), covers)
 
 
-AUDIT_TRIALS = {True: 3, False: 10}
-"""Trials per run of the cube audit that ``reproduce`` includes (--quick, full)."""
+@dataclass(frozen=True)
+class SuiteAudit:
+    """One task's audit in the paper's suite: its provider (the one the task's query table uses,
+    so that the scoreboard's gap can be attributed) and, per mode (``--quick`` or full), trials per
+    run, episodes (0: the preset's) and steps per trial (-1: the preset's)."""
+
+    provider: str
+    quick: tuple[int, int, int]
+    full: tuple[int, int, int]
+    quick_presets: tuple[str, ...] = ("upstream", "paper")
+    """The directions the quick audit switches fields in (the full audit: both)."""
 
 
-def run_cube_audit(runs_dir: Path, quick: bool, jobs: int, seed: int, quiet: bool, say: Callable[[str], None]) -> None:
-    """The audit of the cube task (``lagrseq audit cube-stacking``) at the suite's length, into the
-    suite's runs, so that replay adds its table and figure (the preset runs are the suite's own)."""
+SUITE_AUDITS = {
+    "cube-stacking": SuiteAudit("mock:authors-t0", (3, 100, -1), (10, 100, -1)),
+    "image-completion": SuiteAudit("mock:authors-gpt4", (2, 0, 200), (10, 0, -1), ("upstream",)),
+    "object-arrangement": SuiteAudit("mock", (2, 0, 200), (10, 0, -1), ("upstream",)),
+}
+"""The audits ``reproduce`` runs with the whole suite; the grid tasks' quick audits are reduced
+(2 trials of 200 steps, the upstream preset's fields switched to the paper's values only:
+indicative, labelled so on their tables)."""
+
+
+def run_suite_audit(task: str, runs_dir: Path, quick: bool, jobs: int, seed: int, quiet: bool, say: Callable[[str], None]) -> None:
+    """The audit of ``task`` (``lagrseq audit TASK``) at the suite's length, into the suite's runs,
+    so that replay adds its tables and figures (a preset run the suite also makes is shared)."""
     from tqdm import tqdm
 
     from lagrseq.audit import plan as audit_plan
 
-    trials = AUDIT_TRIALS[quick]
-    runs = audit_plan("cube-stacking", "mock", trials, 100, -1, runs_dir, seed, say)
-    say(f"cube audit: {len(runs)} runs of {trials} trials, one field switched each (lagrseq audit)")
+    chosen = SUITE_AUDITS[task]
+    trials, episodes, max_steps = chosen.quick if quick else chosen.full
+    runs = audit_plan(task, chosen.provider, trials, episodes, max_steps, runs_dir, seed, say, chosen.quick_presets if quick else None)
+    together = sum(1 for r in runs if r.field and " + " in r.field)
+    say(
+        f"{task} audit: {len(runs)} runs of {trials} trials"
+        + (f" of {max_steps} steps" if max_steps >= 0 else "")
+        + (" (reduced: upstream -> paper only)" if quick and chosen.quick_presets != ("upstream", "paper") else "")
+        + f", one field switched each{f' and {together} interaction runs' if together else ''} (lagrseq audit)"
+    )
     with tqdm(total=len(runs) * trials, unit="trial", disable=quiet, file=sys.stderr, dynamic_ncols=True) as bar:
         sweep = [runner.SweepRun(r.config, trials, seed, r.provider, r.path, progress=runner.TrialCount(bar, r.config)) for r in runs]
         runner.run_sweep(sweep, jobs)

@@ -225,18 +225,17 @@ def replay(
         _write(out / "tables" / f"{stem}.md", to_markdown(table), written)
         _write(out / "tables" / f"{stem}.csv", to_csv(table.data), written)
     audits = audit.build(logs.runs)
-    board = scoreboard.build([(r.item, r.matched) for r in reports if r.status != "not run"], [a.task for a in audits])
+    board = scoreboard.build([(r.item, r.matched) for r in reports if r.status != "not run"], audits)
     _write(out / "scoreboard.md", to_markdown(board), written)
     _write(out / "tables" / "scoreboard.csv", to_csv(board.data), written)
-    for made in audits:  # lagrseq audit runs in these logs: what each deviation does
-        stem = f"audit-{made.task}"
-        _write(out / "tables" / f"{stem}.md", to_markdown(made.table), written)
-        _write(out / "tables" / f"{stem}.csv", to_csv(made.data), written)
-        fig = audit.figure(made)
-        path = out / "figures" / f"{stem}.png"
-        fig.savefig(path, format="png", dpi=DPI, metadata=_SAVE_METADATA["png"])
-        written.append(path)
-        extra.append((stem, made.table))
+    for made in audits:  # lagrseq audit runs in these logs: what each deviation does (and its interaction runs)
+        for stem, table, fig in audit.outputs(made):
+            _write(out / "tables" / f"{stem}.md", to_markdown(table), written)
+            _write(out / "tables" / f"{stem}.csv", to_csv(table.data), written)
+            path = out / "figures" / f"{stem}.png"
+            fig.savefig(path, format="png", dpi=DPI, metadata=_SAVE_METADATA["png"])
+            written.append(path)
+            extra.append((stem, table))
     _write(out / "index.html", _index_html(reports, extra, logs, produced_by, board), written)
     _write(out / "index.md", _index_markdown(reports, extra, logs, produced_by, board), written)
     return Report(out, logs, reports, written)

@@ -4,7 +4,9 @@ For each reference value of a table item (Table 2, Table 3, the stack-size ratio
 reductions those tables imply (1 - LaGR-SEQ / LaGR), one row per source the logs hold (the mock,
 a calibrated mock profile, the authors' recorded answers, any other recorded store): lagrseq's
 mean with its 95% percentile-bootstrap interval, and whether the paper's value falls inside it.
-The last column links what explains the gap (the audit, where the logs hold one, else the item).
+The last column says what explains the gap (:func:`lagrseq.analysis.audit.gap_explained_by`: the
+audit rows that account for it, with their sum, or ``unexplained``, where the logs hold an audit of
+the row's task; else a link to the item).
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from lagrseq.analysis import stats
+from lagrseq.analysis import audit, stats
 from lagrseq.analysis.items import Match
 from lagrseq.analysis.loading import Run
 from lagrseq.analysis.tables import Table
@@ -62,14 +64,17 @@ def _reduction(seq: np.ndarray, lagr: np.ndarray, rng: np.random.Generator) -> t
     return float(point), float(low), float(high)
 
 
-def build(items: Sequence[tuple[Item, Sequence[Match]]], audit_tasks: Sequence[str] = ()) -> Table:
+def build(items: Sequence[tuple[Item, Sequence[Match]]], audits: Sequence[audit.Audit] = ()) -> Table:
     rows: list[dict[str, Any]] = []
 
-    def add(item: Item, what: str, paper: str, m: Match, mean: float, low: float, high: float, n: int, digits: int) -> None:
+    def add(
+        item: Item, what: str, paper: str, m: Match, mean: float, low: float, high: float, n: int, digits: int, quantity: str | None = None
+    ) -> None:
         value = paper_number(paper)
         inside = value is not None and low <= value <= high
         task = m.spec.task
-        explain = f"#audit-{task}" if task in audit_tasks else f"#{item.id}"
+        config = m.run.config if m.run is not None else None
+        explain = audit.gap_explained_by(audits, task, m.spec.preset, quantity, mean, paper, config) or f"#{item.id}"
         rows.append(
             {
                 "item": item.id,
@@ -102,7 +107,7 @@ def build(items: Sequence[tuple[Item, Sequence[Match]]], audit_tasks: Sequence[s
                     if m.spec.column == column and _fits(m, row):
                         assert m.run is not None
                         s = stats.summarize(_queries(m.run), stats.generator(f"{m.run.key.name}/queries"))
-                        add(item, f"{row}, {column}: queries per run", str(paper), m, s.mean, s.ci_low, s.ci_high, s.n, 1)
+                        add(item, f"{row}, {column}: queries per run", str(paper), m, s.mean, s.ci_low, s.ci_high, s.n, 1, audit.QUERY_COLUMNS.get(column))
             # the query reduction SEQ brings, where the paper gives both columns of a row
             columns = sorted({k.split("|", 1)[1] for k in reference if "|" in k})
             if len(columns) == 2:
@@ -132,7 +137,8 @@ def build(items: Sequence[tuple[Item, Sequence[Match]]], audit_tasks: Sequence[s
                         continue
                     ratios = stats.paired_ratios(m.run.total_per_trial("return"), under.run.total_per_trial("return"))
                     s = stats.summarize(ratios, stats.generator(f"{m.run.key.name}/{under.run.key.name}/ratio"))
-                    add(item, f"{row} cubes: performance ratio", str(paper), m, s.mean, s.ci_low, s.ci_high, s.n, 3)
+                    ratio = audit.RATIO_QUANTITY if numerator == "LaGR-SEQ" and denominator == "Q-learning" else None
+                    add(item, f"{row} cubes: performance ratio", str(paper), m, s.mean, s.ci_low, s.ci_high, s.n, 3, ratio)
     display = []
     for r in rows:
         d = r["digits"]
