@@ -235,7 +235,7 @@ def _add_run(sub: Any) -> None:
     p.add_argument("--out", type=Path, default=Path("runs"), help="output directory (default: runs)")
     p.add_argument("--name", default=None, help="run directory name, one plain name (default: preset-provider-seed-digest)")
     p.add_argument("--jobs", type=_N["jobs"], default=1, help="trials run in parallel processes, or workers of a local Dask cluster (default 1)")
-    p.add_argument("--on-miss", choices=ON_MISS, default="error", help="recorded:STORE only, a query the store has no answer for: error = stop with a message naming the nearest recorded keys (default); mock = answer it with the rule-based mock (not stored); live = ask the live server and record the answer into STORE")
+    p.add_argument("--on-miss", choices=ON_MISS, default="error", help="recorded:STORE only, a query the store has no answer for: error = stop with a message naming the nearest recorded keys (default); mock = answer it with the rule-based mock (not stored); live = ask the live server and record the answer into STORE; refuse = answer it with a refusal (source miss: it costs a query and is never accepted)")
     p.add_argument("--render", type=Path, default=None, metavar="DIR", help="arm-arrangement only: write PNG frames of every placement and an animated GIF of every episode to DIR/trial-NNN/ (headless; about 0.1 s a frame)")
 
 

@@ -577,7 +577,11 @@ def miss_report(results: list[TrialResult], provider_spec: str) -> list[str]:
     stored = totals.pop("recorded", 0)
     missed = sum(totals.values())
     share = 100.0 * missed / (stored + missed) if stored + missed else 0.0
-    fallback = ", ".join(f"{n} from the fallback {source}" for source, n in sorted(totals.items())) or "none from a fallback"
+    refused = totals.pop("miss", 0)
+    fallback = ", ".join(f"{n} from the fallback {source}" for source, n in sorted(totals.items()))
+    fallback = fallback or ("none from a fallback" if not refused else "")
+    if refused:
+        fallback += (", " if fallback else "") + f"{refused} refused (--on-miss refuse: never accepted)"
     return [f"answers: {stored} from the store, {fallback} ({share:.1f}% missed the store)"]
 
 
