@@ -276,14 +276,21 @@ def _add_frontier(sub: Any) -> None:
             "the paper's SEQ and LaGR rows marked. never = --method baseline, always = --method "
             "lagr, the others = --method lagr-seq with secondary.policy. --replay DIR rebuilds the "
             "report from the logs under DIR alone (no trial runs). With recorded:STORE nothing is "
-            "ever sent unless --on-miss live is given."
+            "ever sent unless --on-miss live is given. The protocol (docs/frontier.md): the primary "
+            "outcome is steps to the first solved episode (and episodes solved per trial); each point "
+            "gets a one-sided Welch non-inferiority verdict against always (margin 10%% of always's "
+            "mean, alpha 0.05, at least 10 trials), random runs at each learning policy's matched "
+            "query rate, and a point is credited only when it is non-inferior and beats that random "
+            "run; the grid tasks run both regimes (--scopes); store misses are refused (--on-miss "
+            "refuse, the default with recorded:STORE). Cube stacking runs on the paper preset unless "
+            "--preset is given (the upstream environment pays for wrong cubes)."
         ),
         epilog=(
             "examples:\n"
-            "  lagrseq frontier cube-stacking --provider recorded:store --on-miss mock \\\n"
+            "  lagrseq frontier cube-stacking --provider recorded:store \\\n"
             "      --policies never,always,seq,oracle,thompson --sweep thompson:query_cost=0.25,0.5 --trials 10 --out fr\n"
-            "  lagrseq frontier object-arrangement --provider recorded:store --on-miss mock \\\n"
-            "      --policies always,seq,thompson:query_cost=0.5,random:ask_probability=0.1 --trials 5 --out fr\n"
+            "  lagrseq frontier object-arrangement --provider recorded:store --policies always,seq,random,thompson \\\n"
+            "      --trials 10 --tune --out fr     # knobs chosen on tuning seeds, then evaluated\n"
             "  lagrseq frontier --replay fr --out fr/frontier     # the report again, from the logs"
         ),
         formatter_class=_RAW,
@@ -306,6 +313,7 @@ def _add_frontier(sub: Any) -> None:
     p.add_argument("--tune", action="store_true", help="choose each policy's knob (thompson, seq: query_cost; random: ask_probability) on tuning seeds by the fewest queries among settings non-inferior to always on steps to the first solve, record the choice in the logs' metadata, then evaluate it on the evaluation seed beside the variants as given")
     p.add_argument("--tune-seed", type=_SEED, default=None, help="run seed of the tuning trials (default: --seed + 1000003; never the evaluation seed)")
     p.add_argument("--tune-trials", type=_COUNT, default=5, help="tuning trials per candidate (default 5)")
+    p.set_defaults(preset=None)  # cube stacking: paper (the upstream cube pays for wrong cubes); the rest: upstream
 
 
 def _add_config(sub: Any) -> None:
@@ -756,6 +764,8 @@ def cmd_frontier(args: argparse.Namespace) -> int:
         if args.task is None:
             raise UsageError("frontier needs a TASK (or --replay DIR)")
         base = args.out  # made by run_frontier once every configuration is checked
+        if args.preset is None:
+            args.preset = "paper" if args.task == "cube-stacking" else "upstream"
         if args.on_miss is None:
             args.on_miss = "refuse" if args.provider.startswith("recorded:") else "error"
         options = _provider_options(args)

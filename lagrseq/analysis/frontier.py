@@ -479,6 +479,8 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
         scope = SCOPE_TEXT.get(scope_of(points[0].run.config), scope_of(points[0].run.config))
         role = " (tuning seeds)" if any(p.tuning.get("role") == "tuning" for p in points) else ""
         title = f"Query-efficiency frontier: {first.task} ({first.preset}, {shown}, seed {first.seed}{role}; {scope})"
+        if first.task == "cube-stacking" and first.preset == "upstream":
+            title += " [confound: the upstream environment rewards wrong cubes, which pays policies that guide fewer episodes]"
     return Table(title, columns, tuple(rows), pd.DataFrame(data))
 
 
