@@ -149,6 +149,8 @@ def test_noninferiority_and_credit_on_hand_made_points() -> None:
         "no verdict: misses answered by the mock", "non-inferior",
     ]
     assert list(data["credited"]) == [False, True, False, False, False, False, False, False]
+    # the second primary outcome gets its own verdict (every hand-made trial solved one episode)
+    assert list(data["vs_always_episodes_solved"])[1:4] == ["non-inferior", "non-inferior", "inconclusive"]
     assert shown.rows[-1][0] == "oracle (peeks at the answer)" and shown.rows[-1][1] == "bound"
     assert data["noninferiority_margin"].iloc[0] == pytest.approx(10.0)
 

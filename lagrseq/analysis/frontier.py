@@ -16,7 +16,8 @@ is better; a trial that solves none counts its full length) and episodes solved 
 return is secondary. Each asking point is compared with ``always`` on steps to the first solve by
 a one-sided Welch non-inferiority test at level 0.05 with a margin of 10% of always's mean
 (:data:`MARGIN`), needing at least 10 trials per arm (:func:`lagrseq.analysis.inference.noninferiority`):
-``non-inferior / inferior / inconclusive``. Each learning policy's point is also compared with
+``non-inferior / inferior / inconclusive`` (the same test on episodes solved per trial, higher
+is better, is shown beside it but does not enter the credit). Each learning policy's point is also compared with
 ``random`` asking at the point's own mean query rate (queries / decisions, from its logs; the
 random run is found by its ``ask_probability``, :func:`lagrseq.frontier.matched_probability`):
 it beats it when a one-sided Welch test at level 0.05 says its mean steps to the first solve are
@@ -137,6 +138,11 @@ class Point:
     def rate(self) -> float:
         """Queries per secondary decision, over all trials (NaN without decisions)."""
         return float(self.queries.sum()) / self.decisions if self.decisions else math.nan
+
+    def flagged(self, threshold: float) -> bool:
+        """More than ``threshold`` of its answers came from a fallback (refusals are no answers:
+        a ``refuse`` run is never flagged)."""
+        return self.on_miss != "refuse" and self.miss_share > threshold
 
     @property
     def fallback_labelled(self) -> bool:
@@ -327,6 +333,8 @@ class Verdict:
 
     against_always: inference.NonInferiority | None
     """None: no verdict (the point is always itself, or its misses were answered by the mock)."""
+    solved_against_always: inference.NonInferiority | None
+    """The same test on episodes solved per trial (higher is better; shown, not used for credit)."""
     matched: Point | None
     """The random run at this point's query rate (None: not wanted, or not run)."""
     against_random: inference.NonInferiority | None
@@ -340,6 +348,12 @@ class Verdict:
             return self.note or "n/a"
         v = self.against_always
         return f"{v.verdict} (n = {v.n_treatment}/{v.n_control})"
+
+    @property
+    def solved_text(self) -> str:
+        if self.solved_against_always is None:
+            return self.note or "n/a"
+        return self.solved_against_always.verdict
 
     @property
     def beats_random(self) -> bool:
@@ -365,13 +379,16 @@ def judge(points: Sequence[Point]) -> dict[int, Verdict]:
     out: dict[int, Verdict] = {}
     for p in points:
         if p.fallback_labelled:
-            out[id(p)] = Verdict(None, None, None, False, "no verdict: misses answered by the mock")
+            out[id(p)] = Verdict(None, None, None, None, False, "no verdict: misses answered by the mock")
             continue
         if reference is None or p is reference:
-            out[id(p)] = Verdict(None, None, None, False, "reference" if p is reference else "no always run")
+            out[id(p)] = Verdict(None, None, None, None, False, "reference" if p is reference else "no always run")
             continue
         margin = MARGIN * float(np.mean(reference.steps_to_solve))
         versus = inference.noninferiority(p.steps_to_solve, reference.steps_to_solve, margin, higher_is_better=False, alpha=ALPHA)
+        solved = inference.noninferiority(
+            p.episodes_solved, reference.episodes_solved, MARGIN * float(np.mean(reference.episodes_solved)), alpha=ALPHA
+        )
         matched = against = None
         if wants_match(p.policy, p.knobs) and not math.isnan(p.rate) and p.rate > 0:
             matched = randoms.get(matched_probability(float(p.queries.sum()), p.decisions))
@@ -381,7 +398,7 @@ def judge(points: Sequence[Point]) -> dict[int, Verdict]:
             p.policy != "oracle" and versus.verdict == inference.NON_INFERIOR
             and against is not None and against.verdict == inference.NON_INFERIOR
         )
-        out[id(p)] = Verdict(versus, matched, against, credited, "")
+        out[id(p)] = Verdict(versus, solved, matched, against, credited, "")
     return out
 
 
@@ -396,8 +413,8 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
         "policy", "paper", "knobs chosen", "trials", "queries / trial [95% CI]", "query rate", "USD / trial [95% CI]",
         "steps to first solve [95% CI]", "episodes solved / trial [95% CI]", "solved trials",
         f"vs always on steps to first solve (margin {number(margin, 0)})", "random at the matched rate: steps to first solve",
-        "vs matched random", "credited", "return / trial [95% CI]", "return IQM [95% CI]", "P(return > always) [95% CI]",
-        "fallback answers", "trials decided outside the store", "queries vs always",
+        "vs matched random", "credited", "vs always on episodes solved (margin 10%)", "return / trial [95% CI]", "return IQM [95% CI]", "P(return > always) [95% CI]",
+        "fallback answers (refused: store misses)", "trials decided outside the store", "queries vs always",
     )
     rows, data = [], []
     for p in points:
@@ -411,7 +428,7 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
             poi = poi_low = poi_high = math.nan
         q, d, r, s, e = (p.summary[n] for n in ("queries", "dollars", "returns", "steps_to_solve", "episodes_solved"))
         ratio = q[0] / reference.summary["queries"][0] - 1.0 if reference and reference.summary["queries"][0] else math.nan
-        flagged = p.miss_share > miss_threshold
+        flagged = p.flagged(miss_threshold)
         usd = f"{number(d[0], 4)} {interval(d[1], d[2], 4)}" + (" (est.)" if p.estimated_dollars else "")
         paper = "bound" if p.policy == "oracle" else (PAPER_ROWS.get(p.policy, "") if not p.knobs else "")
         chosen = _chosen(p)
@@ -435,10 +452,11 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
             shown_random,
             verdict.random_text,
             "yes" if verdict.credited else "no",
+            verdict.solved_text,
             f"{number(r[0], 1)} {interval(r[1], r[2], 1)}",
             f"{number(iqm, 1)} {interval(iqm_low, iqm_high, 1)}",
             f"{number(poi, 2)} {interval(poi_low, poi_high, 2)}",
-            f"{int(p.fallback.sum())} ({100 * p.miss_share:.0f}%)",
+            f"{int(p.fallback.sum())} ({100 * p.miss_share:.0f}%)" + (" refused" if p.on_miss == "refuse" else ""),
             f"{int(p.outside.sum())}/{len(p.outside)}",
             "n/a" if math.isnan(ratio) else f"{100 * ratio:+.0f}%",
         ))
@@ -461,6 +479,7 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
             "vs_matched_random_p": vr.p if vr is not None else math.nan,
             "beats_matched_random": verdict.beats_random,
             "credited": verdict.credited,
+            "vs_always_episodes_solved": verdict.solved_text,
             "outside_store_trials": int(p.outside.sum()),
             "queries_mean": q[0], "queries_low": q[1], "queries_high": q[2],
             "usd_mean": d[0], "usd_low": d[1], "usd_high": d[2], "usd_estimated": p.estimated_dollars,
@@ -557,7 +576,7 @@ def draw(points: Sequence[Point], title: str, miss_threshold: float = MISS_THRES
                 y, yl, yh = p.summary[y_name]
                 xerr = [[max(x - xl, 0)], [max(xh - x, 0)]] if not math.isnan(xl) else None
                 yerr = [[max(y - yl, 0)], [max(yh - y, 0)]] if not math.isnan(yl) else None
-                hollow = p.miss_share > miss_threshold
+                hollow = p.flagged(miss_threshold)
                 marker = markers[id(p)]
                 drawn = ax.errorbar(
                     [x], [y], xerr=xerr, yerr=yerr, fmt=marker, color=color, markersize=10 if marker == "*" else 6,
