@@ -500,11 +500,12 @@ def build_frontier(item: Item, matched: Sequence[Match], price: Price | None = N
     targets: list[Any] = [figure] if made is None else list(made)
     tables: list[tuple[str, Table]] = []
     frames = []
+    scoped = len({scope for _, scope in panels}) > 1  # name the regime only where there are several
     for n, (target, ((provider, scope), runs)) in enumerate(zip(targets, panels.items(), strict=True)):
         points = frontier.points_of([*never, *runs], price)
         shown = frontier.table(points, provider=provider)
         frontier.draw(points, shown.title, figure=target)
-        name = item.id if n == 0 else f"{item.id}-{_slug(provider)}-{scope}"
+        name = item.id if n == 0 else f"{item.id}-{_slug(provider)}" + (f"-{scope}" if scoped else "")
         tables.append((name, shown))
         frames.append(shown.data.assign(provider=provider))
     method = (
