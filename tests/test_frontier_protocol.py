@@ -213,3 +213,17 @@ def test_tuning_never_touches_evaluation_seeds_and_the_choice_is_in_the_logs(tmp
     capsys.readouterr()
     assert cli.main([*args, "--tune-seed", "7"]) == 2  # tuning on the evaluation seed is refused
     assert "evaluation seed" in capsys.readouterr().err
+
+
+def test_scopes_auto_runs_both_regimes_on_the_grids_only(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from lagrseq.errors import UsageError
+    from lagrseq.frontier import parse_scopes
+
+    assert parse_scopes("auto", "object-arrangement") == ["episode", "trial"]
+    assert parse_scopes("auto", "cube-stacking") == [None]  # the preset's own (cube: episode)
+    assert parse_scopes("trial, episode,trial", "image-completion") == ["trial", "episode"]
+    for bad in ("", "forever", "episode,weekly"):
+        with pytest.raises(UsageError):
+            parse_scopes(bad, "cube-stacking")
+    assert cli.main(["frontier", "cube-stacking", "--scopes", "forever", "--out", str(tmp_path)]) == 2
+    assert "--scopes 'forever'" in capsys.readouterr().err
