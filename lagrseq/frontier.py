@@ -249,6 +249,8 @@ def run_protocol(
                     say(f"{variant}{where}: asked nothing, no random run at its rate")
                     continue
                 p = matched_probability(queries, decisions)
+                if p >= 1.0:  # random at rate 1 asks at every trigger: always is that run
+                    continue
                 match = Variant("random", (("ask_probability", f"{p:g}"),))
                 if match not in wanted and not any(_same(match, v) for v in evaluated):
                     wanted.append(match)

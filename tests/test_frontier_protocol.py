@@ -139,6 +139,8 @@ def test_noninferiority_and_credit_on_hand_made_points() -> None:
     assert not verdicts[id(oracle)].credited and verdicts[id(oracle)].matched is None
     assert verdicts[id(mocked)].against_always is None and not verdicts[id(mocked)].credited
     assert verdicts[id(random_02)].matched is None  # random is not matched with itself
+    eager = _point("thompson", list(same.steps_to_solve), queries=100, decisions=100)  # asks at every decision
+    assert judge([always, eager])[id(eager)].matched is always  # random at rate 1 is always
     # the same verdicts in the table, with the margin named
     summarise(points)
     shown = table(points)

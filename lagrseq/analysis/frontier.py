@@ -391,7 +391,8 @@ def judge(points: Sequence[Point]) -> dict[int, Verdict]:
         )
         matched = against = None
         if wants_match(p.policy, p.knobs) and not math.isnan(p.rate) and p.rate > 0:
-            matched = randoms.get(matched_probability(float(p.queries.sum()), p.decisions))
+            rate = matched_probability(float(p.queries.sum()), p.decisions)
+            matched = reference if rate >= 1.0 else randoms.get(rate)  # random at rate 1 is always
             if matched is not None:
                 against = inference.noninferiority(p.steps_to_solve, matched.steps_to_solve, 0.0, higher_is_better=False, alpha=ALPHA)
         credited = (
