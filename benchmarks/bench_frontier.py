@@ -58,7 +58,7 @@ def overhead(repeats: int) -> tuple[float, float]:
 def one_pool_per_policy(args: argparse.Namespace, out: Path) -> float:
     """Seconds for the frontier's trials run as before: one process pool per policy variant."""
     variants = frontier.parse_policies(args.policies) + (frontier.parse_sweep(args.sweep) if args.sweep else [])
-    options = ProviderOptions(on_miss=args.on_miss or "error")
+    options = ProviderOptions(on_miss=args.on_miss or ("refuse" if args.provider.startswith("recorded:") else "error"))
     started = time.perf_counter()
     for variant in variants:
         config, directory = runner.prepare(
@@ -86,6 +86,8 @@ def main() -> None:
         argv = [
             "frontier", args.task, "--provider", args.provider, "--policies", args.policies,
             "--trials", str(args.trials), "--out", str(out), "--quiet", "--jobs", str(args.jobs),
+            # the same runs as one_pool_per_policy: the upstream preset in its own regime, no matched-rate random
+            "--preset", "upstream", "--scopes", "episode" if args.task == "cube-stacking" else "trial", "--no-matched-random",
         ]
         argv += ["--sweep", args.sweep] if args.sweep else []
         argv += ["--on-miss", args.on_miss] if args.on_miss else []

@@ -239,7 +239,7 @@ def _add_run(sub: Any) -> None:
     p.add_argument("--out", type=Path, default=Path("runs"), help="output directory (default: runs)")
     p.add_argument("--name", default=None, help="run directory name, one plain name (default: preset-provider-seed-digest)")
     p.add_argument("--jobs", type=_N["jobs"], default=1, help="trials run in parallel processes, or workers of a local Dask cluster (default 1)")
-    p.add_argument("--on-miss", choices=ON_MISS, default="error", help="recorded:STORE only, a query the store has no answer for: error = stop with a message naming the nearest recorded keys (default); mock = answer it with the rule-based mock (not stored); live = ask the live server and record the answer into STORE")
+    p.add_argument("--on-miss", choices=ON_MISS, default="error", help="recorded:STORE only, a query the store has no answer for: error = stop with a message naming the nearest recorded keys (default); mock = answer it with the rule-based mock (not stored); live = ask the live server and record the answer into STORE; refuse = answer it with a refusal (source miss: it costs a query and is never accepted)")
     p.add_argument("--render", type=Path, default=None, metavar="DIR", help="arm-arrangement only: write PNG frames of every placement and an animated GIF of every episode to DIR/trial-NNN/ (headless; about 0.1 s a frame)")
 
 
@@ -284,14 +284,21 @@ def _add_frontier(sub: Any) -> None:
             "the paper's SEQ and LaGR rows marked. never = --method baseline, always = --method "
             "lagr, the others = --method lagr-seq with secondary.policy. --replay DIR rebuilds the "
             "report from the logs under DIR alone (no trial runs). With recorded:STORE nothing is "
-            "ever sent unless --on-miss live is given."
+            "ever sent unless --on-miss live is given. The protocol (docs/frontier.md): the primary "
+            "outcome is steps to the first solved episode (and episodes solved per trial); each point "
+            "gets a one-sided Welch non-inferiority verdict against always (margin 10%% of always's "
+            "mean, alpha 0.05, at least 10 trials), random runs at each learning policy's matched "
+            "query rate, and a point is credited only when it is non-inferior and beats that random "
+            "run; the grid tasks run both regimes (--scopes); store misses are refused (--on-miss "
+            "refuse, the default with recorded:STORE). Cube stacking runs on the paper preset unless "
+            "--preset is given (the upstream environment pays for wrong cubes)."
         ),
         epilog=(
             "examples:\n"
-            "  lagrseq frontier cube-stacking --provider recorded:store --on-miss mock \\\n"
+            "  lagrseq frontier cube-stacking --provider recorded:store \\\n"
             "      --policies never,always,seq,oracle,thompson --sweep thompson:query_cost=0.25,0.5 --trials 10 --out fr\n"
-            "  lagrseq frontier object-arrangement --provider recorded:store --on-miss mock \\\n"
-            "      --policies always,seq,thompson:query_cost=0.5,random:ask_probability=0.1 --trials 5 --out fr\n"
+            "  lagrseq frontier object-arrangement --provider recorded:store --policies always,seq,random,thompson \\\n"
+            "      --trials 10 --tune --out fr     # knobs chosen on tuning seeds, then evaluated\n"
             "  lagrseq frontier --replay fr --out fr/frontier     # the report again, from the logs"
         ),
         formatter_class=_RAW,
@@ -302,13 +309,19 @@ def _add_frontier(sub: Any) -> None:
     p.add_argument("--policies", default="never,always,seq,thompson,oracle", metavar="LIST", help=f"comma-separated NAME or NAME:FIELD=VALUE[:FIELD=VALUE]; names: {', '.join(NAMES)}; fields: {', '.join(KNOBS)} (default: never,always,seq,thompson,oracle)")
     p.add_argument("--sweep", action="append", default=[], metavar="NAME:FIELD=V1,V2", help="one variant per value, drawn as a curve (repeatable), e.g. thompson:query_cost=0.25,0.5,0.75")
     p.add_argument("--provider", default="mock", metavar="SPEC", help="mock, mock:PROFILE, recorded:STORE or live[:MODEL] (default: mock)")
-    p.add_argument("--on-miss", choices=ON_MISS, default="error", help="recorded:STORE only: what answers a query the store lacks (default: error)")
+    p.add_argument("--on-miss", choices=ON_MISS, default=None, help="recorded:STORE only: what answers a query the store lacks (default: refuse, a refusal that costs a query and is never accepted, so no policy gains from answers nobody recorded; mock: the rule-based mock, whose points are labelled and get no verdict)")
     p.add_argument("--trials", type=_COUNT, default=5, help="trials per policy (default 5)")
     p.add_argument("--seed", type=_SEED, default=0, help="run seed (default 0)")
     p.add_argument("--jobs", type=_N["jobs"], default=os.cpu_count() or 1, help="trials run in parallel processes, every policy's trials in one pool (default: the number of cores)")
     p.add_argument("--out", type=Path, default=Path("frontier"), help="runs go to OUT/<task>/<method>/..., the report to OUT/frontier (default: frontier)")
     p.add_argument("--replay", type=Path, default=None, metavar="DIR", help="rebuild the report from the logs under DIR (writes to --out) and run nothing")
     p.add_argument("--miss-threshold", type=_N["share"], default=0.1, metavar="F", help="mark points whose share of fallback answers exceeds F, 0 to 1 (default 0.1)")
+    p.add_argument("--scopes", default="auto", metavar="LIST", help="lagr.solution_scope values to run, comma-separated: episode (an accepted answer guides one episode), trial (the rest of the trial); auto (default): episode and trial on the grid tasks, the preset's on cube stacking")
+    p.add_argument("--no-matched-random", dest="matched_random", action="store_false", help="do not run random at each learning policy's mean query rate (then no point is credited)")
+    p.add_argument("--tune", action="store_true", help="choose each policy's knob (thompson, seq: query_cost; random: ask_probability) on tuning seeds by the fewest queries among settings non-inferior to always on steps to the first solve, record the choice in the logs' metadata, then evaluate it on the evaluation seed beside the variants as given")
+    p.add_argument("--tune-seed", type=_SEED, default=None, help="run seed of the tuning trials (default: --seed + 1000003; never the evaluation seed)")
+    p.add_argument("--tune-trials", type=_COUNT, default=5, help="tuning trials per candidate (default 5)")
+    p.set_defaults(preset=None)  # cube stacking: paper (the upstream cube pays for wrong cubes); the rest: upstream
 
 
 def _add_config(sub: Any) -> None:
@@ -798,20 +811,28 @@ def cmd_frontier(args: argparse.Namespace) -> int:
         if args.task is None:
             raise UsageError("frontier needs a TASK (or --replay DIR)")
         base = args.out  # made by run_frontier once every configuration is checked
+        if args.preset is None:
+            args.preset = "paper" if args.task == "cube-stacking" else "upstream"
+        if args.on_miss is None:
+            args.on_miss = "refuse" if args.provider.startswith("recorded:") else "error"
         options = _provider_options(args)
-        directories = frontier.run_frontier(
+        tune = None
+        if args.tune:
+            tune = frontier.Tuning(args.seed + frontier.TUNE_OFFSET if args.tune_seed is None else args.tune_seed, args.tune_trials)
+        made_runs = frontier.run_protocol(
             args.task, variants, args.provider, options, base, args.trials, args.seed, args.preset, args.config,
             args.overrides, args.jobs, progress=lambda desc, total, unit: _bar(total, unit, desc, args.quiet),
+            scopes=frontier.parse_scopes(args.scopes, args.task), matched_random=args.matched_random, tune=tune,
         )
-        frontier.write_index(base, variants, directories)
-        out, roots = base / "frontier", directories
+        frontier.write_index(base, made_runs.variants, made_runs.directories, made_runs.chosen)
+        out, roots = base / "frontier", made_runs.directories
     made = report(roots, out, price, args.miss_threshold)
     for warning in made.warnings:
         print(f"lagrseq frontier: warning: {warning}", file=sys.stderr)
     for table in made.tables:
         print(table.title)
         for row in table.rows:
-            print(f"  {row[0]:<32} queries {row[3]:<24} return {row[5]:<28} fallback {row[10]}")
+            print(f"  {row[0]:<32} queries {row[4]:<22} steps to first solve {row[7]:<22} vs always: {row[10]}; vs matched random: {row[12]}; credited: {row[13]}")
     print(f"{len(made.written)} files in {out} ({time.perf_counter() - started:.1f} s)")
     return 0
 

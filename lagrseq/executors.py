@@ -54,6 +54,8 @@ class TrialJob:
     trial of the same run gets the same key (Dask then recognises it)."""
     render_dir: str | None = None
     """Arm tasks: where ``--render`` writes the trial's frames and GIFs (None: nowhere)."""
+    notes: dict[str, str] | None = None
+    """More entries for the trial's run metadata (``lagrseq frontier --tune``'s choice)."""
 
 
 def run_digest(config_json: str, seed: int, provider_spec: str, directory: str) -> str:

@@ -8,6 +8,18 @@ from the MCAP logs alone, by the same command with ``--replay``.
 A policy item is ``NAME`` or ``NAME:FIELD=VALUE[:FIELD=VALUE...]`` with FIELD a ``[secondary]``
 field (``thompson:query_cost=0.5``, ``random:ask_probability=0.1``, ``seq:budget=20``); a sweep
 ``NAME:FIELD=V1,V2,...`` adds one variant per value (drawn as a curve).
+
+The protocol (issue 20; the verdicts are :mod:`lagrseq.analysis.frontier`'s):
+
+- regimes: every variant runs under each ``lagr.solution_scope`` asked for (``episode``: an
+  accepted answer guides one episode, so a policy must ask again; ``trial``: it guides the rest of
+  the trial);
+- random at a matched rate: after the variants, every learning policy's run is read back and
+  ``random`` runs at its mean query rate (queries / decisions, :func:`matched_probability`);
+- ``--tune``: each named policy's knob (:data:`TUNE_GRID`) is chosen on tuning seeds (another
+  run seed, so no trial shares a seed with the evaluation) by :data:`TUNE_RULE`, the choice is
+  written into the evaluation logs' metadata (:data:`TUNING_NOTE`), then evaluated. The variants
+  as given stay: they are the task-agnostic settings, the same on every task.
 """
 
 from __future__ import annotations
@@ -21,6 +33,23 @@ from typing import Any
 
 from lagrseq.errors import UsageError
 from lagrseq.policies import POLICIES
+
+TUNING_NOTE = "frontier_tuning"
+"""The run-metadata entry (JSON) of a run that ``--tune`` made: ``role`` ``tuning`` (a candidate or
+the control on the tuning seeds) or ``tuned`` (the evaluation of the chosen setting)."""
+TUNE_GRID: dict[str, tuple[str, tuple[str, ...]]] = {
+    "thompson": ("query_cost", ("0", "0.25", "0.5", "1")),
+    "seq": ("query_cost", ("0", "0.25", "0.5")),
+    "random": ("ask_probability", ("0.05", "0.1", "0.25", "0.5")),
+}
+"""The knob ``--tune`` chooses per policy, and its candidate values."""
+TUNE_RULE = (
+    "fewest mean queries among the settings non-inferior to always on steps to the first solve "
+    "(margin 10% of always's mean, one-sided Welch test, alpha 0.05); if none is, the best mean steps"
+)
+TUNE_OFFSET = 1_000_003
+"""Default tuning seed: the evaluation seed plus this (a different run seed: disjoint trials)."""
+SCOPES = ("episode", "trial")
 
 NAMES = ("never", "always", *[p for p in POLICIES if p not in ("never", "always")])
 KNOBS = ("ask_probability", "query_cost", "budget", "budget_scope", "min_progress", "thompson_prior", "query_reward", "learning_rate")
@@ -95,6 +124,40 @@ def parse_sweep(text: str) -> list[Variant]:
     return out
 
 
+def wants_match(policy: str, knobs: object) -> bool:
+    """Whether a point is compared with random at its query rate: every asking policy but random
+    itself, the oracle (it peeks), never, and plain always (rate 1: random at rate 1 is always)."""
+    return policy not in ("never", "oracle", "random") and not (policy == "always" and not knobs)
+
+
+def matched_probability(queries: float, decisions: float) -> float:
+    """The ``ask_probability`` of random at a run's mean query rate (queries / decisions over all
+    its trials), to 2 significant digits and at least 0.001 (so the report finds the same run
+    again from the logs)."""
+    if decisions <= 0:
+        raise ValueError("no decisions: the run never reached a trigger")
+    rate = min(max(queries / decisions, 0.001), 1.0)
+    return float(f"{rate:.2g}")
+
+
+@dataclass(frozen=True)
+class Tuning:
+    """``--tune``: the tuning run seed and trials per candidate."""
+
+    seed: int
+    trials: int
+
+
+@dataclass(frozen=True)
+class Frontier:
+    """What :func:`run_frontier` ran (every run directory) and what ``--tune`` chose."""
+
+    directories: list[Path]
+    variants: list[Variant]
+    chosen: dict[str, dict[str, Any]]
+    """Per scope and policy (``"episode/thompson"``): the tuning note written into the logs."""
+
+
 def run_frontier(
     task: str,
     variants: Sequence[Variant],
@@ -109,36 +172,258 @@ def run_frontier(
     jobs: int,
     progress: Callable[[str, int, str], Any] | None = None,
     say: Callable[[str], None] = print,
+    scopes: Sequence[str | None] = (None,),
+    matched_random: bool = False,
+    tune: Tuning | None = None,
 ) -> list[Path]:
-    """Run every variant (skipping finished trials) into ``out``; returns the run directories.
-    All variants' trials go to one pool at once, so with ``jobs`` workers no worker idles at the
-    end of one policy's trials. ``progress(label, total, unit)`` makes a progress bar (a context
-    manager with ``update``)."""
+    """Run every variant (skipping finished trials) into ``out``; returns the run directories
+    (see :func:`run_protocol`, which this is with the protocol's parts off by default)."""
+    made = run_protocol(
+        task, variants, provider, options, out, trials, seed, preset, config_file, overrides, jobs, progress, say,
+        scopes, matched_random, tune,
+    )
+    return made.directories
+
+
+def run_protocol(
+    task: str,
+    variants: Sequence[Variant],
+    provider: str,
+    options: Any,
+    out: Path,
+    trials: int,
+    seed: int,
+    preset: str,
+    config_file: Path | None,
+    overrides: Sequence[str],
+    jobs: int,
+    progress: Callable[[str, int, str], Any] | None = None,
+    say: Callable[[str], None] = print,
+    scopes: Sequence[str | None] = (None,),
+    matched_random: bool = False,
+    tune: Tuning | None = None,
+) -> Frontier:
+    """Per solution scope (None: the preset's): ``--tune``'s tuning runs and choice, the variants
+    and the chosen settings on the evaluation seed, then random at each learning policy's matched
+    rate. Every configuration of a phase is checked before any of its trials starts."""
+    if tune is not None and tune.seed == seed:
+        raise UsageError(f"--tune-seed {tune.seed} is the evaluation seed; tuning must use other seeds")
+    directories: list[Path] = []
+    ran: list[Variant] = []
+    chosen: dict[str, dict[str, Any]] = {}
+    for scope in scopes:
+        extra = [*overrides, f'lagr.solution_scope="{scope}"'] if scope else list(overrides)
+        where = f" ({scope} scope)" if scope else ""
+
+        def phase(
+            todo: Sequence[tuple[Variant, dict[str, str] | None]], run_seed: int, count: int, what: str,
+            extra: list[str] = extra, where: str = where,
+        ) -> list[Path]:
+            return _run_phase(
+                task, todo, provider, options, out, count, run_seed, preset, config_file, extra, jobs,
+                progress, say, what + where,
+            )
+
+        notes: dict[Variant, dict[str, str]] = {}
+        extra_variants: list[Variant] = []
+        if tune is not None:
+            for policy, note in _tune(task, variants, phase, tune, seed).items():
+                chosen[f"{scope or 'preset'}/{policy}"] = note
+                best = Variant(policy, ((TUNE_GRID[policy][0], str(note["chosen"])),))
+                twin = next((v for v in variants if _same(v, best)), None)
+                target = twin or best
+                notes[target] = {TUNING_NOTE: json.dumps(note, sort_keys=True)}
+                if twin is None and best not in extra_variants:
+                    extra_variants.append(best)
+        evaluated = [*variants, *extra_variants]
+        done = phase([(v, notes.get(v)) for v in evaluated], seed, trials, "evaluation")
+        directories += done
+        ran += evaluated
+        if matched_random:
+            wanted: list[Variant] = []
+            for variant, directory in zip(evaluated, done, strict=True):
+                if not wants_match(variant.policy, variant.knobs):
+                    continue
+                queries, decisions = _rate(directory, trials)
+                if decisions == 0 or queries == 0:
+                    say(f"{variant}{where}: asked nothing, no random run at its rate")
+                    continue
+                p = matched_probability(queries, decisions)
+                if p >= 1.0:  # random at rate 1 asks at every trigger: always is that run
+                    continue
+                match = Variant("random", (("ask_probability", f"{p:g}"),))
+                if match not in wanted and not any(_same(match, v) for v in evaluated):
+                    wanted.append(match)
+            if wanted:
+                directories += phase([(v, None) for v in wanted], seed, trials, "random at the matched rates")
+                ran += wanted
+    return Frontier(directories, ran, chosen)
+
+
+def _same(a: Variant, b: Variant) -> bool:
+    """Two variants that make the same configuration (a knob at its default is no knob)."""
+    defaults = {"query_cost": 0.0, "budget": 0.0, "min_progress": 0.0, "ask_probability": 0.5}
+
+    def knobs(v: Variant) -> dict[str, str]:
+        out = {}
+        for field, value in v.knobs:
+            try:
+                if float(value) == defaults.get(field):
+                    continue
+                out[field] = f"{float(value):g}"
+            except ValueError:
+                out[field] = value
+        return out
+
+    return a.method == b.method and a.policy == b.policy and knobs(a) == knobs(b)
+
+
+def _run_phase(
+    task: str,
+    todo: Sequence[tuple[Variant, dict[str, str] | None]],
+    provider: str,
+    options: Any,
+    out: Path,
+    trials: int,
+    seed: int,
+    preset: str,
+    config_file: Path | None,
+    overrides: Sequence[str],
+    jobs: int,
+    progress: Callable[[str, int, str], Any] | None,
+    say: Callable[[str], None],
+    what: str,
+) -> list[Path]:
+    """Run ``todo``'s variants (with their run-metadata notes) as one pool: all trials at once, so
+    with ``jobs`` workers no worker idles at the end of one policy's trials."""
     from lagrseq import runner
 
     prepared = []
-    for variant in variants:  # every configuration is checked before any trial starts
+    for variant, notes in todo:  # every configuration is checked before any trial starts
         config, directory = runner.prepare(
             task, variant.method, preset, config_file, [*overrides, *variant.overrides()], provider, options, out, seed
         )
-        prepared.append((variant, config, directory))
+        prepared.append((variant, config, directory, notes))
     unit, per_trial = runner.progress_unit(prepared[0][1])  # one task and run length: one unit
     with contextlib.ExitStack() as stack:
         bar = None
         if progress is not None:
-            label = f"{task}: {len(prepared)} polic{'ies' if len(prepared) != 1 else 'y'} x {trials} trials"
+            label = f"{task} {what}: {len(prepared)} polic{'ies' if len(prepared) != 1 else 'y'} x {trials} trials"
             bar = stack.enter_context(progress(label, len(prepared) * trials * per_trial, unit))
-        sweep = [runner.SweepRun(config, trials, seed, provider, directory, options, progress=bar) for _, config, directory in prepared]
+        sweep = [
+            runner.SweepRun(config, trials, seed, provider, directory, options, progress=bar, notes=notes)
+            for _, config, directory, notes in prepared
+        ]
         outcome = runner.run_sweep(sweep, jobs, say=say, warn=say)
-    for (variant, _, directory), results in zip(prepared, outcome, strict=True):
-        say(f"{variant}: " + runner.summary(results, directory, provider).replace("\n", "; "))
-    return [d for _, _, d in prepared]
+    for (variant, _, directory, _), results in zip(prepared, outcome, strict=True):
+        say(f"{variant} [{what}]: " + runner.summary(results, directory, provider).replace("\n", "; "))
+    return [d for _, _, d, _ in prepared]
 
 
-def write_index(out: Path, variants: Sequence[Variant], directories: Sequence[Path]) -> Path:
-    """``frontier.json``: which run directory holds which policy (the report itself needs only
-    the logs)."""
+def _logs(directory: Path, trials: int) -> list[Path]:
+    from lagrseq.runner import trial_path
+
+    return [trial_path(directory, t) for t in range(trials) if trial_path(directory, t).is_file()]
+
+
+def _rate(directory: Path, trials: int) -> tuple[int, int]:
+    """(queries, decisions) over the run's first ``trials`` trial logs."""
+    from lagrseq.logs.reader import read_topic
+
+    queries = decisions = 0
+    for path in _logs(directory, trials):
+        rows = read_topic(path, "/query")
+        decisions += len(rows)
+        queries += sum(bool(r.get("queried")) for r in rows)
+    return queries, decisions
+
+
+def trial_outcomes(directory: Path, trials: int) -> tuple[list[float], list[float]]:
+    """Per trial log: steps to the end of the first solved episode (the trial's length when none
+    was solved) and queries."""
+    from lagrseq.logs.reader import read_topic
+
+    steps, queries = [], []
+    for path in _logs(directory, trials):
+        episodes = sorted(read_topic(path, "/episode"), key=lambda e: int(e["episode"]))
+        solved = [e for e in episodes if e.get("solved")]
+        steps.append(float(solved[0]["global_step"]) if solved else float(sum(int(e["length"]) for e in episodes)))
+        queries.append(float(sum(int(e["queries"]) for e in episodes)))
+    return steps, queries
+
+
+def _tune(
+    task: str,
+    variants: Sequence[Variant],
+    phase: Callable[[Sequence[tuple[Variant, dict[str, str] | None]], int, int, str], list[Path]],
+    tune: Tuning,
+    evaluation_seed: int,
+) -> dict[str, dict[str, Any]]:
+    """Run always and every candidate of each named policy in :data:`TUNE_GRID` on the tuning
+    seed and choose by :data:`TUNE_RULE`; returns the note per policy."""
+    from lagrseq.analysis.inference import NON_INFERIOR, noninferiority
+
+    policies = [p for p in dict.fromkeys(v.policy for v in variants) if p in TUNE_GRID]
+    if not policies:
+        return {}
+    role = {TUNING_NOTE: json.dumps({"role": "tuning", "evaluation_seed": evaluation_seed}, sort_keys=True)}
+    control = Variant("always")
+    candidates = [(p, value, Variant(p, ((TUNE_GRID[p][0], value),))) for p in policies for value in TUNE_GRID[p][1]]
+    done = phase([(control, role), *[(v, role) for _, _, v in candidates]], tune.seed, tune.trials, "tuning")
+    always_steps, _ = trial_outcomes(done[0], tune.trials)
+    margin = 0.10 * (sum(always_steps) / len(always_steps)) if always_steps else 0.0
+    scores: dict[str, list[tuple[str, float, float, str]]] = {}
+    for (policy, value, _), directory in zip(candidates, done[1:], strict=True):
+        steps, queries = trial_outcomes(directory, tune.trials)
+        verdict = noninferiority(steps, always_steps, margin, higher_is_better=False, min_n=min(tune.trials, 10))
+        mean_q = sum(queries) / len(queries) if queries else float("inf")
+        mean_s = sum(steps) / len(steps) if steps else float("inf")
+        scores.setdefault(policy, []).append((value, mean_q, mean_s, verdict.verdict))
+    notes = {}
+    for policy, rows in scores.items():
+        fine = [r for r in rows if r[3] == NON_INFERIOR]
+        best = min(fine, key=lambda r: (r[1], r[2])) if fine else min(rows, key=lambda r: (r[2], r[1]))
+        notes[policy] = {
+            "role": "tuned", "policy": policy, "knob": TUNE_GRID[policy][0], "chosen": best[0],
+            "tuning_seed": tune.seed, "tuning_trials": tune.trials, "evaluation_seed": evaluation_seed,
+            "rule": TUNE_RULE, "fallback_rule_used": not fine,
+            "candidates": [
+                {"value": v, "queries_mean": q, "steps_to_solve_mean": s, "vs_always": verdict} for v, q, s, verdict in rows
+            ],
+        }
+    return notes
+
+
+def write_index(
+    out: Path, variants: Sequence[Variant], directories: Sequence[Path], chosen: dict[str, dict[str, Any]] | None = None
+) -> Path:
+    """``frontier.json``: which run directory holds which policy, and ``--tune``'s choices (the
+    report itself needs only the logs, whose metadata holds the same choices)."""
     path = out / "frontier.json"
-    entries = [{"policy": str(v), "method": v.method, "directory": str(d)} for v, d in zip(variants, directories, strict=True)]
+    entries: list[dict[str, Any]] = [
+        {"policy": str(v), "method": v.method, "directory": str(d)} for v, d in zip(variants, directories, strict=True)
+    ]
+    if chosen:
+        entries.append({"tuned": chosen})
     path.write_text(json.dumps(entries, indent=1) + "\n", encoding="utf-8")
     return path
+
+
+GRID_TASKS = ("image-completion", "object-arrangement", "arm-arrangement")
+
+
+def parse_scopes(text: str, task: str) -> list[str | None]:
+    """``--scopes``: ``episode,trial``; ``auto``: both on the grid tasks (whose presets keep an
+    answer for the trial), the preset's own (None) on cube stacking."""
+    if text.strip() == "auto":
+        return list(SCOPES) if task in GRID_TASKS else [None]
+    scopes: list[str | None] = []
+    for item in text.split(","):
+        item = item.strip()
+        if item not in SCOPES:
+            raise UsageError(f"--scopes {text!r}: expected auto or a comma-separated list of {', '.join(SCOPES)}")
+        if item not in scopes:
+            scopes.append(item)
+    if not scopes:
+        raise UsageError("--scopes is empty; expected auto, episode, trial or episode,trial")
+    return scopes

@@ -49,8 +49,11 @@ def consult(
     query = query_for(task, llm, pattern)
     prompt = query.prompt
     answer = provider.complete(query)
-    parsed = task.parse(answer.text)
-    evaluation = task.evaluate(parsed.solution) if parsed.ok else 0.0
+    if answer.source == "miss":  # --on-miss refuse: a refusal is a wrong answer, whatever its text
+        parsed, evaluation = Parsed(None, "refused: the recorded store holds no answer to this query"), 0.0
+    else:
+        parsed = task.parse(answer.text)
+        evaluation = task.evaluate(parsed.solution) if parsed.ok else 0.0
     return Consultation(
         prompt_sha256=hashlib.sha256(prompt.encode()).hexdigest(),
         answer=answer,

@@ -17,7 +17,7 @@ import contextlib
 import gc
 import json
 import platform
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -45,9 +45,13 @@ def run_metadata(
     seed: int,
     provider_spec: str,
     provider_options: ProviderOptions | None = None,
+    notes: Mapping[str, str] | None = None,
 ) -> dict[str, str]:
-    """The ``lagrseq.run`` metadata record: everything replay needs to know about the trial."""
+    """The ``lagrseq.run`` metadata record: everything replay needs to know about the trial.
+    ``notes``: more entries under names of their own (``frontier_tuning``: how ``lagrseq frontier
+    --tune`` chose the run's knobs); none by default, so ordinary logs are unchanged."""
     return {
+        **(notes or {}),
         "provider_options": (provider_options or ProviderOptions()).to_json(),
         "config": config.to_json(),
         "task": config.task.name,
@@ -72,6 +76,7 @@ def run_one(
     on_episode: Callable[[int], None] | None = None,
     provider_options: ProviderOptions | None = None,
     render_dir: Path | None = None,
+    notes: Mapping[str, str] | None = None,
 ) -> TrialResult:
     """Build trial ``trial``'s parts and run it into ``path`` (``log=False``: no file, for
     benchmarks). ``on_episode(length)`` is called after every episode. ``render_dir``: arm
@@ -81,7 +86,7 @@ def run_one(
     def open_sink() -> Sink:
         if not log:
             return NullSink()
-        metadata = run_metadata(config, trial, seed, provider_spec, provider_options)
+        metadata = run_metadata(config, trial, seed, provider_spec, provider_options, notes)
         return McapSink(path, metadata, extra_topics=view_topics(config))
 
     parts = trial_parts(config, trial, seed, provider_spec, open_sink, provider_options, render_dir)
@@ -237,7 +242,10 @@ def run_trial_job(job: executors.TrialJob) -> TrialResult:
     from lagrseq.config import from_dict
 
     render_dir = Path(job.render_dir) if job.render_dir is not None else None
-    return run_one(from_dict(job.config), job.trial, job.seed, job.provider_spec, Path(job.path), provider_options=job.options, render_dir=render_dir)
+    return run_one(
+        from_dict(job.config), job.trial, job.seed, job.provider_spec, Path(job.path), provider_options=job.options,
+        render_dir=render_dir, notes=job.notes,
+    )
 
 
 @dataclass(frozen=True)
@@ -354,6 +362,8 @@ class SweepRun:
     provider_options: ProviderOptions | None = None
     render_dir: Path | None = None
     progress: Any = None
+    notes: Mapping[str, str] | None = None
+    """More entries for each trial's run metadata (:func:`run_metadata`)."""
 
 
 @dataclass
@@ -433,7 +443,7 @@ def _run_here(plan: _Todo, retries: int, failed: Callable[[_Todo, int, BaseExcep
             try:
                 plan.results.append(run_one(
                     run.config, trial, run.seed, run.provider_spec, path, on_episode=on_episode,
-                    provider_options=plan.options, render_dir=run.render_dir,
+                    provider_options=plan.options, render_dir=run.render_dir, notes=run.notes,
                 ))
                 break
             except Exception as exc:
@@ -462,7 +472,7 @@ def _run_pooled(
         key = executors.task_key(digests[id(plan)], trial, attempt)
         job = executors.TrialJob(
             dicts[id(plan)], trial, run.seed, run.provider_spec, str(trial_path(run.directory, trial)), plan.options, key,
-            str(run.render_dir) if run.render_dir is not None else None,
+            str(run.render_dir) if run.render_dir is not None else None, dict(run.notes) if run.notes else None,
         )
         handle = pool.submit(run_trial_job, job)
         owners[handle] = (plan, trial, attempt)
@@ -577,7 +587,11 @@ def miss_report(results: list[TrialResult], provider_spec: str) -> list[str]:
     stored = totals.pop("recorded", 0)
     missed = sum(totals.values())
     share = 100.0 * missed / (stored + missed) if stored + missed else 0.0
-    fallback = ", ".join(f"{n} from the fallback {source}" for source, n in sorted(totals.items())) or "none from a fallback"
+    refused = totals.pop("miss", 0)
+    fallback = ", ".join(f"{n} from the fallback {source}" for source, n in sorted(totals.items()))
+    fallback = fallback or ("none from a fallback" if not refused else "")
+    if refused:
+        fallback += (", " if fallback else "") + f"{refused} refused (--on-miss refuse: never accepted)"
     return [f"answers: {stored} from the store, {fallback} ({share:.1f}% missed the store)"]
 
 

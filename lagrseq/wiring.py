@@ -56,7 +56,7 @@ from lagrseq.tasks.base import Task
 from lagrseq.tasks.image import image_completion
 
 PROVIDER_KINDS = ("mock", "recorded", "live", "local")
-ON_MISS = ("error", "mock", "live")
+ON_MISS = ("error", "mock", "live", "refuse")
 PROVIDER_HELP = "mock, mock:PROFILE, recorded:STORE, live, live:MODEL, local or local:MODEL.gguf"
 
 
@@ -133,7 +133,7 @@ class ProviderOptions:
     server: str = "openai"
     """Kind of OpenAI-compatible server (whether it honours ``n``)."""
     on_miss: str = "error"
-    """recorded:STORE only: what answers a query the store lacks (error | mock | live)."""
+    """recorded:STORE only: what answers a query the store lacks (error | mock | live | refuse)."""
     price_table: str | None = None
     """TOML file of prices over the built-in table."""
     max_cost_usd: float | None = None
@@ -207,15 +207,25 @@ def make_provider(
         if options.on_miss == "live":
             raise UsageError("--on-miss live records into a store directory; a JSONL export is read only (import it with lagrseq cache import)")
         seed = int(rng.integers(2**63))
-        fallback = MockProvider(extrapolator(config), rng, name="mock") if options.on_miss == "mock" else None
-        return JsonlRecordedProvider(recorded_file(provider.argument), endpoint, seed, fallback)
+        return JsonlRecordedProvider(recorded_file(provider.argument), endpoint, seed, _miss_fallback(config, rng, options))
     store = RecordStore(provider.argument, create=options.on_miss == "live")
     run_seed = int(rng.integers(2**63))
     if options.on_miss == "live":
         # A miss is asked live and recorded (one sample), so the next run finds it.
         return RecordingProvider(store, make_live(options, rng, budgeted=True, on_retry=_say), endpoint, "new", 1, run_seed)
-    fallback = MockProvider(extrapolator(config), rng, name="mock") if options.on_miss == "mock" else None
-    return RecordedProvider(store, endpoint, run_seed, fallback)
+    return RecordedProvider(store, endpoint, run_seed, _miss_fallback(config, rng, options))
+
+
+def _miss_fallback(config: ExperimentConfig, rng: np.random.Generator, options: ProviderOptions) -> Provider | None:
+    """What answers a query a recorded store lacks: the rule-based mock (``mock``), a refusal
+    that is never accepted (``refuse``), or nothing (``error``: the miss stops the run)."""
+    from lagrseq.llm.recorded import RefusingProvider
+
+    if options.on_miss == "mock":
+        return MockProvider(extrapolator(config), rng, name="mock")
+    if options.on_miss == "refuse":
+        return RefusingProvider()
+    return None
 
 
 def _say(message: str) -> None:

@@ -39,6 +39,7 @@ def test_frontier_runs_policies_and_replay_rebuilds_the_same_table(tmp_path: Pat
     args = [
         "frontier", "cube-stacking", "--provider", "mock:authors-t0", "--policies", "never,always,seq,oracle",
         "--sweep", "thompson:query_cost=0,0.5", "--trials", "2", "--set", "run.episodes=6", "--out", str(out), "--quiet",
+        "--no-matched-random",
     ]
     assert cli.main(args) == 0
     printed = capsys.readouterr().out

@@ -11,6 +11,22 @@ with intervals, the interquartile mean of the return with a stratified bootstrap
 the probability that a trial of the policy returns more than one of ``always``. The paper's SEQ
 (``seq`` with no knob changed) and LaGR (``always``) rows are marked.
 
+The protocol (issue 20). Primary outcomes: steps to the end of the first solved episode (lower
+is better; a trial that solves none counts its full length) and episodes solved per trial; the
+return is secondary. Each asking point is compared with ``always`` on steps to the first solve by
+a one-sided Welch non-inferiority test at level 0.05 with a margin of 10% of always's mean
+(:data:`MARGIN`), needing at least 10 trials per arm (:func:`lagrseq.analysis.inference.noninferiority`):
+``non-inferior / inferior / inconclusive`` (the same test on episodes solved per trial, higher
+is better, is shown beside it but does not enter the credit). Each learning policy's point is also compared with
+``random`` asking at the point's own mean query rate (queries / decisions, from its logs; the
+random run is found by its ``ask_probability``, :func:`lagrseq.frontier.matched_probability`):
+it beats it when a one-sided Welch test at level 0.05 says its mean steps to the first solve are
+lower. A point is *credited* only when it is non-inferior to always and beats random at the
+matched rate; the oracle (it peeks at the answer before deciding) is shown as the bound and never
+credited, and points whose run answered store misses with the rule-based mock
+(``--on-miss mock``) get no verdict. Runs are grouped into panels by task, preset, provider,
+seed and ``lagr.solution_scope`` (answer kept for one episode or for the trial).
+
 Dollars: a query's logged ``cost_usd`` when it has one; else its logged token usage priced by
 ``price``; else (answers imported from the authors' caches carry no usage) the median token
 usage of the queries of the same task that have one (the mock estimates about 4 characters a
@@ -29,16 +45,27 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from lagrseq.analysis import stats
+from lagrseq.analysis import inference, stats
 from lagrseq.analysis.figures import COLORS, STYLE
 from lagrseq.analysis.loading import Run, load
 from lagrseq.analysis.tables import Table, interval, number, to_csv, to_markdown
 from lagrseq.errors import LogError
+from lagrseq.frontier import TUNING_NOTE, matched_probability, wants_match
+from lagrseq.logs.reader import read_info
 
 Price = Callable[[str, int, int], float | None]
 MISS_THRESHOLD = 0.1
 """Default: a point whose answers came from a fallback for more than this share is marked."""
 PAPER_ROWS = {"seq": "SEQ (paper)", "always": "LaGR (paper)"}
+ORACLE_LABEL = "oracle (peeks at the answer)"
+"""The oracle decides after looking at the answer: a bound on queries, not a policy."""
+MARGIN = 0.10
+"""Non-inferiority margin: 10% of always's mean steps to the first solved episode. A policy that
+reaches its first solve at most 10% later than asking at every trigger has kept what guidance is
+for (the paper's claim is sample efficiency), and 10% is the relative margin the reproduction's
+other verdicts use (:data:`lagrseq.analysis.inference.RELATIVE_MARGIN`)."""
+ALPHA = inference.ALPHA
+
 DPI = 150
 _DEFAULTS = {"query_cost": 0.0, "budget": 0, "ask_probability": 0.5, "thompson_prior": [1.0, 1.0], "min_progress": 0}
 
@@ -91,10 +118,36 @@ class Point:
     fallback: np.ndarray
     estimated_dollars: bool = False
     summary: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    episodes_solved: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """Solved episodes per trial (a primary outcome)."""
+    outside: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    """Per trial: its first accepted answer came from outside the recorded store (a fallback)."""
+    decisions: float = 0.0
+    """Secondary decisions (asked or not) over all trials: the denominator of the query rate."""
+    on_miss: str = ""
+    """``recorded:STORE`` runs: what answered store misses (error, mock, refuse, live)."""
+    tuning: dict[str, Any] = field(default_factory=dict)
+    """``lagrseq frontier --tune``'s note in the run's metadata (empty: knobs as given)."""
 
     @property
     def label(self) -> str:
-        return f"{self.policy} ({self.knobs})" if self.knobs else self.policy
+        name = ORACLE_LABEL if self.policy == "oracle" else self.policy
+        return f"{name} ({self.knobs})" if self.knobs else name
+
+    @property
+    def rate(self) -> float:
+        """Queries per secondary decision, over all trials (NaN without decisions)."""
+        return float(self.queries.sum()) / self.decisions if self.decisions else math.nan
+
+    def flagged(self, threshold: float) -> bool:
+        """More than ``threshold`` of its answers came from a fallback (refusals are no answers:
+        a ``refuse`` run is never flagged)."""
+        return self.on_miss != "refuse" and self.miss_share > threshold
+
+    @property
+    def fallback_labelled(self) -> bool:
+        """Its store misses were answered by the rule-based mock: no verdict."""
+        return self.on_miss == "mock"
 
     @property
     def miss_share(self) -> float:
@@ -102,8 +155,38 @@ class Point:
         return float(self.fallback.sum()) / total if total else 0.0
 
 
-def _panel_key(run: Run) -> tuple[str, str, str, int]:
-    return (run.key.task, run.key.preset, run.key.provider, run.key.seed)
+def _panel_key(run: Run) -> tuple[str, str, str, int, str]:
+    return (run.key.task, run.key.preset, run.key.provider, run.key.seed, scope_of(run.config))
+
+
+def scope_of(config: dict[str, Any]) -> str:
+    """How long an accepted answer is kept: ``episode`` or ``trial`` (``lagr.solution_scope``)."""
+    return str(config.get("lagr", {}).get("solution_scope", "trial"))
+
+
+SCOPE_TEXT = {"episode": "answer kept for one episode", "trial": "answer kept for the trial"}
+
+
+def _metadata(run: Run) -> dict[str, str]:
+    """The run metadata record of the run's first trial log (empty when unreadable)."""
+    if not run.paths:
+        return {}
+    try:
+        return dict(read_info(run.paths[0]).run)
+    except (LogError, OSError, ValueError):
+        return {}
+
+
+def _json_field(text: str | None) -> dict[str, Any]:
+    import json
+
+    if not text:
+        return {}
+    try:
+        value = json.loads(text)
+    except ValueError:
+        return {}
+    return value if isinstance(value, dict) else {}
 
 
 def _dollars(run: Run, price: Price | None, fallback_tokens: tuple[float, float] | None) -> tuple[np.ndarray, bool]:
@@ -187,12 +270,13 @@ def point_of(run: Run, price: Price | None, fallback_tokens: tuple[float, float]
     policy, knobs = policy_of(run.config)
     trials = list(run.trials)
     episodes = run.episodes
-    returns, steps, solved = [], [], []
+    returns, steps, solved, count = [], [], [], []
     for trial in trials:
         rows = episodes[episodes["trial"] == trial].sort_values("episode")
         returns.append(float(rows["return"].sum()))
         done = rows[rows["solved"].astype(bool)]
         solved.append(not done.empty)
+        count.append(float(len(done)))
         steps.append(float(done["global_step"].iloc[0]) if not done.empty else float(rows["length"].sum()))
     q = run.queries
     sent = q[q["queried"].astype(bool)] if not q.empty else q
@@ -202,9 +286,18 @@ def point_of(run: Run, price: Price | None, fallback_tokens: tuple[float, float]
         fallback = np.array([float(((sent["trial"] == t) & (sent["source"] != "recorded")).sum()) for t in trials])
     else:
         fallback = np.zeros(len(trials))
+    outside = np.zeros(len(trials), dtype=bool)
+    if recorded and len(sent):
+        taken = sent[sent["accepted"].fillna(False).astype(bool)].sort_values(["trial", "global_step"])
+        first = taken.groupby("trial")["source"].first()
+        outside = np.array([t in first.index and first[t] != "recorded" for t in trials], dtype=bool)
     dollars, estimated = _dollars(run, price, fallback_tokens)
+    metadata = _metadata(run)
     return Point(
-        policy, knobs, run, np.array(returns), np.array(steps), np.array(solved), queries, dollars, fallback, estimated
+        policy, knobs, run, np.array(returns), np.array(steps), np.array(solved), queries, dollars, fallback, estimated,
+        episodes_solved=np.array(count), outside=outside, decisions=float(len(q)) if not q.empty else 0.0,
+        on_miss=str(_json_field(metadata.get("provider_options")).get("on_miss", "")) if recorded else "",
+        tuning=_json_field(metadata.get(TUNING_NOTE)),
     )
 
 
@@ -223,7 +316,7 @@ def points_of(runs: Sequence[Run], price: Price | None) -> list[Point]:
 def summarise(points: Sequence[Point]) -> None:
     """Means with 95% bootstrap intervals (seeded per quantity and label)."""
     for p in points:
-        for name in ("returns", "steps_to_solve", "queries", "dollars"):
+        for name in ("returns", "steps_to_solve", "queries", "dollars", "episodes_solved"):
             values = getattr(p, name)
             key = f"frontier/{p.run.key.task}/{p.label}/{name}"
             mean = float(np.mean(values)) if len(values) else math.nan
@@ -233,17 +326,100 @@ def summarise(points: Sequence[Point]) -> None:
             p.summary[name] = (mean, low, high)
 
 
-def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provider: str | None = None) -> Table:
-    """The frontier table: one row per policy variant (paper rows marked). ``provider``: the one
-    named in the title (default: the first point's)."""
+@dataclass(frozen=True)
+class Verdict:
+    """A point judged by the protocol (see the module): against always, and against random at its
+    matched query rate, both on steps to the first solved episode."""
+
+    against_always: inference.NonInferiority | None
+    """None: no verdict (the point is always itself, or its misses were answered by the mock)."""
+    solved_against_always: inference.NonInferiority | None
+    """The same test on episodes solved per trial (higher is better; shown, not used for credit)."""
+    matched: Point | None
+    """The random run at this point's query rate (None: not wanted, or not run)."""
+    against_random: inference.NonInferiority | None
+    """Margin 0: ``non-inferior`` here means the point's mean is lower (it beats random)."""
+    credited: bool
+    note: str
+
+    @property
+    def always_text(self) -> str:
+        if self.against_always is None:
+            return self.note or "n/a"
+        v = self.against_always
+        return f"{v.verdict} (n = {v.n_treatment}/{v.n_control})"
+
+    @property
+    def solved_text(self) -> str:
+        if self.solved_against_always is None:
+            return self.note or "n/a"
+        return self.solved_against_always.verdict
+
+    @property
+    def beats_random(self) -> bool:
+        return self.against_random is not None and self.against_random.verdict == inference.NON_INFERIOR
+
+    @property
+    def random_text(self) -> str:
+        if self.matched is None:
+            return "n/a"
+        v = self.against_random
+        assert v is not None
+        said = "beats" if self.beats_random else ("n < 10" if min(v.n_treatment, v.n_control) < inference.MIN_N_NONINFERIORITY else "does not beat")
+        return f"{said} (p = {number(v.p, 3)})"
+
+
+def judge(points: Sequence[Point]) -> dict[int, Verdict]:
+    """id(point) -> its verdict (see the module: margin, tests, credit)."""
     reference = next((p for p in points if p.policy == "always" and not p.knobs), None)
+    randoms: dict[float, Point] = {}
+    for p in points:
+        if p.policy == "random" and not p.fallback_labelled:
+            randoms.setdefault(float(p.run.config.get("secondary", {}).get("ask_probability", 0.5)), p)
+    out: dict[int, Verdict] = {}
+    for p in points:
+        if p.fallback_labelled:
+            out[id(p)] = Verdict(None, None, None, None, False, "no verdict: misses answered by the mock")
+            continue
+        if reference is None or p is reference:
+            out[id(p)] = Verdict(None, None, None, None, False, "reference" if p is reference else "no always run")
+            continue
+        margin = MARGIN * float(np.mean(reference.steps_to_solve))
+        versus = inference.noninferiority(p.steps_to_solve, reference.steps_to_solve, margin, higher_is_better=False, alpha=ALPHA)
+        solved = inference.noninferiority(
+            p.episodes_solved, reference.episodes_solved, MARGIN * float(np.mean(reference.episodes_solved)), alpha=ALPHA
+        )
+        matched = against = None
+        if wants_match(p.policy, p.knobs) and not math.isnan(p.rate) and p.rate > 0:
+            rate = matched_probability(float(p.queries.sum()), p.decisions)
+            matched = reference if rate >= 1.0 else randoms.get(rate)  # random at rate 1 is always
+            if matched is not None:
+                against = inference.noninferiority(p.steps_to_solve, matched.steps_to_solve, 0.0, higher_is_better=False, alpha=ALPHA)
+        credited = (
+            p.policy != "oracle" and versus.verdict == inference.NON_INFERIOR
+            and against is not None and against.verdict == inference.NON_INFERIOR
+        )
+        out[id(p)] = Verdict(versus, solved, matched, against, credited, "")
+    return out
+
+
+def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provider: str | None = None) -> Table:
+    """The frontier table: one row per policy variant (paper rows marked, the oracle as the
+    bound), with the protocol's verdicts. ``provider``: the one named in the title (default: the
+    first point's)."""
+    reference = next((p for p in points if p.policy == "always" and not p.knobs), None)
+    verdicts = judge(points)
+    margin = MARGIN * float(np.mean(reference.steps_to_solve)) if reference is not None else math.nan
     columns = (
-        "policy", "paper", "trials", "queries / trial [95% CI]", "USD / trial [95% CI]", "return / trial [95% CI]",
-        "return IQM [95% CI]", "P(return > always) [95% CI]", "steps to first solve [95% CI]", "solved trials",
-        "fallback answers", "queries vs always",
+        "policy", "paper", "knobs chosen", "trials", "queries / trial [95% CI]", "query rate", "USD / trial [95% CI]",
+        "steps to first solve [95% CI]", "episodes solved / trial [95% CI]", "solved trials",
+        f"vs always on steps to first solve (margin {number(margin, 0)})", "random at the matched rate: steps to first solve",
+        "vs matched random", "credited", "vs always on episodes solved (margin 10%)", "return / trial [95% CI]", "return IQM [95% CI]", "P(return > always) [95% CI]",
+        "fallback answers (refused: store misses)", "trials decided outside the store", "queries vs always",
     )
     rows, data = [], []
     for p in points:
+        verdict = verdicts[id(p)]
         iqm, iqm_low, iqm_high = stats.iqm_ci([p.returns], stats.generator(f"frontier/{p.label}/iqm"), 2000)
         if reference is not None:
             poi, poi_low, poi_high = stats.probability_of_improvement_ci(
@@ -251,27 +427,61 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
             )
         else:
             poi = poi_low = poi_high = math.nan
-        q, d, r, s = (p.summary[n] for n in ("queries", "dollars", "returns", "steps_to_solve"))
+        q, d, r, s, e = (p.summary[n] for n in ("queries", "dollars", "returns", "steps_to_solve", "episodes_solved"))
         ratio = q[0] / reference.summary["queries"][0] - 1.0 if reference and reference.summary["queries"][0] else math.nan
-        flagged = p.miss_share > miss_threshold
+        flagged = p.flagged(miss_threshold)
         usd = f"{number(d[0], 4)} {interval(d[1], d[2], 4)}" + (" (est.)" if p.estimated_dollars else "")
+        paper = "bound" if p.policy == "oracle" else (PAPER_ROWS.get(p.policy, "") if not p.knobs else "")
+        chosen = _chosen(p)
+        matched = verdict.matched
+        shown_random = (
+            f"{matched.label}: {number(matched.summary['steps_to_solve'][0], 0)} "
+            f"{interval(*matched.summary['steps_to_solve'][1:], 0)}" if matched is not None else "n/a"
+        )
         rows.append((
-            p.label + (" *" if flagged else ""),
-            PAPER_ROWS.get(p.policy, "") if not p.knobs else "",
+            p.label + (" *" if flagged else "") + (" (fallback: mock)" if p.fallback_labelled else ""),
+            paper,
+            chosen,
             str(len(p.returns)),
             f"{number(q[0], 1)} {interval(q[1], q[2], 1)}",
+            number(p.rate, 3),
             usd,
+            f"{number(s[0], 0)} {interval(s[1], s[2], 0)}",
+            f"{number(e[0], 1)} {interval(e[1], e[2], 1)}",
+            f"{int(p.solved.sum())}/{len(p.solved)}",
+            verdict.always_text,
+            shown_random,
+            verdict.random_text,
+            "yes" if verdict.credited else "no",
+            verdict.solved_text,
             f"{number(r[0], 1)} {interval(r[1], r[2], 1)}",
             f"{number(iqm, 1)} {interval(iqm_low, iqm_high, 1)}",
             f"{number(poi, 2)} {interval(poi_low, poi_high, 2)}",
-            f"{number(s[0], 0)} {interval(s[1], s[2], 0)}",
-            f"{int(p.solved.sum())}/{len(p.solved)}",
-            f"{int(p.fallback.sum())} ({100 * p.miss_share:.0f}%)",
+            f"{int(p.fallback.sum())} ({100 * p.miss_share:.0f}%)" + (" refused" if p.on_miss == "refuse" else ""),
+            f"{int(p.outside.sum())}/{len(p.outside)}",
             "n/a" if math.isnan(ratio) else f"{100 * ratio:+.0f}%",
         ))
+        vs = verdict.against_always
+        vr = verdict.against_random
         data.append({
-            "policy": p.policy, "knobs": p.knobs, "paper": PAPER_ROWS.get(p.policy, "") if not p.knobs else "",
+            "policy": p.policy, "knobs": p.knobs, "paper": paper, "knobs_chosen": chosen,
+            "solution_scope": scope_of(p.run.config), "on_miss": p.on_miss,
             "trials": len(p.returns),
+            "query_rate": p.rate,
+            "episodes_solved_mean": e[0], "episodes_solved_low": e[1], "episodes_solved_high": e[2],
+            "noninferiority_margin": margin,
+            "vs_always": vs.verdict if vs is not None else verdict.note,
+            "vs_always_difference": vs.difference if vs is not None else math.nan,
+            "vs_always_bound": vs.bound if vs is not None else math.nan,
+            "vs_always_p": vs.p if vs is not None else math.nan,
+            "matched_random": matched.label if matched is not None else "",
+            "matched_random_steps_mean": matched.summary["steps_to_solve"][0] if matched is not None else math.nan,
+            "vs_matched_random": vr.verdict if vr is not None else "",
+            "vs_matched_random_p": vr.p if vr is not None else math.nan,
+            "beats_matched_random": verdict.beats_random,
+            "credited": verdict.credited,
+            "vs_always_episodes_solved": verdict.solved_text,
+            "outside_store_trials": int(p.outside.sum()),
             "queries_mean": q[0], "queries_low": q[1], "queries_high": q[2],
             "usd_mean": d[0], "usd_low": d[1], "usd_high": d[2], "usd_estimated": p.estimated_dollars,
             "return_mean": r[0], "return_low": r[1], "return_high": r[2],
@@ -284,8 +494,23 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
         })
     first = points[0].run.key if points else None
     shown = provider if provider is not None else (first.provider if first else "")
-    title = f"Query-efficiency frontier: {first.task} ({first.preset}, {shown}, seed {first.seed})" if first else "Frontier"
+    title = "Frontier"
+    if first:
+        scope = SCOPE_TEXT.get(scope_of(points[0].run.config), scope_of(points[0].run.config))
+        role = " (tuning seeds)" if any(p.tuning.get("role") == "tuning" for p in points) else ""
+        title = f"Query-efficiency frontier: {first.task} ({first.preset}, {shown}, seed {first.seed}{role}; {scope})"
+        if first.task == "cube-stacking" and first.preset == "upstream":
+            title += " [confound: the upstream environment rewards wrong cubes, which pays policies that guide fewer episodes]"
     return Table(title, columns, tuple(rows), pd.DataFrame(data))
+
+
+def _chosen(p: Point) -> str:
+    """How the point's knobs were set: as given (the same on every task), or by ``--tune``."""
+    if p.tuning.get("role") == "tuned":
+        return f"tuned on seed {p.tuning.get('tuning_seed')} ({p.tuning.get('rule', '')})"
+    if p.tuning.get("role") == "tuning":
+        return "tuning candidate"
+    return "given"
 
 
 def _curves(points: Sequence[Point]) -> list[tuple[str, list[Point]]]:
@@ -336,6 +561,7 @@ def draw(points: Sequence[Point], title: str, miss_threshold: float = MISS_THRES
     curves = _curves(points)
     colors = {name: COLORS[i % len(COLORS)] for i, name in enumerate(dict.fromkeys(p.policy for p in points))}
     markers = _markers(points)
+    verdicts = judge(points)
     handles: dict[str, Any] = {}
     for (row, y_name, y_label) in ((0, "returns", "Return per trial"), (1, "steps_to_solve", "Steps to the first solved episode")):
         for (col, x_name, x_label) in ((0, "queries", "LLM queries per trial"), (1, "dollars", "US dollars per trial")):
@@ -351,13 +577,19 @@ def draw(points: Sequence[Point], title: str, miss_threshold: float = MISS_THRES
                 y, yl, yh = p.summary[y_name]
                 xerr = [[max(x - xl, 0)], [max(xh - x, 0)]] if not math.isnan(xl) else None
                 yerr = [[max(y - yl, 0)], [max(yh - y, 0)]] if not math.isnan(yl) else None
-                hollow = p.miss_share > miss_threshold
+                hollow = p.flagged(miss_threshold)
                 marker = markers[id(p)]
                 drawn = ax.errorbar(
                     [x], [y], xerr=xerr, yerr=yerr, fmt=marker, color=color, markersize=10 if marker == "*" else 6,
                     markerfacecolor="white" if hollow else color, capsize=2, linewidth=0.8,
                 )
-                label = p.label + (f" = {PAPER_ROWS[p.policy]}" if marker == "*" else "") + (" †" if hollow else "")
+                credited = verdicts[id(p)].credited
+                if credited:  # ringed: credited by the protocol
+                    ax.scatter([x], [y], s=260, facecolors="none", edgecolors="black", linewidths=1.4, zorder=5)
+                label = (
+                    p.label + (f" = {PAPER_ROWS[p.policy]}" if marker == "*" else "") + (" †" if hollow else "")
+                    + (" (credited)" if credited else "")
+                )
                 handles.setdefault(label, drawn)
             _zoom(ax, points, y_name)
             _spread(ax, [p.summary[x_name][0] for p in points])
@@ -365,7 +597,11 @@ def draw(points: Sequence[Point], title: str, miss_threshold: float = MISS_THRES
             ax.set_ylabel(y_label)
     figure.legend(
         list(handles.values()), list(handles), loc="outside lower center", ncols=min(3, max(1, len(handles))),
-        fontsize=8, title=f"policy (variant); * the paper's rows; † hollow: > {100 * miss_threshold:.0f}% of answers from the fallback",
+        fontsize=8,
+        title=(
+            f"policy (variant); * the paper's rows; † hollow: > {100 * miss_threshold:.0f}% of answers from the fallback; "
+            "ringed: credited (non-inferior to always on steps to the first solve and beats random at its query rate)"
+        ),
         title_fontsize=8,
     )
     figure.suptitle(title + "\nbars: 95% bootstrap CI of the mean over trials")
@@ -441,7 +677,7 @@ def report(
     if not runs:  # one line, as replay: every log left out is named in it
         detail = f" ({'; '.join(logs.warnings)})" if logs.warnings else ""
         raise LogError(f"no complete lagrseq trial logs under {', '.join(map(str, roots))}{detail}")
-    panels: dict[tuple[str, str, str, int], list[Run]] = {}
+    panels: dict[tuple[str, str, str, int, str], list[Run]] = {}
     for run in runs:
         panels.setdefault(_panel_key(run), []).append(run)
     out.mkdir(parents=True, exist_ok=True)
@@ -450,8 +686,8 @@ def report(
     with matplotlib.rc_context(STYLE):  # type: ignore[arg-type]
         for key, group in sorted(panels.items()):
             points = points_of(group, price)
-            task, preset, provider, seed = key
-            stem = "-".join([task, preset, _slug(provider), f"seed{seed}"])
+            task, preset, provider, seed, scope = key
+            stem = "-".join([task, preset, _slug(provider), f"seed{seed}", scope])
             shown = table(points, miss_threshold)
             tables.append(shown)
             for suffix, text in ((".md", to_markdown(shown)), (".csv", to_csv(shown.data))):

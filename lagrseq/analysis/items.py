@@ -479,37 +479,44 @@ def build_config_table(item: Item, matched: Sequence[Match]) -> Built:
 def build_frontier(item: Item, matched: Sequence[Match], price: Price | None = None) -> Built:
     """The query-efficiency frontier of the item's asking-policy runs: ``lagrseq frontier``'s
     picture and table, made from the suite's logs. One panel per provider (the suite's default,
-    and the authors' answers when ``reproduce --authors-caches`` added them); the ``never`` runs
-    (which ask nothing, so any provider's serve) join every panel."""
+    and the authors' answers when ``reproduce --authors-caches`` added them) and regime
+    (``lagr.solution_scope``); the ``never`` runs (which ask nothing, so any provider's and
+    regime's serve) join every panel. The protocol's verdicts are in the table; no matched-rate
+    random runs are planned by the suite, so no point is credited here."""
     from matplotlib.figure import Figure
 
     from lagrseq.analysis import frontier
 
     present = _present(matched)
     never = [run for _, run in present if run.key.method == "baseline"]
-    panels: dict[str, list[Run]] = {}
+    panels: dict[tuple[str, str], list[Run]] = {}
     for _, run in present:
         if run.key.method != "baseline":
-            panels.setdefault(run.key.provider, []).append(run)
+            panels.setdefault((run.key.provider, frontier.scope_of(run.config)), []).append(run)
     if not panels:
-        panels[never[0].key.provider] = []
+        panels[(never[0].key.provider, frontier.scope_of(never[0].config))] = []
     figure = Figure(figsize=(11.5, 9.2 * len(panels)), layout="constrained")
     made: Any = figure.subfigures(len(panels), 1) if len(panels) > 1 else None
     targets: list[Any] = [figure] if made is None else list(made)
     tables: list[tuple[str, Table]] = []
     frames = []
-    for n, (target, (provider, runs)) in enumerate(zip(targets, panels.items(), strict=True)):
+    scoped = len({scope for _, scope in panels}) > 1  # name the regime only where there are several
+    for n, (target, ((provider, scope), runs)) in enumerate(zip(targets, panels.items(), strict=True)):
         points = frontier.points_of([*never, *runs], price)
         shown = frontier.table(points, provider=provider)
         frontier.draw(points, shown.title, figure=target)
-        tables.append((item.id if n == 0 else f"{item.id}-{_slug(provider)}", shown))
+        name = item.id if n == 0 else f"{item.id}-{_slug(provider)}" + (f"-{scope}" if scoped else "")
+        tables.append((name, shown))
         frames.append(shown.data.assign(provider=provider))
     method = (
         "One point per asking policy: mean LLM queries (and US dollars: logged cost, else logged or estimated "
-        "tokens at the price table) per trial against the mean return (and steps to the first solved episode), "
-        "95% percentile-bootstrap intervals on both axes; the table adds the interquartile mean with a stratified "
-        "bootstrap interval and the probability of improvement over always (lagrseq frontier --replay draws "
-        "the same from these logs)."
+        "tokens at the price table) per trial against steps to the first solved episode (the primary outcome) "
+        "and the return, 95% percentile-bootstrap intervals on both axes. The table adds episodes solved per trial, "
+        "a one-sided Welch non-inferiority verdict against always on steps to the first solve (margin 10% of "
+        "always's mean, alpha 0.05; fewer than 10 trials: inconclusive), trials whose first accepted answer came "
+        "from outside the store, the interquartile mean of the return and the probability of improvement over "
+        "always (lagrseq frontier --replay draws the same from these logs; lagrseq frontier also runs random at "
+        "each policy's matched query rate, which credit needs)."
     )
     return Built(figure.axes[0], pd.concat(frames, ignore_index=True), tables, method)
 

@@ -14,7 +14,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol, runtime_checkable
 
-Source = Literal["live", "recorded", "mock"]
+Source = Literal["live", "recorded", "mock", "miss"]
+"""Where an answer came from; ``miss``: a recorded store lacked the query and ``--on-miss refuse``
+answered it with a refusal (empty text, never accepted)."""
 RecordedAs = Literal["text", "array", "list"]
 
 

@@ -5,7 +5,8 @@ Replaying: a query's key (:func:`~lagrseq.llm.store.query_key`) selects the reco
 :class:`~lagrseq.llm.store.SampleChooser` picks one from (run seed, key, occurrence). An entry is
 read once per provider and then kept, so a trial sees one fixed set of samples per key even while
 another process appends to the store. A miss goes to the ``fallback`` provider (its answer is not
-stored) or raises :class:`~lagrseq.errors.RecordMiss` naming the nearest recorded keys.
+stored; :class:`RefusingProvider` answers it with a refusal) or raises
+:class:`~lagrseq.errors.RecordMiss` naming the nearest recorded keys.
 
 Recording, with vcrpy's record modes:
 
@@ -43,6 +44,29 @@ from lagrseq.llm.store import (
 )
 
 RecordMode = Literal["once", "new", "none", "all"]
+
+
+class RefusingProvider:
+    """The fallback of ``--on-miss refuse``: every query it gets (one a recorded store lacks) is
+    answered by a refusal, an empty answer with source ``miss`` that costs nothing and that the loop
+    never accepts (:func:`lagrseq.lagr.consult`). The query still counts as a query, so no asking
+    policy can gain from answers that were never recorded."""
+
+    name = "refuse"
+    REASON = "refused"
+    """The refusal's ``finish_reason``."""
+
+    def complete(self, query: Query) -> Answer:
+        return Answer(text="", source="miss", model=query.model, finish_reason=self.REASON, cost_usd=0.0)
+
+    def close(self) -> None:
+        return None
+
+    def __enter__(self) -> RefusingProvider:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
 
 class RecordedProvider:

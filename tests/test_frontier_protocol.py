@@ -1,0 +1,231 @@
+"""The frontier protocol (issue 20): refusals for store misses, matched-rate random, non-inferiority
+against always, the tuning split on held-out seeds."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from lagrseq import cli
+from lagrseq.analysis.frontier import Point, judge, summarise, table
+from lagrseq.analysis.loading import Run, RunKey
+from lagrseq.frontier import matched_probability
+from lagrseq.logs.reader import read_info, read_topic
+from tests.llm.conftest import authors_cache
+
+
+def _cube_store(tmp_path: Path) -> Path:
+    store = tmp_path / "store"
+    path = authors_cache("cube_stacking_cache0.0.pkl")
+    assert cli.main(["cache", "import", str(path), "--task", "cube-stacking", "--model", "gpt-3.5-turbo",
+                     "--temperature", "0", "--store", str(store)]) == 0
+    return store
+
+
+def test_a_refused_miss_costs_a_query_is_logged_and_is_never_accepted(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    store = _cube_store(tmp_path)
+    common = ["run", "cube-stacking", "--method", "lagr", "--provider", f"recorded:{store}", "--on-miss", "refuse",
+              "--trials", "1", "--out", str(tmp_path / "runs"), "--quiet", "--set", "run.episodes=6"]
+    capsys.readouterr()
+    assert cli.main([*common, "--set", "task.stack_size=5"]) == 0  # 5 cubes: no key is in the store
+    printed = capsys.readouterr().out
+    assert cli.main(common) == 0  # 8 cubes: every prefix is recorded
+    by_size: dict[int, list[dict[str, object]]] = {}
+    episodes: dict[int, list[dict[str, object]]] = {}
+    for log in sorted((tmp_path / "runs").rglob("*.mcap")):
+        size = read_info(log).config["task"]["stack_size"]
+        by_size[size] = [q for q in read_topic(log, "/query") if q["queried"]]
+        episodes[size] = read_topic(log, "/episode")
+    refused = by_size[5]
+    assert refused, "the always policy asks on the 5-cube task"
+    for q in refused:  # logged as a miss: an empty answer, a wrong answer, never accepted
+        assert q["source"] == "miss" and q["answer"] == "" and q["accepted"] is False and q["evaluation"] == 0.0
+        assert q["finish_reason"] == "refused" and "refused" in str(q["parse_error"])
+        assert q["query_reward"] < 0  # the binary query reward of a wrong answer
+    # each refusal is a query: the episodes count them, and nothing was ever accepted
+    assert sum(int(e["queries"]) for e in episodes[5]) == len(refused)  # type: ignore[call-overload]
+    assert sum(int(e["accepted"]) for e in episodes[5]) == 0  # type: ignore[call-overload]
+    assert f"{len(refused)} refused (--on-miss refuse: never accepted) (100.0% missed the store)" in printed
+    # where the store holds the answers, nothing is refused and answers are accepted
+    assert {q["source"] for q in by_size[8]} == {"recorded"} and any(q["accepted"] for q in by_size[8])
+
+
+def test_refusal_is_no_answer_even_when_its_text_would_parse(tmp_path: Path) -> None:
+    """The loop rejects a ``miss`` answer by its source, not by its text."""
+    from lagrseq import config as cfg
+    from lagrseq.lagr import consult
+    from lagrseq.llm.base import Answer, Query
+    from lagrseq.tasks.cube import CubeStacking
+
+    task = CubeStacking(8)
+    config = cfg.load("cube-stacking", "lagr", "paper")
+
+    class Parrot:
+        name = "parrot"
+
+        def complete(self, query: Query) -> Answer:  # the right answer, but marked as a refusal
+            return Answer(text="['a','b','c','d','e','f','g','h']", source="miss", model=query.model)
+
+        def close(self) -> None:
+            return None
+
+        def __enter__(self) -> Parrot:
+            return self
+
+        def __exit__(self, *exc: object) -> None:
+            return None
+
+    result = consult(task, Parrot(), config.llm, config.lagr.threshold, (0,))
+    assert result.accepted is False and result.evaluation == 0.0 and not result.parsed.ok
+
+
+# -- matched rate, non-inferiority and credit on hand-made points -------------------------------------
+
+
+def _point(policy: str, steps: list[float], queries: float = 10.0, decisions: float = 100.0, p: float | None = None,
+           on_miss: str = "refuse") -> Point:
+    """A frontier point made by hand: per-trial steps to the first solve, and the run's totals of
+    queries and decisions spread over its trials."""
+    secondary = {"policy": policy} if p is None else {"policy": policy, "ask_probability": p}
+    method = {"always": "lagr", "never": "baseline"}.get(policy, "lagr-seq")
+    config = {"method": method, "secondary": secondary, "lagr": {"solution_scope": "episode"}, "task": {"name": "cube-stacking"}}
+    n = len(steps)
+    run = Run(
+        RunKey("cube-stacking", method, "paper", "recorded:store", 0, f"{policy}{p}"), config, (), tuple(range(n)),
+        pd.DataFrame(), pd.DataFrame(), 0,
+    )
+    per_trial = np.full(n, queries / n)
+    point = Point(
+        policy, "" if p is None else f"p {p:g}", run, np.zeros(n), np.array(steps, dtype=float), np.ones(n, dtype=bool),
+        per_trial, np.zeros(n), np.zeros(n), decisions=decisions, on_miss=on_miss,
+        episodes_solved=np.ones(n), outside=np.zeros(n, dtype=bool),
+    )
+    return point
+
+
+def test_matched_probability_is_the_runs_query_rate() -> None:
+    assert matched_probability(30, 100) == 0.3
+    assert matched_probability(1, 3) == 0.33  # two significant digits: the report finds the run again
+    assert matched_probability(7, 7) == 1.0
+    assert matched_probability(1, 10**6) == 0.001  # never below 0.001 (0 would be never)
+    with pytest.raises(ValueError):
+        matched_probability(0, 0)
+
+
+def test_noninferiority_and_credit_on_hand_made_points() -> None:
+    always = _point("always", [100.0, 104, 96, 102, 98, 101, 99, 103, 97, 100])  # mean 100: margin 10 steps
+    same = _point("thompson", [101.0, 99, 103, 97, 100, 102, 98, 100, 101, 99], queries=20, decisions=100)  # rate 0.2
+    slow = _point("seq", [150.0, 155, 145, 152, 148, 151, 149, 153, 147, 150], queries=50, decisions=100)  # rate 0.5
+    few = _point("thompson", [100.0, 101, 99, 100, 100], queries=20, decisions=100)  # 5 trials: never a verdict
+    random_02 = _point("random", [160.0, 150, 170, 155, 165, 158, 162, 168, 152, 160], p=0.2)  # slower than thompson
+    random_05 = _point("random", [100.0, 101, 99, 100, 102, 98, 100, 101, 99, 100], p=0.5)  # faster than seq
+    mocked = _point("thompson", list(same.steps_to_solve), queries=20, on_miss="mock")
+    oracle = _point("oracle", list(same.steps_to_solve), queries=5)
+    points = [always, same, slow, few, random_02, random_05, mocked, oracle]
+    verdicts = judge(points)
+    assert verdicts[id(same)].against_always is not None
+    assert verdicts[id(same)].against_always.verdict == "non-inferior"
+    assert verdicts[id(slow)].against_always.verdict == "inferior"  # type: ignore[union-attr]
+    assert verdicts[id(few)].against_always.verdict == "inconclusive"  # type: ignore[union-attr]
+    # each learning policy meets random at its own rate (queries / decisions)
+    assert verdicts[id(same)].matched is random_02 and verdicts[id(slow)].matched is random_05
+    assert verdicts[id(same)].beats_random and not verdicts[id(slow)].beats_random
+    # credit: non-inferior to always and better than random at the matched rate
+    assert verdicts[id(same)].credited and not verdicts[id(slow)].credited and not verdicts[id(few)].credited
+    # the oracle peeks: a bound, never credited; points on mock fallback answers get no verdict
+    assert not verdicts[id(oracle)].credited and verdicts[id(oracle)].matched is None
+    assert verdicts[id(mocked)].against_always is None and not verdicts[id(mocked)].credited
+    assert verdicts[id(random_02)].matched is None  # random is not matched with itself
+    eager = _point("thompson", list(same.steps_to_solve), queries=100, decisions=100)  # asks at every decision
+    assert judge([always, eager])[id(eager)].matched is always  # random at rate 1 is always
+    # the same verdicts in the table, with the margin named
+    summarise(points)
+    shown = table(points)
+    data = shown.data
+    assert "margin 10" in " ".join(shown.columns)
+    assert list(data["vs_always"]) == [
+        "reference", "non-inferior", "inferior", "inconclusive", "inferior", "non-inferior",
+        "no verdict: misses answered by the mock", "non-inferior",
+    ]
+    assert list(data["credited"]) == [False, True, False, False, False, False, False, False]
+    # the second primary outcome gets its own verdict (every hand-made trial solved one episode)
+    assert list(data["vs_always_episodes_solved"])[1:4] == ["non-inferior", "non-inferior", "inconclusive"]
+    assert shown.rows[-1][0] == "oracle (peeks at the answer)" and shown.rows[-1][1] == "bound"
+    assert data["noninferiority_margin"].iloc[0] == pytest.approx(10.0)
+
+
+# -- the tuning split and the matched-rate runs, end to end -------------------------------------------
+
+
+def test_tuning_never_touches_evaluation_seeds_and_the_choice_is_in_the_logs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import json
+
+    from lagrseq.frontier import TUNE_GRID, TUNING_NOTE
+    from lagrseq.seeding import Stream, integer_seed
+
+    out = tmp_path / "fr"
+    args = [
+        "frontier", "cube-stacking", "--preset", "paper", "--provider", "mock:authors-t0", "--policies", "always,thompson",
+        "--trials", "2", "--set", "run.episodes=4", "--out", str(out), "--quiet", "--seed", "7",
+        "--tune", "--tune-trials", "2",
+    ]
+    assert cli.main(args) == 0
+    roles: dict[str, set[tuple[int, int]]] = {"tuning": set(), "evaluation": set()}
+    tuned_notes = []
+    rates: dict[str, tuple[int, int]] = {}
+    for log in sorted(out.rglob("*.mcap")):
+        info = read_info(log)
+        note = json.loads(info.run.get(TUNING_NOTE, "{}"))
+        role = "tuning" if note.get("role") == "tuning" else "evaluation"
+        roles[role].add((int(info.run["seed"]), int(info.run["trial"])))
+        if note.get("role") == "tuned":
+            tuned_notes.append(note)
+        secondary = info.config.get("secondary", {})
+        if info.run["method"] == "lagr-seq" and role == "evaluation":
+            rows = read_topic(log, "/query")
+            name = f"{secondary['policy']}:{secondary.get('query_cost', 0)}:{secondary.get('ask_probability', 0.5)}"
+            queried, decided = rates.get(name, (0, 0))
+            rates[name] = (queried + sum(bool(r["queried"]) for r in rows), decided + len(rows))
+    # 1 control + 4 candidates x 2 tuning trials; the evaluation: the given variants, the chosen one, matched random
+    assert {seed for seed, _ in roles["tuning"]} == {7 + 1_000_003} and {seed for seed, _ in roles["evaluation"]} == {7}
+    assert not roles["tuning"] & roles["evaluation"]
+    env_seeds = {role: {integer_seed(s, t, Stream.ENV) for s, t in pairs} for role, pairs in roles.items()}
+    assert not env_seeds["tuning"] & env_seeds["evaluation"]  # no environment the tuning saw is evaluated
+    # the choice is written into the evaluation logs' metadata, with the rule and every candidate
+    assert tuned_notes and {n["policy"] for n in tuned_notes} == {"thompson"}
+    note = tuned_notes[0]
+    assert note["knob"] == "query_cost" and note["chosen"] in TUNE_GRID["thompson"][1]
+    assert note["tuning_seed"] == 7 + 1_000_003 and note["evaluation_seed"] == 7 and "fewest mean queries" in note["rule"]
+    assert [c["value"] for c in note["candidates"]] == list(TUNE_GRID["thompson"][1])
+    # random ran at the matched rate of every thompson evaluation run (queries / decisions, from the logs)
+    matched = {float(name.split(":")[2]) for name in rates if name.startswith("random:")}
+    for name, (queried, decided) in rates.items():
+        if name.startswith("thompson") and queried:
+            assert matched_probability(queried, decided) in matched
+    # the table says how each point's knobs were chosen
+    (csv,) = (out / "frontier").glob("*seed7*.csv")
+    data = pd.read_csv(csv, keep_default_na=False)
+    assert any(str(c).startswith("tuned on seed 1000010") for c in data["knobs_chosen"])
+    assert "given" in set(data["knobs_chosen"]) and "random" in set(data["policy"])
+    index = json.loads((out / "frontier.json").read_text())
+    assert index[-1]["tuned"]["preset/thompson"]["chosen"] == note["chosen"]
+    capsys.readouterr()
+    assert cli.main([*args, "--tune-seed", "7"]) == 2  # tuning on the evaluation seed is refused
+    assert "evaluation seed" in capsys.readouterr().err
+
+
+def test_scopes_auto_runs_both_regimes_on_the_grids_only(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from lagrseq.errors import UsageError
+    from lagrseq.frontier import parse_scopes
+
+    assert parse_scopes("auto", "object-arrangement") == ["episode", "trial"]
+    assert parse_scopes("auto", "cube-stacking") == [None]  # the preset's own (cube: episode)
+    assert parse_scopes("trial, episode,trial", "image-completion") == ["trial", "episode"]
+    for bad in ("", "forever", "episode,weekly"):
+        with pytest.raises(UsageError):
+            parse_scopes(bad, "cube-stacking")
+    assert cli.main(["frontier", "cube-stacking", "--scopes", "forever", "--out", str(tmp_path)]) == 2
+    assert "--scopes 'forever'" in capsys.readouterr().err
