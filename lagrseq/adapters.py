@@ -50,15 +50,23 @@ class SecondaryAgent(Protocol):
     def update(self, pattern: Any, decision: int, reward: float) -> None: ...
 
 
-class TabularPrimary:
-    """Tabular Q-learning on the task's patterns, with the configured state index."""
+class TabularTask(Protocol):
+    """What tabular Q-learning needs of a task: its action count (and, for the released cube
+    code's ``upstream-aliased`` state index, the cube's target)."""
 
-    def __init__(self, section: TabularConfig, task: cube.CubeStacking) -> None:
+    n_actions: int
+
+
+class TabularPrimary:
+    """Tabular Q-learning on the task's patterns (any task with ``n_actions`` whose env gives
+    ``info["action_mask"]``), with the configured state index."""
+
+    def __init__(self, section: TabularConfig, task: TabularTask) -> None:
         self.agent = TabularQ(task.n_actions, section.learning_rate, section.discount)
         self.invalid = section.invalid_actions
         self.pre_revert = section.bootstrap_from == "pre-revert"
         if section.state_index == "upstream-aliased":
-            target = task.target
+            target = task.target  # type: ignore[attr-defined]  # cube.CubeStacking (checked by wiring)
             self.key: Callable[[Any], Hashable] = lambda p: cube.upstream_state_key(p, target)
         else:
             self.key = tuple

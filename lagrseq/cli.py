@@ -98,7 +98,7 @@ def _task_argument(p: argparse.ArgumentParser) -> None:
 
 def _live_options(per: str) -> argparse.ArgumentParser:
     """The live provider, its limits and its budget (run and record)."""
-    from lagrseq.llm.servers import DEFAULT_BASE_URL, SERVER_KINDS
+    from lagrseq.wiring import DEFAULT_BASE_URL, SERVER_KINDS
 
     p = argparse.ArgumentParser(add_help=False)
     g = p.add_argument_group("live provider")
@@ -131,11 +131,13 @@ def _make_executor(args: argparse.Namespace, start: bool = True) -> Any:
     """The executor of ``--executor``/``--scheduler`` (None: the runner's own process pool, or
     nothing to ``start``)."""
     from lagrseq.executors import check_scheduler, make_executor
+    from lagrseq.registry import EXECUTORS
 
+    spec = EXECUTORS.get(args.executor)
     if args.scheduler is not None:
         check_scheduler(args.scheduler)
-    if args.executor == "local" or not start:
-        if args.scheduler is not None and args.executor != "dask":
+    if spec.runner_pool or not start:
+        if args.scheduler is not None and not spec.takes_scheduler:
             from lagrseq.errors import UsageError
 
             raise UsageError("--scheduler applies to --executor dask only")
@@ -164,6 +166,17 @@ def _report_options() -> argparse.ArgumentParser:
     g.add_argument("--suite", type=Path, default=None, metavar="FILE.toml", help="a suite file instead of the packaged paper suite")
     g.add_argument("--price-table", default=None, metavar="FILE.toml", help="re-cost every logged query's token usage with these prices over the built-in dated table")
     return p
+
+
+def _provider_argument(p: argparse.ArgumentParser, default: str | None, role: str, records: bool = False) -> None:
+    """``--provider SPEC``, the one definition: its help lists the registered provider kinds
+    (``records``: only those ``lagrseq record`` can ask)."""
+    from lagrseq.registry import PROVIDERS
+
+    kinds = [k for k in PROVIDERS.specs() if k.records or not records]
+    forms = "; ".join(f"{k.usage} = {k.description}" if k.description else k.usage for k in kinds)
+    shown = "any" if default is None else default
+    p.add_argument("--provider", default=default, metavar="SPEC", help=f"{role} (default: {shown}); {forms}")
 
 
 def _provider_options(args: argparse.Namespace) -> Any:
@@ -230,10 +243,8 @@ def _add_run(sub: Any) -> None:
     )
     _task_argument(p)
     p.add_argument("--method", choices=METHODS, default="lagr-seq", help="baseline: the plain RL agent; lagr: query the LLM whenever triggered; lagr-seq: the secondary agent decides (default)")
-    from lagrseq.wiring import REFUSING, REFUSING_HELP
-
-    profiles = "; ".join(f"{k}: {v}" for k, v in {**PROFILE_HELP, REFUSING: REFUSING_HELP}.items())
-    p.add_argument("--provider", default="mock", metavar="SPEC", help=f"LLM provider (default: mock): mock = the rule-based extrapolator (no key, no network); mock:PROFILE = a profile of it ({profiles}); recorded:STORE = answers recorded in the directory STORE (see --on-miss), or in a JSONL export FILE.jsonl; live or live:MODEL = an OpenAI-compatible server (see --base-url; MODEL overrides llm.model); local or local:MODEL.gguf = a llama.cpp server lagrseq starts on 127.0.0.1 and stops at the end (default model: SmolLM2-135M-Instruct from the local-llm extra; no key)")
+    profiles = "; ".join(f"{k}: {v}" for k, v in PROFILE_HELP.items())
+    _provider_argument(p, "mock", f"LLM provider (mock:PROFILE: {profiles}; refuses: never right, on any task)")
     p.add_argument("--trials", type=_COUNT, default=10, help="number of independent trials (default 10)")
     p.add_argument("--seed", type=_SEED, default=0, help="run seed, 0 <= S < 2**63; trial k uses a stream spawned from (seed, k) (default 0)")
     p.add_argument("--out", type=Path, default=Path("runs"), help="output directory (default: runs)")
@@ -308,7 +319,7 @@ def _add_frontier(sub: Any) -> None:
     p.add_argument("task", metavar="TASK", nargs="?", choices=tasks(), help=f"one of: {', '.join(tasks())} (not with --replay)")
     p.add_argument("--policies", default="never,always,seq,thompson,oracle", metavar="LIST", help=f"comma-separated NAME or NAME:FIELD=VALUE[:FIELD=VALUE]; names: {', '.join(NAMES)}; fields: {', '.join(KNOBS)} (default: never,always,seq,thompson,oracle)")
     p.add_argument("--sweep", action="append", default=[], metavar="NAME:FIELD=V1,V2", help="one variant per value, drawn as a curve (repeatable), e.g. thompson:query_cost=0.25,0.5,0.75")
-    p.add_argument("--provider", default="mock", metavar="SPEC", help="mock, mock:PROFILE, recorded:STORE or live[:MODEL] (default: mock)")
+    _provider_argument(p, "mock", "LLM provider of every policy's runs")
     p.add_argument("--on-miss", choices=ON_MISS, default=None, help="recorded:STORE only: what answers a query the store lacks (default: refuse, a refusal that costs a query and is never accepted, so no policy gains from answers nobody recorded; mock: the rule-based mock, whose points are labelled and get no verdict)")
     p.add_argument("--trials", type=_COUNT, default=5, help="trials per policy (default 5)")
     p.add_argument("--seed", type=_SEED, default=0, help="run seed (default 0)")
@@ -338,8 +349,8 @@ def _add_config(sub: Any) -> None:
 
 
 def _add_record(sub: Any) -> None:
-    from lagrseq.llm.servers import RECORD_MODES
     from lagrseq.recording import STATE_TOPICS
+    from lagrseq.wiring import RECORD_MODES
 
     p = sub.add_parser(
         "record",
@@ -370,13 +381,13 @@ def _add_record(sub: Any) -> None:
     p.add_argument("--mode", choices=RECORD_MODES, default="new", help="new: top every prompt up to K answers (default); once: record only into an empty store; none: ask nothing, report what is missing; all: ask K fresh answers for every prompt even if recorded")
     p.add_argument("--from-runs", nargs="+", default=None, metavar="RUN", help="MCAP logs or directories: ask from the states met there instead of the default prompt set (damaged logs are skipped with a warning)")
     p.add_argument("--states-from", choices=STATE_TOPICS, default="/query", help="with --from-runs: the states of /query records (where a query was decided, default) or of every /transition")
-    p.add_argument("--provider", default="live", metavar="SPEC", help="live (default): the server of --base-url; local or local:MODEL.gguf: a llama.cpp server lagrseq starts for the recording (the local-llm extra; default model SmolLM2-135M-Instruct, asked by that name unless --model; answers keyed under the endpoint 'local': replay them with --provider recorded:STORE --base-url local)")
+    _provider_argument(p, "live", "the model asked (local answers are keyed under the endpoint 'local': replay them with --provider recorded:STORE --base-url local)", records=True)
     p.add_argument("--concurrency", type=_N["concurrency"], default=1, metavar="N", help="requests in flight at once (default 1); a 429 pauses them all, and the budget counts the ones in flight at their worst case")
 
 
 def _add_cache(sub: Any) -> None:
     from lagrseq.config import tasks
-    from lagrseq.llm.servers import DEFAULT_BASE_URL
+    from lagrseq.wiring import DEFAULT_BASE_URL
 
     p = sub.add_parser("cache", help="import, export or list recorded answers (JSONL, the authors' pickles)", description="Move recorded answers between a store directory and portable files.")
     actions = p.add_subparsers(dest="action", metavar="ACTION", parser_class=_Parser, required=True)
@@ -453,7 +464,7 @@ def _add_replay(sub: Any) -> None:
     )
     p.add_argument("runs", nargs="+", type=Path, metavar="RUNS", help="MCAP files or directories searched for *.mcap")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
-    p.add_argument("--provider", default=None, metavar="SPEC", help="use only runs of this provider for the suite's default-provider runs (default: any, preferring mock)")
+    _provider_argument(p, None, "use only runs of this provider for the suite's default-provider runs (none given: any, preferring mock)")
 
 
 def _add_reproduce(sub: Any) -> None:
@@ -480,7 +491,7 @@ def _add_reproduce(sub: Any) -> None:
     )
     p.add_argument("--quick", action="store_true", help="fewer trials, episodes and probe samples where it matters (each item's quick_* length)")
     p.add_argument("--out", type=Path, default=Path("."), metavar="DIR", help="writes DIR/runs and DIR/reports (default: .)")
-    p.add_argument("--provider", default=None, metavar="SPEC", help="provider of the suite's default-provider runs (default: the suite's, mock)")
+    _provider_argument(p, None, "provider of the suite's default-provider runs (none given: the suite's, mock)")
     p.add_argument("--jobs", type=_N["jobs"], default=os.cpu_count() or 1, help="trials run in parallel (default: the number of cores)")
     p.add_argument("--seed", type=_SEED, default=None, help="run seed (default: the suite's, 0)")
     p.add_argument("--items", default=None, metavar="ID,ID", help="only these suite items (default: all)")
@@ -517,7 +528,7 @@ def _add_audit(sub: Any) -> None:
         formatter_class=_RAW,
     )
     _task_argument(p)
-    p.add_argument("--provider", default="mock", metavar="SPEC", help="provider of the lagr and lagr-seq runs (default mock; the baseline never asks)")
+    _provider_argument(p, "mock", "provider of the lagr and lagr-seq runs (the baseline never asks)")
     p.add_argument("--trials", type=_COUNT, default=5, help="trials per run (default 5)")
     p.add_argument("--episodes", type=_N["episodes"], default=0, help="episodes per trial (default 0: the preset's)")
     p.add_argument("--max-steps", type=_N["steps"], default=-1, help="step budget per trial (default -1: the preset's)")
@@ -582,6 +593,19 @@ def _add_models(sub: Any) -> None:
     p.add_argument("--json", action="store_true", help="one JSON object per model, one per line")
 
 
+def _add_plugins(sub: Any) -> None:
+    sub.add_parser(
+        "plugins",
+        help="list the tasks, providers, asking policies and executors, built-in and from plugins",
+        description=(
+            "List every registered task, provider kind, asking policy and executor with the "
+            "distribution it comes from (lagrseq: built in). Plugins register through the "
+            "entry-point groups lagrseq.tasks, lagrseq.providers, lagrseq.policies, lagrseq.executors; "
+            "one that fails to load is listed as skipped (docs/extending.md)."
+        ),
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="lagrseq",
@@ -592,7 +616,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"lagrseq {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    for add in (_add_run, _add_config, _add_record, _add_cache, _add_reproduce, _add_replay, _add_recover, _add_robot, _add_frontier, _add_audit, _add_serve_llm, _add_models):
+    for add in (_add_run, _add_config, _add_record, _add_cache, _add_reproduce, _add_replay, _add_recover, _add_robot, _add_frontier, _add_audit, _add_serve_llm, _add_plugins, _add_models):
         add(sub)
     return parser
 
@@ -611,16 +635,11 @@ def cmd_config(args: argparse.Namespace) -> int:
 
 def cmd_run(args: argparse.Namespace) -> int:
     from lagrseq import runner
+    from lagrseq.wiring import check_render
 
     options = _provider_options(args)
     _make_executor(args, start=False)  # --executor/--scheduler checked before anything is made
-    if args.render is not None:
-        from lagrseq.errors import UsageError
-        from lagrseq.paths import writable_directory
-
-        if args.task != "arm-arrangement":
-            raise UsageError(f"--render draws the arm of arm-arrangement only, not {args.task}; leave it out")
-        writable_directory(args.render, "--render")
+    check_render(args.task, args.render)
     config, directory = runner.prepare(
         args.task, args.method, args.preset, args.config, args.overrides,
         args.provider, options, args.out, args.seed, args.name,
@@ -653,12 +672,9 @@ def cmd_robot(args: argparse.Namespace) -> int:
 
 def cmd_record(args: argparse.Namespace) -> int:
     from lagrseq import recording
+    from lagrseq.wiring import model_of
 
-    model = args.model
-    if model is None and args.provider.startswith("local"):
-        from lagrseq.llm.local import model_name
-
-        model = model_name(args.provider.partition(":")[2])
+    model = model_of(args.provider, args.model)
     config = recording.record_config(args.task, args.preset, args.config, args.overrides, model, args.temperature)
     if args.states_from != "/query" and not args.from_runs:
         raise LagrseqError(f"--states-from {args.states_from} picks states of the logs of --from-runs; give --from-runs RUN, or leave --states-from out")
@@ -711,24 +727,13 @@ def _cache_list(args: argparse.Namespace) -> int:
 
 
 def cmd_serve_llm(args: argparse.Namespace) -> int:
-    import time
-
-    from lagrseq.llm.local import LocalServer
-    from lagrseq.wiring import ProviderOptions, local_settings
-
-    options = ProviderOptions(local_n_ctx=args.local_n_ctx, local_threads=args.local_threads)
-    settings = local_settings(args.model, options, port=args.port)
+    from lagrseq.wiring import serve_llm
 
     def say(line: str) -> None:
         print(f"lagrseq serve-llm: {line}", file=sys.stderr, flush=True)
 
-    with LocalServer(settings, log=args.log, on_line=say) as server:
-        print(f"{server.base_url}  model {settings.model_name}  (use: --provider live:{settings.model_name} --base-url {server.base_url} --server llama.cpp; Ctrl-C stops it)", flush=True)
-        while server.running:
-            time.sleep(0.5)
-        lines = server.log_tail().strip().splitlines()
-        raise LagrseqError(f"the llama.cpp server exited by itself: {lines[-1] if lines else 'no output'}")
-    return 0  # pragma: no cover
+    serve_llm(args.model, args.port, args.local_n_ctx, args.local_threads, args.log, lambda line: print(line, flush=True), say)
+    return 0  # pragma: no cover - serve_llm returns only by an exception
 
 
 def cmd_models(args: argparse.Namespace) -> int:
@@ -792,40 +797,17 @@ def cmd_frontier(args: argparse.Namespace) -> int:
 
     from lagrseq import frontier
     from lagrseq.analysis.frontier import report
-    from lagrseq.errors import UsageError
-    from lagrseq.paths import writable_directory
 
     started = time.perf_counter()
     price = _price_function(args.price_table)
-    variants = frontier.parse_policies(args.policies)  # checked with --replay too: nothing is ignored unseen
-    for sweep in args.sweep:
-        variants += [v for v in frontier.parse_sweep(sweep) if v not in variants]
-    if args.replay is not None:
-        if args.task is not None:
-            raise UsageError(f"--replay rebuilds the report from the logs under {args.replay}; give no TASK with it")
-        if not args.replay.is_dir():
-            raise UsageError(f"--replay {args.replay}: not a directory of run logs")
-        out = writable_directory(args.out)
-        roots = [args.replay]
-    else:
-        if args.task is None:
-            raise UsageError("frontier needs a TASK (or --replay DIR)")
-        base = args.out  # made by run_frontier once every configuration is checked
-        if args.preset is None:
-            args.preset = "paper" if args.task == "cube-stacking" else "upstream"
-        if args.on_miss is None:
-            args.on_miss = "refuse" if args.provider.startswith("recorded:") else "error"
-        options = _provider_options(args)
-        tune = None
-        if args.tune:
-            tune = frontier.Tuning(args.seed + frontier.TUNE_OFFSET if args.tune_seed is None else args.tune_seed, args.tune_trials)
-        made_runs = frontier.run_protocol(
-            args.task, variants, args.provider, options, base, args.trials, args.seed, args.preset, args.config,
-            args.overrides, args.jobs, progress=lambda desc, total, unit: _bar(total, unit, desc, args.quiet),
-            scopes=frontier.parse_scopes(args.scopes, args.task), matched_random=args.matched_random, tune=tune,
-        )
-        frontier.write_index(base, made_runs.variants, made_runs.directories, made_runs.chosen)
-        out, roots = base / "frontier", made_runs.directories
+    variants = frontier.variants_of(args.policies, args.sweep)  # checked with --replay too: nothing is ignored unseen
+    args.preset, args.on_miss = frontier.protocol_defaults(args.task, args.provider, args.preset, args.on_miss)
+    out, roots = frontier.runs_or_replay(
+        args.task, args.replay, variants, args.provider, None if args.replay else _provider_options(args), args.out,
+        args.trials, args.seed, args.preset, args.config, args.overrides, args.jobs,
+        progress=lambda desc, total, unit: _bar(total, unit, desc, args.quiet),
+        scopes=args.scopes, matched_random=args.matched_random, tune=frontier.tuning(args.tune, args.seed, args.tune_seed, args.tune_trials),
+    )
     made = report(roots, out, price, args.miss_threshold)
     for warning in made.warnings:
         print(f"lagrseq frontier: warning: {warning}", file=sys.stderr)
@@ -899,13 +881,11 @@ def _print_report(report: Any, elapsed: float | None = None, not_run_said: bool 
 
 
 def _price_function(price_table: str | None) -> Any:
-    """``(model, prompt tokens, completion tokens) -> USD or None`` from the dated price table, for
-    replay's costs tables (analysis never imports the provider layer itself)."""
-    from lagrseq.llm.base import Usage
-    from lagrseq.wiring import load_prices
+    """``(model, prompt tokens, completion tokens) -> USD or None`` for replay's costs tables
+    (analysis never imports the provider layer itself)."""
+    from lagrseq.wiring import price_function
 
-    table = load_prices(price_table)
-    return lambda model, prompt, completion: table.cost(Usage(prompt, completion), model)
+    return price_function(price_table)
 
 
 def cmd_audit(args: argparse.Namespace) -> int:
@@ -924,7 +904,15 @@ def cmd_audit(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_plugins(args: argparse.Namespace) -> int:
+    from lagrseq.registry import listing
+
+    print("\n".join(listing()))
+    return 0
+
+
 COMMANDS = {
+    "plugins": cmd_plugins,
     "audit": cmd_audit,
     "run": cmd_run,
     "config": cmd_config,

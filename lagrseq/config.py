@@ -19,7 +19,6 @@ import types
 import typing
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 from typing import Any, Literal, TypeVar, Union, get_args, get_origin
 
@@ -516,7 +515,7 @@ class TabularSecondaryConfig(_Section):
     """p1 of the logistic query reward. Paper appendix: 20."""
     logistic_midpoint: float = ranged(0.9, ge=0, le=1)
     """p2 of the logistic query reward (on the normalised evaluation E/N). Paper appendix: 0.9."""
-    policy: Literal["seq", "never", "always", "random", "thompson", "oracle"] = "seq"
+    policy: str = "seq"
     """When to ask, with method lagr-seq (lagrseq.policies): seq (the paper's bandit above), never,
     always, random (ask with probability ask_probability), thompson (a posterior per context:
     Beta-Bernoulli on acceptance with a binary query reward, Gaussian on the reward with the
@@ -548,6 +547,11 @@ class TabularSecondaryConfig(_Section):
 
 
 def _check_policy(section: str, obj: Any) -> None:
+    from lagrseq.registry import POLICIES
+
+    if obj.policy not in POLICIES:
+        allowed = " | ".join(json.dumps(name) for name in POLICIES.names())
+        raise ConfigError(f"{section}.policy = {show_value(obj.policy)} is not allowed; expected one of {allowed}")
     if len(obj.thompson_prior) != 2:
         raise ConfigError(
             f"{section}.thompson_prior = {show_value(list(obj.thompson_prior))}; expected two numbers [a, b] > 0"
@@ -663,7 +667,7 @@ class NeuralSecondaryConfig(_Section):
     """p2 of the logistic query reward (on E/N). Paper appendix: 0.9."""
     device: Literal["cpu", "cuda", "auto"] = "cpu"
     """Where the network runs (as for the primary agent)."""
-    policy: Literal["seq", "never", "always", "random", "thompson", "oracle"] = "seq"
+    policy: str = "seq"
     """When to ask, with method lagr-seq (lagrseq.policies): seq (the paper's bandit above), never,
     always, random (ask with probability ask_probability), thompson (a posterior per context:
     Beta-Bernoulli on acceptance with a binary query reward, Gaussian on the reward with the
@@ -839,39 +843,30 @@ def config_digest(data: dict[str, Any]) -> str:
     return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:8]
 
 
-# Which dataclass reads each section, per task.
-SECTIONS: dict[str, dict[str, type]] = {
-    "cube-stacking": {
-        "task": CubeTaskConfig,
-        "env": CubeEnvConfig,
-        "primary": TabularConfig,
-        "secondary": TabularSecondaryConfig,
-    },
-    "image-completion": {
-        "task": ImageTaskConfig,
-        "env": ImageEnvConfig,
-        "primary": DQNConfig,
-        "secondary": NeuralSecondaryConfig,
-    },
-    "object-arrangement": {
-        "task": ArrangementTaskConfig,
-        "env": ArrangementEnvConfig,
-        "primary": DQNConfig,
-        "secondary": NeuralSecondaryConfig,
-    },
-    "arm-arrangement": {
-        "task": ArmTaskConfig,
-        "env": ArmEnvConfig,
-        "primary": DQNConfig,
-        "secondary": NeuralSecondaryConfig,
-    },
-}
 COMMON_SECTIONS: dict[str, type] = {"lagr": LagrConfig, "llm": LLMConfig, "run": RunConfig}
 
 
 def tasks() -> tuple[str, ...]:
-    """Names of every task that has a configuration."""
-    return tuple(SECTIONS)
+    """Names of every task that has a configuration (``lagrseq.registry.TASKS``)."""
+    from lagrseq.registry import TASKS
+
+    return TASKS.names()
+
+
+def task_sections(task: str) -> dict[str, type]:
+    """Which dataclass reads each task-specific section of ``task`` (its registered sections)."""
+    from lagrseq.registry import TASKS
+
+    spec = TASKS.find(task)
+    if spec is None:
+        raise ConfigError(f"unknown task {show_value(task)}; expected one of {', '.join(tasks())}")
+    return dict(spec.sections)
+
+
+def __getattr__(name: str) -> Any:
+    if name == "SECTIONS":  # read lazily: plugins add tasks
+        return {task: task_sections(task) for task in tasks()}
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 # --------------------------------------------------------------------------------------------
@@ -961,12 +956,15 @@ def _merge(base: dict[str, Any], extra: Mapping[str, Any], origin: str) -> dict[
 
 
 def preset_path(task: str, preset: str) -> Path:
-    """The packaged TOML file of a preset."""
-    if task not in SECTIONS:
-        raise ConfigError(f"unknown task {task!r}; expected one of {', '.join(SECTIONS)}")
+    """The TOML file of a preset (in the task's registered preset folder)."""
+    from lagrseq.registry import TASKS
+
+    spec = TASKS.find(task)
+    if spec is None:
+        raise ConfigError(f"unknown task {task!r}; expected one of {', '.join(tasks())}")
     if preset not in PRESETS:
         raise ConfigError(f"unknown preset {preset!r}; expected one of {', '.join(PRESETS)}")
-    return Path(str(resources.files("lagrseq") / "experiments" / task / f"{preset}.toml"))
+    return Path(spec.presets) / f"{preset}.toml"
 
 
 def read_toml(path: Path | str, what: str = "config") -> dict[str, Any]:
@@ -997,9 +995,9 @@ def from_dict(data: Mapping[str, Any]) -> ExperimentConfig:
     if not isinstance(task_section, Mapping) or "name" not in task_section:
         raise ConfigError("configuration has no [task] name; expected e.g. name = \"cube-stacking\"")
     task = task_section["name"]
-    if not isinstance(task, str) or task not in SECTIONS:
-        raise ConfigError(f"unknown task {show_value(task)}; expected one of {', '.join(SECTIONS)}")
-    classes = {**SECTIONS[task], **COMMON_SECTIONS}
+    if not isinstance(task, str):
+        raise ConfigError(f"unknown task {show_value(task)}; expected one of {', '.join(tasks())}")
+    classes = {**task_sections(task), **COMMON_SECTIONS}
     unknown = sorted(set(data) - set(classes) - {"method", "preset"})
     if unknown:
         raise ConfigError(

@@ -40,14 +40,12 @@ from typing import Any
 import distributed
 
 from lagrseq.errors import UsageError
-from lagrseq.executors import TrialExecutor, TrialJob, quiet_resource_tracker
+from lagrseq.executor_base import TrialExecutor, TrialJob, check_scheduler, quiet_resource_tracker
 
 WORKER_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
 
 
 def _check_address(address: str) -> str:
-    from lagrseq.executors import check_scheduler
-
     return check_scheduler(address)
 
 

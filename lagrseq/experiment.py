@@ -26,18 +26,24 @@ from lagrseq.agents.schedules import EpsilonSchedule
 from lagrseq.config import ExperimentConfig
 from lagrseq.lagr import Consultation, QueryTrigger, consult, follows
 from lagrseq.llm.base import Provider
-from lagrseq.logs.events import (
-    ArmEpisodeEvent,
-    EpisodeEvent,
-    QueryEvent,
-    Sink,
-    Transition,
-    View,
-    jsonable,
-)
+from lagrseq.logs.events import QueryEvent, Sink, Transition, View, episode_event, jsonable
 from lagrseq.policies import AskContext, AskingPolicy
 from lagrseq.seq import query_reward
-from lagrseq.tasks.base import Task
+from lagrseq.tasks.base import EPISODE_LOG, STEP_LOG, Task
+
+Guide = Callable[[Any, Any, dict[str, Any]], tuple[int | None, Any, dict[str, Any]]]
+"""pi_LLM: (the accepted solution, observation, info) -> (its action or None when it asks for
+nothing, and the observation and info it acts on)."""
+
+
+def task_guide(task: Task) -> Guide:
+    """pi_LLM acting wherever the environment is (``info["cursor"]``, if any): the task's
+    ``guidance``. An env that lets pi_LLM choose its own cell brings its own guide (wiring)."""
+
+    def guide(solution: Any, observation: Any, info: dict[str, Any]) -> tuple[int | None, Any, dict[str, Any]]:
+        return task.guidance(info["pattern"], solution, info.get("cursor")), observation, info
+
+    return guide
 
 
 @dataclass(frozen=True)
@@ -77,12 +83,11 @@ class TrialParts:
     primary_rng: np.random.Generator
     secondary_rng: np.random.Generator
     guidance_rng: np.random.Generator
-    view: Callable[[Any, int], View] | None = None
-    """A picture of the state after each step (grid tasks), so the run opens in Foxglove."""
-    robot_views: Callable[[dict[str, Any], int], list[View]] | None = None
-    """Arm tasks: the robot's camera frame and joint state after a step (from its info)."""
-    placements: bool = False
-    """Arm tasks: count the robot's placements (``info["placement"]``) in ``/episode``."""
+    views: Callable[[dict[str, Any], int], list[View]] | None = None
+    """The pictures after each step, from its info (the task's registered views: the state, so
+    the run opens in Foxglove; an arm's camera and joints)."""
+    guide: Guide | None = None
+    """pi_LLM (None: :func:`task_guide`, the task's guidance where the env is)."""
 
 
 @dataclass
@@ -100,8 +105,6 @@ class _Episode:
     """Queries per answer source (set at the first query)."""
     epsilon: float = 0.0
     last_reward: float = 0.0
-    placements: int = 0
-    failed_placements: int = 0
 
 
 def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] | None = None) -> TrialResult:
@@ -140,15 +143,14 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
                 global_step += 1
                 if terminated or truncated or _out_of_steps(config, global_step):
                     break
-            summary = (
-                parts.trial, number, float(episode.total), episode.steps, episode.queries,
-                episode.accepted, float(episode.epsilon), bool(episode.solved),
-                episode.guided_steps, global_step,
+            sink.write(
+                episode_event(
+                    info.get(EPISODE_LOG),  # what the env counted (an arm's placements)
+                    trial=parts.trial, episode=number, return_=float(episode.total), length=episode.steps,
+                    queries=episode.queries, accepted=episode.accepted, epsilon=float(episode.epsilon),
+                    solved=bool(episode.solved), guided_steps=episode.guided_steps, global_step=global_step,
+                )
             )
-            if parts.placements:
-                sink.write(ArmEpisodeEvent(*summary, episode.placements, episode.failed_placements))
-            else:
-                sink.write(EpisodeEvent(*summary))
             sink.flush()  # one flush per episode: a crash keeps every finished episode
             episodes += 1
             queries += episode.queries
@@ -175,17 +177,20 @@ def _ask(
     policy = parts.secondary
     assert policy is not None  # baseline never asks
     context = AskContext(
-        pattern, task.progress(pattern), episode.number, episode.steps, global_step,
-        parts.secondary_epsilon.at(episode.number, global_step), parts.secondary_rng, queries, episode.queries,
-        lambda: consult(task, provider, config.llm, config.lagr.threshold, pattern),
+        pattern=pattern, progress=task.progress(pattern), episode=episode.number, episode_step=episode.steps,
+        global_step=global_step, epsilon=parts.secondary_epsilon.at(episode.number, global_step),
+        rng=parts.secondary_rng, queries_trial=queries, queries_episode=episode.queries,
+        peek=lambda: consult(task, provider, config.llm, config.lagr.threshold, pattern),
     )
     decision = policy.decide(context)
-    event = QueryEvent(parts.trial, episode.number, episode.steps, global_step, jsonable(pattern), int(decision))
+    event = QueryEvent(
+        trial=parts.trial, episode=episode.number, step=episode.steps, global_step=global_step,
+        state=jsonable(pattern), decision=int(decision),
+    )
     solution = None
     reward = 0.0  # not querying earns the neutral reward
     if decision == 1:
-        # The oracle's look at the answer becomes the query it decided to make.
-        result = context.peeked or consult(task, provider, config.llm, config.lagr.threshold, pattern)
+        result = context.query()
         trigger.queried(task.progress(pattern))
         reward = query_reward(result.evaluation, result.accepted, config.secondary) - config.secondary.query_cost
         context.evaluation, context.accepted = result.evaluation, result.accepted
@@ -207,13 +212,8 @@ def _act(parts: TrialParts, following: Any, observation: Any, info: dict[str, An
     """pi_LLM's action once a solution is held (with probability P), else the primary agent's.
     Returns the action, whether it was guided, and the (possibly steered) observation and info."""
     if following is not None and follows(parts.config.lagr, parts.guidance_rng):
-        pattern = info["pattern"]
-        # The released grid code's pi_LLM picks its own cell (the solution's next missing one)
-        # instead of the scanned or drawn cell.
-        cell = parts.task.guided_cell(pattern, following, info.get("cursor"))
-        if cell is not None:
-            observation, info = parts.env.steer(cell)
-        action = parts.task.guidance(pattern, following, info.get("cursor"))
+        guide = parts.guide or task_guide(parts.task)
+        action, observation, info = guide(following, observation, info)
         if action is not None:
             return action, True, observation, info
     return parts.primary.act(observation, info, epsilon, parts.primary_rng), False, observation, info
@@ -224,21 +224,17 @@ def _log_step(
     terminated: bool, truncated: bool, guided: bool, next_info: dict[str, Any],
 ) -> None:
     """Write the step's transition (and pictures) and add it to the episode's counters."""
-    placement = next_info.get("placement")  # arm tasks: what the robot did, never hidden
     parts.sink.write(
         Transition(
-            parts.trial, episode.number, episode.steps, global_step, jsonable(pattern), int(action),
-            float(reward), bool(terminated), bool(truncated), guided, placement,
+            trial=parts.trial, episode=episode.number, step=episode.steps, global_step=global_step,
+            state=jsonable(pattern), action=int(action), reward=float(reward), terminated=bool(terminated),
+            truncated=bool(truncated), guided=guided,
+            **next_info.get(STEP_LOG, {}),  # what the env adds to the record (an arm's placement)
         )
     )
-    if parts.view is not None:
-        parts.sink.write(parts.view(next_info["pattern"], global_step))
-    if parts.robot_views is not None:
-        for view in parts.robot_views(next_info, global_step):
+    if parts.views is not None:
+        for view in parts.views(next_info, global_step):
             parts.sink.write(view)
-    if placement is not None:
-        episode.placements += 1
-        episode.failed_placements += not placement["ok"]
     episode.total += reward
     episode.guided_steps += guided
     episode.last_reward = reward  # the paper's trigger: query only after a positive reward

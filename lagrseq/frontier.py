@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from lagrseq.errors import UsageError
-from lagrseq.policies import POLICIES
+from lagrseq.registry import POLICIES, TASKS
 
 TUNING_NOTE = "frontier_tuning"
 """The run-metadata entry (JSON) of a run that ``--tune`` made: ``role`` ``tuning`` (a candidate or
@@ -51,8 +51,25 @@ TUNE_OFFSET = 1_000_003
 """Default tuning seed: the evaluation seed plus this (a different run seed: disjoint trials)."""
 SCOPES = ("episode", "trial")
 
-NAMES = ("never", "always", *[p for p in POLICIES if p not in ("never", "always")])
-KNOBS = ("ask_probability", "query_cost", "budget", "budget_scope", "min_progress", "thompson_prior", "query_reward", "learning_rate")
+def policy_names() -> tuple[str, ...]:
+    """Every registered asking policy, in frontier order."""
+    return tuple(spec.name for spec in sorted(POLICIES.specs(), key=lambda spec: spec.order))
+
+
+def policy_knobs() -> tuple[str, ...]:
+    """The ``[secondary]`` fields a policy item may set: every registered policy's knobs."""
+    out: list[str] = []
+    for spec in POLICIES.specs():
+        out += [knob for knob in spec.knobs if knob not in out]
+    return tuple(out)
+
+
+def __getattr__(name: str) -> Any:
+    if name == "NAMES":  # read lazily: plugins add policies
+        return policy_names()
+    if name == "KNOBS":
+        return policy_knobs()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 @dataclass(frozen=True)
@@ -64,11 +81,9 @@ class Variant:
 
     @property
     def method(self) -> str:
-        if self.policy == "never" and not self.knobs:
-            return "baseline"
-        if self.policy == "always" and not self.knobs:
-            return "lagr"
-        return "lagr-seq"
+        """The policy's own method without knobs (``never``: baseline, ``always``: lagr), else
+        ``lagr-seq``."""
+        return "lagr-seq" if self.knobs else POLICIES.get(self.policy).method
 
     def overrides(self) -> list[str]:
         sets = [] if self.method != "lagr-seq" else [f'secondary.policy="{self.policy}"']
@@ -80,13 +95,14 @@ class Variant:
 
 def _item(text: str) -> tuple[str, list[tuple[str, str]]]:
     name, *parts = text.strip().split(":")
-    if name not in NAMES:
-        raise UsageError(f"policy {name!r} in {text!r}; expected one of {', '.join(NAMES)} (optionally NAME:FIELD=VALUE)")
+    if name not in policy_names():
+        raise UsageError(f"policy {name!r} in {text!r}; expected one of {', '.join(policy_names())} (optionally NAME:FIELD=VALUE)")
     knobs: list[tuple[str, str]] = []
+    allowed = policy_knobs()
     for part in parts:
         field, sep, value = part.partition("=")
-        if not sep or field not in KNOBS or not value:
-            raise UsageError(f"{text!r}: expected NAME:FIELD=VALUE with FIELD one of {', '.join(KNOBS)}")
+        if not sep or field not in allowed or not value:
+            raise UsageError(f"{text!r}: expected NAME:FIELD=VALUE with FIELD one of {', '.join(allowed)}")
         if any(field == seen for seen, _ in knobs):
             raise UsageError(f"{text!r} sets {field} twice; give each field once (for several values: --sweep {name}:{field}=V1,V2)")
         knobs.append((field, value))
@@ -394,6 +410,74 @@ def _tune(
     return notes
 
 
+def protocol_defaults(task: str | None, provider: str, preset: str | None, on_miss: str | None) -> tuple[str, str]:
+    """The protocol's defaults where the command line left them open: the task's frontier preset
+    (cube stacking: the paper's) and, on a store, refused misses (no policy gains from answers
+    nobody recorded)."""
+    from lagrseq.registry import kind_of
+
+    if preset is None:
+        preset = TASKS.get(task).frontier_preset if task is not None else "upstream"
+    if on_miss is None:
+        kind = kind_of(provider)
+        on_miss = "refuse" if kind is not None and kind.replays else "error"
+    return preset, on_miss
+
+
+def tuning(tune: bool, seed: int, tune_seed: int | None, trials: int) -> Tuning | None:
+    """``--tune``: the tuning seeds (default: the evaluation seed plus :data:`TUNE_OFFSET`)."""
+    if not tune:
+        return None
+    return Tuning(seed + TUNE_OFFSET if tune_seed is None else tune_seed, trials)
+
+
+def variants_of(policies: str, sweeps: Sequence[str]) -> list[Variant]:
+    """The variants of ``--policies`` and every ``--sweep``, duplicates dropped."""
+    variants = parse_policies(policies)
+    for sweep in sweeps:
+        variants += [v for v in parse_sweep(sweep) if v not in variants]
+    return variants
+
+
+def runs_or_replay(
+    task: str | None,
+    replay: Path | None,
+    variants: Sequence[Variant],
+    provider: str,
+    options: Any,
+    out: Path,
+    trials: int,
+    seed: int,
+    preset: str,
+    config_file: Path | None,
+    overrides: Sequence[str],
+    jobs: int,
+    progress: Callable[[str, float, str], Any],
+    scopes: str = "auto",
+    matched_random: bool = True,
+    tune: Tuning | None = None,
+) -> tuple[Path, list[Path]]:
+    """``lagrseq frontier``'s runs: with ``replay``, the logs under it (no trial runs); else every
+    variant run on ``task`` under ``out`` by the protocol (:func:`run_protocol`) and indexed.
+    Returns the report's folder and the run directories it reads."""
+    from lagrseq.paths import writable_directory
+
+    if replay is not None:
+        if task is not None:
+            raise UsageError(f"--replay rebuilds the report from the logs under {replay}; give no TASK with it")
+        if not replay.is_dir():
+            raise UsageError(f"--replay {replay}: not a directory of run logs")
+        return writable_directory(out), [replay]
+    if task is None:
+        raise UsageError("frontier needs a TASK (or --replay DIR)")
+    made = run_protocol(  # out is made once every configuration is checked
+        task, list(variants), provider, options, out, trials, seed, preset, config_file, list(overrides), jobs,
+        progress=progress, scopes=parse_scopes(scopes, task), matched_random=matched_random, tune=tune,
+    )
+    write_index(out, made.variants, made.directories, made.chosen)
+    return out / "frontier", list(made.directories)
+
+
 def write_index(
     out: Path, variants: Sequence[Variant], directories: Sequence[Path], chosen: dict[str, dict[str, Any]] | None = None
 ) -> Path:
@@ -409,14 +493,14 @@ def write_index(
     return path
 
 
-GRID_TASKS = ("image-completion", "object-arrangement", "arm-arrangement")
 
 
 def parse_scopes(text: str, task: str) -> list[str | None]:
     """``--scopes``: ``episode,trial``; ``auto``: both on the grid tasks (whose presets keep an
     answer for the trial), the preset's own (None) on cube stacking."""
     if text.strip() == "auto":
-        return list(SCOPES) if task in GRID_TASKS else [None]
+        regimes = TASKS.get(task).solution_scopes
+        return [scope for scope in SCOPES if scope in regimes] or [None]
     scopes: list[str | None] = []
     for item in text.split(","):
         item = item.strip()

@@ -73,6 +73,11 @@ class AskContext:
         """The consultation the oracle looked at (the loop reuses it if the oracle asks)."""
         self._peek = peek
 
+    def query(self) -> Any:
+        """The consultation of the query this decision makes: the answer the policy peeked at,
+        if it did (a look becomes the query it decided to make), else the provider asked now."""
+        return self.peek()
+
     def peek(self) -> Any:
         """The provider's answer to this pattern, parsed and evaluated, without it counting as a
         query (the oracle only). Asked once per decision."""
@@ -280,34 +285,44 @@ class ProgressGate:
             self.inner.update(context, asked, query_reward)
 
 
-POLICIES = ("seq", "never", "always", "random", "thompson", "oracle")
+def make_seq(section: Any, seq_agent: Callable[[], SecondaryAgent]) -> AskingPolicy:
+    return SeqPolicy(seq_agent())
+
+
+def make_never(section: Any, seq_agent: Callable[[], SecondaryAgent]) -> AskingPolicy:
+    return Never()
+
+
+def make_always(section: Any, seq_agent: Callable[[], SecondaryAgent]) -> AskingPolicy:
+    return Always()
+
+
+def make_random(section: Any, seq_agent: Callable[[], SecondaryAgent]) -> AskingPolicy:
+    return RandomAsk(section.ask_probability)
+
+
+def make_thompson(section: Any, seq_agent: Callable[[], SecondaryAgent]) -> AskingPolicy:
+    return ThompsonPolicy(
+        (section.thompson_prior[0], section.thompson_prior[1]),
+        section.query_reward,
+        section.reward_correct,
+        section.reward_wrong,
+        section.query_cost,
+    )
+
+
+def make_oracle(section: Any, seq_agent: Callable[[], SecondaryAgent]) -> AskingPolicy:
+    return Oracle()
 
 
 def make_policy(section: Any, seq_agent: Callable[[], SecondaryAgent]) -> AskingPolicy:
-    """The asking policy of a ``[secondary]`` section; ``seq_agent`` builds the paper's bandit
-    (only called for ``policy = "seq"``, so other policies never need torch)."""
-    name = section.policy
-    policy: AskingPolicy
-    if name == "seq":
-        policy = SeqPolicy(seq_agent())
-    elif name == "never":
-        policy = Never()
-    elif name == "always":
-        policy = Always()
-    elif name == "random":
-        policy = RandomAsk(section.ask_probability)
-    elif name == "thompson":
-        policy = ThompsonPolicy(
-            (section.thompson_prior[0], section.thompson_prior[1]),
-            section.query_reward,
-            section.reward_correct,
-            section.reward_wrong,
-            section.query_cost,
-        )
-    elif name == "oracle":
-        policy = Oracle()
-    else:  # pragma: no cover - the config's Literal allows only POLICIES
-        raise ValueError(f"unknown policy {name!r}")
+    """The asking policy of a ``[secondary]`` section (its registered factory, in
+    ``lagrseq.registry.POLICIES``); ``seq_agent`` builds the paper's bandit (only called by
+    ``seq``, so other policies never need torch). Every policy may sit behind a progress gate
+    and a budget."""
+    from lagrseq.registry import POLICIES
+
+    policy: AskingPolicy = POLICIES.get(section.policy).make(section, seq_agent)
     if section.min_progress > 0:
         policy = ProgressGate(policy, section.min_progress)
     if section.budget > 0:

@@ -23,6 +23,7 @@ from lagrseq.errors import BudgetExceeded, LogError, UsageError
 from lagrseq.lagr import query_for
 from lagrseq.llm.base import Query
 from lagrseq.logs.reader import find_logs, read_info, read_topic
+from lagrseq.registry import ProviderKind
 from lagrseq.tasks import cube
 from lagrseq.tasks.base import Task
 from lagrseq.wiring import ProviderOptions, make_live, make_task
@@ -153,10 +154,9 @@ def record(
     from lagrseq.wiring import local_settings, parse_provider
 
     spec = parse_provider(provider)
-    if spec.kind not in ("live", "local"):
-        raise UsageError(f"lagrseq record asks a live or local model, not {provider!r}; expected live or local[:MODEL.gguf]")
-    if spec.kind == "live" or mode == "none":
-        endpoint = endpoint_of(options.base_url) if spec.kind == "live" else _local_endpoint()
+    kind = _recording_kind(provider)
+    if not kind.local_server or mode == "none":
+        endpoint = _local_endpoint() if kind.local_server else endpoint_of(options.base_url)
         return _record(queries, store_path, samples, mode, options, bar, endpoint, concurrency)
     from lagrseq.llm.local import LocalServer, Supervisor
 
@@ -179,16 +179,27 @@ def check_record(store_path: Path, mode: str, options: ProviderOptions, provider
     from lagrseq.wiring import local_settings, parse_provider
 
     spec = parse_provider(provider)
-    if spec.kind not in ("live", "local"):
-        raise UsageError(f"lagrseq record asks a live or local model, not {provider!r}; expected live or local[:MODEL.gguf]")
+    kind = _recording_kind(provider)
     if mode == "none":
         return
-    if spec.kind == "live":
-        make_live(options, np.random.default_rng(0)).close()
-    else:
+    if kind.local_server:
         local_settings(spec.argument, options)
+    else:
+        make_live(options, np.random.default_rng(0)).close()
     with RecordStore(store_path) as store:
         store.writer()
+
+
+def _recording_kind(provider: str) -> ProviderKind:
+    """The kind of ``provider`` if ``record`` can ask it (a live or local model)."""
+    from lagrseq.registry import PROVIDERS
+    from lagrseq.wiring import provider_kind
+
+    kind = provider_kind(provider)
+    if not kind.records:
+        usable = " or ".join(k.usage for k in PROVIDERS.specs() if k.records)
+        raise UsageError(f"lagrseq record asks a live or local model, not {provider!r}; expected {usable}")
+    return kind
 
 
 def _local_endpoint() -> str:

@@ -27,12 +27,11 @@ from lagrseq.config import ExperimentConfig
 from lagrseq.errors import ConfigError, UsageError
 from lagrseq.experiment import TrialResult
 from lagrseq.logs.reader import is_complete
+from lagrseq.registry import EXECUTORS, PROVIDERS, TASKS
 from lagrseq.suite import RunSpec, Suite, is_authors_provider
 
 CALIBRATION_STEPS = 1000
 """Environment steps timed per distinct experiment to estimate the suite's duration."""
-ARM_CALIBRATION_STEPS = 100
-"""The same for the arm task, whose steps are placements by a simulated arm (about 50 ms each)."""
 
 
 @dataclass
@@ -83,7 +82,7 @@ class Plan:
 def _provider_problem(spec: str) -> str | None:
     try:
         parsed = wiring.parse_provider(spec)
-        if parsed.kind == "local":  # the extra and the model file, checked without starting a server
+        if PROVIDERS.get(parsed.kind).local_server:  # the extra and the model file, checked without starting a server
             wiring.local_settings(parsed.argument, wiring.ProviderOptions())
     except UsageError as exc:
         return f"provider not available: {exc}"
@@ -191,7 +190,7 @@ def _calibrate(run: PlannedRun) -> tuple[float, float]:
         if run.kind == "accuracy":
             probe.run_accuracy_probe(run.config, 1, run.seed, "mock", path)
             return time.perf_counter() - started, 0.0
-        steps = ARM_CALIBRATION_STEPS if run.config.task.name == "arm-arrangement" else CALIBRATION_STEPS
+        steps = TASKS.get(run.config.task.name).calibration_steps or CALIBRATION_STEPS
         config = replace(run.config, run=replace(run.config.run, max_steps=steps))
         result = runner.run_one(config, 0, run.seed, "mock", path)
         seconds = time.perf_counter() - started
@@ -238,7 +237,7 @@ def execute(
     trial_runs = [run for run in the_plan.runs if run.kind != "accuracy"]
     with contextlib.ExitStack() as stack:
         pool = None
-        if executor != "local" or scheduler is not None or jobs > 1:
+        if not EXECUTORS.get(executor).runner_pool or scheduler is not None or jobs > 1:
             pool = stack.enter_context(runner.make_executor(executor, jobs, scheduler, say))
         if pool is None:
             for run in trial_runs:
@@ -326,7 +325,7 @@ def reproduce(
     seed = suite.seed if seed is None else seed
     if provider is not None:
         wiring.parse_provider(provider)
-    if scheduler is not None and executor != "dask":
+    if scheduler is not None and not EXECUTORS.get(executor).takes_scheduler:
         raise UsageError("--scheduler applies to --executor dask only")
     if scheduler is not None:
         from lagrseq.executors import check_scheduler
@@ -347,8 +346,7 @@ def reproduce(
     say(
         f"{'quick' if quick else 'full'} suite: {len(the_plan.runs)} runs, {trials} trial logs, "
         f"{pending} to run ({trials - pending} already complete); expected about "
-        f"{duration(estimate(the_plan, jobs))} on {jobs} {'Dask worker' if executor == 'dask' else 'process'}"
-        f"{('s' if executor == 'dask' else 'es') if jobs > 1 else ''} "
+        f"{duration(estimate(the_plan, jobs))} on {jobs} {EXECUTORS.get(executor).workers[jobs > 1]} "
         f"(timed on this machine; LLM latency of live providers not included)"
     )
     total = sum(run.units() for run in the_plan.runs)

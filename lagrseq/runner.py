@@ -33,6 +33,8 @@ from lagrseq.logs.sink import PARTIAL_SUFFIX, McapSink, NullSink, Sink
 from lagrseq.wiring import (
     ProviderOptions,
     parse_provider,
+    pays,
+    provider_kind,
     trial_parts,
     view_topics,
     with_provider_model,
@@ -523,8 +525,7 @@ def _with_ledger(provider_spec: str, options: ProviderOptions | None, directory:
     (:mod:`lagrseq.llm.ledger`)."""
     if options is None or (options.max_cost_usd is None and options.max_queries is None):
         return options
-    kind = parse_provider(provider_spec).kind
-    if kind != "live" and not (kind == "recorded" and options.on_miss == "live"):
+    if not pays(provider_spec, options):
         return options
     if options.budget_ledger is not None:
         return options
@@ -561,8 +562,7 @@ def prepare(
     from lagrseq.paths import writable_directory
     from lagrseq.wiring import check_provider, missing_dependency
 
-    provider = parse_provider(provider_spec)
-    if options.on_miss != "error" and provider.kind != "recorded":
+    if options.on_miss != "error" and not provider_kind(provider_spec).replays:
         raise UsageError(f"--on-miss {options.on_miss} applies to --provider recorded:STORE only")
     if name is not None:
         check_name(name)
@@ -578,7 +578,7 @@ def prepare(
 def miss_report(results: list[TrialResult], provider_spec: str) -> list[str]:
     """With ``recorded:STORE``: ``answers: N from the store, M from the fallback mock (P% missed
     the store)``; nothing for other providers."""
-    if parse_provider(provider_spec).kind != "recorded":
+    if not provider_kind(provider_spec).replays:
         return []
     totals: dict[str, int] = {}
     for result in results:

@@ -24,6 +24,7 @@ from typing import Any
 
 from lagrseq import config as cfg
 from lagrseq.errors import ConfigError
+from lagrseq.registry import kind_of
 
 RENDERERS = ("returns", "query-bars", "query-table", "ratio-table", "accuracy", "config-table", "frontier")
 KINDS = ("trial", "accuracy")
@@ -335,8 +336,8 @@ AUTHORS_HINT = (
 
 def is_authors_provider(spec: str) -> bool:
     """Whether a provider spec reads the store ``reproduce --authors-caches`` made."""
-    kind, _, argument = spec.partition(":")
-    return kind == "recorded" and Path(argument).name == AUTHORS_STORE_NAME
+    found = kind_of(spec)
+    return found is not None and found.replays and Path(spec.partition(":")[2]).name == AUTHORS_STORE_NAME
 
 
 def covered_by(resolved: cfg.ExperimentConfig) -> tuple[str, int]:
@@ -365,7 +366,9 @@ def with_recorded(suite: Suite, provider: str, covers: set[tuple[str, int]]) -> 
             continue
         eligible: list[RunSpec] = []
         for spec in item.runs:
-            if spec.method == "baseline" or not (spec.provider is None or spec.provider.startswith("mock")):
+            kind = None if spec.provider is None else kind_of(spec.provider)
+            mocked = spec.provider is None or (kind is not None and kind.synthetic)  # the suite's default: the mock
+            if spec.method == "baseline" or not mocked:
                 continue
             try:
                 resolved = spec.resolve()

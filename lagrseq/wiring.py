@@ -41,42 +41,42 @@ from lagrseq.config import (
     TabularConfig,
 )
 from lagrseq.errors import ConfigError, UsageError
-from lagrseq.experiment import TrialParts
+from lagrseq.experiment import Guide, TrialParts
 from lagrseq.llm.base import Provider
 from lagrseq.llm.mock import MockProvider
 from lagrseq.llm.servers import DEFAULT_BASE_URL, base_url_problem
+from lagrseq.llm.servers import RECORD_MODES as RECORD_MODES  # for the command line
+from lagrseq.llm.servers import SERVER_KINDS as SERVER_KINDS  # for the command line
 from lagrseq.logs import foxglove
 from lagrseq.logs.events import Sink, View
 from lagrseq.paths import expand_user, input_path
 from lagrseq.policies import Always, AskingPolicy, make_policy
+from lagrseq.registry import POLICIES, PROVIDERS, TASKS, ProviderKind, ProviderSpec, task_profiles
 from lagrseq.seeding import Stream
 from lagrseq.tasks import cube, grid, grid_profiles
 from lagrseq.tasks.arrangement import arm_arrangement, object_arrangement
 from lagrseq.tasks.base import Task
 from lagrseq.tasks.image import image_completion
 
-PROVIDER_KINDS = ("mock", "recorded", "live", "local")
 ON_MISS = ("error", "mock", "live", "refuse")
-PROVIDER_HELP = "mock, mock:PROFILE, recorded:STORE, live, live:MODEL, local or local:MODEL.gguf"
+
+
+def provider_help() -> str:
+    """Every ``--provider`` form, from the provider registry."""
+    return ", ".join(kind.usage for kind in PROVIDERS.specs())
+
+
+def __getattr__(name: str) -> Any:
+    if name == "PROVIDER_HELP":  # read lazily: plugins add provider kinds
+        return provider_help()
+    if name == "PROVIDER_KINDS":
+        return PROVIDERS.names()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 # ------------------------------------------------------------------------------------------
 # Providers
 # ------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class ProviderSpec:
-    """A parsed ``--provider`` value: ``kind[:argument]``."""
-
-    kind: str
-    """mock | recorded | live | local"""
-    argument: str = ""
-    """The mock's profile, the recorded store's directory (or JSONL file), the live model, or
-    the local model's GGUF file."""
-
-    def __str__(self) -> str:
-        return f"{self.kind}:{self.argument}" if self.argument else self.kind
-
-
 REFUSING = "refuses"
 """``--provider mock:refuses``: a model that is never right, on any task."""
 REFUSAL = "I am sorry, I cannot complete this pattern."
@@ -88,23 +88,40 @@ REFUSING_HELP = (
 
 
 def mock_profiles() -> tuple[str, ...]:
-    """Names accepted by ``--provider mock:PROFILE`` (cube profiles, grid profiles, refuses)."""
-    return (*cube.PROFILES, *grid_profiles.PROFILES, REFUSING)
+    """Names accepted by ``--provider mock:PROFILE``: every task's profiles, and refuses."""
+    names: list[str] = []
+    for task in TASKS.specs():
+        names += [p for p in task_profiles(task) if p not in names]
+    return (*names, REFUSING)
 
 
 def parse_provider(spec: str) -> ProviderSpec:
-    """Split ``kind[:argument]`` and check it: ``mock``, ``mock:PROFILE``, ``recorded:STORE``,
-    ``live`` or ``live:MODEL``."""
+    """Split ``kind[:argument]`` and check it with its kind's registered check."""
     kind, _, argument = spec.partition(":")
-    if kind not in PROVIDER_KINDS:
-        raise UsageError(f"unknown provider {spec!r}; expected {PROVIDER_HELP}")
-    if kind == "mock" and argument and argument not in mock_profiles():
-        raise UsageError(f"unknown mock profile {argument!r}; expected one of: {', '.join(mock_profiles())}")
-    if kind == "recorded" and not argument:
+    found = PROVIDERS.find(kind)
+    if found is None:
+        raise UsageError(f"unknown provider {spec!r}; expected {provider_help()}")
+    parsed = ProviderSpec(kind, argument)
+    if found.check_spec is not None:
+        found.check_spec(parsed)
+    return parsed
+
+
+def provider_kind(spec: str | ProviderSpec) -> ProviderKind:
+    """The registered kind of a ``--provider`` value."""
+    return PROVIDERS.get((parse_provider(spec) if isinstance(spec, str) else spec).kind)
+
+
+def check_mock_spec(spec: ProviderSpec) -> None:
+    if spec.argument and spec.argument not in mock_profiles():
+        raise UsageError(f"unknown mock profile {spec.argument!r}; expected one of: {', '.join(mock_profiles())}")
+
+
+def check_recorded_spec(spec: ProviderSpec) -> None:
+    if not spec.argument:
         raise UsageError("provider 'recorded' needs a store: recorded:STORE (a directory) or recorded:FILE.jsonl")
-    if kind == "recorded" and argument.endswith(".jsonl"):
-        recorded_file(argument)  # a JSONL export that is not there: one line now, not per trial
-    return ProviderSpec(kind, argument)
+    if spec.argument.endswith(".jsonl"):
+        recorded_file(spec.argument)  # a JSONL export that is not there: one line now, not per trial
 
 
 def recorded_file(argument: str) -> Path:
@@ -114,7 +131,9 @@ def recorded_file(argument: str) -> Path:
     path = expand_user(argument, "recorded answers")
     if path.exists():
         return input_path(path, "recorded answers", "file")  # a FIFO or a directory: one line
-    checkout = Path(__file__).resolve().parents[1] / argument
+    import lagrseq
+
+    checkout = Path(lagrseq.__file__).resolve().parents[1] / argument  # the folder holding the package
     if not path.is_absolute() and checkout.is_file():
         return checkout
     raise UsageError(f"recorded answers {argument!r}: no such JSONL file (relative paths are looked up here and in the lagrseq source checkout)")
@@ -169,15 +188,25 @@ class ProviderOptions:
 
 
 def with_provider_model(config: ExperimentConfig, spec: str) -> ExperimentConfig:
-    """``live:MODEL`` asks MODEL: the configuration (and so every log) says so."""
+    """The configuration naming the model ``spec`` asks (``live:MODEL``, a local model): the
+    configuration, and so every log, says so."""
     provider = parse_provider(spec)
-    if provider.kind == "live" and provider.argument and provider.argument != config.llm.model:
-        return replace(config, llm=replace(config.llm, model=provider.argument))
-    if provider.kind == "local":  # the local model is asked by its own name (logs and keys say so)
-        from lagrseq.llm.local import model_name
+    kind = PROVIDERS.get(provider.kind)
+    return config if kind.with_model is None else kind.with_model(config, provider)  # type: ignore[no-any-return]
 
-        return replace(config, llm=replace(config.llm, model=model_name(provider.argument)))
+
+def live_model(config: ExperimentConfig, provider: ProviderSpec) -> ExperimentConfig:
+    """``live:MODEL`` asks MODEL."""
+    if provider.argument and provider.argument != config.llm.model:
+        return replace(config, llm=replace(config.llm, model=provider.argument))
     return config
+
+
+def local_model(config: ExperimentConfig, provider: ProviderSpec) -> ExperimentConfig:
+    """The local model is asked by its own name (logs and keys say so)."""
+    from lagrseq.llm.local import model_name
+
+    return replace(config, llm=replace(config.llm, model=model_name(provider.argument)))
 
 
 def make_provider(
@@ -189,28 +218,39 @@ def make_provider(
     """The provider of one trial. ``rng`` is the trial's LLM stream: the mock samples from it,
     the live provider draws its retry jitter from it, and a recorded store's sample choice is
     seeded by its first draw."""
+    provider = parse_provider(spec)
+    return PROVIDERS.get(provider.kind).make(provider, config, rng, options or ProviderOptions())  # type: ignore[no-any-return]
+
+
+def make_mock(provider: ProviderSpec, config: ExperimentConfig, rng: np.random.Generator, options: ProviderOptions) -> Provider:
+    return MockProvider(extrapolator(config, provider.argument or "ideal"), rng, name=str(provider))
+
+
+def make_live_provider(provider: ProviderSpec, config: ExperimentConfig, rng: np.random.Generator, options: ProviderOptions) -> Provider:
+    return make_live(options, rng, budgeted=True, on_retry=_say)  # type: ignore[no-any-return]
+
+
+def make_local_provider(provider: ProviderSpec, config: ExperimentConfig, rng: np.random.Generator, options: ProviderOptions) -> Provider:
+    return make_local(provider.argument, options, rng)
+
+
+def make_recorded(provider: ProviderSpec, config: ExperimentConfig, rng: np.random.Generator, options: ProviderOptions) -> Provider:
+    """Answers from a store (or a JSONL export); ``--on-miss`` answers what it lacks."""
     from lagrseq.llm.recorded import RecordedProvider, RecordingProvider
     from lagrseq.llm.store import RecordStore, endpoint_of
 
-    provider = parse_provider(spec)
-    options = options or ProviderOptions()
-    if provider.kind == "mock":
-        return MockProvider(extrapolator(config, provider.argument or "ideal"), rng, name=spec)
-    if provider.kind == "live":
-        return make_live(options, rng, budgeted=True, on_retry=_say)
-    if provider.kind == "local":
-        return make_local(provider.argument, options, rng)
     endpoint = endpoint_of(options.base_url)
+    asks_live = options.on_miss == "live"
     if provider.argument.endswith(".jsonl"):  # a JSONL export, replayed from a temporary store
         from lagrseq.llm.recorded import JsonlRecordedProvider
 
-        if options.on_miss == "live":
+        if asks_live:
             raise UsageError("--on-miss live records into a store directory; a JSONL export is read only (import it with lagrseq cache import)")
         seed = int(rng.integers(2**63))
         return JsonlRecordedProvider(recorded_file(provider.argument), endpoint, seed, _miss_fallback(config, rng, options))
-    store = RecordStore(provider.argument, create=options.on_miss == "live")
+    store = RecordStore(provider.argument, create=asks_live)
     run_seed = int(rng.integers(2**63))
-    if options.on_miss == "live":
+    if asks_live:
         # A miss is asked live and recorded (one sample), so the next run finds it.
         return RecordingProvider(store, make_live(options, rng, budgeted=True, on_retry=_say), endpoint, "new", 1, run_seed)
     return RecordedProvider(store, endpoint, run_seed, _miss_fallback(config, rng, options))
@@ -228,26 +268,39 @@ def _miss_fallback(config: ExperimentConfig, rng: np.random.Generator, options: 
     return None
 
 
+def pays(spec: str, options: ProviderOptions | None = None) -> bool:
+    """Whether answers of ``spec`` may cost money: a paid kind, or a store whose misses are asked
+    live (``--on-miss live``)."""
+    kind = provider_kind(spec)
+    return kind.paid or (kind.replays and (options or ProviderOptions()).on_miss == "live")
+
+
 def _say(message: str) -> None:
     """Retries and notes of a live provider during a run go to stderr (redacted at the source)."""
     print(f"lagrseq: {message.strip()}", file=sys.stderr)
 
 
 def check_provider(spec: str, config: ExperimentConfig, options: ProviderOptions | None = None) -> None:
-    """Build the provider once and close it, so that a missing API key or store fails before any
-    trial starts (nothing is sent). A local server is not started here: its model file and the
-    extra are checked."""
+    """Fail before any trial starts (nothing is sent): a missing API key or store, a paid source
+    under a policy that peeks at every answer; then the kind's own check (default: build the
+    provider once and close it)."""
     options = options or ProviderOptions()
-    if parse_provider(spec).kind == "local":
-        local_settings(parse_provider(spec).argument, options)
-        return
-    paid = parse_provider(spec).kind == "live" or options.on_miss == "live"
-    if paid and config.method == "lagr-seq" and config.secondary.policy == "oracle":
+    provider = parse_provider(spec)
+    kind = PROVIDERS.get(provider.kind)
+    if pays(spec, options) and config.method == "lagr-seq" and POLICIES.get(config.secondary.policy).peeks:
         raise UsageError(
-            "secondary.policy = oracle looks at every answer before deciding, so it would pay for "
+            f"secondary.policy = {config.secondary.policy} looks at every answer before deciding, so it would pay for "
             "answers it does not use; run it on recorded:STORE (--on-miss mock|error) or mock"
         )
-    make_provider(spec, config, np.random.default_rng(0), options).close()
+    if kind.check is not None:
+        kind.check(provider, config, options)
+        return
+    kind.make(provider, config, np.random.default_rng(0), options).close()
+
+
+def check_local(provider: ProviderSpec, config: ExperimentConfig, options: ProviderOptions) -> None:
+    """A local server is not started here: its model file and the extra are checked."""
+    local_settings(provider.argument, options)
 
 
 def local_settings(argument: str, options: ProviderOptions, port: int = 0) -> Any:
@@ -325,19 +378,89 @@ def load_prices(price_table: str | Path | None) -> Any:
     return read_price_table(price_table) if price_table else PriceTable()
 
 
+def price_function(price_table: str | None) -> Callable[[str, int, int], float | None]:
+    """``(model, prompt tokens, completion tokens) -> USD or None`` from the dated price table
+    (``price_table`` over the built-in one), for replay's and the frontier's cost tables."""
+    from lagrseq.llm.base import Usage
+
+    table = load_prices(price_table)
+    return lambda model, prompt, completion: table.cost(Usage(prompt, completion), model)  # type: ignore[no-any-return]
+
+
+def model_of(provider: str, model: str | None) -> str | None:
+    """The model ``lagrseq record --provider`` asks: ``--model``, else the one the spec names (a
+    local model by its own name); None: the configuration's."""
+    if model is not None:
+        return model
+    spec = parse_provider(provider)
+    kind = PROVIDERS.get(spec.kind)
+    if kind.local_server:
+        from lagrseq.llm.local import model_name
+
+        return model_name(spec.argument)
+    return None
+
+
+def check_render(task: str, render: Path | None) -> None:
+    """``--render DIR``: the task must draw its episodes, and DIR must be writable."""
+    if render is None:
+        return
+    from lagrseq.paths import writable_directory
+
+    if not TASKS.get(task).renders:
+        drawn = ", ".join(spec.name for spec in TASKS.specs() if spec.renders)
+        raise UsageError(f"--render draws the arm of {drawn} only, not {task}; leave it out")
+    writable_directory(render, "--render")
+
+
+def serve_llm(model: str, port: int, n_ctx: int, threads: int, log: Any, announce: Callable[[str], None], say: Callable[[str], None]) -> None:
+    """``lagrseq serve-llm``: a llama.cpp server until interrupted (SIGTERM stops it as Ctrl-C
+    does: the command line's handler); ``announce`` gets its address line, ``say`` its log lines."""
+    import time
+
+    from lagrseq.errors import LagrseqError
+    from lagrseq.llm.local import LocalServer
+
+    settings = local_settings(model, ProviderOptions(local_n_ctx=n_ctx, local_threads=threads), port=port)
+
+    with LocalServer(settings, log=log, on_line=say) as server:
+        announce(f"{server.base_url}  model {settings.model_name}  (use: --provider live:{settings.model_name} --base-url {server.base_url} --server llama.cpp; Ctrl-C stops it)")
+        while server.running:
+            time.sleep(0.5)
+        lines = server.log_tail().strip().splitlines()
+        raise LagrseqError(f"the llama.cpp server exited by itself: {lines[-1] if lines else 'no output'}")
+
+
 def extrapolator(config: ExperimentConfig, profile: str = "ideal") -> Callable[[str, float, np.random.Generator], str]:
     """What the mock provider answers with: the task's rule-based extrapolator (``ideal``) or a
-    calibrated profile of it (``cube.PROFILES``). The mock itself stays task-free: it reads the
-    same prompt text a real LLM would see."""
+    calibrated profile of it (the task's registered ``extrapolator``). The mock itself stays
+    task-free: it reads the same prompt text a real LLM would see."""
     if profile == REFUSING:
         return lambda prompt, temperature, rng: REFUSAL
-    task = make_task(config)
-    if isinstance(task, cube.CubeStacking):
-        if profile in grid_profiles.PROFILES:
-            raise UsageError(f"mock profile {profile!r} is calibrated for the grid tasks; cube stacking has: {', '.join(cube.PROFILES)}")
-        return cube.profile_extrapolator(task, profile)
-    if profile in grid_profiles.PROFILES and isinstance(task, grid.GridTask):
-        return grid_profiles.profile_extrapolator(task, profile, config.lagr.threshold)
+    return TASKS.get(config.task.name).extrapolator(config, profile)  # type: ignore[no-any-return]
+
+
+def cube_profiles() -> tuple[str, ...]:
+    return tuple(cube.PROFILES)
+
+
+def grid_profiles_of() -> tuple[str, ...]:
+    return tuple(grid_profiles.PROFILES)
+
+
+def cube_extrapolator(config: ExperimentConfig, profile: str) -> Callable[[str, float, np.random.Generator], str]:
+    """The cube's extrapolator or one of its calibrated profiles (``cube.PROFILES``)."""
+    if profile in grid_profiles.PROFILES:
+        raise UsageError(f"mock profile {profile!r} is calibrated for the grid tasks; cube stacking has: {', '.join(cube.PROFILES)}")
+    return cube.profile_extrapolator(cube.CubeStacking(_expect(config.task, CubeTaskConfig, "task").stack_size), profile)
+
+
+def grid_extrapolator(config: ExperimentConfig, profile: str) -> Callable[[str, float, np.random.Generator], str]:
+    """The grid extrapolator or one of the grid profiles (``grid_profiles.PROFILES``)."""
+    if profile in grid_profiles.PROFILES:
+        task = make_task(config)
+        if isinstance(task, grid.GridTask):
+            return grid_profiles.profile_extrapolator(task, profile, config.lagr.threshold)
     if profile != "ideal":
         raise UsageError(
             f"mock profile {profile!r} is calibrated for cube stacking only; "
@@ -363,54 +486,73 @@ def _expect(value: Any, cls: type[_Section], section: str) -> _Section:
 
 
 def make_task(config: ExperimentConfig) -> Task:
-    task = config.task
-    if isinstance(task, CubeTaskConfig):
-        return cube.CubeStacking(task.stack_size)  # type: ignore[return-value]
-    if isinstance(task, ImageTaskConfig):
-        return image_completion(task.target, task.goal_threshold, task.prompt_matrix, task.guidance)
-    if isinstance(task, ArrangementTaskConfig):
-        return object_arrangement(task.target, task.goal_threshold, task.prompt_matrix, task.guidance)
-    if isinstance(task, ArmTaskConfig):
-        return arm_arrangement(task.target, task.goal_threshold, task.prompt_matrix, task.guidance)
-    raise UsageError(f"unknown task {task.name!r}")  # pragma: no cover
+    """The task of ``config`` (its registered ``make_task``)."""
+    return TASKS.get(config.task.name).make_task(config)  # type: ignore[no-any-return]
 
 
 def make_env(config: ExperimentConfig, render_dir: Path | None = None) -> Any:
-    """The task's gymnasium env (imported here: ``lagrseq replay`` never needs gymnasium).
-    ``render_dir``: arm tasks write PNG frames and a GIF per episode there (``--render``)."""
-    task = config.task
-    if isinstance(task, ArmTaskConfig):
-        return make_arm_env(config, render_dir)
-    if isinstance(task, CubeTaskConfig):
-        from lagrseq.envs.cube_stacking import CubeStackingEnv
+    """The task's gymnasium env (its registered ``make_env``; imported there: ``lagrseq replay``
+    never needs gymnasium). ``render_dir``: arm tasks write PNG frames and a GIF per episode
+    there (``--render``)."""
+    return TASKS.get(config.task.name).make_env(config, render_dir)
 
-        env = _expect(config.env, CubeEnvConfig, "env")
-        return CubeStackingEnv(
-            stack_size=task.stack_size,
-            horizon=env.horizon,
-            bonus=env.bonus,
-            bonus_on=env.bonus_on,
-            revert_wrong_cube=env.revert_wrong_cube,
-            wrong_cube_reward=env.wrong_cube_reward,
-            terminate_on_complete=env.terminate_on_complete,
-        )
-    if isinstance(task, ImageTaskConfig):
-        from lagrseq.envs.image_completion import ImageCompletionEnv
 
-        image = _expect(config.env, ImageEnvConfig, "env")
-        return ImageCompletionEnv(
-            target=task.target,
-            scans=image.scans,
-            bonus=image.bonus,
-            goal_threshold=task.goal_threshold,
-            goal_ends=image.goal_ends,
-            block_wrong_flips=image.block_wrong_flips,
-            guided_goal_threshold=image.guided_goal_threshold,
-        )
+def cube_task(config: ExperimentConfig) -> Task:
+    return cube.CubeStacking(_expect(config.task, CubeTaskConfig, "task").stack_size)  # type: ignore[return-value]
+
+
+def image_task(config: ExperimentConfig) -> Task:
+    task = _expect(config.task, ImageTaskConfig, "task")
+    return image_completion(task.target, task.goal_threshold, task.prompt_matrix, task.guidance)
+
+
+def arrangement_task(config: ExperimentConfig) -> Task:
+    task = _expect(config.task, ArrangementTaskConfig, "task")
+    return object_arrangement(task.target, task.goal_threshold, task.prompt_matrix, task.guidance)
+
+
+def arm_task(config: ExperimentConfig) -> Task:
+    task = _expect(config.task, ArmTaskConfig, "task")
+    return arm_arrangement(task.target, task.goal_threshold, task.prompt_matrix, task.guidance)
+
+
+def cube_env(config: ExperimentConfig, render_dir: Path | None = None) -> Any:
+    from lagrseq.envs.cube_stacking import CubeStackingEnv
+
+    task = _expect(config.task, CubeTaskConfig, "task")
+    env = _expect(config.env, CubeEnvConfig, "env")
+    return CubeStackingEnv(
+        stack_size=task.stack_size,
+        horizon=env.horizon,
+        bonus=env.bonus,
+        bonus_on=env.bonus_on,
+        revert_wrong_cube=env.revert_wrong_cube,
+        wrong_cube_reward=env.wrong_cube_reward,
+        terminate_on_complete=env.terminate_on_complete,
+    )
+
+
+def image_env(config: ExperimentConfig, render_dir: Path | None = None) -> Any:
+    from lagrseq.envs.image_completion import ImageCompletionEnv
+
+    task = _expect(config.task, ImageTaskConfig, "task")
+    image = _expect(config.env, ImageEnvConfig, "env")
+    return ImageCompletionEnv(
+        target=task.target,
+        scans=image.scans,
+        bonus=image.bonus,
+        goal_threshold=task.goal_threshold,
+        goal_ends=image.goal_ends,
+        block_wrong_flips=image.block_wrong_flips,
+        guided_goal_threshold=image.guided_goal_threshold,
+    )
+
+
+def arrangement_env(config: ExperimentConfig, render_dir: Path | None = None) -> Any:
     from lagrseq.envs.object_arrangement import ObjectArrangementEnv
 
     table = _expect(config.env, ArrangementEnvConfig, "env")
-    arrangement = _expect(task, ArrangementTaskConfig, "task")
+    arrangement = _expect(config.task, ArrangementTaskConfig, "task")
     return ObjectArrangementEnv(
         target=arrangement.target,
         horizon=table.horizon,
@@ -443,7 +585,9 @@ def make_primary(config: ExperimentConfig, task: Task, env: Any, seed: int, tria
     if isinstance(config.primary, DQNConfig):
         return DQNPrimary(config.primary, env, seed, trial)
     section = _expect(config.primary, TabularConfig, "primary")
-    return TabularPrimary(section, _expect(task, cube.CubeStacking, "task"))
+    if section.state_index == "upstream-aliased":  # the released cube code's aliased Q rows
+        _expect(task, cube.CubeStacking, "task")
+    return TabularPrimary(section, task)  # type: ignore[arg-type]
 
 
 def make_secondary(config: ExperimentConfig, task: Task, seed: int, trial: int) -> AskingPolicy | None:
@@ -493,56 +637,91 @@ def make_arm_env(config: ExperimentConfig, render_dir: Path | None = None) -> An
 
 
 def missing_dependency(config: ExperimentConfig) -> str:
-    """Why ``config`` cannot run with the installed extras ("" when it can): the DQN agents of
-    the grid tasks need torch (the ``dqn`` extra), the simulated arm pybullet and airo-models
-    (the ``arm`` extra), a remote arm grpcio (also the ``arm`` extra)."""
+    """Why ``config`` cannot run with the installed extras ("" when it can): the task's
+    registered check (the arm's pybullet, airo-models or grpcio), then torch for the DQN agents
+    and the neural SEQ agent (the ``dqn`` extra)."""
+    check = TASKS.get(config.task.name).missing_dependency
+    return check(config) if check is not None else torch_dependency(config)
+
+
+def torch_dependency(config: ExperimentConfig) -> str:
+    """The DQN agents of the grid tasks and the neural SEQ agent need torch (the ``dqn`` extra)."""
     import importlib.util
 
-    if isinstance(config.env, ArmEnvConfig):
-        wanted = ("pybullet", "airo_models") if config.env.robot == "sim" else ("grpc", "google.protobuf")
-        absent = [name for name in wanted if importlib.util.find_spec(name.split(".")[0]) is None]
-        if absent:
-            return f"needs the arm extra ({', '.join(absent)} not installed): pip install 'lagrseq[arm]' (Python <= 3.11)"
-
-    needs_torch = config.primary.kind == "dqn" or (
-        config.method == "lagr-seq" and config.secondary.kind == "neural" and config.secondary.policy == "seq"
+    needs_torch = isinstance(config.primary, DQNConfig) or (
+        config.method == "lagr-seq" and isinstance(config.secondary, NeuralSecondaryConfig) and config.secondary.policy == "seq"
     )
     if needs_torch and importlib.util.find_spec("torch") is None:
         return "needs torch, which is not installed (pip install 'lagrseq[dqn]')"
     return ""
 
 
-# Picture views of the state per task: (topic, message builder, view_topics flag).
-VIEWS: dict[str, tuple[str, Callable[[Any, int], dict[str, Any]], str]] = {
-    "image-completion": (foxglove.IMAGE_TOPIC, foxglove.raw_image, "image"),
-    "object-arrangement": (foxglove.GRID_TOPIC, foxglove.grid, "grid"),
-}
+def arm_dependency(config: ExperimentConfig) -> str:
+    """The simulated arm needs pybullet and airo-models, a remote arm grpcio (the ``arm`` extra);
+    then torch, as every grid task."""
+    import importlib.util
+
+    section = _expect(config.env, ArmEnvConfig, "env")
+    wanted = ("pybullet", "airo_models") if section.robot == "sim" else ("grpc", "google.protobuf")
+    absent = [name for name in wanted if importlib.util.find_spec(name.split(".")[0]) is None]
+    if absent:
+        return f"needs the arm extra ({', '.join(absent)} not installed): pip install 'lagrseq[arm]' (Python <= 3.11)"
+    return torch_dependency(config)
 
 
-VIEWS["arm-arrangement"] = (foxglove.GRID_TOPIC, foxglove.grid, "grid")
-
-
+# ------------------------------------------------------------------------------------------
+# Pictures (Foxglove views) and token estimates, per task
+# ------------------------------------------------------------------------------------------
 def view_topics(config: ExperimentConfig) -> dict[str, tuple[str, str, bytes]] | None:
     """The picture topics of ``config``'s task for the sink (None: the task has none)."""
-    view = VIEWS.get(config.task.name)
-    topics = foxglove.view_topics(**{view[2]: True}) if view else None
-    if topics is not None and isinstance(config.env, ArmEnvConfig):
-        topics.update(foxglove.arm_topics())
+    topics = TASKS.get(config.task.name).view_topics
+    return None if topics is None else topics(config)
+
+
+def image_topics(config: ExperimentConfig) -> dict[str, tuple[str, str, bytes]] | None:
+    return foxglove.view_topics(image=True)
+
+
+def grid_topics(config: ExperimentConfig) -> dict[str, tuple[str, str, bytes]] | None:
+    return foxglove.view_topics(grid=True)
+
+
+def arm_topics(config: ExperimentConfig) -> dict[str, tuple[str, str, bytes]] | None:
+    topics = foxglove.view_topics(grid=True)
+    topics.update(foxglove.arm_topics())
     return topics
 
 
-def robot_views(config: ExperimentConfig, env: Any) -> Callable[[dict[str, Any], int], list[View]] | None:
-    """Arm tasks: after every step the arm's joint state, and every ``env.view_every`` steps a
-    camera frame (PNG), both read from the env's robot."""
-    section = config.env
-    if not isinstance(section, ArmEnvConfig):
-        return None
+def step_views(config: ExperimentConfig, env: Any) -> Callable[[dict[str, Any], int], list[View]] | None:
+    """The pictures written after every step (the task's registered ``views``), from the step's
+    info: the state for Foxglove, and for arm tasks the robot's joints and camera."""
+    views = TASKS.get(config.task.name).views
+    return None if views is None else views(config, env)
+
+
+def _pictures(topic: str, picture: Callable[[Any, int], dict[str, Any]]) -> Callable[[dict[str, Any], int], list[View]]:
+    return lambda info, global_step: [View(topic, picture(info["pattern"], global_step), global_step)]
+
+
+def image_views(config: ExperimentConfig, env: Any) -> Callable[[dict[str, Any], int], list[View]]:
+    return _pictures(foxglove.IMAGE_TOPIC, foxglove.raw_image)
+
+
+def grid_views(config: ExperimentConfig, env: Any) -> Callable[[dict[str, Any], int], list[View]]:
+    return _pictures(foxglove.GRID_TOPIC, foxglove.grid)
+
+
+def arm_views(config: ExperimentConfig, env: Any) -> Callable[[dict[str, Any], int], list[View]]:
+    """The grid picture, then the arm's joint state after every step and every
+    ``env.view_every`` steps a camera frame (PNG), both read from the env's robot."""
+    grid_picture = _pictures(foxglove.GRID_TOPIC, foxglove.grid)
     robot = env.unwrapped.robot
-    every = section.view_every
+    every = _expect(config.env, ArmEnvConfig, "env").view_every
 
     def views(info: dict[str, Any], global_step: int) -> list[View]:
+        out = grid_picture(info, global_step)
         state = robot.joint_state()
-        out = [View(foxglove.JOINTS_TOPIC, foxglove.joint_state(state.names, state.positions, global_step), global_step)]
+        out.append(View(foxglove.JOINTS_TOPIC, foxglove.joint_state(state.names, state.positions, global_step), global_step))
         if every and global_step % every == 0:
             picture = env.unwrapped.render_png()
             if picture is not None:
@@ -550,14 +729,6 @@ def robot_views(config: ExperimentConfig, env: Any) -> Callable[[dict[str, Any],
         return out
 
     return views
-
-
-def _view(config: ExperimentConfig) -> Callable[[Any, int], View] | None:
-    view = VIEWS.get(config.task.name)
-    if view is None:
-        return None
-    topic, picture, _ = view
-    return lambda pattern, global_step: View(topic, picture(pattern, global_step), global_step)
 
 
 def trial_parts(
@@ -592,7 +763,29 @@ def trial_parts(
         primary_rng=seeding.generator(seed, trial, Stream.PRIMARY),
         secondary_rng=seeding.generator(seed, trial, Stream.SECONDARY),
         guidance_rng=seeding.generator(seed, trial, Stream.GUIDANCE),
-        view=_view(config),
-        robot_views=robot_views(config, env),
-        placements=isinstance(config.env, ArmEnvConfig),
+        views=step_views(config, env),
+        guide=make_guide(config, task, env),
     )
+
+
+def make_guide(config: ExperimentConfig, task: Task, env: Any) -> Guide | None:
+    """pi_LLM of the task's env (its registered ``guide``; None: the task's guidance where the
+    env is)."""
+    guide = TASKS.get(config.task.name).guide
+    return None if guide is None else guide(config, task, env)  # type: ignore[no-any-return]
+
+
+def steering_guide(config: ExperimentConfig, task: Task, env: Any) -> Guide:
+    """The released grid code's pi_LLM picks its own cell (the solution's next missing one)
+    instead of the scanned or drawn cell: the env is steered there (its bonus judged by
+    ``guided_goal_threshold``), then the task's guidance acts on it."""
+    steer = env.unwrapped.steer
+
+    def guide(solution: Any, observation: Any, info: dict[str, Any]) -> tuple[int | None, Any, dict[str, Any]]:
+        pattern = info["pattern"]
+        cell = task.guided_cell(pattern, solution, info.get("cursor"))
+        if cell is not None:
+            observation, info = steer(cell)
+        return task.guidance(pattern, solution, info.get("cursor")), observation, info
+
+    return guide

@@ -8,6 +8,7 @@ placed on the map.
 
 from __future__ import annotations
 
+import importlib.util as importlib_util
 import json
 import pkgutil
 import subprocess
@@ -53,7 +54,8 @@ LAYERS: dict[str, tuple[str, ...]] = {
     "lagrseq.reproduce": ("lagrseq.cli", "dask", "distributed", *HEAVY),
     # executors: the process pool and the interface; dask only in its own module, on demand
     "lagrseq.executors": ("lagrseq.analysis", "lagrseq.recording", "lagrseq.reproduce", "lagrseq.cli", "dask", "distributed", *HEAVY),
-    "lagrseq.dask_executor": ("lagrseq.analysis", "lagrseq.recording", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),
+    "lagrseq.executor_base": ("lagrseq.executors", "lagrseq.dask_executor", "lagrseq.analysis", "lagrseq.recording", "lagrseq.reproduce", "lagrseq.cli", "dask", "distributed", *HEAVY),
+    "lagrseq.dask_executor": ("lagrseq.executors", "lagrseq.analysis", "lagrseq.recording", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),
     # the robot behind the arm env: no RL, no LLM, no logs; pybullet and grpc only when built
     "lagrseq.robot": ("lagrseq.tasks", "lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", "lagrseq.suite", *UPPER, *HEAVY, "grpc", "mcap", "gymnasium"),
     # the generated gRPC code imports protobuf and grpc themselves (the arm extra)
@@ -68,7 +70,7 @@ OPTIONAL = {
 }
 """Modules that need an extra to import at all (the Dask executor, generated gRPC code): checked
 only where it is installed."""
-ANYONE = ("lagrseq.config", "lagrseq.errors", "lagrseq.seeding", "lagrseq.paths", "lagrseq.tomlfile")
+ANYONE = ("lagrseq.config", "lagrseq.errors", "lagrseq.seeding", "lagrseq.paths", "lagrseq.tomlfile", "lagrseq.registry", "lagrseq.builtins")
 
 
 def modules() -> list[str]:
@@ -142,3 +144,82 @@ def test_no_module_imports_what_its_layer_forbids() -> None:
         if bad:
             problems[name] = bad
     assert problems == {}, f"layer rules broken (module: what it loads): {problems}"
+
+
+def import_graph() -> dict[str, set[str]]:
+    """Module -> the lagrseq modules it imports, anywhere in its source (top level or inside a
+    function: a lazy import is still a dependency), read from the syntax tree."""
+    import ast
+
+    names = set(modules())
+    graph: dict[str, set[str]] = {}
+    for name in names:
+        spec = importlib_util.find_spec(name)
+        assert spec is not None and spec.origin is not None
+        package = name if spec.origin.endswith("__init__.py") else name.rpartition(".")[0]
+        edges: set[str] = set()
+        for node in ast.walk(ast.parse(Path(spec.origin).read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                edges |= {_owner(alias.name, names) for alias in node.names}
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:
+                    parent = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
+                    base = f"{parent}.{base}" if base else parent
+                edges |= {_owner(f"{base}.{alias.name}", names) for alias in node.names}
+        graph[name] = {e for e in edges if e in names and e != name}
+    return graph
+
+
+def _owner(dotted: str, names: set[str]) -> str:
+    """The module ``dotted`` names or lives in (``lagrseq.x.func`` -> ``lagrseq.x``)."""
+    while dotted and dotted not in names:
+        dotted = dotted.rpartition(".")[0]
+    return dotted
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan), each sorted."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    found: list[list[str]] = []
+
+    def visit(node: str) -> None:
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        for other in sorted(graph.get(node, ())):
+            if other not in index:
+                visit(other)
+                low[node] = min(low[node], low[other])
+            elif other in stack:
+                low[node] = min(low[node], index[other])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                top = stack.pop()
+                component.append(top)
+                if top == node:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for node in sorted(graph):
+        if node not in index:
+            visit(node)
+    return found
+
+
+def test_the_cycle_finder_finds_a_cycle() -> None:
+    assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_no_import_cycle_between_modules() -> None:
+    """No two modules import each other, directly or through others (lazy imports included):
+    the package's modules form layers, not a knot (the package ``lagrseq`` itself, which every
+    module's import loads, is left out)."""
+    graph = import_graph()
+    graph.pop("lagrseq", None)
+    graph = {m: e - {"lagrseq"} for m, e in graph.items()}
+    assert cycles(graph) == []

@@ -52,6 +52,7 @@ from lagrseq.analysis.tables import Table, interval, number, to_csv, to_markdown
 from lagrseq.errors import LogError
 from lagrseq.frontier import TUNING_NOTE, matched_probability, wants_match
 from lagrseq.logs.reader import read_info
+from lagrseq.registry import kind_of, paid_sources, stored_sources
 
 Price = Callable[[str, int, int], float | None]
 MISS_THRESHOLD = 0.1
@@ -200,13 +201,14 @@ def _dollars(run: Run, price: Price | None, fallback_tokens: tuple[float, float]
     sent = q[q["queried"].astype(bool)]
     per_trial = dict.fromkeys(trials, 0.0)
     estimated = False
+    paid = paid_sources()
     asked = str(run.config.get("llm", {}).get("model", ""))  # what a live run would pay for
     for trial, model, source, cost, prompt, completion in zip(
         sent["trial"], sent["model"], sent["source"], sent["cost_usd"], sent["prompt_tokens"],
         sent["completion_tokens"], strict=True,
     ):
         usd: float | None = None
-        if source == "live" and not _nan(cost):
+        if source in paid and not _nan(cost):
             usd = float(cost)
         else:
             tokens: tuple[float, float] | None = None
@@ -222,29 +224,14 @@ def _dollars(run: Run, price: Price | None, fallback_tokens: tuple[float, float]
 
 def estimated_tokens(config: dict[str, Any]) -> tuple[float, float] | None:
     """Tokens of one query of ``config``'s task, estimated as the mock does (about 4 characters
-    a token): the prompt of the empty pattern, and an answer the size of a full pattern (a list
-    of letters for cubes, a bracketed 0/1 matrix for grids)."""
-    from lagrseq.tasks import cube
-    from lagrseq.tasks.arrangement import object_arrangement
-    from lagrseq.tasks.image import image_completion
+    a token): the task's registered ``estimated_tokens`` (None: the task has no estimate)."""
+    from lagrseq.registry import TASKS
 
     task = config.get("task", {})
-    name = task.get("name")
-    try:
-        if name == "cube-stacking":
-            size = int(task.get("stack_size", 8))
-            prompt = cube.CubeStacking(size).prompt(())
-            answer = 4 * size + 2
-        elif name in ("image-completion", "object-arrangement"):
-            make = image_completion if name == "image-completion" else object_arrangement
-            grid = make(task.get("target", "x"), float(task.get("goal_threshold", 1.0)), task.get("prompt_matrix", "numpy"))
-            prompt = grid.prompt(np.zeros((grid.rows, grid.cols), dtype=np.int8))
-            answer = 2 * grid.rows * grid.cols + 2 * grid.rows
-        else:
-            return None
-    except (TypeError, ValueError, KeyError):
+    spec = TASKS.find(str(task.get("name"))) if isinstance(task, dict) else None
+    if spec is None or spec.estimated_tokens is None:
         return None
-    return float(max(1, len(prompt) // 4)), float(max(1, answer // 4))
+    return spec.estimated_tokens(config)
 
 
 def _nan(value: Any) -> bool:
@@ -280,17 +267,19 @@ def point_of(run: Run, price: Price | None, fallback_tokens: tuple[float, float]
         steps.append(float(done["global_step"].iloc[0]) if not done.empty else float(rows["length"].sum()))
     q = run.queries
     sent = q[q["queried"].astype(bool)] if not q.empty else q
-    recorded = str(run.key.provider).startswith("recorded")
+    kind = kind_of(str(run.key.provider))
+    recorded = kind is not None and kind.replays
     queries = np.array([float((sent["trial"] == t).sum()) if len(sent) else 0.0 for t in trials])
-    if recorded and len(sent):
-        fallback = np.array([float(((sent["trial"] == t) & (sent["source"] != "recorded")).sum()) for t in trials])
+    if kind is not None and kind.replays and len(sent):
+        missed = ~sent["source"].isin(stored_sources())
+        fallback = np.array([float(((sent["trial"] == t) & missed).sum()) for t in trials])
     else:
         fallback = np.zeros(len(trials))
     outside = np.zeros(len(trials), dtype=bool)
     if recorded and len(sent):
         taken = sent[sent["accepted"].fillna(False).astype(bool)].sort_values(["trial", "global_step"])
         first = taken.groupby("trial")["source"].first()
-        outside = np.array([t in first.index and first[t] != "recorded" for t in trials], dtype=bool)
+        outside = np.array([t in first.index and first[t] not in stored_sources() for t in trials], dtype=bool)
     dollars, estimated = _dollars(run, price, fallback_tokens)
     metadata = _metadata(run)
     return Point(
@@ -301,14 +290,19 @@ def point_of(run: Run, price: Price | None, fallback_tokens: tuple[float, float]
     )
 
 
-ORDER = {"never": 0, "always": 1, "seq": 2, "random": 3, "thompson": 4, "oracle": 5}
+def policy_order(name: str) -> int:
+    """Where a policy goes in tables and figures: its registered ``order`` (unknown ones last)."""
+    from lagrseq.registry import POLICIES
+
+    spec = POLICIES.find(name)
+    return 1000 if spec is None else spec.order
 
 
 def points_of(runs: Sequence[Run], price: Price | None) -> list[Point]:
     """One summarised point per run, in the tables' order (policy, then the swept knob)."""
     tokens = _median_tokens(runs)
     points = [point_of(run, price, tokens) for run in runs]
-    points.sort(key=lambda p: (ORDER.get(p.policy, 9), _knob_value(p.run.config), p.knobs))
+    points.sort(key=lambda p: (policy_order(p.policy), _knob_value(p.run.config), p.knobs))
     summarise(points)
     return points
 
@@ -499,7 +493,7 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
         scope = SCOPE_TEXT.get(scope_of(points[0].run.config), scope_of(points[0].run.config))
         role = " (tuning seeds)" if any(p.tuning.get("role") == "tuning" for p in points) else ""
         title = f"Query-efficiency frontier: {first.task} ({first.preset}, {shown}, seed {first.seed}{role}; {scope})"
-        if first.task == "cube-stacking" and first.preset == "upstream":
+        if points[0].run.config.get("env", {}).get("wrong_cube_reward") == "pre-revert":
             title += " [confound: the upstream environment rewards wrong cubes, which pays policies that guide fewer episodes]"
     return Table(title, columns, tuple(rows), pd.DataFrame(data))
 

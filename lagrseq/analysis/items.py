@@ -130,11 +130,14 @@ def match(
 def recorded_misses(run: Run) -> str:
     """For a run on a recorded store: "K of N answers not recorded (mock)" from its queries'
     ``source`` column; empty for other runs."""
-    if not run.key.provider.startswith("recorded:") or run.queries.empty:
+    from lagrseq.registry import kind_of, stored_sources
+
+    kind = kind_of(run.key.provider)
+    if kind is None or not kind.replays or ":" not in run.key.provider or run.queries.empty:
         return ""
     asked = run.queries[run.queries["queried"].fillna(False).astype(bool)]
     sources = asked["source"].fillna("").astype(str)
-    misses = sources[sources != "recorded"]
+    misses = sources[~sources.isin(stored_sources())]
     if len(asked) == 0:
         return "no queries"
     kinds = "/".join(sorted(set(misses))) or "mock"
@@ -524,8 +527,11 @@ def build_frontier(item: Item, matched: Sequence[Match], price: Price | None = N
 def _slug(provider: str) -> str:
     """A file-name part for a provider spec: ``mock-authors-t0``; a recorded store by its folder
     or file name alone (``recorded-authors-answers``), so names do not depend on where it is."""
+    from lagrseq.registry import kind_of
+
     kind, _, argument = provider.partition(":")
-    text = f"{kind}-{PurePath(argument).name}" if kind == "recorded" else provider
+    found = kind_of(provider)
+    text = f"{kind}-{PurePath(argument).name}" if found is not None and found.replays else provider
     return "".join(ch if ch.isalnum() else "-" for ch in text).strip("-")[-40:]
 
 

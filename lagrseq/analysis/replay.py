@@ -244,9 +244,11 @@ def replay(
 def _arm_animation(report: ItemReport, out: Path, written: list[Path]) -> None:
     """Arm items: a GIF of the last solved episode of the last trial of the item's first arm run."""
     from lagrseq.analysis.arm_gif import episode_gif
+    from lagrseq.registry import TASKS
 
     for m in report.matched:
-        if m.run is None or not m.run.paths or m.run.config.get("task", {}).get("name") != "arm-arrangement":
+        task = TASKS.find(str(m.run.config.get("task", {}).get("name"))) if m.run is not None else None
+        if m.run is None or not m.run.paths or task is None or not task.renders:  # the arm's episodes
             continue
         path = out / "figures" / f"{report.item.id}-arm.gif"
         shown = episode_gif(m.run.paths[-1], path)

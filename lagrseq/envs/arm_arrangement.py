@@ -10,6 +10,7 @@ import numpy as np
 
 from lagrseq.envs.object_arrangement import ObjectArrangementEnv
 from lagrseq.robot import PlacementResult, Robot, RobotError
+from lagrseq.tasks.base import EPISODE_LOG, STEP_LOG
 
 
 def make_robot(spec: str | Robot, timeout_s: float = 30.0, token_file: str = "", tls_ca: str = "") -> Robot:
@@ -114,6 +115,7 @@ class ArmArrangementEnv(ObjectArrangementEnv):
         if (self.robot.rows, self.robot.cols) != (self.rows, self.cols):
             raise RobotError(f"the robot's grid is {self.robot.rows}x{self.robot.cols}; this task needs {self.rows}x{self.cols}")
         self._placement: PlacementResult | None = None
+        self._placements = self._failed = 0
         self.recorder: Callable[[str], None] | None = None
         """Called after every reset ("reset") and step ("step"), and at close ("close"): the
         ``--render`` frame writer (:class:`lagrseq.robot.render.EpisodeRenderer`)."""
@@ -126,7 +128,11 @@ class ArmArrangementEnv(ObjectArrangementEnv):
 
     def _info(self, matches: int | None = None) -> dict[str, Any]:
         info = super()._info(matches)
-        info["placement"] = None if self._placement is None else self._placement.to_dict()
+        placement = None if self._placement is None else self._placement.to_dict()
+        info["placement"] = placement
+        if placement is not None:  # the step's /transition record says what the robot did
+            info[STEP_LOG] = {"placement": placement}
+        info[EPISODE_LOG] = {"placements": self._placements, "failed_placements": self._failed}
         return info
 
     def reset(
@@ -136,6 +142,7 @@ class ArmArrangementEnv(ObjectArrangementEnv):
         self.robot.clear()
         self._read_table()
         self._placement = None
+        self._placements = self._failed = 0
         self._steps = 0
         self._cursor = self._draw_cell()
         if self.recorder is not None:
@@ -149,6 +156,8 @@ class ArmArrangementEnv(ObjectArrangementEnv):
         self._placement = None
         if action == 1 and self._grid[cursor] == 0 and self._target[cursor] == 1:
             self._placement = self.robot.place(*cursor)  # only rewarded drops are executed
+            self._placements += 1
+            self._failed += not self._placement.ok
             self._read_table()
         after = self._matches()
         goal = self._goal(after)

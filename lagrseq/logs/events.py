@@ -114,6 +114,21 @@ class ArmEpisodeEvent(EpisodeEvent, frozen=True, gc=False):
     """Of those, the ones that failed (unreachable, outside the cell, tipped, not resting)."""
 
 
+EPISODE_RECORDS: tuple[type[EpisodeEvent], ...] = (ArmEpisodeEvent,)
+"""The ``/episode`` records with extra fields, found by those fields (see :func:`episode_event`)."""
+
+
+def episode_event(extra: dict[str, Any] | None = None, **summary: Any) -> EpisodeEvent:
+    """The ``/episode`` record of ``summary``, with the extra fields an env counted
+    (``info["log_episode"]``): the record type whose extra fields they are."""
+    if not extra:
+        return EpisodeEvent(**summary)
+    for record in EPISODE_RECORDS:
+        if set(extra) == set(record.__struct_fields__) - set(EpisodeEvent.__struct_fields__):
+            return record(**summary, **extra)
+    raise ValueError(f"no /episode record has the fields {sorted(extra)}")
+
+
 class View(NamedTuple):
     """A picture of the state for Foxglove (``foxglove.RawImage`` or ``foxglove.Grid``)."""
 

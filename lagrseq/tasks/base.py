@@ -14,6 +14,13 @@ import numpy as np
 Pattern = Any
 Solution = Any
 
+STEP_LOG = "log_step"
+"""An env's ``info`` key (optional): extra fields of the step's ``/transition`` record (the arm's
+``placement``), set on the step that has them."""
+EPISODE_LOG = "log_episode"
+"""An env's ``info`` key (optional): extra fields of the episode's ``/episode`` record, counted by
+the env since its last reset (the arm's ``placements`` and ``failed_placements``)."""
+
 MAX_ANSWER_CHARS = 16_000
 """The longest answer text (in characters) a task's parser reads. Real answers are under 2 kB
 (a 10 x 10 matrix with prose, or 256 tokens of a small model's prose); anything longer is refused

@@ -1,0 +1,96 @@
+"""The example plugin, installed (``pip install -e examples/lagrseq-numseq``): its parts alone,
+then through lagrseq's own command line in fresh interpreters (lagrseq finds it by entry point)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from lagrseq_numseq.env import NumberSequenceEnv
+from lagrseq_numseq.policy import Backoff
+from lagrseq_numseq.task import NumberSequence, extrapolate
+
+from lagrseq.config import load
+from lagrseq.registry import POLICIES, TASKS
+
+TASK = NumberSequence(start=2, step=3, length=6, values=20)
+
+
+def lagrseq(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "lagrseq", *args], capture_output=True, text=True, cwd=cwd, timeout=300)
+
+
+def test_the_mock_continues_a_prefix_and_its_answer_parses_to_the_target() -> None:
+    rng = np.random.default_rng(0)
+    answer = extrapolate(TASK.prompt((2, 5)), 0.0, rng)
+    assert answer == "[2, 5, 8, 11, 14, 17]"
+    parsed = TASK.parse(answer)
+    assert parsed.ok and TASK.evaluate(parsed.solution) == 1.0
+    assert TASK.evaluate(TASK.parse(extrapolate(TASK.prompt(()), 0.0, rng)).solution) == 0.0  # 0, 1, 2 ...: no position right
+
+
+@given(st.text(max_size=200))
+def test_the_parser_never_raises(text: str) -> None:
+    parsed = TASK.parse(text)
+    assert parsed.ok == (parsed.solution is not None)
+
+
+def test_the_env_appends_only_the_right_number_and_pays_the_bonus_at_the_end() -> None:
+    env = NumberSequenceEnv(TASK, horizon=20, bonus=1.0)
+    _, info = env.reset(seed=0)
+    assert info["pattern"] == ()
+    _, reward, terminated, _, info = env.step(7)
+    assert (reward, terminated, info["pattern"]) == (0.0, False, ())
+    for number in TASK.target:
+        assert TASK.guidance(info["pattern"], TASK.target) == number
+        _, reward, terminated, _, info = env.step(number)
+    assert terminated and info["pattern"] == TASK.target and reward == pytest.approx(1 / 6 + 1.0)
+    with pytest.raises(ValueError, match="outside Discrete"):
+        env.step(20)
+
+
+def test_backoff_halves_after_a_rejected_answer_and_resets_every_episode() -> None:
+    class Context:
+        def __init__(self, episode: int) -> None:
+            self.episode, self.rng, self.accepted = episode, np.random.default_rng(0), False
+
+    policy = Backoff(0.8)
+    policy.decide(Context(0))
+    policy.update(Context(0), 1, -1.0)
+    policy.update(Context(0), 1, -1.0)
+    assert policy.probability == pytest.approx(0.2)
+    policy.decide(Context(1))
+    assert policy.probability == pytest.approx(0.8)
+
+
+def test_lagrseq_finds_the_task_and_the_policy_by_entry_point() -> None:
+    assert "number-sequence" in TASKS.names() and "backoff" in POLICIES.names()
+    config = load("number-sequence", "lagr-seq", "paper", overrides=['secondary.policy="backoff"', "task.length=4"])
+    assert config.task.length == 4 and config.secondary.policy == "backoff"
+
+
+def test_plugins_run_frontier_and_replay_through_the_command_line(tmp_path: Path) -> None:
+    listed = lagrseq("plugins", cwd=tmp_path)
+    assert listed.returncode == 0, listed.stderr
+    assert "number-sequence     lagrseq-numseq 0.1.0" in listed.stdout
+    assert "backoff   lagrseq-numseq 0.1.0" in listed.stdout
+    run = lagrseq("run", "number-sequence", "--method", "lagr-seq", "--provider", "mock", "--trials", "2", "--jobs", "1", "--quiet", "--out", str(tmp_path / "runs"), cwd=tmp_path)
+    assert run.returncode == 0, run.stderr
+    assert len(list((tmp_path / "runs").rglob("trial-*.mcap"))) == 2
+    frontier = lagrseq("frontier", "number-sequence", "--policies", "always,backoff", "--trials", "2", "--jobs", "1", "--quiet", "--out", str(tmp_path / "fr"), cwd=tmp_path)
+    assert frontier.returncode == 0, frontier.stderr
+    assert "backoff" in frontier.stdout and "always" in frontier.stdout
+    for logs in ("runs", "fr"):
+        replayed = lagrseq("replay", str(tmp_path / logs), "--out", str(tmp_path / f"report-{logs}"), cwd=tmp_path)
+        assert replayed.returncode == 0, replayed.stderr
+    again = lagrseq("frontier", "--replay", str(tmp_path / "fr"), "--out", str(tmp_path / "again"), cwd=tmp_path)
+    assert again.returncode == 0, again.stderr
+    variants = json.loads((tmp_path / "fr" / "frontier.json").read_text())
+    assert [(v["policy"], v["method"]) for v in variants] == [("always", "lagr"), ("backoff", "lagr-seq")]
+    assert list((tmp_path / "again").glob("*.png"))

@@ -1,0 +1,181 @@
+"""The built-in parts, registered in ``lagrseq.registry``: four tasks, four provider kinds, six
+asking policies, two executors. Read once, on the first use of a registry.
+
+A third-party package registers its parts the same way, through entry points (see
+``docs/extending.md``). The factories here are lazy references (``module:function``), so this
+module imports nothing beyond the configuration: the concrete parts load when a run builds them.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from lagrseq import config as cfg
+from lagrseq.registry import (
+    EXECUTORS,
+    POLICIES,
+    PROVIDERS,
+    TASKS,
+    ExecutorSpec,
+    PolicySpec,
+    ProviderKind,
+    TaskSpec,
+)
+
+
+def lazy(target: str) -> Callable[..., Any]:
+    """A function calling ``module:attribute``, imported on the first call."""
+    module, _, attribute = target.partition(":")
+
+    def call(*args: Any, **kwargs: Any) -> Any:
+        return getattr(importlib.import_module(module), attribute)(*args, **kwargs)
+
+    call.__name__ = attribute
+    call.__qualname__ = target
+    return call
+
+
+def presets(task: str) -> Path:
+    """The packaged preset folder of a built-in task."""
+    return Path(str(resources.files("lagrseq") / "experiments" / task))
+
+
+WIRING = "lagrseq.wiring"
+GRID_SECONDARY = {"primary": cfg.DQNConfig, "secondary": cfg.NeuralSecondaryConfig}
+
+TASKS.register(
+    TaskSpec(
+        name="cube-stacking",
+        sections={"task": cfg.CubeTaskConfig, "env": cfg.CubeEnvConfig, "primary": cfg.TabularConfig, "secondary": cfg.TabularSecondaryConfig},
+        presets=presets("cube-stacking"),
+        make_task=lazy(f"{WIRING}:cube_task"),
+        make_env=lazy(f"{WIRING}:cube_env"),
+        extrapolator=lazy(f"{WIRING}:cube_extrapolator"),
+        profiles=lazy(f"{WIRING}:cube_profiles"),
+        missing_dependency=lazy(f"{WIRING}:torch_dependency"),
+        estimated_tokens=lazy("lagrseq.tasks.estimates:cube_tokens"),
+        frontier_preset="paper",
+        description="stack cubes in the target order",
+    )
+)
+TASKS.register(
+    TaskSpec(
+        name="image-completion",
+        sections={"task": cfg.ImageTaskConfig, "env": cfg.ImageEnvConfig, **GRID_SECONDARY},
+        presets=presets("image-completion"),
+        make_task=lazy(f"{WIRING}:image_task"),
+        make_env=lazy(f"{WIRING}:image_env"),
+        extrapolator=lazy(f"{WIRING}:grid_extrapolator"),
+        profiles=lazy(f"{WIRING}:grid_profiles_of"),
+        view_topics=lazy(f"{WIRING}:image_topics"),
+        views=lazy(f"{WIRING}:image_views"),
+        guide=lazy(f"{WIRING}:steering_guide"),
+        missing_dependency=lazy(f"{WIRING}:torch_dependency"),
+        estimated_tokens=lazy("lagrseq.tasks.estimates:image_tokens"),
+        solution_scopes=("episode", "trial"),
+        description="draw a 10 x 10 image cell by cell",
+    )
+)
+TASKS.register(
+    TaskSpec(
+        name="object-arrangement",
+        sections={"task": cfg.ArrangementTaskConfig, "env": cfg.ArrangementEnvConfig, **GRID_SECONDARY},
+        presets=presets("object-arrangement"),
+        make_task=lazy(f"{WIRING}:arrangement_task"),
+        make_env=lazy(f"{WIRING}:arrangement_env"),
+        extrapolator=lazy(f"{WIRING}:grid_extrapolator"),
+        profiles=lazy(f"{WIRING}:grid_profiles_of"),
+        view_topics=lazy(f"{WIRING}:grid_topics"),
+        views=lazy(f"{WIRING}:grid_views"),
+        guide=lazy(f"{WIRING}:steering_guide"),
+        missing_dependency=lazy(f"{WIRING}:torch_dependency"),
+        estimated_tokens=lazy("lagrseq.tasks.estimates:arrangement_tokens"),
+        solution_scopes=("episode", "trial"),
+        description="place objects on a 5 x 5 table",
+    )
+)
+TASKS.register(
+    TaskSpec(
+        name="arm-arrangement",
+        sections={"task": cfg.ArmTaskConfig, "env": cfg.ArmEnvConfig, **GRID_SECONDARY},
+        presets=presets("arm-arrangement"),
+        make_task=lazy(f"{WIRING}:arm_task"),
+        make_env=lazy(f"{WIRING}:make_arm_env"),
+        extrapolator=lazy(f"{WIRING}:grid_extrapolator"),
+        profiles=lazy(f"{WIRING}:grid_profiles_of"),
+        view_topics=lazy(f"{WIRING}:arm_topics"),
+        views=lazy(f"{WIRING}:arm_views"),
+        guide=lazy(f"{WIRING}:steering_guide"),
+        missing_dependency=lazy(f"{WIRING}:arm_dependency"),
+        renders=True,
+        solution_scopes=("episode", "trial"),
+        calibration_steps=100,  # a simulated arm step is slow: 100 steps time it well enough
+        description="object arrangement placed by a simulated or remote UR5e arm (the arm extra)",
+    )
+)
+
+PROVIDERS.register(
+    ProviderKind(
+        name="mock",
+        usage="mock, mock:PROFILE",
+        make=lazy(f"{WIRING}:make_mock"),
+        check_spec=lazy(f"{WIRING}:check_mock_spec"),
+        source="mock",
+        synthetic=True,
+        description="the task's rule-based extrapolator (or a calibrated profile of it); offline, free",
+    )
+)
+PROVIDERS.register(
+    ProviderKind(
+        name="recorded",
+        usage="recorded:STORE",
+        make=lazy(f"{WIRING}:make_recorded"),
+        check_spec=lazy(f"{WIRING}:check_recorded_spec"),
+        source="recorded",
+        replays=True,
+        description="answers recorded before (a store directory or a JSONL export); offline",
+    )
+)
+PROVIDERS.register(
+    ProviderKind(
+        name="live",
+        usage="live, live:MODEL",
+        make=lazy(f"{WIRING}:make_live_provider"),
+        with_model=lazy(f"{WIRING}:live_model"),
+        source="live",
+        paid=True,
+        records=True,
+        description="an OpenAI-compatible server, asked now (--base-url, --api-key-env)",
+    )
+)
+PROVIDERS.register(
+    ProviderKind(
+        name="local",
+        usage="local or local:MODEL.gguf",
+        make=lazy(f"{WIRING}:make_local_provider"),
+        with_model=lazy(f"{WIRING}:local_model"),
+        check=lazy(f"{WIRING}:check_local"),
+        source="live",
+        local_server=True,
+        records=True,
+        description="a llama.cpp server started on this machine for the run (the local extra)",
+    )
+)
+
+POLICY = "lagrseq.policies"
+GATES = ("min_progress", "budget", "budget_scope", "query_cost")
+"""Knobs every policy has: the progress gate, the query budget and the per-query cost."""
+
+POLICIES.register(PolicySpec("never", lazy(f"{POLICY}:make_never"), GATES, method="baseline", order=0, description="never ask (the baseline's behaviour)"))
+POLICIES.register(PolicySpec("always", lazy(f"{POLICY}:make_always"), GATES, method="lagr", order=1, description="ask whenever triggered (LaGR)"))
+POLICIES.register(PolicySpec("seq", lazy(f"{POLICY}:make_seq"), (*GATES, "query_reward", "learning_rate"), order=2, description="the paper's SEQ bandit"))
+POLICIES.register(PolicySpec("random", lazy(f"{POLICY}:make_random"), (*GATES, "ask_probability"), order=3, description="ask with probability ask_probability"))
+POLICIES.register(PolicySpec("thompson", lazy(f"{POLICY}:make_thompson"), (*GATES, "thompson_prior", "query_reward"), order=4, description="Thompson sampling over a posterior per context"))
+POLICIES.register(PolicySpec("oracle", lazy(f"{POLICY}:make_oracle"), GATES, order=5, peeks=True, description="ask only when the answer would be accepted (a lower bound)"))
+
+EXECUTORS.register(ExecutorSpec("local", lazy("lagrseq.executors:make_local"), runner_pool=True, description="a process pool on this machine (--jobs)"))
+EXECUTORS.register(ExecutorSpec("dask", lazy("lagrseq.executors:make_dask"), takes_scheduler=True, workers=("Dask worker", "Dask workers"), description="a Dask cluster: a LocalCluster, or --scheduler tcp://HOST:PORT (the dask extra)"))

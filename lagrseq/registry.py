@@ -1,0 +1,356 @@
+"""The registries: every task, provider kind, asking policy and executor lagrseq knows, by name.
+
+Each kind of part has one :class:`Registry`. The built-in parts are registered by
+``lagrseq.builtins`` (read on first use); third-party packages add theirs through entry points in
+the groups ``lagrseq.tasks``, ``lagrseq.providers``, ``lagrseq.policies``, ``lagrseq.executors`` (groups
+loaded lazily, on first use of that registry). An entry point names a
+spec (:class:`TaskSpec`, :class:`ProviderKind`, :class:`PolicySpec`, :class:`ExecutorSpec`), a
+sequence of specs, or a function of no arguments returning either. A plugin whose import or
+registration raises is skipped with one stderr line naming it; the others, and every built-in,
+keep working.
+
+This module is stdlib only: a spec's factories are plain callables, and the built-ins import
+the heavy parts inside them, so reading a registry never imports torch, gymnasium or httpx.
+Callers ask a spec what a part can do instead of comparing its name (``spec.paid``, not
+``kind == "live"``).
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Generic, TypeVar
+
+from lagrseq.errors import UsageError
+
+BUILTIN = "lagrseq"
+"""The source of the built-in parts (``lagrseq plugins``)."""
+
+GROUPS = {kind: f"lagrseq.{kind}" for kind in ("tasks", "providers", "policies", "executors")}
+"""Registry name -> entry-point group (``lagrseq.tasks`` ...)."""
+
+
+# ------------------------------------------------------------------------------------------
+# Specs
+# ------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TaskSpec:
+    """A pattern-completion task, registered in one place.
+
+    Every callable takes the resolved ``ExperimentConfig`` first. Only ``sections``,
+    ``presets``, ``make_task``, ``make_env`` and ``extrapolator`` are required."""
+
+    name: str
+    """The task's name (``[task] name``, ``lagrseq run NAME``)."""
+    sections: Mapping[str, type]
+    """The dataclass reading each task-specific section: ``task``, ``env``, ``primary``,
+    ``secondary`` (the ``[lagr]``, ``[llm]`` and ``[run]`` sections are shared)."""
+    presets: Path
+    """The folder holding the task's preset files, ``upstream.toml`` and ``paper.toml``."""
+    make_task: Callable[[Any], Any]
+    """config -> the task (``lagrseq.tasks.base.Task``): prompt, parser, evaluation, guidance."""
+    make_env: Callable[[Any, Path | None], Any]
+    """(config, render_dir) -> the task's Gymnasium env."""
+    extrapolator: Callable[[Any, str], Callable[..., str]]
+    """(config, profile) -> what ``--provider mock[:PROFILE]`` answers with (``ideal``: the
+    rule-based extrapolator; raises UsageError for a profile the task lacks)."""
+    profiles: tuple[str, ...] | Callable[[], tuple[str, ...]] = ()
+    """Mock profiles besides ``ideal`` (``--provider mock:PROFILE``), or a function returning
+    them (read when a spec is parsed)."""
+    view_topics: Callable[[Any], dict[str, tuple[str, str, bytes]] | None] | None = None
+    """config -> the picture topics the sink registers (None: no pictures)."""
+    views: Callable[[Any, Any], Callable[[dict[str, Any], int], list[Any]] | None] | None = None
+    """(config, env) -> the pictures after each step, from the step's info (``View`` records)."""
+    guide: Callable[[Any, Any, Any], Callable[..., Any]] | None = None
+    """(config, task, env) -> pi_LLM, ``(solution, observation, info) -> (action or None,
+    observation, info)``, where the env lets it choose where to act (None: the task's
+    ``guidance`` wherever the env is)."""
+    missing_dependency: Callable[[Any], str] | None = None
+    """config -> why it cannot run with the installed extras ("" when it can)."""
+    estimated_tokens: Callable[[dict[str, Any]], tuple[float, float] | None] | None = None
+    """A logged configuration (JSON data) -> (prompt, answer) tokens of one query, estimated
+    (the frontier's cost of answers that logged no usage)."""
+    renders: bool = False
+    """``--render DIR`` draws its episodes (``make_env`` gets the folder)."""
+    calibration_steps: int | None = None
+    """``lagrseq reproduce --calibrate``: steps per calibration run (None: the default)."""
+    frontier_preset: str = "upstream"
+    """The preset ``lagrseq frontier`` runs when ``--preset`` is not given (cube stacking: the
+    paper's, whose environment pays nothing for wrong cubes, so fewer guided episodes earn no
+    return of their own)."""
+    solution_scopes: tuple[str, ...] = ()
+    """The ``lagr.solution_scope`` regimes ``frontier --scopes auto`` compares (the grid tasks
+    keep an accepted answer for the trial, so asking again only matters per episode); empty: the
+    preset's own."""
+    description: str = ""
+
+
+def task_profiles(spec: TaskSpec) -> tuple[str, ...]:
+    """The mock profiles of a task."""
+    return tuple(spec.profiles() if callable(spec.profiles) else spec.profiles)
+
+
+@dataclass(frozen=True)
+class ProviderSpec:
+    """A parsed ``--provider`` value: ``kind[:argument]``."""
+
+    kind: str
+    argument: str = ""
+    """The mock's profile, the recorded store's directory (or JSONL file), the live model, or
+    the local model's GGUF file."""
+
+    def __str__(self) -> str:
+        return f"{self.kind}:{self.argument}" if self.argument else self.kind
+
+
+@dataclass(frozen=True)
+class ProviderKind:
+    """A kind of answer source (``--provider KIND[:ARGUMENT]``)."""
+
+    name: str
+    """The spec prefix."""
+    usage: str
+    """How the spec is written (``recorded:STORE``), for help and errors."""
+    make: Callable[..., Any]
+    """(spec, config, rng, options) -> the provider of one trial."""
+    options: type | None = None
+    """The dataclass of this kind's own command-line options (None: it has none)."""
+    check_spec: Callable[[ProviderSpec], None] | None = None
+    """Checks the argument at parse time; raises UsageError (one line)."""
+    check: Callable[..., None] | None = None
+    """(spec, config, options) -> None: fail before any trial starts (no answer is sent). Default:
+    build the provider once and close it."""
+    with_model: Callable[[Any, ProviderSpec], Any] | None = None
+    """(config, spec) -> the configuration naming the model this spec asks (logs say so)."""
+    source: str = ""
+    """The ``source`` its answers carry in the ``/query`` log (``mock``, ``recorded``, ``live``)."""
+    synthetic: bool = False
+    """Its answers are made up by the task's extrapolator, no model is asked (the suite's
+    default runs, which recorded answers may replace)."""
+    local_server: bool = False
+    """It starts a model server on this machine (checked without starting one)."""
+    paid: bool = False
+    """Its answers may cost money (budgets, the oracle's refusal, ledgers)."""
+    records: bool = False
+    """``lagrseq record`` can ask it and store its answers."""
+    replays: bool = False
+    """It answers from stored answers (``--on-miss`` applies)."""
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class PolicySpec:
+    """An asking policy (``secondary.policy``, ``lagrseq frontier --policies``)."""
+
+    name: str
+    make: Callable[[Any, Callable[[], Any]], Any]
+    """(the ``[secondary]`` section, a builder of the paper's SEQ agent) -> the policy
+    (``decide(context)``, ``update(context, asked, query_reward)``)."""
+    knobs: tuple[str, ...] = ()
+    """The ``[secondary]`` fields it reads (``lagrseq frontier``'s NAME:FIELD=VALUE)."""
+    method: str = "lagr-seq"
+    """The method that runs it without knobs (``never``: baseline, ``always``: lagr)."""
+    order: int = 100
+    """Its place in frontier tables and figures (built-ins 0-9, plugins after them)."""
+    peeks: bool = False
+    """It looks at the provider's answer before deciding (refused with paid answers)."""
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class ExecutorSpec:
+    """Where a run's trials run (``--executor NAME``)."""
+
+    name: str
+    make: Callable[[int, str | None, Callable[[str], None] | None], Any]
+    """(jobs, scheduler address or None, say) -> a ``TrialExecutor``."""
+    takes_scheduler: bool = False
+    """``--scheduler`` applies to it."""
+    runner_pool: bool = False
+    """The runner's own pool: trials run in this process with one job, else in a pool of local
+    processes (``make`` is called only where a pool object is needed)."""
+    workers: tuple[str, str] = ("process", "processes")
+    """What its workers are called, one and many (the suite's time estimate)."""
+    description: str = ""
+
+
+# ------------------------------------------------------------------------------------------
+# Registries
+# ------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Entry:
+    """A registered part and where it came from."""
+
+    name: str
+    spec: Any
+    source: str
+    """``lagrseq`` for a built-in, else the plugin's distribution (``name version``)."""
+    entry_point: str = ""
+
+
+@dataclass(frozen=True)
+class Failure:
+    """A plugin that could not be loaded (skipped)."""
+
+    group: str
+    entry_point: str
+    source: str
+    problem: str
+
+
+_S = TypeVar("_S")
+
+
+@dataclass
+class Registry(Generic[_S]):
+    """Named specs of one kind: the built-ins, then the plugins of ``group``."""
+
+    kind: str
+    group: str
+    spec_type: type
+    _entries: dict[str, Entry] = field(default_factory=dict)
+    _loaded: bool = False
+
+    def register(self, spec: _S, source: str = BUILTIN, entry_point: str = "") -> _S:
+        """Add ``spec`` under its name; a name already taken raises ValueError."""
+        if not isinstance(spec, self.spec_type):
+            raise TypeError(f"a {self.kind} registry takes {self.spec_type.__name__}, not {type(spec).__name__}")
+        name = getattr(spec, "name")  # noqa: B009 - every spec type has a name
+        if not isinstance(name, str) or not name or not name.isprintable() or ":" in name or "," in name:
+            raise ValueError(f"{self.kind} name {name!r}: expected a printable name without ':' or ','")
+        if name in self._entries:
+            raise ValueError(f"{self.kind} {name!r} is already registered by {self._entries[name].source}")
+        self._entries[name] = Entry(name, spec, source, entry_point)
+        return spec
+
+    def _load(self) -> None:
+        if self._loaded:
+            return
+        self._loaded = True
+        _builtins()
+        _load_plugins(self)
+
+    def get(self, name: str) -> _S:
+        """The spec called ``name``; UsageError (one line naming the choices) if none is."""
+        self._load()
+        entry = self._entries.get(name)
+        if entry is None:
+            raise UsageError(f"unknown {self.kind} {name!r}; expected one of: {', '.join(self.names())}")
+        spec: _S = entry.spec
+        return spec
+
+    def find(self, name: str) -> _S | None:
+        self._load()
+        entry = self._entries.get(name)
+        return None if entry is None else entry.spec  # type: ignore[no-any-return]
+
+    def names(self) -> tuple[str, ...]:
+        self._load()
+        return tuple(self._entries)
+
+    def entries(self) -> tuple[Entry, ...]:
+        self._load()
+        return tuple(self._entries.values())
+
+    def specs(self) -> Iterator[_S]:
+        for entry in self.entries():
+            yield entry.spec
+
+    def __contains__(self, name: object) -> bool:
+        self._load()
+        return name in self._entries
+
+
+TASKS: Registry[TaskSpec] = Registry("task", GROUPS["tasks"], TaskSpec)
+PROVIDERS: Registry[ProviderKind] = Registry("provider", GROUPS["providers"], ProviderKind)
+POLICIES: Registry[PolicySpec] = Registry("policy", GROUPS["policies"], PolicySpec)
+EXECUTORS: Registry[ExecutorSpec] = Registry("executor", GROUPS["executors"], ExecutorSpec)
+REGISTRIES: dict[str, Registry[Any]] = {"tasks": TASKS, "providers": PROVIDERS, "policies": POLICIES, "executors": EXECUTORS}
+FAILURES: list[Failure] = []
+"""Plugins skipped in this process (``lagrseq plugins`` lists them)."""
+
+_builtins_done = False
+
+
+def _builtins() -> None:
+    """Register the built-in parts once (``lagrseq.builtins`` calls :meth:`Registry.register`)."""
+    global _builtins_done
+    if _builtins_done:
+        return
+    _builtins_done = True
+    importlib.import_module("lagrseq.builtins")
+
+
+def _say(line: str) -> None:
+    print(f"lagrseq: {line}", file=sys.stderr)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    text = text if len(text) <= 200 else text[:197] + "..."
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def _load_plugins(registry: Registry[Any]) -> None:
+    """Add the specs of every entry point of ``registry.group``; one that raises (on import, on
+    the call, or on registration) is skipped with one stderr line naming it."""
+    from importlib.metadata import entry_points
+
+    try:
+        found = sorted(entry_points(group=registry.group), key=lambda ep: ep.name)
+    except Exception as exc:  # noqa: BLE001 - broken metadata of some distribution: skip them all, say so
+        _say(f"plugins of {registry.group} skipped: the installed packages' metadata cannot be read ({_one_line(exc)})")
+        return
+    for ep in found:
+        dist = getattr(ep, "dist", None)
+        source = f"{dist.name} {dist.version}" if dist is not None else "unknown distribution"
+        try:
+            loaded = ep.load()
+            if callable(loaded) and not isinstance(loaded, type):
+                loaded = loaded()
+            specs = list(loaded) if isinstance(loaded, (list, tuple)) else [loaded]
+            staged: Registry[Any] = Registry(registry.kind, registry.group, registry.spec_type, dict(registry._entries), True)
+            for spec in specs:
+                staged.register(spec, source, f"{ep.name} = {ep.value}")
+        except Exception as exc:  # noqa: BLE001 - a broken plugin never breaks lagrseq
+            FAILURES.append(Failure(registry.group, ep.name, source, _one_line(exc)))
+            _say(f"plugin {ep.name!r} ({source}, group {registry.group}) skipped: {_one_line(exc)}")
+            continue
+        registry._entries.update(staged._entries)
+
+
+def kind_of(spec: str) -> ProviderKind | None:
+    """The registered kind of a ``--provider`` value (``KIND[:ARGUMENT]``), None if unknown."""
+    return PROVIDERS.find(spec.partition(":")[0])
+
+
+def stored_sources() -> set[str]:
+    """The ``source`` of answers read from stored answers (``recorded``): any other source in a
+    run on a store is a miss a fallback answered."""
+    return {kind.source for kind in PROVIDERS.specs() if kind.replays}
+
+
+def paid_sources() -> set[str]:
+    """The ``source`` of answers that may have cost money (``live``)."""
+    return {kind.source for kind in PROVIDERS.specs() if kind.paid}
+
+
+def listing() -> list[str]:
+    """``lagrseq plugins``: every registered part by registry, with its source distribution,
+    then the plugins that were skipped."""
+    lines: list[str] = []
+    for kind, registry in REGISTRIES.items():
+        entries = registry.entries()
+        lines.append(f"{kind} (entry-point group {registry.group}): {len(entries)}")
+        width = max((len(e.name) for e in entries), default=0)
+        for entry in entries:
+            about = getattr(entry.spec, "description", "")
+            where = entry.source if not entry.entry_point else f"{entry.source} [{entry.entry_point}]"
+            lines.append(f"  {entry.name:<{width}}  {where}" + (f": {about}" if about else ""))
+    if FAILURES:
+        lines.append(f"skipped plugins: {len(FAILURES)}")
+        lines += [f"  {f.entry_point} ({f.source}, group {f.group}): {f.problem}" for f in FAILURES]
+    return lines

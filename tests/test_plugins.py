@@ -1,0 +1,111 @@
+"""Plugins by entry point: real distributions (a ``.dist-info`` with ``entry_points.txt`` on
+PYTHONPATH) loaded by fresh interpreters. A broken plugin is one stderr line naming it and is
+skipped; every other plugin and every built-in keeps working."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from lagrseq import registry
+from lagrseq.errors import UsageError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+GOOD = '''
+from lagrseq.registry import PolicySpec
+
+
+class Coin:
+    """Ask on every other decision."""
+
+    def __init__(self):
+        self.n = 0
+
+    def decide(self, context):
+        self.n += 1
+        return self.n % 2
+
+    def update(self, context, asked, query_reward):
+        pass
+
+
+def policy():
+    return PolicySpec("coin", lambda section, seq_agent: Coin(), ("budget",), description="every other decision")
+'''
+
+
+def distribution(root: Path, name: str, version: str, module: str, source: str, entry_points: str) -> None:
+    """Install a throw-away distribution under ``root``: its module and its dist-info."""
+    (root / f"{module}.py").write_text(source)
+    info = root / f"{name.replace('-', '_')}-{version}.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {name}\nVersion: {version}\n")
+    (info / "entry_points.txt").write_text(entry_points)
+
+
+@pytest.fixture()
+def plugins(tmp_path: Path) -> Path:
+    site = tmp_path / "site"
+    site.mkdir()
+    distribution(site, "good-plugin", "1.2", "goodplug", GOOD, "[lagrseq.policies]\ncoin = goodplug:policy\n")
+    distribution(site, "broken-plugin", "0.1", "brokenplug", "raise ImportError('no module named numsq')\n", "[lagrseq.tasks]\nbroken = brokenplug:task\n")
+    distribution(
+        site, "clash-plugin", "0.3", "clashplug",
+        "from lagrseq.registry import PolicySpec\nspec = PolicySpec('seq', lambda s, a: None)\n",
+        "[lagrseq.policies]\nclash = clashplug:spec\n",
+    )
+    return site
+
+
+def lagrseq(site: Path, *args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    env["PYTHONPATH"] = os.pathsep.join([str(site), str(ROOT)])
+    return subprocess.run([sys.executable, "-m", "lagrseq", *args], capture_output=True, text=True, env=env, cwd=cwd, timeout=300)
+
+
+def test_plugins_lists_builtins_and_plugins_and_names_each_broken_one_once(plugins: Path, tmp_path: Path) -> None:
+    done = lagrseq(plugins, "plugins", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 2, lines
+    broken = next(line for line in lines if "'broken'" in line)
+    assert "broken-plugin 0.1" in broken and "ImportError: no module named numsq" in broken and "skipped" in broken
+    clash = next(line for line in lines if "'clash'" in line)
+    assert "ValueError" in clash and "'seq' is already registered by lagrseq" in clash
+    out = done.stdout
+    assert re.search(r"\n  coin +good-plugin 1\.2 \[coin = goodplug:policy\]: every other decision\n", out)
+    for builtin in ("cube-stacking", "arm-arrangement", "recorded", "thompson", "dask"):
+        assert f"  {builtin} " in out
+    assert "skipped plugins: 2" in out
+
+
+def test_a_broken_plugin_does_not_break_a_run_and_a_plugin_policy_runs(plugins: Path, tmp_path: Path) -> None:
+    small = ["--trials", "1", "--set", "run.episodes=3", "--quiet", "--jobs", "1", "--out", str(tmp_path / "runs")]
+    done = lagrseq(plugins, "run", "cube-stacking", "--method", "lagr-seq", "--set", 'secondary.policy="coin"', *small, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    skipped = [line for line in done.stderr.splitlines() if line.startswith("lagrseq: plugin")]
+    assert len(skipped) == 2 and "'broken'" in skipped[0] + skipped[1] and "'clash'" in skipped[0] + skipped[1]
+    logs = list((tmp_path / "runs").rglob("trial-000.mcap"))
+    assert len(logs) == 1
+    replayed = lagrseq(plugins, "replay", str(tmp_path / "runs"), "--out", str(tmp_path / "report"), cwd=tmp_path)
+    assert replayed.returncode == 0, replayed.stderr
+    unknown = lagrseq(plugins, "run", "broken", *small, cwd=tmp_path)
+    assert unknown.returncode == 2
+    assert "invalid choice: 'broken'" in unknown.stderr
+
+
+def test_registry_refuses_bad_names_and_wrong_spec_types() -> None:
+    scratch: registry.Registry[registry.PolicySpec] = registry.Registry("policy", "none", registry.PolicySpec, {}, True)
+    with pytest.raises(ValueError, match="without ':' or ','"):
+        scratch.register(registry.PolicySpec("a:b", lambda s, a: None))
+    with pytest.raises(TypeError, match="takes PolicySpec"):
+        scratch.register(registry.ExecutorSpec("x", lambda j, s, y: None))  # type: ignore[arg-type]
+    scratch.register(registry.PolicySpec("fine", lambda s, a: None))
+    with pytest.raises(UsageError, match="unknown policy 'other'; expected one of: fine"):
+        scratch.get("other")
