@@ -152,7 +152,11 @@ def test_reproduce_with_the_authors_caches_adds_rows_that_replay_rebuilds_from_l
     assert board == (again.out / "scoreboard.md").read_text()
     rows = [line for line in board.splitlines() if line.startswith("| queries")]
     assert len(rows) == 6 and sum("authors' GPT answers" in r for r in rows) == 3
-    assert all(("inside" in r) != ("✗ outside" in r) for r in rows)
+    # every row: what made it and one verdict (issue 19): the mock rule-based, the authors' answers
+    # theirs; 2 trials are never "reproduced"
+    assert all(sum(v in r for v in ("| reproduced", "| ✗ differs", "| inconclusive", "| fitted")) == 1 for r in rows)
+    assert not any("| reproduced" in r for r in rows) and all("(n=2" in r for r in rows)
+    assert sum("| authors' answers |" in r for r in rows) == 3 and sum("| rule-based mock |" in r for r in rows) == 3
     html = (out / "reports" / "index.html").read_text()
     assert html.index('id="scoreboard"') < html.index("<ul>")
     # without the option the item says in one line how to add the recorded row

@@ -20,6 +20,7 @@ from matplotlib.axes import Axes
 
 from lagrseq import config as cfg
 from lagrseq.analysis import figures, stats
+from lagrseq.analysis import provenance as prov
 from lagrseq.analysis.loading import ACCURACY_METHOD, Run
 from lagrseq.analysis.tables import Table, interval, number, plus_minus
 from lagrseq.errors import ConfigError
@@ -138,7 +139,31 @@ def recorded_misses(run: Run) -> str:
     if len(asked) == 0:
         return "no queries"
     kinds = "/".join(sorted(set(misses))) or "mock"
-    return f"{len(misses)} of {len(asked)} answers not recorded ({kinds})"
+    decided, trials = fallback_decided(run)
+    return (
+        f"{len(misses)} of {len(asked)} answers not recorded ({kinds}); "
+        f"first accepted answer from the fallback in {decided}/{trials} trials"
+    )
+
+
+def fallback_decided(run: Run) -> tuple[int, int]:
+    """(trials whose first accepted answer came from a fallback rather than the recorded store,
+    trials): in those trials the fallback, not the recorded model, decided when the agent first
+    got a usable suggestion. A trial with no accepted answer counts as not decided by it."""
+    trials = len(run.trials)
+    if run.queries.empty:
+        return 0, trials
+    asked = run.queries[run.queries["queried"].fillna(False).astype(bool) & run.queries["accepted"].fillna(False).astype(bool)]
+    decided = 0
+    for _, group in asked.groupby("trial", sort=True):
+        first = group.sort_values(["global_step", "step"], kind="stable").iloc[0]
+        decided += str(first["source"] or "") != "recorded"
+    return decided, trials
+
+
+def made_by(run: Run) -> str:
+    """The provenance class of a run (:func:`lagrseq.analysis.provenance.of_run`)."""
+    return prov.of_run(run).kind
 
 
 def run_line(m: Match) -> str:
@@ -169,12 +194,16 @@ def _episode_matrix(run: Run, window: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _step_matrix(run: Run, grid: np.ndarray, window: int) -> np.ndarray:
-    matrix = np.full((len(run.trials), len(grid)), np.nan)
+    """One row per trial of the run: its return-vs-steps curve from its finished episodes (an
+    episode the step budget cut off is left out), 0 before its first one
+    (:data:`stats.BEFORE_FIRST_EPISODE`), so that every point averages every trial."""
+    budget = int(run.config.get("run", {}).get("max_steps", 0) or 0)
+    matrix = np.full((len(run.trials), len(grid)), stats.BEFORE_FIRST_EPISODE)
     for row, (_, group) in enumerate(run.episodes.groupby("trial", sort=True)):
         ordered = group.sort_values("episode")
-        matrix[row] = stats.step_curve(
-            ordered["global_step"].to_numpy(), ordered["return"].to_numpy(), grid, window
-        )
+        steps = ordered["global_step"].to_numpy()
+        keep = stats.finished_episodes(steps, ordered["solved"].fillna(0).astype(bool).to_numpy(), budget)
+        matrix[row] = stats.step_curve(steps[keep], ordered["return"].to_numpy()[keep], grid, window)
     return matrix
 
 
@@ -197,11 +226,12 @@ def build_returns(item: Item, matched: Sequence[Match]) -> Built:
         else:
             x, matrix = _episode_matrix(run, window)
         curve = stats.curve(x, matrix)
-        series.append(figures.Series(m.label, curve, len(run.trials)))
+        series.append(figures.Series(f"{m.label} [{made_by(run)}]", curve, len(run.trials)))
         frames.append(
             pd.DataFrame(
                 {
                     "series": m.label,
+                    "provenance": made_by(run),
                     x_axis: curve.x,
                     "trials": curve.n,
                     "mean": curve.mean,
@@ -221,21 +251,24 @@ def build_returns(item: Item, matched: Sequence[Match]) -> Built:
     smoothing = ""
     if x_axis == "global_step":
         smoothing = (
-            f"; at each step, the mean of the last {window} episode returns finished by then"
+            f"; at each step, the mean of the last {window} episode returns finished by then "
+            "(a trial with none yet counts 0; an episode cut off by the step budget is not a finished one), "
+            "over every trial of the run"
         )
     elif window > 1:
         smoothing = f"; moving average over {window} episodes"
     spread = "one standard deviation" if band == "std" else "one standard error"
-    method = f"Return per episode, mean over trials with a band of {spread}{smoothing}."
+    method = f"Return per episode, mean over trials with a band of {spread}{smoothing}; each line says what made it (provenance)."
     return Built(axes, pd.concat(frames, ignore_index=True), [], method)
 
 
-def _summary_row(label: str, values: np.ndarray, key: str) -> tuple[stats.Summary, dict[str, Any]]:
-    """Summary of per-trial values; the bootstrap is seeded by ``key`` (the run and quantity), so
-    one run's interval is the same in every table that shows it."""
-    s = stats.summarize(values, stats.generator(key))
+def _summary_row(label: str, values: np.ndarray, run: Run) -> tuple[stats.Summary, dict[str, Any]]:
+    """Summary of per-trial values with Student's t interval of the mean (the same for one run in
+    every table that shows it), and the provenance of the run."""
+    s = stats.summarize_t(values)
     row = {
         "label": label,
+        "provenance": made_by(run),
         "n": s.n,
         "mean": s.mean,
         "se": s.se,
@@ -253,12 +286,13 @@ def build_query_bars(item: Item, matched: Sequence[Match]) -> Built:
     display = []
     for m, run in _present(matched):
         values = np.array(list(run.total_per_trial("queries").values()))
-        summary, row = _summary_row(m.label, values, f"{run.key.name}/queries")
-        bars.append(figures.Bar(m.label, summary))
+        summary, row = _summary_row(m.label, values, run)
+        bars.append(figures.Bar(f"{m.label} [{made_by(run)}]", summary))
         rows.append(row)
         display.append(
             (
                 m.label,
+                made_by(run),
                 str(summary.n),
                 plus_minus(summary.mean, summary.se),
                 number(summary.std),
@@ -268,11 +302,11 @@ def build_query_bars(item: Item, matched: Sequence[Match]) -> Built:
     axes = figures.bars(bars, title=item.title)
     table = Table(
         f"{item.title}: LLM queries per trial",
-        ("", "trials", "mean ± s.e.", "std", "95% bootstrap CI"),
+        ("", "made by", "trials", "mean ± s.e.", "std", "95% t-interval"),
         tuple(display),
         pd.DataFrame(rows),
     )
-    method = "LLM queries per trial (summed over its episodes), mean with standard-error bars; 95% percentile-bootstrap interval of the mean in the table."
+    method = "LLM queries per trial (summed over its episodes), mean with standard-error bars; 95% Student-t interval of the mean in the table; each bar says what made it (provenance)."
     return Built(axes, pd.DataFrame(rows), [(item.id, table)], method)
 
 
@@ -314,12 +348,15 @@ def build_query_table(item: Item, matched: Sequence[Match]) -> Built:
             rows.append(row)  # a row the paper has and these runs do not: its values, for scale
     cells: dict[tuple[str, str], stats.Summary] = {}
     notes: dict[tuple[str, str], str] = {}
+    makers: dict[str, list[str]] = {}
     data = []
     for m, run in _present(matched):
         row, column = m.row, m.spec.column or ""
         notes[(row, column)] = m.note
+        if made_by(run) not in makers.setdefault(row, []):
+            makers[row].append(made_by(run))
         values = np.array(list(run.total_per_trial("queries").values()))
-        summary, record = _summary_row(m.label, values, f"{run.key.name}/queries")
+        summary, record = _summary_row(m.label, values, run)
         cells[(row, column)] = summary
         data.append(
             {"row": row, "column": column, **record, "paper": _reference(item, f"{row}|{column}")}
@@ -327,7 +364,7 @@ def build_query_table(item: Item, matched: Sequence[Match]) -> Built:
     header = str(item.options.get("row_header", ""))
     display = []
     for row in rows:
-        line = [row]
+        line = [row, " / ".join(makers.get(row, [])) or "—"]
         for column in columns:
             s = cells.get((row, column))
             note = notes.get((row, column), "")
@@ -336,73 +373,100 @@ def build_query_table(item: Item, matched: Sequence[Match]) -> Built:
         display.append(tuple(line))
     table = Table(
         f"{item.title}: LLM queries per run, mean ± s.e.",
-        (header, *columns, *(f"paper: {c}" for c in columns)),
+        (header, "made by", *columns, *(f"paper: {c}" for c in columns)),
         tuple(display),
         pd.DataFrame(data),
     )
-    method = "LLM queries per run (trial), mean ± standard error over trials, next to the paper's values; the CSV adds the standard deviation and a 95% percentile-bootstrap interval."
+    method = "LLM queries per run (trial), mean ± standard error over trials (n per cell), next to the paper's values, each row with what made it (provenance); the CSV adds the standard deviation and a 95% Student-t interval. On recorded answers, each cell counts the answers that were not recorded and the trials whose first accepted answer came from the fallback."
     return Built(None, None, [(item.id, table)], method)
 
 
 def build_ratio_table(item: Item, matched: Sequence[Match]) -> Built:
-    """Appendix table: performance ratio (total return of one method over another, per trial)."""
+    """Appendix table: performance ratio (total return of one method over another, per trial).
+
+    The main ratio is the item's ``numerator`` over its ``denominator`` (the stack-size table:
+    LaGR's over Q-learning's, as the paper's caption defines it); every other column of the item
+    gets its own ratio over the same denominator beside it, labelled (LaGR-SEQ / Q-learning)."""
     numerator = str(item.options.get("numerator", ""))
     denominator = str(item.options.get("denominator", ""))
-    rows, _ = _rows_columns(matched)
+    rows, columns = _rows_columns(matched)
+    others = [c for c in columns if c not in (numerator, denominator)]
     runs = {(m.row, m.spec.column): run for m, run in _present(matched)}
     notes = {(m.row, m.spec.column): m.note for m in matched}
+
+    def ratio(row: str, top_column: str) -> tuple[stats.Summary, Run, Run] | None:
+        top, bottom = runs.get((row, top_column)), runs.get((row, denominator))
+        if top is None or bottom is None:
+            return None
+        values = stats.paired_ratios(top.total_per_trial("return"), bottom.total_per_trial("return"))
+        return stats.summarize_t(values), top, bottom
+
+    def shown(made: tuple[stats.Summary, Run, Run] | None, row: str, column: str) -> str:
+        if made is None:
+            return "not run"
+        s = made[0]
+        note = notes.get((row, column))
+        return f"{plus_minus(s.mean, s.se, 3)} (n={s.n})" + (f"; {note}" if note else "")
+
     display = []
     data = []
     for row in rows:
-        top = runs.get((row, numerator))
-        bottom = runs.get((row, denominator))
         paper = _reference(item, row)
-        if top is None or bottom is None:
-            display.append((row, "not run", "", "", paper or "—"))
-            continue
-        top_returns = top.total_per_trial("return")
-        bottom_returns = bottom.total_per_trial("return")
-        ratios = stats.paired_ratios(top_returns, bottom_returns)
-        s = stats.summarize(ratios, stats.generator(f"{top.key.name}/{bottom.key.name}/ratio"))
-        t_mean, _, t_se = stats.mean_std_se(list(top_returns.values()))
-        b_mean, _, b_se = stats.mean_std_se(list(bottom_returns.values()))
-        display.append(
-            (
-                row,
-                f"{plus_minus(s.mean, s.se, 3)} (n={s.n})" + (f"; {notes[(row, numerator)]}" if notes.get((row, numerator)) else ""),
-                plus_minus(t_mean, t_se, 1),
-                plus_minus(b_mean, b_se, 1),
-                paper or "—",
+        main = ratio(row, numerator)
+        beside = [ratio(row, c) for c in others]
+        used = [prov.of_run(r) for x in (main, *beside) if x is not None for r in x[1:]]
+        makers = prov.combined(used).kind if used else ""
+        line = [row, makers or "—", shown(main, row, numerator), *(shown(b, row, c) for b, c in zip(beside, others, strict=True))]
+        for column in (numerator, *others, denominator):
+            run = runs.get((row, column))
+            if run is None:
+                line.append("not run")
+                continue
+            t_mean, _, t_se = stats.mean_std_se(list(run.total_per_trial("return").values()))
+            line.append(f"{plus_minus(t_mean, t_se, 1)} (n={len(run.trials)})")
+        line.append(paper or "—")
+        display.append(tuple(line))
+        for column, result in ((numerator, main), *zip(others, beside, strict=True)):
+            if result is None:
+                continue
+            s, top, bottom = result
+            data.append(
+                {
+                    "row": row,
+                    "ratio": f"{column} / {denominator}",
+                    "main": column == numerator,
+                    "provenance": prov.combined([prov.of_run(top), prov.of_run(bottom)]).kind,
+                    "n": s.n,
+                    "ratio_mean": s.mean,
+                    "ratio_se": s.se,
+                    "ratio_std": s.std,
+                    "ci_low": s.ci_low,
+                    "ci_high": s.ci_high,
+                    "numerator_return": stats.mean_std_se(list(top.total_per_trial("return").values()))[0],
+                    "denominator_return": stats.mean_std_se(list(bottom.total_per_trial("return").values()))[0],
+                    "paper": paper if column == numerator else "",
+                }
             )
-        )
-        data.append(
-            {
-                "row": row,
-                "n": s.n,
-                "ratio_mean": s.mean,
-                "ratio_se": s.se,
-                "ratio_std": s.std,
-                "ci_low": s.ci_low,
-                "ci_high": s.ci_high,
-                f"{numerator} return": t_mean,
-                f"{denominator} return": b_mean,
-                "paper": paper,
-            }
-        )
     header = str(item.options.get("row_header", ""))
     table = Table(
-        f"{item.title}: performance ratio {numerator} / {denominator}",
+        f"{item.title}: performance ratio {numerator} / {denominator}"
+        + "".join(f" (beside it: {c} / {denominator})" for c in others),
         (
             header,
-            "performance ratio (mean ± s.e.)",
-            f"{numerator} total return",
-            f"{denominator} total return",
-            "paper",
+            "made by",
+            f"performance ratio {numerator} / {denominator} (mean ± s.e.)",
+            *(f"{c} / {denominator} (mean ± s.e.)" for c in others),
+            *(f"{c} total return" for c in (numerator, *others, denominator)),
+            f"paper: {numerator} / {denominator}",
         ),
         tuple(display),
         pd.DataFrame(data),
     )
-    method = f"Per trial, the total return of {numerator} divided by that of {denominator} with the same trial index (same seed); mean ± standard error over trials, and a 95% percentile-bootstrap interval in the CSV."
+    beside_text = "".join(f"; {c}'s ratio over the same trials beside it" for c in others)
+    method = (
+        f"Per trial, the total return of {numerator} divided by that of {denominator} with the same trial index "
+        f"(same seed){beside_text}; mean ± standard error over trials (n per cell), and a 95% Student-t interval in the CSV."
+    )
     return Built(None, None, [(item.id, table)], method)
 
 
@@ -417,11 +481,12 @@ def build_accuracy(item: Item, matched: Sequence[Match]) -> Built:
         correct = grouped["accepted"].apply(lambda a: int(a.fillna(False).astype(bool).sum()))
         count = grouped.size()
         accuracy = 100.0 * correct.to_numpy() / count.to_numpy()
-        lines.append(figures.AccuracyLine(m.label, fraction, accuracy, run.samples))
+        lines.append(figures.AccuracyLine(f"{m.label} [{made_by(run)}]", fraction, accuracy, run.samples))
         frames.append(
             pd.DataFrame(
                 {
                     "series": m.label,
+                    "provenance": made_by(run),
                     "prefix_length": count.index.to_numpy(),
                     "fraction": fraction,
                     "answers": count.to_numpy(),
