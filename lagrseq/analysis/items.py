@@ -24,7 +24,7 @@ from lagrseq.analysis import provenance as prov
 from lagrseq.analysis.loading import ACCURACY_METHOD, Run
 from lagrseq.analysis.tables import Table, interval, number, plus_minus
 from lagrseq.errors import ConfigError
-from lagrseq.suite import Item, RunSpec, matches
+from lagrseq.suite import Item, RunSpec, is_authors_provider, matches
 
 Price = Callable[[str, int, int], float | None]
 """(model, prompt tokens, completion tokens) -> US dollars or None (unpriced)."""
@@ -123,9 +123,30 @@ def match(
             ),
         )[0]
         note = recorded_misses(best)
+        short = shorter_than_asked(spec, resolved, best) if is_authors_provider(best.key.provider) else ""
+        note = "; ".join(part for part in (short, note) if part)
         label = spec.display_label(best.key.provider) + (f" [{note}]" if note else "")
         out.append(Match(spec, label, best, "", best.key.provider, note))
     return out
+
+
+def shorter_than_asked(spec: RunSpec, full: dict[str, Any], run: Run) -> str:
+    """"shorter than the full suite: ..." when ``run`` has fewer trials, episodes or steps than
+    the item's full length (``full``: the spec's configuration at that length), else empty: a
+    row on the authors' answers made by ``reproduce --quick`` says it is not the paper's length."""
+    asked, got = full.get("run", {}), run.config.get("run", {})
+    shorter = len(run.trials) < spec.trials
+    for field_name in ("episodes", "max_steps"):
+        want, have = asked.get(field_name) or 0, got.get(field_name) or 0
+        shorter = shorter or (want > 0 and (have == 0 or have < want))
+    if not shorter:
+        return ""
+
+    def length(trials: int, values: dict[str, Any]) -> str:
+        steps = values.get("max_steps") or 0
+        return f"{trials} trials × {steps} steps" if steps else f"{trials} trials × {values.get('episodes')} episodes"
+
+    return f"shorter than the full suite: {length(len(run.trials), got)} (full: {length(spec.trials, asked)})"
 
 
 def recorded_misses(run: Run) -> str:
@@ -198,13 +219,32 @@ def _step_matrix(run: Run, grid: np.ndarray, window: int) -> np.ndarray:
     episode the step budget cut off is left out), 0 before its first one
     (:data:`stats.BEFORE_FIRST_EPISODE`), so that every point averages every trial."""
     budget = int(run.config.get("run", {}).get("max_steps", 0) or 0)
+    horizon = _episode_horizon(run)
     matrix = np.full((len(run.trials), len(grid)), stats.BEFORE_FIRST_EPISODE)
     for row, (_, group) in enumerate(run.episodes.groupby("trial", sort=True)):
         ordered = group.sort_values("episode")
         steps = ordered["global_step"].to_numpy()
-        keep = stats.finished_episodes(steps, ordered["solved"].fillna(0).astype(bool).to_numpy(), budget)
+        solved = ordered["solved"].fillna(0).astype(bool).to_numpy()
+        lengths = ordered["length"].fillna(0).to_numpy()
+        keep = stats.finished_episodes(steps, solved, budget, lengths, horizon)
         matrix[row] = stats.step_curve(steps[keep], ordered["return"].to_numpy()[keep], grid, window)
     return matrix
+
+
+def _episode_horizon(run: Run) -> int | None:
+    """The most steps an episode of this run can take: the configuration's ``env.horizon`` where
+    it has one, else the longest unsolved episode that was not its trial's last (it ended at its
+    own limit, e.g. the image task's scans); None when neither is known."""
+    horizon = run.config.get("env", {}).get("horizon")
+    if isinstance(horizon, int) and not isinstance(horizon, bool) and horizon > 0:
+        return horizon
+    episodes = run.episodes
+    if episodes.empty:
+        return None
+    last = episodes.groupby("trial")["episode"].transform("max") == episodes["episode"]
+    unsolved = ~episodes["solved"].fillna(0).astype(bool)
+    ended = episodes.loc[~last & unsolved, "length"].dropna()
+    return int(ended.max()) if not ended.empty else None
 
 
 def build_returns(item: Item, matched: Sequence[Match]) -> Built:

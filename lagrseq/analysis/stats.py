@@ -155,13 +155,24 @@ def step_curve(
     return out
 
 
-def finished_episodes(global_steps: np.ndarray, solved: np.ndarray, max_steps: int) -> np.ndarray:
+def finished_episodes(
+    global_steps: np.ndarray,
+    solved: np.ndarray,
+    max_steps: int,
+    lengths: np.ndarray | None = None,
+    horizon: int | None = None,
+) -> np.ndarray:
     """Which episodes of one trial (in order) finished on their own: all but a last episode that
-    the trial's step budget ``max_steps`` (0: none) cut off unsolved."""
+    the trial's step budget ``max_steps`` (0: none) cut off, i.e. one that ends at the budget
+    unsolved and, where the episode ``horizon`` and the episodes' ``lengths`` are known, shorter
+    than the horizon (one that reached its horizon exactly at the budget ended on its own)."""
     steps = np.asarray(global_steps, dtype=float)
     keep = np.ones(steps.size, dtype=bool)
-    if max_steps > 0 and steps.size and steps[-1] >= max_steps and not bool(np.asarray(solved)[-1]):
-        keep[-1] = False
+    if not (max_steps > 0 and steps.size and steps[-1] >= max_steps and not bool(np.asarray(solved)[-1])):
+        return keep
+    if horizon is not None and lengths is not None and int(np.asarray(lengths)[-1]) >= horizon:
+        return keep
+    keep[-1] = False
     return keep
 
 

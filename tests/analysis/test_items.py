@@ -247,3 +247,53 @@ def test_config_table_reads_each_runs_configuration(logs: loading.Logs) -> None:
     assert rows["run.episodes"] == ("20", "20")
     data = table.data.set_index("field")
     assert bool(data.loc["method", "differs"]) and not bool(data.loc["env.horizon", "differs"])
+
+
+def _recorded_run(first_sources: list[str], max_steps: int) -> Run:
+    """A run on the authors' answers: trial k's first accepted answer came from
+    ``first_sources[k]`` (``recorded`` or the fallback ``mock``), after one refused recorded one."""
+    episodes = pd.DataFrame.from_records(
+        [{"trial": k, "episode": 0, "return": 1.0, "queries": 2, "global_step": max_steps, "solved": False} for k in range(len(first_sources))],
+        columns=list(EPISODE_COLUMNS),
+    )
+    queries = []
+    for k, source in enumerate(first_sources):
+        queries.append({"trial": k, "episode": 0, "step": 1, "global_step": 1, "queried": True, "accepted": False, "source": "recorded"})
+        queries.append({"trial": k, "episode": 0, "step": 5, "global_step": 5, "queried": True, "accepted": True, "source": source})
+        queries.append({"trial": k, "episode": 0, "step": 9, "global_step": 9, "queried": True, "accepted": True, "source": "recorded"})
+    key = RunKey("image-completion", "lagr-seq", "upstream", "recorded:/out/authors-answers", 0, "cafe")
+    frame = pd.DataFrame.from_records(queries, columns=list(QUERY_COLUMNS))
+    return Run(key, {"run": {"max_steps": max_steps}}, (), tuple(range(len(first_sources))), episodes, frame, 0)
+
+
+def test_a_row_on_the_authors_answers_counts_fallback_decided_trials_and_says_when_it_is_short() -> None:
+    run = _recorded_run(["mock", "recorded", "mock", "recorded", "recorded"], max_steps=2000)
+    assert items.fallback_decided(run) == (2, 5)
+    spec = _spec(task="image-completion", provider="recorded:/out/authors-answers", trials=10, quick_trials=5, quick_max_steps=2000)
+    (m,) = items.match(_item("returns", spec), [run], "mock")
+    assert m.run is run
+    assert "first accepted answer from the fallback in 2/5 trials" in m.note
+    assert "2 of 15 answers not recorded (mock)" in m.note
+    # the quick length is named against the paper's (the preset's 10,001 steps, 10 trials)
+    assert m.note.startswith("shorter than the full suite: 5 trials × 2000 steps (full: 10 trials × 10001 steps)")
+    assert m.note in m.label
+
+
+def test_a_last_episode_that_reached_its_horizon_at_the_budget_is_a_finished_one() -> None:
+    """Budget 200, horizon 50: trial 0's fourth episode ran its full 50 steps and ends at 200
+    unsolved on its own (kept); trial 1's last episode was cut after 20 steps (left out)."""
+    rows = []
+    for trial, episodes in enumerate([[(50, 50, 1.0), (100, 50, 1.0), (150, 50, 1.0), (200, 50, 3.0)], [(90, 90, 2.0), (180, 50, 2.0), (200, 20, 0.0)]]):
+        for index, (end, length, ret) in enumerate(episodes):
+            rows.append({"trial": trial, "episode": index, "return": ret, "global_step": end, "length": length, "solved": False})
+    frame = pd.DataFrame.from_records(rows, columns=list(EPISODE_COLUMNS))
+    key = RunKey("object-arrangement", "baseline", "upstream", "mock", 0, "feed")
+    run = Run(key, {"run": {"max_steps": 200}, "env": {"horizon": 50}}, (), (0, 1), frame, pd.DataFrame(columns=list(QUERY_COLUMNS)), 0)
+    spec = _spec(task="object-arrangement", method="baseline")
+    built = items.build_returns(_item("returns", spec, x="global_step", window=1), [items.Match(spec, "DQN", run)])
+    assert built.figure_data is not None
+    at = built.figure_data.set_index("global_step")
+    assert at.loc[200, "mean"] == pytest.approx((3.0 + 2.0) / 2) and at.loc[200, "trials"] == 2
+    # without a configured horizon, the longest unsolved episode that was not a trial's last (90) stands for it
+    no_horizon = Run(key, {"run": {"max_steps": 200}}, (), (0, 1), frame, pd.DataFrame(columns=list(QUERY_COLUMNS)), 0)
+    assert items._episode_horizon(no_horizon) == 90
