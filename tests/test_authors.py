@@ -89,7 +89,8 @@ def test_every_marked_item_gets_a_recorded_line_where_the_caches_cover_it() -> N
     rows = next(i for i in covered.items if i.id == "appendix-stack-size").runs
     recorded_rows = {r.row for r in rows if r.row and "authors" in r.row}
     assert recorded_rows == {"8 (authors' GPT answers)", "11 (authors' GPT answers)"}
-    assert {r.method for r in rows if r.row == "8 (authors' GPT answers)"} == {"lagr-seq", "baseline"}
+    # LaGR (the paper's ratio, issue 19) and LaGR-SEQ (beside it) on the answers, over the same Q-learning
+    assert {r.method for r in rows if r.row == "8 (authors' GPT answers)"} == {"lagr", "lagr-seq", "baseline"}
     # no baseline is ever run on the recorded answers, and only caches present add lines
     assert all(r.method != "baseline" for runs in added.values() for r in runs)
     only_cubes = with_recorded(suite, provider, {("cube-stacking", 8)})
@@ -152,7 +153,11 @@ def test_reproduce_with_the_authors_caches_adds_rows_that_replay_rebuilds_from_l
     assert board == (again.out / "scoreboard.md").read_text()
     rows = [line for line in board.splitlines() if line.startswith("| queries")]
     assert len(rows) == 6 and sum("authors' GPT answers" in r for r in rows) == 3
-    assert all(("inside" in r) != ("✗ outside" in r) for r in rows)
+    # every row: what made it and one verdict (issue 19): the mock rule-based, the authors' answers
+    # theirs; 2 trials are never "reproduced"
+    assert all(sum(v in r for v in ("| reproduced", "| ✗ differs", "| inconclusive", "| fitted")) == 1 for r in rows)
+    assert not any("| reproduced" in r for r in rows) and all("(n=2" in r for r in rows)
+    assert sum("| authors' answers |" in r for r in rows) == 3 and sum("| rule-based mock |" in r for r in rows) == 3
     html = (out / "reports" / "index.html").read_text()
     assert html.index('id="scoreboard"') < html.index("<ul>")
     # without the option the item says in one line how to add the recorded row

@@ -3,7 +3,13 @@
 - :mod:`~lagrseq.analysis.loading`: logs grouped into runs (task, method, preset, provider, seed,
   configuration digest), as pandas frames of episodes and queries.
 - :mod:`~lagrseq.analysis.stats`: mean, standard deviation, standard error, seeded bootstrap
-  confidence intervals, curves over trials.
+  confidence intervals, Student-t summaries, curves over trials (every trial at every point).
+- :mod:`~lagrseq.analysis.inference`: t and Welch intervals, the ratio of two means, three-way
+  equivalence verdicts (TOST), non-inferiority, Holm.
+- :mod:`~lagrseq.analysis.provenance`: what made a run's numbers (authors' answers, open model,
+  fitted, rule-based mock, no LLM), from its logged provider and configuration.
+- :mod:`~lagrseq.analysis.scoreboard`: the paper's numbers beside lagrseq's, with provenance and
+  verdicts (docs/verdicts.md).
 - :mod:`~lagrseq.analysis.figures`: plot functions; each takes ``ax=None`` and returns it, never
   saves.
 - :mod:`~lagrseq.analysis.tables`: tables as Markdown, CSV and HTML text.

@@ -189,6 +189,31 @@ def welch_interval(
     return Interval(n, diff, diff - half, diff + half, level)
 
 
+def ratio_interval(
+    x: Sequence[float] | np.ndarray, y: Sequence[float] | np.ndarray, level: float = 0.95
+) -> Interval:
+    """Interval of ``mean(x) / mean(y)`` for two independent arms (e.g. queries with and without
+    SEQ): the delta method's standard error, ``r * sqrt(se_x^2 / mean_x^2 + se_y^2 / mean_y^2)``,
+    with Welch-Satterthwaite degrees of freedom of the two relative variances and Student's t
+    quantile. ``n`` is the smaller arm's count; NaN bounds with fewer than 2 values per arm or a
+    zero denominator."""
+    a, b = _finite(x), _finite(y)
+    n = int(min(a.size, b.size))
+    if a.size == 0 or b.size == 0 or float(b.mean()) == 0.0:
+        return Interval(n, math.nan, math.nan, math.nan, level)
+    ratio = float(a.mean()) / float(b.mean())
+    if a.size < 2 or b.size < 2 or float(a.mean()) == 0.0:
+        return Interval(n, ratio, math.nan, math.nan, level)
+    rx = float(a.var(ddof=1)) / a.size / float(a.mean()) ** 2
+    ry = float(b.var(ddof=1)) / b.size / float(b.mean()) ** 2
+    if rx + ry == 0.0:
+        return Interval(n, ratio, ratio, ratio, level)
+    se = abs(ratio) * math.sqrt(rx + ry)
+    df = (rx + ry) ** 2 / ((rx * rx) / (a.size - 1) + (ry * ry) / (b.size - 1))
+    half = t_ppf(0.5 + level / 2.0, df) * se
+    return Interval(n, ratio, ratio - half, ratio + half, level)
+
+
 def welch_p(x: Sequence[float] | np.ndarray, y: Sequence[float] | np.ndarray) -> float:
     """Two-sided p-value of Welch's test of equal means (NaN with fewer than 2 values per arm)."""
     a, b = _finite(x), _finite(y)
@@ -233,12 +258,18 @@ def equivalence(
     min_n: int = MIN_N_REPRODUCED,
 ) -> Equivalence:
     """Three-way verdict of the mean of ``values`` against ``target +- margin`` (see the module)."""
+    return judge(t_interval(values, 1.0 - 2.0 * alpha), t_interval(values, 1.0 - alpha), target, margin, min_n)
+
+
+def judge(inner: Interval, wide: Interval, target: float, margin: float, min_n: int = MIN_N_REPRODUCED) -> Equivalence:
+    """The three-way verdict from intervals already computed: ``inner`` at (1 - 2 alpha), which
+    must lie inside ``target +- margin`` for ``reproduced``, and ``wide`` at (1 - alpha), which
+    must exclude that band for ``differs`` (:func:`equivalence` for a mean; any other estimate
+    with an interval, such as :func:`ratio_interval`, is judged the same way)."""
     if not (math.isfinite(target) and math.isfinite(margin) and margin >= 0):
         raise ValueError(f"target and margin must be finite (margin >= 0), got {target}, {margin}")
-    inner = t_interval(values, 1.0 - 2.0 * alpha)
-    wide = t_interval(values, 1.0 - alpha)
     low_band, high_band = target - margin, target + margin
-    if inner.n < 2:
+    if inner.n < 2 or math.isnan(inner.low) or math.isnan(wide.low):
         return Equivalence(INCONCLUSIVE, target, margin, inner, wide, f"n = {inner.n}: no interval")
     if wide.high < low_band or wide.low > high_band:
         return Equivalence(DIFFERS, target, margin, inner, wide, "the interval excludes the margin band")

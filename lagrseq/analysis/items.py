@@ -20,10 +20,11 @@ from matplotlib.axes import Axes
 
 from lagrseq import config as cfg
 from lagrseq.analysis import figures, stats
+from lagrseq.analysis import provenance as prov
 from lagrseq.analysis.loading import ACCURACY_METHOD, Run
 from lagrseq.analysis.tables import Table, interval, number, plus_minus
 from lagrseq.errors import ConfigError
-from lagrseq.suite import Item, RunSpec, matches
+from lagrseq.suite import Item, RunSpec, is_authors_provider, matches
 
 Price = Callable[[str, int, int], float | None]
 """(model, prompt tokens, completion tokens) -> US dollars or None (unpriced)."""
@@ -122,9 +123,30 @@ def match(
             ),
         )[0]
         note = recorded_misses(best)
+        short = shorter_than_asked(spec, resolved, best) if is_authors_provider(best.key.provider) else ""
+        note = "; ".join(part for part in (short, note) if part)
         label = spec.display_label(best.key.provider) + (f" [{note}]" if note else "")
         out.append(Match(spec, label, best, "", best.key.provider, note))
     return out
+
+
+def shorter_than_asked(spec: RunSpec, full: dict[str, Any], run: Run) -> str:
+    """"shorter than the full suite: ..." when ``run`` has fewer trials, episodes or steps than
+    the item's full length (``full``: the spec's configuration at that length), else empty: a
+    row on the authors' answers made by ``reproduce --quick`` says it is not the paper's length."""
+    asked, got = full.get("run", {}), run.config.get("run", {})
+    shorter = len(run.trials) < spec.trials
+    for field_name in ("episodes", "max_steps"):
+        want, have = asked.get(field_name) or 0, got.get(field_name) or 0
+        shorter = shorter or (want > 0 and (have == 0 or have < want))
+    if not shorter:
+        return ""
+
+    def length(trials: int, values: dict[str, Any]) -> str:
+        steps = values.get("max_steps") or 0
+        return f"{trials} trials × {steps} steps" if steps else f"{trials} trials × {values.get('episodes')} episodes"
+
+    return f"shorter than the full suite: {length(len(run.trials), got)} (full: {length(spec.trials, asked)})"
 
 
 def recorded_misses(run: Run) -> str:
@@ -141,7 +163,31 @@ def recorded_misses(run: Run) -> str:
     if len(asked) == 0:
         return "no queries"
     kinds = "/".join(sorted(set(misses))) or "mock"
-    return f"{len(misses)} of {len(asked)} answers not recorded ({kinds})"
+    decided, trials = fallback_decided(run)
+    return (
+        f"{len(misses)} of {len(asked)} answers not recorded ({kinds}); "
+        f"first accepted answer from the fallback in {decided}/{trials} trials"
+    )
+
+
+def fallback_decided(run: Run) -> tuple[int, int]:
+    """(trials whose first accepted answer came from a fallback rather than the recorded store,
+    trials): in those trials the fallback, not the recorded model, decided when the agent first
+    got a usable suggestion. A trial with no accepted answer counts as not decided by it."""
+    trials = len(run.trials)
+    if run.queries.empty:
+        return 0, trials
+    asked = run.queries[run.queries["queried"].fillna(False).astype(bool) & run.queries["accepted"].fillna(False).astype(bool)]
+    decided = 0
+    for _, group in asked.groupby("trial", sort=True):
+        first = group.sort_values(["global_step", "step"], kind="stable").iloc[0]
+        decided += str(first["source"] or "") != "recorded"
+    return decided, trials
+
+
+def made_by(run: Run) -> str:
+    """The provenance class of a run (:func:`lagrseq.analysis.provenance.of_run`)."""
+    return prov.of_run(run).kind
 
 
 def run_line(m: Match) -> str:
@@ -172,13 +218,36 @@ def _episode_matrix(run: Run, window: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _step_matrix(run: Run, grid: np.ndarray, window: int) -> np.ndarray:
-    matrix = np.full((len(run.trials), len(grid)), np.nan)
+    """One row per trial of the run: its return-vs-steps curve from its finished episodes (an
+    episode the step budget cut off is left out), 0 before its first one
+    (:data:`stats.BEFORE_FIRST_EPISODE`), so that every point averages every trial."""
+    budget = int(run.config.get("run", {}).get("max_steps", 0) or 0)
+    horizon = _episode_horizon(run)
+    matrix = np.full((len(run.trials), len(grid)), stats.BEFORE_FIRST_EPISODE)
     for row, (_, group) in enumerate(run.episodes.groupby("trial", sort=True)):
         ordered = group.sort_values("episode")
-        matrix[row] = stats.step_curve(
-            ordered["global_step"].to_numpy(), ordered["return"].to_numpy(), grid, window
-        )
+        steps = ordered["global_step"].to_numpy()
+        solved = ordered["solved"].fillna(0).astype(bool).to_numpy()
+        lengths = ordered["length"].fillna(0).to_numpy()
+        keep = stats.finished_episodes(steps, solved, budget, lengths, horizon)
+        matrix[row] = stats.step_curve(steps[keep], ordered["return"].to_numpy()[keep], grid, window)
     return matrix
+
+
+def _episode_horizon(run: Run) -> int | None:
+    """The most steps an episode of this run can take: the configuration's ``env.horizon`` where
+    it has one, else the longest unsolved episode that was not its trial's last (it ended at its
+    own limit, e.g. the image task's scans); None when neither is known."""
+    horizon = run.config.get("env", {}).get("horizon")
+    if isinstance(horizon, int) and not isinstance(horizon, bool) and horizon > 0:
+        return horizon
+    episodes = run.episodes
+    if episodes.empty:
+        return None
+    last = episodes.groupby("trial")["episode"].transform("max") == episodes["episode"]
+    unsolved = ~episodes["solved"].fillna(0).astype(bool)
+    ended = episodes.loc[~last & unsolved, "length"].dropna()
+    return int(ended.max()) if not ended.empty else None
 
 
 def build_returns(item: Item, matched: Sequence[Match]) -> Built:
@@ -200,11 +269,12 @@ def build_returns(item: Item, matched: Sequence[Match]) -> Built:
         else:
             x, matrix = _episode_matrix(run, window)
         curve = stats.curve(x, matrix)
-        series.append(figures.Series(m.label, curve, len(run.trials)))
+        series.append(figures.Series(f"{m.label} [{made_by(run)}]", curve, len(run.trials)))
         frames.append(
             pd.DataFrame(
                 {
                     "series": m.label,
+                    "provenance": made_by(run),
                     x_axis: curve.x,
                     "trials": curve.n,
                     "mean": curve.mean,
@@ -224,21 +294,24 @@ def build_returns(item: Item, matched: Sequence[Match]) -> Built:
     smoothing = ""
     if x_axis == "global_step":
         smoothing = (
-            f"; at each step, the mean of the last {window} episode returns finished by then"
+            f"; at each step, the mean of the last {window} episode returns finished by then "
+            "(a trial with none yet counts 0; an episode cut off by the step budget is not a finished one), "
+            "over every trial of the run"
         )
     elif window > 1:
         smoothing = f"; moving average over {window} episodes"
     spread = "one standard deviation" if band == "std" else "one standard error"
-    method = f"Return per episode, mean over trials with a band of {spread}{smoothing}."
+    method = f"Return per episode, mean over trials with a band of {spread}{smoothing}; each line says what made it (provenance)."
     return Built(axes, pd.concat(frames, ignore_index=True), [], method)
 
 
-def _summary_row(label: str, values: np.ndarray, key: str) -> tuple[stats.Summary, dict[str, Any]]:
-    """Summary of per-trial values; the bootstrap is seeded by ``key`` (the run and quantity), so
-    one run's interval is the same in every table that shows it."""
-    s = stats.summarize(values, stats.generator(key))
+def _summary_row(label: str, values: np.ndarray, run: Run) -> tuple[stats.Summary, dict[str, Any]]:
+    """Summary of per-trial values with Student's t interval of the mean (the same for one run in
+    every table that shows it), and the provenance of the run."""
+    s = stats.summarize_t(values)
     row = {
         "label": label,
+        "provenance": made_by(run),
         "n": s.n,
         "mean": s.mean,
         "se": s.se,
@@ -256,12 +329,13 @@ def build_query_bars(item: Item, matched: Sequence[Match]) -> Built:
     display = []
     for m, run in _present(matched):
         values = np.array(list(run.total_per_trial("queries").values()))
-        summary, row = _summary_row(m.label, values, f"{run.key.name}/queries")
-        bars.append(figures.Bar(m.label, summary))
+        summary, row = _summary_row(m.label, values, run)
+        bars.append(figures.Bar(f"{m.label} [{made_by(run)}]", summary))
         rows.append(row)
         display.append(
             (
                 m.label,
+                made_by(run),
                 str(summary.n),
                 plus_minus(summary.mean, summary.se),
                 number(summary.std),
@@ -271,11 +345,11 @@ def build_query_bars(item: Item, matched: Sequence[Match]) -> Built:
     axes = figures.bars(bars, title=item.title)
     table = Table(
         f"{item.title}: LLM queries per trial",
-        ("", "trials", "mean ± s.e.", "std", "95% bootstrap CI"),
+        ("", "made by", "trials", "mean ± s.e.", "std", "95% t-interval"),
         tuple(display),
         pd.DataFrame(rows),
     )
-    method = "LLM queries per trial (summed over its episodes), mean with standard-error bars; 95% percentile-bootstrap interval of the mean in the table."
+    method = "LLM queries per trial (summed over its episodes), mean with standard-error bars; 95% Student-t interval of the mean in the table; each bar says what made it (provenance)."
     return Built(axes, pd.DataFrame(rows), [(item.id, table)], method)
 
 
@@ -317,12 +391,15 @@ def build_query_table(item: Item, matched: Sequence[Match]) -> Built:
             rows.append(row)  # a row the paper has and these runs do not: its values, for scale
     cells: dict[tuple[str, str], stats.Summary] = {}
     notes: dict[tuple[str, str], str] = {}
+    makers: dict[str, list[str]] = {}
     data = []
     for m, run in _present(matched):
         row, column = m.row, m.spec.column or ""
         notes[(row, column)] = m.note
+        if made_by(run) not in makers.setdefault(row, []):
+            makers[row].append(made_by(run))
         values = np.array(list(run.total_per_trial("queries").values()))
-        summary, record = _summary_row(m.label, values, f"{run.key.name}/queries")
+        summary, record = _summary_row(m.label, values, run)
         cells[(row, column)] = summary
         data.append(
             {"row": row, "column": column, **record, "paper": _reference(item, f"{row}|{column}")}
@@ -330,7 +407,7 @@ def build_query_table(item: Item, matched: Sequence[Match]) -> Built:
     header = str(item.options.get("row_header", ""))
     display = []
     for row in rows:
-        line = [row]
+        line = [row, " / ".join(makers.get(row, [])) or "—"]
         for column in columns:
             s = cells.get((row, column))
             note = notes.get((row, column), "")
@@ -339,73 +416,100 @@ def build_query_table(item: Item, matched: Sequence[Match]) -> Built:
         display.append(tuple(line))
     table = Table(
         f"{item.title}: LLM queries per run, mean ± s.e.",
-        (header, *columns, *(f"paper: {c}" for c in columns)),
+        (header, "made by", *columns, *(f"paper: {c}" for c in columns)),
         tuple(display),
         pd.DataFrame(data),
     )
-    method = "LLM queries per run (trial), mean ± standard error over trials, next to the paper's values; the CSV adds the standard deviation and a 95% percentile-bootstrap interval."
+    method = "LLM queries per run (trial), mean ± standard error over trials (n per cell), next to the paper's values, each row with what made it (provenance); the CSV adds the standard deviation and a 95% Student-t interval. On recorded answers, each cell counts the answers that were not recorded and the trials whose first accepted answer came from the fallback."
     return Built(None, None, [(item.id, table)], method)
 
 
 def build_ratio_table(item: Item, matched: Sequence[Match]) -> Built:
-    """Appendix table: performance ratio (total return of one method over another, per trial)."""
+    """Appendix table: performance ratio (total return of one method over another, per trial).
+
+    The main ratio is the item's ``numerator`` over its ``denominator`` (the stack-size table:
+    LaGR's over Q-learning's, as the paper's caption defines it); every other column of the item
+    gets its own ratio over the same denominator beside it, labelled (LaGR-SEQ / Q-learning)."""
     numerator = str(item.options.get("numerator", ""))
     denominator = str(item.options.get("denominator", ""))
-    rows, _ = _rows_columns(matched)
+    rows, columns = _rows_columns(matched)
+    others = [c for c in columns if c not in (numerator, denominator)]
     runs = {(m.row, m.spec.column): run for m, run in _present(matched)}
     notes = {(m.row, m.spec.column): m.note for m in matched}
+
+    def ratio(row: str, top_column: str) -> tuple[stats.Summary, Run, Run] | None:
+        top, bottom = runs.get((row, top_column)), runs.get((row, denominator))
+        if top is None or bottom is None:
+            return None
+        values = stats.paired_ratios(top.total_per_trial("return"), bottom.total_per_trial("return"))
+        return stats.summarize_t(values), top, bottom
+
+    def shown(made: tuple[stats.Summary, Run, Run] | None, row: str, column: str) -> str:
+        if made is None:
+            return "not run"
+        s = made[0]
+        note = notes.get((row, column))
+        return f"{plus_minus(s.mean, s.se, 3)} (n={s.n})" + (f"; {note}" if note else "")
+
     display = []
     data = []
     for row in rows:
-        top = runs.get((row, numerator))
-        bottom = runs.get((row, denominator))
         paper = _reference(item, row)
-        if top is None or bottom is None:
-            display.append((row, "not run", "", "", paper or "—"))
-            continue
-        top_returns = top.total_per_trial("return")
-        bottom_returns = bottom.total_per_trial("return")
-        ratios = stats.paired_ratios(top_returns, bottom_returns)
-        s = stats.summarize(ratios, stats.generator(f"{top.key.name}/{bottom.key.name}/ratio"))
-        t_mean, _, t_se = stats.mean_std_se(list(top_returns.values()))
-        b_mean, _, b_se = stats.mean_std_se(list(bottom_returns.values()))
-        display.append(
-            (
-                row,
-                f"{plus_minus(s.mean, s.se, 3)} (n={s.n})" + (f"; {notes[(row, numerator)]}" if notes.get((row, numerator)) else ""),
-                plus_minus(t_mean, t_se, 1),
-                plus_minus(b_mean, b_se, 1),
-                paper or "—",
+        main = ratio(row, numerator)
+        beside = [ratio(row, c) for c in others]
+        used = [prov.of_run(r) for x in (main, *beside) if x is not None for r in x[1:]]
+        makers = prov.combined(used).kind if used else ""
+        line = [row, makers or "—", shown(main, row, numerator), *(shown(b, row, c) for b, c in zip(beside, others, strict=True))]
+        for column in (numerator, *others, denominator):
+            run = runs.get((row, column))
+            if run is None:
+                line.append("not run")
+                continue
+            t_mean, _, t_se = stats.mean_std_se(list(run.total_per_trial("return").values()))
+            line.append(f"{plus_minus(t_mean, t_se, 1)} (n={len(run.trials)})")
+        line.append(paper or "—")
+        display.append(tuple(line))
+        for column, result in ((numerator, main), *zip(others, beside, strict=True)):
+            if result is None:
+                continue
+            s, top, bottom = result
+            data.append(
+                {
+                    "row": row,
+                    "ratio": f"{column} / {denominator}",
+                    "main": column == numerator,
+                    "provenance": prov.combined([prov.of_run(top), prov.of_run(bottom)]).kind,
+                    "n": s.n,
+                    "ratio_mean": s.mean,
+                    "ratio_se": s.se,
+                    "ratio_std": s.std,
+                    "ci_low": s.ci_low,
+                    "ci_high": s.ci_high,
+                    "numerator_return": stats.mean_std_se(list(top.total_per_trial("return").values()))[0],
+                    "denominator_return": stats.mean_std_se(list(bottom.total_per_trial("return").values()))[0],
+                    "paper": paper if column == numerator else "",
+                }
             )
-        )
-        data.append(
-            {
-                "row": row,
-                "n": s.n,
-                "ratio_mean": s.mean,
-                "ratio_se": s.se,
-                "ratio_std": s.std,
-                "ci_low": s.ci_low,
-                "ci_high": s.ci_high,
-                f"{numerator} return": t_mean,
-                f"{denominator} return": b_mean,
-                "paper": paper,
-            }
-        )
     header = str(item.options.get("row_header", ""))
     table = Table(
-        f"{item.title}: performance ratio {numerator} / {denominator}",
+        f"{item.title}: performance ratio {numerator} / {denominator}"
+        + "".join(f" (beside it: {c} / {denominator})" for c in others),
         (
             header,
-            "performance ratio (mean ± s.e.)",
-            f"{numerator} total return",
-            f"{denominator} total return",
-            "paper",
+            "made by",
+            f"performance ratio {numerator} / {denominator} (mean ± s.e.)",
+            *(f"{c} / {denominator} (mean ± s.e.)" for c in others),
+            *(f"{c} total return" for c in (numerator, *others, denominator)),
+            f"paper: {numerator} / {denominator}",
         ),
         tuple(display),
         pd.DataFrame(data),
     )
-    method = f"Per trial, the total return of {numerator} divided by that of {denominator} with the same trial index (same seed); mean ± standard error over trials, and a 95% percentile-bootstrap interval in the CSV."
+    beside_text = "".join(f"; {c}'s ratio over the same trials beside it" for c in others)
+    method = (
+        f"Per trial, the total return of {numerator} divided by that of {denominator} with the same trial index "
+        f"(same seed){beside_text}; mean ± standard error over trials (n per cell), and a 95% Student-t interval in the CSV."
+    )
     return Built(None, None, [(item.id, table)], method)
 
 
@@ -420,11 +524,12 @@ def build_accuracy(item: Item, matched: Sequence[Match]) -> Built:
         correct = grouped["accepted"].apply(lambda a: int(a.fillna(False).astype(bool).sum()))
         count = grouped.size()
         accuracy = 100.0 * correct.to_numpy() / count.to_numpy()
-        lines.append(figures.AccuracyLine(m.label, fraction, accuracy, run.samples))
+        lines.append(figures.AccuracyLine(f"{m.label} [{made_by(run)}]", fraction, accuracy, run.samples))
         frames.append(
             pd.DataFrame(
                 {
                     "series": m.label,
+                    "provenance": made_by(run),
                     "prefix_length": count.index.to_numpy(),
                     "fraction": fraction,
                     "answers": count.to_numpy(),

@@ -330,7 +330,8 @@ def _scoreboard_html(board: Table) -> list[str]:
         cells = [f"<td>{e(c)}</td>" for c in row[:-2]]
         outside = row[-2].startswith("✗")
         cells.append(f'<td class="{"missing" if outside else ""}">{e(row[-2])}</td>')
-        cells.append(f'<td><a href="{e(row[-1])}">{e(row[-1].lstrip("#"))}</a></td>')
+        link = row[-1].startswith("#")  # the audits' own text (scoreboard.Explain) is shown as it is
+        cells.append(f'<td><a href="{e(row[-1])}">{e(row[-1].lstrip("#"))}</a></td>' if link else f"<td>{e(row[-1])}</td>")
         parts.append("<tr>" + "".join(cells) + "</tr>")
     parts += ["</tbody></table>", '<p class="links"><a href="scoreboard.md">Markdown</a> · <a href="tables/scoreboard.csv">CSV</a></p>', "</section>"]
     return parts

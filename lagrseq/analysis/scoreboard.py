@@ -2,34 +2,52 @@
 
 For each reference value of a table item (Table 2, Table 3, the stack-size ratios) and the query
 reductions those tables imply (1 - LaGR-SEQ / LaGR), one row per source the logs hold (the mock,
-a calibrated mock profile, the authors' recorded answers, any other recorded store): lagrseq's
-mean with its 95% percentile-bootstrap interval, and whether the paper's value falls inside it.
-The last column says what explains the gap (:func:`lagrseq.analysis.audit.gap_explained_by`: the
-audit rows that account for it, with their sum, or ``unexplained``, where the logs hold an audit of
-the row's task; else a link to the item).
+a calibrated mock profile, the authors' recorded answers, any other recorded store): what made the
+number (:mod:`lagrseq.analysis.provenance`, from the run's logged provider and configuration),
+lagrseq's mean with its 95% Student-t interval and n, and a three-way verdict against the paper's
+value (:func:`lagrseq.analysis.inference.judge`): ``reproduced`` (the 90% interval lies inside the
+margin band, at least 5 trials), ``differs`` (the 95% interval excludes the band) or
+``inconclusive``; a fitted number's verdict is ``fitted``, whatever its interval. The margin is the
+larger of 10% of the paper's value and the paper's own +- (:func:`inference.margin_for`), stated
+per row. The last column says what explains the gap: a callable that :func:`build` takes
+(``explain``); by default, where the logs hold an audit of the row's task,
+:func:`lagrseq.analysis.audit.gap_explained_by` (the audit rows that account for the gap, with
+their sum, or ``unexplained``), else a link to the item.
 """
 
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from lagrseq.analysis import audit, stats
+from lagrseq.analysis import audit, inference, stats
+from lagrseq.analysis import provenance as prov
 from lagrseq.analysis.items import Match
 from lagrseq.analysis.loading import Run
 from lagrseq.analysis.tables import Table
 from lagrseq.suite import PAPER_MODEL_ROWS, RECORDED_NAME, Item, is_authors_provider
 
 _NUMBER = re.compile(r"[-+]?\d+(?:\.\d+)?")
+_PLUS_MINUS = re.compile(r"(?:±|\+-|\+/-)\s*(\d+(?:\.\d+)?)")
+
+Explain = Callable[[Mapping[str, Any]], str]
+"""(a scoreboard row's data: item, task, what, provenance, verdict, mean, paper value, margin, ...)
+-> the text of its "gap explained by" cell; a text starting with ``#`` is shown as a link."""
 
 
 def paper_number(text: str) -> float | None:
     found = _NUMBER.search(text)
     return float(found.group()) if found else None
+
+
+def paper_spread(text: str) -> float | None:
+    """The paper's +- of a value written ``126 ± 2.94`` (None when it gives none)."""
+    found = _PLUS_MINUS.search(text)
+    return float(found.group(1)) if found else None
 
 
 def source_name(provider: str) -> str:
@@ -55,43 +73,91 @@ def _queries(run: Run) -> np.ndarray:
     return np.array(list(run.total_per_trial("queries").values()), dtype=float)
 
 
-def _reduction(seq: np.ndarray, lagr: np.ndarray, rng: np.random.Generator) -> tuple[float, float, float]:
-    """1 - mean(seq) / mean(lagr) with a percentile-bootstrap interval (each resampled)."""
-    point = 1 - seq.mean() / lagr.mean()
-    a = seq[rng.integers(0, len(seq), size=(2000, len(seq)))].mean(axis=1)
-    b = lagr[rng.integers(0, len(lagr), size=(2000, len(lagr)))].mean(axis=1)
-    low, high = np.percentile(1 - a / b, [2.5, 97.5])
-    return float(point), float(low), float(high)
+def _reduction(seq: np.ndarray, lagr: np.ndarray, level: float) -> inference.Interval:
+    """1 - mean(seq) / mean(lagr), in percent, with the delta-method t interval of the ratio
+    (:func:`inference.ratio_interval`) turned around."""
+    r = inference.ratio_interval(seq, lagr, level)
+    return inference.Interval(r.n, 100 * (1 - r.mean), 100 * (1 - r.high), 100 * (1 - r.low), level)
 
 
-def build(items: Sequence[tuple[Item, Sequence[Match]]], audits: Sequence[audit.Audit] = ()) -> Table:
+def margin_reason(value: float, spread: float | None) -> str:
+    """Why the margin is what it is: 10% of the paper's value, or its own +- where larger."""
+    relative = inference.RELATIVE_MARGIN * abs(value)
+    if spread is not None and abs(spread) > relative:
+        return "the paper's ±"
+    return f"{inference.RELATIVE_MARGIN:.0%} of the paper's value"
+
+
+def default_explanation(audits: Sequence[audit.Audit | str]) -> Explain:
+    """The default "gap explained by": where the logs hold an audit of the row's task, the audit
+    rows that account for the gap (:func:`lagrseq.analysis.audit.gap_explained_by`; a task named
+    without its audit gets a link to it); else a link to the item."""
+    built = [a for a in audits if not isinstance(a, str)]
+    named = {a if isinstance(a, str) else a.task for a in audits}
+
+    def explain(row: Mapping[str, Any]) -> str:
+        if built and row["task"] in named:
+            found = audit.gap_explained_by(
+                built, row["task"], row["preset"], row["quantity"], row["mean"], row["paper"], row["_config"]
+            )
+            if found:
+                return found
+        return f"#audit-{row['task']}" if row["task"] in named and not built else f"#{row['item']}"
+
+    return explain
+
+
+def build(
+    items: Sequence[tuple[Item, Sequence[Match]]],
+    audits: Sequence[audit.Audit | str] = (),
+    explain: Explain | None = None,
+) -> Table:
+    """The scoreboard of ``items`` (each with its matched runs). ``explain`` fills the last
+    column from each row's data (default: :func:`default_explanation` of ``audits``: the audits
+    the logs hold, or the names of the tasks audited)."""
     rows: list[dict[str, Any]] = []
+    explain = default_explanation(audits) if explain is None else explain
+    alpha = inference.ALPHA
 
-    def add(
-        item: Item, what: str, paper: str, m: Match, mean: float, low: float, high: float, n: int, digits: int, quantity: str | None = None
-    ) -> None:
+    def add(item: Item, what: str, paper: str, m: Match, made: prov.Provenance, inner: inference.Interval, wide: inference.Interval, digits: int, spread: float | None = None, quantity: str | None = None) -> None:
         value = paper_number(paper)
-        inside = value is not None and low <= value <= high
-        task = m.spec.task
-        config = m.run.config if m.run is not None else None
-        explain = audit.gap_explained_by(audits, task, m.spec.preset, quantity, mean, paper, config) or f"#{item.id}"
-        rows.append(
-            {
-                "item": item.id,
-                "title": item.title.split(":")[0],
-                "what": what,
-                "paper": paper,
-                "source": source_name(m.provider) + (f" ({m.spec.preset} preset)" if m.spec.preset != "upstream" else ""),
-                "mean": mean,
-                "ci_low": low,
-                "ci_high": high,
-                "trials": n,
-                "paper_inside": inside,
-                "explained_by": explain,
-                "digits": digits,
-                "note": m.note,
-            }
-        )
+        spread = paper_spread(paper) if spread is None else spread
+        margin = inference.margin_for(value, spread) if value is not None else float("nan")
+        if value is None:
+            verdict, reason = inference.INCONCLUSIVE, "no paper value"
+        else:
+            judged = inference.judge(inner, wide, value, margin)
+            verdict, reason = judged.verdict, judged.reason
+            if made.kind == prov.FITTED:
+                verdict, reason = inference.FITTED, made.why
+        row = {
+            "item": item.id,
+            "title": item.title.split(":")[0],
+            "task": m.spec.task,
+            "what": what,
+            "paper": paper,
+            "paper_value": value,
+            "margin": margin,
+            "margin_reason": margin_reason(value, spread) if value is not None else "",
+            "source": source_name(m.provider) + (f" ({m.spec.preset} preset)" if m.spec.preset != "upstream" else ""),
+            "provenance": made.kind,
+            "provenance_why": made.why,
+            "mean": wide.mean,
+            "ci_low": wide.low,
+            "ci_high": wide.high,
+            "ci90_low": inner.low,
+            "ci90_high": inner.high,
+            "trials": wide.n,
+            "verdict": verdict,
+            "verdict_reason": reason,
+            "digits": digits,
+            "note": m.note,
+            "preset": m.spec.preset,
+            "quantity": quantity,
+            "_config": m.run.config if m.run is not None else None,
+        }
+        row["explained_by"] = explain(row)
+        rows.append(row)
 
     for item, matched in items:
         reference = item.options.get("reference", {})
@@ -106,8 +172,10 @@ def build(items: Sequence[tuple[Item, Sequence[Match]]], audits: Sequence[audit.
                 for m in present:
                     if m.spec.column == column and _fits(m, row):
                         assert m.run is not None
-                        s = stats.summarize(_queries(m.run), stats.generator(f"{m.run.key.name}/queries"))
-                        add(item, f"{row}, {column}: queries per run", str(paper), m, s.mean, s.ci_low, s.ci_high, s.n, 1, audit.QUERY_COLUMNS.get(column))
+                        values = _queries(m.run)
+                        add(item, f"{row}, {column}: queries per run", str(paper), m, prov.of_run(m.run),
+                            inference.t_interval(values, 1 - 2 * alpha), inference.t_interval(values, 1 - alpha), 1,
+                            quantity=audit.QUERY_COLUMNS.get(column))
             # the query reduction SEQ brings, where the paper gives both columns of a row
             columns = sorted({k.split("|", 1)[1] for k in reference if "|" in k})
             if len(columns) == 2:
@@ -123,8 +191,10 @@ def build(items: Sequence[tuple[Item, Sequence[Match]]], audits: Sequence[audit.
                         ml = next((m for m in present if m.spec.column == lagr_col and m.provider == ms.provider and m.row == ms.row), None)
                         if ml is None or ms.run is None or ml.run is None:
                             continue
-                        point, low, high = _reduction(_queries(ms.run), _queries(ml.run), stats.generator(f"{ms.run.key.name}/reduction"))
-                        add(item, f"{key}: query reduction with SEQ (%)", paper, ms, 100 * point, 100 * low, 100 * high, len(ms.run.trials), 1)
+                        seq, lagr = _queries(ms.run), _queries(ml.run)
+                        made = prov.combined([prov.of_run(ms.run), prov.of_run(ml.run)])
+                        add(item, f"{key}: query reduction with SEQ (%)", paper, ms, made,
+                            _reduction(seq, lagr, 1 - 2 * alpha), _reduction(seq, lagr, 1 - alpha), 1, spread=0.0)
         elif item.render == "ratio-table":
             numerator = str(item.options.get("numerator", ""))
             denominator = str(item.options.get("denominator", ""))
@@ -135,22 +205,35 @@ def build(items: Sequence[tuple[Item, Sequence[Match]]], audits: Sequence[audit.
                     under = next((b for b in present if b.spec.column == denominator and b.row == m.row), None)
                     if under is None or m.run is None or under.run is None:
                         continue
-                    ratios = stats.paired_ratios(m.run.total_per_trial("return"), under.run.total_per_trial("return"))
-                    s = stats.summarize(ratios, stats.generator(f"{m.run.key.name}/{under.run.key.name}/ratio"))
-                    ratio = audit.RATIO_QUANTITY if numerator == "LaGR-SEQ" and denominator == "Q-learning" else None
-                    add(item, f"{row} cubes: performance ratio", str(paper), m, s.mean, s.ci_low, s.ci_high, s.n, 3, ratio)
+                    ratios = stats_ratios(m.run, under.run)
+                    made = prov.combined([prov.of_run(m.run), prov.of_run(under.run)])
+                    add(item, f"{row} cubes: performance ratio {numerator} / {denominator}", str(paper), m, made,
+                        inference.t_interval(ratios, 1 - 2 * alpha), inference.t_interval(ratios, 1 - alpha), 3,
+                        quantity=audit.RATIO_QUANTITY if (numerator, denominator) == ("LaGR-SEQ", "Q-learning") else None)
     display = []
     for r in rows:
         d = r["digits"]
-        mark = "inside" if r["paper_inside"] else "✗ outside"
         value = f"{r['mean']:.{d}f} [{r['ci_low']:.{d}f}, {r['ci_high']:.{d}f}] (n={r['trials']})"
+        if np.isnan(r["ci_low"]):
+            value = f"{r['mean']:.{d}f} (n={r['trials']}; no interval)"
         if r["note"]:
             value += f"; {r['note']}"
-        display.append((r["title"], r["what"], r["paper"], r["source"], value, mark, r["explained_by"]))
-    data = pd.DataFrame(rows).drop(columns=["digits"], errors="ignore")
+        verdict = r["verdict"]
+        if verdict == inference.DIFFERS:
+            verdict = f"✗ {verdict}"
+        if r["paper_value"] is not None and r["verdict"] != inference.FITTED:
+            verdict += f" (margin ±{r['margin']:.3g}: {r['margin_reason']})"
+        display.append((r["title"], r["what"], r["paper"], r["source"], r["provenance"], value, verdict, r["explained_by"]))
+    data = pd.DataFrame(rows).drop(columns=["digits", "_config"], errors="ignore")
     return Table(
-        "Scoreboard: the paper's numbers beside lagrseq's (mean [95% bootstrap CI]); ✗ where the paper's value lies outside",
-        ("paper item", "quantity", "paper", "lagrseq source", "lagrseq", "paper's value", "gap explained by"),
+        "Scoreboard: the paper's numbers beside lagrseq's (mean [95% t-interval] (n)); verdict: reproduced / ✗ differs / "
+        "inconclusive against the paper's value ± margin (TOST), or fitted",
+        ("paper item", "quantity", "paper", "lagrseq source", "made by", "lagrseq", "verdict", "gap explained by"),
         tuple(display),
         data,
     )
+
+
+def stats_ratios(top: Run, bottom: Run) -> np.ndarray:
+    """Per-trial ratios of total return, paired by trial index (the stack-size table's quantity)."""
+    return stats.paired_ratios(top.total_per_trial("return"), bottom.total_per_trial("return"))

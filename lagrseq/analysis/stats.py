@@ -77,6 +77,18 @@ def summarize(values: Sequence[float] | np.ndarray, rng: np.random.Generator) ->
     return Summary(int(x.size), mean, std, se, low, high)
 
 
+def summarize_t(values: Sequence[float] | np.ndarray, confidence: float = CONFIDENCE) -> Summary:
+    """Mean, spread and Student's t interval of per-trial values: the interval every table of a
+    mean reports (it keeps its nominal coverage at the 2 to 10 trials of a reproduction, where the
+    percentile bootstrap under-covers; :mod:`lagrseq.analysis.inference`)."""
+    from lagrseq.analysis.inference import t_interval
+
+    x = np.asarray(values, dtype=float)
+    mean, std, se = mean_std_se(x)
+    interval = t_interval(x, confidence)
+    return Summary(int(x.size), mean, std, se, interval.low, interval.high)
+
+
 @dataclass(frozen=True)
 class CurveStats:
     """A curve over trials: one value per point. ``n`` counts the trials with a value there."""
@@ -116,19 +128,52 @@ def moving_average(values: np.ndarray, window: int) -> np.ndarray:
     return (sums[ends] - sums[starts]) / (ends - starts)
 
 
+BEFORE_FIRST_EPISODE = 0.0
+"""What a trial contributes to a return-vs-steps curve before it has finished an episode: 0, the
+return of the episodes it has finished (none). Every point then averages every trial of the run;
+dropping the trials without a finished episode would average only those that already succeeded."""
+
+
 def step_curve(
-    end_steps: np.ndarray, returns: np.ndarray, grid: np.ndarray, window: int
+    end_steps: np.ndarray,
+    returns: np.ndarray,
+    grid: np.ndarray,
+    window: int,
+    before: float = BEFORE_FIRST_EPISODE,
 ) -> np.ndarray:
     """Return vs environment steps, as the released grid code logs it: at each step of ``grid``,
-    the mean of the last ``window`` episode returns finished by then; NaN before the first episode
-    ends. ``end_steps`` are the trial's step counts at each episode end, in order."""
+    the mean of the last ``window`` episode returns finished by then; ``before`` (default
+    :data:`BEFORE_FIRST_EPISODE`) until the first episode ends. ``end_steps`` are the trial's step
+    counts at each episode end, in order; give only finished episodes (an episode cut short by the
+    trial's step budget is not one: counted as a whole it would pull the last point down)."""
     ends = np.asarray(end_steps, dtype=float)
     averaged = moving_average(np.asarray(returns, dtype=float), window)
     finished = np.searchsorted(ends, np.asarray(grid, dtype=float), side="right")
-    out = np.full(len(grid), np.nan)
+    out = np.full(len(grid), float(before))
     has = finished > 0
     out[has] = averaged[finished[has] - 1]
     return out
+
+
+def finished_episodes(
+    global_steps: np.ndarray,
+    solved: np.ndarray,
+    max_steps: int,
+    lengths: np.ndarray | None = None,
+    horizon: int | None = None,
+) -> np.ndarray:
+    """Which episodes of one trial (in order) finished on their own: all but a last episode that
+    the trial's step budget ``max_steps`` (0: none) cut off, i.e. one that ends at the budget
+    unsolved and, where the episode ``horizon`` and the episodes' ``lengths`` are known, shorter
+    than the horizon (one that reached its horizon exactly at the budget ended on its own)."""
+    steps = np.asarray(global_steps, dtype=float)
+    keep = np.ones(steps.size, dtype=bool)
+    if not (max_steps > 0 and steps.size and steps[-1] >= max_steps and not bool(np.asarray(solved)[-1])):
+        return keep
+    if horizon is not None and lengths is not None and int(np.asarray(lengths)[-1]) >= horizon:
+        return keep
+    keep[-1] = False
+    return keep
 
 
 def paired_ratios(numerator: Mapping[int, float], denominator: Mapping[int, float]) -> np.ndarray:

@@ -141,3 +141,27 @@ def test_holm_never_lowers_a_p_value_and_keeps_order(ps: list[float]) -> None:
     assert np.all(adjusted >= np.asarray(ps) - 1e-15) and np.all(adjusted <= 1.0)
     order = np.argsort(ps, kind="stable")
     assert np.all(np.diff(adjusted[order]) >= -1e-15)
+
+
+# -- the ratio of two means (the query reduction) -------------------------------------------------
+
+
+def test_the_ratio_interval_of_two_means_covers_and_degrades_honestly() -> None:
+    """Delta-method t interval of mean(x) / mean(y): nominal 95% covers at least 93% at n = 5
+    (benchmarks/coverage.py prints it at every n); no bounds without two values per arm or with a
+    zero denominator; judged like a mean by :func:`inference.judge`."""
+    rng = np.random.default_rng(99)
+    hits = 0
+    for _ in range(1500):
+        iv = inf.ratio_interval(rng.normal(100.0, 10.0, 5), rng.normal(200.0, 20.0, 5))
+        hits += iv.low <= 0.5 <= iv.high
+    assert hits / 1500 >= 0.93
+    exact = inf.ratio_interval([50.0, 50.0], [100.0, 100.0])
+    assert (exact.mean, exact.low, exact.high) == (0.5, 0.5, 0.5)
+    assert math.isnan(inf.ratio_interval([1.0], [2.0, 3.0]).low)
+    assert math.isnan(inf.ratio_interval([1.0, 2.0], [0.0, 0.0]).mean)
+    narrow = inf.ratio_interval([49.0, 50.0, 51.0, 50.0, 50.0], [100.0, 99.0, 101.0, 100.0, 100.0], 0.90)
+    wide = inf.ratio_interval([49.0, 50.0, 51.0, 50.0, 50.0], [100.0, 99.0, 101.0, 100.0, 100.0], 0.95)
+    assert inf.judge(narrow, wide, 0.5, 0.05).verdict == inf.REPRODUCED
+    assert inf.judge(narrow, wide, 0.8, 0.05).verdict == inf.DIFFERS
+    assert inf.judge(inf.t_interval([1.0]), inf.t_interval([1.0]), 1.0, 0.1).verdict == inf.INCONCLUSIVE

@@ -73,8 +73,20 @@ def test_step_curve_is_the_mean_of_the_last_episodes_finished_by_each_step() -> 
     returns = np.array([1.0, 3.0, 5.0])
     grid = np.array([50, 100, 200, 250, 299, 300, 1000])
     out = stats.step_curve(end_steps, returns, grid, window=2)
-    assert math.isnan(out[0])
+    assert out[0] == stats.BEFORE_FIRST_EPISODE == 0.0  # no episode finished yet: counts 0, not NaN (issue 19)
     assert out[1:].tolist() == [1.0, 1.0, 2.0, 2.0, 4.0, 4.0]
+    assert math.isnan(stats.step_curve(end_steps, returns, grid, window=2, before=math.nan)[0])
+
+
+def test_only_a_last_episode_cut_off_by_the_budget_is_unfinished() -> None:
+    steps, unsolved = np.array([50, 100, 200]), np.array([False, False, False])
+    assert stats.finished_episodes(steps, unsolved, 200).tolist() == [True, True, False]
+    assert stats.finished_episodes(steps, np.array([False, False, True]), 200).tolist() == [True] * 3  # solved at the budget
+    assert stats.finished_episodes(steps, unsolved, 0).tolist() == [True] * 3  # no budget
+    assert stats.finished_episodes(steps, unsolved, 300).tolist() == [True] * 3  # ended before the budget
+    lengths = np.array([50, 50, 100])
+    assert stats.finished_episodes(steps, unsolved, 200, lengths, horizon=100).tolist() == [True] * 3  # its full horizon
+    assert stats.finished_episodes(steps, unsolved, 200, lengths, horizon=150).tolist() == [True, True, False]
 
 
 def test_paired_ratios_pair_by_trial_index() -> None:
