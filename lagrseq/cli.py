@@ -20,6 +20,9 @@ from lagrseq import __version__
 from lagrseq.errors import LagrseqError
 
 _RAW = argparse.RawDescriptionHelpFormatter
+DEFAULT_REPRODUCE_OUT = Path("lagrseq-out")
+"""Where ``lagrseq reproduce`` writes by default: a folder of its own (in .gitignore), so that a
+run in a clone never touches a tracked file."""
 
 
 class _Parser(argparse.ArgumentParser):
@@ -136,7 +139,7 @@ def _make_executor(args: argparse.Namespace, start: bool = True) -> Any:
 
             raise UsageError("--scheduler applies to --executor dask only")
         return None
-    return make_executor(args.executor, args.jobs, args.scheduler, say=lambda line: print(line, flush=True))
+    return make_executor(args.executor, args.jobs, args.scheduler, say=_say)
 
 
 def _local_options(p: argparse.ArgumentParser) -> None:
@@ -187,10 +190,17 @@ def _warn(command: str) -> Callable[[str], None]:
     return lambda message: print(f"lagrseq {command}: warning: {message}", file=sys.stderr)
 
 
-def _bar(total: float, unit: str, desc: str | None, quiet: bool) -> Any:
-    from tqdm import tqdm
+def _say(line: str) -> None:
+    """A line on stdout, above any progress bar (never glued onto the bar's line)."""
+    from lagrseq.progress import say
 
-    return tqdm(total=total, unit=unit, desc=desc, disable=quiet, file=sys.stderr, dynamic_ncols=True)
+    say(line)
+
+
+def _bar(total: float, unit: str, desc: str | None, quiet: bool) -> Any:
+    from lagrseq.progress import bar
+
+    return bar(total, unit, desc, quiet)
 
 
 # ------------------------------------------------------------------------------------------
@@ -226,9 +236,12 @@ def _add_run(sub: Any) -> None:
     )
     _task_argument(p)
     p.add_argument("--method", choices=METHODS, default="lagr-seq", help="baseline: the plain RL agent; lagr: query the LLM whenever triggered; lagr-seq: the secondary agent decides (default)")
+    from lagrseq.tasks import grid_profiles
     from lagrseq.wiring import REFUSING, REFUSING_HELP
 
-    profiles = "; ".join(f"{k}: {v}" for k, v in {**PROFILE_HELP, REFUSING: REFUSING_HELP}.items())
+    grids = {name: f"(image completion, object arrangement) {made.description}" for name, made in grid_profiles.PROFILES.items()}
+    # every profile --provider accepts (wiring.mock_profiles), each with its meaning; % escaped for argparse
+    profiles = "; ".join(f"{k}: {v}" for k, v in {**PROFILE_HELP, **grids, REFUSING: REFUSING_HELP}.items()).replace("%", "%%")
     p.add_argument("--provider", default="mock", metavar="SPEC", help=f"LLM provider (default: mock): mock = the rule-based extrapolator (no key, no network); mock:PROFILE = a profile of it ({profiles}); recorded:STORE = answers recorded in the directory STORE (see --on-miss), or in a JSONL export FILE.jsonl; live or live:MODEL = an OpenAI-compatible server (see --base-url; MODEL overrides llm.model); local or local:MODEL.gguf = a llama.cpp server lagrseq starts on 127.0.0.1 and stops at the end (default model: SmolLM2-135M-Instruct from the local-llm extra; no key)")
     p.add_argument("--trials", type=_COUNT, default=10, help="number of independent trials (default 10)")
     p.add_argument("--seed", type=_SEED, default=0, help="run seed, 0 <= S < 2**63; trial k uses a stream spawned from (seed, k) (default 0)")
@@ -270,7 +283,7 @@ def _add_frontier(sub: Any) -> None:
             "Run every asking policy of --policies (and --sweep) on TASK with one provider, as "
             "ordinary runs under OUT (resumable, MCAP logs), then write OUT/frontier/: the "
             "frontier PNG (return and steps to the first solved episode against queries and US "
-            "dollars per trial, 95%% bootstrap intervals on both axes, a swept knob as a curve), "
+            "dollars per trial, 95% bootstrap intervals on both axes, a swept knob as a curve), "
             "performance profiles, and a Markdown/CSV table (mean, IQM with a stratified "
             "bootstrap interval, probability of improvement over always, fallback answers) with "
             "the paper's SEQ and LaGR rows marked. never = --method baseline, always = --method "
@@ -449,7 +462,7 @@ def _add_reproduce(sub: Any) -> None:
         ),
         epilog=(
             "examples:\n"
-            "  lagrseq reproduce --quick                # ./runs and ./reports, a few minutes\n"
+            "  lagrseq reproduce --quick                # ./lagrseq-out/runs and ./lagrseq-out/reports\n"
             "  lagrseq reproduce --out results --jobs 8\n"
             "  lagrseq reproduce --executor dask --scheduler tcp://head:8786 --out /shared/results\n"
             "  lagrseq reproduce --provider recorded:store-tau0/ --items fig6a   # a store made by lagrseq cache import\n"
@@ -458,7 +471,7 @@ def _add_reproduce(sub: Any) -> None:
         formatter_class=_RAW,
     )
     p.add_argument("--quick", action="store_true", help="fewer trials, episodes and probe samples where it matters (each item's quick_* length)")
-    p.add_argument("--out", type=Path, default=Path("."), metavar="DIR", help="writes DIR/runs and DIR/reports (default: .)")
+    p.add_argument("--out", type=Path, default=DEFAULT_REPRODUCE_OUT, metavar="DIR", help=f"writes DIR/runs and DIR/reports (default: {DEFAULT_REPRODUCE_OUT}, which .gitignore leaves untracked)")
     p.add_argument("--provider", default=None, metavar="SPEC", help="provider of the suite's default-provider runs (default: the suite's, mock)")
     p.add_argument("--jobs", type=_N["jobs"], default=os.cpu_count() or 1, help="trials run in parallel (default: the number of cores)")
     p.add_argument("--seed", type=_SEED, default=None, help="run seed (default: the suite's, 0)")
@@ -481,7 +494,7 @@ def _add_audit(sub: Any) -> None:
             "run the upstream preset with only that field set to the paper's value and the paper "
             "preset with only that field set back, for baseline, lagr and lagr-seq; then report each "
             "field's effect on queries with and without SEQ, total return, the performance ratio and "
-            "the steps to the first solved episode, with 95%% bootstrap intervals. Writes "
+            "the steps to the first solved episode, with 95% bootstrap intervals. Writes "
             "OUT/runs and OUT/reports/audit-TASK.md/.csv/.png; lagrseq replay rebuilds it from the logs."
         ),
         epilog="examples:\n  lagrseq audit cube-stacking --trials 5 --out audit\n  lagrseq audit cube-stacking --provider mock:authors-t0",
@@ -536,6 +549,18 @@ def _add_serve_llm(sub: Any) -> None:
     _local_options(p)
 
 
+def _add_info(sub: Any) -> None:
+    sub.add_parser(
+        "info",
+        help="what to paste into a bug report: version, Python, extras, torch's device, output folders",
+        description=(
+            "Print lagrseq's version, the Python it runs on, every extra with the installed "
+            "version of each of its packages, the device torch would use (without importing any "
+            "other extra) and where each command writes by default."
+        ),
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="lagrseq",
@@ -546,7 +571,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"lagrseq {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    for add in (_add_run, _add_config, _add_record, _add_cache, _add_reproduce, _add_replay, _add_recover, _add_robot, _add_frontier, _add_audit, _add_serve_llm):
+    for add in (_add_run, _add_config, _add_record, _add_cache, _add_reproduce, _add_replay, _add_recover, _add_robot, _add_frontier, _add_audit, _add_serve_llm, _add_info):
         add(sub)
     return parser
 
@@ -588,7 +613,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         with _bar(args.trials * per_trial, unit, f"{args.task} {args.method}", args.quiet) as bar:
             results = runner.run_trials(
                 config, args.trials, args.seed, args.provider, directory, args.jobs, bar, options,
-                pool=pool, say=lambda line: print(line, flush=True), retries=args.retries, render_dir=args.render,
+                pool=pool, say=_say, retries=args.retries, render_dir=args.render,
                 # a failed trial is named at once above the bar; --quiet: only in the closing line
                 warn=None if args.quiet else (lambda line: bar.write(f"lagrseq run: warning: {line}", file=sys.stderr)),
             )
@@ -599,7 +624,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 def cmd_robot(args: argparse.Namespace) -> int:
     from lagrseq.robot.remote import serve_sim
 
-    serve_sim(args.host, args.port, say=lambda line: print(line, flush=True))
+    serve_sim(args.host, args.port, say=_say)
     return 0
 
 
@@ -755,6 +780,7 @@ def cmd_frontier(args: argparse.Namespace) -> int:
         directories = frontier.run_frontier(
             args.task, variants, args.provider, options, base, args.trials, args.seed, args.preset, args.config,
             args.overrides, args.jobs, progress=lambda desc, total, unit: _bar(total, unit, desc, args.quiet),
+            say=_say,
         )
         frontier.write_index(base, variants, directories)
         out, roots = base / "frontier", directories
@@ -775,7 +801,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     items = [i.strip() for i in args.items.split(",") if i.strip()] if args.items is not None else None
     report, elapsed = reproduce.reproduce(
         args.suite, items, args.quick, args.provider, args.out, args.jobs, args.seed,
-        args.formats, _price_function(args.price_table), quiet=args.quiet, say=lambda line: print(line, flush=True),
+        args.formats, _price_function(args.price_table), quiet=args.quiet, say=_say,
         executor=args.executor, scheduler=args.scheduler, retries=args.retries,
         authors_caches=args.authors_caches,
     )
@@ -846,7 +872,7 @@ def cmd_audit(args: argparse.Namespace) -> int:
 
     made = run_audit(
         args.task, args.provider, args.trials, args.episodes, args.max_steps, args.out, args.jobs, args.seed,
-        ["png"], quiet=args.quiet, say=lambda line: print(line, flush=True),
+        ["png"], quiet=args.quiet, say=_say,
     )
     for audit in made:
         print(to_markdown(audit.table))
@@ -854,8 +880,17 @@ def cmd_audit(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_info(args: argparse.Namespace) -> int:
+    from lagrseq.info import lines
+
+    for line in lines():
+        print(line)
+    return 0
+
+
 COMMANDS = {
     "audit": cmd_audit,
+    "info": cmd_info,
     "run": cmd_run,
     "config": cmd_config,
     "record": cmd_record,

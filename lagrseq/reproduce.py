@@ -13,7 +13,6 @@
 from __future__ import annotations
 
 import contextlib
-import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -312,10 +311,9 @@ def reproduce(
     """``lagrseq reproduce``: plan the suite, say what will run and how long it should take, run
     it with one progress bar (episodes of cube runs, steps of grid runs), then replay the logs into
     ``out/reports``. Returns the replay report and the seconds it all took."""
-    from tqdm import tqdm
-
     from lagrseq.analysis.replay import replay
     from lagrseq.paths import writable_directory
+    from lagrseq.progress import bar as progress_bar
     from lagrseq.suite import load_suite
 
     suite = load_suite(suite_path)
@@ -352,7 +350,7 @@ def reproduce(
         f"(timed on this machine; LLM latency of live providers not included)"
     )
     total = sum(run.units() for run in the_plan.runs)
-    with tqdm(total=total, unit="it", disable=quiet, file=sys.stderr, dynamic_ncols=True) as bar:
+    with progress_bar(total, "it", quiet=quiet) as bar:
         execute(
             the_plan, jobs, bar, on_run=lambda run: bar.set_description(run.describe()),
             executor=executor, scheduler=scheduler, say=say, retries=retries,
@@ -406,14 +404,13 @@ AUDIT_TRIALS = {True: 3, False: 10}
 def run_cube_audit(runs_dir: Path, quick: bool, jobs: int, seed: int, quiet: bool, say: Callable[[str], None]) -> None:
     """The audit of the cube task (``lagrseq audit cube-stacking``) at the suite's length, into the
     suite's runs, so that replay adds its table and figure (the preset runs are the suite's own)."""
-    from tqdm import tqdm
-
     from lagrseq.audit import plan as audit_plan
+    from lagrseq.progress import bar as progress_bar
 
     trials = AUDIT_TRIALS[quick]
     runs = audit_plan("cube-stacking", "mock", trials, 100, -1, runs_dir, seed, say)
     say(f"cube audit: {len(runs)} runs of {trials} trials, one field switched each (lagrseq audit)")
-    with tqdm(total=len(runs) * trials, unit="trial", disable=quiet, file=sys.stderr, dynamic_ncols=True) as bar:
+    with progress_bar(len(runs) * trials, "trial", quiet=quiet) as bar:
         sweep = [runner.SweepRun(r.config, trials, seed, r.provider, r.path, progress=runner.TrialCount(bar, r.config)) for r in runs]
         runner.run_sweep(sweep, jobs)
 

@@ -128,8 +128,9 @@ def match(
 
 
 def recorded_misses(run: Run) -> str:
-    """For a run on a recorded store: "K of N answers not recorded (mock)" from its queries'
-    ``source`` column; empty for other runs."""
+    """For a run on a recorded store: "all N answers recorded", or "K of N answers from the
+    fallback mock" (K answered by the fallback, not the store) from its queries' ``source``
+    column; empty for other runs."""
     if not run.key.provider.startswith("recorded:") or run.queries.empty:
         return ""
     asked = run.queries[run.queries["queried"].fillna(False).astype(bool)]
@@ -137,8 +138,10 @@ def recorded_misses(run: Run) -> str:
     misses = sources[sources != "recorded"]
     if len(asked) == 0:
         return "no queries"
-    kinds = "/".join(sorted(set(misses))) or "mock"
-    return f"{len(misses)} of {len(asked)} answers not recorded ({kinds})"
+    if len(misses) == 0:
+        return f"all {len(asked)} answers recorded"
+    kinds = "/".join(sorted(set(misses)))
+    return f"{len(misses)} of {len(asked)} answers from the fallback {kinds}"
 
 
 def run_line(m: Match) -> str:

@@ -94,6 +94,12 @@ def build(items: Sequence[tuple[Item, Sequence[Match]]], audit_tasks: Sequence[s
             continue
         present = [m for m in matched if m.run is not None]
         if item.render == "query-table":
+            header = str(item.options.get("row_header", "")).strip()
+
+            def named(row: str, header: str = header) -> str:
+                """A row by its header ("τ = 0", not a bare "0" that reads as a count)."""
+                return f"{header} = {row}" if header else row
+
             for key, paper in reference.items():
                 if "|" not in key:
                     continue
@@ -102,7 +108,7 @@ def build(items: Sequence[tuple[Item, Sequence[Match]]], audit_tasks: Sequence[s
                     if m.spec.column == column and _fits(m, row):
                         assert m.run is not None
                         s = stats.summarize(_queries(m.run), stats.generator(f"{m.run.key.name}/queries"))
-                        add(item, f"{row}, {column}: queries per run", str(paper), m, s.mean, s.ci_low, s.ci_high, s.n, 1)
+                        add(item, f"{named(row)}, {column}: queries per run", str(paper), m, s.mean, s.ci_low, s.ci_high, s.n, 1)
             # the query reduction SEQ brings, where the paper gives both columns of a row
             columns = sorted({k.split("|", 1)[1] for k in reference if "|" in k})
             if len(columns) == 2:
@@ -119,7 +125,7 @@ def build(items: Sequence[tuple[Item, Sequence[Match]]], audit_tasks: Sequence[s
                         if ml is None or ms.run is None or ml.run is None:
                             continue
                         point, low, high = _reduction(_queries(ms.run), _queries(ml.run), stats.generator(f"{ms.run.key.name}/reduction"))
-                        add(item, f"{key}: query reduction with SEQ (%)", paper, ms, 100 * point, 100 * low, 100 * high, len(ms.run.trials), 1)
+                        add(item, f"{named(key)}: query reduction with SEQ (%)", paper, ms, 100 * point, 100 * low, 100 * high, len(ms.run.trials), 1)
         elif item.render == "ratio-table":
             numerator = str(item.options.get("numerator", ""))
             denominator = str(item.options.get("denominator", ""))
