@@ -259,7 +259,7 @@ def _add_robot(sub: Any) -> None:
         description=(
             "Serve a robot over gRPC (lagrseq/robot/proto/robot.proto) for runs with "
             "--set env.robot=\"remote:HOST:PORT\". A lab with a real UR5e serves the same service "
-            "with ur_rtde (see the README, 'Robot service')."
+            "with ur_rtde (see docs/arm.md, 'Robot service')."
         ),
         epilog="example:\n  lagrseq robot serve --sim --port 50051 &\n  lagrseq run arm-arrangement --set env.robot=\"remote:127.0.0.1:50051\"",
         formatter_class=_RAW,
