@@ -439,11 +439,13 @@ def draw_profiles(points: Sequence[Point], title: str) -> Figure:
     for i, p in enumerate(points):
         profile, low, high = stats.performance_profile_ci([p.returns], taus, stats.generator(f"frontier/{p.label}/profile"), 500)
         color = COLORS[i % len(COLORS)]
-        # a line style and markers of its own per policy: equal profiles (always and oracle on
-        # the same returns) no longer hide one another
+        # a line style and markers of its own per policy, each later line narrower than the one
+        # before: equal profiles (always and oracle on the same returns) show as a wide line with
+        # a thin one on top instead of hiding one another
         ax.plot(
             taus, profile, color=color, label=p.label, linestyle=PROFILE_STYLES[i % len(PROFILE_STYLES)],
-            marker=MARKERS[i % len(MARKERS)], markevery=(2 * i % 16, 16), markersize=4, linewidth=1.4,
+            marker=MARKERS[i % len(MARKERS)], markevery=(2 * i % 16, 16), markersize=max(3.5, 8.0 - i),
+            markerfacecolor="none", linewidth=max(1.0, 4.0 - 0.6 * i),
         )
         if not np.isnan(low).all():
             ax.fill_between(taus, low, high, color=color, alpha=0.12)
