@@ -113,9 +113,8 @@ def run_audit(
 ) -> list[Any]:
     """Run the audit of ``task`` into ``OUT/runs`` and write ``OUT/reports/audit-TASK.*``;
     returns the audits built from the logs."""
-    from tqdm import tqdm
-
     from lagrseq.paths import writable_directory
+    from lagrseq.progress import bar as progress_bar
 
     wiring.parse_provider(provider)
     writable_directory(out)
@@ -129,7 +128,7 @@ def run_audit(
         + (f" and {together} interaction runs (fields switched together)" if together else "")
         + f", {len(runs)} runs of {trials} trials ({pending} trials to run)"
     )
-    with tqdm(total=len(runs) * trials, unit="trial", disable=quiet, file=sys.stderr, dynamic_ncols=True) as bar:
+    with progress_bar(len(runs) * trials, "trial", quiet=quiet) as bar:
         sweep = [runner.SweepRun(r.config, trials, seed, r.provider, r.path, progress=runner.TrialCount(bar, r.config)) for r in runs]
         runner.run_sweep(sweep, jobs)  # every run's trials in one pool: no worker waits on a run's last trial
     return write_audit([runs_dir], reports, formats, task, warn=lambda line: print(f"lagrseq audit: warning: {line}", file=sys.stderr))

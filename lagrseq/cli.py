@@ -22,6 +22,9 @@ from lagrseq import __version__
 from lagrseq.errors import LagrseqError, UsageError
 
 _RAW = argparse.RawDescriptionHelpFormatter
+DEFAULT_REPRODUCE_OUT = Path("lagrseq-out")
+"""Where ``lagrseq reproduce`` writes by default: a folder of its own (in .gitignore), so that a
+run in a clone never touches a tracked file."""
 
 
 class _Parser(argparse.ArgumentParser):
@@ -142,7 +145,7 @@ def _make_executor(args: argparse.Namespace, start: bool = True) -> Any:
 
             raise UsageError("--scheduler applies to --executor dask only")
         return None
-    return make_executor(args.executor, args.jobs, args.scheduler, say=lambda line: print(line, flush=True))
+    return make_executor(args.executor, args.jobs, args.scheduler, say=_say)
 
 
 def _local_options(p: argparse.ArgumentParser) -> None:
@@ -204,10 +207,17 @@ def _warn(command: str) -> Callable[[str], None]:
     return lambda message: print(f"lagrseq {command}: warning: {message}", file=sys.stderr)
 
 
-def _bar(total: float, unit: str, desc: str | None, quiet: bool) -> Any:
-    from tqdm import tqdm
+def _say(line: str) -> None:
+    """A line on stdout, above any progress bar (never glued onto the bar's line)."""
+    from lagrseq.progress import say
 
-    return tqdm(total=total, unit=unit, desc=desc, disable=quiet, file=sys.stderr, dynamic_ncols=True)
+    say(line)
+
+
+def _bar(total: float, unit: str, desc: str | None, quiet: bool) -> Any:
+    from lagrseq.progress import bar
+
+    return bar(total, unit, desc, quiet)
 
 
 # ------------------------------------------------------------------------------------------
@@ -243,8 +253,13 @@ def _add_run(sub: Any) -> None:
     )
     _task_argument(p)
     p.add_argument("--method", choices=METHODS, default="lagr-seq", help="baseline: the plain RL agent; lagr: query the LLM whenever triggered; lagr-seq: the secondary agent decides (default)")
-    profiles = "; ".join(f"{k}: {v}" for k, v in PROFILE_HELP.items())
-    _provider_argument(p, "mock", f"LLM provider (mock:PROFILE: {profiles}; refuses: never right, on any task)")
+    from lagrseq.tasks import grid_profiles
+    from lagrseq.wiring import REFUSING, REFUSING_HELP
+
+    grids = {name: f"(image completion, object arrangement) {made.description}" for name, made in grid_profiles.PROFILES.items()}
+    # every profile --provider accepts (wiring.mock_profiles), each with its meaning; % escaped for argparse
+    profiles = "; ".join(f"{k}: {v}" for k, v in {**PROFILE_HELP, **grids, REFUSING: REFUSING_HELP}.items()).replace("%", "%%")
+    _provider_argument(p, "mock", f"LLM provider (mock:PROFILE: {profiles})")
     p.add_argument("--trials", type=_COUNT, default=10, help="number of independent trials (default 10)")
     p.add_argument("--seed", type=_SEED, default=0, help="run seed, 0 <= S < 2**63; trial k uses a stream spawned from (seed, k) (default 0)")
     p.add_argument("--out", type=Path, default=Path("runs"), help="output directory (default: runs)")
@@ -261,7 +276,7 @@ def _add_robot(sub: Any) -> None:
         description=(
             "Serve a robot over gRPC (lagrseq/robot/proto/robot.proto) for runs with "
             "--set env.robot=\"remote:HOST:PORT\". A lab with a real UR5e serves the same service "
-            "with ur_rtde (see the README, 'Robot service')."
+            "with ur_rtde (see docs/arm.md, 'Robot service')."
         ),
         epilog="example:\n  lagrseq robot serve --sim --port 50051 &\n  lagrseq run arm-arrangement --set env.robot=\"remote:127.0.0.1:50051\"",
         formatter_class=_RAW,
@@ -289,7 +304,7 @@ def _add_frontier(sub: Any) -> None:
             "Run every asking policy of --policies (and --sweep) on TASK with one provider, as "
             "ordinary runs under OUT (resumable, MCAP logs), then write OUT/frontier/: the "
             "frontier PNG (return and steps to the first solved episode against queries and US "
-            "dollars per trial, 95%% bootstrap intervals on both axes, a swept knob as a curve), "
+            "dollars per trial, 95% bootstrap intervals on both axes, a swept knob as a curve), "
             "performance profiles, and a Markdown/CSV table (mean, IQM with a stratified "
             "bootstrap interval, probability of improvement over always, fallback answers) with "
             "the paper's SEQ and LaGR rows marked. never = --method baseline, always = --method "
@@ -297,7 +312,7 @@ def _add_frontier(sub: Any) -> None:
             "report from the logs under DIR alone (no trial runs). With recorded:STORE nothing is "
             "ever sent unless --on-miss live is given. The protocol (docs/frontier.md): the primary "
             "outcome is steps to the first solved episode (and episodes solved per trial); each point "
-            "gets a one-sided Welch non-inferiority verdict against always (margin 10%% of always's "
+            "gets a one-sided Welch non-inferiority verdict against always (margin 10% of always's "
             "mean, alpha 0.05, at least 10 trials), random runs at each learning policy's matched "
             "query rate, and a point is credited only when it is non-inferior and beats that random "
             "run; the grid tasks run both regimes (--scopes); store misses are refused (--on-miss "
@@ -481,7 +496,7 @@ def _add_reproduce(sub: Any) -> None:
         ),
         epilog=(
             "examples:\n"
-            "  lagrseq reproduce --quick                # ./runs and ./reports, a few minutes\n"
+            "  lagrseq reproduce --quick                # ./lagrseq-out/runs and ./lagrseq-out/reports\n"
             "  lagrseq reproduce --out results --jobs 8\n"
             "  lagrseq reproduce --executor dask --scheduler tcp://head:8786 --out /shared/results\n"
             "  lagrseq reproduce --provider recorded:store-tau0/ --items fig6a   # a store made by lagrseq cache import\n"
@@ -490,7 +505,7 @@ def _add_reproduce(sub: Any) -> None:
         formatter_class=_RAW,
     )
     p.add_argument("--quick", action="store_true", help="fewer trials, episodes and probe samples where it matters (each item's quick_* length)")
-    p.add_argument("--out", type=Path, default=Path("."), metavar="DIR", help="writes DIR/runs and DIR/reports (default: .)")
+    p.add_argument("--out", type=Path, default=DEFAULT_REPRODUCE_OUT, metavar="DIR", help=f"writes DIR/runs and DIR/reports (default: {DEFAULT_REPRODUCE_OUT}, which .gitignore leaves untracked)")
     _provider_argument(p, None, "provider of the suite's default-provider runs (none given: the suite's, mock)")
     p.add_argument("--jobs", type=_N["jobs"], default=os.cpu_count() or 1, help="trials run in parallel (default: the number of cores)")
     p.add_argument("--seed", type=_SEED, default=None, help="run seed (default: the suite's, 0)")
@@ -513,7 +528,7 @@ def _add_audit(sub: Any) -> None:
             "run the upstream preset with only that field set to the paper's value and the paper "
             "preset with only that field set back, for baseline, lagr and lagr-seq; then report each "
             "field's effect on queries with and without SEQ, total return, the performance ratio and "
-            "the steps to the first solved episode, with Welch 95%% t-intervals and n; marks are "
+            "the steps to the first solved episode, with Welch 95% t-intervals and n; marks are "
             "Holm-corrected over the table's comparisons, and runs of fewer than 10 trials are "
             "indicative (never marked). On cube-stacking it also runs the primary's epsilon schedule, "
             "learning on guided steps and the secondary's epsilon schedule switched together (2x2x2) "
@@ -606,6 +621,18 @@ def _add_plugins(sub: Any) -> None:
     )
 
 
+def _add_info(sub: Any) -> None:
+    sub.add_parser(
+        "info",
+        help="what to paste into a bug report: version, Python, extras, torch's device, output folders",
+        description=(
+            "Print lagrseq's version, the Python it runs on, every extra with the installed "
+            "version of each of its packages, the device torch would use (without importing any "
+            "other extra) and where each command writes by default."
+        ),
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="lagrseq",
@@ -616,7 +643,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"lagrseq {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    for add in (_add_run, _add_config, _add_record, _add_cache, _add_reproduce, _add_replay, _add_recover, _add_robot, _add_frontier, _add_audit, _add_serve_llm, _add_plugins, _add_models):
+    for add in (_add_run, _add_config, _add_record, _add_cache, _add_reproduce, _add_replay, _add_recover, _add_robot, _add_frontier, _add_audit, _add_serve_llm, _add_plugins, _add_models, _add_info):
         add(sub)
     return parser
 
@@ -653,7 +680,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         with _bar(args.trials * per_trial, unit, f"{args.task} {args.method}", args.quiet) as bar:
             results = runner.run_trials(
                 config, args.trials, args.seed, args.provider, directory, args.jobs, bar, options,
-                pool=pool, say=lambda line: print(line, flush=True), retries=args.retries, render_dir=args.render,
+                pool=pool, say=_say, retries=args.retries, render_dir=args.render,
                 # a failed trial is named at once above the bar; --quiet: only in the closing line
                 warn=None if args.quiet else (lambda line: bar.write(f"lagrseq run: warning: {line}", file=sys.stderr)),
             )
@@ -666,7 +693,7 @@ def cmd_robot(args: argparse.Namespace) -> int:
 
     check_listen(args.host, args.port)  # an address this machine cannot listen on is said first
     security = security_for(args.host, args.token_file, args.tls_cert, args.tls_key, args.max_objects)
-    serve_sim(args.host, args.port, say=lambda line: print(line, flush=True), security=security)
+    serve_sim(args.host, args.port, say=_say, security=security)
     return 0
 
 
@@ -806,7 +833,7 @@ def cmd_frontier(args: argparse.Namespace) -> int:
         args.task, args.replay, variants, args.provider, None if args.replay else _provider_options(args), args.out,
         args.trials, args.seed, args.preset, args.config, args.overrides, args.jobs,
         progress=lambda desc, total, unit: _bar(total, unit, desc, args.quiet),
-        scopes=args.scopes, matched_random=args.matched_random, tune=frontier.tuning(args.tune, args.seed, args.tune_seed, args.tune_trials),
+        say=_say, scopes=args.scopes, matched_random=args.matched_random, tune=frontier.tuning(args.tune, args.seed, args.tune_seed, args.tune_trials),
     )
     made = report(roots, out, price, args.miss_threshold)
     for warning in made.warnings:
@@ -825,7 +852,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     items = [i.strip() for i in args.items.split(",") if i.strip()] if args.items is not None else None
     report, elapsed = reproduce.reproduce(
         args.suite, items, args.quick, args.provider, args.out, args.jobs, args.seed,
-        args.formats, _price_function(args.price_table), quiet=args.quiet, say=lambda line: print(line, flush=True),
+        args.formats, _price_function(args.price_table), quiet=args.quiet, say=_say,
         executor=args.executor, scheduler=args.scheduler, retries=args.retries,
         authors_caches=args.authors_caches,
     )
@@ -894,7 +921,7 @@ def cmd_audit(args: argparse.Namespace) -> int:
 
     made = run_audit(
         args.task, args.provider, args.trials, args.episodes, args.max_steps, args.out, args.jobs, args.seed,
-        ["png"], quiet=args.quiet, say=lambda line: print(line, flush=True),
+        ["png"], quiet=args.quiet, say=_say,
     )
     for audit in made:
         for stem, table in ((f"audit-{audit.task}", audit.table), (f"audit-{audit.task}-interactions", audit.interaction_table)):
@@ -911,9 +938,18 @@ def cmd_plugins(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_info(args: argparse.Namespace) -> int:
+    from lagrseq.info import lines
+
+    for line in lines():
+        print(line)
+    return 0
+
+
 COMMANDS = {
     "plugins": cmd_plugins,
     "audit": cmd_audit,
+    "info": cmd_info,
     "run": cmd_run,
     "config": cmd_config,
     "record": cmd_record,

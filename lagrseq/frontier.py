@@ -456,6 +456,7 @@ def runs_or_replay(
     scopes: str = "auto",
     matched_random: bool = True,
     tune: Tuning | None = None,
+    say: Callable[[str], None] = print,
 ) -> tuple[Path, list[Path]]:
     """``lagrseq frontier``'s runs: with ``replay``, the logs under it (no trial runs); else every
     variant run on ``task`` under ``out`` by the protocol (:func:`run_protocol`) and indexed.
@@ -472,7 +473,7 @@ def runs_or_replay(
         raise UsageError("frontier needs a TASK (or --replay DIR)")
     made = run_protocol(  # out is made once every configuration is checked
         task, list(variants), provider, options, out, trials, seed, preset, config_file, list(overrides), jobs,
-        progress=progress, scopes=parse_scopes(scopes, task), matched_random=matched_random, tune=tune,
+        progress=progress, say=say, scopes=parse_scopes(scopes, task), matched_random=matched_random, tune=tune,
     )
     write_index(out, made.variants, made.directories, made.chosen)
     return out / "frontier", list(made.directories)

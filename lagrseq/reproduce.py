@@ -13,7 +13,6 @@
 from __future__ import annotations
 
 import contextlib
-import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -311,10 +310,9 @@ def reproduce(
     """``lagrseq reproduce``: plan the suite, say what will run and how long it should take, run
     it with one progress bar (episodes of cube runs, steps of grid runs), then replay the logs into
     ``out/reports``. Returns the replay report and the seconds it all took."""
-    from tqdm import tqdm
-
     from lagrseq.analysis.replay import replay
     from lagrseq.paths import writable_directory
+    from lagrseq.progress import bar as progress_bar
     from lagrseq.suite import load_suite
 
     suite = load_suite(suite_path)
@@ -350,7 +348,7 @@ def reproduce(
         f"(timed on this machine; LLM latency of live providers not included)"
     )
     total = sum(run.units() for run in the_plan.runs)
-    with tqdm(total=total, unit="it", disable=quiet, file=sys.stderr, dynamic_ncols=True) as bar:
+    with progress_bar(total, "it", quiet=quiet) as bar:
         execute(
             the_plan, jobs, bar, on_run=lambda run: bar.set_description(run.describe()),
             executor=executor, scheduler=scheduler, say=say, retries=retries,
@@ -425,9 +423,8 @@ indicative, labelled so on their tables)."""
 def run_suite_audit(task: str, runs_dir: Path, quick: bool, jobs: int, seed: int, quiet: bool, say: Callable[[str], None]) -> None:
     """The audit of ``task`` (``lagrseq audit TASK``) at the suite's length, into the suite's runs,
     so that replay adds its tables and figures (a preset run the suite also makes is shared)."""
-    from tqdm import tqdm
-
     from lagrseq.audit import plan as audit_plan
+    from lagrseq.progress import bar as progress_bar
 
     chosen = SUITE_AUDITS[task]
     trials, episodes, max_steps = chosen.quick if quick else chosen.full
@@ -439,7 +436,7 @@ def run_suite_audit(task: str, runs_dir: Path, quick: bool, jobs: int, seed: int
         + (" (reduced: upstream -> paper only)" if quick and chosen.quick_presets != ("upstream", "paper") else "")
         + f", one field switched each{f' and {together} interaction runs' if together else ''} (lagrseq audit)"
     )
-    with tqdm(total=len(runs) * trials, unit="trial", disable=quiet, file=sys.stderr, dynamic_ncols=True) as bar:
+    with progress_bar(len(runs) * trials, "trial", quiet=quiet) as bar:
         sweep = [runner.SweepRun(r.config, trials, seed, r.provider, r.path, progress=runner.TrialCount(bar, r.config)) for r in runs]
         runner.run_sweep(sweep, jobs)
 

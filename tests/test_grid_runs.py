@@ -1,6 +1,6 @@
 """LaGR-SEQ on the grid tasks, end to end: logs, determinism, queries, guidance, presets, CLI.
 
-Trials here use small step budgets; the full-length comparison is the report's (see the README).
+Trials here use small step budgets; the full-length comparison is the report's (see docs/reproduce.md and the reference report).
 """
 
 from __future__ import annotations

@@ -62,6 +62,8 @@ LAYERS: dict[str, tuple[str, ...]] = {
     "lagrseq.robot.proto": ("lagrseq.tasks", "lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", *UPPER, *HEAVY, "mcap"),
     "lagrseq.audit": ("lagrseq.reproduce", "lagrseq.cli", *HEAVY),
     "lagrseq.authors": ("lagrseq.analysis", "lagrseq.runner", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),
+    # lagrseq info: metadata only; torch is imported inside the call that names its device
+    "lagrseq.info": ("lagrseq.analysis", "lagrseq.runner", "lagrseq.reproduce", "lagrseq.cli", "dask", "distributed", *HEAVY, "mcap", "pandas", "matplotlib"),
 }
 OPTIONAL = {
     "lagrseq.dask_executor": ("distributed",),
@@ -70,7 +72,7 @@ OPTIONAL = {
 }
 """Modules that need an extra to import at all (the Dask executor, generated gRPC code): checked
 only where it is installed."""
-ANYONE = ("lagrseq.config", "lagrseq.errors", "lagrseq.seeding", "lagrseq.paths", "lagrseq.tomlfile", "lagrseq.registry", "lagrseq.builtins")
+ANYONE = ("lagrseq.config", "lagrseq.errors", "lagrseq.seeding", "lagrseq.paths", "lagrseq.progress", "lagrseq.tomlfile", "lagrseq.registry", "lagrseq.builtins")
 
 
 def modules() -> list[str]:

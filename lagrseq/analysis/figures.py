@@ -100,9 +100,18 @@ def returns(
     if title:
         ax.set_title(title)
     ax.set_xlim(left=0)
+    _zero_in_view(ax)
     band_text = "±1 std" if band == "std" else "±1 s.e."
     _legend_below(ax, len(series), title=f"mean, shaded {band_text} over trials")
     return ax
+
+
+def _zero_in_view(ax: Axes) -> None:
+    """Returns that are all positive get a y axis from 0 (matplotlib's autoscale started it
+    near the lowest curve, which made a gap of 0.2 against 1.3 look like a factor of ten)."""
+    low, high = ax.get_ylim()
+    if low > 0:
+        ax.set_ylim(0, high)
 
 
 def _legend_below(ax: Axes, entries: int, title: str | None = None) -> None:
@@ -192,14 +201,21 @@ def accuracy(
     given in the prompt, one line per provider and temperature."""
     ax = new_axes() if ax is None else ax
     markers = "osD^vP*X"
+    styles = ("-", "--", "-.", ":")
     for i, line in enumerate(lines):
+        # Lines often coincide (0% or 100% at the same fractions): each later line is drawn
+        # narrower, dashed and with a smaller hollow marker on top of the earlier ones, so the
+        # first line still shows as a wide band under the others instead of vanishing.
         ax.plot(
             line.fraction,
             line.accuracy,
             color=COLORS[i % len(COLORS)],
             marker=markers[i % len(markers)],
-            markersize=5,
-            linewidth=1.6,
+            markersize=max(4.0, 10.0 - 1.5 * i),
+            markerfacecolor="none",
+            markeredgewidth=1.4,
+            linestyle=styles[i % len(styles)],
+            linewidth=max(1.2, 4.0 - 0.7 * i),
             label=f"{line.label} ({line.samples} per point)",
         )
     ax.set_xlabel("Fraction of the sequence in the prompt")

@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 
 from lagrseq.analysis import inference, stats
 from lagrseq.analysis.figures import COLORS, STYLE
@@ -527,6 +528,9 @@ def _curves(points: Sequence[Point]) -> list[tuple[str, list[Point]]]:
 MARKERS = ("o", "s", "^", "D", "v", "P", "X", "h", "<", ">", "p", "d")
 """A policy's variants, told apart by marker (one colour per policy); the paper's rows are stars."""
 
+PROFILE_STYLES = ("-", "--", "-.", ":")
+"""Performance profiles: one line style per policy, so lines that coincide stay visible."""
+
 
 def _markers(points: Sequence[Point]) -> dict[int, str]:
     """id(point) -> marker: ``*`` for the paper's SEQ and LaGR rows, else the next free marker of
@@ -573,30 +577,39 @@ def draw(points: Sequence[Point], title: str, miss_threshold: float = MISS_THRES
                 yerr = [[max(y - yl, 0)], [max(yh - y, 0)]] if not math.isnan(yl) else None
                 hollow = p.flagged(miss_threshold)
                 marker = markers[id(p)]
-                drawn = ax.errorbar(
-                    [x], [y], xerr=xerr, yerr=yerr, fmt=marker, color=color, markersize=10 if marker == "*" else 6,
+                size = 10 if marker == "*" else 6
+                ax.errorbar(
+                    [x], [y], xerr=xerr, yerr=yerr, fmt=marker, color=color, markersize=size,
                     markerfacecolor="white" if hollow else color, capsize=2, linewidth=0.8,
                 )
                 credited = verdicts[id(p)].credited
                 if credited:  # ringed: credited by the protocol
                     ax.scatter([x], [y], s=260, facecolors="none", edgecolors="black", linewidths=1.4, zorder=5)
                 label = (
-                    p.label + (f" = {PAPER_ROWS[p.policy]}" if marker == "*" else "") + (" †" if hollow else "")
-                    + (" (credited)" if credited else "")
+                    p.label + (f" = {PAPER_ROWS[p.policy]} *" if marker == "*" else "") + (" †" if hollow else "")
+                    + (" (credited, ringed)" if credited else "")
                 )
-                handles.setdefault(label, drawn)
+                # the legend shows the marker alone: error-bar caps drawn over it hid its shape
+                handles.setdefault(label, Line2D(
+                    [], [], marker=marker, linestyle="none", color=color, markersize=size,
+                    markerfacecolor="white" if hollow else color,
+                    markeredgecolor="black" if credited else color,
+                ))
             _zoom(ax, points, y_name)
             _spread(ax, [p.summary[x_name][0] for p in points])
             ax.set_xlabel(x_label + (" (estimated)" if x_name == "dollars" and any(p.estimated_dollars for p in points) else ""))
             ax.set_ylabel(y_label)
+    # the legend's header explains exactly the marks its labels carry
+    marks = ["policy (variant)"]
+    if any(" *" in label for label in handles):
+        marks.append("* star: the paper's rows")
+    if any(" †" in label for label in handles):
+        marks.append(f"† hollow: > {100 * miss_threshold:.0f}% of answers from the fallback")
+    if any(label.endswith("(credited, ringed)") for label in handles):
+        marks.append("ringed: credited (non-inferior to always on steps to the first solve, beats random at its query rate)")
     figure.legend(
         list(handles.values()), list(handles), loc="outside lower center", ncols=min(3, max(1, len(handles))),
-        fontsize=8,
-        title=(
-            f"policy (variant); * the paper's rows; † hollow: > {100 * miss_threshold:.0f}% of answers from the fallback; "
-            "ringed: credited (non-inferior to always on steps to the first solve and beats random at its query rate)"
-        ),
-        title_fontsize=8,
+        fontsize=8, title="; ".join(marks), title_fontsize=8,
     )
     figure.suptitle(title + "\nbars: 95% bootstrap CI of the mean over trials")
     return figure
@@ -626,8 +639,21 @@ def _zoom(ax: Any, points: Sequence[Point], y_name: str) -> None:
     if not off:
         return
     ax.set_ylim(low - 0.15 * span, high + 0.25 * span)
-    text = "; ".join(f"{p.label}: {p.summary[y_name][0]:.4g}" for p in off)
+    text = "; ".join(_off_axis(p, y_name) for p in off)
     ax.text(0.01, 0.01, f"off the axis: {text}", transform=ax.transAxes, fontsize=7, va="bottom")
+
+
+def _off_axis(p: Point, y_name: str) -> str:
+    """A point left off the axis, in words. Steps to the first solved episode of a trial that
+    never solved are its whole length (a censoring cap, not a measurement), and say so."""
+    value = p.summary[y_name][0]
+    unsolved = int((~p.solved.astype(bool)).sum())
+    if y_name != "steps_to_solve" or not unsolved:
+        return f"{p.label}: {value:.4g}"
+    n = len(p.solved)
+    if unsolved == n:
+        return f"{p.label}: no trial solved (0 of {n}; mean {value:.4g} = the trials' length, a censoring cap)"
+    return f"{p.label}: {value:.4g} ({unsolved} of {n} trials never solved, counted at their length: a lower bound)"
 
 
 def draw_profiles(points: Sequence[Point], title: str) -> Figure:
@@ -642,11 +668,19 @@ def draw_profiles(points: Sequence[Point], title: str) -> Figure:
     for i, p in enumerate(points):
         profile, low, high = stats.performance_profile_ci([p.returns], taus, stats.generator(f"frontier/{p.label}/profile"), 500)
         color = COLORS[i % len(COLORS)]
-        ax.plot(taus, profile, color=color, label=p.label)
+        # a line style and markers of its own per policy, each later line narrower than the one
+        # before: equal profiles (always and oracle on the same returns) show as a wide line with
+        # a thin one on top instead of hiding one another
+        ax.plot(
+            taus, profile, color=color, label=p.label, linestyle=PROFILE_STYLES[i % len(PROFILE_STYLES)],
+            marker=MARKERS[i % len(MARKERS)], markevery=(2 * i % 16, 16), markersize=max(3.5, 8.0 - i),
+            markerfacecolor="none", linewidth=max(1.0, 4.0 - 0.6 * i),
+        )
         if not np.isnan(low).all():
             ax.fill_between(taus, low, high, color=color, alpha=0.12)
-    ax.set_xlabel("Return per trial (tau)")
-    ax.set_ylabel("Fraction of trials with return > tau")
+    # "threshold", not tau: tau is the LLM's temperature everywhere else in lagrseq
+    ax.set_xlabel("Return threshold r (per trial)")
+    ax.set_ylabel("Fraction of trials with return > r")
     ax.set_title(title)
     ax.legend(fontsize=7)
     return figure

@@ -24,6 +24,7 @@ from lagrseq.analysis import provenance as prov
 from lagrseq.analysis.loading import ACCURACY_METHOD, Run
 from lagrseq.analysis.tables import Table, interval, number, plus_minus
 from lagrseq.errors import ConfigError
+from lagrseq.registry import kind_of, stored_sources
 from lagrseq.suite import Item, RunSpec, is_authors_provider, matches
 
 Price = Callable[[str, int, int], float | None]
@@ -150,10 +151,10 @@ def shorter_than_asked(spec: RunSpec, full: dict[str, Any], run: Run) -> str:
 
 
 def recorded_misses(run: Run) -> str:
-    """For a run on a recorded store: "K of N answers not recorded (mock)" from its queries'
-    ``source`` column; empty for other runs."""
-    from lagrseq.registry import kind_of, stored_sources
-
+    """For a run on a recorded store: "all N answers recorded", or "K of N answers from the
+    fallback mock" (K answered by the fallback, not the store) from its queries' ``source``
+    column, with the trials whose first accepted answer came from the fallback; empty for other
+    runs."""
     kind = kind_of(run.key.provider)
     if kind is None or not kind.replays or ":" not in run.key.provider or run.queries.empty:
         return ""
@@ -162,12 +163,12 @@ def recorded_misses(run: Run) -> str:
     misses = sources[~sources.isin(stored_sources())]
     if len(asked) == 0:
         return "no queries"
-    kinds = "/".join(sorted(set(misses))) or "mock"
     decided, trials = fallback_decided(run)
-    return (
-        f"{len(misses)} of {len(asked)} answers not recorded ({kinds}); "
-        f"first accepted answer from the fallback in {decided}/{trials} trials"
-    )
+    decided_text = f"first accepted answer from the fallback in {decided}/{trials} trials"
+    if len(misses) == 0:
+        return f"all {len(asked)} answers recorded; {decided_text}"
+    kinds = "/".join(sorted(set(misses)))
+    return f"{len(misses)} of {len(asked)} answers from the fallback {kinds}; {decided_text}"
 
 
 def fallback_decided(run: Run) -> tuple[int, int]:
@@ -181,7 +182,7 @@ def fallback_decided(run: Run) -> tuple[int, int]:
     decided = 0
     for _, group in asked.groupby("trial", sort=True):
         first = group.sort_values(["global_step", "step"], kind="stable").iloc[0]
-        decided += str(first["source"] or "") != "recorded"
+        decided += str(first["source"] or "") not in stored_sources()
     return decided, trials
 
 

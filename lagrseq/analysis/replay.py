@@ -238,7 +238,54 @@ def replay(
             extra.append((stem, table))
     _write(out / "index.html", _index_html(reports, extra, logs, produced_by, board), written)
     _write(out / "index.md", _index_markdown(reports, extra, logs, produced_by, board), written)
+    _drop_stale(out, written)
     return Report(out, logs, reports, written)
+
+
+MANIFEST = ".lagrseq-report"
+"""The files the last replay into a folder wrote, one relative path a line: the next replay
+removes those it does not write again, so a report never keeps figures or tables of items the
+latest run did not make (files replay never wrote are left alone)."""
+
+_OWN = ("figures", "tables")
+
+
+def _drop_stale(out: Path, written: list[Path]) -> None:
+    """Remove what an earlier replay into ``out`` wrote and this one did not; write the manifest.
+
+    The earlier replay's files are those its manifest lists; a folder without a manifest (made
+    before there was one) counts every file under ``figures/`` and ``tables/`` whose name starts
+    with a suite item's or a report table's stem as replay's own."""
+    now = {p.relative_to(out).as_posix() for p in written}
+    manifest = out / MANIFEST
+    before: set[str] = set()
+    try:
+        before = {line for line in manifest.read_text(encoding="utf-8").splitlines() if line}
+    except FileNotFoundError:
+        stems = {Path(name).name.split(".")[0] for name in now}
+        for folder in _OWN:
+            for path in sorted((out / folder).glob("*")):
+                if path.is_file() and any(path.name.startswith(stem) for stem in stems | _STALE_STEMS):
+                    before.add(f"{folder}/{path.name}")
+    except (OSError, UnicodeDecodeError):
+        before = set()  # unreadable: remove nothing
+    for name in sorted(before - now):
+        path = out / name
+        # only plain files directly under the report's own folders: a hand-edited manifest
+        # cannot make replay delete anything else
+        if (
+            ".." not in Path(name).parts
+            and len(Path(name).parts) <= 2
+            and (len(Path(name).parts) == 1 or Path(name).parts[0] in _OWN)
+            and path.is_file()
+            and not path.is_symlink()
+        ):
+            path.unlink()
+    manifest.write_text("".join(f"{name}\n" for name in sorted(now)), encoding="utf-8", newline="\n")
+
+
+_STALE_STEMS = {"fig", "table", "appendix", "frontier", "audit-", "costs-by-", "runs", "scoreboard"}
+"""Name beginnings of files replay writes (for a folder made before the manifest existed)."""
 
 
 def _arm_animation(report: ItemReport, out: Path, written: list[Path]) -> None:

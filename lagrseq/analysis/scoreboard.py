@@ -165,6 +165,12 @@ def build(
             continue
         present = [m for m in matched if m.run is not None]
         if item.render == "query-table":
+            header = str(item.options.get("row_header", "")).strip()
+
+            def named(row: str, header: str = header) -> str:
+                """A row by its header ("τ = 0", not a bare "0" that reads as a count)."""
+                return f"{header} = {row}" if header else row
+
             for key, paper in reference.items():
                 if "|" not in key:
                     continue
@@ -173,7 +179,7 @@ def build(
                     if m.spec.column == column and _fits(m, row):
                         assert m.run is not None
                         values = _queries(m.run)
-                        add(item, f"{row}, {column}: queries per run", str(paper), m, prov.of_run(m.run),
+                        add(item, f"{named(row)}, {column}: queries per run", str(paper), m, prov.of_run(m.run),
                             inference.t_interval(values, 1 - 2 * alpha), inference.t_interval(values, 1 - alpha), 1,
                             quantity=audit.QUERY_COLUMNS.get(column))
             # the query reduction SEQ brings, where the paper gives both columns of a row
@@ -193,7 +199,7 @@ def build(
                             continue
                         seq, lagr = _queries(ms.run), _queries(ml.run)
                         made = prov.combined([prov.of_run(ms.run), prov.of_run(ml.run)])
-                        add(item, f"{key}: query reduction with SEQ (%)", paper, ms, made,
+                        add(item, f"{named(key)}: query reduction with SEQ (%)", paper, ms, made,
                             _reduction(seq, lagr, 1 - 2 * alpha), _reduction(seq, lagr, 1 - alpha), 1, spread=0.0)
         elif item.render == "ratio-table":
             numerator = str(item.options.get("numerator", ""))

@@ -19,7 +19,7 @@ Frames (metres, right-handed, z up):
   matrix: row 0 at the top (by the robot), column 0 on the left.
 * ``world``: pybullet's world; the base stands on the table top at z = 0.625.
 
-Pure numpy: a real arm's server uses the same numbers (see the README, "Robot service").
+Pure numpy: a real arm's server uses the same numbers (see docs/arm.md, "Robot service").
 """
 
 from __future__ import annotations

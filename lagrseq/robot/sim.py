@@ -95,9 +95,11 @@ class SimSettings:
     """A placement is ``tipped`` beyond this tilt."""
     light_meshes: bool = True
     """Draw the arm with its collision meshes (a frame costs a fraction of the visual meshes')."""
-    camera: tuple[float, float, float] = (1.0, 90.0, -40.0)
+    camera: tuple[float, float, float] = (1.45, 90.0, -30.0)
     """Camera distance (m), yaw and pitch (degrees), aimed just behind the grid's centre from
-    the operator's side of the table (the grid reads as the paper's matrix, the arm behind it)."""
+    the operator's side of the table (the grid reads as the paper's matrix, the arm behind it);
+    far enough back that the whole arm stays in view (at 1 m and -40 degrees its upper arm left
+    the top of the frame)."""
 
 
 @dataclass

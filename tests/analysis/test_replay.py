@@ -185,3 +185,39 @@ def test_index_links_only_to_files_that_exist(runs_dir: Path, tmp_path: Path) ->
             assert image.size == (int(width), int(height))
     markdown = (tmp_path / "out" / "index.md").read_text()
     assert "![Fig. 5(a)" in markdown
+
+
+def test_a_report_folder_keeps_no_files_of_items_the_latest_replay_did_not_make(runs_dir: Path, tmp_path: Path) -> None:
+    from lagrseq.analysis.replay import MANIFEST
+
+    out = tmp_path / "report"
+    first = replay([runs_dir], out)
+    made = {p.relative_to(out).as_posix() for p in first.written}
+    assert (out / MANIFEST).read_text().splitlines() == sorted(made)
+    # an item an earlier run made and this one does not (the arm items without the arm extra),
+    # and a file of the user's, which replay never wrote
+    stale = ["figures/fig5c-arm.png", "figures/fig5c-arm-arm.gif", "tables/fig6c-arm.md"]
+    for name in stale:
+        (out / name).write_bytes(b"old")
+    (out / MANIFEST).write_text("\n".join(sorted(made | set(stale))) + "\n../outside.txt\nnotes/mine.txt\n")
+    (tmp_path / "outside.txt").write_text("not replay's")
+    (out / "notes").mkdir()
+    (out / "notes" / "mine.txt").write_text("mine")
+    (out / "figures" / "my-sketch.png").write_bytes(b"mine")
+    again = replay([runs_dir], out)
+    assert {p.relative_to(out).as_posix() for p in again.written} == made
+    assert not any((out / name).exists() for name in stale)
+    assert (tmp_path / "outside.txt").exists() and (out / "notes" / "mine.txt").exists()
+    assert (out / "figures" / "my-sketch.png").exists()
+
+
+def test_a_report_folder_made_before_the_manifest_loses_its_stale_items_too(runs_dir: Path, tmp_path: Path) -> None:
+    from lagrseq.analysis.replay import MANIFEST
+
+    out = tmp_path / "report"
+    (out / "figures").mkdir(parents=True)
+    (out / "figures" / "fig5c-arm-arm.gif").write_bytes(b"old")  # a committed reports/ of before
+    (out / "figures" / "my-sketch.png").write_bytes(b"mine")
+    replay([runs_dir], out)
+    assert not (out / "figures" / "fig5c-arm-arm.gif").exists()
+    assert (out / "figures" / "my-sketch.png").exists() and (out / MANIFEST).is_file()

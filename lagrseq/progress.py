@@ -1,0 +1,46 @@
+"""Progress bars on stderr, one way for every command (``run``, ``reproduce``, ``frontier``,
+``audit``), and lines printed while a bar is shown.
+
+A terminal that reports no size (0 columns: some containers, serial consoles, ``TERM=dumb``)
+made tqdm's self-sizing bar print nothing but empty lines; there the bar is 80 columns wide
+on a 24-row screen instead. A line printed while a bar is on screen goes through :func:`say`, which clears the
+bar, prints the line and redraws the bar below it (a plain ``print`` was glued onto the bar's
+line: ``0/1000 [00:00<?, ?ep/s]resuming: ...``).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from typing import Any
+
+FALLBACK_COLUMNS, FALLBACK_ROWS = 80, 24
+"""Bar width, and screen height, where the terminal does not say its own (tqdm hides every bar
+below the screen's last row, and a 0-row screen has none)."""
+
+
+def _columns() -> int:
+    """The terminal's width, 0 when it does not report one."""
+    try:
+        return os.get_terminal_size(sys.stderr.fileno()).columns
+    except (OSError, ValueError, AttributeError):
+        return 0
+
+
+def bar(total: float, unit: str = "it", desc: str | None = None, quiet: bool = False) -> Any:
+    """A tqdm bar on stderr: sized by the terminal where it reports a size, else 80 columns."""
+    from tqdm import tqdm
+
+    sized = _columns() > 0
+    return tqdm(
+        total=total, unit=unit, desc=desc, disable=quiet, file=sys.stderr,
+        dynamic_ncols=sized, ncols=None if sized else FALLBACK_COLUMNS, nrows=None if sized else FALLBACK_ROWS,
+    )
+
+
+def say(line: str) -> None:
+    """Print ``line`` to stdout on a line of its own, above any progress bar on screen."""
+    from tqdm import tqdm
+
+    tqdm.write(line, file=sys.stdout)
+    sys.stdout.flush()

@@ -1,0 +1,132 @@
+"""The README and the docs site: a short README whose two quick-start commands are the ones CI
+runs, a site whose navigation names only pages that exist, and one list of the docs packages."""
+
+from __future__ import annotations
+
+import configparser
+import re
+import sys
+from pathlib import Path
+
+import pytest
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+DOCS = ROOT / "docs"
+
+pytestmark = pytest.mark.skipif(not README.is_file() or not DOCS.is_dir(), reason="no source tree (installed package)")
+
+
+def _blocks(text: str) -> list[str]:
+    """The fenced code blocks of a Markdown text."""
+    return [b.strip() for b in re.findall(r"^```[a-z]*\n(.*?)^```", text, re.S | re.M)]
+
+
+def _quick_start() -> list[str]:
+    text = README.read_text(encoding="utf-8")
+    section = text.split("## Quick start", 1)[1].split("\n## ", 1)[0]
+    return _blocks(section)
+
+
+def test_the_readme_is_short() -> None:
+    assert len(README.read_text(encoding="utf-8").splitlines()) <= 150
+
+
+def test_the_quick_start_is_two_self_contained_commands() -> None:
+    commands = _quick_start()
+    assert len(commands) == 2 and all("\n" not in c for c in commands)
+    install, tests = commands
+    # a virtual environment first: a PEP 668 system Python refuses pip install outside one
+    assert install.startswith("python3 -m venv .venv && ")
+    assert "pip install -e '.[dqn]' -c constraints.txt" in install and install.endswith("lagrseq reproduce --quick")
+    assert tests.startswith("python3 -m venv ") and "pip install 'tox" in tests
+    assert "python3 -m pip" not in install + tests  # never pip into the system Python
+
+
+def test_ci_runs_the_readme_test_command() -> None:
+    _, tests = _quick_start()
+    script = [line.strip() for line in (ROOT / ".ci" / "run").read_text(encoding="utf-8").splitlines()]
+    assert tests in script
+    assert script[-1] == tests  # the last thing CI does
+
+
+def test_what_the_quick_start_writes_is_ignored() -> None:
+    ignored = (ROOT / ".gitignore").read_text(encoding="utf-8").splitlines()
+    # .venv (folder, and tox 4's file of that name), .tox/ (and the bootstrap venv in it), the
+    # reproduce output, the built site
+    for pattern in (".venv", ".tox/", "/lagrseq-out/", "/site/"):
+        assert pattern in ignored, pattern
+
+
+def _nav_pages(nav: object) -> list[str]:
+    if isinstance(nav, str):
+        return [nav]
+    if isinstance(nav, list):
+        return [page for entry in nav for page in _nav_pages(entry)]
+    if isinstance(nav, dict):
+        return [page for value in nav.values() for page in _nav_pages(value)]
+    return []
+
+
+def _nav() -> list[str]:
+    # mkdocs.yml without a YAML parser (PyYAML is not a test dependency): the nav entries are
+    # "- Title: page.md" lines
+    text = (ROOT / "mkdocs.yml").read_text(encoding="utf-8").split("\nnav:\n", 1)[1]
+    return re.findall(r":\s*([\w./-]+\.md)\s*$", text, re.M)
+
+
+def test_the_nav_lists_every_page_and_only_pages_that_exist() -> None:
+    pages = _nav()
+    for page in pages:
+        assert (DOCS / page).is_file(), page
+    required = {
+        "index.md", "quickstart.md", "install.md", "tasks.md", "providers.md", "presets.md", "reproduce.md",
+        "policies.md", "dask.md", "arm.md", "logs.md", "reference/index.md",
+        "extending.md", "architecture.md", "verdicts.md", "audit.md", "security.md", "performance.md", "frontier.md",
+    }
+    assert required <= set(pages)
+    own = {p.relative_to(DOCS).as_posix() for p in DOCS.rglob("*.md") if "reference-report/tables" not in p.as_posix()}
+    assert own <= set(pages), own - set(pages)
+
+
+def test_the_readme_links_resolve() -> None:
+    for target in re.findall(r"\]\(([^)#]+)(?:#[^)]*)?\)", README.read_text(encoding="utf-8")):
+        if "://" not in target:
+            assert (ROOT / target).exists(), target
+
+
+def test_the_docs_extra_is_what_tox_builds_the_site_with() -> None:
+    extra = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]["optional-dependencies"]["docs"]
+    tox = configparser.ConfigParser(interpolation=None)
+    tox.read(ROOT / "tox.ini", encoding="utf-8")
+    deps = [line.strip() for line in tox["testenv:docs"]["deps"].splitlines() if line.strip()]
+    assert deps == extra
+    assert "mkdocs build --strict" in tox["testenv:docs"]["commands"]
+    assert "docs" in [e.strip() for e in tox["tox"]["env_list"].split(",")]
+
+
+@pytest.mark.parametrize(
+    "page, phrases",
+    [
+        # topics of the README of before, each on its page now
+        ("tasks.md", ["--name NAME", "--jobs N", "lagrseq/CubeStacking-v0", "One environment, two defaults"]),
+        ("logs.md", ["/transition", "/query", "/episode", "Foxglove"]),
+        ("reproduce.md", ["--authors-caches", "lagrseq recover", "Ctrl-C", "lagrseq replay", "docs/reference-report"]),
+        ("dask.md", ["--executor dask", "SLURMCluster", "budget-ledger.sqlite"]),
+        ("arm.md", ["pybullet", "robot.proto", "ur_rtde", "lagrseq robot serve"]),
+        ("providers.md", ["recorded:STORE", "--provider local", "Limits on what comes back", "mock:authors-gpt4", "How the mock profiles were calibrated"]),
+        ("policies.md", ["secondary.policy", "lagrseq frontier", "thompson"]),
+        ("presets.md", ["env.horizon", "lagrseq audit cube-stacking", "lagr.solution_scope", "Image completion and object arrangement"]),
+        ("install.md", ["download.pytorch.org/whl/cpu", "torch==2.13.0", "local-llm"]),
+        ("reference/index.md", ["lagrseq/experiment.py", "tests/test_layers.py"]),
+    ],
+)
+def test_each_topic_has_its_page(page: str, phrases: list[str]) -> None:
+    text = (DOCS / page).read_text(encoding="utf-8")
+    for phrase in phrases:
+        assert phrase in text, (page, phrase)
