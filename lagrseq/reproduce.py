@@ -473,7 +473,7 @@ def reproduce(
         )
         bar.reset(total=max(guess.total, 1e-9))
         bar.unit = "s"
-        bar.bar_format = "{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} estimated s [{elapsed}<{remaining}, {rate_fmt}]"
+        bar.bar_format = "{desc}{percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} estimated s [{elapsed}<{remaining}, {rate_fmt}]"
         bar.set_description("runs")
         execute(
             the_plan, jobs, bar, on_run=lambda run: bar.set_description(run.describe()),
