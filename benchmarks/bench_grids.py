@@ -8,6 +8,15 @@ object arrangement 5 000) with the mock provider and writes its MCAP log, as `la
 Targets (issue 3): an image trial in <= 30 s and an arrangement trial in <= 15 s. For scale, the
 released Keras code fits each of 64 (image) or 16 (arrangement) samples separately at every step:
 about 17-21 s per image step and 5 s per arrangement step once training starts.
+
+``--vs REF`` runs instead, from this tree and from a git worktree of REF in alternating fresh
+processes (``benchmarks/paired.py``), and prints paired CPU-time ratios for:
+1. start-up: ``lagrseq run TASK --method lagr-seq --set run.max_steps=1`` (imports, building the
+   DQN agents and their optimisers, one step, the log);
+2. a run of ``--vs-trials`` trials of ``--vs-steps`` steps each (``lagrseq run TASK --method
+   lagr-seq --jobs 1``), whole process.
+
+    PYTHONPATH=. python benchmarks/bench_grids.py --task image-completion --vs f2d2ceb --pairs 3
 """
 
 from __future__ import annotations
@@ -20,6 +29,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from paired import add_vs_argument, compare, worktree
 
 from lagrseq import config as cfg
 from lagrseq.runner import run_one
@@ -61,7 +71,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--preset", choices=cfg.PRESETS, default="paper")
     parser.add_argument("--trials", type=int, default=1, help="trials per row (seeds 0..N-1)")
     parser.add_argument("--out", type=Path, default=None, help="keep the MCAP logs here")
+    add_vs_argument(parser)
+    parser.add_argument("--vs-steps", type=int, default=2000, help="with --vs: steps per trial (default 2000)")
+    parser.add_argument("--vs-trials", type=int, default=2, help="with --vs: trials per run (default 2)")
     args = parser.parse_args(argv)
+    if args.vs:
+        for task in args.task or sorted(STEPS):
+            run_vs(task, args.preset, args.vs, args.pairs, args.vs_steps, args.vs_trials)
+        return 0
     where = pin_one_core()
     tasks = args.task or sorted(STEPS)
     methods = args.method or ["baseline", "lagr-seq"]
@@ -88,6 +105,24 @@ def main(argv: list[str] | None = None) -> int:
                     f"  <= {TARGET_SECONDS[task]:.0f} s {'ok' if ok else 'MISSED'}"
                 )
     return 1 if failed else 0
+
+
+def run_vs(task: str, preset: str, ref: str, pairs: int, steps: int, trials: int) -> None:
+    def command(max_steps: int, count: int) -> object:
+        def make(scratch: Path) -> list[str]:
+            return [
+                sys.executable, "-m", "lagrseq", "run", task, "--method", "lagr-seq", "--preset", preset,
+                "--provider", "mock", "--trials", str(count), "--jobs", "1", "--quiet",
+                "--set", f"run.max_steps={max_steps}", "--out", str(scratch),
+            ]
+
+        return make
+
+    with worktree(ref) as tree:
+        print(f"{task}: start-up (one step), here vs {ref}:")
+        print(compare(command(1, 1), tree, pairs).line(f"{task} start-up", ref))  # type: ignore[arg-type]
+        print(f"{task}: {trials} trials x {steps} steps, here vs {ref}:")
+        print(compare(command(steps, trials), tree, pairs).line(f"{task} {trials}x{steps} steps", ref))  # type: ignore[arg-type]
 
 
 if __name__ == "__main__":

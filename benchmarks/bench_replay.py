@@ -9,6 +9,13 @@ Prints the logs' size and message counts, then three timings:
 2. the costs table alone, with the chunks it decompressed (none of them a transition chunk);
 3. a full decode of every ``/transition`` message, for comparison.
 Target: replay at >= 1 million transitions per minute.
+
+``--vs REF`` then runs ``lagrseq replay RUNS --out SCRATCH`` in a fresh process from this tree
+and from a worktree of REF, alternating, and prints paired CPU-time (and wall-time) ratios
+(``benchmarks/paired.py``); this tree reads the logs with its default ``--jobs``. With ``--runs`` and ``--vs``, only the
+paired comparison runs.
+
+    PYTHONPATH=. python benchmarks/bench_replay.py --runs /tmp/q/runs --repeat 1 --vs f2d2ceb --pairs 3
 """
 
 from __future__ import annotations
@@ -21,6 +28,7 @@ import time
 from pathlib import Path
 
 from mcap.reader import make_reader
+from paired import add_vs_argument, compare, worktree
 
 from lagrseq.analysis import costs, loading
 from lagrseq.analysis.replay import replay
@@ -74,8 +82,12 @@ def main() -> None:
     parser.add_argument(
         "--repeat", type=int, default=3, help="timed repetitions (best is reported)"
     )
+    add_vs_argument(parser)
     args = parser.parse_args()
 
+    if args.vs and args.runs is not None:  # the paired comparison alone
+        run_vs(args.runs.absolute(), args.vs, args.pairs)
+        return
     with tempfile.TemporaryDirectory(prefix="lagrseq-bench-") as scratch:
         runs = (
             args.runs
@@ -127,6 +139,17 @@ def main() -> None:
             f"{decoded / full * 60 / 1e6:.1f} M/min; decompressed {all_stats.chunks_decompressed} chunks "
             f"({all_stats.bytes_decompressed / 1e6:.1f} MB)"
         )
+        if args.vs:
+            run_vs(runs.absolute(), args.vs, args.pairs)
+
+
+def run_vs(runs: Path, ref: str, pairs: int) -> None:
+    def command(scratch: Path) -> list[str]:
+        return [sys.executable, "-m", "lagrseq", "replay", str(runs), "--out", str(scratch / "report")]
+
+    print(f"whole process, lagrseq replay of {runs}, here vs {ref} ({pairs} alternating pairs):")
+    with worktree(ref) as tree:
+        print(compare(command, tree, pairs).line("replay", ref))
 
 
 if __name__ == "__main__":

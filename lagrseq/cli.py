@@ -480,6 +480,7 @@ def _add_replay(sub: Any) -> None:
     p.add_argument("runs", nargs="+", type=Path, metavar="RUNS", help="MCAP files or directories searched for *.mcap")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     _provider_argument(p, None, "use only runs of this provider for the suite's default-provider runs (none given: any, preferring mock)")
+    p.add_argument("--jobs", type=_N["jobs"], default=None, help="processes that read the logs (default: the number of cores, at most 8; a few logs are read in one process); the report is the same for any number")
 
 
 def _add_reproduce(sub: Any) -> None:
@@ -814,7 +815,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     suite = load_suite(args.suite)
     price = _price_function(args.price_table)  # every input checked before OUT is made
     out = writable_directory(args.out)
-    report = replay(args.runs, out, args.formats, suite, provider=args.provider, price=price)
+    report = replay(args.runs, out, args.formats, suite, provider=args.provider, price=price, jobs=args.jobs)
     _print_report(report, time.perf_counter() - started)
     return 0
 

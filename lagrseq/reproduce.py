@@ -15,7 +15,7 @@ from __future__ import annotations
 import contextlib
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -150,64 +150,157 @@ def _calibration_key(run: PlannedRun) -> tuple[str, ...]:
     return (run.kind, config.task.name, config.method, config.preset, str(config.task))
 
 
-def estimate(the_plan: Plan, jobs: int) -> float:
-    """Expected seconds for the pending trials, from a short timed stretch of each distinct
-    experiment on this machine (mock provider, logged to a scratch file). Probes run one after
-    the other in this process; trials share ``jobs`` workers (:func:`execute` submits them all at
-    once), so their time is the work over the workers, or the longest trial if that is longer."""
+REPLAY_SECONDS_PER_LOG = 0.08
+"""Replay's reading of one trial log (its /episode and /query chunks), CPU seconds, one process:
+measured on the quick suite's logs on a 2-core machine (``benchmarks/bench_replay.py``)."""
+REPLAY_SECONDS_PER_ITEM = 1.0
+"""Replay's drawing and writing of one suite item (figure, tables), seconds."""
+
+
+@dataclass
+class Estimate:
+    """Expected wall seconds of each phase of ``reproduce``, from timed stretches on this machine."""
+
+    runs: float = 0.0
+    audit: float = 0.0
+    replay: float = 0.0
+    per_run: dict[Path, float] = field(default_factory=dict)
+    """Each planned run's share of :attr:`runs` (seconds)."""
+    audit_per_trial: dict[str, float] = field(default_factory=dict)
+    """Per audited task: expected wall seconds of one of its audit trials."""
+
+    @property
+    def total(self) -> float:
+        return self.runs + self.audit + self.replay
+
+
+def calibration_keys(the_plan: Plan) -> int:
+    """How many distinct experiments :func:`estimate_phases` times (the pending ones)."""
+    return len({_calibration_key(run) for run in the_plan.runs if run.pending()})
+
+
+def estimate_phases(
+    the_plan: Plan, jobs: int, audits: Sequence[tuple[str, ExperimentConfig, int]] = (),
+    items: int = 0, on_calibrated: Callable[[], None] | None = None, audit_logs: int = 0,
+) -> Estimate:
+    """Expected seconds of the pending trials, one trial of each suite audit (``audits``: task, a
+    run's configuration, trials per run; :attr:`Estimate.audit_per_trial`, which the caller
+    multiplies by the pending audit trials) and the replay of ``items`` suite items, from
+    a short timed stretch of each distinct experiment on this machine (mock provider, logged to a
+    scratch file, after an untimed warm-up that pays the imports). Probes run one after the other
+    in this process; trials share ``jobs`` workers (:func:`execute` submits them all at once), so
+    their time is the work over the workers, or the longest trial if that is longer."""
     cache: dict[tuple[str, ...], tuple[float, float]] = {}
-    serial = work = longest = 0.0
-    for run in the_plan.runs:
-        pending = run.pending()
-        if pending == 0:
-            continue
+
+    def calibrated(run: PlannedRun) -> tuple[float, float]:
         key = _calibration_key(run)
         if key not in cache:
             cache[key] = _calibrate(run)
-        per_unit, steps_per_episode = cache[key]
+            if on_calibrated is not None:
+                on_calibrated()
+        return cache[key]
+
+    serial = work = longest = 0.0
+    works: dict[Path, float] = {}
+    logs = 0
+    for run in the_plan.runs:
+        pending = run.pending()
+        logs += run.trials if run.kind == "trial" else 1
+        if pending == 0:
+            continue
+        per_unit, steps_per_episode = calibrated(run)
         if run.kind == "accuracy":
             serial += per_unit * run.samples
+            works[run.path] = per_unit * run.samples
             continue
-        episodes, max_steps = run.config.run.episodes, run.config.run.max_steps
-        if episodes == 0:  # no episode limit: the step budget alone ends a trial (grid tasks)
-            steps = float(max_steps)
-        else:
-            steps = episodes * steps_per_episode
-            if max_steps:
-                steps = min(steps, max_steps)
-        work += pending * steps * per_unit
+        steps = _trial_steps(run.config, steps_per_episode)
+        works[run.path] = pending * steps * per_unit
+        work += works[run.path]
         longest = max(longest, steps * per_unit)
-    return serial + max(work / max(1, jobs), longest)
+    parallel = max(work / max(1, jobs), longest)
+    out = Estimate(runs=serial + parallel)
+    for run in the_plan.runs:
+        if run.path in works:
+            share = works[run.path] if run.kind == "accuracy" else works[run.path] / work * parallel if work else 0.0
+            out.per_run[run.path] = share
+    for task, audit_config, audit_trials in audits:
+        probe_run = PlannedRun("trial", audit_config, "mock", 0, audit_trials, 0, Path(f"audit-{task}"))
+        per_unit, steps_per_episode = calibrated(probe_run)
+        out.audit_per_trial[task] = _trial_steps(audit_config, steps_per_episode) * per_unit / max(1, jobs)
+    logs += audit_logs
+    out.replay = REPLAY_SECONDS_PER_LOG * logs / max(1, min(jobs, 8)) + REPLAY_SECONDS_PER_ITEM * items
+    return out
+
+
+def _trial_steps(config: ExperimentConfig, steps_per_episode: float) -> float:
+    episodes, max_steps = config.run.episodes, config.run.max_steps
+    if episodes == 0:  # no episode limit: the step budget alone ends a trial (grid tasks)
+        return float(max_steps)
+    steps = episodes * steps_per_episode
+    return min(steps, max_steps) if max_steps else steps
+
+
+def estimate(the_plan: Plan, jobs: int) -> float:
+    """Expected seconds for the pending trials (see :func:`estimate_phases`)."""
+    return estimate_phases(the_plan, jobs).runs
+
+
+WARMUP_STEPS = 100
+"""Untimed steps before a calibration: imports (torch), first allocations, caches."""
 
 
 def _calibrate(run: PlannedRun) -> tuple[float, float]:
     """(seconds per step, steps per episode) or, for a probe, (seconds per sample, 0), timed with
-    logging to a scratch file (the log is part of the cost) and the mock provider."""
+    logging to a scratch file (the log is part of the cost) and the mock provider, after an
+    untimed warm-up of the same experiment: a cold process pays imports and first calls once,
+    a trial's worker pays them once for many trials."""
     with tempfile.TemporaryDirectory(prefix="lagrseq-calibration-") as scratch:
         path = Path(scratch) / "calibration.mcap"
-        started = time.perf_counter()
         if run.kind == "accuracy":
+            started = time.perf_counter()
             probe.run_accuracy_probe(run.config, 1, run.seed, "mock", path)
             return time.perf_counter() - started, 0.0
-        steps = TASKS.get(run.config.task.name).calibration_steps or CALIBRATION_STEPS
+        slow = TASKS.get(run.config.task.name).calibration_steps
+        warm = replace(run.config, run=replace(run.config.run, max_steps=5 if slow else WARMUP_STEPS))
+        runner.run_one(warm, 0, run.seed, "mock", Path(scratch) / "warm-up.mcap")
+        steps = slow or CALIBRATION_STEPS
         config = replace(run.config, run=replace(run.config.run, max_steps=steps))
+        started = time.perf_counter()
         result = runner.run_one(config, 0, run.seed, "mock", path)
         seconds = time.perf_counter() - started
     steps = max(result.steps, 1)
     return seconds / steps, steps / max(result.episodes, 1)
 
 
-class _RunProgress:
-    """Feeds one run's episode updates into the suite's bar, never past the run's share."""
+class _Scaled:
+    """A progress bar fed in other units: ``update(n)`` moves it by ``n * scale``."""
 
-    def __init__(self, bar: Any, units: int) -> None:
+    def __init__(self, bar: Any, scale: float) -> None:
+        self.bar = bar
+        self.scale = scale
+
+    def update(self, n: float = 1) -> None:
+        if self.bar is not None and n:
+            self.bar.update(n * self.scale)
+
+    def set_description(self, text: str) -> None:
+        if self.bar is not None and hasattr(self.bar, "set_description"):
+            self.bar.set_description(text)
+
+
+class _RunProgress:
+    """Feeds one run's episode updates into the suite's bar, never past the run's share; with
+    ``scale``, a unit moves the bar by ``scale`` (estimated seconds per unit)."""
+
+    def __init__(self, bar: Any, units: int, scale: float = 1.0) -> None:
         self.bar = bar
         self.left = units
+        self.scale = scale
 
     def update(self, n: int = 1) -> None:
         n = min(n, self.left)
         if n > 0 and self.bar is not None:
-            self.bar.update(n)
+            self.bar.update(n * self.scale if self.scale != 1.0 else n)
         self.left -= n
 
     def finish(self) -> None:
@@ -223,16 +316,24 @@ def execute(
     scheduler: str | None = None,
     say: Callable[[str], None] | None = None,
     retries: int = 0,
+    seconds: dict[Path, float] | None = None,
 ) -> list[TrialResult]:
     """Run every planned run (complete trials are skipped): the accuracy probes in this process,
     then the trials of every run through one warm process pool or one Dask cluster
     (``executor``, ``scheduler``: see :func:`lagrseq.executors.make_executor`), all submitted at
     once so that no worker waits for the last trial of one run before the next run starts.
-    Without a pool (``jobs = 1``) the runs go one after the other, ``on_run`` told of each."""
+    Without a pool (``jobs = 1``) the runs go one after the other, ``on_run`` told of each.
+    ``seconds`` (run path -> estimated seconds): the bar counts estimated seconds, not units."""
+
+    def scale(run: PlannedRun) -> float:
+        if seconds is None:
+            return 1.0
+        return seconds.get(run.path, 0.0) / max(1, run.units())
+
     results: list[TrialResult] = []
     for run in the_plan.runs:
         if run.kind == "accuracy":
-            results += _execute_run(run, bar, on_run, retries)
+            results += _execute_run(run, bar, on_run, retries, scale(run))
     trial_runs = [run for run in the_plan.runs if run.kind != "accuracy"]
     with contextlib.ExitStack() as stack:
         pool = None
@@ -240,11 +341,11 @@ def execute(
             pool = stack.enter_context(runner.make_executor(executor, jobs, scheduler, say))
         if pool is None:
             for run in trial_runs:
-                results += _execute_run(run, bar, on_run, retries)
+                results += _execute_run(run, bar, on_run, retries, scale(run))
             return results
         if bar is not None and hasattr(bar, "set_description") and trial_runs:
             bar.set_description(f"{len(trial_runs)} runs on {pool.describe()}")
-        shares = [_RunProgress(bar, run.units()) for run in trial_runs]
+        shares = [_RunProgress(bar, run.units(), scale(run)) for run in trial_runs]
         sweep = [
             runner.SweepRun(run.config, run.trials, run.seed, run.provider, run.path, run.options, progress=share)
             for run, share in zip(trial_runs, shares, strict=True)
@@ -261,11 +362,12 @@ def _execute_run(
     bar: Any,
     on_run: Callable[[PlannedRun], None] | None,
     retries: int = 0,
+    scale: float = 1.0,
 ) -> list[TrialResult]:
     """One planned run in this process: an accuracy probe, or its trials one after the other."""
     if on_run is not None:
         on_run(run)
-    progress = _RunProgress(bar, run.units())
+    progress = _RunProgress(bar, run.units(), scale)
     results: list[TrialResult] = []
     if run.kind == "accuracy":
         if not is_complete(run.path):
@@ -341,34 +443,57 @@ def reproduce(
         say(f"{item_id}: not run: {reason}")
     pending = sum(run.pending() for run in the_plan.runs)
     trials = sum(run.trials if run.kind == "trial" else 1 for run in the_plan.runs)
-    say(
-        f"{'quick' if quick else 'full'} suite: {len(the_plan.runs)} runs, {trials} trial logs, "
-        f"{pending} to run ({trials - pending} already complete); expected about "
-        f"{duration(estimate(the_plan, jobs))} on {jobs} {EXECUTORS.get(executor).workers[jobs > 1]} "
-        f"(timed on this machine; LLM latency of live providers not included)"
-    )
-    total = sum(run.units() for run in the_plan.runs)
-    with progress_bar(total, "it", quiet=quiet) as bar:
+    audits = suite_audits(runs_dir, quick, seed) if suite_path is None and not items else []  # the whole suite
+    audit_pending = {
+        task: sum(not is_complete(runner.trial_path(r.path, t)) for r in runs for t in range(trials))
+        for task, runs, trials in audits
+    }
+    # One display for every phase: calibration (experiments timed), then estimated seconds of
+    # runs, audits and replay, with rate and ETA.
+    with progress_bar(max(1, calibration_keys(the_plan) + sum(map(bool, audit_pending.values()))), "experiment", "calibration", quiet) as bar:
+        guess = estimate_phases(
+            the_plan, jobs, [(task, runs[0].config, trials) for task, runs, trials in audits if runs and audit_pending[task]],
+            len(suite.items), on_calibrated=lambda: bar.update(1), audit_logs=sum(len(runs) * n for _, runs, n in audits),
+        )
+        guess.audit = sum(guess.audit_per_trial.get(task, 0.0) * pending_trials for task, pending_trials in audit_pending.items())
+        say(
+            f"{'quick' if quick else 'full'} suite: {len(the_plan.runs)} runs, {trials} trial logs, "
+            f"{pending} to run ({trials - pending} already complete); expected about "
+            f"{duration(guess.total)} on {jobs} {EXECUTORS.get(executor).workers[jobs > 1]} "
+            f"(runs {duration(guess.runs)}, audits {duration(guess.audit)}, replay {duration(guess.replay)}; "
+            f"timed on this machine; LLM latency of live providers not included)"
+        )
+        bar.reset(total=max(guess.total, 1e-9))
+        bar.unit = "s"
+        bar.bar_format = "{desc}{percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} estimated s [{elapsed}<{remaining}, {rate_fmt}]"
+        bar.set_description("runs")
         execute(
             the_plan, jobs, bar, on_run=lambda run: bar.set_description(run.describe()),
-            executor=executor, scheduler=scheduler, say=say, retries=retries,
+            executor=executor, scheduler=scheduler, say=say, retries=retries, seconds=guess.per_run,
         )
-    if suite_path is None and not items:  # the paper's whole suite: the audits of every task that has one
-        for task in SUITE_AUDITS:
-            if task in cfg.tasks():
-                run_suite_audit(task, runs_dir, quick, jobs, seed, quiet, say)
-    say(f"runs done in {duration(time.perf_counter() - started)}: {runs_dir}")
-    report = replay(
-        [runs_dir],
-        reports_dir,
-        formats,
-        suite,
-        provider=provider or suite.provider,
-        unavailable=the_plan.unavailable,
-        produced_by="lagrseq reproduce" + (" --quick" if quick else ""),
-        price=price,
+        for task, _, _ in audits:
+            bar.set_description(f"{task} audit")
+            run_suite_audit(task, runs_dir, quick, jobs, seed, quiet, say, _Scaled(bar, guess.audit_per_trial.get(task, 0.0)))
+        say(f"runs done in {duration(time.perf_counter() - started)}: {runs_dir}")
+        bar.set_description("replay")
+        report = replay(
+            [runs_dir],
+            reports_dir,
+            formats,
+            suite,
+            provider=provider or suite.provider,
+            unavailable=the_plan.unavailable,
+            produced_by="lagrseq reproduce" + (" --quick" if quick else ""),
+            price=price,
+            jobs=jobs,
+        )
+        bar.update(max(0.0, bar.total - bar.n))
+    elapsed = time.perf_counter() - started
+    say(
+        f"finished in {duration(elapsed)}; estimated {duration(guess.total)} before starting "
+        f"(actual / estimate = {elapsed / guess.total:.2f})" if guess.total > 0 else f"finished in {duration(elapsed)}"
     )
-    return report, time.perf_counter() - started
+    return report, elapsed
 
 
 def check_providers(the_plan: Plan, provider: str | None) -> None:
@@ -420,15 +545,32 @@ SUITE_AUDITS = {
 indicative, labelled so on their tables)."""
 
 
-def run_suite_audit(task: str, runs_dir: Path, quick: bool, jobs: int, seed: int, quiet: bool, say: Callable[[str], None]) -> None:
-    """The audit of ``task`` (``lagrseq audit TASK``) at the suite's length, into the suite's runs,
-    so that replay adds its tables and figures (a preset run the suite also makes is shared)."""
+def _audit_plan(task: str, runs_dir: Path, quick: bool, seed: int, say: Callable[[str], None]) -> tuple[list[Any], int]:
     from lagrseq.audit import plan as audit_plan
-    from lagrseq.progress import bar as progress_bar
 
     chosen = SUITE_AUDITS[task]
     trials, episodes, max_steps = chosen.quick if quick else chosen.full
     runs = audit_plan(task, chosen.provider, trials, episodes, max_steps, runs_dir, seed, say, chosen.quick_presets if quick else None)
+    return runs, trials
+
+
+def suite_audits(runs_dir: Path, quick: bool, seed: int) -> list[tuple[str, list[Any], int]]:
+    """(task, planned audit runs, trials per run) of every suite audit whose task is here."""
+    tasks = [task for task in SUITE_AUDITS if task in cfg.tasks()]
+    return [(task, *_audit_plan(task, runs_dir, quick, seed, lambda line: None)) for task in tasks]
+
+
+def run_suite_audit(
+    task: str, runs_dir: Path, quick: bool, jobs: int, seed: int, quiet: bool, say: Callable[[str], None], bar: Any = None
+) -> None:
+    """The audit of ``task`` (``lagrseq audit TASK``) at the suite's length, into the suite's runs,
+    so that replay adds its tables and figures (a preset run the suite also makes is shared).
+    ``bar``: the display to move by one per trial (default: a bar of its own, in trials)."""
+    from lagrseq.progress import bar as progress_bar
+
+    chosen = SUITE_AUDITS[task]
+    runs, trials = _audit_plan(task, runs_dir, quick, seed, say)
+    _, _, max_steps = chosen.quick if quick else chosen.full
     together = sum(1 for r in runs if r.field and " + " in r.field)
     say(
         f"{task} audit: {len(runs)} runs of {trials} trials"
@@ -436,7 +578,9 @@ def run_suite_audit(task: str, runs_dir: Path, quick: bool, jobs: int, seed: int
         + (" (reduced: upstream -> paper only)" if quick and chosen.quick_presets != ("upstream", "paper") else "")
         + f", one field switched each{f' and {together} interaction runs' if together else ''} (lagrseq audit)"
     )
-    with progress_bar(len(runs) * trials, "trial", quiet=quiet) as bar:
+    with contextlib.ExitStack() as stack:
+        if bar is None:
+            bar = stack.enter_context(progress_bar(len(runs) * trials, "trial", quiet=quiet))
         sweep = [runner.SweepRun(r.config, trials, seed, r.provider, r.path, progress=runner.TrialCount(bar, r.config)) for r in runs]
         runner.run_sweep(sweep, jobs)
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 SCHEDULES = ("divide-cumulative", "linear", "exponential", "inverse-episode", "constant")
 UNITS = ("episode", "step")
@@ -33,6 +33,11 @@ class EpsilonSchedule:
     episodes: int
     unit: str = "episode"
     warmup: int = 0
+    _last: list[tuple[int, float]] = field(
+        default_factory=lambda: [(-1, 0.0)], init=False, repr=False, compare=False, hash=False
+    )
+    """The last episode asked for by :meth:`at` and its epsilon: a per-episode schedule changes
+    once per episode, and the loop asks at every step."""
 
     def __post_init__(self) -> None:
         if self.kind not in SCHEDULES:
@@ -44,7 +49,13 @@ class EpsilonSchedule:
         """epsilon at global step ``step`` (0-based), which belongs to episode ``episode``."""
         if step < self.warmup:
             return self.start
-        return self(episode if self.unit == "episode" else step - self.warmup)
+        if self.unit != "episode":
+            return self(step - self.warmup)
+        last_episode, epsilon = self._last[0]
+        if last_episode != episode:
+            epsilon = self(episode)
+            self._last[0] = (episode, epsilon)  # one assignment: a reader never sees half of it
+        return epsilon
 
     def __call__(self, index: int) -> float:
         kind, start, minimum = self.kind, self.start, self.minimum

@@ -276,24 +276,59 @@ def _concat(frames: list[pd.DataFrame], columns: Sequence[str]) -> pd.DataFrame:
     return pd.concat(frames, ignore_index=True)
 
 
-def load(roots: Sequence[str | Path]) -> Logs:
-    """Read every ``*.mcap`` under ``roots`` (files or directories) into runs."""
+def _read_one(item: tuple[Path, Path]) -> tuple[_Trial | str, ReadStats]:
+    """One log: its trial, or the warning that says why it is skipped; and what was read."""
+    path, root = item
+    stats = ReadStats()
+    try:
+        return _read_trial(path, root, stats), stats
+    except LogError as exc:
+        text = str(exc)
+        return (text if text.endswith("skipped") else f"{text}; skipped"), stats
+    except (KeyError, ValueError, RecursionError, OSError) as exc:
+        return f"{full_path(path)}: not a lagrseq trial log ({type(exc).__name__}: {exc}); skipped", stats
+
+
+PARALLEL_MIN_LOGS = 24
+"""Fewer logs than this are read in this process: starting worker processes (each imports
+pandas) costs more than reading a few logs."""
+
+
+def default_jobs() -> int:
+    """Processes that read logs when none is asked for: the CPUs this process may use, at most 8."""
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not on Linux
+        cpus = os.cpu_count() or 1
+    return max(1, min(cpus, 8))
+
+
+def _read_all(paths: list[tuple[Path, Path]], jobs: int) -> list[tuple[_Trial | str, ReadStats]]:
+    """Every log read, in the order given: in ``jobs`` worker processes when there are enough
+    logs (the results, and so everything made from them, are the same as in one process)."""
+    if jobs <= 1 or len(paths) < PARALLEL_MIN_LOGS:
+        return [_read_one(item) for item in paths]
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    workers = min(jobs, len(paths))
+    # spawn: a clean interpreter that imports this module only (no fork of a process holding
+    # threads or big figures); chunks of logs so that each worker gets a few at a time.
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        return list(pool.map(_read_one, paths, chunksize=max(1, len(paths) // (workers * 8))))
+
+
+def load(roots: Sequence[str | Path], jobs: int | None = None) -> Logs:
+    """Read every ``*.mcap`` under ``roots`` (files or directories) into runs; ``jobs``
+    processes read the logs (default :func:`default_jobs`; the result does not depend on it)."""
     paths, warnings = _find(roots)
     skipped = len(warnings)  # the unfinished logs
     stats = ReadStats()
     groups: dict[RunKey, list[_Trial]] = {}
-    for path, root in paths:
-        try:
-            trial = _read_trial(path, root, stats)
-        except LogError as exc:
-            text = str(exc)
-            warnings.append(text if text.endswith("skipped") else f"{text}; skipped")
-            skipped += 1
-            continue
-        except (KeyError, ValueError, RecursionError, OSError) as exc:
-            warnings.append(
-                f"{full_path(path)}: not a lagrseq trial log ({type(exc).__name__}: {exc}); skipped"
-            )
+    for trial, read in _read_all(paths, default_jobs() if jobs is None else jobs):
+        stats.add(read)
+        if isinstance(trial, str):
+            warnings.append(trial)
             skipped += 1
             continue
         groups.setdefault(trial.key, []).append(trial)

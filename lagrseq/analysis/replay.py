@@ -167,19 +167,21 @@ def replay(
     unavailable: Mapping[str, str] | None = None,
     price: costs.Price | None = None,
     produced_by: str = "lagrseq replay",
+    jobs: int | None = None,
 ) -> Report:
     """Rebuild the suite's items that ``roots`` cover into ``out`` (see the module docstring).
 
     ``provider`` restricts the suite's default-provider runs to one provider; ``unavailable``
     (provider spec -> reason) lets ``lagrseq reproduce`` say why an item was not run; ``price``
-    re-costs queries from their token usage.
+    re-costs queries from their token usage; ``jobs``: processes that read the logs (see
+    :func:`lagrseq.analysis.loading.load`; the output does not depend on it).
     """
     bad = [f for f in formats if f not in FORMATS]
     if bad:
         raise UsageError(f"unknown figure format {bad[0]!r}; expected some of {', '.join(FORMATS)}")
     formats = ["png", *[f for f in FORMATS if f in formats and f != "png"]]
     suite = load_suite() if suite is None else suite
-    logs = loading.load(roots)
+    logs = loading.load(roots, jobs)
     if not logs.runs:
         detail = f" ({'; '.join(logs.warnings)})" if logs.warnings else ""
         raise LogError(f"no complete lagrseq trial logs under {', '.join(map(str, roots))}{detail}")

@@ -46,8 +46,12 @@ class Transition(msgspec.Struct, frozen=True, gc=False, omit_defaults=True):
     None when nothing was placed."""
 
 
-class QueryEvent(msgspec.Struct, frozen=True, gc=False):
-    """One decision of the secondary agent and, when one was sent, the query (``/query``)."""
+class QueryEvent(msgspec.Struct, frozen=True, gc=False, omit_defaults=True):
+    """One decision of the secondary agent and, when one was sent, the query (``/query``).
+
+    Fields at their default are not written (log format 2): a decision not to ask is its first
+    six fields, not 21 nulls more; the readers put the defaults back
+    (:func:`lagrseq.logs.reader.fill_query_defaults`), so old and new logs read alike."""
 
     trial: int
     episode: int
@@ -150,6 +154,8 @@ _ENCODER = msgspec.json.Encoder(enc_hook=_numpy_scalar)
 encode = _ENCODER.encode
 """An event (or a JSON-ready object) as compact JSON bytes; non-finite floats are checked by
 the sink (msgspec would write them as null)."""
+encode_into = _ENCODER.encode_into
+"""``encode_into(event, buffer, -1)`` appends what :data:`encode` gives to a bytearray."""
 
 
 def log_time(event: Event) -> int:

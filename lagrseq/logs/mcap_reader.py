@@ -120,8 +120,55 @@ class _Fields(ReadDataStream):
         return data
 
 
+_INDEX_HEAD = struct.Struct("<QQQQI")
+_INDEX_ENTRY = struct.Struct("<HQ")
+_U32 = struct.Struct("<I")
+_U64_PAIR = struct.Struct("<QQ")
+
+
+def _chunk_index(body: bytes) -> ChunkIndex | None:
+    """A well-formed ChunkIndex body decoded with a few ``struct`` calls (the reference reader
+    takes one call per field; a log has two chunk indexes per episode, and replay reads every
+    log's summary). ``None`` when anything does not fit: :func:`parse` then reads it field by
+    field and says what is wrong."""
+    size = len(body)
+    if size < _INDEX_HEAD.size:
+        return None
+    start, end, chunk_start, chunk_length, offsets_length = _INDEX_HEAD.unpack_from(body, 0)
+    pos = _INDEX_HEAD.size
+    if offsets_length % _INDEX_ENTRY.size or pos + offsets_length + 12 > size:
+        return None
+    offsets = dict(_INDEX_ENTRY.iter_unpack(body[pos : pos + offsets_length]))
+    pos += offsets_length
+    (index_length,) = struct.unpack_from("<Q", body, pos)
+    (name_length,) = _U32.unpack_from(body, pos + 8)
+    pos += 12
+    if pos + name_length + 16 > size:
+        return None
+    try:
+        compression = body[pos : pos + name_length].decode()
+    except UnicodeDecodeError:
+        return None
+    compressed_size, uncompressed_size = _U64_PAIR.unpack_from(body, pos + name_length)
+    return ChunkIndex(
+        message_index_offsets=offsets,
+        chunk_start_offset=chunk_start,
+        chunk_length=chunk_length,
+        compression=compression,
+        compressed_size=compressed_size,
+        message_end_time=end,
+        message_index_length=index_length,
+        message_start_time=start,
+        uncompressed_size=uncompressed_size,
+    )
+
+
 def parse(opcode: int, body: bytes, offset: int) -> McapRecord | None:
     """Decode one record body (``None`` for an opcode this reader does not know)."""
+    if opcode == Opcode.CHUNK_INDEX:
+        fast = _chunk_index(body)
+        if fast is not None:
+            return fast
     kind = opcode_name(opcode)
     stream = _Fields(body, offset, kind)
     try:

@@ -75,6 +75,12 @@ QUERY = _object(
     },
 )
 
+QUERY["description"] += (
+    " Log format 2: fields at their default (null; queried false; query_reward 0) are left out"
+    " and readers fill them in."
+)
+QUERY["required"] = ["trial", "episode", "step", "global_step", "state", "decision"]
+
 EPISODE = _object(
     "lagrseq.Episode",
     "Summary of one episode.",

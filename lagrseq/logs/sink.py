@@ -39,6 +39,7 @@ from lagrseq.logs.events import (
     Transition,
     View,
     encode,
+    encode_into,
 )
 from lagrseq.logs.mcap_writer import LeanWriter
 from lagrseq.logs.schemas import TOPICS, schema_bytes
@@ -49,6 +50,10 @@ PROFILE = "lagrseq"
 RUN_METADATA = "lagrseq.run"
 STATUS_METADATA = "lagrseq.status"
 PARTIAL_SUFFIX = ".partial"
+LOG_FORMAT = "2"
+"""The log format, written as ``log_format`` in the ``lagrseq.run`` metadata. 2: ``/query``
+records leave out the fields at their default (:class:`~lagrseq.logs.events.QueryEvent`);
+1 (no ``log_format``): every field written. Readers take both."""
 
 _HUGE = float("inf")
 _dumps = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
@@ -125,9 +130,9 @@ class McapSink:
         self._transition_channel = self._channels[TRANSITION_TOPIC]
         self._query_channel = self._channels[QUERY_TOPIC]
         self._episode_channel = self._channels[EPISODE_TOPIC]
-        self._writer.add_metadata(RUN_METADATA, metadata)
-        self._chunk: list[tuple[int, int, bytes]] = []
-        """Transitions and pictures of the current episode: (channel id, log time, data)."""
+        self._writer.add_metadata(RUN_METADATA, {**metadata, "log_format": LOG_FORMAT})
+        # Transitions and pictures of the current episode go straight into the writer's open
+        # chunk (encoded into it, in order); the chunk is written at the episode's end.
         self._pending: list[tuple[int, int, bytes]] = []
         """Queries and episodes held until the episode ends: (channel id, log time, data)."""
         self._finished = False
@@ -141,7 +146,7 @@ class McapSink:
                 reward = event.reward  # type: ignore[union-attr]
                 if not -_HUGE < reward < _HUGE:  # NaN and the infinities fail both comparisons
                     _finite(event, ("reward",))
-                self._chunk.append((self._transition_channel, event.global_step, encode(event)))  # type: ignore[union-attr]
+                self._writer.append_encoded(self._transition_channel, event.global_step, event, encode_into)  # type: ignore[union-attr]
                 return
             if kind is QueryEvent or kind is ProbeQueryEvent:
                 e = event
@@ -157,7 +162,7 @@ class McapSink:
         except (TypeError, ValueError, OverflowError) as exc:
             raise LogError(f"record is not JSON-serialisable ({exc}): {kind.__name__}") from None
         if kind is View:
-            self._chunk.append((self._channels[event.topic], event.log_time, _encode(event.message)))  # type: ignore[union-attr]
+            self._writer.add_message(self._channels[event.topic], event.log_time, _encode(event.message))  # type: ignore[union-attr]
         else:
             raise LogError(f"cannot log a {kind.__name__}; expected Transition, QueryEvent, EpisodeEvent or View")
 
@@ -166,7 +171,7 @@ class McapSink:
         if topic not in self._channels:
             raise LogError(f"topic {topic!r} is not registered in {self.path.name}")
         if topic == TRANSITION_TOPIC or topic.startswith("/view"):
-            self._chunk.append((self._channels[topic], log_time, _encode(record)))
+            self._writer.add_message(self._channels[topic], log_time, _encode(record))
         else:
             self._pending.append((self._channels[topic], log_time, _encode(record)))
 
@@ -178,8 +183,6 @@ class McapSink:
     def flush(self) -> None:
         """End of an episode: close the transition chunk, write the held messages as their own
         chunk, and push everything to the operating system."""
-        self._writer.add_messages(self._chunk)
-        self._chunk.clear()
         self._writer.flush(push=not self._pending)
         if self._pending:
             self._writer.add_messages(self._pending)

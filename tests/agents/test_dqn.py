@@ -166,3 +166,46 @@ def test_dqn_learns_the_diamond_better_than_random(torch, tmp_path: Path) -> Non
     learned = late_returns()
     random = late_returns('primary.epsilon_schedule="constant"')  # epsilon stays 1
     assert learned > random + 0.05
+
+
+@pytest.mark.torch
+def test_fused_adam_is_torch_adam_bit_for_bit(torch) -> None:  # type: ignore[no-untyped-def]
+    """lagrseq's Adam runs the kernel of ``torch.optim.Adam(fused=True)``: equal weights after
+    every step (with the Keras epsilon the agents use)."""
+    from lagrseq.agents.dqn import FusedAdam, mlp
+
+    def net():  # type: ignore[no-untyped-def]
+        return mlp(torch, (5, 32, 32, 3), torch.Generator().manual_seed(7))
+
+    ours, theirs = net(), net()
+    mine = FusedAdam(torch, list(ours.parameters()), 1e-3, eps=1e-7)
+    reference = torch.optim.Adam(theirs.parameters(), lr=1e-3, eps=1e-7, fused=True)
+    data = torch.Generator().manual_seed(3)
+    for _ in range(25):
+        x, y = torch.rand(16, 5, generator=data), torch.rand(16, 3, generator=data)
+        for model, optimizer in ((ours, mine), (theirs, reference)):
+            optimizer.zero_grad(set_to_none=True)
+            torch.nn.functional.mse_loss(model(x), y).backward()
+            optimizer.step()
+        for a, b in zip(ours.parameters(), theirs.parameters(), strict=True):
+            assert torch.equal(a, b)
+
+
+@pytest.mark.torch
+def test_building_and_training_an_agent_does_not_import_dynamo(torch) -> None:  # type: ignore[no-untyped-def]
+    """Start-up: torch._dynamo (about 2 s of CPU) is not imported by a DQN agent's life."""
+    code = (
+        "import sys, numpy as np\n"
+        "from lagrseq.agents.dqn import DQN\n"
+        "agent = DQN(4, 2, (16,), 1e-2, 0.9, 4, 50, 2, 0)\n"
+        "rng = np.random.default_rng(0)\n"
+        "for _ in range(10):\n"
+        "    agent.remember(np.ones(4), 1, 1.0, np.zeros(4), False)\n"
+        "    agent.act(np.ones(4), 0.1, rng)\n"
+        "    agent.train_step(rng)\n"
+        "assert agent.updates == 7, agent.updates\n"
+        "print('torch._dynamo' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "False"

@@ -113,3 +113,23 @@ def test_the_same_trial_twice_is_counted_once(
 def test_missing_path_is_an_error(tmp_path: Path) -> None:
     with pytest.raises(LogError, match="no such MCAP file or directory"):
         loading.load([tmp_path / "nowhere"])
+
+
+def test_reading_in_worker_processes_gives_the_same_runs(
+    runs_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``replay --jobs N``: the logs read by N spawned processes make the same runs, frames,
+    warnings and totals as one process (a damaged log included), in the same order."""
+    runs = tmp_path / "runs"
+    shutil.copytree(runs_dir, runs)
+    damaged = sorted(runs.rglob("trial-001.mcap"))[0]
+    damaged.write_bytes(damaged.read_bytes()[:-40])
+    one = loading.load([runs], jobs=1)
+    monkeypatch.setattr(loading, "PARALLEL_MIN_LOGS", 1)  # a few logs: worker processes all the same
+    two = loading.load([runs], jobs=2)
+    assert one.warnings == two.warnings and len(one.warnings) == 1
+    assert (one.files, one.bytes, one.messages, one.skipped, one.stats) == (two.files, two.bytes, two.messages, two.skipped, two.stats)
+    assert [run.key for run in one.runs] == [run.key for run in two.runs]
+    for a, b in zip(one.runs, two.runs, strict=True):
+        assert (a.files, a.trials, a.transitions, a.config) == (b.files, b.trials, b.transitions, b.config)
+        assert a.episodes.equals(b.episodes) and a.queries.equals(b.queries)
