@@ -90,7 +90,7 @@ def test_presets_differ_only_in_fields(task: str) -> None:
         ('task.target="heart"', "task.target = 'heart' is not allowed"),
         ("run.max_steps=0", "at least one > 0"),
         ("primary.device=\"tpu\"", "primary.device = 'tpu' is not allowed"),
-        ("env.scans=0", "env.scans = 0; expected an integer >= 1"),
+        ("env.scans=0", "env.scans = 0; expected an integer in [1, 1000]"),
     ],
 )
 def test_bad_values_are_refused_in_one_line(override: str, message: str) -> None:

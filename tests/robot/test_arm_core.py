@@ -26,7 +26,7 @@ def test_the_presets_load(preset: str) -> None:
 
 @pytest.mark.parametrize("bad", ["simulator", "remote:", "remote:host", "remote:host:0", "remote:host:70000", "remote::50051", "remote:a b:1"])
 def test_a_bad_robot_is_one_line_naming_the_field(bad: str) -> None:
-    with pytest.raises(ConfigError, match=r'env.robot = .*; expected "sim" or "remote:HOST:PORT"') as error:
+    with pytest.raises(ConfigError, match=r'env.robot = .*; expected "sim", "remote:HOST:PORT" or "remote\+tls:HOST:PORT"') as error:
         cfg.load("arm-arrangement", "lagr-seq", "paper", overrides=[f"env.robot={bad!r}".replace("'", '"')])
     assert "\n" not in str(error.value)
 
