@@ -22,10 +22,10 @@ from pathlib import Path
 from typing import Any
 
 from lagrseq import config as cfg
-from lagrseq import wiring
-from lagrseq.experiment import run_trial
 from lagrseq.logs.sink import McapSink
-from lagrseq.runner import run_metadata
+from lagrseq.loop.experiment import run_trial
+from lagrseq.running import wiring
+from lagrseq.running.runner import run_metadata
 from lagrseq.tasks.shapes import diamond_cells
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

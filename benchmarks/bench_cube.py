@@ -28,7 +28,7 @@ from pathlib import Path
 from paired import add_vs_argument, compare, worktree
 
 from lagrseq import config as cfg
-from lagrseq.runner import run_one
+from lagrseq.running.runner import run_one
 
 TARGET_OVERHEAD = 0.25
 

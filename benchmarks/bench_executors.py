@@ -28,8 +28,8 @@ import time
 from pathlib import Path
 
 from lagrseq import config as cfg
-from lagrseq import runner
-from lagrseq.executors import TrialExecutor, make_executor
+from lagrseq.running import runner
+from lagrseq.running.executors import TrialExecutor, make_executor
 
 
 def sweep(executor: TrialExecutor, config: cfg.ExperimentConfig, trials: int, scratch: Path) -> float:

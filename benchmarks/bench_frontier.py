@@ -28,10 +28,12 @@ import tempfile
 import time
 from pathlib import Path
 
-from lagrseq import cli, frontier, runner
+from lagrseq import cli
 from lagrseq import config as cfg
-from lagrseq.runner import run_one
-from lagrseq.wiring import ProviderOptions
+from lagrseq.running import runner
+from lagrseq.running.runner import run_one
+from lagrseq.running.wiring import ProviderOptions
+from lagrseq.study import frontier
 
 
 def timed(argv: list[str]) -> float:

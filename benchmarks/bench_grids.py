@@ -32,8 +32,8 @@ import numpy as np
 from paired import add_vs_argument, compare, worktree
 
 from lagrseq import config as cfg
-from lagrseq.runner import run_one
-from lagrseq.wiring import make_env
+from lagrseq.running.runner import run_one
+from lagrseq.running.wiring import make_env
 
 STEPS = {"image-completion": 10_000, "object-arrangement": 5_000}
 TARGET_SECONDS = {"image-completion": 30.0, "object-arrangement": 15.0}

@@ -27,9 +27,9 @@ from pathlib import Path
 from typing import Any
 
 from lagrseq import config as cfg
-from lagrseq import recording
 from lagrseq.llm.store import RecordStore
-from lagrseq.wiring import ProviderOptions
+from lagrseq.running import recording
+from lagrseq.running.wiring import ProviderOptions
 
 TARGET = 0.8
 

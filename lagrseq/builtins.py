@@ -44,7 +44,7 @@ def presets(task: str) -> Path:
     return Path(str(resources.files("lagrseq") / "experiments" / task))
 
 
-WIRING = "lagrseq.wiring"
+WIRING = "lagrseq.running.wiring"
 GRID_SECONDARY = {"primary": cfg.DQNConfig, "secondary": cfg.NeuralSecondaryConfig}
 
 TASKS.register(
@@ -166,7 +166,7 @@ PROVIDERS.register(
     )
 )
 
-POLICY = "lagrseq.policies"
+POLICY = "lagrseq.loop.policies"
 GATES = ("min_progress", "budget", "budget_scope", "query_cost")
 """Knobs every policy has: the progress gate, the query budget and the per-query cost."""
 
@@ -177,5 +177,5 @@ POLICIES.register(PolicySpec("random", lazy(f"{POLICY}:make_random"), (*GATES, "
 POLICIES.register(PolicySpec("thompson", lazy(f"{POLICY}:make_thompson"), (*GATES, "thompson_prior", "query_reward"), order=4, description="Thompson sampling over a posterior per context"))
 POLICIES.register(PolicySpec("oracle", lazy(f"{POLICY}:make_oracle"), GATES, order=5, peeks=True, description="ask only when the answer would be accepted (a lower bound)"))
 
-EXECUTORS.register(ExecutorSpec("local", lazy("lagrseq.executors:make_local"), runner_pool=True, description="a process pool on this machine (--jobs)"))
-EXECUTORS.register(ExecutorSpec("dask", lazy("lagrseq.executors:make_dask"), takes_scheduler=True, workers=("Dask worker", "Dask workers"), description="a Dask cluster: a LocalCluster, or --scheduler tcp://HOST:PORT (the dask extra)"))
+EXECUTORS.register(ExecutorSpec("local", lazy("lagrseq.running.executors:make_local"), runner_pool=True, description="a process pool on this machine (--jobs)"))
+EXECUTORS.register(ExecutorSpec("dask", lazy("lagrseq.running.executors:make_dask"), takes_scheduler=True, workers=("Dask worker", "Dask workers"), description="a Dask cluster: a LocalCluster, or --scheduler tcp://HOST:PORT (the dask extra)"))

@@ -101,7 +101,7 @@ def _task_argument(p: argparse.ArgumentParser) -> None:
 
 def _live_options(per: str) -> argparse.ArgumentParser:
     """The live provider, its limits and its budget (run and record)."""
-    from lagrseq.wiring import DEFAULT_BASE_URL, SERVER_KINDS
+    from lagrseq.running.wiring import DEFAULT_BASE_URL, SERVER_KINDS
 
     p = argparse.ArgumentParser(add_help=False)
     g = p.add_argument_group("live provider")
@@ -120,7 +120,7 @@ def _live_options(per: str) -> argparse.ArgumentParser:
 
 def _executor_options() -> argparse.ArgumentParser:
     """Where trials run: this machine's processes or Dask (run and reproduce)."""
-    from lagrseq.executors import EXECUTORS
+    from lagrseq.running.executors import EXECUTORS
 
     p = argparse.ArgumentParser(add_help=False)
     g = p.add_argument_group("execution")
@@ -133,8 +133,8 @@ def _executor_options() -> argparse.ArgumentParser:
 def _make_executor(args: argparse.Namespace, start: bool = True) -> Any:
     """The executor of ``--executor``/``--scheduler`` (None: the runner's own process pool, or
     nothing to ``start``)."""
-    from lagrseq.executors import check_scheduler, make_executor
     from lagrseq.registry import EXECUTORS
+    from lagrseq.running.executors import check_scheduler, make_executor
 
     spec = EXECUTORS.get(args.executor)
     if args.scheduler is not None:
@@ -183,7 +183,7 @@ def _provider_argument(p: argparse.ArgumentParser, default: str | None, role: st
 
 
 def _provider_options(args: argparse.Namespace) -> Any:
-    from lagrseq.wiring import ProviderOptions, load_prices
+    from lagrseq.running.wiring import ProviderOptions, load_prices
 
     if args.price_table is not None:  # read now, whatever the provider: a bad file is one line before anything runs
         load_prices(args.price_table)
@@ -225,8 +225,8 @@ def _bar(total: float, unit: str, desc: str | None, quiet: bool) -> Any:
 # ------------------------------------------------------------------------------------------
 def _add_run(sub: Any) -> None:
     from lagrseq.config import METHODS
+    from lagrseq.running.wiring import ON_MISS
     from lagrseq.tasks.cube import PROFILE_HELP
-    from lagrseq.wiring import ON_MISS
 
     p = sub.add_parser(
         "run",
@@ -253,8 +253,8 @@ def _add_run(sub: Any) -> None:
     )
     _task_argument(p)
     p.add_argument("--method", choices=METHODS, default="lagr-seq", help="baseline: the plain RL agent; lagr: query the LLM whenever triggered; lagr-seq: the secondary agent decides (default)")
+    from lagrseq.running.wiring import REFUSING, REFUSING_HELP
     from lagrseq.tasks import grid_profiles
-    from lagrseq.wiring import REFUSING, REFUSING_HELP
 
     grids = {name: f"(image completion, object arrangement) {made.description}" for name, made in grid_profiles.PROFILES.items()}
     # every profile --provider accepts (wiring.mock_profiles), each with its meaning; % escaped for argparse
@@ -293,8 +293,8 @@ def _add_robot(sub: Any) -> None:
 
 
 def _add_frontier(sub: Any) -> None:
-    from lagrseq.frontier import KNOBS, NAMES
-    from lagrseq.wiring import ON_MISS
+    from lagrseq.running.wiring import ON_MISS
+    from lagrseq.study.frontier import KNOBS, NAMES
 
     p = sub.add_parser(
         "frontier",
@@ -364,8 +364,8 @@ def _add_config(sub: Any) -> None:
 
 
 def _add_record(sub: Any) -> None:
-    from lagrseq.recording import STATE_TOPICS
-    from lagrseq.wiring import RECORD_MODES
+    from lagrseq.running.recording import STATE_TOPICS
+    from lagrseq.running.wiring import RECORD_MODES
 
     p = sub.add_parser(
         "record",
@@ -402,7 +402,7 @@ def _add_record(sub: Any) -> None:
 
 def _add_cache(sub: Any) -> None:
     from lagrseq.config import tasks
-    from lagrseq.wiring import DEFAULT_BASE_URL
+    from lagrseq.running.wiring import DEFAULT_BASE_URL
 
     p = sub.add_parser("cache", help="import, export or list recorded answers (JSONL, the authors' pickles)", description="Move recorded answers between a store directory and portable files.")
     actions = p.add_subparsers(dest="action", metavar="ACTION", parser_class=_Parser, required=True)
@@ -662,8 +662,8 @@ def cmd_config(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from lagrseq import runner
-    from lagrseq.wiring import check_render
+    from lagrseq.running import runner
+    from lagrseq.running.wiring import check_render
 
     options = _provider_options(args)
     _make_executor(args, start=False)  # --executor/--scheduler checked before anything is made
@@ -699,8 +699,8 @@ def cmd_robot(args: argparse.Namespace) -> int:
 
 
 def cmd_record(args: argparse.Namespace) -> int:
-    from lagrseq import recording
-    from lagrseq.wiring import model_of
+    from lagrseq.running import recording
+    from lagrseq.running.wiring import model_of
 
     model = model_of(args.provider, args.model)
     config = recording.record_config(args.task, args.preset, args.config, args.overrides, model, args.temperature)
@@ -727,7 +727,7 @@ def cmd_cache(args: argparse.Namespace) -> int:
 
 
 def _cache_import(args: argparse.Namespace) -> int:
-    from lagrseq import recording
+    from lagrseq.running import recording
 
     report = recording.import_answers(
         args.file, args.store, args.format, args.task, args.preset, args.config, args.overrides,
@@ -738,7 +738,7 @@ def _cache_import(args: argparse.Namespace) -> int:
 
 
 def _cache_export(args: argparse.Namespace) -> int:
-    from lagrseq import recording
+    from lagrseq.running import recording
 
     lines = recording.export_answers(args.store, args.out, sys.stdout)
     if args.out != "-":
@@ -747,7 +747,7 @@ def _cache_export(args: argparse.Namespace) -> int:
 
 
 def _cache_list(args: argparse.Namespace) -> int:
-    from lagrseq import recording
+    from lagrseq.running import recording
 
     for line in recording.list_answers(args.store):
         print(line)
@@ -755,7 +755,7 @@ def _cache_list(args: argparse.Namespace) -> int:
 
 
 def cmd_serve_llm(args: argparse.Namespace) -> int:
-    from lagrseq.wiring import serve_llm
+    from lagrseq.running.wiring import serve_llm
 
     def say(line: str) -> None:
         print(f"lagrseq serve-llm: {line}", file=sys.stderr, flush=True)
@@ -781,7 +781,7 @@ def cmd_models(args: argparse.Namespace) -> int:
 
 
 def _cache_parse(args: argparse.Namespace) -> int:
-    from lagrseq import recording
+    from lagrseq.running import recording
 
     config = recording.record_config(args.task, args.preset, args.config, args.overrides)
     rows = recording.answer_census(args.source, config)
@@ -809,7 +809,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     from lagrseq.analysis.replay import replay
     from lagrseq.paths import writable_directory
-    from lagrseq.suite import load_suite
+    from lagrseq.running.suite import load_suite
 
     started = time.perf_counter()
     suite = load_suite(args.suite)
@@ -823,8 +823,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def cmd_frontier(args: argparse.Namespace) -> int:
     import time
 
-    from lagrseq import frontier
     from lagrseq.analysis.frontier import report
+    from lagrseq.study import frontier
 
     started = time.perf_counter()
     price = _price_function(args.price_table)
@@ -848,7 +848,7 @@ def cmd_frontier(args: argparse.Namespace) -> int:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    from lagrseq import reproduce
+    from lagrseq.study import reproduce
 
     items = [i.strip() for i in args.items.split(",") if i.strip()] if args.items is not None else None
     report, elapsed = reproduce.reproduce(
@@ -911,14 +911,14 @@ def _print_report(report: Any, elapsed: float | None = None, not_run_said: bool 
 def _price_function(price_table: str | None) -> Any:
     """``(model, prompt tokens, completion tokens) -> USD or None`` for replay's costs tables
     (analysis never imports the provider layer itself)."""
-    from lagrseq.wiring import price_function
+    from lagrseq.running.wiring import price_function
 
     return price_function(price_table)
 
 
 def cmd_audit(args: argparse.Namespace) -> int:
     from lagrseq.analysis.tables import to_markdown
-    from lagrseq.audit import run_audit
+    from lagrseq.study.audit import run_audit
 
     made = run_audit(
         args.task, args.provider, args.trials, args.episodes, args.max_steps, args.out, args.jobs, args.seed,
@@ -1009,7 +1009,7 @@ def _dispatch(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
         print(f"lagrseq {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as stop:
-        from lagrseq.runner import exit_on_next_interrupt
+        from lagrseq.running.runner import exit_on_next_interrupt
 
         exit_on_next_interrupt()
         kept = INTERRUPTED.get(args.command, "nothing finished is lost")

@@ -516,7 +516,7 @@ class TabularSecondaryConfig(_Section):
     logistic_midpoint: float = ranged(0.9, ge=0, le=1)
     """p2 of the logistic query reward (on the normalised evaluation E/N). Paper appendix: 0.9."""
     policy: str = "seq"
-    """When to ask, with method lagr-seq (lagrseq.policies): seq (the paper's bandit above), never,
+    """When to ask, with method lagr-seq (lagrseq.loop.policies): seq (the paper's bandit above), never,
     always, random (ask with probability ask_probability), thompson (a posterior per context:
     Beta-Bernoulli on acceptance with a binary query reward, Gaussian on the reward with the
     logistic one; the context is the pattern's progress and how often this very pattern was
@@ -668,7 +668,7 @@ class NeuralSecondaryConfig(_Section):
     device: Literal["cpu", "cuda", "auto"] = "cpu"
     """Where the network runs (as for the primary agent)."""
     policy: str = "seq"
-    """When to ask, with method lagr-seq (lagrseq.policies): seq (the paper's bandit above), never,
+    """When to ask, with method lagr-seq (lagrseq.loop.policies): seq (the paper's bandit above), never,
     always, random (ask with probability ask_probability), thompson (a posterior per context:
     Beta-Bernoulli on acceptance with a binary query reward, Gaussian on the reward with the
     logistic one; the context is the pattern's progress and how often this very pattern was

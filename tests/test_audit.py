@@ -17,7 +17,7 @@ def _flat(config: dict) -> dict:
 
 
 def test_the_plan_switches_one_field_per_run(tmp_path: Path) -> None:
-    from lagrseq.audit import plan
+    from lagrseq.study.audit import plan
 
     runs = plan("cube-stacking", "mock", 1, 2, -1, tmp_path, 0, print)
     assert len({r.path for r in runs}) == len(runs)  # no two runs share a configuration
@@ -42,7 +42,7 @@ def test_the_plan_switches_one_field_per_run(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_every_audit_run_differs_from_its_preset_in_exactly_the_field_it_switches(tmp_path: Path) -> None:
-    from lagrseq.audit import run_audit
+    from lagrseq.study.audit import run_audit
 
     lines: list[str] = []
     made = run_audit("cube-stacking", "mock", 2, 3, -1, tmp_path, 1, 0, ["png"], quiet=True, say=lines.append)
@@ -83,7 +83,7 @@ def test_every_audit_run_differs_from_its_preset_in_exactly_the_field_it_switche
     scope = data[(data["field"] == "lagr.solution_scope")]["switched_to"].unique().tolist()
     assert scope == ['"trial"']  # both presets keep the solution one episode; the audit tries the whole trial
     # the report is rebuilt from the logs alone
-    from lagrseq.audit import write_audit
+    from lagrseq.study.audit import write_audit
 
     again = write_audit([tmp_path / "runs"], tmp_path, ["png"])
     assert (tmp_path / "audit-cube-stacking.md").read_text() == (tmp_path / "reports" / "audit-cube-stacking.md").read_text()
@@ -95,8 +95,8 @@ def test_write_audit_names_each_log_it_leaves_out(tmp_path: Path) -> None:
     dropped in silence."""
     import shutil
 
-    from lagrseq.audit import write_audit
     from lagrseq.logs.reader import full_path
+    from lagrseq.study.audit import write_audit
 
     golden = Path(__file__).resolve().parent.parent / "fixtures" / "golden" / "cube-stacking-lagr-seq-upstream-4ep.mcap"
     runs = tmp_path / "my runs"
@@ -153,10 +153,10 @@ def test_the_scoreboard_says_what_explains_each_gap_from_the_audit_in_the_logs(t
     attribution (rows, or unexplained), and the tau > 0 row says it was never audited."""
     import csv
 
-    from lagrseq import runner
     from lagrseq.analysis.replay import replay
-    from lagrseq.audit import run_audit
-    from lagrseq.suite import load_suite
+    from lagrseq.running import runner
+    from lagrseq.running.suite import load_suite
+    from lagrseq.study.audit import run_audit
 
     run_audit("cube-stacking", "mock", 2, 3, -1, tmp_path, 1, 0, ["png"], quiet=True, say=lambda _: None)
     config = cfg.load("cube-stacking", "lagr", "upstream", None, ["run.episodes=3", "llm.temperature=0.5"])

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lagrseq import authors
 from lagrseq.errors import UsageError
-from lagrseq.suite import AUTHORS_STORE_NAME, is_authors_provider, load_suite, with_recorded
+from lagrseq.running.suite import AUTHORS_STORE_NAME, is_authors_provider, load_suite, with_recorded
+from lagrseq.study import authors
 from tests.conftest import AUTHORS_CACHES
 
 NAMES = {
@@ -130,7 +130,7 @@ method = "lagr"
 
 def test_reproduce_with_the_authors_caches_adds_rows_that_replay_rebuilds_from_logs(tmp_path: Path) -> None:
     from lagrseq.analysis.replay import replay
-    from lagrseq.reproduce import reproduce
+    from lagrseq.study.reproduce import reproduce
 
     caches = _caches()
     suite_path = tmp_path / "suite.toml"
@@ -172,9 +172,9 @@ def test_the_grid_profile_runs_like_the_recorded_answers(tmp_path: Path, task: s
     preset, queries per trial with and without SEQ: the two runs' 95% bootstrap intervals overlap."""
     pytest.importorskip("torch")
     from lagrseq import config as cfg
-    from lagrseq import runner
     from lagrseq.analysis import stats
-    from lagrseq.wiring import ProviderOptions
+    from lagrseq.running import runner
+    from lagrseq.running.wiring import ProviderOptions
 
     caches = _caches()
     found = [c for c in authors.find_caches(caches) if c.task == task]

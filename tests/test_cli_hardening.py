@@ -95,7 +95,7 @@ def test_a_non_ascii_api_key_is_one_line_and_never_printed(tmp_path: Path) -> No
 
 
 def test_an_oserror_anywhere_ends_in_one_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
-    from lagrseq import runner
+    from lagrseq.running import runner
 
     def full(*_: object, **__: object) -> None:
         raise OSError(28, "No space left on device", str(tmp_path / "x.mcap.partial"))
@@ -255,7 +255,7 @@ def test_leaving_at_once_after_a_pool_adds_no_resource_tracker_warning(tmp_path:
     resource tracker releases them without two lines of ``UserWarning`` after the one line."""
     script = (
         "import os\n"
-        "from lagrseq.executors import LocalExecutor\n"
+        "from lagrseq.running.executors import LocalExecutor\n"
         "if __name__ == '__main__':\n"
         "    pool = LocalExecutor(1)\n"
         "    assert pool.submit(abs, -1).result() == 1\n"
@@ -272,7 +272,7 @@ def test_leaving_at_once_after_a_pool_adds_no_resource_tracker_warning(tmp_path:
 
 # ------------------------------------------------------------------------------------------ item 15
 def test_record_from_runs_skips_a_damaged_log_with_a_warning(tmp_path: Path) -> None:
-    from lagrseq.recording import record_patterns
+    from lagrseq.running.recording import record_patterns
 
     assert main(["run", "cube-stacking", "--method", "lagr", "--trials", "2", "--out", str(tmp_path), *SMALL]) == 0
     logs = sorted(tmp_path.rglob("trial-*.mcap"))

@@ -19,7 +19,7 @@ import pytest
 
 from lagrseq import __version__, info
 from lagrseq.cli import build_parser
-from lagrseq.wiring import mock_profiles
+from lagrseq.running.wiring import mock_profiles
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -123,7 +123,7 @@ def test_the_docs_extra_is_what_tox_builds_the_site_with() -> None:
         ("policies.md", ["secondary.policy", "lagrseq frontier", "thompson"]),
         ("presets.md", ["env.horizon", "lagrseq audit cube-stacking", "lagr.solution_scope", "Image completion and object arrangement"]),
         ("install.md", ["download.pytorch.org/whl/cpu", "torch==2.13.0", "local-llm"]),
-        ("reference/index.md", ["lagrseq/experiment.py", "tests/test_layers.py"]),
+        ("reference/index.md", ["lagrseq/loop/experiment.py", "tests/test_layers.py"]),
     ],
 )
 def test_each_topic_has_its_page(page: str, phrases: list[str]) -> None:

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from lagrseq import executors
 from lagrseq.cli import main
 from lagrseq.errors import UsageError
+from lagrseq.running import executors
 
 SMALL = ["--set", "run.episodes=20", "--quiet"]
 
@@ -60,8 +60,8 @@ def test_a_sweep_runs_several_runs_in_one_pool_with_the_logs_of_one_process(tmp_
     progress counts exactly its own units, and a failing trial names its run while the others
     finish."""
     from lagrseq import config as cfg
-    from lagrseq import runner
     from lagrseq.errors import TrialsFailed
+    from lagrseq.running import runner
 
     def runs(root: Path, progress: list[list[int]] | None = None) -> list[runner.SweepRun]:
         made = []

@@ -8,7 +8,7 @@ import pytest
 
 from lagrseq import config as cfg
 from lagrseq.logs.reader import iter_messages, read_topic
-from lagrseq.runner import run_one, run_trials
+from lagrseq.running.runner import run_one, run_trials
 
 
 def small(method: str, preset: str = "upstream", *overrides: str) -> cfg.ExperimentConfig:

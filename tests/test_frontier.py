@@ -10,7 +10,7 @@ import pytest
 from lagrseq import cli
 from lagrseq.analysis.frontier import policy_of
 from lagrseq.errors import UsageError
-from lagrseq.frontier import Variant, parse_policies, parse_sweep
+from lagrseq.study.frontier import Variant, parse_policies, parse_sweep
 
 
 def test_policy_items_and_sweeps() -> None:

@@ -12,8 +12,8 @@ import pytest
 from lagrseq import cli
 from lagrseq.analysis.frontier import Point, judge, summarise, table
 from lagrseq.analysis.loading import Run, RunKey
-from lagrseq.frontier import matched_probability
 from lagrseq.logs.reader import read_info, read_topic
+from lagrseq.study.frontier import matched_probability
 from tests.llm.conftest import authors_cache
 
 
@@ -56,8 +56,8 @@ def test_a_refused_miss_costs_a_query_is_logged_and_is_never_accepted(tmp_path: 
 def test_refusal_is_no_answer_even_when_its_text_would_parse(tmp_path: Path) -> None:
     """The loop rejects a ``miss`` answer by its source, not by its text."""
     from lagrseq import config as cfg
-    from lagrseq.lagr import consult
     from lagrseq.llm.base import Answer, Query
+    from lagrseq.loop.lagr import consult
     from lagrseq.tasks.cube import CubeStacking
 
     task = CubeStacking(8)
@@ -163,8 +163,8 @@ def test_noninferiority_and_credit_on_hand_made_points() -> None:
 def test_tuning_never_touches_evaluation_seeds_and_the_choice_is_in_the_logs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     import json
 
-    from lagrseq.frontier import TUNE_GRID, TUNING_NOTE
     from lagrseq.seeding import Stream, integer_seed
+    from lagrseq.study.frontier import TUNE_GRID, TUNING_NOTE
 
     out = tmp_path / "fr"
     args = [
@@ -219,7 +219,7 @@ def test_tuning_never_touches_evaluation_seeds_and_the_choice_is_in_the_logs(tmp
 
 def test_scopes_auto_runs_both_regimes_on_the_grids_only(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from lagrseq.errors import UsageError
-    from lagrseq.frontier import parse_scopes
+    from lagrseq.study.frontier import parse_scopes
 
     assert parse_scopes("auto", "object-arrangement") == ["episode", "trial"]
     assert parse_scopes("auto", "cube-stacking") == [None]  # the preset's own (cube: episode)

@@ -18,7 +18,7 @@ from lagrseq import config as cfg
 from lagrseq.cli import main
 from lagrseq.errors import ConfigError
 from lagrseq.logs.reader import iter_messages, read_info, read_topic
-from lagrseq.runner import run_one, run_trials
+from lagrseq.running.runner import run_one, run_trials
 from lagrseq.tasks import shapes
 
 REPO = Path(__file__).resolve().parents[1]
@@ -41,7 +41,7 @@ def first_goal(path: Path, budget: int) -> int:
 def test_core_layers_do_not_import_torch() -> None:
     code = (
         "import sys\n"
-        "import lagrseq.experiment, lagrseq.envs, lagrseq.tasks.grid, lagrseq.agents.dqn, lagrseq.cli\n"
+        "import lagrseq.loop.experiment, lagrseq.envs, lagrseq.tasks.grid, lagrseq.agents.dqn, lagrseq.cli\n"
         "from lagrseq import config\n"
         "config.load('image-completion', 'lagr-seq', 'paper')\n"
         "print('torch' in sys.modules)\n"

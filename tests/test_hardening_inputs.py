@@ -21,10 +21,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lagrseq import config as cfg
-from lagrseq import frontier
 from lagrseq.cli import main
 from lagrseq.errors import ConfigError, UsageError
-from lagrseq.executors import check_scheduler
+from lagrseq.running.executors import check_scheduler
+from lagrseq.study import frontier
 from tests.llm.test_store_hardening import THE_ISSUES_VALUES, _set, line, made_read_only, record
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -71,7 +71,7 @@ def test_a_name_that_is_not_one_plain_component_is_refused_before_anything_is_wr
 @settings(max_examples=150, deadline=None)
 @given(st.text(min_size=0, max_size=80))
 def test_check_name_accepts_only_plain_names_and_refuses_the_rest_with_usage_errors(name: str) -> None:
-    from lagrseq.runner import check_name
+    from lagrseq.running.runner import check_name
 
     try:
         assert check_name(name) == name

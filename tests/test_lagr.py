@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from lagrseq.config import LagrConfig, LLMConfig
-from lagrseq.lagr import QueryTrigger, consult, follow, follows, query_for
 from lagrseq.llm.base import Answer, Query, Usage
+from lagrseq.loop.lagr import QueryTrigger, consult, follow, follows, query_for
 from lagrseq.tasks.cube import LETTERS, CubeStacking
 
 TASK = CubeStacking(8)

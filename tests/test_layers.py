@@ -3,7 +3,10 @@
 The layer map below is the rule, written once: each module belongs to the layer of its longest
 matching prefix and must not load anything its layer forbids (``lagrseq.x`` forbids the package
 and its submodules). A module that matches no layer fails the test, so a new module must be
-placed on the map.
+placed on the map. The map is written over the packages that name the layers (base, parts,
+``lagrseq.loop``, ``lagrseq.running``, ``lagrseq.analysis``, ``lagrseq.study``, the command line),
+with finer rules for single modules; ``test_no_import_cycle_between_modules`` checks the import
+graph (lazy imports included) has no cycle.
 """
 
 from __future__ import annotations
@@ -23,50 +26,62 @@ ROOT = Path(__file__).resolve().parents[1]
 
 HEAVY = ("torch", "gymnasium", "httpx", "httpcore", "pybullet")
 PROVIDERS = ("lagrseq.llm.mock", "lagrseq.llm.live", "lagrseq.llm.recorded", "lagrseq.llm.store")
-WIRING = ("lagrseq.wiring", "lagrseq.runner", "lagrseq.recording", "lagrseq.probe", "lagrseq.reproduce", "lagrseq.cli")
-UPPER = ("lagrseq.experiment", "lagrseq.adapters", "lagrseq.lagr", "lagrseq.seq", "lagrseq.analysis", *WIRING)
-BASE = ("lagrseq.tasks", "lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", "lagrseq.suite", *UPPER)
+# The layers, bottom to top: base (ANYONE below), parts (tasks, envs, agents, llm, logs, robot),
+# loop, running, analysis and study, the command line. A package forbids everything above it.
+CLI = ("lagrseq.cli", "lagrseq.__main__")
+STUDY = ("lagrseq.study", *CLI)
+RUNNING = ("lagrseq.running", "lagrseq.analysis", *STUDY)
+LOOP = ("lagrseq.loop", *RUNNING)
+PARTS = ("lagrseq.tasks", "lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", "lagrseq.robot")
 
 LAYERS: dict[str, tuple[str, ...]] = {
-    # config, errors, seeding, paths, tomlfile: stdlib + numpy; anyone may import them
-    "lagrseq": BASE + HEAVY + ("mcap", "pandas", "matplotlib"),
-    "lagrseq.__main__": (),  # ``python -m lagrseq``: the command line, nothing else
-    "lagrseq.cli": ("lagrseq.experiment", "lagrseq.wiring", *HEAVY, "mcap", "pandas", "matplotlib"),
-    "lagrseq.tasks": ("lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", "lagrseq.suite", *UPPER, *HEAVY, "mcap"),
-    "lagrseq.envs": ("lagrseq.llm", "lagrseq.agents", "lagrseq.logs", "lagrseq.suite", *UPPER, "torch", "httpx", "mcap"),
-    "lagrseq.agents": ("lagrseq.tasks", "lagrseq.envs", "lagrseq.llm", "lagrseq.logs", "lagrseq.suite", *UPPER, "gymnasium", "httpx", "mcap"),
-    "lagrseq.llm": ("lagrseq.tasks", "lagrseq.envs", "lagrseq.agents", "lagrseq.logs", "lagrseq.suite", *UPPER, "torch", "gymnasium"),
-    "lagrseq.logs": ("lagrseq.tasks", "lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.suite", *UPPER, *HEAVY),
-    "lagrseq.analysis": ("lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.experiment", "lagrseq.adapters", *WIRING, *HEAVY),
-    "lagrseq.suite": ("lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", *UPPER, *HEAVY),
-    "lagrseq.lagr": (*PROVIDERS, "lagrseq.logs", "lagrseq.envs", "lagrseq.experiment", *WIRING, *HEAVY),
-    "lagrseq.seq": ("lagrseq.llm", "lagrseq.logs", "lagrseq.envs", "lagrseq.tasks", "lagrseq.experiment", *WIRING, *HEAVY),
-    "lagrseq.policies": ("lagrseq.llm", "lagrseq.logs", "lagrseq.envs", "lagrseq.tasks", "lagrseq.agents", "lagrseq.experiment", *WIRING, *HEAVY),
-    "lagrseq.adapters": ("lagrseq.llm", "lagrseq.logs", "lagrseq.envs", "lagrseq.experiment", *WIRING, *HEAVY),
-    # the loop knows interfaces only: no concrete env, provider or sink implementation
-    "lagrseq.experiment": (*PROVIDERS, "lagrseq.envs", "lagrseq.logs.mcap_writer", "lagrseq.analysis", *WIRING, *HEAVY),
-    # wiring and the runners import the heavy parts lazily, where a trial needs them
-    "lagrseq.wiring": ("lagrseq.analysis", "lagrseq.runner", "lagrseq.recording", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),
-    "lagrseq.frontier": ("lagrseq.analysis", "lagrseq.cli", *HEAVY),
-    "lagrseq.runner": ("lagrseq.analysis", "lagrseq.recording", "lagrseq.reproduce", "lagrseq.cli", "dask", "distributed", *HEAVY),
-    "lagrseq.probe": ("lagrseq.analysis", "lagrseq.recording", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),
-    "lagrseq.recording": ("lagrseq.analysis", "lagrseq.runner", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),
-    "lagrseq.reproduce": ("lagrseq.cli", "dask", "distributed", *HEAVY),
-    # executors: the process pool and the interface; dask only in its own module, on demand
-    "lagrseq.executors": ("lagrseq.analysis", "lagrseq.recording", "lagrseq.reproduce", "lagrseq.cli", "dask", "distributed", *HEAVY),
-    "lagrseq.executor_base": ("lagrseq.executors", "lagrseq.dask_executor", "lagrseq.analysis", "lagrseq.recording", "lagrseq.reproduce", "lagrseq.cli", "dask", "distributed", *HEAVY),
-    "lagrseq.dask_executor": ("lagrseq.executors", "lagrseq.analysis", "lagrseq.recording", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),
+    # base: config, errors, seeding, paths, tomlfile, registry, builtins (stdlib + numpy; the
+    # built-in parts are registered by lazy reference); anyone may import them
+    "lagrseq": (*PARTS, *LOOP, *HEAVY, "mcap", "pandas", "matplotlib"),
+    # parts: each knows its own interface, none the loop or anything above it
+    "lagrseq.tasks": ("lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", "lagrseq.robot", *LOOP, *HEAVY, "mcap"),
+    "lagrseq.envs": ("lagrseq.llm", "lagrseq.agents", "lagrseq.logs", *LOOP, "torch", "httpx", "mcap"),
+    "lagrseq.agents": ("lagrseq.tasks", "lagrseq.envs", "lagrseq.llm", "lagrseq.logs", "lagrseq.robot", *LOOP, "gymnasium", "httpx", "mcap"),
+    "lagrseq.llm": ("lagrseq.tasks", "lagrseq.envs", "lagrseq.agents", "lagrseq.logs", "lagrseq.robot", *LOOP, "torch", "gymnasium"),
+    "lagrseq.logs": ("lagrseq.tasks", "lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.robot", *LOOP, *HEAVY),
     # the robot behind the arm env: no RL, no LLM, no logs; pybullet and grpc only when built
-    "lagrseq.robot": ("lagrseq.tasks", "lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", "lagrseq.suite", *UPPER, *HEAVY, "grpc", "mcap", "gymnasium"),
+    "lagrseq.robot": ("lagrseq.tasks", "lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", *LOOP, *HEAVY, "grpc", "mcap", "gymnasium"),
     # the generated gRPC code imports protobuf and grpc themselves (the arm extra)
-    "lagrseq.robot.proto": ("lagrseq.tasks", "lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", *UPPER, *HEAVY, "mcap"),
-    "lagrseq.audit": ("lagrseq.reproduce", "lagrseq.cli", *HEAVY),
-    "lagrseq.authors": ("lagrseq.analysis", "lagrseq.runner", "lagrseq.reproduce", "lagrseq.cli", *HEAVY),
+    "lagrseq.robot.proto": ("lagrseq.tasks", "lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", *LOOP, *HEAVY, "mcap"),
+    # loop: Algorithm 1 and its parts know interfaces only: no concrete env, provider or sink
+    "lagrseq.loop": (*PROVIDERS, "lagrseq.envs", "lagrseq.logs.mcap_writer", *RUNNING, *HEAVY),
+    "lagrseq.loop.lagr": (*PROVIDERS, "lagrseq.logs", "lagrseq.envs", "lagrseq.loop.experiment", *RUNNING, *HEAVY),
+    "lagrseq.loop.seq": ("lagrseq.llm", "lagrseq.logs", "lagrseq.envs", "lagrseq.tasks", "lagrseq.loop.experiment", *RUNNING, *HEAVY),
+    "lagrseq.loop.policies": ("lagrseq.llm", "lagrseq.logs", "lagrseq.envs", "lagrseq.tasks", "lagrseq.agents", "lagrseq.loop.experiment", *RUNNING, *HEAVY),
+    "lagrseq.loop.adapters": ("lagrseq.llm", "lagrseq.logs", "lagrseq.envs", "lagrseq.loop.experiment", *RUNNING, *HEAVY),
+    # running: wiring, the runner and executors import the heavy parts lazily, where a trial needs them
+    "lagrseq.running": ("lagrseq.analysis", *STUDY, *HEAVY),
+    "lagrseq.running.wiring": ("lagrseq.analysis", "lagrseq.running.runner", "lagrseq.running.recording", *STUDY, *HEAVY),
+    "lagrseq.running.runner": ("lagrseq.analysis", "lagrseq.running.recording", *STUDY, "dask", "distributed", *HEAVY),
+    "lagrseq.running.recording": ("lagrseq.analysis", "lagrseq.running.runner", *STUDY, *HEAVY),
+    # executors: the interface alone; the process pool; dask only in its own module, on demand
+    "lagrseq.running.executor_base": ("lagrseq.running.executors", "lagrseq.running.dask_executor", "lagrseq.running.recording", "lagrseq.analysis", *STUDY, "dask", "distributed", *HEAVY),
+    "lagrseq.running.executors": ("lagrseq.running.recording", "lagrseq.analysis", *STUDY, "dask", "distributed", *HEAVY),
+    "lagrseq.running.dask_executor": ("lagrseq.running.executors", "lagrseq.running.recording", "lagrseq.analysis", *STUDY, *HEAVY),
+    # the suite is data (what the paper's items run): read by analysis too
+    "lagrseq.running.suite": ("lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", "lagrseq.loop", "lagrseq.analysis", *STUDY, *HEAVY),
+    # analysis: replay from the MCAP logs alone (of running, only the suite's definitions)
+    "lagrseq.analysis": ("lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.loop.experiment", "lagrseq.loop.adapters", "lagrseq.running.wiring", "lagrseq.running.runner", "lagrseq.running.recording", "lagrseq.study.probe", "lagrseq.study.reproduce", *CLI, *HEAVY),
+    # study: the commands that plan many runs and report on them; never the command line
+    "lagrseq.study": (*CLI, *HEAVY),
+    "lagrseq.study.frontier": ("lagrseq.analysis", *CLI, *HEAVY),
+    "lagrseq.study.probe": ("lagrseq.analysis", "lagrseq.running.recording", "lagrseq.study.reproduce", *CLI, *HEAVY),
+    "lagrseq.study.reproduce": (*CLI, "dask", "distributed", *HEAVY),
+    "lagrseq.study.audit": ("lagrseq.study.reproduce", *CLI, *HEAVY),
+    "lagrseq.study.authors": ("lagrseq.analysis", "lagrseq.running.runner", "lagrseq.study.reproduce", *CLI, *HEAVY),
+    # the command line parses and calls: the loop and wiring only when a command runs
+    "lagrseq.cli": ("lagrseq.loop", "lagrseq.running.wiring", *HEAVY, "mcap", "pandas", "matplotlib"),
+    "lagrseq.__main__": (),  # ``python -m lagrseq``: the command line, nothing else
     # lagrseq info: metadata only; torch is imported inside the call that names its device
-    "lagrseq.info": ("lagrseq.analysis", "lagrseq.runner", "lagrseq.reproduce", "lagrseq.cli", "dask", "distributed", *HEAVY, "mcap", "pandas", "matplotlib"),
+    "lagrseq.info": ("lagrseq.loop", "lagrseq.running", "lagrseq.analysis", "lagrseq.study", *CLI, "dask", "distributed", *HEAVY, "mcap", "pandas", "matplotlib"),
 }
 OPTIONAL = {
-    "lagrseq.dask_executor": ("distributed",),
+    "lagrseq.running.dask_executor": ("distributed",),
     "lagrseq.robot.proto.robot_pb2": ("google.protobuf",),
     "lagrseq.robot.proto.robot_pb2_grpc": ("google.protobuf", "grpc"),
 }

@@ -1,4 +1,4 @@
-"""Asking policies (lagrseq.policies): decisions and updates on hand-worked cases, the budget's
+"""Asking policies (lagrseq.loop.policies): decisions and updates on hand-worked cases, the budget's
 cap, the oracle's lower bound, and the paper's SEQ through the new interface giving the very
 events it gave before the interface existed."""
 
@@ -15,7 +15,7 @@ import pytest
 from lagrseq import config as cfg
 from lagrseq.errors import UsageError
 from lagrseq.logs.reader import iter_messages, read_info, read_topic
-from lagrseq.policies import (
+from lagrseq.loop.policies import (
     Always,
     AskContext,
     Budget,
@@ -27,9 +27,9 @@ from lagrseq.policies import (
     ThompsonPolicy,
     make_policy,
 )
-from lagrseq.runner import run_one
-from lagrseq.seq import TabularSecondary
-from lagrseq.wiring import ProviderOptions, check_provider
+from lagrseq.loop.seq import TabularSecondary
+from lagrseq.running.runner import run_one
+from lagrseq.running.wiring import ProviderOptions, check_provider
 
 
 def context(pattern=(4, 5), progress=2, rng=None, trial=0, episode=0, epsilon=0.0, peek=None) -> AskContext:
@@ -313,6 +313,6 @@ def test_digest_ignores_policy_fields_at_their_defaults() -> None:
     other = cfg.load("cube-stacking", "lagr-seq", "upstream", None, ['secondary.policy="thompson"'])
     assert other.digest() != config.digest()
     # and a log without the fields is resumable by a run that has them at their defaults
-    from lagrseq.runner import _differences
+    from lagrseq.running.runner import _differences
 
     assert _differences(json.loads(cfg.from_dict(old).to_json()), data) == []

@@ -16,8 +16,8 @@ import pytest
 
 import lagrseq
 from lagrseq import config as cfg
-from lagrseq import runner
 from lagrseq.analysis.replay import replay
+from lagrseq.running import runner
 
 ROOT = Path(lagrseq.__file__).resolve().parents[1]
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -352,8 +352,8 @@ def test_committed_reports_match_fresh_runs(tmp_path: Path) -> None:
 # Planning the packaged suite (nothing is run)
 # ------------------------------------------------------------------------------------------
 def test_the_packaged_suite_plans_each_configuration_once(tmp_path: Path) -> None:
-    from lagrseq import reproduce
-    from lagrseq.suite import load_suite
+    from lagrseq.running.suite import load_suite
+    from lagrseq.study import reproduce
 
     suite = load_suite()
     plan = reproduce.plan(suite, quick=True, provider=None, runs_dir=tmp_path, seed=0)
@@ -385,8 +385,8 @@ def test_the_packaged_suite_plans_each_configuration_once(tmp_path: Path) -> Non
 
 
 def test_estimate_counts_only_pending_trials(tmp_path: Path) -> None:
-    from lagrseq import reproduce
-    from lagrseq.suite import load_suite
+    from lagrseq.running.suite import load_suite
+    from lagrseq.study import reproduce
 
     suite = load_suite().select(["fig6a"])
     plan = reproduce.plan(suite, quick=True, provider=None, runs_dir=tmp_path, seed=0)
@@ -401,8 +401,8 @@ def test_estimate_counts_only_pending_trials(tmp_path: Path) -> None:
 def test_the_progress_bar_counts_grid_runs_in_steps_and_moves(tmp_path: Path) -> None:
     """Grid trials have a step budget and no episode count: the bar counts their steps (it used to
     count episodes, 0 of them, and stood still)."""
-    from lagrseq import reproduce
-    from lagrseq.suite import load_suite
+    from lagrseq.running.suite import load_suite
+    from lagrseq.study import reproduce
 
     pytest.importorskip("torch")
     suite = load_suite().select(["fig5b"])

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from lagrseq.config import TabularSecondaryConfig
-from lagrseq.seq import TabularSecondary, query_reward
+from lagrseq.loop.seq import TabularSecondary, query_reward
 
 
 def test_bandit_update_moves_toward_the_reward_by_the_learning_rate() -> None:

@@ -19,7 +19,7 @@ a one-sided Welch non-inferiority test at level 0.05 with a margin of 10% of alw
 ``non-inferior / inferior / inconclusive`` (the same test on episodes solved per trial, higher
 is better, is shown beside it but does not enter the credit). Each learning policy's point is also compared with
 ``random`` asking at the point's own mean query rate (queries / decisions, from its logs; the
-random run is found by its ``ask_probability``, :func:`lagrseq.frontier.matched_probability`):
+random run is found by its ``ask_probability``, :func:`lagrseq.study.frontier.matched_probability`):
 it beats it when a one-sided Welch test at level 0.05 says its mean steps to the first solve are
 lower. A point is *credited* only when it is non-inferior to always and beats random at the
 matched rate; the oracle (it peeks at the answer before deciding) is shown as the bound and never
@@ -51,9 +51,9 @@ from lagrseq.analysis.figures import COLORS, STYLE
 from lagrseq.analysis.loading import Run, load
 from lagrseq.analysis.tables import Table, interval, number, to_csv, to_markdown
 from lagrseq.errors import LogError
-from lagrseq.frontier import TUNING_NOTE, matched_probability, wants_match
 from lagrseq.logs.reader import read_info
 from lagrseq.registry import kind_of, paid_sources, stored_sources
+from lagrseq.study.frontier import TUNING_NOTE, matched_probability, wants_match
 
 Price = Callable[[str, int, int], float | None]
 MISS_THRESHOLD = 0.1

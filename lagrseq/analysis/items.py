@@ -25,7 +25,7 @@ from lagrseq.analysis.loading import ACCURACY_METHOD, Run
 from lagrseq.analysis.tables import Table, interval, number, plus_minus
 from lagrseq.errors import ConfigError
 from lagrseq.registry import kind_of, stored_sources
-from lagrseq.suite import Item, RunSpec, is_authors_provider, matches
+from lagrseq.running.suite import Item, RunSpec, is_authors_provider, matches
 
 Price = Callable[[str, int, int], float | None]
 """(model, prompt tokens, completion tokens) -> US dollars or None (unpriced)."""

@@ -31,7 +31,14 @@ from lagrseq import __version__
 from lagrseq.analysis import audit, costs, figures, items, loading, scoreboard, stats
 from lagrseq.analysis.tables import Table, plus_minus, to_csv, to_html, to_markdown
 from lagrseq.errors import LogError, UsageError
-from lagrseq.suite import AUTHORS_HINT, Item, Suite, is_authors_provider, load_suite, with_recorded
+from lagrseq.running.suite import (
+    AUTHORS_HINT,
+    Item,
+    Suite,
+    is_authors_provider,
+    load_suite,
+    with_recorded,
+)
 
 FORMATS = ("png", "svg", "pdf")
 DPI = 150

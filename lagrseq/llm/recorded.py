@@ -49,7 +49,7 @@ RecordMode = Literal["once", "new", "none", "all"]
 class RefusingProvider:
     """The fallback of ``--on-miss refuse``: every query it gets (one a recorded store lacks) is
     answered by a refusal, an empty answer with source ``miss`` that costs nothing and that the loop
-    never accepts (:func:`lagrseq.lagr.consult`). The query still counts as a query, so no asking
+    never accepts (:func:`lagrseq.loop.lagr.consult`). The query still counts as a query, so no asking
     policy can gain from answers that were never recorded."""
 
     name = "refuse"

@@ -16,7 +16,7 @@ import pytest
 from lagrseq import config as cfg
 from lagrseq.errors import UsageError
 from lagrseq.logs.reader import read_topic
-from lagrseq.runner import run_one
+from lagrseq.running.runner import run_one
 
 REPO = Path(__file__).resolve().parents[2]
 

@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 
 from lagrseq import config as cfg
-from lagrseq import runner
-from lagrseq.probe import probe_path, run_accuracy_probe
+from lagrseq.running import runner
+from lagrseq.study.probe import probe_path, run_accuracy_probe
 
 EPISODES = 20
 TRIALS = 3

@@ -15,7 +15,7 @@ FORBIDDEN = (
     "lagrseq.envs",
     "lagrseq.agents",
     "lagrseq.llm",
-    "lagrseq.experiment",
+    "lagrseq.loop.experiment",
     "torch",
     "gymnasium",
     "httpx",

@@ -10,10 +10,10 @@ from pathlib import Path
 import pytest
 
 from lagrseq import config as cfg
-from lagrseq import runner
 from lagrseq.analysis import loading
 from lagrseq.errors import LogError
 from lagrseq.logs.reader import read_topics
+from lagrseq.running import runner
 
 
 def test_runs_are_grouped_by_what_was_run(runs_dir: Path, shape: tuple[int, int]) -> None:

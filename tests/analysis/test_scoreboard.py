@@ -11,12 +11,12 @@ import pandas as pd
 import pytest
 
 from lagrseq import config as cfg
-from lagrseq import runner
 from lagrseq.analysis import inference, items, loading, scoreboard
 from lagrseq.analysis import provenance as prov
 from lagrseq.analysis.loading import EPISODE_COLUMNS, QUERY_COLUMNS, Run, RunKey
 from lagrseq.analysis.tables import to_markdown
-from lagrseq.suite import AUTHORS_STORE_NAME, Item, RunSpec
+from lagrseq.running import runner
+from lagrseq.running.suite import AUTHORS_STORE_NAME, Item, RunSpec
 
 # -- one test per provenance class --------------------------------------------------------------
 

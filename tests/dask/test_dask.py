@@ -19,13 +19,14 @@ import pytest
 
 pytest.importorskip("distributed")
 
-from lagrseq import cli, runner, wiring  # noqa: E402
+from lagrseq import cli  # noqa: E402
 from lagrseq import config as cfg  # noqa: E402
-from lagrseq.dask_executor import DaskExecutor  # noqa: E402
 from lagrseq.errors import TrialsFailed  # noqa: E402
-from lagrseq.executors import LocalExecutor, make_executor  # noqa: E402
 from lagrseq.llm.store import RecordStore  # noqa: E402
 from lagrseq.logs.reader import find_logs, is_complete, read_info, read_topic  # noqa: E402
+from lagrseq.running import runner, wiring  # noqa: E402
+from lagrseq.running.dask_executor import DaskExecutor  # noqa: E402
+from lagrseq.running.executors import LocalExecutor, make_executor  # noqa: E402
 from tests.llm.conftest import KEY_ENV, FakeOpenAI  # noqa: E402
 
 pytestmark = pytest.mark.dask

@@ -14,9 +14,9 @@ import pytest
 
 from lagrseq.config import LLMConfig
 from lagrseq.errors import StoreError
-from lagrseq.lagr import query_for
 from lagrseq.llm.authors_cache import RestrictedUnpickler, import_authors_cache, read_pairs
 from lagrseq.llm.store import RecordStore, query_key
+from lagrseq.loop.lagr import query_for
 from lagrseq.tasks import cube
 from tests.llm.conftest import authors_cache
 

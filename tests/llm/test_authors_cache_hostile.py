@@ -19,10 +19,10 @@ from hypothesis import strategies as st
 
 from lagrseq.config import LLMConfig
 from lagrseq.errors import StoreError
-from lagrseq.lagr import query_for
 from lagrseq.llm.authors_cache import MAX_WARNINGS, ImportReport, import_authors_cache
 from lagrseq.llm.records import MAX_ANSWER_CHARS
 from lagrseq.llm.store import RecordStore
+from lagrseq.loop.lagr import query_for
 from lagrseq.tasks import cube
 from lagrseq.tasks.arrangement import object_arrangement
 

@@ -16,10 +16,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lagrseq import cli, recording, runner, wiring
+from lagrseq import cli
 from lagrseq import config as cfg
 from lagrseq.llm.store import RecordStore
 from lagrseq.logs.reader import find_logs, iter_messages, read_info, read_topic
+from lagrseq.running import recording, runner, wiring
 from tests.llm.conftest import KEY_ENV, SECRET, FakeOpenAI, Reply, authors_cache
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -17,11 +17,11 @@ import httpx
 import pytest
 
 from lagrseq import config as cfg
-from lagrseq import runner, wiring
 from lagrseq.errors import LagrseqError, ProviderError, UsageError
-from lagrseq.lagr import query_for
 from lagrseq.llm.local import LocalServer, ServerSettings, missing_extra, packaged_model
 from lagrseq.logs.reader import find_logs, read_topic
+from lagrseq.loop.lagr import query_for
+from lagrseq.running import runner, wiring
 
 pytestmark = [
     pytest.mark.local_llm,

@@ -21,12 +21,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lagrseq import cli, wiring
+from lagrseq import cli
 from lagrseq import config as cfg
 from lagrseq.errors import ProviderError, UsageError
-from lagrseq.lagr import query_for
 from lagrseq.llm import local
 from lagrseq.logs.reader import find_logs, read_topic
+from lagrseq.loop.lagr import query_for
+from lagrseq.running import wiring
 
 ROOT = Path(__file__).resolve().parents[2]
 FAKE = Path(__file__).resolve().parent / "fake_llama"
@@ -274,8 +275,8 @@ def test_lagrseq_killed_outright_takes_its_server_along(fake: Path, tmp_path: Pa
 
 
 def test_record_with_the_local_server_keys_answers_under_local(fake: Path, tmp_path: Path) -> None:
-    from lagrseq import runner
     from lagrseq.llm.store import RecordStore
+    from lagrseq.running import runner
 
     store = tmp_path / "s"
     code = cli.main(["record", "cube-stacking", "--provider", f"local:{fake}", "--temperature", "1", "--samples", "2",

@@ -19,10 +19,10 @@ import numpy as np
 import pytest
 
 from lagrseq import config as cfg
-from lagrseq import wiring
 from lagrseq.errors import ProviderError
-from lagrseq.lagr import query_for
 from lagrseq.llm import local
+from lagrseq.loop.lagr import query_for
+from lagrseq.running import wiring
 from tests.llm.test_local_server import FAKE, GGUF, gone, start_line
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from lagrseq import config as cfg
-from lagrseq import recording
-from lagrseq.lagr import consult
 from lagrseq.llm.base import Answer, Provider, Usage
 from lagrseq.llm.live import LiveProvider
 from lagrseq.llm.mock import MockProvider
 from lagrseq.llm.recorded import RecordedProvider, RecordingProvider
 from lagrseq.llm.store import RecordStore
+from lagrseq.loop.lagr import consult
+from lagrseq.running import recording
 from lagrseq.tasks import cube
 from tests.llm.conftest import FakeOpenAI, fast_settings
 

@@ -11,10 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lagrseq import cli, recording, runner, wiring
+from lagrseq import cli
 from lagrseq import config as cfg
 from lagrseq.errors import UsageError
 from lagrseq.llm.store import RecordStore, import_jsonl_file
+from lagrseq.running import recording, runner, wiring
 from tests.llm.conftest import KEY_ENV, FakeOpenAI
 
 ROOT = Path(__file__).resolve().parents[2]

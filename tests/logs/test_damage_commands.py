@@ -15,13 +15,13 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from lagrseq import config as cfg
-from lagrseq import runner
 from lagrseq.analysis import loading
 from lagrseq.cli import main
 from lagrseq.errors import LagrseqError
 from lagrseq.logs.reader import full_path, is_complete, read_info
 from lagrseq.logs.recover import recover_all
-from lagrseq.recording import record_patterns
+from lagrseq.running import runner
+from lagrseq.running.recording import record_patterns
 from tests.logs.test_damage import CHUNK_DATA_LENGTHS, DATA, GOLDEN, MEMORY_BOUND, length_fields
 
 TIME_BOUND = 2.0

@@ -3,7 +3,7 @@
 Regenerate (only when a change is meant to alter events) with::
 
     PYTHONPATH=. python -c "from pathlib import Path; from lagrseq import config as c; \\
-    from lagrseq.runner import run_one; run_one(c.load('cube-stacking', 'lagr-seq', \\
+    from lagrseq.running.runner import run_one; run_one(c.load('cube-stacking', 'lagr-seq', \\
     'upstream', overrides=['run.episodes=4']), 0, 0, 'mock', \\
     Path('fixtures/golden/cube-stacking-lagr-seq-upstream-4ep.mcap'))"
 """
@@ -14,7 +14,7 @@ from pathlib import Path
 
 from lagrseq import config as cfg
 from lagrseq.logs.reader import iter_messages, read_info
-from lagrseq.runner import run_one
+from lagrseq.running.runner import run_one
 
 GOLDEN = Path(__file__).resolve().parents[2] / "fixtures" / "golden" / "cube-stacking-lagr-seq-upstream-4ep.mcap"
 

@@ -16,7 +16,7 @@ from lagrseq.analysis.replay import replay
 from lagrseq.logs.reader import QUERY_DEFAULTS, iter_messages, read_info, read_topics
 from lagrseq.logs.schemas import QUERY
 from lagrseq.logs.sink import LOG_FORMAT
-from lagrseq.runner import run_one
+from lagrseq.running.runner import run_one
 
 GOLDEN = Path(__file__).resolve().parents[2] / "fixtures" / "golden" / "cube-stacking-lagr-seq-upstream-4ep.mcap"
 

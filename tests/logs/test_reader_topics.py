@@ -7,9 +7,9 @@ from pathlib import Path
 import pytest
 
 from lagrseq import config as cfg
-from lagrseq import runner
 from lagrseq.errors import LogError
 from lagrseq.logs.reader import ReadStats, message_counts, read_topic, read_topics
+from lagrseq.running import runner
 
 
 @pytest.fixture(scope="module")

@@ -14,10 +14,10 @@ from mcap.reader import make_reader
 
 import lagrseq
 from lagrseq import config as cfg
-from lagrseq import runner
 from lagrseq.errors import LogError
 from lagrseq.logs.reader import read_info, read_topics
 from lagrseq.logs.recover import default_output, recover
+from lagrseq.running import runner
 
 ROOT = Path(lagrseq.__file__).resolve().parents[1]
 

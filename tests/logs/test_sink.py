@@ -24,7 +24,7 @@ from lagrseq.logs.events import (
 from lagrseq.logs.reader import fill_query_defaults, is_complete, iter_messages, read_info
 from lagrseq.logs.schemas import EPISODE, QUERY, TRANSITION
 from lagrseq.logs.sink import McapSink, NullSink
-from lagrseq.runner import run_one
+from lagrseq.running.runner import run_one
 
 
 @pytest.fixture(scope="module")

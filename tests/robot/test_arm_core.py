@@ -41,7 +41,7 @@ def _without(monkeypatch: pytest.MonkeyPatch, *absent: str) -> None:
 
 
 def test_without_the_arm_extra_runs_say_what_to_install(monkeypatch: pytest.MonkeyPatch) -> None:
-    from lagrseq.wiring import missing_dependency
+    from lagrseq.running.wiring import missing_dependency
 
     config = cfg.load("arm-arrangement", "lagr-seq", "paper")
     _without(monkeypatch, "pybullet")
@@ -53,8 +53,8 @@ def test_without_the_arm_extra_runs_say_what_to_install(monkeypatch: pytest.Monk
 
 
 def test_reproduce_sets_the_arm_items_aside_without_the_extra(monkeypatch: pytest.MonkeyPatch, tmp_path) -> None:  # type: ignore[no-untyped-def]
-    from lagrseq import reproduce
-    from lagrseq.suite import load_suite
+    from lagrseq.running.suite import load_suite
+    from lagrseq.study import reproduce
 
     _without(monkeypatch, "pybullet", "airo_models")
     suite = load_suite().select(["fig5c-arm", "fig6c-arm"])
@@ -96,7 +96,7 @@ def test_making_the_env_without_pybullet_is_one_usage_error(monkeypatch: pytest.
     import sys
 
     from lagrseq.errors import UsageError
-    from lagrseq.wiring import make_env
+    from lagrseq.running.wiring import make_env
 
     monkeypatch.setitem(sys.modules, "pybullet", None)  # import pybullet -> ImportError
     with pytest.raises(UsageError, match=r"arm-arrangement: .*pip install 'lagrseq\[arm\]'") as error:

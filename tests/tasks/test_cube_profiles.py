@@ -88,8 +88,8 @@ def test_the_refusing_profile_is_never_accepted_on_any_task(task: str, tmp_path:
     the states to record a real never-right model's answers for): every answer is refused by the
     parser, nothing is accepted, and SEQ asks less than LaGR."""
     from lagrseq import config as cfg
-    from lagrseq import wiring
-    from lagrseq.runner import run_one
+    from lagrseq.running import wiring
+    from lagrseq.running.runner import run_one
 
     if task != "cube-stacking":
         pytest.importorskip("torch")

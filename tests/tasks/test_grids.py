@@ -255,9 +255,9 @@ def test_mock_is_target_blind() -> None:
     """The mock is called with the same prompt under runs with different targets: it answers the
     same, because the prompt is all it sees (the target never reaches it)."""
     from lagrseq import config as cfg
-    from lagrseq.lagr import query_for
     from lagrseq.llm.mock import MockProvider
-    from lagrseq.wiring import extrapolator, make_task
+    from lagrseq.loop.lagr import query_for
+    from lagrseq.running.wiring import extrapolator, make_task
 
     pattern = np.zeros((5, 5), dtype=np.int8)
     pattern[1, 1] = pattern[1, 3] = pattern[3, 2] = 1

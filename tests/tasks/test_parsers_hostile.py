@@ -19,7 +19,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from lagrseq.recording import classify
+from lagrseq.running.recording import classify
 from lagrseq.tasks import cube, grid
 from lagrseq.tasks.arrangement import arm_arrangement, object_arrangement
 from lagrseq.tasks.base import MAX_ANSWER_CHARS, Parsed

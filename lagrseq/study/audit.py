@@ -21,10 +21,10 @@ from pathlib import Path
 from typing import Any
 
 from lagrseq import config as cfg
-from lagrseq import runner, wiring
 from lagrseq.config import ExperimentConfig
 from lagrseq.errors import ConfigError
 from lagrseq.logs.reader import is_complete
+from lagrseq.running import runner, wiring
 
 
 @dataclass(frozen=True)

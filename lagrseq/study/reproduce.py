@@ -6,7 +6,7 @@
 2. Estimate: time a short stretch of every distinct experiment on this machine (no logs, mock
    provider) and report the expected wall time before starting.
 3. Run: trials in parallel on local processes or Dask workers through
-   :func:`lagrseq.runner.run_trials`; trials whose log is complete are skipped, so a rerun resumes.
+   :func:`lagrseq.running.runner.run_trials`; trials whose log is complete are skipped, so a rerun resumes.
 4. Replay: :func:`lagrseq.analysis.replay.replay` over the run logs, from the MCAP files alone.
 """
 
@@ -21,13 +21,14 @@ from pathlib import Path
 from typing import Any
 
 from lagrseq import config as cfg
-from lagrseq import probe, runner, wiring
 from lagrseq.config import ExperimentConfig
 from lagrseq.errors import ConfigError, UsageError
-from lagrseq.experiment import TrialResult
 from lagrseq.logs.reader import is_complete
+from lagrseq.loop.experiment import TrialResult
 from lagrseq.registry import EXECUTORS, PROVIDERS, TASKS
-from lagrseq.suite import RunSpec, Suite, is_authors_provider
+from lagrseq.running import runner, wiring
+from lagrseq.running.suite import RunSpec, Suite, is_authors_provider
+from lagrseq.study import probe
 
 CALIBRATION_STEPS = 1000
 """Environment steps timed per distinct experiment to estimate the suite's duration."""
@@ -320,7 +321,7 @@ def execute(
 ) -> list[TrialResult]:
     """Run every planned run (complete trials are skipped): the accuracy probes in this process,
     then the trials of every run through one warm process pool or one Dask cluster
-    (``executor``, ``scheduler``: see :func:`lagrseq.executors.make_executor`), all submitted at
+    (``executor``, ``scheduler``: see :func:`lagrseq.running.executors.make_executor`), all submitted at
     once so that no worker waits for the last trial of one run before the next run starts.
     Without a pool (``jobs = 1``) the runs go one after the other, ``on_run`` told of each.
     ``seconds`` (run path -> estimated seconds): the bar counts estimated seconds, not units."""
@@ -415,7 +416,7 @@ def reproduce(
     from lagrseq.analysis.replay import replay
     from lagrseq.paths import writable_directory
     from lagrseq.progress import bar as progress_bar
-    from lagrseq.suite import load_suite
+    from lagrseq.running.suite import load_suite
 
     suite = load_suite(suite_path)
     if items is not None:
@@ -428,7 +429,7 @@ def reproduce(
     if scheduler is not None and not EXECUTORS.get(executor).takes_scheduler:
         raise UsageError("--scheduler applies to --executor dask only")
     if scheduler is not None:
-        from lagrseq.executors import check_scheduler
+        from lagrseq.running.executors import check_scheduler
 
         check_scheduler(scheduler)
     writable_directory(out)
@@ -512,8 +513,8 @@ def with_authors_answers(suite: Suite, caches: Path, out: Path, say: Callable[[s
     """``reproduce --authors-caches DIR``: import every authors' cache found in DIR into
     ``OUT/authors-answers`` and add a recorded-GPT run to every item they cover. Replay finds
     those runs in the logs by their provider (no suite change is needed to rebuild them)."""
-    from lagrseq import authors
-    from lagrseq.suite import with_recorded
+    from lagrseq.running.suite import with_recorded
+    from lagrseq.study import authors
 
     found = authors.find_caches(caches, warn=lambda line: say(f"warning: {line}"))
     for line in authors.import_caches(found, out, warn=lambda line: say(f"note: {line}")):
@@ -546,7 +547,7 @@ indicative, labelled so on their tables)."""
 
 
 def _audit_plan(task: str, runs_dir: Path, quick: bool, seed: int, say: Callable[[str], None]) -> tuple[list[Any], int]:
-    from lagrseq.audit import plan as audit_plan
+    from lagrseq.study.audit import plan as audit_plan
 
     chosen = SUITE_AUDITS[task]
     trials, episodes, max_steps = chosen.quick if quick else chosen.full

@@ -1,6 +1,6 @@
 """Wiring: the only place that knows the concrete tasks, envs, agents and providers.
 
-``trial_parts`` builds everything one trial of ``lagrseq.experiment.run_trial`` runs on; the
+``trial_parts`` builds everything one trial of ``lagrseq.loop.experiment.run_trial`` runs on; the
 ``make_*`` factories build one part each from the resolved configuration. Provider specs
 (``mock``, ``mock:PROFILE``, ``recorded:STORE``, ``live[:MODEL]``) are parsed here and only here.
 """
@@ -17,13 +17,6 @@ from typing import Any, TypeVar
 import numpy as np
 
 from lagrseq import seeding
-from lagrseq.adapters import (
-    DQNPrimary,
-    NeuralSeq,
-    PrimaryAgent,
-    TabularPrimary,
-    TabularSeq,
-)
 from lagrseq.agents.schedules import EpsilonSchedule
 from lagrseq.config import (
     ArmEnvConfig,
@@ -41,7 +34,6 @@ from lagrseq.config import (
     TabularConfig,
 )
 from lagrseq.errors import ConfigError, UsageError
-from lagrseq.experiment import Guide, TrialParts
 from lagrseq.llm.base import Provider
 from lagrseq.llm.mock import MockProvider
 from lagrseq.llm.servers import DEFAULT_BASE_URL, base_url_problem
@@ -49,8 +41,16 @@ from lagrseq.llm.servers import RECORD_MODES as RECORD_MODES  # for the command 
 from lagrseq.llm.servers import SERVER_KINDS as SERVER_KINDS  # for the command line
 from lagrseq.logs import foxglove
 from lagrseq.logs.events import Sink, View
+from lagrseq.loop.adapters import (
+    DQNPrimary,
+    NeuralSeq,
+    PrimaryAgent,
+    TabularPrimary,
+    TabularSeq,
+)
+from lagrseq.loop.experiment import Guide, TrialParts
+from lagrseq.loop.policies import Always, AskingPolicy, make_policy
 from lagrseq.paths import expand_user, input_path
-from lagrseq.policies import Always, AskingPolicy, make_policy
 from lagrseq.registry import POLICIES, PROVIDERS, TASKS, ProviderKind, ProviderSpec, task_profiles
 from lagrseq.seeding import Stream
 from lagrseq.tasks import cube, grid, grid_profiles

@@ -312,7 +312,7 @@ def _run_phase(
 ) -> list[Path]:
     """Run ``todo``'s variants (with their run-metadata notes) as one pool: all trials at once, so
     with ``jobs`` workers no worker idles at the end of one policy's trials."""
-    from lagrseq import runner
+    from lagrseq.running import runner
 
     prepared = []
     for variant, notes in todo:  # every configuration is checked before any trial starts
@@ -337,7 +337,7 @@ def _run_phase(
 
 
 def _logs(directory: Path, trials: int) -> list[Path]:
-    from lagrseq.runner import trial_path
+    from lagrseq.running.runner import trial_path
 
     return [trial_path(directory, t) for t in range(trials) if trial_path(directory, t).is_file()]
 

@@ -5,7 +5,7 @@ from the current state (SEQ + LaGR); once a solution is accepted, the primary ag
 (with probability P) from the next step on; otherwise it acts on its own policy. Every transition,
 every secondary decision and every episode goes to the sink.
 
-The parts (env, task, agents, provider, sink, generators) are built by ``lagrseq.wiring``; this
+The parts (env, task, agents, provider, sink, generators) are built by ``lagrseq.running.wiring``; this
 module knows only their interfaces.
 """
 
@@ -21,14 +21,14 @@ from typing import Any
 import msgspec
 import numpy as np
 
-from lagrseq.adapters import PrimaryAgent, Step
 from lagrseq.agents.schedules import EpsilonSchedule
 from lagrseq.config import ExperimentConfig
-from lagrseq.lagr import Consultation, QueryTrigger, consult, follows
 from lagrseq.llm.base import Provider
 from lagrseq.logs.events import QueryEvent, Sink, Transition, View, episode_event, jsonable
-from lagrseq.policies import AskContext, AskingPolicy
-from lagrseq.seq import query_reward
+from lagrseq.loop.adapters import PrimaryAgent, Step
+from lagrseq.loop.lagr import Consultation, QueryTrigger, consult, follows
+from lagrseq.loop.policies import AskContext, AskingPolicy
+from lagrseq.loop.seq import query_reward
 from lagrseq.tasks.base import EPISODE_LOG, STEP_LOG, Task
 
 Guide = Callable[[Any, Any, dict[str, Any]], tuple[int | None, Any, dict[str, Any]]]
@@ -65,7 +65,7 @@ class TrialResult:
 
 @dataclass(frozen=True)
 class TrialParts:
-    """Everything one trial runs on, built by ``lagrseq.wiring.trial_parts``."""
+    """Everything one trial runs on, built by ``lagrseq.running.wiring.trial_parts``."""
 
     config: ExperimentConfig
     trial: int
@@ -73,7 +73,7 @@ class TrialParts:
     env: Any
     primary: PrimaryAgent
     secondary: AskingPolicy | None
-    """When to ask (``lagrseq.policies``): the configured policy of ``lagr-seq``, ``Always`` for
+    """When to ask (``lagrseq.loop.policies``): the configured policy of ``lagr-seq``, ``Always`` for
     ``lagr``; None for ``baseline``, which never reaches a decision."""
     provider: Provider
     sink: Sink

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from lagrseq.errors import StoreError, UsageError
-from lagrseq.suite import AUTHORS_STORE_NAME
+from lagrseq.running.suite import AUTHORS_STORE_NAME
 
 MAX_FILE_BYTES = 64 * 1024 * 1024
 """Largest file considered (the authors' biggest cache, the image one, is 1.3 MB)."""
@@ -164,7 +164,7 @@ def import_caches(caches: list[Cache], out: Path, warn: Callable[[str], None] | 
     from lagrseq.llm.authors_cache import import_authors_cache
     from lagrseq.llm.servers import DEFAULT_BASE_URL
     from lagrseq.llm.store import RecordStore, endpoint_of
-    from lagrseq.recording import prompt_function, record_config
+    from lagrseq.running.recording import prompt_function, record_config
 
     lines = []
     with RecordStore(store_path(out)) as store:

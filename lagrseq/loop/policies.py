@@ -1,6 +1,6 @@
 """When to ask: asking policies, the secondary agent generalised.
 
-The loop (``lagrseq.experiment``) calls ``policy.decide(context)`` wherever the trigger allows a
+The loop (``lagrseq.loop.experiment``) calls ``policy.decide(context)`` wherever the trigger allows a
 query and no accepted solution is held, then ``policy.update(context, asked, query_reward)`` with
 the query reward (0 when it did not ask). An :class:`AskContext` holds only what the agent may
 know: the pattern, its progress, the step and episode counters, the query counts so far, and,

@@ -1,7 +1,7 @@
 """The executor interface: what the runner needs of any executor, and what its workers run.
 
 A trial is one task: :class:`TrialJob` in, a ``TrialResult`` out. The executors themselves
-(``lagrseq.executors``: the local process pool; ``lagrseq.dask_executor``) implement
+(``lagrseq.running.executors``: the local process pool; ``lagrseq.running.dask_executor``) implement
 :class:`TrialExecutor`; they import this module, never each other.
 """
 
@@ -31,7 +31,7 @@ class TrialJob:
     path: str
     """The trial's final log path (written as ``path + '.partial'`` until complete)."""
     options: Any
-    """The run's :class:`lagrseq.wiring.ProviderOptions` (or None)."""
+    """The run's :class:`lagrseq.running.wiring.ProviderOptions` (or None)."""
     key: str
     """Deterministic task key: ``lagrseq-trial-<run digest>-<trial>``; a resubmission of the same
     trial of the same run gets the same key (Dask then recognises it)."""

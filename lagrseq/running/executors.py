@@ -1,17 +1,17 @@
 """Where the trials of a sweep run: the executor interface and the local process pool.
 
 A trial is one task: :class:`TrialJob` (the configuration as a plain dict, seed, trial index,
-provider, log path) in, a :class:`~lagrseq.experiment.TrialResult` (a few numbers and the path)
+provider, log path) in, a :class:`~lagrseq.loop.experiment.TrialResult` (a few numbers and the path)
 out; the MCAP file is written under the run directory as ``NAME.partial`` and renamed when
 complete. Two executors run such tasks:
 
 - ``local`` (default): a pool of spawned worker processes on this machine
   (:class:`LocalExecutor`);
 - ``dask``: Dask distributed, a ``LocalCluster`` on 127.0.0.1 or an existing scheduler
-  (:mod:`lagrseq.dask_executor`, imported only when asked for, so dask stays an optional extra).
+  (:mod:`lagrseq.running.dask_executor`, imported only when asked for, so dask stays an optional extra).
 
 Both give the same logs: a trial's events depend only on its job, never on where it ran. The
-runner (:func:`lagrseq.runner.run_trials`) drives either through :meth:`TrialExecutor.submit`,
+runner (:func:`lagrseq.running.runner.run_trials`) drives either through :meth:`TrialExecutor.submit`,
 :meth:`TrialExecutor.completed` and, on Ctrl-C, :meth:`TrialExecutor.interrupt`.
 """
 
@@ -24,7 +24,8 @@ from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from typing import Any
 
 from lagrseq.errors import UsageError
-from lagrseq.executor_base import (
+from lagrseq.registry import EXECUTORS as REGISTRY
+from lagrseq.running.executor_base import (
     SCHEDULER_SCHEMES,
     TRACKER_QUIET,
     TrialExecutor,
@@ -36,7 +37,6 @@ from lagrseq.executor_base import (
     run_digest,
     task_key,
 )
-from lagrseq.registry import EXECUTORS as REGISTRY
 
 __all__ = [
     "SCHEDULER_SCHEMES", "TRACKER_QUIET", "LocalExecutor", "TrialExecutor", "TrialJob", "_ignore_interrupts",
@@ -117,6 +117,6 @@ def make_dask(jobs: int, scheduler: str | None = None, say: Callable[[str], None
 
     if importlib.util.find_spec("distributed") is None:
         raise UsageError(DASK_MISSING)
-    from lagrseq.dask_executor import DaskExecutor
+    from lagrseq.running.dask_executor import DaskExecutor
 
     return DaskExecutor(jobs, scheduler, say)

@@ -20,13 +20,13 @@ import numpy as np
 
 from lagrseq.config import ExperimentConfig
 from lagrseq.errors import BudgetExceeded, LogError, UsageError
-from lagrseq.lagr import query_for
 from lagrseq.llm.base import Query
 from lagrseq.logs.reader import find_logs, read_info, read_topic
+from lagrseq.loop.lagr import query_for
 from lagrseq.registry import ProviderKind
+from lagrseq.running.wiring import ProviderOptions, make_live, make_task
 from lagrseq.tasks import cube
 from lagrseq.tasks.base import Task
-from lagrseq.wiring import ProviderOptions, make_live, make_task
 
 STATE_TOPICS = ("/query", "/transition")
 
@@ -151,7 +151,7 @@ def record(
     recording (its answers are keyed under the endpoint ``local``). ``bar``: a tqdm-like progress
     bar (``update``, ``write``, ``set_postfix_str``) or None."""
     from lagrseq.llm.store import endpoint_of
-    from lagrseq.wiring import local_settings, parse_provider
+    from lagrseq.running.wiring import local_settings, parse_provider
 
     spec = parse_provider(provider)
     kind = _recording_kind(provider)
@@ -176,7 +176,7 @@ def check_record(store_path: Path, mode: str, options: ProviderOptions, provider
     the provider (a live server's key and URL, a local model file) and, unless mode ``none``, a
     store that can be written (a read-only store, or one below a file, fails here)."""
     from lagrseq.llm.store import RecordStore
-    from lagrseq.wiring import local_settings, parse_provider
+    from lagrseq.running.wiring import local_settings, parse_provider
 
     spec = parse_provider(provider)
     kind = _recording_kind(provider)
@@ -193,7 +193,7 @@ def check_record(store_path: Path, mode: str, options: ProviderOptions, provider
 def _recording_kind(provider: str) -> ProviderKind:
     """The kind of ``provider`` if ``record`` can ask it (a live or local model)."""
     from lagrseq.registry import PROVIDERS
-    from lagrseq.wiring import provider_kind
+    from lagrseq.running.wiring import provider_kind
 
     kind = provider_kind(provider)
     if not kind.records:

@@ -1,8 +1,8 @@
 """Trials on Dask distributed: a ``LocalCluster`` on 127.0.0.1 or an existing scheduler.
 
-The only module that imports dask (the ``dask`` extra); :func:`lagrseq.executors.make_executor`
+The only module that imports dask (the ``dask`` extra); :func:`lagrseq.running.executors.make_executor`
 imports it when ``--executor dask`` is asked for. One trial is one Dask task, keyed
-``lagrseq-trial-<run digest>-<trial>``; the task function is :func:`lagrseq.runner.run_trial_job`,
+``lagrseq-trial-<run digest>-<trial>``; the task function is :func:`lagrseq.running.runner.run_trial_job`,
 importable on every worker (workers must have lagrseq installed, the same version).
 
 Pitfalls known from Dask users, and what is done about them:
@@ -40,7 +40,12 @@ from typing import Any
 import distributed
 
 from lagrseq.errors import UsageError
-from lagrseq.executor_base import TrialExecutor, TrialJob, check_scheduler, quiet_resource_tracker
+from lagrseq.running.executor_base import (
+    TrialExecutor,
+    TrialJob,
+    check_scheduler,
+    quiet_resource_tracker,
+)
 
 WORKER_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
 

@@ -4,7 +4,7 @@ A run writes ``OUT/<task>/<method>/<name>/trial-NNN.mcap``, one file per trial. 
 trial whose log is complete, but only if that log was made with the same configuration, seed and
 provider (``--name`` lets two configurations meet in one directory: that is refused), and says
 how many trials are complete, missing or unfinished before it starts. Trials run in this process
-(``jobs=1``), in a pool of spawned worker processes, or on Dask (:mod:`lagrseq.executors`); a trial
+(``jobs=1``), in a pool of spawned worker processes, or on Dask (:mod:`lagrseq.running.executors`); a trial
 that raises is reported while the others go on; Ctrl-C cancels the trials
 not started, stops the running ones (their flushed episodes stay in ``.partial`` files that
 ``lagrseq recover`` turns into valid logs) and raises KeyboardInterrupt; a second Ctrl-C exits at
@@ -24,13 +24,14 @@ from typing import Any
 
 import numpy as np
 
-from lagrseq import __version__, executors
+from lagrseq import __version__
 from lagrseq.config import ExperimentConfig
 from lagrseq.errors import BudgetExceeded, LagrseqError, TrialsFailed, UsageError
-from lagrseq.experiment import TrialResult, run_trial
 from lagrseq.logs.reader import LogInfo, is_complete, read_info
 from lagrseq.logs.sink import PARTIAL_SUFFIX, McapSink, NullSink, Sink
-from lagrseq.wiring import (
+from lagrseq.loop.experiment import TrialResult, run_trial
+from lagrseq.running import executors
+from lagrseq.running.wiring import (
     ProviderOptions,
     parse_provider,
     pays,
@@ -231,7 +232,7 @@ def progress_unit(config: ExperimentConfig) -> tuple[str, int]:
 # ------------------------------------------------------------------------------------------
 # Running trials
 # ------------------------------------------------------------------------------------------
-# The process pool lives in lagrseq.executors; these names stay importable from here.
+# The process pool lives in lagrseq.running.executors; these names stay importable from here.
 _ignore_interrupts = executors._ignore_interrupts
 exit_on_next_interrupt = executors.exit_on_next_interrupt
 stop_pool = executors.stop_pool
@@ -560,7 +561,7 @@ def prepare(
     nothing sent). Returns the resolved configuration and the run directory."""
     from lagrseq import config as cfg
     from lagrseq.paths import writable_directory
-    from lagrseq.wiring import check_provider, missing_dependency
+    from lagrseq.running.wiring import check_provider, missing_dependency
 
     if options.on_miss != "error" and not provider_kind(provider_spec).replays:
         raise UsageError(f"--on-miss {options.on_miss} applies to --provider recorded:STORE only")

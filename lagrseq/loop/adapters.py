@@ -16,8 +16,8 @@ import numpy as np
 from lagrseq import seeding
 from lagrseq.agents.tabular import TabularQ
 from lagrseq.config import DQNConfig, NeuralSecondaryConfig, TabularConfig
+from lagrseq.loop.seq import TabularSecondary
 from lagrseq.seeding import Stream
-from lagrseq.seq import TabularSecondary
 from lagrseq.tasks import cube
 
 

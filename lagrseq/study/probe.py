@@ -12,14 +12,14 @@ import msgspec
 from lagrseq import seeding
 from lagrseq.config import ExperimentConfig
 from lagrseq.errors import UsageError
-from lagrseq.experiment import TrialResult, query_event
-from lagrseq.lagr import consult
 from lagrseq.logs.events import ProbeQueryEvent, QueryEvent
 from lagrseq.logs.schemas import ACCURACY_METHOD
 from lagrseq.logs.sink import McapSink, NullSink, Sink
+from lagrseq.loop.experiment import TrialResult, query_event
+from lagrseq.loop.lagr import consult
+from lagrseq.running.wiring import make_provider, make_task
 from lagrseq.seeding import Stream
 from lagrseq.tasks import cube
-from lagrseq.wiring import make_provider, make_task
 
 
 def run_accuracy_probe(
@@ -33,7 +33,7 @@ def run_accuracy_probe(
     """Query the provider ``samples`` times with every prefix of the target (1/N to N/N of the
     sequence) and log each answer as a ``/query`` record with ``prefix_length`` and ``fraction``
     (= prefix length / N)."""
-    from lagrseq.runner import run_metadata
+    from lagrseq.running.runner import run_metadata
 
     started = time.perf_counter()
     task = make_task(config)
@@ -61,7 +61,7 @@ def run_accuracy_probe(
 
 def probe_path(out: Path, config: ExperimentConfig, provider_spec: str, seed: int, samples: int) -> Path:
     """``OUT/<task>/llm-accuracy/<preset>-<provider>-seed<S>-<digest>/samples-<K>.mcap``."""
-    from lagrseq.runner import provider_slug
+    from lagrseq.running.runner import provider_slug
 
     name = f"{config.preset}-{provider_slug(provider_spec)}-seed{seed}-{config.digest()}"
     return out / config.task.name / ACCURACY_METHOD / name / f"samples-{samples:04d}.mcap"
