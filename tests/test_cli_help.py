@@ -59,9 +59,9 @@ def test_help_texts_print_no_format_escapes(name: str, parser: argparse.Argument
 
 def test_frontier_and_audit_help_say_95_percent() -> None:
     helps = dict(PARSERS)
-    for name in ("lagrseq frontier", "lagrseq audit"):
-        text = _help(helps[name])
-        assert "95% bootstrap" in " ".join(text.split()), name
+    for name, interval in (("lagrseq frontier", "95% bootstrap"), ("lagrseq audit", "95% t-intervals")):
+        text = " ".join(_help(helps[name]).split())
+        assert interval in text and "%%" not in text, name
 
 
 def test_run_help_names_every_mock_profile() -> None:

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 from pathlib import PurePath
 from typing import Any
 
+from lagrseq.registry import kind_of
+
 AUTHORS = "authors' answers"
 OPEN_MODEL = "open model"
 FITTED = "fitted"
@@ -69,7 +71,10 @@ def provenance(provider: str, config: Mapping[str, Any], method: str | None = No
     if method == BASELINE:
         return Provenance(NO_LLM, "Q-learning never queries an LLM")
     kind, _, argument = str(provider).partition(":")
-    if kind == "mock":
+    spec = kind_of(str(provider))
+    if spec is None:
+        return Provenance(UNKNOWN, f"provider {provider!r} is not one lagrseq knows")
+    if spec.synthetic:
         if argument.startswith(FITTED_PROFILE_PREFIX):
             if temperature > 0:
                 return Provenance(
@@ -80,14 +85,12 @@ def provenance(provider: str, config: Mapping[str, Any], method: str | None = No
             return Provenance(FITTED, f"mock:{argument} was calibrated on the authors' answers")
         name = argument or "the rule-based extrapolator"
         return Provenance(RULE_BASED, f"mock {name}: nothing in it was tuned to a paper number")
-    if kind == "recorded":
+    if spec.replays:
         if PurePath(argument.rstrip("/")).name == AUTHORS_STORE_NAME:
             return Provenance(AUTHORS, "the paper authors' recorded GPT answers (misses answered by a fallback, counted)")
         where = PurePath(argument.rstrip("/")).name or argument
         return Provenance(OPEN_MODEL, f"recorded answers of {model or 'a model'} ({where})")
-    if kind in ("live", "local"):
-        return Provenance(OPEN_MODEL, f"{kind} answers of {argument or model or 'a model'}")
-    return Provenance(UNKNOWN, f"provider {provider!r} is not one lagrseq knows")
+    return Provenance(OPEN_MODEL, f"{kind} answers of {argument or model or 'a model'}")
 
 
 def of_run(run: Any) -> Provenance:

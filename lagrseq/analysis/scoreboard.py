@@ -29,6 +29,7 @@ from lagrseq.analysis import provenance as prov
 from lagrseq.analysis.items import Match
 from lagrseq.analysis.loading import Run
 from lagrseq.analysis.tables import Table
+from lagrseq.registry import kind_of
 from lagrseq.running.suite import PAPER_MODEL_ROWS, RECORDED_NAME, Item, is_authors_provider
 
 _NUMBER = re.compile(r"[-+]?\d+(?:\.\d+)?")
@@ -53,7 +54,8 @@ def paper_spread(text: str) -> float | None:
 def source_name(provider: str) -> str:
     if is_authors_provider(provider):
         return RECORDED_NAME
-    if provider.startswith("recorded:"):
+    kind = kind_of(provider)
+    if kind is not None and kind.replays and ":" in provider:
         return "recorded store " + provider.split(":", 1)[1].rstrip("/").rsplit("/", 1)[-1]
     return provider
 

@@ -413,6 +413,20 @@ def check_render(task: str, render: Path | None) -> None:
     writable_directory(render, "--render")
 
 
+def model_listing(paths: list[Path], hash_files: bool, as_json: bool) -> tuple[list[str], list[str]]:
+    """``lagrseq models``: the lines describing every GGUF model found (text blocks, or one JSON
+    object a line), and the problems of the paths given that are not GGUF files."""
+    import json
+
+    from lagrseq.llm.gguf import find_models, model_lines
+
+    models = find_models(paths, hash_files=hash_files)
+    given_bad = [model for model in models if model.problem and model.found_by == "path"]
+    found = [model for model in models if model not in given_bad]
+    lines = [json.dumps(model.row(), ensure_ascii=False) for model in found] if as_json else model_lines(found)
+    return lines, [f"{model.path}: {model.problem}" for model in given_bad]
+
+
 def serve_llm(model: str, port: int, n_ctx: int, threads: int, log: Any, announce: Callable[[str], None], say: Callable[[str], None]) -> None:
     """``lagrseq serve-llm``: a llama.cpp server until interrupted (SIGTERM stops it as Ctrl-C
     does: the command line's handler); ``announce`` gets its address line, ``say`` its log lines."""
