@@ -670,6 +670,15 @@ def gap_explained_by(
                     )
     if candidates.empty:
         return f"unexplained (gap {_signed(gap)}; no audited field moves it that way beyond noise; {source})"
+    # an effect far larger than the gap does not account for part of it: it measures another regime
+    fitting = candidates[candidates["effect"].abs() <= abs(gap) + margin]
+    if fitting.empty:
+        largest = candidates.iloc[int(np.argmax(candidates["effect"].abs().to_numpy()))]
+        return (
+            f"unexplained (gap {_signed(gap)}; the audited effects that way overshoot it, e.g. "
+            f"{largest['field']} ({_signed(largest['effect'])}){qualifier}; {source})"
+        )
+    candidates = fitting
     ordered = candidates.reindex(candidates["effect"].abs().sort_values(ascending=False).index)
     sums = np.cumsum(ordered["effect"].to_numpy())
     k = int(np.argmin(np.abs(sums - gap))) + 1

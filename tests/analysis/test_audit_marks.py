@@ -210,6 +210,17 @@ def test_the_gap_is_explained_by_the_rows_that_add_up_to_it() -> None:
     assert text is not None and text.startswith("no gap beyond the margin")
 
 
+def test_an_effect_far_larger_than_the_gap_explains_nothing_of_it() -> None:
+    """Found in the quick suite's report: lagr.solution_scope (+759) was named as "partly"
+    explaining a gap of +18.5. An effect beyond the gap plus the margin measures another regime."""
+    made = _audit({"big": (759.0, 10, 1e-6), "small": (10.0, 10, 1e-6)})
+    text = audit.gap_explained_by([made], TASK, "upstream", "queries without SEQ", 100.0, "150 ± 1")
+    assert text is not None and text.startswith("partly: small (+10) = +10 of gap +50")
+    only_big = _audit({"big": (759.0, 10, 1e-6)})
+    text = audit.gap_explained_by([only_big], TASK, "upstream", "queries without SEQ", 100.0, "150 ± 1")
+    assert text is not None and text.startswith("unexplained (gap +50; the audited effects that way overshoot it, e.g. big (+759)")
+
+
 def test_rows_the_audit_never_measured_say_so() -> None:
     made = _audit({"a": (150.0, 10, 1e-6)})
     tau = json.loads(cfg.load(TASK, "lagr", "upstream", None, ["llm.temperature=0.5"]).to_json())
