@@ -163,12 +163,14 @@ def recorded_misses(run: Run) -> str:
     misses = sources[~sources.isin(stored_sources())]
     if len(asked) == 0:
         return "no queries"
-    decided, trials = fallback_decided(run)
-    decided_text = f"first accepted answer from the fallback in {decided}/{trials} trials"
+    decided_text = ""
+    if run.key.method != ACCURACY_METHOD:  # an accuracy probe accepts nothing: no trial to decide
+        decided, trials = fallback_decided(run)
+        decided_text = f"; first accepted answer from the fallback in {decided}/{trials} trials"
     if len(misses) == 0:
-        return f"all {len(asked)} answers recorded; {decided_text}"
+        return f"all {len(asked)} answers recorded{decided_text}"
     kinds = "/".join(sorted(set(misses)))
-    return f"{len(misses)} of {len(asked)} answers from the fallback {kinds}; {decided_text}"
+    return f"{len(misses)} of {len(asked)} answers from the fallback {kinds}{decided_text}"
 
 
 def fallback_decided(run: Run) -> tuple[int, int]:

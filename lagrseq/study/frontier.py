@@ -166,39 +166,12 @@ class Tuning:
 
 @dataclass(frozen=True)
 class Frontier:
-    """What :func:`run_frontier` ran (every run directory) and what ``--tune`` chose."""
+    """What :func:`run_protocol` ran (every run directory) and what ``--tune`` chose."""
 
     directories: list[Path]
     variants: list[Variant]
     chosen: dict[str, dict[str, Any]]
     """Per scope and policy (``"episode/thompson"``): the tuning note written into the logs."""
-
-
-def run_frontier(
-    task: str,
-    variants: Sequence[Variant],
-    provider: str,
-    options: Any,
-    out: Path,
-    trials: int,
-    seed: int,
-    preset: str,
-    config_file: Path | None,
-    overrides: Sequence[str],
-    jobs: int,
-    progress: Callable[[str, int, str], Any] | None = None,
-    say: Callable[[str], None] = print,
-    scopes: Sequence[str | None] = (None,),
-    matched_random: bool = False,
-    tune: Tuning | None = None,
-) -> list[Path]:
-    """Run every variant (skipping finished trials) into ``out``; returns the run directories
-    (see :func:`run_protocol`, which this is with the protocol's parts off by default)."""
-    made = run_protocol(
-        task, variants, provider, options, out, trials, seed, preset, config_file, overrides, jobs, progress, say,
-        scopes, matched_random, tune,
-    )
-    return made.directories
 
 
 def run_protocol(

@@ -92,5 +92,7 @@ def test_plugins_run_frontier_and_replay_through_the_command_line(tmp_path: Path
     again = lagrseq("frontier", "--replay", str(tmp_path / "fr"), "--out", str(tmp_path / "again"), cwd=tmp_path)
     assert again.returncode == 0, again.stderr
     variants = json.loads((tmp_path / "fr" / "frontier.json").read_text())
-    assert [(v["policy"], v["method"]) for v in variants] == [("always", "lagr"), ("backoff", "lagr-seq")]
+    # the protocol adds random at backoff's matched query rate beside the policies asked for
+    assert [(v["policy"], v["method"]) for v in variants][:2] == [("always", "lagr"), ("backoff", "lagr-seq")]
+    assert all(v["policy"].startswith("random:ask_probability=") for v in variants[2:] if "policy" in v)
     assert list((tmp_path / "again").glob("*.png"))
