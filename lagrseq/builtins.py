@@ -162,7 +162,7 @@ PROVIDERS.register(
         source="live",
         local_server=True,
         records=True,
-        description="a llama.cpp server started on this machine for the run (the local extra)",
+        description="a llama.cpp server started on this machine for the run (the local-llm extra)",
     )
 )
 
