@@ -464,10 +464,10 @@ def reproduce(
             f"(runs {duration(guess.runs)}, audits {duration(guess.audit)}, replay {duration(guess.replay)}; "
             f"timed on this machine; LLM latency of live providers not included)"
         )
-        bar.reset(total=max(guess.total, 1e-9))
-        bar.unit = "s"
+        bar.unit = "s"  # the unit and format first: reset redraws the bar
         bar.bar_format = "{desc}{percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} estimated s [{elapsed}<{remaining}, {rate_fmt}]"
-        bar.set_description("runs")
+        bar.set_description("runs", refresh=False)
+        bar.reset(total=max(guess.total, 1e-9))
         execute(
             the_plan, jobs, bar, on_run=lambda run: bar.set_description(run.describe()),
             executor=executor, scheduler=scheduler, say=say, retries=retries, seconds=guess.per_run,
