@@ -62,57 +62,56 @@ TASKS.register(
         description="stack cubes in the target order",
     )
 )
+
+
+def grid_task(name: str, task: type, env: type, prefix: str, **own: Any) -> TaskSpec:
+    """A grid task (image completion, object arrangement, the arm): the DQN sections, the grid
+    extrapolator and profiles, steering guidance and both solution-scope regimes; ``prefix``
+    names its wiring functions (``{prefix}_task``, ``{prefix}_env``), ``own`` the rest (and
+    overrides any of these)."""
+    shared: dict[str, Any] = {
+        "make_task": lazy(f"{WIRING}:{prefix}_task"),
+        "make_env": lazy(f"{WIRING}:{prefix}_env"),
+        "extrapolator": lazy(f"{WIRING}:grid_extrapolator"),
+        "profiles": lazy(f"{WIRING}:grid_profiles_of"),
+        "guide": lazy(f"{WIRING}:steering_guide"),
+        "missing_dependency": lazy(f"{WIRING}:torch_dependency"),
+        "solution_scopes": ("episode", "trial"),
+    }
+    return TaskSpec(
+        name=name,
+        sections={"task": task, "env": env, **GRID_SECONDARY},
+        presets=presets(name),
+        **{**shared, **own},
+    )
+
+
 TASKS.register(
-    TaskSpec(
-        name="image-completion",
-        sections={"task": cfg.ImageTaskConfig, "env": cfg.ImageEnvConfig, **GRID_SECONDARY},
-        presets=presets("image-completion"),
-        make_task=lazy(f"{WIRING}:image_task"),
-        make_env=lazy(f"{WIRING}:image_env"),
-        extrapolator=lazy(f"{WIRING}:grid_extrapolator"),
-        profiles=lazy(f"{WIRING}:grid_profiles_of"),
+    grid_task(
+        "image-completion", cfg.ImageTaskConfig, cfg.ImageEnvConfig, "image",
         view_topics=lazy(f"{WIRING}:image_topics"),
         views=lazy(f"{WIRING}:image_views"),
-        guide=lazy(f"{WIRING}:steering_guide"),
-        missing_dependency=lazy(f"{WIRING}:torch_dependency"),
         estimated_tokens=lazy("lagrseq.tasks.estimates:image_tokens"),
-        solution_scopes=("episode", "trial"),
         description="draw a 10 x 10 image cell by cell",
     )
 )
 TASKS.register(
-    TaskSpec(
-        name="object-arrangement",
-        sections={"task": cfg.ArrangementTaskConfig, "env": cfg.ArrangementEnvConfig, **GRID_SECONDARY},
-        presets=presets("object-arrangement"),
-        make_task=lazy(f"{WIRING}:arrangement_task"),
-        make_env=lazy(f"{WIRING}:arrangement_env"),
-        extrapolator=lazy(f"{WIRING}:grid_extrapolator"),
-        profiles=lazy(f"{WIRING}:grid_profiles_of"),
+    grid_task(
+        "object-arrangement", cfg.ArrangementTaskConfig, cfg.ArrangementEnvConfig, "arrangement",
         view_topics=lazy(f"{WIRING}:grid_topics"),
         views=lazy(f"{WIRING}:grid_views"),
-        guide=lazy(f"{WIRING}:steering_guide"),
-        missing_dependency=lazy(f"{WIRING}:torch_dependency"),
         estimated_tokens=lazy("lagrseq.tasks.estimates:arrangement_tokens"),
-        solution_scopes=("episode", "trial"),
         description="place objects on a 5 x 5 table",
     )
 )
 TASKS.register(
-    TaskSpec(
-        name="arm-arrangement",
-        sections={"task": cfg.ArmTaskConfig, "env": cfg.ArmEnvConfig, **GRID_SECONDARY},
-        presets=presets("arm-arrangement"),
-        make_task=lazy(f"{WIRING}:arm_task"),
+    grid_task(
+        "arm-arrangement", cfg.ArmTaskConfig, cfg.ArmEnvConfig, "arm",
         make_env=lazy(f"{WIRING}:make_arm_env"),
-        extrapolator=lazy(f"{WIRING}:grid_extrapolator"),
-        profiles=lazy(f"{WIRING}:grid_profiles_of"),
         view_topics=lazy(f"{WIRING}:arm_topics"),
         views=lazy(f"{WIRING}:arm_views"),
-        guide=lazy(f"{WIRING}:steering_guide"),
         missing_dependency=lazy(f"{WIRING}:arm_dependency"),
         renders=True,
-        solution_scopes=("episode", "trial"),
         calibration_steps=100,  # a simulated arm step is slow: 100 steps time it well enough
         description="object arrangement placed by a simulated or remote UR5e arm (the arm extra)",
     )
