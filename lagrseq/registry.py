@@ -65,9 +65,10 @@ class TaskSpec:
     views: Callable[[Any, Any], Callable[[dict[str, Any], int], list[Any]] | None] | None = None
     """(config, env) -> the pictures after each step, from the step's info (``View`` records)."""
     guide: Callable[[Any, Any, Any], Callable[..., Any]] | None = None
-    """(config, task, env) -> pi_LLM, ``(solution, observation, info) -> (action or None,
-    observation, info)``, where the env lets it choose where to act (None: the task's
-    ``guidance`` wherever the env is)."""
+    """(config, task, env) -> pi_LLM, ``(solution, observation, info) -> Guided or None``
+    (``lagrseq.loop.experiment.Guided``: its action, the same action as ``env.step`` takes it,
+    and the observation and info it acts on), where the env's actions let it name where it acts
+    (None: the task's ``guidance`` wherever the env is)."""
     missing_dependency: Callable[[Any], str] | None = None
     """config -> why it cannot run with the installed extras ("" when it can)."""
     estimated_tokens: Callable[[dict[str, Any]], tuple[float, float] | None] | None = None

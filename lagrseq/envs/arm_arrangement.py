@@ -54,7 +54,9 @@ class ArmArrangementEnv(ObjectArrangementEnv):
     state as what really happened, and in ``info["placement"]``.
 
     ## Action Space
-    ``Discrete(2)``: 1 puts an object on the drawn cell, 0 does nothing.
+    ``Discrete(52)``: 1 puts an object on the drawn cell, 0 does nothing (the primary agent's
+    ``agent_action_space``, ``Discrete(2)``); ``2 + 2 * k + a`` does the same on cell ``k`` instead
+    (pi_LLM's action naming its cell).
 
     ## Observation Space
     ``Box(0, [4, 4, 1, 1, ..., 1], (28,), float32)``: the drawn cell's row and column, whether it

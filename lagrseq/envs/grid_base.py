@@ -18,6 +18,12 @@ class GridEnv(gym.Env[np.ndarray, int]):
     Observation: ``[row, col, grid[row, col]] + grid.flatten()`` as float32, the released code's
     state (SPEC 2.1, 3.1); coordinates are raw cell indices (an agent may normalise them with the
     observation space's bounds).
+
+    Actions (``Discrete(2 + 2 * cells)``): 0 and 1 act on the cursor's cell (the primary agent's
+    actions, :attr:`agent_action_space`); ``2 + 2 * k + a`` acts ``a`` on cell ``k`` (row-major)
+    instead: pi_LLM's action naming the cell it chose, as the released code's ``LLMgreedy`` takes
+    it (SPEC 2.3), its bonus judged with ``guided_goal_threshold`` (:meth:`cell_action` writes
+    one). Which cell comes after is the same either way.
     """
 
     metadata = {"render_modes": ["ansi"], "render_fps": 4}
@@ -36,13 +42,15 @@ class GridEnv(gym.Env[np.ndarray, int]):
         self.guided_goal_threshold = (
             task.goal_threshold if guided_goal_threshold is None else guided_goal_threshold
         )
-        self._steered = False  # the coming step is pi_LLM's, on a cell it chose (see steer)
+        self._steered = False  # the current step is pi_LLM's, on a cell it named (see _check)
         self.render_mode = render_mode
         self.rows, self.cols = task.rows, task.cols
         high = np.ones(3 + task.cells, dtype=np.float32)
         high[0], high[1] = self.rows - 1, self.cols - 1
         self.observation_space = spaces.Box(np.zeros_like(high), high, dtype=np.float32)
-        self.action_space = spaces.Discrete(2)  # type: ignore[assignment]  # gymnasium: Space[int64]
+        self.action_space = spaces.Discrete(2 + 2 * task.cells)  # type: ignore[assignment]  # gymnasium: Space[int64]
+        self.agent_action_space = spaces.Discrete(2)
+        """The actions at the cursor (0: leave the cell, 1: act on it): what an RL agent chooses from."""
         self._grid = np.zeros((self.rows, self.cols), dtype=np.int8)
         self._cursor = (0, 0)
         self._observation = np.zeros(3 + task.cells, dtype=np.float32)
@@ -82,24 +90,32 @@ class GridEnv(gym.Env[np.ndarray, int]):
         }
 
     def _check(self, action: int) -> int:
+        """The step's action at its cell (0 or 1); an action naming a cell moves the cursor
+        there for this step and marks the step as pi_LLM's."""
         action = int(action)
-        if action not in (0, 1):
-            raise ValueError(f"action {action} outside Discrete(2)")
-        return action
+        if not 0 <= action < 2 + 2 * self._cells:
+            raise ValueError(f"action {action} outside Discrete({2 + 2 * self._cells})")
+        if action >= 2:
+            self._cursor = divmod((action - 2) // 2, self.cols)
+            self._steered = True
+        return action % 2
 
-    # ------------------------------------------------------------------ pi_LLM support
-    def steer(self, cell: tuple[int, int]) -> tuple[np.ndarray, dict[str, Any]]:
-        """Make the next step pi_LLM's, as the released code takes it (``LLMgreedy``, SPEC 2.3):
-        it acts on ``cell`` instead of the scanned or drawn one, and its bonus is judged with
-        ``guided_goal_threshold`` (released image code: E > 0.95, while the primary's steps need
-        the exact image). Returns the observation and info at ``cell``; which cell comes after
-        is unchanged."""
+    # ------------------------------------------------------------------ pi_LLM's actions
+    def cell_action(self, cell: tuple[int, int], action: int) -> int:
+        """The env action doing ``action`` (0 or 1) on ``cell`` instead of the cursor's cell."""
         row, col = int(cell[0]), int(cell[1])
-        if not (0 <= row < self.rows and 0 <= col < self.cols):
-            raise ValueError(f"cell {cell} outside the {self.rows}x{self.cols} grid")
-        self._cursor = (row, col)
-        self._steered = True
-        return self._observe(), self._info()
+        if not (0 <= row < self.rows and 0 <= col < self.cols) or action not in (0, 1):
+            raise ValueError(f"action {action} on cell {cell}: expected 0 or 1 on a cell of the {self.rows}x{self.cols} grid")
+        return 2 + 2 * (row * self.cols + col) + int(action)
+
+    def at_cell(self, observation: np.ndarray, info: dict[str, Any], cell: tuple[int, int]) -> tuple[np.ndarray, dict[str, Any]]:
+        """``observation`` and ``info`` as seen from ``cell`` instead of the cursor's cell (what
+        an action naming ``cell`` acts on; a pure function of its arguments, the env is not
+        touched)."""
+        row, col = int(cell[0]), int(cell[1])
+        seen = np.array(observation, dtype=np.float32, copy=True)
+        seen[0], seen[1], seen[2] = row, col, seen[3 + row * self.cols + col]
+        return seen, {**info, "cursor": (row, col)}
 
     def render(self) -> str | None:
         if self.render_mode == "ansi":

@@ -21,7 +21,9 @@ class ImageCompletionEnv(GridEnv):
     (``target``). The pattern is the LaGR-SEQ paper's image-completion task.
 
     ## Action Space
-    ``Discrete(2)``: 1 flips the scanned pixel (0 -> 1 or 1 -> 0), 0 leaves it.
+    ``Discrete(202)``: 1 flips the scanned pixel (0 -> 1 or 1 -> 0), 0 leaves it (the primary
+    agent's ``agent_action_space``, ``Discrete(2)``); ``2 + 2 * k + a`` does the same to pixel
+    ``k`` instead (pi_LLM's action naming its pixel); the scan goes on from where it was.
 
     ## Observation Space
     ``Box(0, [9, 9, 1, 1, ..., 1], (103,), float32)``: the scanned pixel's row and column, its
@@ -30,7 +32,7 @@ class ImageCompletionEnv(GridEnv):
     ## Reward
     ``E(I') - E(I) + b`` with E the fraction of pixels equal to the target's (so +-0.01 per pixel)
     and the bonus b paid when E(I') >= ``goal_threshold`` (1.0: the exact target; the paper pays it
-    for E > delta = 0.95, i.e. 0.96); on a step steered by pi_LLM (``steer``) the threshold is
+    for E > delta = 0.95, i.e. 0.96); on pi_LLM's steps (an action naming its cell) the threshold is
     ``guided_goal_threshold`` (default: the same). With ``block_wrong_flips`` (released code) turning on a pixel
     that is black in the target is undone and earns 0 (no bonus either: the released code judges
     the step on the wrong image), so the image is always part of the target; turning a pixel off

@@ -21,7 +21,9 @@ class ObjectArrangementEnv(GridEnv):
     object-arrangement task (simulated: no robot).
 
     ## Action Space
-    ``Discrete(2)``: 1 drops an object on the drawn cell, 0 does nothing.
+    ``Discrete(52)``: 1 drops an object on the drawn cell, 0 does nothing (the primary agent's
+    ``agent_action_space``, ``Discrete(2)``); ``2 + 2 * k + a`` does the same on cell ``k``
+    instead (pi_LLM's action naming its cell).
 
     ## Observation Space
     ``Box(0, [4, 4, 1, 1, ..., 1], (28,), float32)``: the drawn cell's row and column, whether it
@@ -30,7 +32,7 @@ class ObjectArrangementEnv(GridEnv):
     ## Reward
     ``E(T') - E(T) + b`` with E the fraction of cells equal to the target's (+0.04 per correct
     object) and the bonus b paid when E(T') >= ``goal_threshold`` (1.0: the exact arrangement,
-    paper delta = 0.99 on 25 cells; ``guided_goal_threshold`` on steps steered by pi_LLM, default
+    paper delta = 0.99 on 25 cells; ``guided_goal_threshold`` on pi_LLM's steps (actions naming their cell), default
     the same). A drop is executed only when it is rewarded (paper and code):
     dropping on a cell outside the target, or on an occupied cell, changes nothing and earns 0.
     Objects are never removed, so the table always holds part of the target.

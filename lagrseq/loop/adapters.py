@@ -109,7 +109,7 @@ class DQNPrimary:
         normalise = section.normalise_observations
         self.agent = DQN(
             observation_size=int(space.shape[0]),
-            n_actions=int(env.action_space.n),
+            n_actions=int(getattr(env.unwrapped, "agent_action_space", env.action_space).n),  # the actions at the cursor
             hidden_sizes=section.hidden_sizes,
             learning_rate=section.learning_rate,
             discount=section.discount,

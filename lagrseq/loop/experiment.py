@@ -16,7 +16,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import msgspec
 import numpy as np
@@ -31,17 +31,33 @@ from lagrseq.loop.policies import AskContext, AskingPolicy
 from lagrseq.loop.seq import query_reward
 from lagrseq.tasks.base import EPISODE_LOG, STEP_LOG, Task
 
-Guide = Callable[[Any, Any, dict[str, Any]], tuple[int | None, Any, dict[str, Any]]]
-"""pi_LLM: (the accepted solution, observation, info) -> (its action or None when it asks for
-nothing, and the observation and info it acts on)."""
+
+class Guided(NamedTuple):
+    """pi_LLM's step: its action, and where it acts."""
+
+    action: int
+    """The action as the agents and the log see it (the task's guidance)."""
+    env_action: int
+    """The same action as ``env.step`` takes it: equal to ``action`` unless the env lets pi_LLM
+    name where it acts in its action (the grid envs' cell actions)."""
+    observation: Any
+    """The observation it acts on (what the primary agent learns from on a guided step)."""
+    info: dict[str, Any]
+
+
+Guide = Callable[[Any, Any, dict[str, Any]], "Guided | None"]
+"""pi_LLM: (the accepted solution, observation, info) -> its step, or None when it asks for
+nothing (the primary agent acts)."""
 
 
 def task_guide(task: Task) -> Guide:
     """pi_LLM acting wherever the environment is (``info["cursor"]``, if any): the task's
-    ``guidance``. An env that lets pi_LLM choose its own cell brings its own guide (wiring)."""
+    ``guidance``. An env whose actions let pi_LLM name its own cell brings its own guide (the
+    task's registered ``guide``)."""
 
-    def guide(solution: Any, observation: Any, info: dict[str, Any]) -> tuple[int | None, Any, dict[str, Any]]:
-        return task.guidance(info["pattern"], solution, info.get("cursor")), observation, info
+    def guide(solution: Any, observation: Any, info: dict[str, Any]) -> Guided | None:
+        action = task.guidance(info["pattern"], solution, info.get("cursor"))
+        return None if action is None else Guided(action, action, observation, info)
 
     return guide
 
@@ -133,8 +149,8 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
                 episode.epsilon = parts.primary_epsilon.at(number, global_step)
                 if asks and solution is None and trigger.armed(task.progress(pattern), episode.last_reward):
                     solution = _ask(parts, trigger, episode, pattern, global_step, queries + episode.queries)
-                action, guided, observation, info = _act(parts, following, observation, info, episode.epsilon)
-                next_observation, reward, terminated, truncated, next_info = env.step(action)
+                env_action, action, guided, observation, info = _act(parts, following, observation, info, episode.epsilon)
+                next_observation, reward, terminated, truncated, next_info = env.step(env_action)
                 # The released cube code does not update the primary agent on guided steps.
                 if not guided or config.lagr.update_primary_while_guided:
                     parts.primary.learn(Step(observation, info, action, reward, next_observation, next_info, terminated))
@@ -208,15 +224,17 @@ def _ask(
     return solution
 
 
-def _act(parts: TrialParts, following: Any, observation: Any, info: dict[str, Any], epsilon: float) -> tuple[int, bool, Any, dict[str, Any]]:
+def _act(parts: TrialParts, following: Any, observation: Any, info: dict[str, Any], epsilon: float) -> tuple[int, int, bool, Any, dict[str, Any]]:
     """pi_LLM's action once a solution is held (with probability P), else the primary agent's.
-    Returns the action, whether it was guided, and the (possibly steered) observation and info."""
+    Returns the action as the env takes it, the action, whether it was guided, and the
+    observation and info it acts on."""
     if following is not None and follows(parts.config.lagr, parts.guidance_rng):
         guide = parts.guide or task_guide(parts.task)
-        action, observation, info = guide(following, observation, info)
-        if action is not None:
-            return action, True, observation, info
-    return parts.primary.act(observation, info, epsilon, parts.primary_rng), False, observation, info
+        guided = guide(following, observation, info)
+        if guided is not None:
+            return guided.env_action, guided.action, True, guided.observation, guided.info
+    action = parts.primary.act(observation, info, epsilon, parts.primary_rng)
+    return action, action, False, observation, info
 
 
 def _log_step(

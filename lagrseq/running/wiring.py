@@ -48,7 +48,7 @@ from lagrseq.loop.adapters import (
     TabularPrimary,
     TabularSeq,
 )
-from lagrseq.loop.experiment import Guide, TrialParts
+from lagrseq.loop.experiment import Guide, Guided, TrialParts
 from lagrseq.loop.policies import Always, AskingPolicy, make_policy
 from lagrseq.paths import expand_user, input_path
 from lagrseq.registry import POLICIES, PROVIDERS, TASKS, ProviderKind, ProviderSpec, task_profiles
@@ -791,15 +791,21 @@ def make_guide(config: ExperimentConfig, task: Task, env: Any) -> Guide | None:
 
 def steering_guide(config: ExperimentConfig, task: Task, env: Any) -> Guide:
     """The released grid code's pi_LLM picks its own cell (the solution's next missing one)
-    instead of the scanned or drawn cell: the env is steered there (its bonus judged by
-    ``guided_goal_threshold``), then the task's guidance acts on it."""
-    steer = env.unwrapped.steer
+    instead of the scanned or drawn cell: its action names that cell (the grid envs' cell
+    actions, judged by ``guided_goal_threshold``) and is the task's guidance there; the step
+    goes through ``env.step`` like any other."""
+    grid_env = env.unwrapped
 
-    def guide(solution: Any, observation: Any, info: dict[str, Any]) -> tuple[int | None, Any, dict[str, Any]]:
+    def guide(solution: Any, observation: Any, info: dict[str, Any]) -> Guided | None:
         pattern = info["pattern"]
         cell = task.guided_cell(pattern, solution, info.get("cursor"))
-        if cell is not None:
-            observation, info = steer(cell)
-        return task.guidance(pattern, solution, info.get("cursor")), observation, info
+        if cell is None:
+            action = task.guidance(pattern, solution, info.get("cursor"))
+            return None if action is None else Guided(action, action, observation, info)
+        action = task.guidance(pattern, solution, cell)
+        if action is None:
+            return None
+        observation, info = grid_env.at_cell(observation, info, cell)
+        return Guided(action, grid_env.cell_action(cell, action), observation, info)
 
     return guide

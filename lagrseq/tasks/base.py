@@ -103,7 +103,7 @@ class Task(Protocol):
 
     def guided_cell(self, pattern: Pattern, solution: Solution, cursor: Any = None) -> Any:
         """The cell pi_LLM chooses to act on when the environment works cell by cell (grids;
-        the loop then steers the environment there), or None to act wherever the environment
+        its action names that cell: the task's registered ``guide``), or None to act wherever the environment
         is (its ``info["cursor"]``, if any)."""
         ...
 

@@ -99,41 +99,39 @@ def test_image_truncates_after_the_scans() -> None:
         assert not terminated and truncated == (step == 199)
 
 
-def test_steered_steps_use_the_guided_goal_threshold() -> None:
+def test_cell_actions_use_the_guided_goal_threshold() -> None:
     """Released code: pi_LLM's steps earn the bonus at E > 0.95, the primary's only at E = 1."""
     image = ImageCompletionEnv(goal_threshold=1.0, goal_ends="scan", guided_goal_threshold=0.96)
     image.reset(seed=0)
     cells = list(zip(*np.nonzero(X), strict=True))
-    rewards = []
-    for cell in cells[:16]:
-        image.steer(cell)
-        rewards.append(image.step(1)[1])
+    rewards = [image.step(image.cell_action(cell, 1))[1] for cell in cells[:16]]
     assert rewards[:15] == pytest.approx([0.01] * 15) and rewards[15] == pytest.approx(1.01)
     _, reward, *_ = image.step(0)  # the primary's step on the same 96-pixel image: no bonus
     assert reward == 0.0
-    image.steer(image.unwrapped._cursor)
-    _, reward, *_ = image.step(0)  # pi_LLM with nothing left to place: the bonus again
+    _, reward, *_ = image.step(image.cell_action(image.unwrapped._cursor, 0))  # pi_LLM with nothing left to place: the bonus again
     assert reward == 1.0
 
 
-def test_steer_acts_elsewhere_without_moving_the_scan() -> None:
+def test_a_cell_action_acts_elsewhere_without_moving_the_scan() -> None:
     env = ImageCompletionEnv()
-    env.reset(seed=0)
-    obs, info = env.steer((9, 9))
-    assert info["cursor"] == (9, 9) and obs[0] == 9 and obs[1] == 9
-    _, reward, *_, info = env.step(1)
+    obs, info = env.reset(seed=0)
+    seen, seen_info = env.at_cell(obs, info, (9, 9))
+    assert seen_info["cursor"] == (9, 9) and seen[0] == 9 and seen[1] == 9 and info["cursor"] == (0, 0)
+    assert env.action_space.n == 202 and env.agent_action_space.n == 2
+    _, reward, *_, info = env.step(env.cell_action((9, 9), 1))
     assert info["pattern"][9, 9] == 1 and reward == pytest.approx(0.01)
     assert info["cursor"] == (0, 1)  # the scan goes on from where it was
-    with pytest.raises(ValueError, match="outside"):
-        env.steer((10, 0))
+    with pytest.raises(ValueError, match="on cell"):
+        env.cell_action((10, 0), 1)
+    with pytest.raises(ValueError, match="outside Discrete"):
+        env.step(202)
 
 
 # ------------------------------------------------------------------------------------------
 # Object arrangement (SPEC 3.1)
 # ------------------------------------------------------------------------------------------
 def place(env: ObjectArrangementEnv, cell: tuple[int, int], action: int = 1) -> tuple[float, bool, bool, dict]:
-    env.steer(cell)
-    _, reward, terminated, truncated, info = env.step(action)
+    _, reward, terminated, truncated, info = env.step(env.cell_action(cell, action))
     return reward, terminated, truncated, info
 
 

@@ -174,16 +174,13 @@ def test_the_env_reports_a_failed_placement(fresh) -> None:
     env = ArmArrangementEnv(robot=_Shared(fresh))
     env.reset(seed=0)
     assert env.unwrapped.robot.cubes == []
-    env.steer((0, 2))
-    _, reward, _, _, info = env.step(1)
+    _, reward, _, _, info = env.step(env.cell_action((0, 2), 1))
     assert info["placement"]["ok"] and info["placement"]["outcome"] == "placed" and reward == pytest.approx(0.04)
     assert info["pattern"][0, 2] == 1
     fresh.settings = dataclasses.replace(fresh.settings, max_offset=0.0)
-    env.steer((1, 1))
-    _, _, _, _, info = env.step(1)
+    _, _, _, _, info = env.step(env.cell_action((1, 1), 1))
     assert info["placement"] == {**info["placement"], "row": 1, "col": 1, "ok": False, "outcome": "outside-cell"}
-    env.steer((4, 4))  # not in the target: nothing is placed
-    _, reward, _, _, info = env.step(1)
+    _, reward, _, _, info = env.step(env.cell_action((4, 4), 1))  # not in the target: nothing is placed
     assert info["placement"] is None and reward == 0.0
     env.reset()
     assert env.unwrapped.robot.cubes == [] and info["pattern"].sum() >= 1
