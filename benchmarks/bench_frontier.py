@@ -32,7 +32,7 @@ from lagrseq import cli
 from lagrseq import config as cfg
 from lagrseq.running import runner
 from lagrseq.running.runner import run_one
-from lagrseq.running.wiring import ProviderOptions
+from lagrseq.running.wiring import provider_options
 from lagrseq.study import frontier
 
 
@@ -60,7 +60,8 @@ def overhead(repeats: int) -> tuple[float, float]:
 def one_pool_per_policy(args: argparse.Namespace, out: Path) -> float:
     """Seconds for the frontier's trials run as before: one process pool per policy variant."""
     variants = frontier.parse_policies(args.policies) + (frontier.parse_sweep(args.sweep) if args.sweep else [])
-    options = ProviderOptions(on_miss=args.on_miss or ("refuse" if args.provider.startswith("recorded:") else "error"))
+    on_miss = args.on_miss or ("refuse" if args.provider.startswith("recorded:") else None)
+    options = provider_options(args.provider, {"on_miss": on_miss})
     started = time.perf_counter()
     for variant in variants:
         config, directory = runner.prepare(

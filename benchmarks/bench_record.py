@@ -29,7 +29,7 @@ from typing import Any
 from lagrseq import config as cfg
 from lagrseq.llm.store import RecordStore
 from lagrseq.running import recording
-from lagrseq.running.wiring import ProviderOptions
+from lagrseq.running.wiring import LocalOptions, provider_options
 
 TARGET = 0.8
 
@@ -72,7 +72,7 @@ def queries(model: str, temperature: float) -> list[Any]:
     return recording.queries_for(config, recording.record_patterns(config))
 
 
-def timed_record(store: Path, options: ProviderOptions, samples: int, concurrency: int, provider: str, model: str, temperature: float) -> tuple[float, int, int]:
+def timed_record(store: Path, options: Any, samples: int, concurrency: int, provider: str, model: str, temperature: float) -> tuple[float, int, int]:
     """(seconds, answers, completion tokens) of recording the 8 prefixes x ``samples``."""
     started = time.perf_counter()
     report = recording.record(queries(model, temperature), store, samples, "new", options, None, provider, concurrency)
@@ -84,7 +84,7 @@ def timed_record(store: Path, options: ProviderOptions, samples: int, concurrenc
 
 def fixed_latency(latency: float, samples: int, levels: list[int]) -> None:
     server = FixedLatencyServer(latency)
-    options = ProviderOptions(base_url=server.url, server="ollama")
+    options = provider_options("live", {"base_url": server.url, "server": "ollama"})
     print(f"fixed-latency server ({latency * 1000:.0f} ms a request), 8 prefixes x {samples} samples = {8 * samples} requests")
     base = None
     try:
@@ -107,7 +107,7 @@ def local(samples: int, levels: list[int], threads: int) -> None:
     if problem:
         print(f"local LLM: skipped: {problem}")
         return
-    options = ProviderOptions(local_threads=threads)
+    options = LocalOptions(threads=threads)
     print(f"local LLM {DEFAULT_MODEL_NAME} (llama.cpp, {threads or os.cpu_count()} threads), 8 prefixes x {samples} samples at tau = 1 (server start included)")
     for n in levels:
         with tempfile.TemporaryDirectory(prefix="lagrseq-bench-") as scratch:

@@ -117,6 +117,9 @@ TASKS.register(
     )
 )
 
+OPTIONS = "lagrseq.llm.options"
+"""The built-in kinds' options dataclasses (``mock`` has none)."""
+
 PROVIDERS.register(
     ProviderKind(
         name="mock",
@@ -133,6 +136,7 @@ PROVIDERS.register(
         name="recorded",
         usage="recorded:STORE",
         make=lazy(f"{WIRING}:make_recorded"),
+        options=f"{OPTIONS}:RecordedOptions",
         check_spec=lazy(f"{WIRING}:check_recorded_spec"),
         source="recorded",
         replays=True,
@@ -144,6 +148,7 @@ PROVIDERS.register(
         name="live",
         usage="live, live:MODEL",
         make=lazy(f"{WIRING}:make_live_provider"),
+        options=f"{OPTIONS}:LiveOptions",
         with_model=lazy(f"{WIRING}:live_model"),
         source="live",
         paid=True,
@@ -156,6 +161,7 @@ PROVIDERS.register(
         name="local",
         usage="local or local:MODEL.gguf",
         make=lazy(f"{WIRING}:make_local_provider"),
+        options=f"{OPTIONS}:LocalOptions",
         with_model=lazy(f"{WIRING}:local_model"),
         check=lazy(f"{WIRING}:check_local"),
         source="live",

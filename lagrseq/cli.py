@@ -98,23 +98,33 @@ def _task_argument(p: argparse.ArgumentParser) -> None:
     p.add_argument("task", metavar="TASK", choices=tasks(), help=f"one of: {', '.join(tasks())}")
 
 
-def _live_options(per: str) -> argparse.ArgumentParser:
-    """The live provider, its limits and its budget (run and record)."""
-    from lagrseq.running.wiring import DEFAULT_BASE_URL, SERVER_KINDS
-
+def _provider_flags(per: str) -> argparse.ArgumentParser:
+    """Every provider kind's option flags (run, frontier, record), each declared once, on the
+    field of the options dataclass it sets (``lagrseq.registry.flag``); a flag not given is None
+    (its field keeps its default). Grouped by the kinds that read them."""
     p = argparse.ArgumentParser(add_help=False)
-    g = p.add_argument_group("live provider")
-    g.add_argument("--base-url", default=DEFAULT_BASE_URL, metavar="URL", help=f"API root of an OpenAI-compatible server; its host is part of every recorded key (default: {DEFAULT_BASE_URL})")
-    g.add_argument("--api-key-env", default="OPENAI_API_KEY", metavar="NAME", help="environment variable that holds the API key (default: OPENAI_API_KEY); the key itself is never written anywhere")
-    g.add_argument("--server", choices=tuple(SERVER_KINDS), default="openai", help="kind of server: openai and vllm return n samples per request, ollama and llama.cpp one (default: openai)")
-    g.add_argument("--price-table", default=None, metavar="FILE.toml", help="prices (USD per million tokens, with source and date) over the built-in table")
-    g.add_argument("--read-timeout", type=_N["seconds"], default=120.0, metavar="S", help="seconds to wait for the next bytes of a response (default 120)")
-    g.add_argument("--request-deadline", type=_N["seconds"], default=300.0, metavar="S", help="most seconds one request may take, from sending to the last byte; an overrun is retried like a timeout (default 300)")
-    g.add_argument("--max-response-bytes", type=_N["bytes"], default=4 * 1024 * 1024, metavar="N", help="largest response body read, decompressed; a larger one fails at once and is not retried (default 4194304)")
-    g.add_argument("--max-cost-usd", type=_BUDGET, default=None, metavar="X", help=f"per {per}: stop before a live request that could take the spending past X US dollars (worst case: every completion uses max_tokens)")
-    g.add_argument("--max-queries", type=_LIMIT, default=None, metavar="N", help=f"per {per}: stop before a live request that would take the number of live answers past N")
-    _local_options(p)
+    _add_provider_flags(p, per)
     return p
+
+
+def _add_provider_flags(p: argparse.ArgumentParser, per: str, only: tuple[str, ...] | None = None) -> None:
+    """The provider flags (``only``: those setting these fields, with their defaults: serve-llm)."""
+    from lagrseq.registry import PROVIDERS, option_fields, option_flags, options_type
+
+    readers = {kind.usage: {o.name for o in option_fields(options_type(kind))} for kind in PROVIDERS.specs()}
+    groups: dict[str, Any] = {}
+    for name, option in option_flags().items():
+        if only is not None and name not in only:
+            continue
+        title = "options of --provider " + ", ".join(usage for usage, names in readers.items() if name in names)
+        group = groups.get(title) or groups.setdefault(title, p.add_argument_group(title))
+        f = option.flag
+        assert f is not None  # option_flags holds flagged fields only
+        group.add_argument(
+            f.flag, dest=name, type=f.type, choices=f.choices, metavar=f.metavar,
+            default=option.default if only is not None else None,
+            help=f.help.format(default=option.default, per=per).replace("%", "%%"),
+        )
 
 
 def _executor_options() -> argparse.ArgumentParser:
@@ -147,13 +157,6 @@ def _make_executor(args: argparse.Namespace, start: bool = True) -> Any:
     return make_executor(args.executor, args.jobs, args.scheduler, say=_say)
 
 
-def _local_options(p: argparse.ArgumentParser) -> None:
-    """The local llama.cpp server (--provider local, serve-llm)."""
-    g = p.add_argument_group("local model (--provider local[:MODEL.gguf], the local-llm extra)")
-    g.add_argument("--n-ctx", dest="local_n_ctx", type=_N["context"], default=2048, metavar="N", help="context size of the local llama.cpp server in tokens (default 2048)")
-    g.add_argument("--threads", dest="local_threads", type=_N["threads"], default=0, metavar="N", help="CPU threads of the local llama.cpp server (default 0: half the cores, at least 1; more threads than free cores makes llama.cpp much slower)")
-
-
 def _quiet() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(add_help=False)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -181,25 +184,15 @@ def _provider_argument(p: argparse.ArgumentParser, default: str | None, role: st
     p.add_argument("--provider", default=default, metavar="SPEC", help=f"{role} (default: {shown}); {forms}")
 
 
-def _provider_options(args: argparse.Namespace) -> Any:
-    from lagrseq.running.wiring import ProviderOptions, load_prices
+def _provider_options(args: argparse.Namespace, elsewhere: tuple[str, ...] = ()) -> Any:
+    """The options of ``--provider``'s kind, built by its spec from the provider flags given (a
+    flag its kind does not read: one line, exit 2; ``elsewhere``: flags the command uses itself)."""
+    from lagrseq.registry import option_flags
+    from lagrseq.running.wiring import load_prices, provider_options
 
     if args.price_table is not None:  # read now, whatever the provider: a bad file is one line before anything runs
         load_prices(args.price_table)
-    return ProviderOptions(
-        base_url=args.base_url,
-        api_key_env=args.api_key_env,
-        server=args.server,
-        on_miss=getattr(args, "on_miss", "error"),
-        price_table=args.price_table,
-        max_cost_usd=args.max_cost_usd,
-        max_queries=args.max_queries,
-        read_timeout_s=args.read_timeout,
-        request_deadline_s=args.request_deadline,
-        max_response_bytes=args.max_response_bytes,
-        local_n_ctx=args.local_n_ctx,
-        local_threads=args.local_threads,
-    )
+    return provider_options(args.provider, {name: getattr(args, name, None) for name in option_flags()}, elsewhere)
 
 
 def _warn(command: str) -> Callable[[str], None]:
@@ -224,12 +217,11 @@ def _bar(total: float, unit: str, desc: str | None, quiet: bool) -> Any:
 # ------------------------------------------------------------------------------------------
 def _add_run(sub: Any) -> None:
     from lagrseq.config import METHODS
-    from lagrseq.running.wiring import ON_MISS
     from lagrseq.tasks.cube import PROFILE_HELP
 
     p = sub.add_parser(
         "run",
-        parents=[_experiment_options(), _live_options(per="run (every trial and worker together)"), _executor_options(), _quiet()],
+        parents=[_experiment_options(), _provider_flags(per="run (every trial and worker together)"), _executor_options(), _quiet()],
         help="run trials of one task and method, logging every step to MCAP",
         description=(
             "Run TRIALS independent trials of one experiment and write one MCAP log per trial to "
@@ -264,7 +256,6 @@ def _add_run(sub: Any) -> None:
     p.add_argument("--out", type=Path, default=Path("runs"), help="output directory (default: runs)")
     p.add_argument("--name", default=None, help="run directory name, one plain name (default: preset-provider-seed-digest)")
     p.add_argument("--jobs", type=_N["jobs"], default=1, help="trials run in parallel processes, or workers of a local Dask cluster (default 1)")
-    p.add_argument("--on-miss", choices=ON_MISS, default="error", help="recorded:STORE only, a query the store has no answer for: error = stop with a message naming the nearest recorded keys (default); mock = answer it with the rule-based mock (not stored); live = ask the live server and record the answer into STORE; refuse = answer it with a refusal (source miss: it costs a query and is never accepted)")
     p.add_argument("--render", type=Path, default=None, metavar="DIR", help="arm-arrangement only: write PNG frames of every placement and an animated GIF of every episode to DIR/trial-NNN/ (headless; about 0.1 s a frame)")
 
 
@@ -292,12 +283,11 @@ def _add_robot(sub: Any) -> None:
 
 
 def _add_frontier(sub: Any) -> None:
-    from lagrseq.running.wiring import ON_MISS
     from lagrseq.study.frontier import KNOBS, NAMES
 
     p = sub.add_parser(
         "frontier",
-        parents=[_experiment_options(), _live_options(per="trial"), _quiet()],
+        parents=[_experiment_options(), _provider_flags(per="trial"), _quiet()],
         help="run asking policies on one task and draw return against queries and dollars",
         description=(
             "Run every asking policy of --policies (and --sweep) on TASK with one provider, as "
@@ -334,7 +324,6 @@ def _add_frontier(sub: Any) -> None:
     p.add_argument("--policies", default="never,always,seq,thompson,oracle", metavar="LIST", help=f"comma-separated NAME or NAME:FIELD=VALUE[:FIELD=VALUE]; names: {', '.join(NAMES)}; fields: {', '.join(KNOBS)} (default: never,always,seq,thompson,oracle)")
     p.add_argument("--sweep", action="append", default=[], metavar="NAME:FIELD=V1,V2", help="one variant per value, drawn as a curve (repeatable), e.g. thompson:query_cost=0.25,0.5,0.75")
     _provider_argument(p, "mock", "LLM provider of every policy's runs")
-    p.add_argument("--on-miss", choices=ON_MISS, default=None, help="recorded:STORE only: what answers a query the store lacks (default: refuse, a refusal that costs a query and is never accepted, so no policy gains from answers nobody recorded; mock: the rule-based mock, whose points are labelled and get no verdict)")
     p.add_argument("--trials", type=_COUNT, default=5, help="trials per policy (default 5)")
     p.add_argument("--seed", type=_SEED, default=0, help="run seed (default 0)")
     p.add_argument("--jobs", type=_N["jobs"], default=os.cpu_count() or 1, help="trials run in parallel processes, every policy's trials in one pool (default: the number of cores)")
@@ -368,7 +357,7 @@ def _add_record(sub: Any) -> None:
 
     p = sub.add_parser(
         "record",
-        parents=[_experiment_options(), _live_options(per="recording"), _quiet()],
+        parents=[_experiment_options(), _provider_flags(per="recording"), _quiet()],
         help="ask a live model every prompt a task can send and keep K answers per prompt in a store",
         description=(
             "Build the set of prompts a run of TASK sends (cube stacking: every prefix of the target; "
@@ -588,7 +577,7 @@ def _add_serve_llm(sub: Any) -> None:
     p.add_argument("model", nargs="?", default="", metavar="MODEL.gguf", help="a GGUF model file (default: the packaged SmolLM2-135M-Instruct)")
     p.add_argument("--port", type=_N["port"], default=8080, help="port on 127.0.0.1 (default 8080; 0: a free one)")
     p.add_argument("--log", type=Path, default=None, metavar="FILE", help="write the server's own output to FILE (default: a temporary file, removed at the end)")
-    _local_options(p)
+    _add_provider_flags(p, "server", only=("n_ctx", "threads"))
 
 
 def _add_models(sub: Any) -> None:
@@ -759,7 +748,7 @@ def cmd_serve_llm(args: argparse.Namespace) -> int:
     def say(line: str) -> None:
         print(f"lagrseq serve-llm: {line}", file=sys.stderr, flush=True)
 
-    serve_llm(args.model, args.port, args.local_n_ctx, args.local_threads, args.log, lambda line: print(line, flush=True), say)
+    serve_llm(args.model, args.port, args.n_ctx, args.threads, args.log, lambda line: print(line, flush=True), say)
     return 0  # pragma: no cover - serve_llm returns only by an exception
 
 
@@ -827,7 +816,7 @@ def cmd_frontier(args: argparse.Namespace) -> int:
     variants = frontier.variants_of(args.policies, args.sweep)  # checked with --replay too: nothing is ignored unseen
     args.preset, args.on_miss = frontier.protocol_defaults(args.task, args.provider, args.preset, args.on_miss)
     out, roots = frontier.runs_or_replay(
-        args.task, args.replay, variants, args.provider, None if args.replay else _provider_options(args), args.out,
+        args.task, args.replay, variants, args.provider, None if args.replay else _provider_options(args, elsewhere=("price_table",)), args.out,
         args.trials, args.seed, args.preset, args.config, args.overrides, args.jobs,
         progress=lambda desc, total, unit: _bar(total, unit, desc, args.quiet),
         say=_say, scopes=args.scopes, matched_random=args.matched_random, tune=frontier.tuning(args.tune, args.seed, args.tune_seed, args.tune_trials),

@@ -17,8 +17,10 @@ Callers ask a spec what a part can do instead of comparing its name (``spec.paid
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import sys
+import typing
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -108,6 +110,45 @@ class ProviderSpec:
 
 
 @dataclass(frozen=True)
+class Flag:
+    """The command-line flag that sets one field of a provider kind's options dataclass, written
+    into the field's metadata with :func:`flag`. Declared once, on the field: every kind whose
+    options hold that field (directly or in a dataclass composed into them) reads the flag."""
+
+    flag: str
+    """``--base-url``; the parsed value goes to the field's name."""
+    help: str
+    """Its help; ``{default}`` is the field's default, ``{per}`` what a budget counts (the command's)."""
+    metavar: str | None = None
+    type: Callable[[str], Any] | None = None
+    """Reads and checks the text (argparse ``type=``: one line for a bad value)."""
+    choices: tuple[str, ...] | None = None
+
+
+def flag(
+    name: str,
+    help: str,  # noqa: A002 - argparse's word
+    *,
+    metavar: str | None = None,
+    type: Callable[[str], Any] | None = None,  # noqa: A002 - argparse's word
+    choices: tuple[str, ...] | None = None,
+    logged_as: str | None = None,
+) -> dict[str, Any]:
+    """The metadata of an options field set by the flag ``name``: ``field(default=...,
+    metadata=flag("--n-ctx", "..."))``. ``logged_as``: its name in the trial metadata's
+    ``provider_options`` record (default: the field's)."""
+    out: dict[str, Any] = {"flag": Flag(name, help, metavar, type, choices)}
+    if logged_as is not None:
+        out["logged_as"] = logged_as
+    return out
+
+
+NOT_LOGGED: dict[str, Any] = {"logged": False}
+"""The metadata of an options field no flag sets and no log holds (set by the runner: where,
+not what)."""
+
+
+@dataclass(frozen=True)
 class ProviderKind:
     """A kind of answer source (``--provider KIND[:ARGUMENT]``)."""
 
@@ -116,9 +157,13 @@ class ProviderKind:
     usage: str
     """How the spec is written (``recorded:STORE``), for help and errors."""
     make: Callable[..., Any]
-    """(spec, config, rng, options) -> the provider of one trial."""
-    options: type | None = None
-    """The dataclass of this kind's own command-line options (None: it has none)."""
+    """(spec, config, rng, options) -> the provider of one trial (``options``: an instance of
+    ``options``, or None for a kind without options)."""
+    options: type | str | None = None
+    """The frozen dataclass of this kind's own options, or its ``module:Name`` (imported when
+    first needed); None: it has none. Each field is set by the flag in its metadata
+    (:func:`flag`) or is a dataclass of such fields (settings several kinds share, composed in);
+    a flag given for a kind whose options lack its field is refused (one line)."""
     check_spec: Callable[[ProviderSpec], None] | None = None
     """Checks the argument at parse time; raises UsageError (one line)."""
     check: Callable[..., None] | None = None
@@ -355,3 +400,140 @@ def listing() -> list[str]:
         lines.append(f"skipped plugins: {len(FAILURES)}")
         lines += [f"  {f.entry_point} ({f.source}, group {f.group}): {f.problem}" for f in FAILURES]
     return lines
+
+
+# ------------------------------------------------------------------------------------------
+# Provider options: each kind's own dataclass, its fields set by flags declared on them
+# ------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class OptionField:
+    """A field of a provider kind's options (a leaf: nested dataclasses are walked through)."""
+
+    name: str
+    default: Any
+    flag: Flag | None
+    logged_as: str | None
+    """Its name in the logged ``provider_options`` record (None: not logged)."""
+
+
+def options_type(kind: ProviderKind) -> type | None:
+    """The options dataclass of ``kind`` (its ``module:Name`` imported), None if it has none."""
+    if kind.options is None or isinstance(kind.options, type):
+        return kind.options
+    module, _, name = kind.options.partition(":")
+    found = getattr(importlib.import_module(module), name)
+    if not isinstance(found, type) or not dataclasses.is_dataclass(found):
+        raise TypeError(f"provider {kind.name!r}: options {kind.options!r} is not a dataclass")
+    return found
+
+
+def option_fields(cls: type | None) -> tuple[OptionField, ...]:
+    """The leaf fields of an options dataclass, in order (composed dataclasses walked through)."""
+    if cls is None:
+        return ()
+    hints = typing.get_type_hints(cls)
+    out: list[OptionField] = []
+    for f in dataclasses.fields(cls):
+        hint = hints.get(f.name)
+        if isinstance(hint, type) and dataclasses.is_dataclass(hint):
+            out += option_fields(hint)
+            continue
+        default = f.default if f.default is not dataclasses.MISSING else (
+            f.default_factory() if f.default_factory is not dataclasses.MISSING else None  # type: ignore[misc]
+        )
+        logged = f.metadata.get("logged", True)
+        out.append(OptionField(f.name, default, f.metadata.get("flag"), f.metadata.get("logged_as", f.name) if logged else None))
+    return tuple(out)
+
+
+def option_flags() -> dict[str, OptionField]:
+    """Every provider flag, by the field it sets, from the registered kinds' options (the first
+    declaration of a field name wins)."""
+    out: dict[str, OptionField] = {}
+    for kind in PROVIDERS.specs():
+        for option in option_fields(options_type(kind)):
+            if option.flag is not None and option.name not in out:
+                out[option.name] = option
+    return out
+
+
+def build_options(kind: ProviderKind, given: Mapping[str, Any], elsewhere: tuple[str, ...] = ()) -> Any:
+    """``kind``'s options from the flags ``given`` (field name -> parsed value; None: not
+    given), each field not given at its default. A flag given for a kind whose options lack its
+    field raises UsageError (one line), unless the command uses it ``elsewhere`` itself."""
+    cls = options_type(kind)
+    own = {option.name for option in option_fields(cls)}
+    given = {name: value for name, value in given.items() if value is not None}
+    for name in given:
+        if name not in own and name not in elsewhere:
+            flags = option_flags()
+            shown = flags[name].flag.flag if name in flags and flags[name].flag is not None else name  # type: ignore[union-attr]
+            users = [k.usage.replace(" or ", ", ").split(", ")[0] for k in PROVIDERS.specs() if name in {o.name for o in option_fields(options_type(k))}]
+            raise UsageError(f"{shown} applies to --provider {' or '.join(users) or 'none'} only, not {kind.name}; leave it out")
+    return None if cls is None else _build(cls, given)
+
+
+def _build(cls: type, given: Mapping[str, Any]) -> Any:
+    hints = typing.get_type_hints(cls)
+    values: dict[str, Any] = {}
+    for f in dataclasses.fields(cls):
+        hint = hints.get(f.name)
+        if isinstance(hint, type) and dataclasses.is_dataclass(hint):
+            values[f.name] = _build(hint, given)
+        elif f.name in given:
+            values[f.name] = given[f.name]
+    return cls(**values)
+
+
+def logged_options(options: Any) -> str:
+    """The trial metadata's ``provider_options`` record: every built-in kind's logged options at
+    their defaults, then the fields of ``options`` (the run's provider kind's) at their values,
+    as sorted JSON (a log names each built-in option whatever the provider; the API key never,
+    only the name of its variable)."""
+    import json
+
+    record: dict[str, Any] = {}
+    for entry in PROVIDERS.entries():
+        if entry.source == BUILTIN:
+            record.update({o.logged_as: o.default for o in option_fields(options_type(entry.spec)) if o.logged_as})
+    if options is not None:
+        record.update(_logged_values(options))
+    return json.dumps(record, sort_keys=True)
+
+
+def _logged_values(options: Any) -> dict[str, Any]:
+    hints = typing.get_type_hints(type(options))
+    out: dict[str, Any] = {}
+    for f in dataclasses.fields(options):
+        value = getattr(options, f.name)
+        hint = hints.get(f.name)
+        if isinstance(hint, type) and dataclasses.is_dataclass(hint):
+            out.update(_logged_values(value))
+        elif f.metadata.get("logged", True):
+            out[f.metadata.get("logged_as", f.name)] = value
+    return out
+
+
+def find_part(options: Any, cls: type) -> Any:
+    """The ``cls`` instance composed into ``options`` (``options`` itself if it is one), or None."""
+    if isinstance(options, cls):
+        return options
+    if options is None or not dataclasses.is_dataclass(options):
+        return None
+    for f in dataclasses.fields(options):
+        found = find_part(getattr(options, f.name), cls)
+        if found is not None:
+            return found
+    return None
+
+
+def replace_part(options: Any, part: Any) -> Any:
+    """``options`` with its composed ``type(part)`` instance replaced by ``part``."""
+    if isinstance(options, type(part)):
+        return part
+    changes = {
+        f.name: replace_part(getattr(options, f.name), part)
+        for f in dataclasses.fields(options)
+        if find_part(getattr(options, f.name), type(part)) is not None
+    }
+    return dataclasses.replace(options, **changes)

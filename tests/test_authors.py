@@ -174,7 +174,7 @@ def test_the_grid_profile_runs_like_the_recorded_answers(tmp_path: Path, task: s
     from lagrseq import config as cfg
     from lagrseq.analysis import stats
     from lagrseq.running import runner
-    from lagrseq.running.wiring import ProviderOptions
+    from lagrseq.running.wiring import provider_options
 
     caches = _caches()
     found = [c for c in authors.find_caches(caches) if c.task == task]
@@ -184,7 +184,7 @@ def test_the_grid_profile_runs_like_the_recorded_answers(tmp_path: Path, task: s
         config = cfg.load(task, method, "upstream", None, [f"run.max_steps={steps}"])
         summaries = []
         for provider in ("mock:authors-gpt4", recorded):
-            options = ProviderOptions(on_miss="mock") if provider == recorded else None
+            options = provider_options(provider, {"on_miss": "mock"}) if provider == recorded else None
             queries = [
                 runner.run_one(config, t, 0, provider, tmp_path / "x.mcap", log=False, provider_options=options).queries
                 for t in range(trials)

@@ -109,3 +109,51 @@ def test_registry_refuses_bad_names_and_wrong_spec_types() -> None:
     scratch.register(registry.PolicySpec("fine", lambda s, a: None))
     with pytest.raises(UsageError, match="unknown policy 'other'; expected one of: fine"):
         scratch.get("other")
+
+
+ECHO = '''
+from dataclasses import dataclass, field
+
+from lagrseq.registry import ProviderKind, flag
+
+
+@dataclass(frozen=True)
+class EchoOptions:
+    echo_profile: str = field(default="ideal", metadata=flag("--echo-profile", "the mock profile it answers with (default {default})", metavar="NAME"))
+
+
+def make(spec, config, rng, options):
+    from lagrseq.llm.mock import MockProvider
+    from lagrseq.running.wiring import extrapolator
+
+    return MockProvider(extrapolator(config, options.echo_profile), rng, name=f"echo/{options.echo_profile}")
+
+
+def provider():
+    return ProviderKind("echo", "echo", make, options=EchoOptions, source="mock", synthetic=True, description="the mock, profile by option")
+'''
+
+
+def test_a_plugin_provider_declares_its_own_options(tmp_path: Path) -> None:
+    """A plugin provider kind's options dataclass brings its own flag: parsed, built into its
+    options, written into the logged provider_options beside the built-ins' defaults; refused
+    (one line) with another provider, as a built-in kind's flag is with the plugin's."""
+    import json
+
+    from lagrseq.logs.reader import read_info
+
+    site = tmp_path / "site"
+    site.mkdir()
+    distribution(site, "echo-plugin", "0.2", "echoplug", ECHO, "[lagrseq.providers]\necho = echoplug:provider\n")
+    small = ["--trials", "1", "--set", "run.episodes=2", "--quiet", "--jobs", "1", "--out", str(tmp_path / "runs")]
+    done = lagrseq(site, "run", "cube-stacking", "--method", "lagr", "--provider", "echo", "--echo-profile", "authors-t0", *small, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    (log,) = (tmp_path / "runs").rglob("trial-000.mcap")
+    logged = json.loads(read_info(log).run["provider_options"])
+    assert logged["echo_profile"] == "authors-t0" and logged["on_miss"] == "error" and logged["local_n_ctx"] == 2048
+    for argv, named in [(["--provider", "mock", "--echo-profile", "authors-t0"], "--echo-profile applies to --provider echo only, not mock"),
+                        (["--provider", "echo", "--max-queries", "3"], "--max-queries applies to --provider recorded:STORE or live or local only, not echo")]:
+        refused = lagrseq(site, "run", "cube-stacking", *argv, *small, cwd=tmp_path)
+        assert refused.returncode == 2 and refused.stderr.count("\n") == 1 and named in refused.stderr, refused.stderr
+    helped = lagrseq(site, "run", "--help", cwd=tmp_path)
+    assert "--echo-profile NAME" in helped.stdout and "options of --provider echo" in helped.stdout

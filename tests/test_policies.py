@@ -29,7 +29,7 @@ from lagrseq.loop.policies import (
 )
 from lagrseq.loop.seq import TabularSecondary
 from lagrseq.running.runner import run_one
-from lagrseq.running.wiring import ProviderOptions, check_provider
+from lagrseq.running.wiring import check_provider, provider_options
 
 
 def context(pattern=(4, 5), progress=2, rng=None, trial=0, episode=0, epsilon=0.0, peek=None) -> AskContext:
@@ -209,7 +209,7 @@ def test_config_refuses_a_bad_prior_and_the_oracle_on_live_answers() -> None:
         cfg.load("cube-stacking", "lagr-seq", "upstream", None, ["secondary.thompson_prior=[1.0]"])
     config = cfg.load("cube-stacking", "lagr-seq", "upstream", None, ['secondary.policy="oracle"'])
     with pytest.raises(UsageError, match="oracle"):
-        check_provider("live", config, ProviderOptions())
+        check_provider("live", config, provider_options("live", {}))
 
 
 # ------------------------------------------------------------------------------------------

@@ -31,7 +31,7 @@ class TrialJob:
     path: str
     """The trial's final log path (written as ``path + '.partial'`` until complete)."""
     options: Any
-    """The run's :class:`lagrseq.running.wiring.ProviderOptions` (or None)."""
+    """The run's provider options (its kind's options dataclass, or None: their defaults)."""
     key: str
     """Deterministic task key: ``lagrseq-trial-<run digest>-<trial>``; a resubmission of the same
     trial of the same run gets the same key (Dask then recognises it)."""

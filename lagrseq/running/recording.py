@@ -24,7 +24,7 @@ from lagrseq.llm.base import Query
 from lagrseq.logs.reader import find_logs, read_info, read_topic
 from lagrseq.loop.lagr import query_for
 from lagrseq.registry import ProviderKind
-from lagrseq.running.wiring import ProviderOptions, make_live, make_task
+from lagrseq.running.wiring import make_live, make_task
 from lagrseq.tasks import cube
 from lagrseq.tasks.base import Task
 
@@ -140,18 +140,18 @@ def record(
     store_path: Path,
     samples: int,
     mode: str,
-    options: ProviderOptions,
+    options: Any,
     bar: Any = None,
     provider: str = "live",
     concurrency: int = 1,
 ) -> RecordingReport:
-    """Top every query up to ``samples`` answers in ``store_path`` from the live server of
-    ``options`` (mode ``none`` asks nobody and only counts), with up to ``concurrency`` requests
+    """Top every query up to ``samples`` answers in ``store_path`` from the server of
+    ``options`` (the provider kind's: ``LiveOptions`` or ``LocalOptions``; mode ``none`` asks nobody and only counts), with up to ``concurrency`` requests
     in flight. ``provider``: ``live``, or ``local[:MODEL]`` for a llama.cpp server started for the
     recording (its answers are keyed under the endpoint ``local``). ``bar``: a tqdm-like progress
     bar (``update``, ``write``, ``set_postfix_str``) or None."""
     from lagrseq.llm.store import endpoint_of
-    from lagrseq.running.wiring import local_settings, parse_provider
+    from lagrseq.running.wiring import local_live, local_settings, parse_provider
 
     spec = parse_provider(provider)
     kind = _recording_kind(provider)
@@ -165,13 +165,12 @@ def record(
     with LocalServer(settings, on_line=lambda line: say(f"  {line}")) as server:
         supervisor = Supervisor(server, lambda line: say(f"  {line}"))  # a dying server: restarted once, then one line
         try:
-            local = replace(options, base_url=server.base_url, server="llama.cpp")
-            return _record(queries, store_path, samples, mode, local, bar, _local_endpoint(), concurrency, settings.model_name, supervisor.on_retry)
+            return _record(queries, store_path, samples, mode, local_live(options, server.base_url), bar, _local_endpoint(), concurrency, settings.model_name, supervisor.on_retry)
         finally:
             supervisor.close()
 
 
-def check_record(store_path: Path, mode: str, options: ProviderOptions, provider: str = "live") -> None:
+def check_record(store_path: Path, mode: str, options: Any, provider: str = "live") -> None:
     """What ``record`` needs, checked before its progress bar is drawn (one line, nothing asked):
     the provider (a live server's key and URL, a local model file) and, unless mode ``none``, a
     store that can be written (a read-only store, or one below a file, fails here)."""
@@ -213,7 +212,7 @@ def _record(
     store_path: Path,
     samples: int,
     mode: str,
-    options: ProviderOptions,
+    options: Any,
     bar: Any,
     endpoint: str,
     concurrency: int,

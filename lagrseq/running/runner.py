@@ -30,9 +30,10 @@ from lagrseq.errors import BudgetExceeded, LagrseqError, TrialsFailed, UsageErro
 from lagrseq.logs.reader import LogInfo, is_complete, read_info
 from lagrseq.logs.sink import PARTIAL_SUFFIX, McapSink, NullSink, Sink
 from lagrseq.loop.experiment import TrialResult, run_trial
+from lagrseq.registry import find_part, logged_options, replace_part
 from lagrseq.running import executors
 from lagrseq.running.wiring import (
-    ProviderOptions,
+    default_options,
     parse_provider,
     pays,
     provider_kind,
@@ -47,7 +48,7 @@ def run_metadata(
     trial: int,
     seed: int,
     provider_spec: str,
-    provider_options: ProviderOptions | None = None,
+    provider_options: Any = None,
     notes: Mapping[str, str] | None = None,
 ) -> dict[str, str]:
     """The ``lagrseq.run`` metadata record: everything replay needs to know about the trial.
@@ -55,7 +56,7 @@ def run_metadata(
     --tune`` chose the run's knobs); none by default, so ordinary logs are unchanged."""
     return {
         **(notes or {}),
-        "provider_options": (provider_options or ProviderOptions()).to_json(),
+        "provider_options": logged_options(provider_options if provider_options is not None else default_options(provider_spec)),
         "config": config.to_json(),
         "task": config.task.name,
         "method": config.method,
@@ -77,7 +78,7 @@ def run_one(
     path: Path,
     log: bool = True,
     on_episode: Callable[[int], None] | None = None,
-    provider_options: ProviderOptions | None = None,
+    provider_options: Any = None,
     render_dir: Path | None = None,
     notes: Mapping[str, str] | None = None,
 ) -> TrialResult:
@@ -330,7 +331,7 @@ def run_trials(
     directory: Path,
     jobs: int = 1,
     progress: Any = None,
-    provider_options: ProviderOptions | None = None,
+    provider_options: Any = None,
     pool: executors.TrialExecutor | None = None,
     say: Callable[[str], None] | None = None,
     warn: Callable[[str], None] | None = None,
@@ -362,7 +363,7 @@ class SweepRun:
     seed: int
     provider_spec: str
     directory: Path
-    provider_options: ProviderOptions | None = None
+    provider_options: Any = None
     render_dir: Path | None = None
     progress: Any = None
     notes: Mapping[str, str] | None = None
@@ -375,7 +376,7 @@ class _Todo:
 
     run: SweepRun
     todo: list[int]
-    options: ProviderOptions | None
+    options: Any
     per_trial: int
     results: list[TrialResult]
     failures: list[TrialFailure]
@@ -520,18 +521,19 @@ class TrialCount:
         self.bar.update(self.units // self.per_trial - before)
 
 
-def _with_ledger(provider_spec: str, options: ProviderOptions | None, directory: Path) -> ProviderOptions | None:
+def _with_ledger(provider_spec: str, options: Any, directory: Path) -> Any:
     """A run that may spend money (live answers) under ``--max-cost-usd`` or ``--max-queries``
     keeps one budget for all its trials and workers: a ledger file in the run directory
-    (:mod:`lagrseq.llm.ledger`)."""
-    if options is None or (options.max_cost_usd is None and options.max_queries is None):
+    (:mod:`lagrseq.llm.ledger`), in the options' :class:`~lagrseq.llm.options.Limits`."""
+    from lagrseq.llm.options import Limits
+
+    limits = find_part(options, Limits)
+    if limits is None or not limits.limited or limits.budget_ledger is not None:
         return options
     if not pays(provider_spec, options):
         return options
-    if options.budget_ledger is not None:
-        return options
     directory.mkdir(parents=True, exist_ok=True)
-    return replace(options, budget_ledger=str(directory / LEDGER_NAME))
+    return replace_part(options, replace(limits, budget_ledger=str(directory / LEDGER_NAME)))
 
 
 LEDGER_NAME = "budget-ledger.sqlite"
@@ -551,7 +553,7 @@ def prepare(
     config_file: Path | None,
     overrides: list[str],
     provider_spec: str,
-    options: ProviderOptions,
+    options: Any,
     out: Path,
     seed: int,
     name: str | None = None,
@@ -563,8 +565,6 @@ def prepare(
     from lagrseq.paths import writable_directory
     from lagrseq.running.wiring import check_provider, missing_dependency
 
-    if options.on_miss != "error" and not provider_kind(provider_spec).replays:
-        raise UsageError(f"--on-miss {options.on_miss} applies to --provider recorded:STORE only")
     if name is not None:
         check_name(name)
     config = with_provider_model(cfg.load(task, method, preset, config_file, overrides), provider_spec)

@@ -7,10 +7,9 @@
 
 from __future__ import annotations
 
-import json
 import sys
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -36,7 +35,9 @@ from lagrseq.config import (
 from lagrseq.errors import ConfigError, UsageError
 from lagrseq.llm.base import Provider
 from lagrseq.llm.mock import MockProvider
-from lagrseq.llm.servers import DEFAULT_BASE_URL, base_url_problem
+from lagrseq.llm.options import ON_MISS as ON_MISS  # for the command line
+from lagrseq.llm.options import LiveOptions, LocalOptions, RecordedOptions
+from lagrseq.llm.servers import DEFAULT_BASE_URL as DEFAULT_BASE_URL  # for the command line
 from lagrseq.llm.servers import RECORD_MODES as RECORD_MODES  # for the command line
 from lagrseq.llm.servers import SERVER_KINDS as SERVER_KINDS  # for the command line
 from lagrseq.logs import foxglove
@@ -51,14 +52,21 @@ from lagrseq.loop.adapters import (
 from lagrseq.loop.experiment import Guide, Guided, TrialParts
 from lagrseq.loop.policies import Always, AskingPolicy, make_policy
 from lagrseq.paths import expand_user, input_path
-from lagrseq.registry import POLICIES, PROVIDERS, TASKS, ProviderKind, ProviderSpec, task_profiles
+from lagrseq.registry import (
+    POLICIES,
+    PROVIDERS,
+    TASKS,
+    ProviderKind,
+    ProviderSpec,
+    build_options,
+    options_type,
+    task_profiles,
+)
 from lagrseq.seeding import Stream
 from lagrseq.tasks import cube, grid, grid_profiles
 from lagrseq.tasks.arrangement import arm_arrangement, object_arrangement
 from lagrseq.tasks.base import Task
 from lagrseq.tasks.image import image_completion
-
-ON_MISS = ("error", "mock", "live", "refuse")
 
 
 def provider_help() -> str:
@@ -139,52 +147,16 @@ def recorded_file(argument: str) -> Path:
     raise UsageError(f"recorded answers {argument!r}: no such JSONL file (relative paths are looked up here and in the lagrseq source checkout)")
 
 
-@dataclass(frozen=True)
-class ProviderOptions:
-    """How a provider other than the plain mock is set up: where answers come from, not what the
-    experiment is, so these are command-line options rather than config fields. They are written
-    into each trial's metadata. The API key is never here, only the name of its variable."""
+def provider_options(spec: str, given: dict[str, Any], elsewhere: tuple[str, ...] = ()) -> Any:
+    """The options of ``spec``'s kind from the command line's provider flags (field name ->
+    parsed value, None: not given); a flag its kind does not read is refused (one line) unless
+    the command uses it ``elsewhere`` itself. None for a kind without options."""
+    return build_options(provider_kind(spec), given, elsewhere)
 
-    base_url: str = DEFAULT_BASE_URL
-    """API root of the live server; its host is also part of every recorded key."""
-    api_key_env: str = "OPENAI_API_KEY"
-    """Environment variable holding the API key."""
-    server: str = "openai"
-    """Kind of OpenAI-compatible server (whether it honours ``n``)."""
-    on_miss: str = "error"
-    """recorded:STORE only: what answers a query the store lacks (error | mock | live | refuse)."""
-    price_table: str | None = None
-    """TOML file of prices over the built-in table."""
-    max_cost_usd: float | None = None
-    """Live answers: stop before a request that could pass this many US dollars (per run with a
-    ``budget_ledger``: every trial and worker together; else per provider)."""
-    max_queries: int | None = None
-    """Live answers: stop before a request that would pass this many answers (as above)."""
-    read_timeout_s: float = 120.0
-    """Seconds to wait for the next bytes of a response."""
-    request_deadline_s: float = 300.0
-    """Most seconds one request may take, from sending to the last byte (retried like a timeout)."""
-    max_response_bytes: int = 4 * 1024 * 1024
-    """Largest response body read, decompressed (a larger one fails at once, not retried)."""
-    budget_ledger: str | None = None
-    """SQLite file holding one budget for every trial and worker of a run (set by the runner when
-    a limit is given; not part of the metadata: it says where, not what)."""
-    local_n_ctx: int = 2048
-    """local[:MODEL] only: the llama.cpp server's context size in tokens."""
-    local_threads: int = 0
-    """local[:MODEL] only: the llama.cpp server's threads (0: half the cores, at least 1)."""
 
-    def __post_init__(self) -> None:
-        if self.on_miss not in ON_MISS:
-            raise UsageError(f"--on-miss {self.on_miss!r}; expected one of {', '.join(ON_MISS)}")
-        problem = base_url_problem(self.base_url)
-        if problem is not None:
-            raise UsageError(problem)
-
-    def to_json(self) -> str:
-        fields = asdict(self)
-        fields.pop("budget_ledger")
-        return json.dumps(fields, sort_keys=True)
+def default_options(spec: str) -> Any:
+    """The options of ``spec``'s kind with every field at its default (None: it has none)."""
+    return build_options(provider_kind(spec), {})
 
 
 def with_provider_model(config: ExperimentConfig, spec: str) -> ExperimentConfig:
@@ -213,34 +185,34 @@ def make_provider(
     spec: str,
     config: ExperimentConfig,
     rng: np.random.Generator,
-    options: ProviderOptions | None = None,
+    options: Any = None,
 ) -> Provider:
     """The provider of one trial. ``rng`` is the trial's LLM stream: the mock samples from it,
     the live provider draws its retry jitter from it, and a recorded store's sample choice is
-    seeded by its first draw."""
+    seeded by its first draw. ``options``: its kind's options (None: their defaults)."""
     provider = parse_provider(spec)
-    return PROVIDERS.get(provider.kind).make(provider, config, rng, options or ProviderOptions())  # type: ignore[no-any-return]
+    return PROVIDERS.get(provider.kind).make(provider, config, rng, options if options is not None else default_options(spec))  # type: ignore[no-any-return]
 
 
-def make_mock(provider: ProviderSpec, config: ExperimentConfig, rng: np.random.Generator, options: ProviderOptions) -> Provider:
+def make_mock(provider: ProviderSpec, config: ExperimentConfig, rng: np.random.Generator, options: None) -> Provider:
     return MockProvider(extrapolator(config, provider.argument or "ideal"), rng, name=str(provider))
 
 
-def make_live_provider(provider: ProviderSpec, config: ExperimentConfig, rng: np.random.Generator, options: ProviderOptions) -> Provider:
+def make_live_provider(provider: ProviderSpec, config: ExperimentConfig, rng: np.random.Generator, options: LiveOptions) -> Provider:
     return make_live(options, rng, budgeted=True, on_retry=_say)  # type: ignore[no-any-return]
 
 
-def make_local_provider(provider: ProviderSpec, config: ExperimentConfig, rng: np.random.Generator, options: ProviderOptions) -> Provider:
+def make_local_provider(provider: ProviderSpec, config: ExperimentConfig, rng: np.random.Generator, options: LocalOptions) -> Provider:
     return make_local(provider.argument, options, rng)
 
 
-def make_recorded(provider: ProviderSpec, config: ExperimentConfig, rng: np.random.Generator, options: ProviderOptions) -> Provider:
+def make_recorded(provider: ProviderSpec, config: ExperimentConfig, rng: np.random.Generator, options: RecordedOptions) -> Provider:
     """Answers from a store (or a JSONL export); ``--on-miss`` answers what it lacks."""
     from lagrseq.llm.recorded import RecordedProvider, RecordingProvider
     from lagrseq.llm.store import RecordStore, endpoint_of
 
-    endpoint = endpoint_of(options.base_url)
-    asks_live = options.on_miss == "live"
+    endpoint = endpoint_of(options.live.base_url)
+    asks_live = options.pays
     if provider.argument.endswith(".jsonl"):  # a JSONL export, replayed from a temporary store
         from lagrseq.llm.recorded import JsonlRecordedProvider
 
@@ -252,11 +224,11 @@ def make_recorded(provider: ProviderSpec, config: ExperimentConfig, rng: np.rand
     run_seed = int(rng.integers(2**63))
     if asks_live:
         # A miss is asked live and recorded (one sample), so the next run finds it.
-        return RecordingProvider(store, make_live(options, rng, budgeted=True, on_retry=_say), endpoint, "new", 1, run_seed)
+        return RecordingProvider(store, make_live(options.live, rng, budgeted=True, on_retry=_say), endpoint, "new", 1, run_seed)
     return RecordedProvider(store, endpoint, run_seed, _miss_fallback(config, rng, options))
 
 
-def _miss_fallback(config: ExperimentConfig, rng: np.random.Generator, options: ProviderOptions) -> Provider | None:
+def _miss_fallback(config: ExperimentConfig, rng: np.random.Generator, options: RecordedOptions) -> Provider | None:
     """What answers a query a recorded store lacks: the rule-based mock (``mock``), a refusal
     that is never accepted (``refuse``), or nothing (``error``: the miss stops the run)."""
     from lagrseq.llm.recorded import RefusingProvider
@@ -268,11 +240,10 @@ def _miss_fallback(config: ExperimentConfig, rng: np.random.Generator, options: 
     return None
 
 
-def pays(spec: str, options: ProviderOptions | None = None) -> bool:
-    """Whether answers of ``spec`` may cost money: a paid kind, or a store whose misses are asked
-    live (``--on-miss live``)."""
-    kind = provider_kind(spec)
-    return kind.paid or (kind.replays and (options or ProviderOptions()).on_miss == "live")
+def pays(spec: str, options: Any = None) -> bool:
+    """Whether answers of ``spec`` may cost money: a paid kind, or options that say their
+    answers may (a store whose misses are asked live, ``--on-miss live``)."""
+    return provider_kind(spec).paid or bool(getattr(options, "pays", False))
 
 
 def _say(message: str) -> None:
@@ -280,13 +251,16 @@ def _say(message: str) -> None:
     print(f"lagrseq: {message.strip()}", file=sys.stderr)
 
 
-def check_provider(spec: str, config: ExperimentConfig, options: ProviderOptions | None = None) -> None:
+def check_provider(spec: str, config: ExperimentConfig, options: Any = None) -> None:
     """Fail before any trial starts (nothing is sent): a missing API key or store, a paid source
     under a policy that peeks at every answer; then the kind's own check (default: build the
-    provider once and close it)."""
-    options = options or ProviderOptions()
+    provider once and close it). ``options``: the kind's (None: their defaults)."""
+    options = options if options is not None else default_options(spec)
     provider = parse_provider(spec)
     kind = PROVIDERS.get(provider.kind)
+    wanted = options_type(kind)
+    if (options is None) != (wanted is None) or (wanted is not None and not isinstance(options, wanted)):
+        raise UsageError(f"--provider {provider.kind} takes {'no options' if wanted is None else wanted.__name__}, not {type(options).__name__}")
     if pays(spec, options) and config.method == "lagr-seq" and POLICIES.get(config.secondary.policy).peeks:
         raise UsageError(
             f"secondary.policy = {config.secondary.policy} looks at every answer before deciding, so it would pay for "
@@ -298,12 +272,12 @@ def check_provider(spec: str, config: ExperimentConfig, options: ProviderOptions
     kind.make(provider, config, np.random.default_rng(0), options).close()
 
 
-def check_local(provider: ProviderSpec, config: ExperimentConfig, options: ProviderOptions) -> None:
+def check_local(provider: ProviderSpec, config: ExperimentConfig, options: LocalOptions) -> None:
     """A local server is not started here: its model file and the extra are checked."""
     local_settings(provider.argument, options)
 
 
-def local_settings(argument: str, options: ProviderOptions, port: int = 0) -> Any:
+def local_settings(argument: str, options: LocalOptions, port: int = 0) -> Any:
     """The local server's settings for ``local[:MODEL]``; raises UsageError (one line) when the
     extra is missing or the model file is not there."""
     from lagrseq.llm.local import ServerSettings, missing_extra, resolve_model
@@ -312,10 +286,16 @@ def local_settings(argument: str, options: ProviderOptions, port: int = 0) -> An
     if problem:
         raise UsageError(problem)
     model, name = resolve_model(argument)
-    return ServerSettings(model=model, model_name=name, port=port, n_ctx=options.local_n_ctx, n_threads=options.local_threads)
+    return ServerSettings(model=model, model_name=name, port=port, n_ctx=options.n_ctx, n_threads=options.threads)
 
 
-def make_local(argument: str, options: ProviderOptions, rng: np.random.Generator) -> Provider:
+def local_live(options: LocalOptions, base_url: str) -> LiveOptions:
+    """How the live provider asks a local llama.cpp server at ``base_url``: no API key, the
+    local run's timeouts and limits."""
+    return LiveOptions(base_url=base_url, server="llama.cpp", http=options.http, limits=options.limits)
+
+
+def make_local(argument: str, options: LocalOptions, rng: np.random.Generator) -> Provider:
     """A llama.cpp server started for this provider (stopped by its ``close``), asked through the
     live provider as ``--server llama.cpp`` with no API key."""
     from lagrseq.llm.local import LocalProvider, LocalServer, Supervisor
@@ -323,8 +303,7 @@ def make_local(argument: str, options: ProviderOptions, rng: np.random.Generator
     server = LocalServer(local_settings(argument, options), on_line=_say).start()
     supervisor = Supervisor(server, _say)  # a server dying mid-run: restarted once, then one line
     try:
-        local = replace(options, base_url=server.base_url, server="llama.cpp")
-        inner = make_live(local, rng, budgeted=True, on_retry=supervisor.on_retry, environ={}, local_model=server.settings.model_name)
+        inner = make_live(local_live(options, server.base_url), rng, budgeted=True, on_retry=supervisor.on_retry, environ={}, local_model=server.settings.model_name)
     except BaseException:
         supervisor.close()
         server.stop()
@@ -333,7 +312,7 @@ def make_local(argument: str, options: ProviderOptions, rng: np.random.Generator
 
 
 def make_live(
-    options: ProviderOptions,
+    options: LiveOptions,
     rng: np.random.Generator,
     budgeted: bool = False,
     on_retry: Callable[[str], None] | None = None,
@@ -356,19 +335,20 @@ def make_live(
         base_url=options.base_url,
         api_key_env=options.api_key_env,
         server=options.server,
-        read_timeout_s=options.read_timeout_s,
-        request_deadline_s=options.request_deadline_s,
-        max_response_bytes=options.max_response_bytes,
+        read_timeout_s=options.http.read_timeout_s,
+        request_deadline_s=options.http.request_deadline_s,
+        max_response_bytes=options.http.max_response_bytes,
     )
     live = LiveProvider(settings, rng=rng, prices=prices, on_retry=on_retry, environ=environ)
     if not budgeted:
         return live
-    if options.budget_ledger is not None:
+    limits = options.limits
+    if limits.budget_ledger is not None:
         from lagrseq.llm.ledger import SharedBudget
 
-        shared = SharedBudget(options.budget_ledger, options.max_cost_usd, options.max_queries)
+        shared = SharedBudget(limits.budget_ledger, limits.max_cost_usd, limits.max_queries)
         return BudgetedProvider(live, shared, prices)
-    return BudgetedProvider(live, Budget(options.max_cost_usd, options.max_queries), prices)
+    return BudgetedProvider(live, Budget(limits.max_cost_usd, limits.max_queries), prices)
 
 
 def load_prices(price_table: str | Path | None) -> Any:
@@ -435,7 +415,7 @@ def serve_llm(model: str, port: int, n_ctx: int, threads: int, log: Any, announc
     from lagrseq.errors import LagrseqError
     from lagrseq.llm.local import LocalServer
 
-    settings = local_settings(model, ProviderOptions(local_n_ctx=n_ctx, local_threads=threads), port=port)
+    settings = local_settings(model, LocalOptions(n_ctx=n_ctx, threads=threads), port=port)
 
     with LocalServer(settings, log=log, on_line=say) as server:
         announce(f"{server.base_url}  model {settings.model_name}  (use: --provider live:{settings.model_name} --base-url {server.base_url} --server llama.cpp; Ctrl-C stops it)")
@@ -751,7 +731,7 @@ def trial_parts(
     seed: int,
     provider_spec: str,
     open_sink: Callable[[], Sink],
-    provider_options: ProviderOptions | None = None,
+    provider_options: Any = None,
     render_dir: Path | None = None,
 ) -> TrialParts:
     """Everything trial ``trial`` of a run with seed ``seed`` runs on; each random stream is

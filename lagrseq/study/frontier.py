@@ -383,17 +383,17 @@ def _tune(
     return notes
 
 
-def protocol_defaults(task: str | None, provider: str, preset: str | None, on_miss: str | None) -> tuple[str, str]:
+def protocol_defaults(task: str | None, provider: str, preset: str | None, on_miss: str | None) -> tuple[str, str | None]:
     """The protocol's defaults where the command line left them open: the task's frontier preset
     (cube stacking: the paper's) and, on a store, refused misses (no policy gains from answers
-    nobody recorded)."""
+    nobody recorded); ``on_miss`` stays None for a provider that answers every query itself."""
     from lagrseq.registry import kind_of
 
     if preset is None:
         preset = TASKS.get(task).frontier_preset if task is not None else "upstream"
     if on_miss is None:
         kind = kind_of(provider)
-        on_miss = "refuse" if kind is not None and kind.replays else "error"
+        on_miss = "refuse" if kind is not None and kind.replays else None
     return preset, on_miss
 
 

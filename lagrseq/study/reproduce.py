@@ -47,8 +47,9 @@ class PlannedRun:
     path: Path
     """Run directory (trials) or log file (accuracy probe)."""
     items: list[str] = field(default_factory=list)
-    options: wiring.ProviderOptions | None = None
-    """How the provider is set up (runs on the authors' answers: misses go to the mock)."""
+    options: Any = None
+    """The provider kind's options (None: their defaults; runs on the authors' answers: misses
+    go to the mock)."""
 
     def pending(self) -> int:
         """Trials (or probe files) whose log is not complete yet."""
@@ -83,7 +84,7 @@ def _provider_problem(spec: str) -> str | None:
     try:
         parsed = wiring.parse_provider(spec)
         if PROVIDERS.get(parsed.kind).local_server:  # the extra and the model file, checked without starting a server
-            wiring.local_settings(parsed.argument, wiring.ProviderOptions())
+            wiring.local_settings(parsed.argument, wiring.LocalOptions())
     except UsageError as exc:
         return f"provider not available: {exc}"
     return None
@@ -117,7 +118,7 @@ def plan(suite: Suite, quick: bool, provider: str | None, runs_dir: Path, seed: 
                     spec.kind, config, spec_provider, seed, trials, samples, path
                 )
                 if is_authors_provider(spec_provider):
-                    run.options = wiring.ProviderOptions(on_miss="mock")
+                    run.options = wiring.provider_options(spec_provider, {"on_miss": "mock"})
             run.trials = max(run.trials, trials)
             if item.id not in run.items:
                 run.items.append(item.id)

@@ -266,7 +266,7 @@ def test_four_workers_recording_into_one_store_lose_and_duplicate_nothing(
 ) -> None:
     store = tmp_path / "store"
     config = cfg.load("cube-stacking", "lagr", "upstream", None, ["run.episodes=20", "llm.model=gpt-4o-mini", "llm.temperature=1.0"])
-    options = wiring.ProviderOptions(base_url=server.url, api_key_env=KEY_ENV, on_miss="live")
+    options = wiring.provider_options(f"recorded:{store}", {"base_url": server.url, "api_key_env": KEY_ENV, "on_miss": "live"})
     first = len(server.requests)
     runner.run_trials(config, 8, 0, f"recorded:{store}", tmp_path / "runs", pool=four_workers, provider_options=options)
     asked = server.requests[first:]
@@ -281,7 +281,7 @@ def test_four_workers_recording_into_one_store_lose_and_duplicate_nothing(
 
 def test_four_workers_share_one_query_budget(tmp_path: Path, four_workers: DaskExecutor, server: FakeOpenAI) -> None:
     config = cfg.load("cube-stacking", "lagr", "upstream", None, ["run.episodes=20"])
-    options = wiring.ProviderOptions(base_url=server.url, api_key_env=KEY_ENV, max_queries=6)
+    options = wiring.provider_options("live:gpt-4o-mini", {"base_url": server.url, "api_key_env": KEY_ENV, "max_queries": 6})
     first = len(server.requests)
     with pytest.raises(TrialsFailed, match="--max-queries 6 reached"):
         runner.run_trials(config, 8, 0, "live:gpt-4o-mini", tmp_path, pool=four_workers, provider_options=options)
@@ -292,7 +292,7 @@ def test_four_workers_share_one_query_budget(tmp_path: Path, four_workers: DaskE
 def test_four_workers_share_one_cost_budget(tmp_path: Path, four_workers: DaskExecutor, server: FakeOpenAI) -> None:
     config = cfg.load("cube-stacking", "lagr", "upstream", None, ["run.episodes=20"])
     limit = 0.002
-    options = wiring.ProviderOptions(base_url=server.url, api_key_env=KEY_ENV, max_cost_usd=limit)
+    options = wiring.provider_options("live:gpt-4o-mini", {"base_url": server.url, "api_key_env": KEY_ENV, "max_cost_usd": limit})
     first = len(server.requests)
     with pytest.raises(TrialsFailed, match="--max-cost-usd 0.002 reached"):
         runner.run_trials(config, 8, 0, "live:gpt-4o-mini", tmp_path, pool=four_workers, provider_options=options)

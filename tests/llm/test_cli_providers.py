@@ -44,7 +44,7 @@ def run(method: str, provider: str, out: Path, trials: int, *extra: str, **optio
     config = cfg.load("cube-stacking", method, "upstream", None, list(extra))
     directory = out / method / runner.provider_slug(provider)
     results = runner.run_trials(
-        config, trials, 0, provider, directory, provider_options=wiring.ProviderOptions(**options)  # type: ignore[arg-type]
+        config, trials, 0, provider, directory, provider_options=wiring.provider_options(provider, options)
     )
     return [r.queries for r in results]
 
@@ -105,6 +105,18 @@ def test_a_missing_store_and_bad_provider_specs_are_usage_errors(tmp_path: Path,
         assert message in capsys.readouterr().err
     assert run_cli("run", "cube-stacking", "--on-miss", "live", "--trials", "1", "--out", tmp_path, "--quiet") == 2
     assert "applies to --provider recorded:STORE only" in capsys.readouterr().err
+    # every provider flag is read by the kinds whose options hold it, refused with any other
+    prices = tmp_path / "prices.toml"
+    prices.write_text('[models."m"]\ninput_usd_per_mtok = 1.0\noutput_usd_per_mtok = 2.0\nsource = "test"\ndate = 2026-01-01\n')
+    for flags, message in [
+        (["--n-ctx", "4096"], "--n-ctx applies to --provider local only, not mock"),
+        (["--provider", "local", "--base-url", "http://127.0.0.1:9/v1"], "--base-url applies to --provider recorded:STORE or live only, not local"),
+        (["--provider", "live", "--threads", "2"], "--threads applies to --provider local only, not live"),
+        (["--price-table", str(prices)], "--price-table applies to --provider recorded:STORE or live only, not mock"),
+    ]:
+        assert run_cli("run", "cube-stacking", *flags, "--trials", "1", "--out", tmp_path, "--quiet") == 2
+        err = capsys.readouterr().err
+        assert message in err and err.count("\n") == 1, err
 
 
 # ------------------------------------------------------------------------------ live runs

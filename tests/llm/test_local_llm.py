@@ -66,7 +66,7 @@ def test_one_cube_prefix_answered_by_the_real_model_and_the_server_stopped() -> 
     config = wiring.with_provider_model(cfg.load("cube-stacking", "lagr", "upstream"), "local")
     assert config.llm.model == "SmolLM2-135M-Instruct"
     task = wiring.make_task(config)
-    provider = wiring.make_provider("local", config, __import__("numpy").random.default_rng(0), wiring.ProviderOptions(local_threads=1))
+    provider = wiring.make_provider("local", config, __import__("numpy").random.default_rng(0), wiring.LocalOptions(threads=1))
     pid = provider.server.process.pid  # type: ignore[attr-defined]
     try:
         assert alive(pid)
@@ -82,10 +82,10 @@ def test_one_cube_prefix_answered_by_the_real_model_and_the_server_stopped() -> 
 
 def test_start_errors_are_one_line_and_leave_nothing(tmp_path: Path) -> None:
     with pytest.raises(UsageError, match="no such file"):
-        wiring.local_settings(str(tmp_path / "missing.gguf"), wiring.ProviderOptions())
+        wiring.local_settings(str(tmp_path / "missing.gguf"), wiring.LocalOptions())
     (tmp_path / "text.gguf").write_text("not a model")
     with pytest.raises(UsageError, match="not a GGUF file"):
-        wiring.local_settings(str(tmp_path / "text.gguf"), wiring.ProviderOptions())
+        wiring.local_settings(str(tmp_path / "text.gguf"), wiring.LocalOptions())
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
         taken.listen()
@@ -162,7 +162,7 @@ def test_run_against_the_real_model_logs_live_queries(tmp_path: Path) -> None:
     """The issue's done criterion, one trial of 5 episodes."""
     config = cfg.load("cube-stacking", "lagr-seq", "upstream", None, ["run.episodes=5"])
     results = runner.run_trials(
-        wiring.with_provider_model(config, "local"), 1, 0, "local", tmp_path / "run", provider_options=wiring.ProviderOptions(local_threads=1)
+        wiring.with_provider_model(config, "local"), 1, 0, "local", tmp_path / "run", provider_options=wiring.LocalOptions(threads=1)
     )
     assert results[0].episodes == 5
     queries = [q for p in find_logs([tmp_path / "run"]) for q in read_topic(p, "/query") if q.get("queried")]
@@ -176,4 +176,4 @@ def test_the_extra_missing_is_one_line(monkeypatch: pytest.MonkeyPatch) -> None:
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "uvicorn" else real(name, *a))
     with pytest.raises(LagrseqError, match="local-llm extra is not installed"):
-        wiring.local_settings("", wiring.ProviderOptions())
+        wiring.local_settings("", wiring.LocalOptions())

@@ -113,7 +113,7 @@ def test_the_provider_starts_asks_and_stops_the_server_and_its_group(fake: Path)
 
 def test_no_api_key_is_sent_to_the_local_server(fake: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("OPENAI_API_KEY", "sk-should-never-leave-LAGRSEQ-0123456789")
-    provider = wiring.make_local(str(fake), wiring.ProviderOptions(), np.random.default_rng(0))
+    provider = wiring.make_local(str(fake), wiring.LocalOptions(), np.random.default_rng(0))
     try:
         assert "Authorization" not in provider.inner.inner._headers()  # type: ignore[attr-defined]
     finally:
@@ -135,10 +135,10 @@ def test_start_failures_are_one_line_and_leave_no_process(fake: Path, tmp_path: 
         with pytest.raises(UsageError, match=f"port {port} on 127.0.0.1 is taken"):
             local.LocalServer(local.ServerSettings(fake, port=port)).start()
     with pytest.raises(UsageError, match="no such file"):
-        wiring.local_settings(str(tmp_path / "missing.gguf"), wiring.ProviderOptions())
+        wiring.local_settings(str(tmp_path / "missing.gguf"), wiring.LocalOptions())
     (tmp_path / "notes.gguf").write_text("plain text")
     with pytest.raises(UsageError, match="not a GGUF file"):
-        wiring.local_settings(str(tmp_path / "notes.gguf"), wiring.ProviderOptions())
+        wiring.local_settings(str(tmp_path / "notes.gguf"), wiring.LocalOptions())
     # a server that starts and never answers (a stand-in interpreter that only sleeps): the
     # startup timeout ends it, whatever the machine's load
     silent = tmp_path / "silent-python"
@@ -288,7 +288,7 @@ def test_record_with_the_local_server_keys_answers_under_local(fake: Path, tmp_p
     assert {e.request["model"] for e in entries} == {"tiny-model"}
     assert all(len(e.samples) == 2 and all(s.origin == "live" for s in e.samples) for e in entries)
     config = cfg.load("cube-stacking", "lagr", "upstream", None, ["run.episodes=3", "llm.model=tiny-model", "llm.temperature=1.0"])
-    options = wiring.ProviderOptions(base_url="local")
+    options = wiring.provider_options(f"recorded:{store}", {"base_url": "local"})
     assert runner.run_one(config, 0, 0, f"recorded:{store}", tmp_path / "a.mcap", log=False, provider_options=options).queries > 0
     assert cli.main(["cache", "export", "--store", str(store), "--out", str(tmp_path / "s.jsonl")]) == 0
     assert runner.run_one(config, 0, 0, f"recorded:{tmp_path / 's.jsonl'}", tmp_path / "b.mcap", log=False).queries > 0
@@ -297,7 +297,7 @@ def test_record_with_the_local_server_keys_answers_under_local(fake: Path, tmp_p
 def test_the_local_provider_has_the_live_limits(fake: Path) -> None:
     """--provider local asks its server through the live provider with the same limits as any
     server: the request deadline (on every read), the response size cap and the read timeout."""
-    options = wiring.ProviderOptions(request_deadline_s=7.0, max_response_bytes=12345, read_timeout_s=3.0)
+    options = wiring.provider_options("local", {"request_deadline_s": 7.0, "max_response_bytes": 12345, "read_timeout_s": 3.0})
     provider = wiring.make_local(str(fake), options, np.random.default_rng(0))
     try:
         live = provider.inner.inner  # type: ignore[attr-defined]
