@@ -21,6 +21,7 @@ from lagrseq.registry import (
     PROVIDERS,
     TASKS,
     ExecutorSpec,
+    Knob,
     PolicySpec,
     ProviderKind,
     TaskSpec,
@@ -173,13 +174,26 @@ PROVIDERS.register(
 
 POLICY = "lagrseq.loop.policies"
 GATES = ("min_progress", "budget", "budget_scope", "query_cost")
-"""Knobs every policy has: the progress gate, the query budget and the per-query cost."""
+"""What every policy reads: the progress gate, the query budget and the per-query cost (shared
+``[secondary]`` fields)."""
+
+
+def cost(*candidates: str) -> Knob:
+    """``query_cost`` as a learning policy's own knob, tuned over ``candidates``."""
+    return Knob("query_cost", 0.0, ge=0, le=1e6, candidates=candidates, help="lambda, subtracted from every query reward")
+
+
+QUERY_REWARD = Knob("query_reward", "binary", choices=("binary", "logistic"), help="binary or the paper's logistic query reward")
+LEARNING_RATE = Knob("learning_rate", 0.1, ge=0, le=1, help="the SEQ bandit's step size")
+ASK_PROBABILITY = Knob("ask_probability", 0.5, ge=0, le=1, candidates=("0.05", "0.1", "0.25", "0.5"), help="probability of asking when triggered")
+THOMPSON_PRIOR = Knob("thompson_prior", (1.0, 1.0), help="Beta(a, b) prior on an answer being accepted")
+SHARED = GATES[:3]
 
 POLICIES.register(PolicySpec("never", lazy(f"{POLICY}:make_never"), GATES, method="baseline", order=0, description="never ask (the baseline's behaviour)"))
 POLICIES.register(PolicySpec("always", lazy(f"{POLICY}:make_always"), GATES, method="lagr", order=1, description="ask whenever triggered (LaGR)"))
-POLICIES.register(PolicySpec("seq", lazy(f"{POLICY}:make_seq"), (*GATES, "query_reward", "learning_rate"), order=2, description="the paper's SEQ bandit"))
-POLICIES.register(PolicySpec("random", lazy(f"{POLICY}:make_random"), (*GATES, "ask_probability"), order=3, description="ask with probability ask_probability"))
-POLICIES.register(PolicySpec("thompson", lazy(f"{POLICY}:make_thompson"), (*GATES, "thompson_prior", "query_reward"), order=4, description="Thompson sampling over a posterior per context"))
+POLICIES.register(PolicySpec("seq", lazy(f"{POLICY}:make_seq"), (*SHARED, cost("0", "0.25", "0.5"), QUERY_REWARD, LEARNING_RATE), order=2, description="the paper's SEQ bandit"))
+POLICIES.register(PolicySpec("random", lazy(f"{POLICY}:make_random"), (*GATES, ASK_PROBABILITY), order=3, description="ask with probability ask_probability"))
+POLICIES.register(PolicySpec("thompson", lazy(f"{POLICY}:make_thompson"), (*SHARED, cost("0", "0.25", "0.5", "1"), THOMPSON_PRIOR, QUERY_REWARD), order=4, description="Thompson sampling over a posterior per context"))
 POLICIES.register(PolicySpec("oracle", lazy(f"{POLICY}:make_oracle"), GATES, order=5, peeks=True, description="ask only when the answer would be accepted (a lower bound)"))
 
 EXECUTORS.register(ExecutorSpec("local", lazy("lagrseq.running.executors:make_local"), runner_pool=True, description="a process pool on this machine (--jobs)"))

@@ -874,6 +874,9 @@ def _config_toml(resolved: Any) -> str:
         lines.append(f"\n[{section.name}]")
         for f in dataclasses.fields(value):
             doc = docs.get(f.name, "")
+            if f.name == "knobs":  # a plugin policy's own knobs: NAME = VALUE, as they are written
+                lines += [f"{name} = {_toml_value(knob)}  # a knob of secondary.policy" for name, knob in getattr(value, f.name)]
+                continue
             lines.append(f"{f.name} = {_toml_value(getattr(value, f.name))}" + (f"  # {doc}" if doc else ""))
     return "\n".join(lines)
 

@@ -540,6 +540,14 @@ class TabularSecondaryConfig(_Section):
     thompson_prior: tuple[float, ...] = ranged((1.0, 1.0), gt=0, le=1e6)
     """policy = "thompson": Beta(a, b) prior on an answer being accepted at an unseen context (the
     Gaussian posterior of the logistic reward starts at mean a / (a + b), variance 1 / (a + b))."""
+    knobs: tuple[tuple[str, Any], ...] = ()
+    """The knobs a registered policy declares of its own (a plugin's), as (name, value) pairs,
+    written ``[secondary] NAME = VALUE`` (``--set secondary.NAME=VALUE``); read with
+    ``knob(NAME)``. Empty: every policy knob is a field above (the built-ins)."""
+
+    def knob(self, name: str) -> Any:
+        """The value of the policy knob ``name``: its field, else its set value, else its default."""
+        return _knob(self, name)
 
     def _check(self) -> None:
         _check_epsilon(self.SECTION, self)
@@ -547,15 +555,59 @@ class TabularSecondaryConfig(_Section):
 
 
 def _check_policy(section: str, obj: Any) -> None:
-    from lagrseq.registry import POLICIES
+    from lagrseq.registry import POLICIES, knob_names
 
     if obj.policy not in POLICIES:
         allowed = " | ".join(json.dumps(name) for name in POLICIES.names())
         raise ConfigError(f"{section}.policy = {show_value(obj.policy)} is not allowed; expected one of {allowed}")
+    reads = knob_names(POLICIES.get(obj.policy))
+    for name, _ in obj.knobs:
+        if name not in reads:
+            owners = ", ".join(spec.name for spec in POLICIES.specs() if name in knob_names(spec))
+            raise ConfigError(f"{section}.{show_name(name)} is a knob of policy {owners}, not of {section}.policy = {show_value(obj.policy)}; leave it out")
     if len(obj.thompson_prior) != 2:
         raise ConfigError(
             f"{section}.thompson_prior = {show_value(list(obj.thompson_prior))}; expected two numbers [a, b] > 0"
         )
+
+
+def _knob(obj: Any, name: str) -> Any:
+    from lagrseq.registry import find_knob
+
+    if name != "knobs" and name in {f.name for f in dataclasses.fields(obj)}:
+        return getattr(obj, name)
+    for key, value in obj.knobs:
+        if key == name:
+            return value
+    knob = find_knob(name)
+    if knob is None:
+        raise ConfigError(f"no policy has a knob {show_name(name)}")
+    return knob.default
+
+
+def _own_knobs(section: str, names: list[str], data: dict[str, Any]) -> tuple[tuple[str, Any], ...]:
+    """The ``[secondary]`` entries that are a registered policy's own knobs (popped from
+    ``data``), checked by their :class:`~lagrseq.registry.Knob`; any other unknown name is
+    refused."""
+    from lagrseq.registry import POLICIES, find_knob, own_knobs
+
+    given = data.pop("knobs", {})
+    if isinstance(given, (list, tuple)) and all(isinstance(p, (list, tuple)) and len(p) == 2 for p in given):
+        given = {str(k): v for k, v in given}
+    if not isinstance(given, Mapping):
+        raise ConfigError(f"{section}.knobs = {show_value(given)}; expected a table of knob = value")
+    own = dict(given)
+    for key in [k for k in data if k not in names]:
+        own[key] = data.pop(key)
+    checked: dict[str, Any] = {}
+    for key, value in own.items():
+        knob = find_knob(key) if isinstance(key, str) and key not in names else None
+        if knob is None:
+            extra = sorted({k.name for spec in POLICIES.specs() for k in own_knobs(spec)} - set(names))
+            also = f"; and the policies' knobs: {', '.join(extra)}" if extra else ""
+            raise ConfigError(f"unknown field {section}.{show_name(str(key))}; fields of [{section}] are: {', '.join(n for n in names if n != 'knobs')}{also}")
+        checked[key] = knob.check(value, f"{section}.{show_name(key)}")
+    return tuple(sorted(checked.items()))
 
 
 def _check_network(section: str, hidden_sizes: tuple[int, ...], batch_size: int, buffer_size: int) -> None:
@@ -692,6 +744,14 @@ class NeuralSecondaryConfig(_Section):
     thompson_prior: tuple[float, ...] = ranged((1.0, 1.0), gt=0, le=1e6)
     """policy = "thompson": Beta(a, b) prior on an answer being accepted at an unseen context (the
     Gaussian posterior of the logistic reward starts at mean a / (a + b), variance 1 / (a + b))."""
+    knobs: tuple[tuple[str, Any], ...] = ()
+    """The knobs a registered policy declares of its own (a plugin's), as (name, value) pairs,
+    written ``[secondary] NAME = VALUE`` (``--set secondary.NAME=VALUE``); read with
+    ``knob(NAME)``. Empty: every policy knob is a field above (the built-ins)."""
+
+    def knob(self, name: str) -> Any:
+        """The value of the policy knob ``name``: its field, else its set value, else its default."""
+        return _knob(self, name)
 
     def _check(self) -> None:
         _check_network(self.SECTION, self.hidden_sizes, self.batch_size, self.buffer_size)
@@ -804,8 +864,15 @@ class ExperimentConfig:
     run: RunConfig = field(default_factory=RunConfig)
 
     def to_dict(self) -> dict[str, Any]:
-        """A JSON-ready dict of every field."""
-        return dataclasses.asdict(self)
+        """A JSON-ready dict of every field; ``secondary.knobs`` (a plugin policy's own knobs) as a
+        table, and only when one is set (so the built-ins' configurations read as they always did)."""
+        data = dataclasses.asdict(self)
+        secondary = data.get("secondary")
+        if isinstance(secondary, dict):
+            knobs = secondary.pop("knobs", ())
+            if knobs:
+                secondary["knobs"] = {name: value for name, value in knobs}
+        return data
 
     def to_json(self) -> str:
         """Key-sorted JSON of every field (stable: the same config gives the same text)."""
@@ -933,12 +1000,18 @@ def build_section(cls: type, section: str, data: Mapping[str, Any]) -> Any:
     """Build the dataclass ``cls`` from ``data``, rejecting unknown fields and bad values."""
     hints = typing.get_type_hints(cls)
     names = [f.name for f in dataclasses.fields(cls)]
+    knobs: tuple[tuple[str, Any], ...] | None = None
+    if "knobs" in names:  # [secondary]: a name no field has may be a registered policy's own knob
+        data = dict(data)
+        knobs = _own_knobs(section, names, data)
     unknown = sorted(set(data) - set(names))
     if unknown:
         raise ConfigError(
             f"unknown field {section}.{show_name(unknown[0])}; fields of [{section}] are: {', '.join(names)}"
         )
     values = {k: _coerce(section, k, hints[k], v) for k, v in data.items()}
+    if knobs:
+        values["knobs"] = knobs
     return cls(**values)
 
 

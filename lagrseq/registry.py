@@ -188,6 +188,48 @@ class ProviderKind:
 
 
 @dataclass(frozen=True)
+class Knob:
+    """A setting of an asking policy, declared once by its :class:`PolicySpec`: read from
+    ``[secondary] NAME = VALUE`` (a config file, a preset, ``--set secondary.NAME=VALUE``) and
+    from ``lagrseq frontier --policies POLICY:NAME=VALUE``; ``candidates`` are what
+    ``frontier --tune`` tries. A knob named like a ``[secondary]`` field is that field (the
+    built-ins' knobs: their type, range and default are the field's, and a test keeps the two
+    equal); any other is kept in the section's ``knobs`` (``section.knob(NAME)``)."""
+
+    name: str
+    default: Any
+    """Its value when not set; its type (bool, int, float, str) is the knob's (an int is taken
+    for a float)."""
+    ge: float | None = None
+    """Least value (numbers), inclusive."""
+    le: float | None = None
+    """Greatest value (numbers), inclusive."""
+    choices: tuple[Any, ...] = ()
+    """The values allowed (empty: any of its type and range)."""
+    candidates: tuple[str, ...] = ()
+    """The values ``lagrseq frontier --tune`` tries, as written on the command line (empty: the
+    knob is not tuned; a policy's first knob with candidates is its tuned one)."""
+    help: str = ""
+
+    def check(self, value: Any, where: str) -> Any:
+        """``value`` as this knob's type, or ConfigError (one line naming ``where``)."""
+        from lagrseq.errors import ConfigError
+
+        kind = type(self.default)
+        ok = isinstance(value, kind) and not (kind is not bool and isinstance(value, bool))
+        if kind is float and isinstance(value, int) and not isinstance(value, bool):
+            value, ok = float(value), True
+        shown = repr(value) if len(repr(value)) <= 60 else repr(value)[:57] + "..."
+        if not ok:
+            raise ConfigError(f"{where} = {shown} has the wrong type; expected {kind.__name__}, found {type(value).__name__}")
+        if kind in (int, float) and (value != value or (self.ge is not None and value < self.ge) or (self.le is not None and value > self.le)):
+            raise ConfigError(f"{where} = {shown} is out of range; expected {self.ge if self.ge is not None else '-inf'} <= value <= {self.le if self.le is not None else 'inf'}")
+        if self.choices and value not in self.choices:
+            raise ConfigError(f"{where} = {shown} is not allowed; expected one of {', '.join(map(repr, self.choices))}")
+        return value
+
+
+@dataclass(frozen=True)
 class PolicySpec:
     """An asking policy (``secondary.policy``, ``lagrseq frontier --policies``)."""
 
@@ -195,8 +237,9 @@ class PolicySpec:
     make: Callable[[Any, Callable[[], Any]], Any]
     """(the ``[secondary]`` section, a builder of the paper's SEQ agent) -> the policy
     (``decide(context)``, ``update(context, asked, query_reward)``)."""
-    knobs: tuple[str, ...] = ()
-    """The ``[secondary]`` fields it reads (``lagrseq frontier``'s NAME:FIELD=VALUE)."""
+    knobs: tuple[str | Knob, ...] = ()
+    """What it reads: a name is a ``[secondary]`` field every policy shares (the progress gate,
+    the budget); a :class:`Knob` is its own (``lagrseq frontier``'s NAME:KNOB=VALUE)."""
     method: str = "lagr-seq"
     """The method that runs it without knobs (``never``: baseline, ``always``: lagr)."""
     order: int = 100
@@ -537,3 +580,29 @@ def replace_part(options: Any, part: Any) -> Any:
         if find_part(getattr(options, f.name), type(part)) is not None
     }
     return dataclasses.replace(options, **changes)
+
+
+# ------------------------------------------------------------------------------------------
+# Policy knobs
+# ------------------------------------------------------------------------------------------
+def knob_names(spec: PolicySpec) -> tuple[str, ...]:
+    """The names of everything ``spec`` reads (shared fields and its own knobs), in order."""
+    return tuple(k if isinstance(k, str) else k.name for k in spec.knobs)
+
+
+def own_knobs(spec: PolicySpec) -> tuple[Knob, ...]:
+    return tuple(k for k in spec.knobs if isinstance(k, Knob))
+
+
+def find_knob(name: str) -> Knob | None:
+    """The first registered policy's :class:`Knob` called ``name`` (None: no policy has one)."""
+    for spec in POLICIES.specs():
+        for knob in own_knobs(spec):
+            if knob.name == name:
+                return knob
+    return None
+
+
+def tuned_knob(spec: PolicySpec) -> Knob | None:
+    """The knob ``lagrseq frontier --tune`` chooses for ``spec``: its first with candidates."""
+    return next((k for k in own_knobs(spec) if k.candidates), None)

@@ -157,3 +157,86 @@ def test_a_plugin_provider_declares_its_own_options(tmp_path: Path) -> None:
         assert refused.returncode == 2 and refused.stderr.count("\n") == 1 and named in refused.stderr, refused.stderr
     helped = lagrseq(site, "run", "--help", cwd=tmp_path)
     assert "--echo-profile NAME" in helped.stdout and "options of --provider echo" in helped.stdout
+
+
+EVERY = '''
+from lagrseq.registry import Knob, PolicySpec
+
+
+class Every:
+    """Ask at every n-th decision."""
+
+    def __init__(self, n):
+        self.n, self.seen = n, 0
+
+    def decide(self, context):
+        self.seen += 1
+        return int(self.seen % self.n == 0)
+
+    def update(self, context, asked, query_reward):
+        pass
+
+
+def policy():
+    knob = Knob("every_n", 2, ge=1, le=100, candidates=("2", "4"), help="ask at every n-th decision")
+    return PolicySpec("every", lambda section, seq_agent: Every(section.knob("every_n")), ("budget", knob), description="every n-th decision")
+'''
+
+
+def test_a_plugin_policy_declares_its_own_knob(tmp_path: Path) -> None:
+    """A plugin policy's Knob is read from [secondary] (--set), checked (type, range, owner: one
+    line, exit 2), logged in the configuration, and set by the frontier's POLICY:KNOB=VALUE."""
+    import json
+
+    from lagrseq.logs.reader import read_info
+
+    site = tmp_path / "site"
+    site.mkdir()
+    distribution(site, "every-plugin", "0.1", "everyplug", EVERY, "[lagrseq.policies]\nevery = everyplug:policy\n")
+    small = ["--set", "run.episodes=3", "--quiet", "--jobs", "1"]
+    every = ["--method", "lagr-seq", "--set", 'secondary.policy="every"']
+    done = lagrseq(site, "run", "cube-stacking", *every, "--set", "secondary.every_n=3", "--trials", "1", *small, "--out", str(tmp_path / "runs"), cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    (log,) = (tmp_path / "runs").rglob("trial-000.mcap")
+    secondary = json.loads(read_info(log).run["config"])["secondary"]
+    assert secondary["knobs"] == {"every_n": 3} and secondary["policy"] == "every"
+    shown = lagrseq(site, "config", "cube-stacking", *every, "--set", "secondary.every_n=3", cwd=tmp_path)
+    assert shown.returncode == 0 and "\nevery_n = 3  # a knob of secondary.policy" in shown.stdout, shown.stderr
+    for sets, message in [
+        (["--set", "secondary.every_n=0"], "secondary.every_n = 0 is out of range"),
+        (["--set", 'secondary.every_n="3"'], "secondary.every_n = '3' has the wrong type; expected int"),
+        (["--set", "secondary.every_m=3"], "unknown field secondary.every_m"),
+        (["--set", 'secondary.policy="seq"', "--set", "secondary.every_n=3"], "secondary.every_n is a knob of policy every, not of secondary.policy = 'seq'"),
+    ]:
+        refused = lagrseq(site, "run", "cube-stacking", *every, *sets, "--trials", "1", *small, "--out", str(tmp_path / "bad"), cwd=tmp_path)
+        assert refused.returncode == 2 and refused.stderr.count("\n") == 1 and message in refused.stderr, refused.stderr
+    frontier = ["frontier", "cube-stacking", "--trials", "1", *small, "--no-matched-random"]
+    done = lagrseq(site, *frontier, "--policies", "always,every:every_n=4", "--out", str(tmp_path / "fr"), cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert "every (every_n 4)" in done.stdout, done.stdout
+    for policies, message in [("every:every_n=0", "secondary.every_n = 0 is out of range"), ("every:every_m=1", "expected NAME:FIELD=VALUE with FIELD one of")]:
+        refused = lagrseq(site, *frontier, "--policies", policies, "--out", str(tmp_path / "fr-bad"), cwd=tmp_path)
+        assert refused.returncode == 2 and refused.stderr.count("\n") == 1 and message in refused.stderr, refused.stderr
+
+
+def test_the_builtin_policies_knobs_are_their_secondary_fields() -> None:
+    """A built-in knob is the [secondary] field of its name (so their logged configuration is
+    what it was): every section has the field, and the knob accepts the field's default (the
+    tabular section's default is the knob's)."""
+    import dataclasses
+
+    from lagrseq import config as cfg
+
+    for cls in (cfg.TabularSecondaryConfig, cfg.NeuralSecondaryConfig):
+        defaults = {f.name: f.default for f in dataclasses.fields(cls)}
+        for spec in registry.POLICIES.specs():
+            for name in registry.knob_names(spec):
+                assert name in defaults, (cls.__name__, spec.name, name)
+            for knob in registry.own_knobs(spec):
+                assert knob.check(defaults[knob.name], knob.name) == defaults[knob.name]
+                if cls is cfg.TabularSecondaryConfig:
+                    assert knob.default == defaults[knob.name], (spec.name, knob.name)
+    from lagrseq.study.frontier import TUNE_GRID
+
+    assert TUNE_GRID == {"seq": ("query_cost", ("0", "0.25", "0.5")), "random": ("ask_probability", ("0.05", "0.1", "0.25", "0.5")),
+                         "thompson": ("query_cost", ("0", "0.25", "0.5", "1"))}

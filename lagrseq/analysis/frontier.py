@@ -93,15 +93,19 @@ def policy_of(config: dict[str, Any]) -> tuple[str, str]:
         knobs.append(f"budget {section['budget']}/{section.get('budget_scope', 'trial')}")
     if section.get("min_progress", 0):
         knobs.append(f"gate {section['min_progress']}")
+    own = section.get("knobs") or {}  # a plugin policy's own knobs, where set
+    knobs += [f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in sorted(own.items())]
     return name, " ".join(knobs)
 
 
 def _knob_value(config: dict[str, Any]) -> float:
     """The value a policy's curve is ordered by (its swept knob, whichever differs)."""
     section = config.get("secondary", {})
+    own = [float(v) for _, v in sorted((section.get("knobs") or {}).items()) if isinstance(v, (int, float)) and not isinstance(v, bool)]
     return (
         float(section.get("query_cost", 0.0)) + float(section.get("budget", 0)) * 1e-6
         + float(section.get("ask_probability", 0.5)) * 1e-9 + float(section.get("min_progress", 0)) * 1e-3
+        + sum(own) * 1e-12  # a plugin policy's own knobs, last
     )
 
 

@@ -32,17 +32,24 @@ from pathlib import Path
 from typing import Any
 
 from lagrseq.errors import UsageError
-from lagrseq.registry import POLICIES, TASKS
+from lagrseq.registry import POLICIES, TASKS, knob_names, tuned_knob
 
 TUNING_NOTE = "frontier_tuning"
 """The run-metadata entry (JSON) of a run that ``--tune`` made: ``role`` ``tuning`` (a candidate or
 the control on the tuning seeds) or ``tuned`` (the evaluation of the chosen setting)."""
-TUNE_GRID: dict[str, tuple[str, tuple[str, ...]]] = {
-    "thompson": ("query_cost", ("0", "0.25", "0.5", "1")),
-    "seq": ("query_cost", ("0", "0.25", "0.5")),
-    "random": ("ask_probability", ("0.05", "0.1", "0.25", "0.5")),
-}
-"""The knob ``--tune`` chooses per policy, and its candidate values."""
+
+
+def tune_grid() -> dict[str, tuple[str, tuple[str, ...]]]:
+    """Policy -> the knob ``--tune`` chooses and its candidate values (each registered policy's
+    first knob with candidates, ``registry.tuned_knob``); read as ``TUNE_GRID``."""
+    grid: dict[str, tuple[str, tuple[str, ...]]] = {}
+    for spec in POLICIES.specs():
+        knob = tuned_knob(spec)
+        if knob is not None:
+            grid[spec.name] = (knob.name, knob.candidates)
+    return grid
+
+
 TUNE_RULE = (
     "fewest mean queries among the settings non-inferior to always on steps to the first solve "
     "(margin 10% of always's mean, one-sided Welch test, alpha 0.05); if none is, the best mean steps"
@@ -57,10 +64,10 @@ def policy_names() -> tuple[str, ...]:
 
 
 def policy_knobs() -> tuple[str, ...]:
-    """The ``[secondary]`` fields a policy item may set: every registered policy's knobs."""
+    """The knobs a policy item may set: every registered policy's (shared fields and own knobs)."""
     out: list[str] = []
     for spec in POLICIES.specs():
-        out += [knob for knob in spec.knobs if knob not in out]
+        out += [knob for knob in knob_names(spec) if knob not in out]
     return tuple(out)
 
 
@@ -69,6 +76,8 @@ def __getattr__(name: str) -> Any:
         return policy_names()
     if name == "KNOBS":
         return policy_knobs()
+    if name == "TUNE_GRID":
+        return tune_grid()
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
@@ -218,7 +227,7 @@ def run_protocol(
         if tune is not None:
             for policy, note in _tune(task, variants, phase, tune, seed).items():
                 chosen[f"{scope or 'preset'}/{policy}"] = note
-                best = Variant(policy, ((TUNE_GRID[policy][0], str(note["chosen"])),))
+                best = Variant(policy, ((tune_grid()[policy][0], str(note["chosen"])),))
                 twin = next((v for v in variants if _same(v, best)), None)
                 target = twin or best
                 notes[target] = {TUNING_NOTE: json.dumps(note, sort_keys=True)}
@@ -352,12 +361,12 @@ def _tune(
     seed and choose by :data:`TUNE_RULE`; returns the note per policy."""
     from lagrseq.analysis.inference import NON_INFERIOR, noninferiority
 
-    policies = [p for p in dict.fromkeys(v.policy for v in variants) if p in TUNE_GRID]
+    policies = [p for p in dict.fromkeys(v.policy for v in variants) if p in tune_grid()]
     if not policies:
         return {}
     role = {TUNING_NOTE: json.dumps({"role": "tuning", "evaluation_seed": evaluation_seed}, sort_keys=True)}
     control = Variant("always")
-    candidates = [(p, value, Variant(p, ((TUNE_GRID[p][0], value),))) for p in policies for value in TUNE_GRID[p][1]]
+    candidates = [(p, value, Variant(p, ((tune_grid()[p][0], value),))) for p in policies for value in tune_grid()[p][1]]
     done = phase([(control, role), *[(v, role) for _, _, v in candidates]], tune.seed, tune.trials, "tuning")
     always_steps, _ = trial_outcomes(done[0], tune.trials)
     margin = 0.10 * (sum(always_steps) / len(always_steps)) if always_steps else 0.0
@@ -373,7 +382,7 @@ def _tune(
         fine = [r for r in rows if r[3] == NON_INFERIOR]
         best = min(fine, key=lambda r: (r[1], r[2])) if fine else min(rows, key=lambda r: (r[2], r[1]))
         notes[policy] = {
-            "role": "tuned", "policy": policy, "knob": TUNE_GRID[policy][0], "chosen": best[0],
+            "role": "tuned", "policy": policy, "knob": tune_grid()[policy][0], "chosen": best[0],
             "tuning_seed": tune.seed, "tuning_trials": tune.trials, "evaluation_seed": evaluation_seed,
             "rule": TUNE_RULE, "fallback_rule_used": not fine,
             "candidates": [
