@@ -67,12 +67,40 @@ def test_backoff_halves_after_a_rejected_answer_and_resets_every_episode() -> No
     assert policy.probability == pytest.approx(0.2)
     policy.decide(Context(1))
     assert policy.probability == pytest.approx(0.8)
+    slower = Backoff(0.8, factor=0.75)
+    slower.decide(Context(0))
+    slower.update(Context(0), 1, -1.0)
+    assert slower.probability == pytest.approx(0.6)
 
 
 def test_lagrseq_finds_the_task_and_the_policy_by_entry_point() -> None:
     assert "number-sequence" in TASKS.names() and "backoff" in POLICIES.names()
     config = load("number-sequence", "lagr-seq", "paper", overrides=['secondary.policy="backoff"', "task.length=4"])
     assert config.task.length == 4 and config.secondary.policy == "backoff"
+    assert config.secondary.knob("backoff_factor") == 0.5  # its own knob, at its default
+    tuned = load("number-sequence", "lagr-seq", "paper", overrides=['secondary.policy="backoff"', "secondary.backoff_factor=0.25"])
+    assert tuned.secondary.knob("backoff_factor") == 0.25 and tuned.to_dict()["secondary"]["knobs"] == {"backoff_factor": 0.25}
+
+
+def test_backoffs_own_knob_through_set_and_the_frontier(tmp_path: Path) -> None:
+    """backoff_factor is set with --set and with the frontier's backoff:backoff_factor=V, logged
+    in the configuration; a value out of range or of the wrong type is one line, exit 2."""
+    from lagrseq.logs.reader import read_info
+
+    small = ["--trials", "2", "--jobs", "1", "--quiet"]
+    run = lagrseq("run", "number-sequence", "--method", "lagr-seq", "--set", 'secondary.policy="backoff"', "--set", "secondary.backoff_factor=0.25",
+                  *small, "--out", str(tmp_path / "runs"), cwd=tmp_path)
+    assert run.returncode == 0, run.stderr
+    logs = sorted((tmp_path / "runs").rglob("trial-*.mcap"))
+    assert len(logs) == 2
+    assert all(json.loads(read_info(log).run["config"])["secondary"]["knobs"] == {"backoff_factor": 0.25} for log in logs)
+    frontier = lagrseq("frontier", "number-sequence", "--policies", "always,backoff:backoff_factor=0.25", *small, "--no-matched-random",
+                       "--out", str(tmp_path / "fr"), cwd=tmp_path)
+    assert frontier.returncode == 0, frontier.stderr
+    assert "backoff (backoff_factor 0.25)" in frontier.stdout, frontier.stdout
+    for bad, message in [("secondary.backoff_factor=2", "out of range"), ('secondary.backoff_factor="half"', "wrong type")]:
+        refused = lagrseq("run", "number-sequence", "--set", 'secondary.policy="backoff"', "--set", bad, *small, "--out", str(tmp_path / "bad"), cwd=tmp_path)
+        assert refused.returncode == 2 and refused.stderr.count("\n") == 1 and message in refused.stderr, refused.stderr
 
 
 def test_plugins_run_frontier_and_replay_through_the_command_line(tmp_path: Path) -> None:

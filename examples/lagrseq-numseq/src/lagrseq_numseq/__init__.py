@@ -6,7 +6,8 @@ It adds, through entry points (see this package's ``pyproject.toml``):
   at a time, with its Gymnasium env, prompt, parser, evaluation, guidance and a rule-based mock
   extrapolator, plus two presets;
 - the asking policy ``backoff`` (group ``lagrseq.policies``): ask with probability
-  ``ask_probability``, halved after every rejected answer of the episode.
+  ``ask_probability``, multiplied by its own knob ``backoff_factor`` (default 0.5: halved) after
+  every rejected answer of the episode.
 
 This module stays light: it imports the task and the policy, not gymnasium (the env is built
 only when a run needs it), so listing plugins or replaying logs never loads the env.
@@ -19,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from lagrseq.config import TabularConfig, TabularSecondaryConfig
-from lagrseq.registry import PolicySpec, TaskSpec
+from lagrseq.registry import Knob, PolicySpec, TaskSpec
 from lagrseq_numseq.config import NumSeqEnvConfig, NumSeqTaskConfig
 
 NAME = "number-sequence"
@@ -62,7 +63,15 @@ def task_spec() -> TaskSpec:
 def _make_backoff(section: Any, seq_agent: Callable[[], Any]) -> Any:
     from lagrseq_numseq.policy import Backoff
 
-    return Backoff(section.ask_probability)
+    return Backoff(section.ask_probability, section.knob("backoff_factor"))
+
+
+BACKOFF_FACTOR = Knob(
+    "backoff_factor", 0.5, ge=0.0, le=1.0, candidates=("0.25", "0.5", "0.75"),
+    help="what the asking probability is multiplied by after a rejected answer (0.5: halved)",
+)
+"""``backoff``'s own knob: ``[secondary] backoff_factor``, ``--set secondary.backoff_factor=V``,
+``lagrseq frontier --policies backoff:backoff_factor=V``."""
 
 
 def policy_spec() -> PolicySpec:
@@ -70,7 +79,7 @@ def policy_spec() -> PolicySpec:
     return PolicySpec(
         name="backoff",
         make=_make_backoff,
-        knobs=("ask_probability", "min_progress", "budget", "budget_scope", "query_cost"),
+        knobs=("ask_probability", "min_progress", "budget", "budget_scope", "query_cost", BACKOFF_FACTOR),
         order=20,
-        description="ask with probability ask_probability, halved after each rejected answer of the episode (example plugin)",
+        description="ask with probability ask_probability, times backoff_factor after each rejected answer of the episode (example plugin)",
     )

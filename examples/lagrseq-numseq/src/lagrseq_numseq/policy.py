@@ -1,5 +1,6 @@
-"""The ``backoff`` asking policy: ask with probability p, halved after every rejected answer of
-the episode (reset at its start). Knobs: ``ask_probability`` (p at an episode's start)."""
+"""The ``backoff`` asking policy: ask with probability p, multiplied by a factor after every
+rejected answer of the episode (reset at its start). Knobs: ``ask_probability`` (p at an
+episode's start) and its own ``backoff_factor`` (default 0.5: halved)."""
 
 from __future__ import annotations
 
@@ -7,8 +8,9 @@ from typing import Any
 
 
 class Backoff:
-    def __init__(self, probability: float) -> None:
+    def __init__(self, probability: float, factor: float = 0.5) -> None:
         self.start = probability
+        self.factor = factor
         self.probability = probability
         self.episode = -1
 
@@ -19,4 +21,4 @@ class Backoff:
 
     def update(self, context: Any, asked: int, query_reward: float) -> None:
         if asked and not context.accepted:
-            self.probability /= 2
+            self.probability *= self.factor
