@@ -217,9 +217,16 @@ class Knob:
 
         kind = type(self.default)
         ok = isinstance(value, kind) and not (kind is not bool and isinstance(value, bool))
+        try:
+            shown = repr(value)
+        except ValueError:  # an integer past Python's digit limit
+            shown = "an integer of thousands of digits"
+        shown = shown if len(shown) <= 60 else shown[:57] + "..."
         if kind is float and isinstance(value, int) and not isinstance(value, bool):
-            value, ok = float(value), True
-        shown = repr(value) if len(repr(value)) <= 60 else repr(value)[:57] + "..."
+            try:
+                value, ok = float(value), True
+            except OverflowError:  # an integer beyond any float
+                raise ConfigError(f"{where} = {shown} is out of range; expected {self.ge} <= value <= {self.le}") from None
         if not ok:
             raise ConfigError(f"{where} = {shown} has the wrong type; expected {kind.__name__}, found {type(value).__name__}")
         if kind in (int, float) and (value != value or (self.ge is not None and value < self.ge) or (self.le is not None and value > self.le)):

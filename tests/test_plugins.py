@@ -11,6 +11,8 @@ import sys
 from pathlib import Path
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from lagrseq import registry
 from lagrseq.errors import UsageError
@@ -240,3 +242,50 @@ def test_the_builtin_policies_knobs_are_their_secondary_fields() -> None:
 
     assert TUNE_GRID == {"seq": ("query_cost", ("0", "0.25", "0.5")), "random": ("ask_probability", ("0.05", "0.1", "0.25", "0.5")),
                          "thompson": ("query_cost", ("0", "0.25", "0.5", "1"))}
+
+
+def test_the_builtin_providers_log_their_options_as_before() -> None:
+    """The trial metadata's provider_options record of a built-in kind is the JSON the shared
+    options bag wrote: every built-in option at its default, the run's kind's as given."""
+    import json
+
+    from lagrseq.running.wiring import default_options, provider_options
+
+    legacy = {
+        "base_url": "https://api.openai.com/v1", "api_key_env": "OPENAI_API_KEY", "server": "openai", "on_miss": "error",
+        "price_table": None, "max_cost_usd": None, "max_queries": None, "read_timeout_s": 120.0, "request_deadline_s": 300.0,
+        "max_response_bytes": 4 * 1024 * 1024, "local_n_ctx": 2048, "local_threads": 0,
+    }
+    for spec in ("mock", "mock:authors-t0", "live", "recorded:store", "local"):
+        assert registry.logged_options(default_options(spec)) == json.dumps(legacy, sort_keys=True), spec
+    given = {"on_miss": "live", "base_url": "http://127.0.0.1:9/v1", "max_queries": 6, "read_timeout_s": 3.0}
+    recorded = provider_options("recorded:store", given)
+    assert registry.logged_options(recorded) == json.dumps({**legacy, **given}, sort_keys=True)
+    limited = registry.replace_part(recorded, dataclasses_replace(registry.find_part(recorded, type(recorded.live.limits)), budget_ledger="x.sqlite"))
+    assert limited.live.limits.budget_ledger == "x.sqlite" and registry.logged_options(limited) == registry.logged_options(recorded)
+    local = provider_options("local", {"n_ctx": 4096, "threads": 2})
+    assert json.loads(registry.logged_options(local)) == {**legacy, "local_n_ctx": 4096, "local_threads": 2}
+
+
+def dataclasses_replace(obj: object, **changes: object) -> object:
+    import dataclasses
+
+    return dataclasses.replace(obj, **changes)  # type: ignore[type-var]
+
+
+@given(st.one_of(st.none(), st.booleans(), st.integers(), st.floats(allow_nan=True), st.text(max_size=80), st.lists(st.integers(), max_size=3)))
+def test_a_knob_takes_only_values_of_its_type_and_range(value: object) -> None:
+    from lagrseq.errors import ConfigError
+
+    for knob in (registry.Knob("n", 2, ge=1, le=100), registry.Knob("f", 0.5, ge=0.0, le=1.0), registry.Knob("s", "a", choices=("a", "b")),
+                 registry.Knob("b", False)):
+        try:
+            checked = knob.check(value, f"secondary.{knob.name}")
+        except ConfigError as error:
+            assert "\n" not in str(error) and f"secondary.{knob.name} = " in str(error) and len(str(error)) < 300
+            continue
+        assert type(checked) is type(knob.default)
+        if isinstance(checked, (int, float)) and not isinstance(checked, bool):
+            assert knob.ge is not None and knob.le is not None and knob.ge <= checked <= knob.le
+        if knob.choices:
+            assert checked in knob.choices
