@@ -323,21 +323,31 @@ def _kinds_text(kinds: dict[str, int]) -> str:
     return ", ".join(f"{name} {kinds[name]}" for name in order if kinds.get(name))
 
 
-def markdown(screens: Sequence[Screen]) -> list[str]:
-    """Two Markdown tables: one row per model (overall accuracy with its Wilson 95% interval,
-    answer kinds, speed), then accuracy per bin (correct/n, percent, interval)."""
-    lines = [
-        "| task | model | τ | model file (GGUF) | sha256 | right (95% CI) | right, target not in prompt | answer kinds | s/answer | tokens/s | cut at max_tokens | longest prompt+answer |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
+OVERALL_COLUMNS = ("task", "model", "τ", "model file (GGUF)", "sha256", "right (95% CI)", "right, target not in prompt", "answer kinds", "s/answer", "answer tokens/s", "cut at max_tokens", "longest prompt+answer")
+
+
+def overall_rows(screens: Sequence[Screen]) -> list[tuple[str, ...]]:
+    """One row per model, temperature and task (:data:`OVERALL_COLUMNS`)."""
+    rows = []
     for s in screens:
         spa, tps = s.seconds_per_answer(), s.tokens_per_second()
         n_unshown, k_unshown = s.unshown()
-        lines.append(
-            f"| {s.task} | {s.model} | {s.temperature:g} | {s.facts or '-'} | {s.sha256[:12] if s.sha256 else '-'} | "
-            f"{_percent(s.correct, s.n)} | {_percent(k_unshown, n_unshown)} | {_kinds_text(s.kinds)} | {'-' if spa is None else f'{spa:.1f}'} | "
-            f"{'-' if tps is None else f'{tps:.1f}'} | {s.cut} | {'-' if s.longest is None else s.longest} |"
-        )
+        rows.append((
+            s.task, s.model, f"{s.temperature:g}", s.facts or "-", s.sha256[:12] if s.sha256 else "-",
+            _percent(s.correct, s.n), _percent(k_unshown, n_unshown), _kinds_text(s.kinds),
+            "-" if spa is None else f"{spa:.1f}", "-" if tps is None else f"{tps:.1f}", str(s.cut),
+            "-" if s.longest is None else str(s.longest),
+        ))
+    return rows
+
+
+def markdown(screens: Sequence[Screen]) -> list[str]:
+    """Two Markdown tables: one row per model (overall accuracy with its Wilson 95% interval,
+    the same without the prompts that show the whole target, answer kinds, speed: seconds per
+    answer and answer tokens per second of the whole request, prompt included), then accuracy
+    per bin (correct/n, percent, interval)."""
+    lines = ["| " + " | ".join(OVERALL_COLUMNS) + " |", "|" + "---|" * len(OVERALL_COLUMNS)]
+    lines += ["| " + " | ".join(row) + " |" for row in overall_rows(screens)]
     for task in sorted({s.task for s in screens}):
         group = [s for s in screens if s.task == task]
         bins = sorted({b for s in group for b in s.cells})
@@ -494,3 +504,99 @@ def write_screen(screens: Sequence[Screen], out: Path, stem: str) -> list[Path]:
     except OSError as exc:
         raise UsageError(f"cannot write the screen to {out}: {exc.strerror or exc}") from None
     return [md, table, png]
+
+
+# ------------------------------------------------------------------------------------------
+# The report's "open models" item: the screens and the temperature model's test, rebuilt from
+# the committed recorded answers only (no extra, no model file)
+# ------------------------------------------------------------------------------------------
+SCREEN_FILES = "recorded_llm/screen-*.jsonl"
+"""The screens' answers, relative to the directory lagrseq reproduce runs in (the repository root,
+as for the suite's ``recorded:recorded_llm/...`` providers)."""
+TEMPERATURE_FILES = "recorded_llm/qwen2.5-coder-1.5b-cube-t*.jsonl"
+"""Real answers at several temperatures of the model that cleared the screen (Table 2's rows)."""
+SCREEN_TASKS = ("cube-stacking", "object-arrangement")
+
+
+def temperature_rows(screens: Sequence[Screen], model: Any) -> list[tuple[str, str, str, str, str, str]]:
+    """The temperature model ``model`` (:class:`lagrseq.tasks.cube.TemperatureModel`) tested on
+    real answers: for each temperature above 0 and prefix length, the accuracy it predicts from
+    the same model's tau = 0 answers against the accuracy measured (with its Wilson interval), and
+    whether the prediction lies inside the interval. Nothing is fitted to the tau > 0 answers."""
+    rows: list[tuple[str, str, str, str, str, str]] = []
+    by_model: dict[str, dict[float, Screen]] = {}
+    for s in screens:
+        by_model.setdefault(s.model, {})[s.temperature] = s
+    for name, temps in sorted(by_model.items()):
+        base = temps.get(0.0)
+        if base is None:
+            continue
+        for tau in sorted(t for t in temps if t > 0):
+            s = temps[tau]
+            predicted_all, measured_n, measured_k = 0.0, 0, 0
+            for b in sorted(s.cells):
+                if b not in base.cells:
+                    continue
+                n0, k0 = base.cells[b]
+                predicted = k0 / n0 * model.factor(b / s.size, tau)
+                n, k = s.cells[b]
+                low, high = wilson(k, n)
+                predicted_all += predicted * n
+                measured_n, measured_k = measured_n + n, measured_k + k
+                rows.append((name, f"{tau:g}", bin_label(s.task, b, s.size), f"{100 * predicted:.0f}%", _percent(k, n), "yes" if low <= predicted <= high else "no"))
+            if measured_n:
+                predicted_mean = predicted_all / measured_n
+                low, high = wilson(measured_k, measured_n)
+                rows.append((name, f"{tau:g}", "all prefixes", f"{100 * predicted_mean:.0f}%", _percent(measured_k, measured_n), "yes" if low <= predicted_mean <= high else "no"))
+    return rows
+
+
+def report_sections(root: Path = Path(".")) -> tuple[list[tuple[str, Any, Any]], str]:
+    """The sections of the report's "open models" item, as (stem, table, figure or None), and a
+    line saying what they were made of (or why there are none)."""
+    import pandas as pd
+
+    from lagrseq.analysis.tables import Table
+    from lagrseq.running.recording import record_config
+    from lagrseq.tasks.cube import AUTHORS_T0
+
+    files = sorted(root.glob(SCREEN_FILES))
+    if not files:
+        return [], f"open models: not made: no {SCREEN_FILES} under {root.resolve()} (lagrseq reproduce reads them from the repository root)"
+    configs = [record_config(task, "upstream", None, []) for task in SCREEN_TASKS]
+    screens = screens_from(files, configs)
+    data = pd.read_csv(io.StringIO(csv_text(screens)))
+    sections: list[tuple[str, Any, Any]] = [
+        (
+            "open-models",
+            Table(
+                f"Open models: screen of {len({s.model for s in screens})} GGUF models at τ = 0 (provenance: open model; {len(files)} recorded answer files, {sum(s.n for s in screens)} answers)",
+                OVERALL_COLUMNS,
+                tuple(overall_rows(screens)),
+                data,
+            ),
+            figure(screens),
+        )
+    ]
+    cells: list[tuple[str, ...]] = []
+    for s in screens:
+        cells += [(s.task, s.label(), bin_label(s.task, b, s.size), _percent(s.cells[b][1], s.cells[b][0])) for b in sorted(s.cells)]
+    sections.append(("open-models-cells", Table("Open models: right answers per prefix length / fill fraction (Wilson 95% interval)", ("task", "model", "shown", "right"), tuple(cells), data), None))
+    temperature_files = sorted(root.glob(TEMPERATURE_FILES))
+    if temperature_files and AUTHORS_T0.temperature is not None:
+        real = screens_from(temperature_files, configs[:1])
+        rows = temperature_rows(real, AUTHORS_T0.temperature)
+        frame = pd.DataFrame(rows, columns=["model", "tau", "shown", "predicted", "measured", "inside"])
+        sections.append(
+            (
+                "open-models-temperature",
+                Table(
+                    "Open models: the mock's temperature model (P(right | τ) = P(right | 0) × (1 - τ·drop)) tested on real τ > 0 answers, not refitted",
+                    ("model", "τ", "shown", "predicted from τ = 0", "measured (95% CI)", "prediction inside CI"),
+                    tuple(rows),
+                    frame,
+                ),
+                figure(real),
+            )
+        )
+    return sections, f"open models: {len(files)} recorded answer files, {sum(s.n for s in screens)} answers of {len({s.model for s in screens})} models"
