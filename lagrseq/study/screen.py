@@ -328,7 +328,7 @@ OVERALL_COLUMNS = ("task", "model", "τ", "model file (GGUF)", "sha256", "right 
 
 def overall_rows(screens: Sequence[Screen]) -> list[tuple[str, ...]]:
     """One row per model, temperature and task (:data:`OVERALL_COLUMNS`)."""
-    rows = []
+    rows: list[tuple[str, ...]] = []
     for s in screens:
         spa, tps = s.seconds_per_answer(), s.tokens_per_second()
         n_unshown, k_unshown = s.unshown()
