@@ -620,7 +620,7 @@ def _add_screen(sub: Any) -> None:
             "spread evenly over how much of the target they show, each asked once), keep the answers "
             "as recorded-answer JSONL (--answers), and write a table (Markdown and CSV) and a "
             "Fig. 4-style picture to OUT: accuracy by prefix length or fill fraction with n and a "
-            "Wilson 95%% interval per cell, the kinds of wrong answer, seconds per answer, tokens/s. "
+            "Wilson 95 percent interval per cell, the kinds of wrong answer, seconds per answer, tokens/s. "
             "With --from FILE.jsonl nothing is asked: the table and picture are rebuilt from answers "
             "recorded before, with neither the local-llm extra nor a model file."
         ),
