@@ -242,3 +242,21 @@ def test_the_committed_screens_rebuild_without_the_extra() -> None:
     if "not made" in done.stdout:
         pytest.skip("no screen files committed yet")
     assert "open-models" in done.stdout
+
+
+def test_replay_writes_the_sections_into_the_report(tmp_path: Path) -> None:
+    from lagrseq import config as cfg
+    from lagrseq.analysis.replay import replay
+    from lagrseq.running import runner
+
+    config = cfg.load("cube-stacking", "lagr-seq", "upstream", overrides=["run.episodes=3"])
+    runner.run_trials(config, 1, 0, "mock", runner.run_directory(tmp_path / "runs", config, "mock", 0), jobs=1)
+    (tmp_path / "recorded_llm").mkdir()
+    cube_file(tmp_path / "recorded_llm", "screen-tiny")
+    sections, _ = screen.report_sections(tmp_path)
+    report = replay([tmp_path / "runs"], tmp_path / "report", sections=sections)
+    index = (report.out / "index.md").read_text()
+    assert "![Open models: screen of 1 GGUF models" in index and "(figures/open-models.png)" in index
+    assert "| cube-stacking | screen-tiny τ=0 | 4/8 cubes | 2/3 = 67% [21, 94] |" in index
+    assert (report.out / "figures" / "open-models.png").is_file() and (report.out / "tables" / "open-models.csv").is_file()
+    assert 'src="figures/open-models.png"' in (report.out / "index.html").read_text()
