@@ -404,7 +404,7 @@ def figure(screens: Sequence[Screen]) -> Any:
         ax.set_ylabel("Right (%), Wilson 95% interval")
         ax.set_ylim(-3, 103)
         ax.set_xlim(-0.05, 1.05)
-        ax.legend(fontsize="small", loc="upper left")
+        ax.legend(fontsize="small", loc="center left", framealpha=0.9)
     return fig
 
 
@@ -552,6 +552,25 @@ def temperature_rows(screens: Sequence[Screen], model: Any) -> list[tuple[str, s
     return rows
 
 
+def _with_predictions(fig: Any, screens: Sequence[Screen], model: Any) -> Any:
+    """Fig. 4-style picture of real answers at several temperatures with, dashed in each line's
+    colour, what the temperature model predicts from the same model's tau = 0 answers."""
+    from lagrseq.analysis.figures import COLORS
+
+    ax = fig.axes[0]
+    group = [s for s in screens if s.task == "cube-stacking"]
+    base = {s.model: s for s in group if s.temperature == 0.0}
+    for i, s in enumerate(group):
+        zero = base.get(s.model)
+        if s.temperature <= 0 or zero is None:
+            continue
+        bins = sorted(b for b in s.cells if b in zero.cells)
+        predicted = [100 * zero.cells[b][1] / zero.cells[b][0] * model.factor(b / s.size, s.temperature) for b in bins]
+        ax.plot([b / s.size for b in bins], predicted, color=COLORS[i % len(COLORS)], linestyle="--", linewidth=1.0, label=f"τ={s.temperature:g} predicted by the temperature model")
+    ax.legend(fontsize="small", loc="center left", framealpha=0.9)
+    return fig
+
+
 def report_sections(root: Path = Path(".")) -> tuple[list[tuple[str, Any, Any]], str]:
     """The sections of the report's "open models" item, as (stem, table, figure or None), and a
     line saying what they were made of (or why there are none)."""
@@ -597,7 +616,7 @@ def report_sections(root: Path = Path(".")) -> tuple[list[tuple[str, Any, Any]],
                     tuple(rows),
                     frame,
                 ),
-                figure(real),
+                _with_predictions(figure(real), real, AUTHORS_T0.temperature),
             )
         )
     return sections, f"open models: {len(files)} recorded answer files, {sum(s.n for s in screens)} answers of {len({s.model for s in screens})} models"
