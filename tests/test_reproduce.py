@@ -374,6 +374,7 @@ def test_the_packaged_suite_plans_each_configuration_once(tmp_path: Path) -> Non
     assert "fig5b" not in plan.not_run or "needs torch" in plan.not_run["fig5b"]
     assert "fig4" not in plan.not_run
     recorded = {f"recorded:recorded_llm/smollm2-135m-cube-t{t}.jsonl" for t in (0, 1)}  # SmolLM2's real answers
+    recorded |= {f"recorded:recorded_llm/qwen2.5-coder-1.5b-cube-t{t}.jsonl" for t in ("0", "0.5", "1")}  # the open model that cleared the screen
     grids = set()
     if "fig5b" not in plan.not_run:  # with torch: the grid items' profile, and SmolLM2's image answers (Table 3)
         grids = {"mock:authors-gpt4", "recorded:recorded_llm/smollm2-135m-image-t0.jsonl"}

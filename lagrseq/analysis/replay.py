@@ -175,13 +175,16 @@ def replay(
     price: costs.Price | None = None,
     produced_by: str = "lagrseq replay",
     jobs: int | None = None,
+    sections: Sequence[tuple[str, Table, Figure | None]] = (),
 ) -> Report:
     """Rebuild the suite's items that ``roots`` cover into ``out`` (see the module docstring).
 
     ``provider`` restricts the suite's default-provider runs to one provider; ``unavailable``
     (provider spec -> reason) lets ``lagrseq reproduce`` say why an item was not run; ``price``
     re-costs queries from their token usage; ``jobs``: processes that read the logs (see
-    :func:`lagrseq.analysis.loading.load`; the output does not depend on it).
+    :func:`lagrseq.analysis.loading.load`; the output does not depend on it); ``sections``:
+    report sections made from something other than the logs (``lagrseq reproduce``'s "open
+    models", from recorded answers), as (stem, table, figure or None), written after the tables.
     """
     bad = [f for f in formats if f not in FORMATS]
     if bad:
@@ -230,6 +233,12 @@ def replay(
         ("costs-by-method", costs.by_method(logs.runs, price)),
         ("runs", runs_table(logs.runs)),
     ]
+    for stem, table, section_figure in sections:
+        if section_figure is not None:
+            path = out / "figures" / f"{stem}.png"
+            section_figure.savefig(path, format="png", dpi=DPI, metadata=_SAVE_METADATA["png"])
+            written.append(path)
+        extra.append((stem, table))
     for stem, table in extra:
         _write(out / "tables" / f"{stem}.md", to_markdown(table), written)
         _write(out / "tables" / f"{stem}.csv", to_csv(table.data), written)
@@ -293,7 +302,9 @@ def _drop_stale(out: Path, written: list[Path]) -> None:
     manifest.write_text("".join(f"{name}\n" for name in sorted(now)), encoding="utf-8", newline="\n")
 
 
-_STALE_STEMS = {"fig", "table", "appendix", "frontier", "audit-", "costs-by-", "runs", "scoreboard"}
+_STALE_STEMS = {"fig", "table", "appendix", "frontier", "audit-", "costs-by-", "runs", "scoreboard", "open-models"}
+_FIGURED = {"open-models", "open-models-temperature"}
+"""Sections of ``replay(sections=...)`` drawn with a figure (the "open models" item)."""
 """Name beginnings of files replay writes (for a folder made before the manifest existed)."""
 
 
@@ -463,7 +474,7 @@ def _index_html(
     for stem, table in extra:
         anchor = "costs" if stem == "costs-by-run" else ("runs" if stem == "runs" else stem)
         parts.append(f'<section id="{e(anchor)}">')
-        if stem.startswith("audit-"):
+        if stem.startswith("audit-") or stem in _FIGURED:
             parts.append(f'<h2>{e(table.title)}</h2><img src="figures/{e(stem)}.png" alt="{e(table.title)}">')
         parts.append(
             to_html(table, [("Markdown", f"tables/{stem}.md"), ("CSV", f"tables/{stem}.csv")])
@@ -513,7 +524,9 @@ def _index_markdown(
             lines += [_authors_hint(r), ""]
         lines += [f"Missing — {line}  " for line in r.missing()]
         lines.append("")
-    for _stem, table in extra:
+    for stem, table in extra:
+        if stem in _FIGURED:
+            lines += [f"![{table.title}](figures/{stem}.png)", ""]
         lines += [to_markdown(table)]
     if logs.warnings:
         lines += ["## Warnings", "", *(f"- {w}" for w in logs.warnings), ""]

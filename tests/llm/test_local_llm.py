@@ -177,3 +177,34 @@ def test_the_extra_missing_is_one_line(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "uvicorn" else real(name, *a))
     with pytest.raises(LagrseqError, match="local-llm extra is not installed"):
         wiring.local_settings("", wiring.LocalOptions())
+
+
+CHOSEN = "qwen2.5-coder-1.5b-instruct-q4_k_m"
+CHOSEN_SHA256 = "cc324af070c2ecbfd324a30884d2f951a7ff756aba85cb811a6ec436933bb046"
+
+
+def test_a_screen_of_the_chosen_open_model_names_its_file(tmp_path: Path) -> None:
+    """`lagrseq screen` live: Qwen2.5-Coder-1.5B-Instruct joined from its chunk packages (the
+    tox env installs them, pinned), every prefix asked once, the answers' provenance naming the
+    joined file's sha256, and the model right at least once (it is right at 4 and 5 of 8 cubes
+    shown, and on the complete stack, at tau = 0: docs/open-models.md)."""
+    import json
+
+    from lagrseq.llm.gguf import chunk_files, known_package
+    from lagrseq.study.screen import model_of_provenance
+
+    package = known_package(CHOSEN)
+    assert package is not None
+    if chunk_files(package)[1]:
+        pytest.skip(f"the chunk packages of {CHOSEN} are not installed (tox -e local-llm installs them)")
+    answers = tmp_path / "a.jsonl"
+    done = subprocess.run(
+        [sys.executable, "-m", "lagrseq", "screen", "cube-stacking", "--provider", f"local:{CHOSEN}", "--threads", "1",
+         "--prompts", "8", "--answers", str(answers), "--out", str(tmp_path / "out"), "--quiet"],
+        capture_output=True, text=True, env=ENV, timeout=580,
+    )
+    assert done.returncode == 0, done.stderr
+    records = [json.loads(line) for line in answers.read_text().splitlines()]
+    assert len(records) == 8
+    assert {model_of_provenance(r["sample"]["provenance"])[0] for r in records} == {CHOSEN_SHA256}
+    assert "0/8 = 0%" not in (tmp_path / "out" / "screen-cube-stacking.md").read_text()
