@@ -601,7 +601,7 @@ def _add_models(sub: Any) -> None:
 def _add_screen(sub: Any) -> None:
     p = sub.add_parser(
         "screen",
-        parents=[_experiment_options(), _live_options(per="screen"), _quiet()],
+        parents=[_experiment_options(), _provider_flags("screen"), _quiet()],
         help="how often a model is right on a task's prompts: accuracy by prefix or fill fraction, refusals, speed",
         description=(
             "Ask a model N of TASK's prompts (cube stacking: every prefix of the target, each asked "
