@@ -108,7 +108,7 @@ class Mark(NamedTuple):
     """The state of a writer's open chunk (:meth:`LeanWriter.mark`)."""
 
     size: int
-    index: dict[int, int]
+    entries: dict[int, int]
     counts: dict[int, int]
 
 
@@ -240,7 +240,7 @@ class LeanWriter:
         have been written in between)."""
         del self._chunk[mark.size :]
         for channel_id in list(self._index):
-            kept = mark.index.get(channel_id, 0)
+            kept = mark.entries.get(channel_id, 0)
             if kept:
                 del self._index[channel_id][kept:]
             else:
