@@ -191,17 +191,15 @@ def estimate_phases(
     scratch file, after an untimed warm-up that pays the imports). Probes run one after the other
     in this process; trials share ``jobs`` workers (:func:`execute` submits them all at once), so
     their time is the work over the workers, or the longest trial if that is longer."""
-    probes = [
-        PlannedRun("trial", audit_config, "mock", 0, audit_trials, 0, Path(f"audit-{task}"))
-        for task, audit_config, audit_trials in audits
-    ]
-    distinct: dict[tuple[str, ...], PlannedRun] = {}
-    for run in [*(r for r in the_plan.runs if r.pending()), *probes]:
-        distinct.setdefault(_calibration_key(run), run)
-    cache = _calibrate_all(distinct, jobs, on_calibrated)
+    cache: dict[tuple[str, ...], tuple[float, float]] = {}
 
     def calibrated(run: PlannedRun) -> tuple[float, float]:
-        return cache[_calibration_key(run)]
+        key = _calibration_key(run)
+        if key not in cache:
+            cache[key] = _calibrate(run)
+            if on_calibrated is not None:
+                on_calibrated()
+        return cache[key]
 
     serial = work = longest = 0.0
     works: dict[Path, float] = {}
@@ -226,7 +224,8 @@ def estimate_phases(
         if run.path in works:
             share = works[run.path] if run.kind == "accuracy" else works[run.path] / work * parallel if work else 0.0
             out.per_run[run.path] = share
-    for (task, audit_config, _), probe_run in zip(audits, probes, strict=True):
+    for task, audit_config, audit_trials in audits:
+        probe_run = PlannedRun("trial", audit_config, "mock", 0, audit_trials, 0, Path(f"audit-{task}"))
         per_unit, steps_per_episode = calibrated(probe_run)
         out.audit_per_trial[task] = _trial_steps(audit_config, steps_per_episode) * per_unit / max(1, jobs)
     logs += audit_logs
@@ -249,43 +248,6 @@ def estimate(the_plan: Plan, jobs: int) -> float:
 
 WARMUP_STEPS = 100
 """Untimed steps before a calibration: imports (torch), first allocations, caches."""
-
-
-def _calibrate_all(
-    runs: dict[tuple[str, ...], PlannedRun], jobs: int, on_calibrated: Callable[[], None] | None
-) -> dict[tuple[str, ...], tuple[float, float]]:
-    """:func:`_calibrate` of each distinct experiment: in this process with ``jobs`` 1, else in
-    ``jobs`` spawned worker processes, one experiment at a time each (the trials will share
-    that many workers too, so each timed stretch runs as a trial will). On the quick suite this
-    was about a third of ``reproduce --quick`` done one after the other on 2 cores.
-    ``on_calibrated`` is called as each one finishes."""
-    out: dict[tuple[str, ...], tuple[float, float]] = {}
-    if jobs <= 1 or len(runs) <= 1:
-        for key, run in runs.items():
-            out[key] = _calibrate(run)
-            if on_calibrated is not None:
-                on_calibrated()
-        return out
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
-    from lagrseq.running.executors import _ignore_interrupts, quiet_resource_tracker, stop_pool
-
-    quiet_resource_tracker()
-    pool = ProcessPoolExecutor(
-        max_workers=min(jobs, len(runs)), mp_context=multiprocessing.get_context("spawn"), initializer=_ignore_interrupts
-    )
-    try:
-        futures = {pool.submit(_calibrate, run): key for key, run in runs.items()}
-        for future in as_completed(futures):
-            out[futures[future]] = future.result()
-            if on_calibrated is not None:
-                on_calibrated()
-    except BaseException:
-        stop_pool(pool)
-        raise
-    pool.shutdown(wait=True)
-    return out
 
 
 def _calibrate(run: PlannedRun) -> tuple[float, float]:
