@@ -25,10 +25,10 @@ def epsilon_greedy(
     if mask is None or invalid == "resample" or mask.all():
         action = int(rng.integers(n)) if rng.random() < epsilon else int(values.argmax())
         if mask is not None and not mask[action]:
-            valid = np.flatnonzero(mask)
+            valid = mask.nonzero()[0]  # np.flatnonzero without its wrappers: masks are 1-D
             action = int(valid[rng.integers(valid.size)])
         return action
-    valid = np.flatnonzero(mask)
+    valid = mask.nonzero()[0]
     if rng.random() < epsilon:
         return int(valid[rng.integers(valid.size)])
     return int(valid[values[valid].argmax()])

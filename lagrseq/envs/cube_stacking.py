@@ -83,23 +83,34 @@ class CubeStackingEnv(gym.Env[np.ndarray, np.int64]):
         self._target = self.task.target
         self._stack: tuple[int, ...] = ()
         self._steps = 0
+        self._cache: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray, int]] = {}
 
     # ------------------------------------------------------------------ helpers
+    def _views(self, stack: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray, int]:
+        """The observation, action mask and E(s) of ``stack``, made once per distinct stack (a
+        trial visits a few dozen stacks, 5,000 times); callers hand out copies, since Gymnasium
+        wants new arrays from every call."""
+        views = self._cache.get(stack)
+        if views is None:
+            obs = np.full(self.n, self.n, dtype=np.int64)
+            obs[: len(stack)] = stack
+            mask = np.zeros(self.n + 1, dtype=np.int8)
+            mask[0] = 1
+            if len(stack) < self.n:
+                mask[1:] = 1
+                for cube in stack:
+                    mask[cube + 1] = 0
+            obs.flags.writeable = mask.flags.writeable = False
+            views = self._cache[stack] = (obs, mask, self._evaluation(stack))
+        return views
+
     def _observation(self) -> np.ndarray:
-        obs = np.full(self.n, self.n, dtype=np.int64)
-        obs[: len(self._stack)] = self._stack
-        return obs
+        return self._views(self._stack)[0].copy()
 
     def action_mask(self) -> np.ndarray:
         """Valid actions as the released code judges them: "remove" always (a no-op on the empty
         stack), "add" unless the cube is already stacked or the stack is full."""
-        mask = np.zeros(self.n + 1, dtype=np.int8)
-        mask[0] = 1
-        if len(self._stack) < self.n:
-            mask[1:] = 1
-            for cube in self._stack:
-                mask[cube + 1] = 0
-        return mask
+        return self._views(self._stack)[1].copy()
 
     def _evaluation(self, stack: tuple[int, ...]) -> int:
         target = self._target
@@ -110,11 +121,12 @@ class CubeStackingEnv(gym.Env[np.ndarray, np.int64]):
         return len(stack) * correct
 
     def _info(self, pre_revert: tuple[int, ...] | None = None) -> dict[str, Any]:
+        _obs, mask, evaluation = self._views(self._stack)
         return {
             "pattern": self._stack,
             "pre_revert_pattern": self._stack if pre_revert is None else pre_revert,
-            "evaluation": self._evaluation(self._stack),
-            "action_mask": self.action_mask(),
+            "evaluation": evaluation,
+            "action_mask": mask.copy(),
         }
 
     # ------------------------------------------------------------------ gymnasium API
@@ -140,7 +152,7 @@ class CubeStackingEnv(gym.Env[np.ndarray, np.int64]):
         target = self._target
         complete_after = after == target
         pays_bonus = complete_after or (self.bonus_on == "either-state" and before == target)
-        reward = float(self._evaluation(after) - self._evaluation(before))
+        reward = float(self._views(after)[2] - self._views(before)[2])
         if pays_bonus:
             reward += self.bonus
         pre_revert = after
@@ -153,7 +165,9 @@ class CubeStackingEnv(gym.Env[np.ndarray, np.int64]):
         self._steps += 1
         terminated = bool(self.terminate_on_complete and after == target)
         truncated = bool(not terminated and self._steps >= self.horizon)
-        return self._observation(), reward, terminated, truncated, self._info(pre_revert)
+        obs, mask, evaluation = self._views(after)
+        info = {"pattern": after, "pre_revert_pattern": pre_revert, "evaluation": evaluation, "action_mask": mask.copy()}
+        return obs.copy(), reward, terminated, truncated, info
 
     def render(self) -> str | None:
         if self.render_mode == "ansi":

@@ -186,7 +186,8 @@ class Sink(Protocol):
         """Take one event; its topic and log time follow from its type."""
 
     def flush(self) -> None:
-        """End of an episode: make everything written so far durable."""
+        """End of an episode: what a Ctrl-C keeps from now on (the MCAP sink writes its chunks
+        to the operating system once they are big enough)."""
 
     def close(self) -> None:
         """Finish (idempotent)."""

@@ -17,7 +17,7 @@ import zlib
 from array import array
 from collections import defaultdict
 from collections.abc import Sequence
-from typing import IO, Any
+from typing import IO, Any, NamedTuple
 
 import zstandard
 from mcap.data_stream import RecordBuilder
@@ -42,7 +42,7 @@ _RESERVED = bytes(_MESSAGE.size)
 """Room for a message record's header, filled in once its data is encoded behind it."""
 _OPCODE_MESSAGE = int(Opcode.MESSAGE)
 
-__all__ = ["LeanWriter", "MessageEncoding", "SchemaEncoding"]
+__all__ = ["LeanWriter", "Mark", "MessageEncoding", "SchemaEncoding"]
 
 
 def _offsets() -> array[int]:
@@ -104,6 +104,14 @@ def _message_index(channel_id: int, flat: Sequence[int]) -> bytes:
     return struct.pack("<BQ", Opcode.MESSAGE_INDEX, len(body)) + body
 
 
+class Mark(NamedTuple):
+    """The state of a writer's open chunk (:meth:`LeanWriter.mark`)."""
+
+    size: int
+    entries: dict[int, int]
+    counts: dict[int, int]
+
+
 class LeanWriter:
     """Write an indexed, chunked MCAP file; ``flush()`` closes the current chunk."""
 
@@ -115,8 +123,6 @@ class LeanWriter:
         self._chunk = bytearray()
         self._index: dict[int, array[int]] = defaultdict(_offsets)
         """Per channel of the current chunk: log time, offset, log time, offset, ..."""
-        self._chunk_start = self._chunk_end = 0
-        self._chunk_count_messages = 0
         self._chunk_indexes: list[bytes] = []
         """ChunkIndex records, packed as each chunk is written."""
         self._metadata_indexes: list[MetadataIndex] = []
@@ -170,12 +176,6 @@ class LeanWriter:
         """Add one message to the current chunk; ``sequence`` defaults to the channel's count of
         messages so far (what every lagrseq topic uses)."""
         chunk = self._chunk
-        if self._chunk_count_messages == 0:
-            self._chunk_start = self._chunk_end = log_time
-        elif log_time < self._chunk_start:
-            self._chunk_start = log_time
-        if log_time > self._chunk_end:
-            self._chunk_end = log_time
         counts = self._counts
         count = counts[channel_id]
         counts[channel_id] = count + 1
@@ -184,13 +184,14 @@ class LeanWriter:
             Opcode.MESSAGE, _MESSAGE_FIXED + len(data), channel_id, count if sequence is None else sequence, log_time, log_time
         )
         chunk += data
-        self._chunk_count_messages += 1
 
     def append_encoded(self, channel_id: int, log_time: int, item: Any, encode_into: Any) -> None:
         """Add one message whose data ``encode_into(item, buffer, -1)`` appends to ``buffer``
         (``msgspec.json.Encoder.encode_into``): the same bytes as :meth:`add_message` with the
         encoded data, but encoded straight into the chunk (no bytes object, no second pass over
-        the episode). An item that cannot be encoded leaves the chunk as it was."""
+        the episode). An item that cannot be encoded leaves the chunk as it was. The chunk's
+        first and last log times and message count are worked out when it is written (from its
+        message index), not kept up per message."""
         chunk = self._chunk
         start = len(chunk)
         chunk += _RESERVED
@@ -199,48 +200,52 @@ class LeanWriter:
         except BaseException:
             del chunk[start:]
             raise
-        count = self._counts[channel_id]
+        counts = self._counts
+        count = counts[channel_id]
         _MESSAGE.pack_into(chunk, start, _OPCODE_MESSAGE, len(chunk) - start - 9, channel_id, count, log_time, log_time)
-        self._counts[channel_id] = count + 1
-        entries = self._index[channel_id]
-        entries.append(log_time)
-        entries.append(start)
-        if self._chunk_count_messages == 0:
-            self._chunk_start = self._chunk_end = log_time
-        elif log_time < self._chunk_start:
-            self._chunk_start = log_time
-        elif log_time > self._chunk_end:
-            self._chunk_end = log_time
-        self._chunk_count_messages += 1
+        counts[channel_id] = count + 1
+        self._index[channel_id].extend((log_time, start))
 
     def add_messages(self, items: list[tuple[int, int, bytes]]) -> None:
         """Add ``(channel id, log time, data)`` messages to the current chunk in this order: the
-        same bytes as one :meth:`add_message` each, in one tight loop (a trial's transitions
-        arrive here an episode at a time)."""
-        if not items:
-            return
+        same bytes as one :meth:`add_message` each, in one tight loop (the held messages of
+        a chunk's episodes arrive here at once)."""
         chunk = self._chunk
         counts = self._counts
         index = self._index
         pack = _MESSAGE.pack
         opcode = Opcode.MESSAGE
-        start = end = items[0][1]
-        if self._chunk_count_messages:
-            start, end = min(start, self._chunk_start), max(end, self._chunk_end)
         for channel_id, log_time, data in items:
-            if log_time < start:
-                start = log_time
-            elif log_time > end:
-                end = log_time
             count = counts[channel_id]
             counts[channel_id] = count + 1
-            entries = index[channel_id]
-            entries.append(log_time)
-            entries.append(len(chunk))
+            index[channel_id].extend((log_time, len(chunk)))
             chunk += pack(opcode, _MESSAGE_FIXED + len(data), channel_id, count, log_time, log_time)
             chunk += data
-        self._chunk_start, self._chunk_end = start, end
-        self._chunk_count_messages += len(items)
+
+    @property
+    def chunk_size(self) -> int:
+        """Bytes of message records in the current (open) chunk."""
+        return len(self._chunk)
+
+    def mark(self) -> Mark:
+        """Where the open chunk stands now, for :meth:`rollback`."""
+        return Mark(
+            len(self._chunk),
+            {channel_id: len(entries) for channel_id, entries in self._index.items()},
+            dict(self._counts),
+        )
+
+    def rollback(self, mark: Mark) -> None:
+        """Drop every message added to the open chunk since ``mark`` was taken (no chunk may
+        have been written in between)."""
+        del self._chunk[mark.size :]
+        for channel_id in list(self._index):
+            kept = mark.entries.get(channel_id, 0)
+            if kept:
+                del self._index[channel_id][kept:]
+            else:
+                del self._index[channel_id]
+        self._counts = defaultdict(int, mark.counts)
 
     @property
     def messages(self) -> int:
@@ -250,17 +255,20 @@ class LeanWriter:
     def flush(self, push: bool = True) -> None:
         """Close the current chunk (if it holds messages) and, with ``push``, hand the bytes to
         the operating system."""
-        if self._chunk_count_messages:
+        if self._chunk:
             self._finish_chunk()
         if push:
             self._stream.flush()
 
     def _finish_chunk(self) -> None:
+        chunk_start = min(min(entries[::2]) for entries in self._index.values())
+        chunk_end = max(max(entries[::2]) for entries in self._index.values())
+        chunk_messages = sum(len(entries) for entries in self._index.values()) // 2
         raw = bytes(self._chunk)
         compression = b"" if len(raw) < _SMALL_CHUNK else b"zstd"
         compressed = self._compressor.compress(raw) if compression else raw
-        record = _chunk_record(self._chunk_start, self._chunk_end, len(raw), zlib.crc32(raw), compression, compressed)
-        chunk_start, chunk_length = self._offset, len(record)
+        record = _chunk_record(chunk_start, chunk_end, len(raw), zlib.crc32(raw), compression, compressed)
+        chunk_offset, chunk_length = self._offset, len(record)
         self._write(record)
         offsets: dict[int, int] = {}
         pieces: list[bytes] = []
@@ -274,9 +282,9 @@ class LeanWriter:
         self._write(index_data)
         self._chunk_indexes.append(
             _chunk_index_record(
-                self._chunk_start,
-                self._chunk_end,
                 chunk_start,
+                chunk_end,
+                chunk_offset,
                 chunk_length,
                 offsets,
                 len(index_data),
@@ -286,20 +294,19 @@ class LeanWriter:
             )
         )
         if self._message_count == 0:
-            self._start_time = self._chunk_start
+            self._start_time = chunk_start
         else:
-            self._start_time = min(self._start_time, self._chunk_start)
-        self._end_time = max(self._end_time, self._chunk_end)
-        self._message_count += self._chunk_count_messages
+            self._start_time = min(self._start_time, chunk_start)
+        self._end_time = max(self._end_time, chunk_end)
+        self._message_count += chunk_messages
         self._chunks += 1
         self._chunk = bytearray()
         self._index = defaultdict(_offsets)
-        self._chunk_count_messages = 0
 
     # ------------------------------------------------------------------ end of file
     def finish(self) -> None:
         """Write the data end, the summary section, the footer and the closing magic."""
-        if self._chunk_count_messages:
+        if self._chunk:
             self._finish_chunk()
         self._record(DataEnd(data_section_crc=0))
         summary_start = self._offset

@@ -67,7 +67,15 @@ class TabularPrimary:
         self.pre_revert = section.bootstrap_from == "pre-revert"
         if section.state_index == "upstream-aliased":
             target = task.target  # type: ignore[attr-defined]  # cube.CubeStacking (checked by wiring)
-            self.key: Callable[[Any], Hashable] = lambda p: cube.upstream_state_key(p, target)
+            keys: dict[Any, Hashable] = {}  # a trial visits a few dozen patterns, 10,000 times
+
+            def key(pattern: Any) -> Hashable:
+                found = keys.get(pattern)
+                if found is None:
+                    found = keys[pattern] = cube.upstream_state_key(pattern, target)
+                return found
+
+            self.key: Callable[[Any], Hashable] = key
         else:
             self.key = tuple
 

@@ -167,7 +167,7 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
                     solved=bool(episode.solved), guided_steps=episode.guided_steps, global_step=global_step,
                 )
             )
-            sink.flush()  # one flush per episode: a crash keeps every finished episode
+            sink.flush()  # an episode ends: a Ctrl-C keeps every finished episode
             episodes += 1
             queries += episode.queries
             total_return += episode.total

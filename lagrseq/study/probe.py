@@ -42,7 +42,8 @@ def run_accuracy_probe(
     provider = make_provider(provider_spec, config, seeding.generator(seed, 0, Stream.LLM))
     metadata = {**run_metadata(config, 0, seed, provider_spec), "method": ACCURACY_METHOD}
     metadata["samples"] = str(samples)
-    sink: Sink = McapSink(path, metadata) if log else NullSink()
+    # a chunk per prefix (chunk_bytes=0): a crash keeps every finished prefix, live answers included
+    sink: Sink = McapSink(path, metadata, chunk_bytes=0) if log else NullSink()
     target = task.target
     index = 0
     with sink, provider:  # type: ignore[attr-defined]
@@ -55,7 +56,7 @@ def run_accuracy_probe(
                 fields = msgspec.structs.asdict(event)
                 sink.write(ProbeQueryEvent(**fields, prefix_length=length, fraction=length / len(target)))
                 index += 1
-            sink.flush()  # one chunk per prefix: a crash keeps every finished prefix
+            sink.flush()
     return TrialResult(path, 0, 0, 0, index, 0.0, time.perf_counter() - started)
 
 

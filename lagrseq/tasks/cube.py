@@ -20,7 +20,7 @@ from __future__ import annotations
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, lru_cache
 
 import numpy as np
 
@@ -338,8 +338,14 @@ def consistent_orders(prompt: str) -> list[tuple[str, list[str]]]:
     """The ranked hypotheses that continue the prompt's partial stack (duplicates removed).
 
     If none continues it, the answer keeps the partial stack and adds the remaining cubes largest
-    first (a guess, usually wrong, as a real model's would be).
+    first (a guess, usually wrong, as a real model's would be). Worked out once per prompt (a
+    cube trial asks from the same few dozen stacks over and over); each call gets its own lists.
     """
+    return [(name, list(order)) for name, order in _consistent_orders(prompt)]
+
+
+@lru_cache(maxsize=1024)
+def _consistent_orders(prompt: str) -> tuple[tuple[str, tuple[str, ...]], ...]:
     cubes = [Cube(letter, colour, int(edge)) for colour, edge, letter in _CUBE_LINE.findall(prompt)]
     match = _PARTIAL.search(prompt)
     if not cubes or match is None:
@@ -355,7 +361,7 @@ def consistent_orders(prompt: str) -> list[tuple[str, list[str]]]:
         rest = [c for c in cubes if c.letter not in partial]
         rest.sort(key=lambda c: (-c.edge_cm, c.letter))
         out.append(("keep the stack, then largest first", partial + [c.letter for c in rest]))
-    return out
+    return tuple((name, tuple(order)) for name, order in out)
 
 
 def extrapolate(prompt: str, temperature: float, rng: np.random.Generator) -> str:

@@ -60,7 +60,8 @@ def test_views_need_2d_patterns() -> None:
 def test_views_round_trip_through_the_sink_in_transition_chunks(tmp_path: Path) -> None:
     path = tmp_path / "views.mcap"
     topics = foxglove.view_topics(image=True, grid=True)
-    with McapSink(path, {"config": "{}"}, extra_topics=topics) as sink:
+    # chunk_bytes=0: a chunk per episode, so that each episode's pictures are a chunk replay skips
+    with McapSink(path, {"config": "{}"}, extra_topics=topics, chunk_bytes=0) as sink:
         for episode in range(3):
             for step in range(4):
                 t = episode * 4 + step

@@ -21,9 +21,15 @@ from lagrseq.logs.events import (
     log_time,
     to_record,
 )
-from lagrseq.logs.reader import fill_query_defaults, is_complete, iter_messages, read_info
+from lagrseq.logs.reader import (
+    fill_query_defaults,
+    is_complete,
+    iter_messages,
+    read_info,
+    read_topics,
+)
 from lagrseq.logs.schemas import EPISODE, QUERY, TRANSITION
-from lagrseq.logs.sink import McapSink, NullSink
+from lagrseq.logs.sink import CHUNK_BYTES, McapSink, NullSink
 from lagrseq.running.runner import run_one
 
 
@@ -218,10 +224,68 @@ def test_lean_chunk_index_equals_the_reference_library() -> None:
         assert packed == builder.end()
 
 
-def test_small_chunks_are_stored_uncompressed_and_read_back(trial_log: Path) -> None:
-    with trial_log.open("rb") as handle:
+def _episodes(sink: McapSink, episodes: range, steps: int, stop_at: int | None = None) -> None:
+    """Write cube-like episodes: ``steps`` transitions and a decision every 10 steps, then the /episode
+    record and the episode's end; ``stop_at``: raise KeyboardInterrupt at that step of the
+    last episode, after its records so far were written."""
+    for episode in episodes:
+        for step in range(steps):
+            t = episode * steps + step
+            if step % 10 == 0:
+                sink.write(QueryEvent(0, episode, step, t, (step % 8,), 0))
+            sink.write(Transition(0, episode, step, t, tuple(range(step % 8)), step % 8, 1.0, False, step == steps - 1, False))
+            if stop_at is not None and episode == episodes[-1] and step == stop_at:
+                raise KeyboardInterrupt
+        sink.write(EpisodeEvent(0, episode, float(steps), steps, global_step=(episode + 1) * steps))
+        sink.flush()
+
+
+def test_small_chunks_are_stored_uncompressed_and_read_back(tmp_path: Path) -> None:
+    path = tmp_path / "t.mcap"
+    with McapSink(path, {"config": "{}"}, chunk_bytes=0) as sink:  # a chunk per episode
+        _episodes(sink, range(3), steps=40)
+    with path.open("rb") as handle:
         summary = make_reader(handle).get_summary()
     assert summary is not None
-    kinds = {index.compression for index in summary.chunk_indexes}
-    assert kinds == {"zstd", ""}, "transition chunks compressed, an episode's few summary messages not"
+    kinds = [index.compression for index in summary.chunk_indexes]
+    assert kinds == ["zstd", ""] * 3, "transition chunks compressed, a few decisions and an /episode not"
     assert all(index.compression == "zstd" or index.uncompressed_size < 1024 for index in summary.chunk_indexes)
+    topics = read_topics(path, ["/episode", "/query", "/transition"])
+    assert [len(topics[t]) for t in ("/episode", "/query", "/transition")] == [3, 12, 120]
+
+
+def test_chunks_end_at_episode_ends_once_big_enough(trial_log: Path) -> None:
+    """A transition chunk holds whole episodes and at least CHUNK_BYTES of records (the last
+    one: what was left); the summary chunk after it holds the same episodes' records."""
+    with trial_log.open("rb") as handle:
+        reader = make_reader(handle)
+        summary = reader.get_summary()
+        assert summary is not None
+        channels = {c.id: c.topic for c in summary.channels.values()}
+        indexes = sorted(summary.chunk_indexes, key=lambda index: index.chunk_start_offset)
+        pairs = list(zip(indexes[::2], indexes[1::2], strict=True))
+        assert 1 < len(pairs) < 20, "20 episodes of about 9 KB: several episodes a chunk"
+        episodes = read_topics(trial_log, ["/episode"])["/episode"]
+        ends = {e["global_step"] - 1 for e in episodes}
+        for number, (transitions, held) in enumerate(pairs):
+            assert {channels[i] for i in transitions.message_index_offsets} == {"/transition"}
+            assert "/transition" not in {channels[i] for i in held.message_index_offsets}
+            assert transitions.message_end_time in ends, "a chunk ends where an episode ends"
+            assert held.message_end_time == transitions.message_end_time
+            if number < len(pairs) - 1:
+                assert transitions.uncompressed_size >= CHUNK_BYTES
+
+
+def test_ctrl_c_keeps_every_finished_episode_and_drops_the_unfinished_one(tmp_path: Path) -> None:
+    from lagrseq.logs.recover import recover
+
+    path = tmp_path / "trial-000.mcap"
+    with pytest.raises(KeyboardInterrupt), McapSink(path, {"config": "{}"}) as sink:
+        _episodes(sink, range(3), steps=40, stop_at=25)  # episodes 0 and 1 end; 2 does not
+    partial = path.with_name(path.name + ".partial")
+    assert not path.exists() and partial.is_file()
+    result = recover(partial)
+    topics = read_topics(result.path, ["/episode", "/query", "/transition"])
+    assert [e["episode"] for e in topics["/episode"]] == [0, 1]
+    assert [r["global_step"] for r in topics["/transition"]] == list(range(80))
+    assert [r["global_step"] for r in topics["/query"]] == list(range(0, 80, 10))
