@@ -45,7 +45,8 @@ TUNE_GRID: dict[str, tuple[str, tuple[str, ...]]] = {
 """The knob ``--tune`` chooses per policy, and its candidate values."""
 TUNE_RULE = (
     "fewest mean queries among the settings non-inferior to always on steps to the first solve "
-    "(margin 10% of always's mean, one-sided Welch test, alpha 0.05); if none is, the best mean steps"
+    "(margin 10% of always's mean, one-sided paired t test on the tuning trials, Welch where a trial is missing, "
+    "alpha 0.05); if none is, the best mean steps"
 )
 TUNE_OFFSET = 1_000_003
 """Default tuning seed: the evaluation seed plus this (a different run seed: disjoint trials)."""
@@ -350,7 +351,7 @@ def _tune(
 ) -> dict[str, dict[str, Any]]:
     """Run always and every candidate of each named policy in :data:`TUNE_GRID` on the tuning
     seed and choose by :data:`TUNE_RULE`; returns the note per policy."""
-    from lagrseq.analysis.inference import NON_INFERIOR, noninferiority
+    from lagrseq.analysis.inference import NON_INFERIOR, noninferiority, paired_noninferiority
 
     policies = [p for p in dict.fromkeys(v.policy for v in variants) if p in TUNE_GRID]
     if not policies:
@@ -364,7 +365,9 @@ def _tune(
     scores: dict[str, list[tuple[str, float, float, str]]] = {}
     for (policy, value, _), directory in zip(candidates, done[1:], strict=True):
         steps, queries = trial_outcomes(directory, tune.trials)
-        verdict = noninferiority(steps, always_steps, margin, higher_is_better=False, min_n=min(tune.trials, 10))
+        # the candidates and always ran the same tuning (seed, trial) pairs: paired when all are there
+        test = paired_noninferiority if len(steps) == len(always_steps) == tune.trials else noninferiority
+        verdict = test(steps, always_steps, margin, higher_is_better=False, min_n=min(tune.trials, 10))
         mean_q = sum(queries) / len(queries) if queries else float("inf")
         mean_s = sum(steps) / len(steps) if steps else float("inf")
         scores.setdefault(policy, []).append((value, mean_q, mean_s, verdict.verdict))
