@@ -196,8 +196,10 @@ def test_paired_where_the_logs_pair_the_trials_welch_where_pairs_are_missing() -
 def test_tuning_never_touches_evaluation_seeds_and_the_choice_is_in_the_logs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     import json
 
+    from lagrseq.config import from_dict as config_from_dict
+    from lagrseq.running.runner import run_directory
     from lagrseq.seeding import Stream, integer_seed
-    from lagrseq.study.frontier import TUNE_GRID, TUNING_NOTE
+    from lagrseq.study.frontier import TUNE_GRID, TUNING_NOTE, matched_random_config
 
     out = tmp_path / "fr"
     args = [
@@ -209,6 +211,7 @@ def test_tuning_never_touches_evaluation_seeds_and_the_choice_is_in_the_logs(tmp
     roles: dict[str, set[tuple[int, int]]] = {"tuning": set(), "evaluation": set()}
     tuned_notes = []
     rates: dict[str, tuple[int, int]] = {}
+    configs: dict[str, dict[str, object]] = {}
     for log in sorted(out.rglob("*.mcap")):
         info = read_info(log)
         note = json.loads(info.run.get(TUNING_NOTE, "{}"))
@@ -222,6 +225,7 @@ def test_tuning_never_touches_evaluation_seeds_and_the_choice_is_in_the_logs(tmp
             name = f"{secondary['policy']}:{secondary.get('query_cost', 0)}:{secondary.get('ask_probability', 0.5)}"
             queried, decided = rates.get(name, (0, 0))
             rates[name] = (queried + sum(bool(r["queried"]) for r in rows), decided + len(rows))
+            configs[name] = info.config
     # 1 control + 4 candidates x 2 tuning trials; the evaluation: the given variants, the chosen one, matched random
     assert {seed for seed, _ in roles["tuning"]} == {7 + 1_000_003} and {seed for seed, _ in roles["evaluation"]} == {7}
     assert not roles["tuning"] & roles["evaluation"]
@@ -238,6 +242,9 @@ def test_tuning_never_touches_evaluation_seeds_and_the_choice_is_in_the_logs(tmp
     for name, (queried, decided) in rates.items():
         if name.startswith("thompson") and queried:
             assert matched_probability(queried, decided) in matched
+            # reproduce's matched run (matched_random_config) is this very run directory
+            match = matched_random_config(config_from_dict(configs[name]), matched_probability(queried, decided))
+            assert run_directory(out, match, "mock:authors-t0", 7).is_dir()
     # the table says how each point's knobs were chosen
     (csv,) = (out / "frontier").glob("*seed7*.csv")
     data = pd.read_csv(csv, keep_default_na=False)

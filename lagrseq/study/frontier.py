@@ -316,6 +316,26 @@ def _logs(directory: Path, trials: int) -> list[Path]:
     return [trial_path(directory, t) for t in range(trials) if trial_path(directory, t).is_file()]
 
 
+def matched_random_config(config: Any, probability: float) -> Any:
+    """``config`` (an :class:`lagrseq.config.ExperimentConfig` of ``lagr-seq``) with ``random``
+    asking at ``probability`` in place of its asking policy, every other asking-policy field at
+    its default: the run ``lagrseq frontier`` and ``lagrseq reproduce`` compare a learning policy
+    with at its matched query rate (the same run directory either way)."""
+    import dataclasses
+
+    from lagrseq.config import POLICY_DEFAULTS
+
+    fields = {f.name for f in dataclasses.fields(config.secondary)}
+    reset = {name: value for name, value in POLICY_DEFAULTS.items() if name in fields}
+    secondary = dataclasses.replace(config.secondary, **{**reset, "policy": "random", "ask_probability": probability})
+    return dataclasses.replace(config, method="lagr-seq", secondary=secondary)
+
+
+def rate_counts(directory: Path, trials: int) -> tuple[int, int]:
+    """(queries, decisions) over the run's first ``trials`` trial logs (the query rate's terms)."""
+    return _rate(directory, trials)
+
+
 def _rate(directory: Path, trials: int) -> tuple[int, int]:
     """(queries, decisions) over the run's first ``trials`` trial logs."""
     from lagrseq.logs.reader import read_topic
