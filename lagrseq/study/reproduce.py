@@ -501,6 +501,10 @@ def reproduce(
         planned_suite = with_authors_answers(suite, authors_caches, out, say)
     the_plan = plan(planned_suite, quick, provider, runs_dir, seed)
     check_providers(the_plan, provider)
+    # a resumed suite: the matched-rate random runs of policies already complete join this phase
+    # (and its estimate); the others run once their policies' logs exist (below)
+    matched_items = frontier_items(planned_suite)
+    the_plan.runs += plan_matched_random(the_plan, matched_items, runs_dir).runs
     for item_id, reason in the_plan.not_run.items():
         say(f"{item_id}: not run: {reason}")
     pending = sum(run.pending() for run in the_plan.runs)
@@ -518,9 +522,8 @@ def reproduce(
             len(suite.items), on_calibrated=lambda: bar.update(1), audit_logs=sum(len(runs) * n for _, runs, n in audits),
         )
         guess.audit = sum(guess.audit_per_trial.get(task, 0.0) * pending_trials for task, pending_trials in audit_pending.items())
-        # the frontier's matched-rate random runs (planned once their policies' logs exist): each
-        # about as long as its policy's run
-        matched_items = frontier_items(planned_suite)
+        # the frontier's matched-rate random runs of policies still to run: each about as long as
+        # its policy's run
         guess.runs += sum(guess.per_run.get(run.path, 0.0) for run in matched_sources(the_plan, matched_items))
         say(
             f"{'quick' if quick else 'full'} suite: {len(the_plan.runs)} runs, {trials} trial logs, "
