@@ -3,6 +3,7 @@ against always, the tuning split on held-out seeds."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -157,14 +158,48 @@ def test_noninferiority_and_credit_on_hand_made_points() -> None:
     assert data["noninferiority_margin"].iloc[0] == pytest.approx(10.0)
 
 
+def test_paired_where_the_logs_pair_the_trials_welch_where_pairs_are_missing() -> None:
+    """Trials that differ far more between one another than the margin (the environment's draws)
+    but little within a pair: the paired test sees the within-pair differences; a point whose
+    trials do not match always's (another seed, a trial missing) falls back to Welch, and the table
+    names the test of every verdict."""
+    base = [26.0, 161, 16, 12, 32, 33, 89, 9, 22, 10]  # mean 41: margin 4.1 steps; sd 48
+    always = _point("always", base)
+    close = _point("thompson", [b + d for b, d in zip(base, [0, 2, 0, 1, 0, 1, 0, 0, 0, 3], strict=True)], queries=20)
+    points = [always, close]
+    verdict = judge(points)[id(close)].against_always
+    assert verdict is not None and verdict.test == "paired t" and verdict.verdict == "non-inferior"
+    # the same numbers under another run seed: no pairs, Welch, and the spread swamps the margin
+    other = _point("thompson", list(close.steps_to_solve), queries=20)
+    other.run = Run(dataclasses.replace(other.run.key, seed=5), other.run.config, (), other.run.trials, pd.DataFrame(), pd.DataFrame(), 0)
+    welch = judge([always, other])[id(other)].against_always
+    assert welch is not None and welch.test == "Welch" and welch.verdict == "inconclusive"
+    # pairs line up by trial index, not by position: shuffled trials give the same verdict
+    order = [3, 1, 0, 2, 9, 8, 7, 6, 5, 4]
+    shuffled = _point("thompson", [close.steps_to_solve[i] for i in order], queries=20)
+    shuffled.run = Run(shuffled.run.key, shuffled.run.config, (), tuple(order), pd.DataFrame(), pd.DataFrame(), 0)
+    again = judge([always, shuffled])[id(shuffled)].against_always
+    assert again is not None and again.test == "paired t" and again.difference == pytest.approx(verdict.difference)
+    summarise(points)
+    shown = table(points)
+    assert shown.rows[1][shown.columns.index("vs always on steps to first solve (margin 4)")] == (
+        "non-inferior (paired t, n = 10 pairs)"
+    )
+    assert list(shown.data["vs_always_test"]) == ["", "paired t"]
+    summarise([always, other])
+    assert "Welch: pairs missing, n = 10/10" in table([always, other]).rows[1][10]
+
+
 # -- the tuning split and the matched-rate runs, end to end -------------------------------------------
 
 
 def test_tuning_never_touches_evaluation_seeds_and_the_choice_is_in_the_logs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     import json
 
+    from lagrseq.config import from_dict as config_from_dict
+    from lagrseq.running.runner import run_directory
     from lagrseq.seeding import Stream, integer_seed
-    from lagrseq.study.frontier import TUNE_GRID, TUNING_NOTE
+    from lagrseq.study.frontier import TUNE_GRID, TUNING_NOTE, matched_random_config
 
     out = tmp_path / "fr"
     args = [
@@ -176,6 +211,7 @@ def test_tuning_never_touches_evaluation_seeds_and_the_choice_is_in_the_logs(tmp
     roles: dict[str, set[tuple[int, int]]] = {"tuning": set(), "evaluation": set()}
     tuned_notes = []
     rates: dict[str, tuple[int, int]] = {}
+    configs: dict[str, dict[str, object]] = {}
     for log in sorted(out.rglob("*.mcap")):
         info = read_info(log)
         note = json.loads(info.run.get(TUNING_NOTE, "{}"))
@@ -189,6 +225,7 @@ def test_tuning_never_touches_evaluation_seeds_and_the_choice_is_in_the_logs(tmp
             name = f"{secondary['policy']}:{secondary.get('query_cost', 0)}:{secondary.get('ask_probability', 0.5)}"
             queried, decided = rates.get(name, (0, 0))
             rates[name] = (queried + sum(bool(r["queried"]) for r in rows), decided + len(rows))
+            configs[name] = info.config
     # 1 control + 4 candidates x 2 tuning trials; the evaluation: the given variants, the chosen one, matched random
     assert {seed for seed, _ in roles["tuning"]} == {7 + 1_000_003} and {seed for seed, _ in roles["evaluation"]} == {7}
     assert not roles["tuning"] & roles["evaluation"]
@@ -205,6 +242,9 @@ def test_tuning_never_touches_evaluation_seeds_and_the_choice_is_in_the_logs(tmp
     for name, (queried, decided) in rates.items():
         if name.startswith("thompson") and queried:
             assert matched_probability(queried, decided) in matched
+            # reproduce's matched run (matched_random_config) is this very run directory
+            match = matched_random_config(config_from_dict(configs[name]), matched_probability(queried, decided))
+            assert run_directory(out, match, "mock:authors-t0", 7).is_dir()
     # the table says how each point's knobs were chosen
     (csv,) = (out / "frontier").glob("*seed7*.csv")
     data = pd.read_csv(csv, keep_default_na=False)

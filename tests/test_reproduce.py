@@ -180,7 +180,9 @@ def test_reproduce_reports_its_plan_and_what_it_could_not_run(reproduced) -> Non
         for line in lines
     )
     assert (out / "reports" / "index.html").is_file()
-    assert len(list((out / "runs").rglob("*.mcap"))) == 11
+    # then the frontier's second phase: random at the matched rate of seq and of both thompson runs
+    assert "random at the frontier policies' matched query rates: 3 runs, 6 trials to run" in lines
+    assert len(list((out / "runs").rglob("*.mcap"))) == 11 + 6
     page = (out / "reports" / "index.html").read_text()
     assert "not run: task tower-of-hanoi not available" in page
     assert "lagrseq reproduce --quick" in page
@@ -204,17 +206,31 @@ def test_a_frontier_item_draws_one_panel_per_provider_with_never_in_each(reprodu
     out, _suite, _ = reproduced
     tables = out / "reports" / "tables"
     main = list(csv.DictReader(io.StringIO((tables / "asking.csv").read_text())))
-    assert [(r["policy"], r["knobs"], r["paper"]) for r in main] == [
-        ("never", "", ""), ("always", "", "LaGR (paper)"), ("seq", "", "SEQ (paper)"), ("thompson", "budget 3/trial", ""),
+    # random at each learning policy's matched query rate joins the panel (reproduce's second phase)
+    assert [(r["policy"], r["paper"]) for r in main] == [
+        ("never", ""), ("always", "LaGR (paper)"), ("seq", "SEQ (paper)"), ("random", ""), ("random", ""), ("thompson", ""),
     ]
+    assert main[5]["knobs"] == "budget 3/trial"
     assert all(r["trials"] == "2" for r in main) and float(main[0]["queries_mean"]) == 0
-    assert float(main[3]["queries_mean"]) <= 3 < float(main[1]["queries_mean"])
+    assert float(main[5]["queries_mean"]) <= 3 < float(main[1]["queries_mean"])
+    randoms = {r["knobs"] for r in main if r["policy"] == "random"}
+    for learner in (main[2], main[5]):  # each met random at its own rate, paired by seed and trial
+        assert learner["matched_random"].removeprefix("random (").removesuffix(")") in randoms
+        assert learner["vs_matched_random_test"] == "paired t" and learner["vs_always_test"] == "paired t"
+        # its query rate, rounded as matched_probability does, is the random run's probability
+        rate = float(learner["query_rate"])
+        assert f"p {float(f'{rate:.2g}'):g}" in randoms
+        assert learner["credited"] == "False"  # 2 trials: every verdict is inconclusive
     other = list(csv.DictReader(io.StringIO((tables / "asking-mock-authors-t0.csv").read_text())))
-    assert [r["policy"] for r in other] == ["never", "thompson"]  # never (asks nothing) joins each panel
+    assert [r["policy"] for r in other] == ["never", "random", "thompson"]  # never (asks nothing) joins each panel
     assert other[0]["return_mean"] == main[0]["return_mean"]
+    rate = float(other[2]["query_rate"])  # this panel has no always run, so no verdicts; its random is there
+    assert other[1]["knobs"] == f"p {float(f'{rate:.2g}'):g}" and other[2]["vs_always"] == "no always run"
     assert "mock:authors-t0" in (tables / "asking-mock-authors-t0.md").read_text().splitlines()[0]
     figure = list(csv.DictReader(io.StringIO((out / "reports" / "figures" / "asking.csv").read_text())))
-    assert sorted({r["provider"] for r in figure}) == ["mock", "mock:authors-t0"] and len(figure) == 6
+    assert sorted({r["provider"] for r in figure}) == ["mock", "mock:authors-t0"] and len(figure) == 9
+    page = (out / "reports" / "index.html").read_text()
+    assert "Every verdict on this page is inconclusive: at most 2 trials per point" in page
     from PIL import Image
 
     with Image.open(out / "reports" / "figures" / "asking.png") as png:
@@ -226,7 +242,9 @@ def test_a_rerun_skips_complete_trials(reproduced) -> None:  # type: ignore[no-u
     logs = {p: p.read_bytes() for p in (out / "runs").rglob("*.mcap")}
     result = _cli("reproduce", "--quick", "--suite", str(suite), "--out", str(out), "--quiet")
     assert result.returncode == 0, result.stderr
-    assert "0 to run (11 already complete)" in result.stdout
+    # the matched-rate random runs of complete policies are planned with the rest (and complete)
+    assert "9 runs, 17 trial logs, 0 to run (17 already complete)" in result.stdout
+    assert "matched query rates" not in result.stdout
     assert {p: p.read_bytes() for p in (out / "runs").rglob("*.mcap")} == logs
 
 

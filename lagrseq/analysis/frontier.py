@@ -14,14 +14,20 @@ the probability that a trial of the policy returns more than one of ``always``. 
 The protocol (issue 20). Primary outcomes: steps to the end of the first solved episode (lower
 is better; a trial that solves none counts its full length) and episodes solved per trial; the
 return is secondary. Each asking point is compared with ``always`` on steps to the first solve by
-a one-sided Welch non-inferiority test at level 0.05 with a margin of 10% of always's mean
-(:data:`MARGIN`), needing at least 10 trials per arm (:func:`lagrseq.analysis.inference.noninferiority`):
-``non-inferior / inferior / inconclusive`` (the same test on episodes solved per trial, higher
-is better, is shown beside it but does not enter the credit). Each learning policy's point is also compared with
+a one-sided non-inferiority test at level 0.05 with a margin of 10% of always's mean
+(:data:`MARGIN`), needing at least 10 trials per arm: ``non-inferior / inferior / inconclusive``
+(the same test on episodes solved per trial, higher is better, is shown beside it but does not
+enter the credit). The points of a panel run the same (seed, trial) pairs, so trial ``i`` of every
+policy saw the same environment draws (common random numbers): where the logs show both points ran
+the same seed and the same trials (:func:`paired_order`), the test is a paired t test on the
+per-trial differences (:func:`lagrseq.analysis.inference.paired_noninferiority`); where pairs are
+missing, Welch's test of two independent arms (:func:`lagrseq.analysis.inference.noninferiority`),
+and the table names the test used. Each learning policy's point is also compared with
 ``random`` asking at the point's own mean query rate (queries / decisions, from its logs; the
 random run is found by its ``ask_probability``, :func:`lagrseq.study.frontier.matched_probability`):
-it beats it when a one-sided Welch test at level 0.05 says its mean steps to the first solve are
-lower. A point is *credited* only when it is non-inferior to always and beats random at the
+it beats it when the same one-sided test at level 0.05 (margin 0) says its mean steps to the first
+solve are lower. Every verdict is at level 0.05 on its own; the CSV adds Holm-adjusted p-values
+over the panel's points for a family-wise reading. A point is *credited* only when it is non-inferior to always and beats random at the
 matched rate; the oracle (it peeks at the answer before deciding) is shown as the bound and never
 credited, and points whose run answered store misses with the rule-based mock
 (``--on-miss mock``) get no verdict. Runs are grouped into panels by task, preset, provider,
@@ -345,8 +351,7 @@ class Verdict:
     def always_text(self) -> str:
         if self.against_always is None:
             return self.note or "n/a"
-        v = self.against_always
-        return f"{v.verdict} (n = {v.n_treatment}/{v.n_control})"
+        return f"{self.against_always.verdict} ({_n_text(self.against_always)})"
 
     @property
     def solved_text(self) -> str:
@@ -365,7 +370,36 @@ class Verdict:
         v = self.against_random
         assert v is not None
         said = "beats" if self.beats_random else ("n < 10" if min(v.n_treatment, v.n_control) < inference.MIN_N_NONINFERIORITY else "does not beat")
-        return f"{said} (p = {number(v.p, 3)})"
+        return f"{said} ({'paired t' if v.test == 'paired t' else 'Welch: pairs missing'}, p = {number(v.p, 3)})"
+
+
+def paired_order(a: Point, b: Point) -> tuple[np.ndarray, np.ndarray] | None:
+    """Where the design pairs two points: index arrays that line up ``a``'s and ``b``'s per-trial
+    values trial by trial. They pair when their logs name the same run seed and the same set of
+    trials (every stream of a trial derives from (seed, trial), so trial ``i`` of both saw the
+    same environment draws); None when a seed differs or a trial is missing from either."""
+    if a.run.key.seed != b.run.key.seed:
+        return None
+    ta, tb = [int(t) for t in a.run.trials], [int(t) for t in b.run.trials]
+    if len(ta) != len(set(ta)) or sorted(ta) != sorted(tb) or len(ta) != len(a.steps_to_solve) or len(tb) != len(b.steps_to_solve):
+        return None
+    return np.argsort(ta, kind="stable"), np.argsort(tb, kind="stable")
+
+
+def compare(p: Point, q: Point, outcome: str, margin: float, higher_is_better: bool = True) -> inference.NonInferiority:
+    """``p`` against ``q`` on ``outcome`` (a per-trial array of :class:`Point`): the paired test
+    where the logs pair them (:func:`paired_order`), else Welch's."""
+    x, y = getattr(p, outcome), getattr(q, outcome)
+    order = paired_order(p, q)
+    if order is not None:
+        return inference.paired_noninferiority(x[order[0]], y[order[1]], margin, higher_is_better=higher_is_better, alpha=ALPHA)
+    return inference.noninferiority(x, y, margin, higher_is_better=higher_is_better, alpha=ALPHA)
+
+
+def _n_text(v: inference.NonInferiority) -> str:
+    if v.test == "paired t":
+        return f"paired t, n = {v.n_treatment} pairs"
+    return f"Welch: pairs missing, n = {v.n_treatment}/{v.n_control}"
 
 
 def judge(points: Sequence[Point]) -> dict[int, Verdict]:
@@ -384,16 +418,14 @@ def judge(points: Sequence[Point]) -> dict[int, Verdict]:
             out[id(p)] = Verdict(None, None, None, None, False, "reference" if p is reference else "no always run")
             continue
         margin = MARGIN * float(np.mean(reference.steps_to_solve))
-        versus = inference.noninferiority(p.steps_to_solve, reference.steps_to_solve, margin, higher_is_better=False, alpha=ALPHA)
-        solved = inference.noninferiority(
-            p.episodes_solved, reference.episodes_solved, MARGIN * float(np.mean(reference.episodes_solved)), alpha=ALPHA
-        )
+        versus = compare(p, reference, "steps_to_solve", margin, higher_is_better=False)
+        solved = compare(p, reference, "episodes_solved", MARGIN * float(np.mean(reference.episodes_solved)))
         matched = against = None
         if wants_match(p.policy, p.knobs) and not math.isnan(p.rate) and p.rate > 0:
             rate = matched_probability(float(p.queries.sum()), p.decisions)
             matched = reference if rate >= 1.0 else randoms.get(rate)  # random at rate 1 is always
             if matched is not None:
-                against = inference.noninferiority(p.steps_to_solve, matched.steps_to_solve, 0.0, higher_is_better=False, alpha=ALPHA)
+                against = compare(p, matched, "steps_to_solve", 0.0, higher_is_better=False)
         credited = (
             p.policy != "oracle" and versus.verdict == inference.NON_INFERIOR
             and against is not None and against.verdict == inference.NON_INFERIOR
@@ -416,7 +448,8 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
         "vs matched random", "credited", "vs always on episodes solved (margin 10%)", "return / trial [95% CI]", "return IQM [95% CI]", "P(return > always) [95% CI]",
         "fallback answers (refused: store misses)", "trials decided outside the store", "queries vs always",
     )
-    rows, data = [], []
+    rows: list[tuple[str, ...]] = []
+    data: list[dict[str, Any]] = []
     for p in points:
         verdict = verdicts[id(p)]
         iqm, iqm_low, iqm_high = stats.iqm_ci([p.returns], stats.generator(f"frontier/{p.label}/iqm"), 2000)
@@ -473,10 +506,12 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
             "vs_always_difference": vs.difference if vs is not None else math.nan,
             "vs_always_bound": vs.bound if vs is not None else math.nan,
             "vs_always_p": vs.p if vs is not None else math.nan,
+            "vs_always_test": vs.test if vs is not None else "",
             "matched_random": matched.label if matched is not None else "",
             "matched_random_steps_mean": matched.summary["steps_to_solve"][0] if matched is not None else math.nan,
             "vs_matched_random": vr.verdict if vr is not None else "",
             "vs_matched_random_p": vr.p if vr is not None else math.nan,
+            "vs_matched_random_test": vr.test if vr is not None else "",
             "beats_matched_random": verdict.beats_random,
             "credited": verdict.credited,
             "vs_always_episodes_solved": verdict.solved_text,
@@ -491,6 +526,10 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
             "miss_share": p.miss_share, "miss_flagged": flagged, "queries_vs_always": ratio,
             "run": p.run.key.name,
         })
+    for column in ("vs_always_p", "vs_matched_random_p"):  # Holm over the panel's judged points
+        adjusted = inference.holm([float(row[column]) for row in data])
+        for row, value in zip(data, adjusted, strict=True):
+            row[column + "_holm"] = float(value)
     first = points[0].run.key if points else None
     shown = provider if provider is not None else (first.provider if first else "")
     title = "Frontier"

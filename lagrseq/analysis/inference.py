@@ -15,6 +15,10 @@ Verdicts are three-way and never read from overlapping intervals:
 * :func:`noninferiority` compares a treatment with a control on an outcome and a margin (one-sided
   Welch test at level alpha): ``non-inferior``, ``inferior`` or ``inconclusive``; fewer than
   ``min_n`` trials in either arm is always ``inconclusive``.
+* :func:`paired_noninferiority` is the same verdict where the design pairs the arms (trial ``i``
+  of both ran on the same seeds: common random numbers): a one-sided t test on the per-pair
+  differences, so what the pairs share (the environment's draws) cancels instead of swamping the
+  margin. Use it only where every pair is matched by construction; else :func:`noninferiority`.
 * :func:`holm` adjusts a family of p-values (Holm's step-down), so marks over many comparisons
   keep the family-wise error at alpha.
 """
@@ -294,6 +298,8 @@ class NonInferiority:
     n_treatment: int
     n_control: int
     reason: str
+    test: str = "Welch"
+    """``Welch`` (two independent arms) or ``paired t`` (per-pair differences)."""
 
 
 def noninferiority(
@@ -334,6 +340,54 @@ def noninferiority(
     else:
         verdict, reason = INCONCLUSIVE, "the bound straddles -margin"
     return NonInferiority(verdict, diff, bound, margin, p, na, nb, reason)
+
+
+def paired_noninferiority(
+    treatment: Sequence[float] | np.ndarray,
+    control: Sequence[float] | np.ndarray,
+    margin: float,
+    higher_is_better: bool = True,
+    alpha: float = ALPHA,
+    min_n: int = MIN_N_NONINFERIORITY,
+) -> NonInferiority:
+    """:func:`noninferiority` for paired arms: ``treatment[i]`` and ``control[i]`` are one pair
+    (the same seeds). A one-sided t test on the differences ``d_i`` (oriented so that larger is
+    better) with ``n - 1`` degrees of freedom: ``non-inferior`` when the (1 - alpha) lower bound of
+    mean(d) lies above ``-margin``, ``inferior`` when its (1 - alpha) upper bound lies below it,
+    else ``inconclusive``; fewer than ``min_n`` pairs is always ``inconclusive``. A pair with a
+    non-finite value in either arm is dropped whole. Differences that are all equal have no
+    spread: the bound is their value (an exact verdict, p 0 or 1)."""
+    if not (math.isfinite(margin) and margin >= 0):
+        raise ValueError(f"the margin must be finite and >= 0, got {margin}")
+    a = np.asarray(treatment, dtype=float).ravel()
+    b = np.asarray(control, dtype=float).ravel()
+    if a.size != b.size:
+        raise ValueError(f"paired arms must have the same length, got {a.size} and {b.size}")
+    keep = np.isfinite(a) & np.isfinite(b)
+    sign = 1.0 if higher_is_better else -1.0
+    d = sign * (a[keep] - b[keep])
+    n = int(d.size)
+    if n < 2:
+        diff = float(d.mean()) if n else math.nan
+        return NonInferiority(INCONCLUSIVE, diff, math.nan, margin, math.nan, n, n, "fewer than 2 pairs", "paired t")
+    diff = float(d.mean())
+    se = float(d.std(ddof=1)) / math.sqrt(n)
+    if se == 0.0:
+        bound = upper = diff
+        p = 0.0 if diff > -margin else 1.0
+    else:
+        q = t_ppf(1.0 - alpha, n - 1)
+        bound, upper = diff - q * se, diff + q * se
+        p = 1.0 - t_cdf((diff + margin) / se, n - 1)
+    if n < min_n:
+        verdict, reason = INCONCLUSIVE, f"n = {n} < {min_n} pairs"
+    elif bound > -margin:
+        verdict, reason = NON_INFERIOR, "lower bound above -margin"
+    elif upper < -margin:
+        verdict, reason = INFERIOR, "upper bound below -margin"
+    else:
+        verdict, reason = INCONCLUSIVE, "the bound straddles -margin"
+    return NonInferiority(verdict, diff, bound, margin, p, n, n, reason, "paired t")
 
 
 def holm(pvalues: Sequence[float] | np.ndarray) -> np.ndarray:

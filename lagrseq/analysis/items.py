@@ -587,13 +587,54 @@ def build_config_table(item: Item, matched: Sequence[Match]) -> Built:
     return Built(None, None, [(item.id, table)], method)
 
 
-def build_frontier(item: Item, matched: Sequence[Match], price: Price | None = None) -> Built:
+def _policy_free(config: dict[str, Any]) -> dict[str, Any]:
+    """A logged configuration without its asking policy (``[secondary]``'s policy fields) and
+    method: what a matched-rate random run shares with the run it matches."""
+    secondary = {k: v for k, v in dict(config.get("secondary", {})).items() if k not in cfg.POLICY_DEFAULTS}
+    return {**{k: v for k, v in config.items() if k not in ("secondary", "method")}, "secondary": secondary}
+
+
+def matched_randoms(panel: Sequence[Run], runs: Sequence[Run]) -> list[Run]:
+    """The runs of ``random`` among ``runs`` at the query rate of one of the ``panel``'s learning
+    policies (:func:`lagrseq.study.frontier.matched_probability` of its queries / decisions) that
+    differ from it in the asking policy alone (the same task, preset, provider, seed, regime and
+    every other field): ``lagrseq reproduce``'s second phase for the frontier items."""
+    from lagrseq.study.frontier import matched_probability, wants_match
+
+    wanted: list[tuple[float, dict[str, Any], Run]] = []
+    for run in panel:
+        policy = str(run.config.get("secondary", {}).get("policy", "seq"))
+        if run.key.method != "lagr-seq" or not wants_match(policy, ()) or run.queries.empty:
+            continue
+        queries = int(run.queries["queried"].fillna(False).astype(bool).sum())
+        if queries:
+            wanted.append((matched_probability(queries, len(run.queries)), _policy_free(run.config), run))
+    names = {run.key.name for run in panel}
+    out = []
+    for run in runs:
+        secondary = run.config.get("secondary", {})
+        if run.key.kind != "trial" or run.key.method != "lagr-seq" or secondary.get("policy") != "random" or run.key.name in names:
+            continue
+        for probability, rest, source in wanted:
+            same = (run.key.task, run.key.preset, run.key.provider, run.key.seed) == (
+                source.key.task, source.key.preset, source.key.provider, source.key.seed
+            )
+            if same and float(secondary.get("ask_probability", 0.5)) == probability and _policy_free(run.config) == rest:
+                out.append(run)
+                names.add(run.key.name)
+                break
+    return out
+
+
+def build_frontier(item: Item, matched: Sequence[Match], price: Price | None = None, runs: Sequence[Run] = ()) -> Built:
     """The query-efficiency frontier of the item's asking-policy runs: ``lagrseq frontier``'s
     picture and table, made from the suite's logs. One panel per provider (the suite's default,
     and the authors' answers when ``reproduce --authors-caches`` added them) and regime
     (``lagr.solution_scope``); the ``never`` runs (which ask nothing, so any provider's and
-    regime's serve) join every panel. The protocol's verdicts are in the table; no matched-rate
-    random runs are planned by the suite, so no point is credited here."""
+    regime's serve) join every panel. The protocol's verdicts are in the table; the random runs
+    at each learning policy's matched query rate that ``lagrseq reproduce`` ran after the
+    policies (found among ``runs``, :func:`matched_randoms`) join their panel, so points can be
+    credited."""
     from matplotlib.figure import Figure
 
     from lagrseq.analysis import frontier
@@ -604,6 +645,8 @@ def build_frontier(item: Item, matched: Sequence[Match], price: Price | None = N
     for _, run in present:
         if run.key.method != "baseline":
             panels.setdefault((run.key.provider, frontier.scope_of(run.config)), []).append(run)
+    for members in panels.values():
+        members += matched_randoms(members, runs)
     if not panels:
         panels[(never[0].key.provider, frontier.scope_of(never[0].config))] = []
     figure = Figure(figsize=(11.5, 9.2 * len(panels)), layout="constrained")
@@ -612,8 +655,10 @@ def build_frontier(item: Item, matched: Sequence[Match], price: Price | None = N
     tables: list[tuple[str, Table]] = []
     frames = []
     scoped = len({scope for _, scope in panels}) > 1  # name the regime only where there are several
-    for n, (target, ((provider, scope), runs)) in enumerate(zip(targets, panels.items(), strict=True)):
-        points = frontier.points_of([*never, *runs], price)
+    counts: list[int] = []
+    for n, (target, ((provider, scope), members)) in enumerate(zip(targets, panels.items(), strict=True)):
+        points = frontier.points_of([*never, *members], price)
+        counts += [len(p.returns) for p in points]
         shown = frontier.table(points, provider=provider)
         frontier.draw(points, shown.title, figure=target)
         name = item.id if n == 0 else f"{item.id}-{_slug(provider)}" + (f"-{scope}" if scoped else "")
@@ -623,13 +668,27 @@ def build_frontier(item: Item, matched: Sequence[Match], price: Price | None = N
         "One point per asking policy: mean LLM queries (and US dollars: logged cost, else logged or estimated "
         "tokens at the price table) per trial against steps to the first solved episode (the primary outcome) "
         "and the return, 95% percentile-bootstrap intervals on both axes. The table adds episodes solved per trial, "
-        "a one-sided Welch non-inferiority verdict against always on steps to the first solve (margin 10% of "
-        "always's mean, alpha 0.05; fewer than 10 trials: inconclusive), trials whose first accepted answer came "
+        "a one-sided non-inferiority verdict against always on steps to the first solve (margin 10% of "
+        "always's mean, alpha 0.05; a paired t test where the logs show the same seed and trials, else Welch; "
+        "fewer than 10 trials: inconclusive), random at each learning policy's matched query rate (run by "
+        "lagrseq reproduce after the policies, on the same seed and trials) and whether the policy beats it, "
+        "credit (both), trials whose first accepted answer came "
         "from outside the store, the interquartile mean of the return and the probability of improvement over "
-        "always (lagrseq frontier --replay draws the same from these logs; lagrseq frontier also runs random at "
-        "each policy's matched query rate, which credit needs)."
+        "always (lagrseq frontier --replay draws the same from these logs)."
     )
+    if counts and max(counts) < inference_min_n():
+        method += (
+            f" Every verdict on this page is inconclusive: at most {max(counts)} trials per point, fewer than the "
+            f"{inference_min_n()} a verdict needs (lagrseq reproduce without --quick runs 10)."
+        )
     return Built(figure.axes[0], pd.concat(frames, ignore_index=True), tables, method)
+
+
+def inference_min_n() -> int:
+    """Trials per arm below which every frontier verdict is inconclusive."""
+    from lagrseq.analysis.inference import MIN_N_NONINFERIORITY
+
+    return MIN_N_NONINFERIORITY
 
 
 def _slug(provider: str) -> str:
@@ -643,10 +702,11 @@ def _slug(provider: str) -> str:
     return "".join(ch if ch.isalnum() else "-" for ch in text).strip("-")[-40:]
 
 
-def build(item: Item, matched: Sequence[Match], price: Price | None = None) -> Built:
-    """The item's builder (``item.render``) applied to its matched runs."""
+def build(item: Item, matched: Sequence[Match], price: Price | None = None, runs: Sequence[Run] = ()) -> Built:
+    """The item's builder (``item.render``) applied to its matched runs (``runs``: every logged
+    run, where the frontier finds its matched-rate random runs)."""
     if item.render == "frontier":
-        return build_frontier(item, matched, price)
+        return build_frontier(item, matched, price, runs)
     return BUILDERS[item.render](item, matched)
 
 

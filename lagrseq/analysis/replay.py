@@ -210,7 +210,7 @@ def replay(
             reports.append(report)
             if report.status == "not run":
                 continue
-            built = items.build(item, matched, price)
+            built = items.build(item, matched, price, logs.runs)
             report.method = built.method
             if built.axes is not None:
                 paths, report.figure_size = _save_figure(

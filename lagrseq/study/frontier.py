@@ -52,7 +52,8 @@ def tune_grid() -> dict[str, tuple[str, tuple[str, ...]]]:
 
 TUNE_RULE = (
     "fewest mean queries among the settings non-inferior to always on steps to the first solve "
-    "(margin 10% of always's mean, one-sided Welch test, alpha 0.05); if none is, the best mean steps"
+    "(margin 10% of always's mean, one-sided paired t test on the tuning trials, Welch where a trial is missing, "
+    "alpha 0.05); if none is, the best mean steps"
 )
 TUNE_OFFSET = 1_000_003
 """Default tuning seed: the evaluation seed plus this (a different run seed: disjoint trials)."""
@@ -324,6 +325,28 @@ def _logs(directory: Path, trials: int) -> list[Path]:
     return [trial_path(directory, t) for t in range(trials) if trial_path(directory, t).is_file()]
 
 
+def matched_random_config(config: Any, probability: float) -> Any:
+    """``config`` (an :class:`lagrseq.config.ExperimentConfig` of ``lagr-seq``) with ``random``
+    asking at ``probability`` in place of its asking policy, every other asking-policy field at
+    its default: the run ``lagrseq frontier`` and ``lagrseq reproduce`` compare a learning policy
+    with at its matched query rate (the same run directory either way)."""
+    import dataclasses
+
+    from lagrseq.config import POLICY_DEFAULTS
+
+    fields = {f.name for f in dataclasses.fields(config.secondary)}
+    reset = {name: value for name, value in POLICY_DEFAULTS.items() if name in fields}
+    if "knobs" in fields:  # a plugin policy's own knobs belong to it, not to random
+        reset["knobs"] = ()
+    secondary = dataclasses.replace(config.secondary, **{**reset, "policy": "random", "ask_probability": probability})
+    return dataclasses.replace(config, method="lagr-seq", secondary=secondary)
+
+
+def rate_counts(directory: Path, trials: int) -> tuple[int, int]:
+    """(queries, decisions) over the run's first ``trials`` trial logs (the query rate's terms)."""
+    return _rate(directory, trials)
+
+
 def _rate(directory: Path, trials: int) -> tuple[int, int]:
     """(queries, decisions) over the run's first ``trials`` trial logs."""
     from lagrseq.logs.reader import read_topic
@@ -359,7 +382,7 @@ def _tune(
 ) -> dict[str, dict[str, Any]]:
     """Run always and every candidate of each named policy in :data:`TUNE_GRID` on the tuning
     seed and choose by :data:`TUNE_RULE`; returns the note per policy."""
-    from lagrseq.analysis.inference import NON_INFERIOR, noninferiority
+    from lagrseq.analysis.inference import NON_INFERIOR, noninferiority, paired_noninferiority
 
     policies = [p for p in dict.fromkeys(v.policy for v in variants) if p in tune_grid()]
     if not policies:
@@ -373,7 +396,9 @@ def _tune(
     scores: dict[str, list[tuple[str, float, float, str]]] = {}
     for (policy, value, _), directory in zip(candidates, done[1:], strict=True):
         steps, queries = trial_outcomes(directory, tune.trials)
-        verdict = noninferiority(steps, always_steps, margin, higher_is_better=False, min_n=min(tune.trials, 10))
+        # the candidates and always ran the same tuning (seed, trial) pairs: paired when all are there
+        test = paired_noninferiority if len(steps) == len(always_steps) == tune.trials else noninferiority
+        verdict = test(steps, always_steps, margin, higher_is_better=False, min_n=min(tune.trials, 10))
         mean_q = sum(queries) / len(queries) if queries else float("inf")
         mean_s = sum(steps) / len(steps) if steps else float("inf")
         scores.setdefault(policy, []).append((value, mean_q, mean_s, verdict.verdict))

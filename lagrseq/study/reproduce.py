@@ -7,6 +7,8 @@
    provider) and report the expected wall time before starting.
 3. Run: trials in parallel on local processes or Dask workers through
    :func:`lagrseq.running.runner.run_trials`; trials whose log is complete are skipped, so a rerun resumes.
+   Then the frontier items' second phase (:func:`plan_matched_random`): ``random`` at each
+   learning policy's query rate, read from its logs, on the same seed and trials.
 4. Replay: :func:`lagrseq.analysis.replay.replay` over the run logs, from the MCAP files alone.
 """
 
@@ -50,6 +52,8 @@ class PlannedRun:
     options: Any = None
     """The provider kind's options (None: their defaults; runs on the authors' answers: misses
     go to the mock)."""
+    source: Path | None = None
+    """A frontier's matched-rate random run: the run whose query rate it matches."""
 
     def pending(self) -> int:
         """Trials (or probe files) whose log is not complete yet."""
@@ -125,6 +129,63 @@ def plan(suite: Suite, quick: bool, provider: str | None, runs_dir: Path, seed: 
         if made == 0:
             not_run[item.id] = "; ".join(sorted(set(reasons)))
     return Plan(list(planned.values()), not_run, unavailable)
+
+
+def frontier_items(suite: Suite) -> set[str]:
+    """The ids of the suite's frontier items (``render = "frontier"``)."""
+    return {item.id for item in suite.items if item.render == "frontier"}
+
+
+def matched_sources(the_plan: Plan, items: set[str]) -> list[PlannedRun]:
+    """The planned runs of the frontier ``items`` that the protocol compares with ``random`` at
+    their own query rate (:func:`lagrseq.study.frontier.wants_match`): learning policies, not on
+    the authors' answers with mock fallbacks (those points get no verdict)."""
+    from lagrseq.study import frontier
+
+    out = []
+    for run in the_plan.runs:
+        if run.kind != "trial" or run.config.method != "lagr-seq" or not items & set(run.items):
+            continue
+        if run.options is not None and run.options.on_miss == "mock":
+            continue
+        if frontier.wants_match(run.config.secondary.policy, ()):
+            out.append(run)
+    return out
+
+
+def plan_matched_random(the_plan: Plan, items: set[str], runs_dir: Path) -> Plan:
+    """The suite's second phase for its frontier ``items`` (issue 20): for each run of
+    :func:`matched_sources` whose trials are complete, its query rate from its logs (queries /
+    decisions, :func:`lagrseq.study.frontier.matched_probability`) and a run of ``random`` at that
+    rate with otherwise the same configuration, provider, seed and trials (so its trials pair with
+    the policy's), as ``lagrseq frontier`` runs it. None where the rate is 0 or 1 (random at rate 1
+    is always) or the run is already planned (the suite's own random); a run whose trials are not
+    all complete gets none (a rerun resumes it first)."""
+    from lagrseq.study import frontier
+
+    planned: dict[Path, PlannedRun] = {}
+    existing = {run.path for run in the_plan.runs}
+    for run in matched_sources(the_plan, items):
+        if run.pending():
+            continue
+        queries, decisions = frontier.rate_counts(run.path, run.trials)
+        if queries == 0 or decisions == 0:
+            continue
+        probability = frontier.matched_probability(queries, decisions)
+        if probability >= 1.0:
+            continue
+        config = frontier.matched_random_config(run.config, probability)
+        path = runner.run_directory(runs_dir, config, run.provider, run.seed)
+        if path in existing:
+            continue
+        match = planned.get(path)
+        if match is None:
+            match = planned[path] = PlannedRun(
+                "trial", config, run.provider, run.seed, run.trials, 0, path, options=run.options, source=run.path
+            )
+        match.trials = max(match.trials, run.trials)
+        match.items += [item for item in run.items if item in items and item not in match.items]
+    return Plan(list(planned.values()), {}, {})
 
 
 def _resolve(
@@ -441,6 +502,10 @@ def reproduce(
         planned_suite = with_authors_answers(suite, authors_caches, out, say)
     the_plan = plan(planned_suite, quick, provider, runs_dir, seed)
     check_providers(the_plan, provider)
+    # a resumed suite: the matched-rate random runs of policies already complete join this phase
+    # (and its estimate); the others run once their policies' logs exist (below)
+    matched_items = frontier_items(planned_suite)
+    the_plan.runs += plan_matched_random(the_plan, matched_items, runs_dir).runs
     for item_id, reason in the_plan.not_run.items():
         say(f"{item_id}: not run: {reason}")
     pending = sum(run.pending() for run in the_plan.runs)
@@ -458,6 +523,9 @@ def reproduce(
             len(suite.items), on_calibrated=lambda: bar.update(1), audit_logs=sum(len(runs) * n for _, runs, n in audits),
         )
         guess.audit = sum(guess.audit_per_trial.get(task, 0.0) * pending_trials for task, pending_trials in audit_pending.items())
+        # the frontier's matched-rate random runs of policies still to run: each about as long as
+        # its policy's run
+        guess.runs += sum(guess.per_run.get(run.path, 0.0) for run in matched_sources(the_plan, matched_items))
         say(
             f"{'quick' if quick else 'full'} suite: {len(the_plan.runs)} runs, {trials} trial logs, "
             f"{pending} to run ({trials - pending} already complete); expected about "
@@ -473,6 +541,19 @@ def reproduce(
             the_plan, jobs, bar, on_run=lambda run: bar.set_description(run.describe()),
             executor=executor, scheduler=scheduler, say=say, retries=retries, seconds=guess.per_run,
         )
+        matched = plan_matched_random(the_plan, matched_items, runs_dir)
+        if matched.runs:
+            pending_matched = sum(run.pending() for run in matched.runs)
+            say(
+                f"random at the frontier policies' matched query rates: {len(matched.runs)} runs, "
+                f"{pending_matched} trials to run"
+            )
+            if pending_matched:
+                execute(
+                    matched, jobs, bar, on_run=lambda run: bar.set_description(f"{run.describe()} (matched random)"),
+                    executor=executor, scheduler=scheduler, say=say, retries=retries,
+                    seconds={run.path: guess.per_run.get(run.source, 0.0) for run in matched.runs if run.source},
+                )
         for task, _, _ in audits:
             bar.set_description(f"{task} audit")
             run_suite_audit(task, runs_dir, quick, jobs, seed, quiet, say, _Scaled(bar, guess.audit_per_trial.get(task, 0.0)))
