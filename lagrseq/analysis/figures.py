@@ -123,11 +123,17 @@ def _legend_below(ax: Axes, entries: int, title: str | None = None) -> None:
     columns = entries if entries <= 3 else -(-entries // 2)
     while columns > 1 and columns * (longest + 6) > 90:
         columns -= 1
+    from matplotlib.transforms import offset_copy
+
+    # a fixed distance under the axes, past the tick labels and the x label, whatever the axes'
+    # height (a fraction of it put a tall legend on top of the x label)
+    below = offset_copy(ax.transAxes, fig=ax.figure, y=-40, units="points")
     ax.legend(
         handles,
         labels,
         loc="upper center",
-        bbox_to_anchor=(0.5, -0.16),
+        bbox_to_anchor=(0.5, 0.0),
+        bbox_transform=below,
         ncols=columns,
         frameon=False,
         title=title,
