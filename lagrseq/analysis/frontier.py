@@ -42,6 +42,7 @@ token), marked as estimated. No usage anywhere: NaN.
 from __future__ import annotations
 
 import math
+import textwrap
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -654,7 +655,7 @@ def draw(points: Sequence[Point], title: str, miss_threshold: float = MISS_THRES
         list(handles.values()), list(handles), loc="outside lower center", ncols=min(3, max(1, len(handles))),
         fontsize=8, title="; ".join(marks), title_fontsize=8,
     )
-    figure.suptitle(title + "\nbars: 95% bootstrap CI of the mean over trials")
+    figure.suptitle(textwrap.fill(title, 120) + "\nbars: 95% bootstrap CI of the mean over trials")
     return figure
 
 
@@ -776,4 +777,11 @@ def report(
 
 
 def _slug(text: str) -> str:
-    return "".join(ch if ch.isalnum() or ch in "-_." else "-" for ch in text).strip("-")[-60:]
+    """A file-name part for ``text``: at most 60 characters; a longer one keeps its start and a
+    hash of the whole (cutting it from the left named ``recorded:...`` providers ``ecorded-...``)."""
+    import hashlib
+
+    slug = "".join(ch if ch.isalnum() or ch in "-_." else "-" for ch in text).strip("-")
+    if len(slug) <= 60:
+        return slug
+    return f"{slug[:51].rstrip('-')}-{hashlib.sha256(text.encode()).hexdigest()[:8]}"

@@ -225,9 +225,11 @@ def test_record_from_the_states_of_logged_runs(tmp_path: Path, server: FakeOpenA
 
 
 def test_an_interrupted_record_loses_nothing(tmp_path: Path, server: FakeOpenAI) -> None:
-    server.script.extend(Reply(delay_s=0.15) for _ in range(100))
+    # 80 answers at 0.3 s each: the recording is still running when the signal comes, however
+    # slowly this test's polling gets to see the first four on a loaded machine
+    server.script.extend(Reply(delay_s=0.3) for _ in range(100))
     store = tmp_path / "s"
-    args = [sys.executable, "-m", "lagrseq", *record_args(server, store, "--samples", "3", "--server", "ollama")]
+    args = [sys.executable, "-m", "lagrseq", *record_args(server, store, "--samples", "10", "--server", "ollama")]
     env = {**os.environ, "PYTHONPATH": str(ROOT), KEY_ENV: SECRET}
     process = subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
@@ -247,9 +249,9 @@ def test_an_interrupted_record_loses_nothing(tmp_path: Path, server: FakeOpenAI)
     assert kept >= 4 and kept >= len(server.requests) - 1  # at most the request in flight is lost
     asked = len(server.requests)
     server.script.clear()
-    assert run_cli(*record_args(server, store, "--samples", "3", "--server", "ollama")) == 0
-    assert len(server.requests) - asked == 24 - kept  # only what was missing is asked again
-    assert answers_stored() == 24
+    assert run_cli(*record_args(server, store, "--samples", "10", "--server", "ollama")) == 0
+    assert len(server.requests) - asked == 80 - kept  # only what was missing is asked again
+    assert answers_stored() == 80
 
 
 # ------------------------------------------------------------------------------ the key never lands on disk
