@@ -192,7 +192,7 @@ SHARED = GATES[:3]
 POLICIES.register(PolicySpec("never", lazy(f"{POLICY}:make_never"), GATES, method="baseline", order=0, description="never ask (the baseline's behaviour)"))
 POLICIES.register(PolicySpec("always", lazy(f"{POLICY}:make_always"), GATES, method="lagr", order=1, description="ask whenever triggered (LaGR)"))
 POLICIES.register(PolicySpec("seq", lazy(f"{POLICY}:make_seq"), (*SHARED, cost("0", "0.25", "0.5"), QUERY_REWARD, LEARNING_RATE), order=2, description="the paper's SEQ bandit"))
-POLICIES.register(PolicySpec("random", lazy(f"{POLICY}:make_random"), (*GATES, ASK_PROBABILITY), order=3, description="ask with probability ask_probability"))
+POLICIES.register(PolicySpec("random", lazy(f"{POLICY}:make_random"), (*GATES, ASK_PROBABILITY), order=3, comparator=True, description="ask with probability ask_probability"))
 POLICIES.register(PolicySpec("thompson", lazy(f"{POLICY}:make_thompson"), (*SHARED, cost("0", "0.25", "0.5", "1"), THOMPSON_PRIOR, QUERY_REWARD), order=4, description="Thompson sampling over a posterior per context"))
 POLICIES.register(PolicySpec("oracle", lazy(f"{POLICY}:make_oracle"), GATES, order=5, peeks=True, description="ask only when the answer would be accepted (a lower bound)"))
 

@@ -253,6 +253,9 @@ class PolicySpec:
     """Its place in frontier tables and figures (built-ins 0-9, plugins after them)."""
     peeks: bool = False
     """It looks at the provider's answer before deciding (refused with paid answers)."""
+    comparator: bool = False
+    """It is the frontier's yardstick: the other policies are compared with it run at their
+    own query rate (``random``), so it is never matched itself."""
     description: str = ""
 
 

@@ -127,7 +127,7 @@ def _legend_below(ax: Axes, entries: int, title: str | None = None) -> None:
 
     # a fixed distance under the axes, past the tick labels and the x label, whatever the axes'
     # height (a fraction of it put a tall legend on top of the x label)
-    below = offset_copy(ax.transAxes, fig=ax.figure, y=-40, units="points")
+    below = offset_copy(ax.transAxes, fig=ax.figure, y=-40, units="points")  # type: ignore[arg-type]
     ax.legend(
         handles,
         labels,

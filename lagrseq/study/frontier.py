@@ -151,9 +151,19 @@ def parse_sweep(text: str) -> list[Variant]:
 
 
 def wants_match(policy: str, knobs: object) -> bool:
-    """Whether a point is compared with random at its query rate: every asking policy but random
-    itself, the oracle (it peeks), never, and plain always (rate 1: random at rate 1 is always)."""
-    return policy not in ("never", "oracle", "random") and not (policy == "always" and not knobs)
+    """Whether a point is compared with random at its query rate, read from the policy's
+    registry entry: every asking policy but the yardstick itself (random), one that peeks (the
+    oracle), the baseline's (never), and a policy of plain LaGR without knobs (always: random at
+    rate 1 is always). A policy this installation does not know (a plugin's, read back from
+    its logs) is an asking policy like any other: matched."""
+    from lagrseq.registry import POLICIES
+
+    spec = POLICIES.find(policy)
+    if spec is None:
+        return True
+    if spec.peeks or spec.comparator or spec.method == "baseline":
+        return False
+    return spec.method != "lagr" or bool(knobs)
 
 
 def matched_probability(queries: float, decisions: float) -> float:
