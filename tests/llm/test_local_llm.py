@@ -31,6 +31,12 @@ pytestmark = [
 ROOT = Path(__file__).resolve().parents[2]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
 
+def DEFAULT_SIGINT() -> None:  # noqa: N802 (used like a constant)
+    """In the child: Ctrl-C's default action, so Python raises KeyboardInterrupt there even when
+    this test run itself was started as a background job (whose SIGINT is ignored and inherited)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 
 def alive(pid: int) -> bool:
     """The process exists and is not a zombie."""
@@ -103,7 +109,7 @@ def test_start_errors_are_one_line_and_leave_nothing(tmp_path: Path) -> None:
 def test_sigint_stops_the_run_and_its_server(tmp_path: Path) -> None:
     command = [sys.executable, "-m", "lagrseq", "run", "cube-stacking", "--method", "lagr", "--provider", "local",
                "--threads", "1", "--trials", "1", "--set", "run.episodes=100", "--out", str(tmp_path / "runs"), "--quiet"]
-    process = subprocess.Popen(command, env=ENV, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=tmp_path)
+    process = subprocess.Popen(command, env=ENV, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=tmp_path, preexec_fn=DEFAULT_SIGINT)
     assert process.stderr is not None
     seen = ""
     while "ready" not in seen:

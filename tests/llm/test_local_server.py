@@ -33,6 +33,12 @@ ROOT = Path(__file__).resolve().parents[2]
 FAKE = Path(__file__).resolve().parent / "fake_llama"
 GGUF = b"GGUF\x03\x00\x00\x00" + bytes(56)
 
+def DEFAULT_SIGINT() -> None:  # noqa: N802 (used like a constant)
+    """In the child: Ctrl-C's default action, so Python raises KeyboardInterrupt there even when
+    this test run itself was started as a background job (whose SIGINT is ignored and inherited)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 
 @pytest.fixture
 def fake(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Path:
@@ -176,7 +182,7 @@ def test_a_run_with_the_local_provider_logs_live_queries_and_leaves_nothing(fake
 
 def lagrseq(*args: str, cwd: Path) -> subprocess.Popen[str]:
     return subprocess.Popen([sys.executable, "-m", "lagrseq", *args], cwd=cwd, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env={**os.environ, "MPLBACKEND": "Agg"})
+                            stderr=subprocess.PIPE, text=True, env={**os.environ, "MPLBACKEND": "Agg"}, preexec_fn=DEFAULT_SIGINT)
 
 
 def wait_ready(process: subprocess.Popen[str]) -> str:
@@ -217,7 +223,7 @@ def test_sigterm_ends_a_recording_and_its_server_keeping_the_answers(fake: Path,
     process = subprocess.Popen(  # record says what its server does on stdout: read both streams as one
         [sys.executable, "-m", "lagrseq", "record", "cube-stacking", "--provider", f"local:{fake}", "--temperature", "1",
          "--samples", "500", "--store", str(store), "--quiet"],
-        cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, preexec_fn=DEFAULT_SIGINT,
     )
     seen = wait_ready(process)
     pid, _ = start_line(seen)
