@@ -42,8 +42,9 @@ def _record(request: dict[str, Any], task: str, text: str, n: int, provenance: s
 
 
 def cube_file(tmp_path: Path, model: str = "tiny-1b", temperature: float = 0.0) -> Path:
-    """Prefixes 1, 4 and 8 of the 8-cube target: prefix 4 right twice of three, prefix 1 prose,
-    prefix 8 one wrong list cut at the token limit."""
+    """Prefixes 1, 4 and 8 of the 8-cube target: prefix 4 right twice of three (two different
+    wordings: at tau = 0 a word-for-word repeat would count once), prefix 1 prose, prefix 8 one
+    wrong list cut at the token limit."""
     config = record_config("cube-stacking", "upstream", None, [], model, temperature)
     task = make_task(config)
     queries = {len(p): q for p, q in zip(task.prefixes(), queries_for(config, task.prefixes()))}
@@ -51,7 +52,7 @@ def cube_file(tmp_path: Path, model: str = "tiny-1b", temperature: float = 0.0) 
     stamp = f"chatcmpl-1; {screen.GGUF_MARK}{SHA}; Tiny 1B, 1B, Q4_K_M, qwen2"
     lines = [
         _record(request_of(queries[4], "local"), "cube-stacking", target, 1, stamp),
-        _record(request_of(queries[4], "local"), "cube-stacking", target, 2, stamp),
+        _record(request_of(queries[4], "local"), "cube-stacking", target.replace(",", ", "), 2, stamp),  # right, worded apart
         _record(request_of(queries[4], "local"), "cube-stacking", "['e','f','g','a']", 3, stamp),
         _record(request_of(queries[1], "local"), "cube-stacking", "Let me think step by step about the cubes and their sizes first", 4, stamp),
         _record(request_of(queries[8], "local"), "cube-stacking", "['a','b','c','d','e','f','g','h']", 5, stamp, "length"),
@@ -141,6 +142,24 @@ def test_the_table_and_picture_come_from_a_hand_made_file(tmp_path: Path) -> Non
     assert table in done.stdout + "\n" or "tiny-1b" in done.stdout
 
 
+@pytest.mark.parametrize(("temperature", "counted"), [(0.0, (2, 1)), (1.0, (4, 3))])
+def test_a_greedy_repeat_counts_once(tmp_path: Path, temperature: float, counted: tuple[int, int]) -> None:
+    """At tau = 0 asking a prompt again gives the same answer (greedy decoding): three identical
+    right answers and one wrong one are two observations, one right; at tau > 0 they are four
+    draws. Speed counts every answer either way."""
+    config = record_config("cube-stacking", "upstream", None, [], "tiny-1b", temperature)
+    task = make_task(config)
+    query = queries_for(config, [task.prefixes()[3]])[0]
+    target = "[" + ",".join(f"'{'abcdefghijk'[i]}'" for i in task.target) + "]"
+    texts = [target, target, target, "['e','f','g','a']"]
+    lines = [_record(request_of(query, "local"), "cube-stacking", text, i + 1) for i, text in enumerate(texts)]
+    path = tmp_path / "repeats.jsonl"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    [found] = screen.screens_from([path], [config])
+    assert found.cells == {4: counted}
+    assert len(found.seconds) == 4
+
+
 def test_a_grid_screen_bins_by_the_target_cells_shown(tmp_path: Path) -> None:
     answers = arrangement_file(tmp_path)
     config = record_config("object-arrangement", "upstream", None, [])
@@ -198,7 +217,8 @@ def test_the_live_screen_asks_the_local_server_and_stamps_the_model(tmp_path: Pa
 
     assert digest == hashlib.sha256(model.read_bytes()).hexdigest()
     table = (tmp_path / "out" / "screen-cube-stacking.md").read_text()
-    assert "0/16 = 0%" in table and "wrong 16" in table  # the stand-in always answers a..h
+    # the stand-in always answers a..h: at tau = 0 a prompt's second, identical answer counts once
+    assert "0/8 = 0%" in table and "wrong 8" in table
 
 
 def test_the_report_sections_come_from_recorded_answers(tmp_path: Path) -> None:

@@ -193,12 +193,17 @@ class ScreenedAnswer:
     finish_reason: str | None
     sha256: str | None
     facts: str | None
+    counted: bool = True
+    """It counts towards accuracy and answer kinds (False: at temperature 0, a repeat of an
+    identical answer to the same prompt: greedy decoding gives the same answer again, not a new
+    observation). Speed counts every answer."""
 
 
 def read_answers(path: Path, config: ExperimentConfig) -> list[ScreenedAnswer]:
     """Every answer of ``config``'s task in the JSONL file ``path`` (checked line by line as an
     import is: one bad line refuses the file with one message), classified by the task's parser
-    and placed in its bin by the prompt's pattern."""
+    and placed in its bin by the prompt's pattern. At temperature 0 an answer repeated word for
+    word to the same prompt counts once towards accuracy (:func:`_independent`)."""
     import tempfile
 
     from lagrseq.llm.store import RecordStore, import_jsonl_file
@@ -217,6 +222,7 @@ def read_answers(path: Path, config: ExperimentConfig) -> list[ScreenedAnswer]:
                 where = bin_of_prompt(task, entry.prompt)
                 if where is None:
                     raise UsageError(f"{path}: a {config.task.name} answer whose prompt shows no pattern of this task (key {entry.key[:12]}); screen only answers to the task's own prompts")
+                counted = _independent(entry)
                 for sample in entry.samples:
                     kind, _ = classify(task, sample.text)
                     digest, facts = model_of_provenance(sample.provenance)
@@ -234,9 +240,25 @@ def read_answers(path: Path, config: ExperimentConfig) -> list[ScreenedAnswer]:
                             finish_reason=sample.finish_reason,
                             sha256=digest,
                             facts=facts,
+                            counted=any(sample is c for c in counted),
                         )
                     )
     return answers
+
+
+def _independent(entry: Any) -> list[Any]:
+    """The answers of one prompt that count as separate observations: at temperature 0 (greedy
+    decoding) asking again repeats the same answer, so identical answers count once; at tau > 0
+    each sample is a draw of its own."""
+    if float(entry.request["temperature"]) != 0.0:
+        return list(entry.samples)
+    seen: set[str] = set()
+    kept = []
+    for sample in entry.samples:
+        if sample.text not in seen:
+            seen.add(sample.text)
+            kept.append(sample)
+    return kept
 
 
 @dataclass
@@ -292,9 +314,10 @@ def screens_of(task: str, answers: Iterable[ScreenedAnswer]) -> list[Screen]:
     screens: dict[tuple[str, float], Screen] = {}
     for a in answers:
         s = screens.setdefault((a.model, a.temperature), Screen(task, a.model, a.temperature, a.size))
-        n, k = s.cells.get(a.bin, (0, 0))
-        s.cells[a.bin] = (n + 1, k + (a.kind == "correct"))
-        s.kinds[a.kind] = s.kinds.get(a.kind, 0) + 1
+        if a.counted:
+            n, k = s.cells.get(a.bin, (0, 0))
+            s.cells[a.bin] = (n + 1, k + (a.kind == "correct"))
+            s.kinds[a.kind] = s.kinds.get(a.kind, 0) + 1
         s.sha256 = s.sha256 or a.sha256
         s.facts = s.facts or a.facts
         if a.latency_s is not None and a.completion_tokens is not None:
