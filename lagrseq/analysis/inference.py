@@ -324,6 +324,16 @@ def noninferiority(
         diff = float(a.mean() - b.mean()) if na and nb else math.nan
         return NonInferiority(INCONCLUSIVE, diff, math.nan, margin, math.nan, na, nb, "fewer than 2 trials in an arm")
     diff, se, df = _welch(a, b)
+    verdict, bound, p, reason = _judge_margin(diff, se, df, margin, alpha, min(na, nb), min_n, "trials")
+    return NonInferiority(verdict, diff, bound, margin, p, na, nb, reason)
+
+
+def _judge_margin(
+    diff: float, se: float, df: float, margin: float, alpha: float, n: int, min_n: int, unit: str
+) -> tuple[str, float, float, str]:
+    """(verdict, lower bound, p, reason) of a one-sided test that ``diff`` (larger is better) lies
+    above ``-margin``, from its standard error and t degrees of freedom (no spread: the bound is
+    ``diff`` itself, an exact verdict); fewer than ``min_n`` of ``unit`` is inconclusive."""
     if se == 0.0:
         bound = upper = diff
         p = 0.0 if diff > -margin else 1.0
@@ -331,15 +341,13 @@ def noninferiority(
         q = t_ppf(1.0 - alpha, df)
         bound, upper = diff - q * se, diff + q * se
         p = 1.0 - t_cdf((diff + margin) / se, df)
-    if min(na, nb) < min_n:
-        verdict, reason = INCONCLUSIVE, f"n = {min(na, nb)} < {min_n} trials"
-    elif bound > -margin:
-        verdict, reason = NON_INFERIOR, "lower bound above -margin"
-    elif upper < -margin:
-        verdict, reason = INFERIOR, "upper bound below -margin"
-    else:
-        verdict, reason = INCONCLUSIVE, "the bound straddles -margin"
-    return NonInferiority(verdict, diff, bound, margin, p, na, nb, reason)
+    if n < min_n:
+        return INCONCLUSIVE, bound, p, f"n = {n} < {min_n} {unit}"
+    if bound > -margin:
+        return NON_INFERIOR, bound, p, "lower bound above -margin"
+    if upper < -margin:
+        return INFERIOR, bound, p, "upper bound below -margin"
+    return INCONCLUSIVE, bound, p, "the bound straddles -margin"
 
 
 def paired_noninferiority(
@@ -372,21 +380,7 @@ def paired_noninferiority(
         return NonInferiority(INCONCLUSIVE, diff, math.nan, margin, math.nan, n, n, "fewer than 2 pairs", "paired t")
     diff = float(d.mean())
     se = float(d.std(ddof=1)) / math.sqrt(n)
-    if se == 0.0:
-        bound = upper = diff
-        p = 0.0 if diff > -margin else 1.0
-    else:
-        q = t_ppf(1.0 - alpha, n - 1)
-        bound, upper = diff - q * se, diff + q * se
-        p = 1.0 - t_cdf((diff + margin) / se, n - 1)
-    if n < min_n:
-        verdict, reason = INCONCLUSIVE, f"n = {n} < {min_n} pairs"
-    elif bound > -margin:
-        verdict, reason = NON_INFERIOR, "lower bound above -margin"
-    elif upper < -margin:
-        verdict, reason = INFERIOR, "upper bound below -margin"
-    else:
-        verdict, reason = INCONCLUSIVE, "the bound straddles -margin"
+    verdict, bound, p, reason = _judge_margin(diff, se, n - 1, margin, alpha, n, min_n, "pairs")
     return NonInferiority(verdict, diff, bound, margin, p, n, n, reason, "paired t")
 
 
