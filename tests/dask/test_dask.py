@@ -189,7 +189,9 @@ def _interrupt(process: subprocess.Popen[str]) -> tuple[str, float]:
 
 
 def test_ctrl_c_leaves_complete_logs_and_partials_that_recover_repairs(tmp_path: Path) -> None:
-    process = _start(tmp_path, "--set", "run.episodes=3000")
+    # long trials (about 10 s each since the cube loop got faster; 3000 episodes were short
+    # enough to finish inside the cluster's shutdown), so that the Ctrl-C cuts them
+    process = _start(tmp_path, "--set", "run.episodes=30000")
     try:
         _wait_for(tmp_path, "*.partial")
         time.sleep(1.0)  # some episodes flushed
