@@ -18,6 +18,7 @@ Callers ask a spec what a part can do instead of comparing its name (``spec.paid
 from __future__ import annotations
 
 import dataclasses
+import functools
 import importlib
 import sys
 import typing
@@ -492,11 +493,19 @@ def options_type(kind: ProviderKind) -> type | None:
     return found
 
 
+@functools.cache
+def _type_hints(cls: type) -> dict[str, Any]:
+    """``typing.get_type_hints`` of an options dataclass, worked out once per class: it compiles
+    every annotation, which cost about a millisecond of every logged trial (the log's
+    ``provider_options`` metadata). Read only."""
+    return typing.get_type_hints(cls)
+
+
 def option_fields(cls: type | None) -> tuple[OptionField, ...]:
     """The leaf fields of an options dataclass, in order (composed dataclasses walked through)."""
     if cls is None:
         return ()
-    hints = typing.get_type_hints(cls)
+    hints = _type_hints(cls)
     out: list[OptionField] = []
     for f in dataclasses.fields(cls):
         hint = hints.get(f.name)
@@ -539,7 +548,7 @@ def build_options(kind: ProviderKind, given: Mapping[str, Any], elsewhere: tuple
 
 
 def _build(cls: type, given: Mapping[str, Any]) -> Any:
-    hints = typing.get_type_hints(cls)
+    hints = _type_hints(cls)
     values: dict[str, Any] = {}
     for f in dataclasses.fields(cls):
         hint = hints.get(f.name)
@@ -567,7 +576,8 @@ def logged_options(options: Any) -> str:
 
 
 def _logged_values(options: Any) -> dict[str, Any]:
-    hints = typing.get_type_hints(type(options))
+    kind: type = type(options)
+    hints = _type_hints(kind)
     out: dict[str, Any] = {}
     for f in dataclasses.fields(options):
         value = getattr(options, f.name)

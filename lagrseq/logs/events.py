@@ -21,6 +21,11 @@ import numpy as np
 TRANSITION_TOPIC = "/transition"
 QUERY_TOPIC = "/query"
 EPISODE_TOPIC = "/episode"
+TRANSITIONS_TOPIC = "/transitions"
+"""Log format 3: an episode's transitions as one columnar record (readers give ``/transition``)."""
+NO_QUERY_TOPIC = "/no_query"
+"""Log format 3: an episode's decisions not to query as one columnar record (readers give them
+as ``/query`` records)."""
 
 
 class Transition(msgspec.Struct, frozen=True, gc=False, omit_defaults=True):
@@ -131,6 +136,59 @@ def episode_event(extra: dict[str, Any] | None = None, **summary: Any) -> Episod
         if set(extra) == set(record.__struct_fields__) - set(EpisodeEvent.__struct_fields__):
             return record(**summary, **extra)
     raise ValueError(f"no /episode record has the fields {sorted(extra)}")
+
+
+TRANSITION_COLUMNS: tuple[str, ...] = tuple(
+    f.encode_name for f in msgspec.structs.fields(Transition) if f.default is msgspec.NODEFAULT
+)[2:]
+"""The columns of every ``/transitions`` record, after ``trial`` and ``episode`` (log format 3)."""
+TRANSITION_OPTIONAL: tuple[str, ...] = tuple(
+    f.encode_name for f in msgspec.structs.fields(Transition) if f.default is not msgspec.NODEFAULT
+)
+"""The columns a ``/transitions`` record has only when one of its steps set them (``placement``);
+their entries are null where a step did not, and a step's ``/transition`` record then lacks them."""
+NO_QUERY_COLUMNS: tuple[str, ...] = ("step", "global_step", "state")
+"""The columns of every ``/no_query`` record, after ``trial`` and ``episode`` (log format 3)."""
+astuple = msgspec.structs.astuple
+_NOT_ASKED = astuple(QueryEvent(0, 0, 0, 0, None, 0))[5:]
+"""A decision not to query from its ``decision`` field on: 0 and every later field at its default."""
+
+
+def not_asked(event: QueryEvent) -> bool:
+    """Whether ``event`` is a decision not to query and nothing more (decision 0, every field
+    after it at its default): what a ``/no_query`` record holds (log format 3)."""
+    return type(event) is QueryEvent and astuple(event)[5:] == _NOT_ASKED
+
+
+_COLUMNS_FROM = 2
+"""Where the columns start in a record's fields (after ``trial`` and ``episode``)."""
+
+
+def transitions_record(steps: list[Transition]) -> dict[str, Any]:
+    """One episode's transitions as the columns of a ``/transitions`` record (log format 3);
+    ``steps`` all have the first one's trial and episode. Columns are tuples (JSON arrays),
+    made by transposing the records in C."""
+    first = steps[0]
+    columns = list(zip(*map(astuple, steps)))
+    record: dict[str, Any] = {"trial": first.trial, "episode": first.episode}
+    record.update(zip(TRANSITION_COLUMNS, columns[_COLUMNS_FROM:]))
+    for name, column in zip(TRANSITION_OPTIONAL, columns[_COLUMNS_FROM + len(TRANSITION_COLUMNS):]):
+        if column.count(None) < len(column):  # written only by the tasks that set it
+            record[name] = column
+    return record
+
+
+def no_query_record(decisions: list[QueryEvent]) -> dict[str, Any]:
+    """One episode's decisions not to query as the columns of a ``/no_query`` record (log
+    format 3); ``decisions`` all have the first one's trial and episode."""
+    first = decisions[0]
+    return {
+        "trial": first.trial,
+        "episode": first.episode,
+        "step": [d.step for d in decisions],
+        "global_step": [d.global_step for d in decisions],
+        "state": [d.state for d in decisions],
+    }
 
 
 class View(NamedTuple):

@@ -252,6 +252,10 @@ class LeanWriter:
         """Messages added so far."""
         return sum(self._counts.values())
 
+    def channel_counts(self) -> dict[int, int]:
+        """Messages added so far per channel id."""
+        return dict(self._counts)
+
     def flush(self, push: bool = True) -> None:
         """Close the current chunk (if it holds messages) and, with ``push``, hand the bytes to
         the operating system."""

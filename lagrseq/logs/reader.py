@@ -15,6 +15,7 @@ import os
 import shlex
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
+from operator import itemgetter
 from pathlib import Path
 from typing import Any
 
@@ -22,35 +23,23 @@ import msgspec
 from mcap.records import Message
 
 from lagrseq.errors import LogError
-from lagrseq.logs.events import QUERY_TOPIC, QueryEvent
+from lagrseq.logs.columns import (
+    EXPANDS,
+    Expand,
+    by_global_step,
+    fill_query_defaults,
+)
+from lagrseq.logs.columns import (
+    QUERY_DEFAULTS as QUERY_DEFAULTS,  # where readers of format 2 found it
+)
+from lagrseq.logs.events import QUERY_TOPIC, TRANSITION_TOPIC
 from lagrseq.logs.mcap_reader import MAGIC, Damage, McapFile, Summary
-from lagrseq.logs.sink import RUN_METADATA, STATUS_METADATA
+from lagrseq.logs.sink import RECORDS_METADATA, RUN_METADATA, STATUS_METADATA
 from lagrseq.paths import expand_user, input_path, open_input, walk_files
 
 _decode = msgspec.json.Decoder().decode
 """Message data as Python objects, in C (about 3x faster than ``json.loads`` on a transition);
 the same objects as ``json.loads`` gives for what lagrseq writes (compact JSON, finite numbers)."""
-
-QUERY_DEFAULTS: dict[str, Any] = {
-    f.encode_name: f.default
-    for f in msgspec.structs.fields(QueryEvent)
-    if f.default is not msgspec.NODEFAULT
-}
-"""The ``/query`` fields a record may leave out, with the value they then have. Since log format 2
-(:data:`lagrseq.logs.sink.LOG_FORMAT`) a decision record omits every field at its default (a
-decision not to ask: the 19 nulls, ``queried`` false and ``query_reward`` 0); readers put them
-back, so a record reads the same from an old log and a new one."""
-_QUERY_FIELDS = len(msgspec.structs.fields(QueryEvent))
-
-
-def fill_query_defaults(record: dict[str, Any]) -> dict[str, Any]:
-    """A ``/query`` record with the fields it left out at their defaults (see
-    :data:`QUERY_DEFAULTS`); a complete record is returned as it is."""
-    if len(record) < _QUERY_FIELDS:  # a complete record (format 1, or a query sent) has them all
-        for name, default in QUERY_DEFAULTS.items():
-            if name not in record:
-                record[name] = default
-    return record
 
 
 @dataclass(frozen=True)
@@ -187,16 +176,12 @@ def iter_messages(
     """Decoded ``(topic, record)`` pairs in log-time order (ties in file order); ``topics``
     restricts what is read (chunks holding none of them are not decompressed)."""
     path = Path(path)
-    found: list[tuple[int, int, int, str, dict[str, Any]]] = []
+    found: list[tuple[tuple[int, ...], str, dict[str, Any]]] = []
     try:
         with McapFile(path) as log:
             summary = _summary(log)
             fill = _fills_defaults(log.metadata())
-            wanted = {
-                cid: ch.topic
-                for cid, ch in summary.channels.items()
-                if topics is None or ch.topic in topics
-            }
+            wanted = _wanted(summary, topics)
             for index in summary.chunk_indexes:
                 if index.message_index_offsets and not wanted.keys() & index.message_index_offsets.keys():
                     continue
@@ -204,15 +189,37 @@ def iter_messages(
                 records = log.chunk_records(log.chunk(index), offset)
                 for position, item in enumerate(records):
                     if isinstance(item, Message) and item.channel_id in wanted:
-                        topic = wanted[item.channel_id]
-                        found.append(
-                            (item.log_time, offset, position, topic, _json(item, topic, offset, fill))
-                        )
+                        source, topic, expand = wanted[item.channel_id]
+                        record = _json(item, source, offset, fill)
+                        if expand is None:
+                            found.append(((item.log_time, offset, position), topic, record))
+                            continue
+                        # Format 3: each row at its own step; an episode's transitions go before
+                        # the pictures of the same step in their chunk, as format 2 wrote them.
+                        rank = -1 if topic == TRANSITION_TOPIC else position
+                        for i, row in enumerate(expand(record, offset)):
+                            found.append(((row["global_step"], offset, rank, i), topic, row))
     except (Damage, OSError) as exc:
         raise _fail(path, exc) from None
-    found.sort(key=lambda item: item[:3])
-    for _time, _offset, _position, topic, record in found:
+    found.sort(key=itemgetter(0))
+    for _key, topic, record in found:
         yield topic, record
+
+
+def _wanted(summary: Summary, topics: Sequence[str] | None) -> dict[int, tuple[str, str, Expand | None]]:
+    """Channel id -> (its topic, the topic its records are read as, how to expand them) for the
+    channels that hold ``topics`` (None: every channel); format 3's columnar channels are read as
+    ``/transition`` and ``/query``."""
+    wanted: dict[int, tuple[str, str, Expand | None]] = {}
+    for cid, channel in summary.channels.items():
+        if topics is None or channel.topic in topics:
+            if channel.topic in EXPANDS and topics is None:
+                wanted[cid] = (channel.topic, *EXPANDS[channel.topic])
+            else:
+                wanted[cid] = (channel.topic, channel.topic, None)
+        elif channel.topic in EXPANDS and EXPANDS[channel.topic][0] in topics:
+            wanted[cid] = (channel.topic, *EXPANDS[channel.topic])
+    return wanted
 
 
 @dataclass
@@ -226,6 +233,7 @@ class ReadStats:
     chunks_decompressed: int = 0
     bytes_decompressed: int = 0
     messages: int = 0
+    """Records given (log format 3: each transition and decision of a columnar record)."""
 
     def add(self, other: ReadStats) -> None:
         self.files += other.files
@@ -267,7 +275,9 @@ def read_log(
                 ch.topic: int(statistics.channel_message_counts.get(cid, 0)) if statistics else 0
                 for cid, ch in summary.channels.items()
             }
-            wanted = {cid: ch.topic for cid, ch in summary.channels.items() if ch.topic in out}
+            if EXPANDS.keys() & counts.keys():
+                counts = _expanded_counts(log, summary, metadata, counts)
+            wanted = _wanted(summary, list(out))
             chunks = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
             local.chunks = len(chunks)
             for index in chunks:
@@ -277,17 +287,53 @@ def read_log(
                 local.chunks_decompressed += 1
                 local.bytes_decompressed += chunk.uncompressed_size
                 offset = index.chunk_start_offset
+                queries = len(out[QUERY_TOPIC]) if QUERY_TOPIC in out else 0
+                merge = False
                 for record in log.chunk_records(chunk, offset):
                     if isinstance(record, Message) and record.channel_id in wanted:
-                        topic = wanted[record.channel_id]
-                        out[topic].append(_json(record, topic, offset, fill))
-                        local.messages += 1
+                        source, topic, expand = wanted[record.channel_id]
+                        if expand is None:
+                            out[topic].append(_json(record, source, offset, fill))
+                            local.messages += 1
+                        else:
+                            rows = expand(_json(record, source, offset), offset)
+                            out[topic].extend(rows)
+                            local.messages += len(rows)
+                            merge = merge or topic == QUERY_TOPIC
+                if merge:
+                    out[QUERY_TOPIC][queries:] = by_global_step(out[QUERY_TOPIC][queries:], offset)
     except (Damage, OSError) as exc:
         raise _fail(path, exc) from None
     info = _info(path, metadata)
     if stats is not None:
         stats.add(local)
     return LogData(info, counts, out)
+
+
+def _expanded_counts(log: McapFile, summary: Summary, metadata: Sequence[Any], counts: dict[str, int]) -> dict[str, int]:
+    """Format 3: the message counts per topic as the readers give the records (``/transition``:
+    steps, ``/query``: decisions), from the ``lagrseq.records`` metadata the sink writes at the
+    end; a log without a readable one has its columnar records read and counted."""
+    out = {topic: count for topic, count in counts.items() if topic not in EXPANDS}
+    for expanded, _ in EXPANDS.values():
+        out.setdefault(expanded, 0)
+    written = next((dict(m.metadata) for m in metadata if m.name == RECORDS_METADATA), {})
+    try:
+        said = {topic: int(written[topic]) for topic in (TRANSITION_TOPIC, QUERY_TOPIC)}
+    except (KeyError, ValueError):
+        said = {}
+    if said and min(said.values()) >= 0:
+        return {**out, **said}
+    columnar = {cid: ch.topic for cid, ch in summary.channels.items() if ch.topic in EXPANDS}
+    for index in summary.chunk_indexes:
+        if not columnar.keys() & index.message_index_offsets.keys():
+            continue
+        offset = index.chunk_start_offset
+        for record in log.chunk_records(log.chunk(index), offset):
+            if isinstance(record, Message) and record.channel_id in columnar:
+                topic, expand = EXPANDS[columnar[record.channel_id]]
+                out[topic] += len(expand(_json(record, columnar[record.channel_id], offset), offset))
+    return out
 
 
 def read_topics(

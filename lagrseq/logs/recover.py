@@ -2,9 +2,12 @@
 
 A trial killed mid-run (SIGKILL, power cut, out of memory) leaves ``NAME.mcap.partial``: a valid
 MCAP data section cut off somewhere after its last complete record, with no summary and no footer.
-The sink closes a chunk at every episode end and writes that episode's ``/query`` and ``/episode``
-messages as a chunk of their own (see :mod:`lagrseq.logs.sink`), so the file holds every finished
-episode. Recovery reads the records in order (through the checked reader,
+The sink closes chunks at episode ends only and writes those episodes' ``/query``, ``/no_query``
+and ``/episode`` messages as a chunk of their own after their transitions (see
+:mod:`lagrseq.logs.sink`), so the file holds every episode finished before its last chunk. In log
+format 3 an episode's transitions are one ``/transitions`` record, so a kept chunk never holds
+part of an episode; the ``lagrseq.records`` metadata (records per topic as readers count them)
+is worked out again from what is kept. Recovery reads the records in order (through the checked reader,
 :class:`~lagrseq.logs.mcap_reader.McapFile`, so a damaged length never makes it allocate more than
 the file) until the first record that cannot be read, and rewrites what it kept with a fresh
 ``Writer`` (same schemas, channels, metadata and chunk boundaries). What is kept depends on where
@@ -43,12 +46,13 @@ from mcap.records import Channel, Chunk, DataEnd, Header, Message, Metadata, Sch
 from mcap.writer import CompressionType, Writer
 
 from lagrseq.errors import LogError, UsageError
+from lagrseq.logs.columns import columnar_rows
 from lagrseq.logs.mcap_reader import Damage, McapFile
-from lagrseq.logs.sink import PARTIAL_SUFFIX, PROFILE, STATUS_METADATA
+from lagrseq.logs.sink import PARTIAL_SUFFIX, PROFILE, RECORDS_METADATA, STATUS_METADATA
 from lagrseq.paths import expand_user, input_path
 
 # Topics written as the episode runs (transitions, picture views): kept only up to the last flush.
-_STEP_TOPICS = ("/transition",)
+_STEP_TOPICS = ("/transition", "/transitions")
 _STEP_PREFIXES = ("/view",)
 _WRITE_PIECE = 1 << 20
 BACKUP_SUFFIX = ".truncated"
@@ -388,6 +392,27 @@ def _commit(source: Path, target: Path, data: bytes, backup: Path | None, elsewh
         ) from None
 
 
+def _records(plan: _Plan, kept: int) -> dict[str, str] | None:
+    """Log format 3: the records per topic of the kept chunks as the readers give them (the
+    ``lagrseq.records`` metadata); None for a log without columnar records (formats 1 and 2)."""
+    topics = {cid: channel.topic for cid, channel in plan.channels.items()}
+    if not any(columnar_rows(topic) is not None for topic in topics.values()):
+        return None
+    counts: dict[str, int] = {}
+    for messages in plan.chunks[:kept]:
+        for m in messages:
+            read_as = columnar_rows(topics[m.channel_id])
+            if read_as is None:
+                counts[topics[m.channel_id]] = counts.get(topics[m.channel_id], 0) + 1
+            else:
+                topic, rows = read_as
+                counts[topic] = counts.get(topic, 0) + rows(m)
+    for topic in topics.values():
+        read_as = columnar_rows(topic)
+        counts.setdefault(topic if read_as is None else read_as[0], 0)
+    return {topic: str(count) for topic, count in counts.items()}
+
+
 def _write(source: Path, plan: _Plan, kept: int, episodes: int, count: int) -> bytes:
     buffer = io.BytesIO()
     writer = Writer(buffer, compression=CompressionType.ZSTD, chunk_size=1 << 22)
@@ -409,8 +434,11 @@ def _write(source: Path, plan: _Plan, kept: int, episodes: int, count: int) -> b
     for record in plan.metadata:
         if record.name == STATUS_METADATA:
             status = dict(record.metadata)
-        else:
+        elif record.name != RECORDS_METADATA:  # worked out again below from what is kept
             writer.add_metadata(record.name, dict(record.metadata))
+    records = _records(plan, kept)
+    if records is not None:
+        writer.add_metadata(RECORDS_METADATA, records)
     for messages in plan.chunks[:kept]:
         for m in messages:
             writer.add_message(

@@ -114,6 +114,60 @@ TOPICS: dict[str, dict[str, Any]] = {
     "/query": QUERY,
     "/episode": EPISODE,
 }
+"""The topics of log formats 1 and 2: one message per transition and per decision."""
+
+
+def _column(item: dict[str, Any], description: str) -> dict[str, Any]:
+    return {"type": "array", "items": item, "description": description}
+
+
+TRANSITIONS = _object(
+    "lagrseq.Transitions",
+    "The primary agent's steps of one episode, as columns (log format 3): entry i of every array"
+    " is step i of the episode. Readers expand it into one /transition record per step"
+    " (lagrseq.Transition: trial, episode, then entry i of each array).",
+    {
+        "trial": _INT,
+        "episode": _INT,
+        "step": _column(_INT, "step within the episode, from 0"),
+        "global_step": _column(_INT, "step within the trial, from 0 (the /transition log time)"),
+        "state": _column({"type": "array"}, "the partial pattern before the action"),
+        "action": _column(_INT, "the action taken"),
+        "reward": _column(_NUM, "the reward received"),
+        "terminated": _column(_BOOL, "the episode ended on this step"),
+        "truncated": _column(_BOOL, "the episode was cut off on this step"),
+        "guided": _column(_BOOL, "the action came from the LLM's solution (pi_LLM)"),
+    },
+)
+TRANSITIONS["properties"]["placement"] = _column(
+    _nullable({"type": "object"}),
+    "arm tasks: the robot's placement on each step (null on steps that placed nothing); only in"
+    " records of episodes that placed something",
+)
+
+NO_QUERIES = _object(
+    "lagrseq.NoQueries",
+    "The secondary agent's decisions not to query in one episode, as columns (log format 3):"
+    " entry i of every array is one decision (decision 0: nothing was sent). Readers expand it"
+    " into one /query record per decision, with decision 0 and every other field at its default"
+    " (null; queried false; query_reward 0). Queries that were sent stay one /query record each.",
+    {
+        "trial": _INT,
+        "episode": _INT,
+        "step": _column(_INT, "step within the episode at which the decision was taken"),
+        "global_step": _column(_INT, "step within the trial (the /query log time)"),
+        "state": _column({"type": "array"}, "the partial pattern not shown to the LLM"),
+    },
+)
+
+TOPICS_3: dict[str, dict[str, Any]] = {
+    "/transitions": TRANSITIONS,
+    "/query": QUERY,
+    "/no_query": NO_QUERIES,
+    "/episode": EPISODE,
+}
+"""The topics of log format 3: an episode's transitions and its decisions not to query are one
+record each (``/transitions``, ``/no_query``); queries sent and episodes are one record each."""
 
 
 def schema_bytes(schema: dict[str, Any]) -> bytes:

@@ -1,9 +1,21 @@
 """The MCAP sink: one file per trial, JSON messages with JSON schemas, logical log times.
 
-Layout of a file, so that tables are cheap to read: transitions go into chunks of their own; at
-each episode end the sink closes the transition chunk and writes that episode's ``/query`` and
-``/episode`` messages as a separate small chunk. A reader that asks only for ``/episode`` and
-``/query`` (replay's tables, the costs table) then never decompresses a transition chunk.
+Log format 3 (:data:`LOG_FORMAT`): an episode's transitions are one ``/transitions`` record
+(columns: entry i of each array is step i) and its decisions not to query one ``/no_query``
+record; queries that were sent and ``/episode`` summaries stay one record each, pictures
+(``/view...``) one per step. Both columnar records are written at the episode's end (when its
+``/episode`` record arrives, or at :meth:`McapSink.flush`). The readers
+(:mod:`lagrseq.logs.reader`) expand them into the ``/transition`` and ``/query`` records that
+format 2 wrote one message each, and take the expanded counts per topic from the
+``lagrseq.records`` metadata written at the end. Framing and indexing a message cost more than
+encoding it, so fewer records is what makes logging cheap (``docs/performance.md``, "Log format
+3"). ``log_format="2"`` writes format 2 (tests and benchmarks compare the two).
+
+Layout of a file, so that tables are cheap to read: transitions (and pictures) go into chunks of
+their own; at each episode end the sink closes the transition chunk and writes that episode's
+``/query``, ``/no_query`` and ``/episode`` messages as a separate small chunk. A reader that asks
+only for ``/episode`` and ``/query`` (replay's tables, the costs table) then never decompresses a
+transition chunk.
 
 Chunks end at episode ends, once the open transition chunk holds :data:`CHUNK_BYTES` of records
 (a cube-stacking episode is about 9 KB, so about seven episodes a chunk; an episode bigger than
@@ -30,14 +42,18 @@ try:
     import fcntl
 except ImportError:  # pragma: no cover - not on Windows: no lock, as before
     fcntl = None  # type: ignore[assignment]
+from itertools import groupby
+from operator import attrgetter
 from pathlib import Path
 from typing import Any
 
 from lagrseq.errors import LogError
 from lagrseq.logs.events import (
     EPISODE_TOPIC,
+    NO_QUERY_TOPIC,
     QUERY_TOPIC,
     TRANSITION_TOPIC,
+    TRANSITIONS_TOPIC,
     ArmEpisodeEvent,
     EpisodeEvent,
     Event,
@@ -49,20 +65,30 @@ from lagrseq.logs.events import (
     View,
     encode,
     encode_into,
+    no_query_record,
+    not_asked,
+    transitions_record,
 )
 from lagrseq.logs.mcap_writer import LeanWriter, Mark
-from lagrseq.logs.schemas import TOPICS, schema_bytes
+from lagrseq.logs.schemas import TOPICS, TOPICS_3, schema_bytes
 
 __all__ = ["McapSink", "NullSink", "Sink"]
 
 PROFILE = "lagrseq"
 RUN_METADATA = "lagrseq.run"
 STATUS_METADATA = "lagrseq.status"
+RECORDS_METADATA = "lagrseq.records"
+"""Log format 3: the records per topic as the readers give them (``/transition``: steps,
+``/query``: decisions, ``/episode``, pictures), so counts need no message read."""
 PARTIAL_SUFFIX = ".partial"
-LOG_FORMAT = "2"
-"""The log format, written as ``log_format`` in the ``lagrseq.run`` metadata. 2: ``/query``
-records leave out the fields at their default (:class:`~lagrseq.logs.events.QueryEvent`);
-1 (no ``log_format``): every field written. Readers take both."""
+LOG_FORMAT = "3"
+"""The log format, written as ``log_format`` in the ``lagrseq.run`` metadata. 3: an episode's
+transitions and its decisions not to query are one columnar record each (``/transitions``,
+``/no_query``); 2: one record per transition and per decision, ``/query`` records leave out the
+fields at their default (:class:`~lagrseq.logs.events.QueryEvent`); 1 (no ``log_format``): every
+field written. Readers take all three and give the same records."""
+LOG_FORMATS = ("2", "3")
+"""The formats the sink writes (``McapSink(log_format=...)``)."""
 
 CHUNK_BYTES = 64 * 1024
 """An episode's end closes the open chunks once the transition chunk holds this many bytes of
@@ -70,6 +96,7 @@ message records. Measured on cube LaGR-SEQ trials (``benchmarks/bench_cube.py``,
 per episode put logging at +33%; every 4 episodes (about 36 KB) +23%, every 8 (about 72 KB) +19%."""
 
 _HUGE = float("inf")
+_EPISODE_OF = attrgetter("trial", "episode")
 _dumps = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
 
 
@@ -123,17 +150,22 @@ class McapSink:
         metadata: dict[str, str],
         extra_topics: dict[str, tuple[str, str, bytes]] | None = None,
         chunk_bytes: int = CHUNK_BYTES,
+        log_format: str = LOG_FORMAT,
     ) -> None:
         """``chunk_bytes``: an episode's end writes the open chunks once the transition chunk
-        holds this many bytes (0: at every episode's end)."""
+        holds this many bytes (0: at every episode's end). ``log_format``: ``"3"`` (columnar
+        episodes) or ``"2"`` (a record per transition and per decision)."""
+        if log_format not in LOG_FORMATS:
+            raise LogError(f"log format {log_format!r} cannot be written; expected one of {', '.join(LOG_FORMATS)}")
         self.path = Path(path)
         self._chunk_bytes = chunk_bytes
+        self._columnar = log_format == "3"
         self.partial = self.path.with_name(self.path.name + PARTIAL_SUFFIX)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._stream = _open_exclusive(self.partial)
         self._writer = LeanWriter(self._stream, library="lagrseq", profile=PROFILE)
         self._channels: dict[str, int] = {}
-        for topic, schema in TOPICS.items():
+        for topic, schema in (TOPICS_3 if self._columnar else TOPICS).items():
             schema_id = self._writer.register_schema(
                 name=schema["title"], encoding="jsonschema", data=schema_bytes(schema)
             )
@@ -145,10 +177,17 @@ class McapSink:
             self._channels[topic] = self._writer.register_channel(
                 topic=topic, message_encoding="json", schema_id=schema_id
             )
-        self._transition_channel = self._channels[TRANSITION_TOPIC]
+        self._transition_channel = self._channels[TRANSITIONS_TOPIC if self._columnar else TRANSITION_TOPIC]
         self._query_channel = self._channels[QUERY_TOPIC]
+        self._no_query_channel = self._channels.get(NO_QUERY_TOPIC, 0)
         self._episode_channel = self._channels[EPISODE_TOPIC]
-        self._writer.add_metadata(RUN_METADATA, {**metadata, "log_format": LOG_FORMAT})
+        self._writer.add_metadata(RUN_METADATA, {**metadata, "log_format": log_format})
+        # Format 3: the current episode's transitions and decisions not to query, held until
+        # its end, when each becomes one columnar record.
+        self._steps: list[Transition] = []
+        self._not_asked: list[QueryEvent] = []
+        self._expanded = {TRANSITION_TOPIC: 0, QUERY_TOPIC: 0}
+        """Format 3: records written inside columnar ones, per topic the readers give them as."""
         # Transitions and pictures of the current episode go straight into the writer's open
         # chunk (encoded into it, in order); the chunk is written at the episode's end.
         self._pending: list[tuple[int, int, bytes]] = []
@@ -160,16 +199,24 @@ class McapSink:
 
     def write(self, event: Event) -> None:
         """Add one event. Transitions and pictures go to the current chunk; queries and episodes
-        are held until the chunks are written, then go into a chunk of their own."""
+        are held until the chunks are written, then go into a chunk of their own. Format 3: an
+        episode's transitions and decisions not to query are held until its ``/episode`` record
+        (or :meth:`flush`) and then written as one columnar record each."""
         kind = type(event)
         try:
             if kind is Transition:
                 reward = event.reward  # type: ignore[union-attr]
                 if not -_HUGE < reward < _HUGE:  # NaN and the infinities fail both comparisons
                     _finite(event, ("reward",))
-                self._writer.append_encoded(self._transition_channel, event.global_step, event, encode_into)  # type: ignore[union-attr]
+                if self._columnar:
+                    self._steps.append(event)  # type: ignore[arg-type]
+                else:
+                    self._writer.append_encoded(self._transition_channel, event.global_step, event, encode_into)  # type: ignore[union-attr]
                 return
             if kind is QueryEvent or kind is ProbeQueryEvent:
+                if self._columnar and not_asked(event):  # type: ignore[arg-type]
+                    self._not_asked.append(event)  # type: ignore[arg-type]
+                    return
                 e = event
                 for value in (e.evaluation, e.query_reward, e.temperature, e.cost_usd, e.latency_s):  # type: ignore[union-attr]
                     if value is not None and not -_HUGE < value < _HUGE:
@@ -178,6 +225,7 @@ class McapSink:
                 return
             if kind is EpisodeEvent or kind is ArmEpisodeEvent:
                 _finite(event, _EPISODE_FLOATS)
+                self._write_columns()  # the episode's columnar records go before its summary
                 self._pending.append((self._episode_channel, max(event.global_step - 1, 0), encode(event)))  # type: ignore[union-attr]
                 return
         except (TypeError, ValueError, OverflowError) as exc:
@@ -187,11 +235,35 @@ class McapSink:
         else:
             raise LogError(f"cannot log a {kind.__name__}; expected Transition, QueryEvent, EpisodeEvent or View")
 
+    def _write_columns(self) -> None:
+        """Format 3: the held transitions into the open chunk and the held decisions not to
+        query into the held messages, one columnar record per episode (log time: the global
+        step of its first entry). What cannot be encoded is dropped with a LogError; nothing
+        else is lost."""
+        steps, not_asked = self._steps, self._not_asked
+        if not steps and not not_asked:
+            return
+        self._steps, self._not_asked = [], []
+        try:
+            for _, group in groupby(steps, _EPISODE_OF):
+                episode = list(group)
+                self._writer.add_message(self._transition_channel, episode[0].global_step, encode(transitions_record(episode)))
+                self._expanded[TRANSITION_TOPIC] += len(episode)
+            for _, same in groupby(not_asked, _EPISODE_OF):
+                decisions = list(same)
+                self._pending.append((self._no_query_channel, decisions[0].global_step, encode(no_query_record(decisions))))
+                self._expanded[QUERY_TOPIC] += len(decisions)
+        except (TypeError, ValueError, OverflowError) as exc:
+            raise LogError(f"record is not JSON-serialisable ({exc}): an episode's Transition or QueryEvent") from None
+
     def write_record(self, topic: str, record: dict[str, Any], log_time: int) -> None:
         """Add one JSON object to ``topic`` as it is (tools and tests that write their own)."""
         if topic not in self._channels:
             raise LogError(f"topic {topic!r} is not registered in {self.path.name}")
-        if topic == TRANSITION_TOPIC or topic.startswith("/view"):
+        if topic in (TRANSITIONS_TOPIC, NO_QUERY_TOPIC):  # count what the readers will expand
+            column = record.get("global_step")
+            self._expanded[TRANSITION_TOPIC if topic == TRANSITIONS_TOPIC else QUERY_TOPIC] += len(column) if isinstance(column, list) else 0
+        if topic in (TRANSITION_TOPIC, TRANSITIONS_TOPIC) or topic.startswith("/view"):
             self._writer.add_message(self._channels[topic], log_time, _encode(record))
         else:
             self._pending.append((self._channels[topic], log_time, _encode(record)))
@@ -201,10 +273,24 @@ class McapSink:
         """Messages written so far (every topic)."""
         return self._writer.messages
 
+    def records(self) -> dict[str, str]:
+        """Records written so far per topic as the readers give them (format 3's columnar
+        records counted as the transitions and decisions they hold): the ``lagrseq.records``
+        metadata."""
+        counts = self._writer.channel_counts()
+        columnar = {self._transition_channel, self._no_query_channel}
+        out = {TRANSITION_TOPIC: self._expanded[TRANSITION_TOPIC], QUERY_TOPIC: self._expanded[QUERY_TOPIC]}
+        for topic, channel in self._channels.items():
+            if channel not in columnar:
+                out[topic] = out.get(topic, 0) + counts.get(channel, 0)
+        return {topic: str(count) for topic, count in out.items()}
+
     def flush(self) -> None:
-        """End of an episode: once the open transition chunk holds ``chunk_bytes``, close it,
-        write the held messages as a chunk of their own and push everything to the operating
-        system; otherwise remember where the episode ended (for :meth:`abandon`)."""
+        """End of an episode: (format 3) write its columnar records if its ``/episode`` record
+        did not; once the open transition chunk holds ``chunk_bytes``, close it, write the held
+        messages as a chunk of their own and push everything to the operating system;
+        otherwise remember where the episode ended (for :meth:`abandon`)."""
+        self._write_columns()
         if self._writer.chunk_size >= self._chunk_bytes:
             self._write_chunks()
         self._episode_end = (self._writer.mark(), len(self._pending))
@@ -226,7 +312,10 @@ class McapSink:
             return self.path
         self._finished = True
         try:
+            self._write_columns()
             self._write_chunks()
+            if self._columnar:
+                self._writer.add_metadata(RECORDS_METADATA, self.records())
             self._writer.add_metadata(
                 STATUS_METADATA, {"status": status, "error": error, "messages": str(self.messages)}
             )
@@ -247,6 +336,7 @@ class McapSink:
                 mark, held = self._episode_end
                 self._writer.rollback(mark)
                 del self._pending[held:]
+                self._steps, self._not_asked = [], []  # the unfinished episode's
                 self._write_chunks()
             self._stream.close()
 

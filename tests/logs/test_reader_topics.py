@@ -14,7 +14,7 @@ from lagrseq.running import runner
 
 @pytest.fixture(scope="module")
 def log(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    config = cfg.load("cube-stacking", "lagr-seq", "upstream", overrides=["run.episodes=20"])
+    config = cfg.load("cube-stacking", "lagr-seq", "upstream", overrides=["run.episodes=80"])
     path = tmp_path_factory.mktemp("log") / "trial-000.mcap"
     runner.run_one(config, 0, 0, "mock", path)
     return path
@@ -23,7 +23,7 @@ def log(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_summary_topics_skip_every_transition_chunk(log: Path) -> None:
     stats = ReadStats()
     topics = read_topics(log, ["/episode", "/query"], stats)
-    assert len(topics["/episode"]) == 20
+    assert len(topics["/episode"]) == 80
     # a transition chunk and a summary chunk for every few episodes; only the summary chunks are read
     assert stats.chunks % 2 == 0 and 2 < stats.chunks < 40
     assert stats.chunks_decompressed == stats.chunks // 2

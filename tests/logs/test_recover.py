@@ -37,7 +37,7 @@ def _cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str
     )
 
 
-def _finished_log(tmp_path: Path, episodes: int = 30) -> Path:
+def _finished_log(tmp_path: Path, episodes: int = 150) -> Path:
     config = cfg.load(
         "cube-stacking", "lagr-seq", "upstream", overrides=[f"run.episodes={episodes}"]
     )
@@ -111,7 +111,7 @@ def test_sigkill_mid_run_is_recovered_with_every_flushed_episode(tmp_path: Path)
 
 @pytest.mark.parametrize("fraction", [0.2, 0.5, 0.77, 0.999])
 def test_truncation_anywhere_keeps_the_flushed_episodes(tmp_path: Path, fraction: float) -> None:
-    complete = _finished_log(tmp_path, episodes=60)  # chunks of several episodes: a first one before 20%
+    complete = _finished_log(tmp_path, episodes=300)  # chunks of many episodes: a first one before 20%
     data = complete.read_bytes()
     partial = tmp_path / "trial-000.mcap.partial"
     partial.write_bytes(data[: int(len(data) * fraction)])
@@ -160,7 +160,7 @@ def test_complete_log_and_non_mcap_are_refused(tmp_path: Path) -> None:
 
 
 def test_recover_never_overwrites_an_existing_log(tmp_path: Path) -> None:
-    complete = _finished_log(tmp_path, episodes=30)  # a chunk written before the middle
+    complete = _finished_log(tmp_path, episodes=150)  # a chunk written before the middle
     partial = complete.with_name(complete.name + ".partial")
     partial.write_bytes(complete.read_bytes()[: complete.stat().st_size // 2])
     with pytest.raises(LogError, match="exists already"):
@@ -170,7 +170,7 @@ def test_recover_never_overwrites_an_existing_log(tmp_path: Path) -> None:
 
 
 def test_in_place_repair_keeps_the_original(tmp_path: Path) -> None:
-    complete = _finished_log(tmp_path, episodes=30)  # a chunk written before the middle
+    complete = _finished_log(tmp_path, episodes=150)  # a chunk written before the middle
     cut = tmp_path / "cut.mcap"
     original = complete.read_bytes()[: complete.stat().st_size // 2]
     cut.write_bytes(original)

@@ -35,12 +35,13 @@ from lagrseq.running.runner import run_one
 
 @pytest.fixture(scope="module")
 def trial_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    config = cfg.load("cube-stacking", "lagr-seq", "upstream", overrides=["run.episodes=20"])
+    config = cfg.load("cube-stacking", "lagr-seq", "upstream", overrides=["run.episodes=80"])
     return run_one(config, 0, 0, "mock", tmp_path_factory.mktemp("log") / "trial-000.mcap").path
 
 
 def test_plain_mcap_reads_every_message_and_its_schema(trial_log: Path) -> None:
     counts: dict[str, int] = {}
+    steps_of: dict[str, list[int]] = {}
     with trial_log.open("rb") as handle:
         reader = make_reader(handle)
         summary = reader.get_summary()
@@ -51,8 +52,17 @@ def test_plain_mcap_reads_every_message_and_its_schema(trial_log: Path) -> None:
             record = json.loads(message.data)
             jsonschema.validate(record, json.loads(schema.data))
             counts[channel.topic] = counts.get(channel.topic, 0) + 1
+            if channel.topic == "/transitions":  # log format 3: an episode's steps, as columns
+                steps = steps_of.setdefault("/transition", [])
+                steps.append(len(record["step"]))
+            elif channel.topic == "/no_query":
+                steps_of.setdefault("/no_query", []).append(len(record["step"]))
         metadata = {m.name: m.metadata for m in reader.iter_metadata()}
-    assert counts["/transition"] == 20 * 50 and counts["/episode"] == 20 and counts["/query"] > 0
+    assert counts["/transitions"] == 80 and steps_of["/transition"] == [50] * 80
+    assert counts["/episode"] == 80 and counts["/query"] > 0 and counts["/no_query"] == len(steps_of["/no_query"])
+    records = metadata["lagrseq.records"]
+    assert records["/transition"] == "4000" and records["/episode"] == "80"
+    assert records["/query"] == str(counts["/query"] + sum(steps_of["/no_query"]))
     run = metadata["lagrseq.run"]
     assert json.loads(run["config"])["method"] == "lagr-seq"
     assert (run["seed"], run["trial"], run["provider"]) == ("0", "0", "mock")
@@ -60,9 +70,12 @@ def test_plain_mcap_reads_every_message_and_its_schema(trial_log: Path) -> None:
 
 
 def test_log_times_are_logical_steps(trial_log: Path) -> None:
+    """An episode's ``/transitions`` record is logged at its first step; the records the
+    readers expand from it each at their own step."""
     with trial_log.open("rb") as handle:
-        times = [m.log_time for _, c, m in make_reader(handle).iter_messages() if c.topic == "/transition"]
-    assert times == list(range(1000))
+        times = [m.log_time for _, c, m in make_reader(handle).iter_messages() if c.topic == "/transitions"]
+    assert times == list(range(0, 4000, 50))
+    assert [r["global_step"] for t, r in iter_messages(trial_log, ["/transition"])] == list(range(4000))
 
 
 def test_summary_topics_live_in_their_own_chunks(trial_log: Path) -> None:
@@ -72,7 +85,7 @@ def test_summary_topics_live_in_their_own_chunks(trial_log: Path) -> None:
     channels = {c.id: c.topic for c in summary.channels.values()}
     for index in summary.chunk_indexes:
         topics = {channels[i] for i in index.message_index_offsets}
-        assert topics == {"/transition"} or "/transition" not in topics
+        assert topics == {"/transitions"} or "/transitions" not in topics
 
 
 def test_failed_trial_still_leaves_a_valid_file(tmp_path: Path) -> None:
@@ -110,7 +123,7 @@ def test_truncated_or_foreign_files_give_one_line_errors(trial_log: Path, tmp_pa
 
 def test_unserialisable_record_is_a_log_error(tmp_path: Path) -> None:
     with McapSink(tmp_path / "t.mcap", {"config": "{}"}) as sink, pytest.raises(LogError, match="JSON"):
-        sink.write_record("/transition", {"reward": float("nan")}, 0)
+        sink.write_record("/transitions", {"reward": [float("nan")]}, 0)
 
 
 def test_event_encoding_equals_the_json_of_its_record() -> None:
@@ -264,14 +277,15 @@ def test_chunks_end_at_episode_ends_once_big_enough(trial_log: Path) -> None:
         channels = {c.id: c.topic for c in summary.channels.values()}
         indexes = sorted(summary.chunk_indexes, key=lambda index: index.chunk_start_offset)
         pairs = list(zip(indexes[::2], indexes[1::2], strict=True))
-        assert 1 < len(pairs) < 20, "20 episodes of about 9 KB: several episodes a chunk"
+        assert 1 < len(pairs) < 20, "80 episodes of about 2 KB: many episodes a chunk"
         episodes = read_topics(trial_log, ["/episode"])["/episode"]
-        ends = {e["global_step"] - 1 for e in episodes}
+        # an episode's /transitions record is logged at its first step, its /episode at its last
+        last_step = {e["global_step"] - e["length"]: e["global_step"] - 1 for e in episodes}
         for number, (transitions, held) in enumerate(pairs):
-            assert {channels[i] for i in transitions.message_index_offsets} == {"/transition"}
-            assert "/transition" not in {channels[i] for i in held.message_index_offsets}
-            assert transitions.message_end_time in ends, "a chunk ends where an episode ends"
-            assert held.message_end_time == transitions.message_end_time
+            assert {channels[i] for i in transitions.message_index_offsets} == {"/transitions"}
+            assert "/transitions" not in {channels[i] for i in held.message_index_offsets}
+            assert transitions.message_end_time in last_step, "a chunk holds whole episodes"
+            assert held.message_end_time == last_step[transitions.message_end_time], "and so does the one after it"
             if number < len(pairs) - 1:
                 assert transitions.uncompressed_size >= CHUNK_BYTES
 
