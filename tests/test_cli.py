@@ -10,6 +10,7 @@ import pytest
 from mcap.reader import make_reader
 
 from lagrseq.cli import main
+from lagrseq.logs.reader import iter_messages
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -37,7 +38,8 @@ def test_run_writes_one_readable_mcap_per_trial(tmp_path: Path) -> None:
     for path in files:
         with path.open("rb") as handle:
             topics = {c.topic for _, c, _ in make_reader(handle).iter_messages()}
-        assert topics == {"/transition", "/query", "/episode"}
+        assert topics == {"/transitions", "/query", "/no_query", "/episode"}  # log format 3
+        assert {topic for topic, _ in iter_messages(path)} == {"/transition", "/query", "/episode"}
     assert "3 trial logs in" in done.stdout and "queries per trial" in done.stdout
 
 

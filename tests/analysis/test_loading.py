@@ -58,11 +58,14 @@ def test_bad_logs_are_skipped_with_one_line_each(
     lagr_seq = sorted(root.rglob("lagr-seq/*/trial-000.mcap"))[0]
     # a crash leftover, a cut copy, and a trial that was interrupted (Ctrl-C leaves its .partial)
     (lagr_seq.parent / "trial-007.mcap.partial").write_bytes(lagr_seq.read_bytes()[:5000])
-    data = lagr_seq.read_bytes()
-    (lagr_seq.parent / "trial-008.mcap").write_bytes(data[: len(data) // 2])
     config = cfg.load(
         "cube-stacking", "lagr-seq", "upstream", overrides=[f"run.episodes={EPISODES}"]
     )
+    # cut from a longer trial: in log format 3 a short cube trial's transitions are one chunk,
+    # so the first half of its file holds no finished episode
+    longer = runner.run_one(runner.with_episodes(config, 150), 8, 0, "mock", tmp_path / "longer" / "trial-008.mcap")
+    data = longer.path.read_bytes()
+    (lagr_seq.parent / "trial-008.mcap").write_bytes(data[: len(data) // 2])
     interrupted = lagr_seq.parent / "trial-009.mcap"
 
     def stop(_steps: int) -> None:

@@ -92,8 +92,15 @@ def test_unfinished_and_damaged_logs_are_skipped_with_a_warning(
     shutil.copytree(runs_dir, root)
     trial = sorted(root.rglob("lagr-seq/*/trial-000.mcap"))[0]
     data = trial.read_bytes()
-    (trial.parent / "trial-005.mcap.partial").write_bytes(data[: len(data) // 2])
-    (trial.parent / "trial-006.mcap").write_bytes(data[: len(data) // 2])
+    # cut from a longer trial: in log format 3 a short cube trial's transitions are one chunk,
+    # so the first half of its file holds no finished episode
+    from lagrseq import config as cfg
+    from lagrseq.running import runner
+
+    config = cfg.load("cube-stacking", "lagr-seq", "upstream", overrides=["run.episodes=150"])
+    longer = runner.run_one(config, 6, 0, "mock", tmp_path / "longer" / "trial-006.mcap").path.read_bytes()
+    (trial.parent / "trial-005.mcap.partial").write_bytes(longer[: len(longer) // 2])
+    (trial.parent / "trial-006.mcap").write_bytes(longer[: len(longer) // 2])
     flipped = bytearray(data)
     for i in range(len(data) // 2, len(data) // 2 + 32):
         flipped[i] ^= 0xFF
