@@ -13,6 +13,8 @@ measures what logging costs). A sink dispatches on the record's type (``McapSink
 
 from __future__ import annotations
 
+from itertools import groupby
+from operator import attrgetter
 from typing import Any, NamedTuple, Protocol
 
 import msgspec
@@ -162,33 +164,40 @@ def not_asked(event: QueryEvent) -> bool:
 
 _COLUMNS_FROM = 2
 """Where the columns start in a record's fields (after ``trial`` and ``episode``)."""
+_DECISION_COLUMNS = attrgetter("trial", "episode", *NO_QUERY_COLUMNS)
+_EPISODE_OF = attrgetter("trial", "episode")
 
 
-def transitions_record(steps: list[Transition]) -> dict[str, Any]:
-    """One episode's transitions as the columns of a ``/transitions`` record (log format 3);
-    ``steps`` all have the first one's trial and episode. Columns are tuples (JSON arrays),
-    made by transposing the records in C."""
-    first = steps[0]
+def _one_episode(columns: list[tuple[Any, ...]], count: int) -> bool:
+    """Whether the first two columns (trial, episode) hold one value each."""
+    trials, episodes = columns[0], columns[1]
+    return trials.count(trials[0]) == count and episodes.count(episodes[0]) == count
+
+
+def transitions_records(steps: list[Transition]) -> list[dict[str, Any]]:
+    """Transitions as the columns of ``/transitions`` records (log format 3), one per episode
+    (a run of steps with one trial and episode; the loop gives one). Columns are tuples (JSON
+    arrays), made by transposing the records in C."""
     columns = list(zip(*map(astuple, steps)))
-    record: dict[str, Any] = {"trial": first.trial, "episode": first.episode}
+    if not _one_episode(columns, len(steps)):
+        return [record for _, group in groupby(steps, _EPISODE_OF) for record in transitions_records(list(group))]
+    record: dict[str, Any] = {"trial": columns[0][0], "episode": columns[1][0]}
     record.update(zip(TRANSITION_COLUMNS, columns[_COLUMNS_FROM:]))
     for name, column in zip(TRANSITION_OPTIONAL, columns[_COLUMNS_FROM + len(TRANSITION_COLUMNS):]):
         if column.count(None) < len(column):  # written only by the tasks that set it
             record[name] = column
-    return record
+    return [record]
 
 
-def no_query_record(decisions: list[QueryEvent]) -> dict[str, Any]:
-    """One episode's decisions not to query as the columns of a ``/no_query`` record (log
-    format 3); ``decisions`` all have the first one's trial and episode."""
-    first = decisions[0]
-    return {
-        "trial": first.trial,
-        "episode": first.episode,
-        "step": [d.step for d in decisions],
-        "global_step": [d.global_step for d in decisions],
-        "state": [d.state for d in decisions],
-    }
+def no_query_records(decisions: list[QueryEvent]) -> list[dict[str, Any]]:
+    """Decisions not to query as the columns of ``/no_query`` records (log format 3), one per
+    episode (a run of decisions with one trial and episode)."""
+    columns = list(zip(*map(_DECISION_COLUMNS, decisions)))
+    if not _one_episode(columns, len(decisions)):
+        return [record for _, group in groupby(decisions, _EPISODE_OF) for record in no_query_records(list(group))]
+    record: dict[str, Any] = {"trial": columns[0][0], "episode": columns[1][0]}
+    record.update(zip(NO_QUERY_COLUMNS, columns[_COLUMNS_FROM:]))
+    return [record]
 
 
 class View(NamedTuple):

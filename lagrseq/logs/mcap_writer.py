@@ -105,11 +105,11 @@ def _message_index(channel_id: int, flat: Sequence[int]) -> bytes:
 
 
 class Mark(NamedTuple):
-    """The state of a writer's open chunk (:meth:`LeanWriter.mark`)."""
+    """Where a writer's open chunk stood (:meth:`LeanWriter.mark`): its size in bytes. What was
+    added after it is found by its offset when it is rolled back, so a mark costs nothing to
+    take (the sink takes one at every episode's end)."""
 
     size: int
-    entries: dict[int, int]
-    counts: dict[int, int]
 
 
 class LeanWriter:
@@ -229,23 +229,25 @@ class LeanWriter:
 
     def mark(self) -> Mark:
         """Where the open chunk stands now, for :meth:`rollback`."""
-        return Mark(
-            len(self._chunk),
-            {channel_id: len(entries) for channel_id, entries in self._index.items()},
-            dict(self._counts),
-        )
+        return Mark(len(self._chunk))
 
     def rollback(self, mark: Mark) -> None:
         """Drop every message added to the open chunk since ``mark`` was taken (no chunk may
-        have been written in between)."""
+        have been written in between): the chunk's bytes, their index entries (those at or past
+        the mark's offset) and their count."""
         del self._chunk[mark.size :]
         for channel_id in list(self._index):
-            kept = mark.entries.get(channel_id, 0)
+            entries = self._index[channel_id]
+            kept = len(entries)
+            while kept and entries[kept - 1] >= mark.size:  # (log time, offset) pairs, in order
+                kept -= 2
+            self._counts[channel_id] -= (len(entries) - kept) // 2
+            if not self._counts[channel_id]:  # first used after the mark: as if never used
+                del self._counts[channel_id]
             if kept:
-                del self._index[channel_id][kept:]
+                del entries[kept:]
             else:
                 del self._index[channel_id]
-        self._counts = defaultdict(int, mark.counts)
 
     @property
     def messages(self) -> int:

@@ -172,3 +172,9 @@ record each (``/transitions``, ``/no_query``); queries sent and episodes are one
 
 def schema_bytes(schema: dict[str, Any]) -> bytes:
     return json.dumps(schema, sort_keys=True).encode()
+
+
+SCHEMA_BYTES: dict[str, bytes] = {
+    schema["title"]: schema_bytes(schema) for schema in (*TOPICS.values(), *TOPICS_3.values())
+}
+"""Every topic's schema as the bytes a log stores, by title (worked out once, not per trial)."""

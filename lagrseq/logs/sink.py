@@ -42,8 +42,6 @@ try:
     import fcntl
 except ImportError:  # pragma: no cover - not on Windows: no lock, as before
     fcntl = None  # type: ignore[assignment]
-from itertools import groupby
-from operator import attrgetter
 from pathlib import Path
 from typing import Any
 
@@ -65,12 +63,12 @@ from lagrseq.logs.events import (
     View,
     encode,
     encode_into,
-    no_query_record,
+    no_query_records,
     not_asked,
-    transitions_record,
+    transitions_records,
 )
 from lagrseq.logs.mcap_writer import LeanWriter, Mark
-from lagrseq.logs.schemas import TOPICS, TOPICS_3, schema_bytes
+from lagrseq.logs.schemas import SCHEMA_BYTES, TOPICS, TOPICS_3
 
 __all__ = ["McapSink", "NullSink", "Sink"]
 
@@ -96,7 +94,6 @@ message records. Measured on cube LaGR-SEQ trials (``benchmarks/bench_cube.py``,
 per episode put logging at +33%; every 4 episodes (about 36 KB) +23%, every 8 (about 72 KB) +19%."""
 
 _HUGE = float("inf")
-_EPISODE_OF = attrgetter("trial", "episode")
 _dumps = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
 
 
@@ -167,7 +164,7 @@ class McapSink:
         self._channels: dict[str, int] = {}
         for topic, schema in (TOPICS_3 if self._columnar else TOPICS).items():
             schema_id = self._writer.register_schema(
-                name=schema["title"], encoding="jsonschema", data=schema_bytes(schema)
+                name=schema["title"], encoding="jsonschema", data=SCHEMA_BYTES[schema["title"]]
             )
             self._channels[topic] = self._writer.register_channel(
                 topic=topic, message_encoding="json", schema_id=schema_id
@@ -245,14 +242,14 @@ class McapSink:
             return
         self._steps, self._not_asked = [], []
         try:
-            for _, group in groupby(steps, _EPISODE_OF):
-                episode = list(group)
-                self._writer.add_message(self._transition_channel, episode[0].global_step, encode(transitions_record(episode)))
-                self._expanded[TRANSITION_TOPIC] += len(episode)
-            for _, same in groupby(not_asked, _EPISODE_OF):
-                decisions = list(same)
-                self._pending.append((self._no_query_channel, decisions[0].global_step, encode(no_query_record(decisions))))
-                self._expanded[QUERY_TOPIC] += len(decisions)
+            if steps:
+                for record in transitions_records(steps):
+                    self._writer.add_message(self._transition_channel, record["global_step"][0], encode(record))
+                self._expanded[TRANSITION_TOPIC] += len(steps)
+            if not_asked:
+                for record in no_query_records(not_asked):
+                    self._pending.append((self._no_query_channel, record["global_step"][0], encode(record)))
+                self._expanded[QUERY_TOPIC] += len(not_asked)
         except (TypeError, ValueError, OverflowError) as exc:
             raise LogError(f"record is not JSON-serialisable ({exc}): an episode's Transition or QueryEvent") from None
 

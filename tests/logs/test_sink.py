@@ -290,11 +290,12 @@ def test_chunks_end_at_episode_ends_once_big_enough(trial_log: Path) -> None:
                 assert transitions.uncompressed_size >= CHUNK_BYTES
 
 
-def test_ctrl_c_keeps_every_finished_episode_and_drops_the_unfinished_one(tmp_path: Path) -> None:
+@pytest.mark.parametrize("log_format", ["2", "3"])
+def test_ctrl_c_keeps_every_finished_episode_and_drops_the_unfinished_one(tmp_path: Path, log_format: str) -> None:
     from lagrseq.logs.recover import recover
 
     path = tmp_path / "trial-000.mcap"
-    with pytest.raises(KeyboardInterrupt), McapSink(path, {"config": "{}"}) as sink:
+    with pytest.raises(KeyboardInterrupt), McapSink(path, {"config": "{}"}, log_format=log_format) as sink:
         _episodes(sink, range(3), steps=40, stop_at=25)  # episodes 0 and 1 end; 2 does not
     partial = path.with_name(path.name + ".partial")
     assert not path.exists() and partial.is_file()
@@ -303,3 +304,31 @@ def test_ctrl_c_keeps_every_finished_episode_and_drops_the_unfinished_one(tmp_pa
     assert [e["episode"] for e in topics["/episode"]] == [0, 1]
     assert [r["global_step"] for r in topics["/transition"]] == list(range(80))
     assert [r["global_step"] for r in topics["/query"]] == list(range(0, 80, 10))
+
+
+def test_a_rollback_leaves_the_file_as_if_nothing_was_added_after_the_mark() -> None:
+    """The writer's mark is the open chunk's size only; rolling back finds what came after it by
+    its offset: the same bytes (indexes, sequence numbers, statistics) as never adding it."""
+    import io
+
+    from lagrseq.logs.mcap_writer import LeanWriter
+
+    def written(extra: bool) -> bytes:
+        out = io.BytesIO()
+        writer = LeanWriter(out, profile="lagrseq")
+        a, b, c = (writer.register_channel(topic, "json", 0) for topic in ("/a", "/b", "/c"))
+        writer.add_message(a, 0, b"1")
+        writer.flush()
+        writer.add_message(a, 1, b"2")
+        writer.add_message(b, 1, b"3")
+        mark = writer.mark()
+        if extra:
+            writer.add_message(a, 2, b"4")
+            writer.add_message(c, 2, b"5")  # a channel first used after the mark
+            writer.add_message(b, 3, b"6")
+            writer.rollback(mark)
+        writer.add_message(b, 4, b"7")
+        writer.finish()
+        return out.getvalue()
+
+    assert written(extra=True) == written(extra=False)
