@@ -18,8 +18,8 @@ only for ``/episode`` and ``/query`` (replay's tables, the costs table) then nev
 transition chunk.
 
 Chunks end at episode ends, once the open transition chunk holds :data:`CHUNK_BYTES` of records
-(a cube-stacking episode is about 9 KB, so about seven episodes a chunk; an episode bigger than
-that is a chunk of its own), and are then handed to the operating system. Every chunk costs a
+(a cube-stacking episode is about 2 KB in format 3, 9 KB in format 2, so about 30 or 7 episodes a
+chunk; an episode bigger than that is a chunk of its own), and are then handed to the operating system. Every chunk costs a
 fixed amount of work (compression, indexes, a write), which one chunk per episode made about a
 third of what logging costs a cube trial.
 
@@ -275,7 +275,7 @@ class McapSink:
         records counted as the transitions and decisions they hold): the ``lagrseq.records``
         metadata."""
         counts = self._writer.channel_counts()
-        columnar = {self._transition_channel, self._no_query_channel}
+        columnar = {self._transition_channel, self._no_query_channel} if self._columnar else set()
         out = {TRANSITION_TOPIC: self._expanded[TRANSITION_TOPIC], QUERY_TOPIC: self._expanded[QUERY_TOPIC]}
         for topic, channel in self._channels.items():
             if channel not in columnar:

@@ -226,3 +226,31 @@ def test_a_sink_writes_format_2_or_3_only(tmp_path: Path) -> None:
 
     with pytest.raises(LogError, match="log format '4' cannot be written; expected one of 2, 3"):
         McapSink(tmp_path / "t.mcap", {"config": "{}"}, log_format="4")
+
+
+@pytest.mark.parametrize(
+    ("topic", "record", "said"),
+    [
+        ("/transitions", {"trial": 0, "episode": 0, "step": [0, 1], "global_step": [0], "state": [[], []], "action": [1, 2],
+                          "reward": [0.0, 1.0], "terminated": [False, True], "truncated": [False, False], "guided": [False, False]},
+         "does not hold columns of one length"),
+        ("/transitions", {"trial": 0, "episode": 0, "step": [0], "global_step": ["0"], "state": [[]], "action": [1],
+                          "reward": [0.0], "terminated": [True], "truncated": [False], "guided": [False]},
+         "has a global_step that is not an integer"),
+        ("/no_query", {"trial": 0, "episode": 0, "step": [0], "global_step": [0]}, "lacks its 'state' field"),
+        ("/no_query", {"trial": 0, "step": [0], "global_step": [0], "state": [[]]}, "lacks its trial or episode field"),
+    ],
+)
+def test_a_columnar_record_that_does_not_fit_is_a_one_line_damage_error(tmp_path: Path, topic: str, record: dict[str, object], said: str) -> None:
+    from lagrseq.errors import LogError
+
+    path = tmp_path / "t.mcap"
+    with McapSink(path, {"config": "{}"}) as sink:
+        sink.write_record(topic, record, 0)
+        sink.flush()
+    wanted = "/transition" if topic == "/transitions" else "/query"
+    for read in (lambda: read_topics(path, [wanted]), lambda: list(iter_messages(path))):
+        with pytest.raises(LogError, match=said) as info:
+            read()
+        assert "\n" not in str(info.value) and str(path) in str(info.value)
+    assert read_info(path).complete, "the file itself is whole: only that record is refused"
