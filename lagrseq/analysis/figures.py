@@ -49,6 +49,26 @@ STYLE: dict[str, Any] = {
 """rcParams replay draws with (it applies them with ``matplotlib.rc_context``)."""
 
 
+def render(
+    figure: Figure, formats: Sequence[str], dpi: int, metadata: dict[str, dict[str, None]], rc: dict[str, Any] | None
+) -> list[bytes]:
+    """``figure`` drawn in each format (the file bytes, in order), under the rcParams ``rc`` when
+    given. Replay runs this in its worker processes too (the figure arrives pickled): the bytes do
+    not depend on the process that draws them (same rcParams, fonts and backend)."""
+    import contextlib
+    import io
+
+    import matplotlib
+
+    out = []
+    with matplotlib.rc_context(rc) if rc is not None else contextlib.nullcontext():  # type: ignore[arg-type]
+        for fmt in formats:
+            buffer = io.BytesIO()
+            figure.savefig(buffer, format=fmt, dpi=dpi, metadata=metadata[fmt])
+            out.append(buffer.getvalue())
+    return out
+
+
 def new_axes(figsize: tuple[float, float] = FIGSIZE) -> Axes:
     """Axes on a new, pyplot-free figure."""
     figure = Figure(figsize=figsize, layout="constrained")

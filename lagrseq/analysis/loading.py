@@ -18,6 +18,7 @@ import hashlib
 import json
 import os
 from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -303,18 +304,28 @@ def default_jobs() -> int:
     return max(1, min(cpus, 8))
 
 
+def parallel(logs: int, jobs: int) -> bool:
+    """Whether ``logs`` logs are read in ``jobs`` worker processes (and replay draws its figures
+    in one of its own)."""
+    return jobs > 1 and logs >= PARALLEL_MIN_LOGS
+
+
+def worker_pool(jobs: int) -> ProcessPoolExecutor:
+    """``jobs`` spawned worker processes (they start on first use): a clean interpreter that
+    imports only what its work needs, no fork of a process holding threads or big figures."""
+    import multiprocessing
+
+    return ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"))
+
+
 def _read_all(paths: list[tuple[Path, Path]], jobs: int) -> list[tuple[_Trial | str, ReadStats]]:
     """Every log read, in the order given: in ``jobs`` worker processes when there are enough
     logs (the results, and so everything made from them, are the same as in one process)."""
-    if jobs <= 1 or len(paths) < PARALLEL_MIN_LOGS:
+    if not parallel(len(paths), jobs):
         return [_read_one(item) for item in paths]
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-
     workers = min(jobs, len(paths))
-    # spawn: a clean interpreter that imports this module only (no fork of a process holding
-    # threads or big figures); chunks of logs so that each worker gets a few at a time.
-    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+    # chunks of logs so that each worker gets a few at a time
+    with worker_pool(workers) as pool:
         return list(pool.map(_read_one, paths, chunksize=max(1, len(paths) // (workers * 8))))
 
 
