@@ -49,6 +49,12 @@ STYLE: dict[str, Any] = {
 """rcParams replay draws with (it applies them with ``matplotlib.rc_context``)."""
 
 
+def ready() -> list[bytes]:
+    """Nothing: run in a new worker process, it imports this module (and so matplotlib) before
+    the first figure arrives there."""
+    return []
+
+
 def render(
     figure: Figure, formats: Sequence[str], dpi: int, metadata: dict[str, dict[str, None]], rc: dict[str, Any] | None
 ) -> list[bytes]:

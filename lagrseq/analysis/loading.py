@@ -17,7 +17,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -306,7 +306,7 @@ def default_jobs() -> int:
 
 def parallel(logs: int, jobs: int) -> bool:
     """Whether ``logs`` logs are read in ``jobs`` worker processes (and replay draws its figures
-    in one of its own)."""
+    in a worker of its own)."""
     return jobs > 1 and logs >= PARALLEL_MIN_LOGS
 
 
@@ -329,10 +329,15 @@ def _read_all(paths: list[tuple[Path, Path]], jobs: int) -> list[tuple[_Trial | 
         return list(pool.map(_read_one, paths, chunksize=max(1, len(paths) // (workers * 8))))
 
 
-def load(roots: Sequence[str | Path], jobs: int | None = None) -> Logs:
+def load(
+    roots: Sequence[str | Path], jobs: int | None = None, on_found: Callable[[int], None] | None = None
+) -> Logs:
     """Read every ``*.mcap`` under ``roots`` (files or directories) into runs; ``jobs``
-    processes read the logs (default :func:`default_jobs`; the result does not depend on it)."""
+    processes read the logs (default :func:`default_jobs`; the result does not depend on it).
+    ``on_found`` is told how many logs there are before any is read."""
     paths, warnings = _find(roots)
+    if on_found is not None:
+        on_found(len(paths))
     skipped = len(warnings)  # the unfinished logs
     stats = ReadStats()
     groups: dict[RunKey, list[_Trial]] = {}

@@ -222,15 +222,21 @@ def replay(
     suite = load_suite() if suite is None else suite
     out = Path(out)
     jobs = loading.default_jobs() if jobs is None else jobs
-    logs = loading.load(roots, jobs)
-    if not logs.runs:
-        detail = f" ({'; '.join(logs.warnings)})" if logs.warnings else ""
-        raise LogError(f"no complete lagrseq trial logs under {', '.join(map(str, roots))}{detail}")
-    # Where the logs were read in worker processes, one more draws the figures while this one
-    # makes the next item (one: each process that draws pays importing matplotlib, about 1 s).
-    drawing = loading.parallel(logs.files + logs.skipped, jobs)
-    with loading.worker_pool(1) if drawing else contextlib.nullcontext() as pool:
-        painter = _Painter(pool)
+    with contextlib.ExitStack() as stack:
+        painter = _Painter(None)
+
+        def found(count: int) -> None:
+            # Where the logs are read in worker processes, one more draws the figures while this
+            # one makes the next item (one: each process that draws pays importing matplotlib,
+            # about 1 s, which it does while the logs are read).
+            if loading.parallel(count, jobs):
+                painter.pool = stack.enter_context(loading.worker_pool(1))
+                painter.pending.append((painter.pool.submit(figures.ready), []))
+
+        logs = loading.load(roots, jobs, found)
+        if not logs.runs:
+            detail = f" ({'; '.join(logs.warnings)})" if logs.warnings else ""
+            raise LogError(f"no complete lagrseq trial logs under {', '.join(map(str, roots))}{detail}")
         reports, extra, board, written = _make(logs, suite, out, formats, provider, unavailable, price, sections, painter)
         painter.wait()
     _write(out / "index.html", _index_html(reports, extra, logs, produced_by, board), written)
