@@ -217,7 +217,7 @@ REPLAY_SECONDS_PER_LOG = 0.013
 """Replay's reading of one trial log (its /episode and /query chunks), CPU seconds in one worker
 process; the logs are shared among ``min(jobs, 8)`` workers. Measured on the quick suite's 561
 logs on a 2-core machine (``benchmarks/bench_replay.py``; docs/performance.md, "Replay")."""
-REPLAY_SECONDS_PER_ITEM = 0.2
+REPLAY_SECONDS_PER_ITEM = 0.25
 """Replay's making of one suite item (its numbers, tables and figure), seconds; the figure is
 drawn in a worker process meanwhile where there are workers (``jobs`` > 1)."""
 REPLAY_DRAW_SECONDS_PER_ITEM = 0.15
