@@ -1,5 +1,6 @@
 """Plot functions in the paper's style. Each takes ``ax=None`` (a new figure when None), draws on
 it and returns it; none saves, shows or touches pyplot's global state (only replay writes files).
+:func:`render` turns a finished figure into file bytes (replay writes them).
 
 Inputs are already-summarised series (see :mod:`lagrseq.analysis.stats`), so a plot is a pure
 function of its numbers.

@@ -222,7 +222,8 @@ def replay(
     suite = load_suite() if suite is None else suite
     out = Path(out)
     jobs = loading.default_jobs() if jobs is None else jobs
-    with contextlib.ExitStack() as stack:
+    # the figures' artists are many small objects too (see loading.no_cycle_collection)
+    with contextlib.ExitStack() as stack, loading.no_cycle_collection():
         painter = _Painter(None)
 
         def found(count: int) -> None:
