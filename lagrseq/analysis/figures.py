@@ -1,5 +1,6 @@
 """Plot functions in the paper's style. Each takes ``ax=None`` (a new figure when None), draws on
 it and returns it; none saves, shows or touches pyplot's global state (only replay writes files).
+:func:`render` turns a finished figure into file bytes (replay writes them).
 
 Inputs are already-summarised series (see :mod:`lagrseq.analysis.stats`), so a plot is a pure
 function of its numbers.
@@ -47,6 +48,32 @@ STYLE: dict[str, Any] = {
     "figure.dpi": 100,
 }
 """rcParams replay draws with (it applies them with ``matplotlib.rc_context``)."""
+
+
+def ready() -> list[bytes]:
+    """Nothing: run in a new worker process, it imports this module (and so matplotlib) before
+    the first figure arrives there."""
+    return []
+
+
+def render(
+    figure: Figure, formats: Sequence[str], dpi: int, metadata: dict[str, dict[str, None]], rc: dict[str, Any] | None
+) -> list[bytes]:
+    """``figure`` drawn in each format (the file bytes, in order), under the rcParams ``rc`` when
+    given. Replay runs this in its worker processes too (the figure arrives pickled): the bytes do
+    not depend on the process that draws them (same rcParams, fonts and backend)."""
+    import contextlib
+    import io
+
+    import matplotlib
+
+    out = []
+    with matplotlib.rc_context(rc) if rc is not None else contextlib.nullcontext():  # type: ignore[arg-type]
+        for fmt in formats:
+            buffer = io.BytesIO()
+            figure.savefig(buffer, format=fmt, dpi=dpi, metadata=metadata[fmt])
+            out.append(buffer.getvalue())
+    return out
 
 
 def new_axes(figsize: tuple[float, float] = FIGSIZE) -> Axes:

@@ -17,8 +17,10 @@ logs are counted apart.
 
 from __future__ import annotations
 
+import contextlib
 import html
 from collections.abc import Mapping, Sequence
+from concurrent.futures import Executor, Future
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -96,18 +98,45 @@ class Report:
         return self.logs.warnings
 
 
+class _Painter:
+    """Draws figures into files: in this process, or in the worker processes of ``pool`` (the
+    figures are made here, pickled, and drawn there, where most of a figure's time goes; their
+    bytes come back and are written here)."""
+
+    def __init__(self, pool: Executor | None) -> None:
+        self.pool = pool
+        self.pending: list[tuple[Future[list[bytes]], list[Path]]] = []
+
+    def save(self, figure: Figure, files: Sequence[tuple[Path, str]], styled: bool) -> None:
+        """Write ``figure`` to each (path, format), with replay's rcParams when ``styled``."""
+        paths, formats = [path for path, _ in files], [fmt for _, fmt in files]
+        args = (figure, formats, DPI, _SAVE_METADATA, _RC if styled else None)
+        if self.pool is None:
+            self._write(paths, figures.render(*args))
+        else:
+            self.pending.append((self.pool.submit(figures.render, *args), paths))
+
+    def wait(self) -> None:
+        """Every figure written (a worker's error is raised here)."""
+        for future, paths in self.pending:
+            self._write(paths, future.result())
+        self.pending.clear()
+
+    @staticmethod
+    def _write(paths: Sequence[Path], drawn: Sequence[bytes]) -> None:
+        for path, data in zip(paths, drawn, strict=True):
+            path.write_bytes(data)
+
+
 def _save_figure(
-    axes: matplotlib.axes.Axes, stem: Path, formats: Sequence[str]
+    axes: matplotlib.axes.Axes, stem: Path, formats: Sequence[str], painter: _Painter
 ) -> tuple[list[Path], tuple[int, int]]:
     """Save the figure of ``axes`` in each format; returns the paths and the PNG's pixel size."""
     figure = axes.figure
     while not isinstance(figure, Figure):  # a SubFigure: save its root figure
         figure = figure.figure
-    paths = []
-    for fmt in formats:
-        path = stem.with_suffix(f".{fmt}")
-        figure.savefig(path, format=fmt, dpi=DPI, metadata=_SAVE_METADATA[fmt])
-        paths.append(path)
+    paths = [stem.with_suffix(f".{fmt}") for fmt in formats]
+    painter.save(figure, list(zip(paths, formats, strict=True)), styled=True)
     width, height = figure.get_size_inches() * DPI
     return paths, (round(width), round(height))
 
@@ -191,12 +220,45 @@ def replay(
         raise UsageError(f"unknown figure format {bad[0]!r}; expected some of {', '.join(FORMATS)}")
     formats = ["png", *[f for f in FORMATS if f in formats and f != "png"]]
     suite = load_suite() if suite is None else suite
-    logs = loading.load(roots, jobs)
-    if not logs.runs:
-        detail = f" ({'; '.join(logs.warnings)})" if logs.warnings else ""
-        raise LogError(f"no complete lagrseq trial logs under {', '.join(map(str, roots))}{detail}")
-    suite = with_logged_authors_runs(suite, logs.runs)
     out = Path(out)
+    jobs = loading.default_jobs() if jobs is None else jobs
+    # the figures' artists are many small objects too (see loading.no_cycle_collection)
+    with contextlib.ExitStack() as stack, loading.no_cycle_collection():
+        painter = _Painter(None)
+
+        def found(count: int) -> None:
+            # Where the logs are read in worker processes, one more draws the figures while this
+            # one makes the next item (one: each process that draws pays importing matplotlib,
+            # about 1 s, which it does while the logs are read).
+            if loading.parallel(count, jobs):
+                painter.pool = stack.enter_context(loading.worker_pool(1))
+                painter.pending.append((painter.pool.submit(figures.ready), []))
+
+        logs = loading.load(roots, jobs, found)
+        if not logs.runs:
+            detail = f" ({'; '.join(logs.warnings)})" if logs.warnings else ""
+            raise LogError(f"no complete lagrseq trial logs under {', '.join(map(str, roots))}{detail}")
+        reports, extra, board, written = _make(logs, suite, out, formats, provider, unavailable, price, sections, painter)
+        painter.wait()
+    _write(out / "index.html", _index_html(reports, extra, logs, produced_by, board), written)
+    _write(out / "index.md", _index_markdown(reports, extra, logs, produced_by, board), written)
+    _drop_stale(out, written)
+    return Report(out, logs, reports, written)
+
+
+def _make(
+    logs: loading.Logs,
+    suite: Suite,
+    out: Path,
+    formats: Sequence[str],
+    provider: str | None,
+    unavailable: Mapping[str, str] | None,
+    price: costs.Price | None,
+    sections: Sequence[tuple[str, Table, Figure | None]],
+    painter: _Painter,
+) -> tuple[list[ItemReport], list[tuple[str, Table]], Table, list[Path]]:
+    """Every item, table and figure of the report (the figures through ``painter``)."""
+    suite = with_logged_authors_runs(suite, logs.runs)
     (out / "figures").mkdir(parents=True, exist_ok=True)
     (out / "tables").mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
@@ -214,7 +276,7 @@ def replay(
             report.method = built.method
             if built.axes is not None:
                 paths, report.figure_size = _save_figure(
-                    built.axes, out / "figures" / item.id, formats
+                    built.axes, out / "figures" / item.id, formats, painter
                 )
                 written += paths
                 report.figure = f"figures/{item.id}.png"
@@ -236,7 +298,7 @@ def replay(
     for stem, table, section_figure in sections:
         if section_figure is not None:
             path = out / "figures" / f"{stem}.png"
-            section_figure.savefig(path, format="png", dpi=DPI, metadata=_SAVE_METADATA["png"])
+            painter.save(section_figure, [(path, "png")], styled=False)
             written.append(path)
         extra.append((stem, table))
     for stem, table in extra:
@@ -251,13 +313,10 @@ def replay(
             _write(out / "tables" / f"{stem}.md", to_markdown(table), written)
             _write(out / "tables" / f"{stem}.csv", to_csv(table.data), written)
             path = out / "figures" / f"{stem}.png"
-            fig.savefig(path, format="png", dpi=DPI, metadata=_SAVE_METADATA["png"])
+            painter.save(fig, [(path, "png")], styled=False)
             written.append(path)
             extra.append((stem, table))
-    _write(out / "index.html", _index_html(reports, extra, logs, produced_by, board), written)
-    _write(out / "index.md", _index_markdown(reports, extra, logs, produced_by, board), written)
-    _drop_stale(out, written)
-    return Report(out, logs, reports, written)
+    return reports, extra, board, written
 
 
 MANIFEST = ".lagrseq-report"

@@ -150,22 +150,22 @@ class CubeStackingEnv(gym.Env[np.ndarray, np.int64]):
         else:
             after = before  # no-op: cube already stacked, or the stack is full
         target = self._target
-        complete_after = after == target
-        pays_bonus = complete_after or (self.bonus_on == "either-state" and before == target)
-        reward = float(self._views(after)[2] - self._views(before)[2])
-        if pays_bonus:
+        cache = self._cache  # each stack's views, looked up once per step and stack
+        views = cache.get(after) or self._views(after)
+        views_before = views if after is before else (cache.get(before) or self._views(before))
+        reward = float(views[2] - views_before[2])
+        if after == target or (self.bonus_on == "either-state" and before == target):
             reward += self.bonus
         pre_revert = after
-        wrong_top = len(after) > len(before) and after[-1] != target[len(after) - 1]
-        if self.revert_wrong_cube and wrong_top:
-            after = before  # the wrong cube is taken off again
+        if self.revert_wrong_cube and len(after) > len(before) and after[-1] != target[len(after) - 1]:
+            after, views = before, views_before  # the wrong cube is taken off again
             if self.wrong_cube_reward == "zero":
                 reward = 0.0
         self._stack = after
         self._steps += 1
         terminated = bool(self.terminate_on_complete and after == target)
         truncated = bool(not terminated and self._steps >= self.horizon)
-        obs, mask, evaluation = self._views(after)
+        obs, mask, evaluation = views
         info = {"pattern": after, "pre_revert_pattern": pre_revert, "evaluation": evaluation, "action_mask": mask.copy()}
         return obs.copy(), reward, terminated, truncated, info
 

@@ -213,11 +213,20 @@ def _calibration_key(run: PlannedRun) -> tuple[str, ...]:
     return (run.kind, config.task.name, config.method, config.preset, str(config.task))
 
 
-REPLAY_SECONDS_PER_LOG = 0.08
-"""Replay's reading of one trial log (its /episode and /query chunks), CPU seconds, one process:
-measured on the quick suite's logs on a 2-core machine (``benchmarks/bench_replay.py``)."""
-REPLAY_SECONDS_PER_ITEM = 1.0
-"""Replay's drawing and writing of one suite item (figure, tables), seconds."""
+REPLAY_SECONDS_PER_LOG = 0.013
+"""Replay's reading of one trial log (its /episode and /query chunks), CPU seconds in one of
+``min(jobs, 8)`` worker processes, which share the logs (with ``jobs`` 1: see
+:data:`REPLAY_SECONDS_PER_LOG_ONE_PROCESS`). Measured on the quick suite's 874 logs on a 2-core
+machine (``benchmarks/bench_replay.py``; docs/performance.md, "Replay")."""
+REPLAY_SECONDS_PER_LOG_ONE_PROCESS = 0.007
+"""The same in one process: nothing is pickled from a worker."""
+REPLAY_SECONDS_PER_ITEM = 0.25
+"""Replay's making of one suite item (its numbers, tables and figure), seconds; the figure is
+drawn in a worker process meanwhile where there are workers (``jobs`` > 1)."""
+REPLAY_DRAW_SECONDS_PER_ITEM = 0.1
+"""With one process (``jobs`` 1), drawing an item's figure too, seconds."""
+REPLAY_SECONDS_FIXED = 1.5
+"""Replay's start: importing pandas and matplotlib, starting its worker processes, the index."""
 
 
 @dataclass
@@ -291,7 +300,11 @@ def estimate_phases(
         per_unit, steps_per_episode = calibrated(probe_run)
         out.audit_per_trial[task] = _trial_steps(audit_config, steps_per_episode) * per_unit / max(1, jobs)
     logs += audit_logs
-    out.replay = REPLAY_SECONDS_PER_LOG * logs / max(1, min(jobs, 8)) + REPLAY_SECONDS_PER_ITEM * items
+    if jobs <= 1:
+        reading, per_item = REPLAY_SECONDS_PER_LOG_ONE_PROCESS * logs, REPLAY_SECONDS_PER_ITEM + REPLAY_DRAW_SECONDS_PER_ITEM
+    else:
+        reading, per_item = REPLAY_SECONDS_PER_LOG * logs / min(jobs, 8), REPLAY_SECONDS_PER_ITEM
+    out.replay = REPLAY_SECONDS_FIXED + reading + per_item * items
     return out
 
 

@@ -136,3 +136,29 @@ def test_reading_in_worker_processes_gives_the_same_runs(
     for a, b in zip(one.runs, two.runs, strict=True):
         assert (a.files, a.trials, a.transitions, a.config) == (b.files, b.trials, b.transitions, b.config)
         assert a.episodes.equals(b.episodes) and a.queries.equals(b.queries)
+
+
+def test_the_cycle_collector_is_paused_while_logs_are_read_and_left_as_it_was(
+    runs_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Reading makes millions of acyclic objects: the cyclic collector is off meanwhile (each full
+    collection would walk the frames read so far), and on again after, unless it was off before."""
+    import gc
+
+    seen: list[bool] = []
+    real = loading.read_log
+
+    def watched(*args, **kwargs):  # type: ignore[no-untyped-def]
+        seen.append(gc.isenabled())
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(loading, "read_log", watched)
+    assert gc.isenabled()
+    clean = loading.load([runs_dir])
+    assert seen and not any(seen) and gc.isenabled() and clean.runs
+    gc.disable()
+    try:
+        loading.load([runs_dir])
+        assert not gc.isenabled()
+    finally:
+        gc.enable()

@@ -11,8 +11,10 @@ import sys
 from pathlib import Path
 
 import pytest
+from matplotlib.figure import Figure
 
 import lagrseq
+from lagrseq.analysis import replay as replay_module
 from lagrseq.analysis.replay import replay
 from lagrseq.errors import UsageError
 
@@ -61,6 +63,43 @@ def test_same_logs_give_byte_identical_outputs(runs_dir: Path, tmp_path: Path) -
     )
     assert b"Software" not in a["figures/fig5a.png"][:2000]
     assert b"CreationDate" not in a["figures/fig5a.pdf"]
+
+
+def test_figures_drawn_in_a_worker_process_are_the_same_bytes(
+    runs_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``replay --jobs 2`` draws the figures in a spawned worker process (the figures are pickled
+    there): every file, PNG, SVG and PDF, a section's figure included, is byte for byte what
+    one process writes."""
+    import pandas as pd
+
+    from lagrseq.analysis import figures, loading
+    from lagrseq.analysis.tables import Table
+
+    def section() -> tuple[str, Table, Figure]:
+        axes = figures.new_axes()
+        axes.plot([0, 1, 2], [1.0, 0.5, 0.75], label="a section")
+        axes.legend()
+        return ("open-models", Table("A section", ("x",), (("1",),), pd.DataFrame({"x": [1]})), axes.figure)  # type: ignore[return-value]
+
+    one = replay([runs_dir], tmp_path / "one", formats=["png", "svg", "pdf"], jobs=1, sections=[section()])
+    drawn: list[str] = []
+    monkeypatch.setattr(loading, "PARALLEL_MIN_LOGS", 1)  # a few logs: worker processes all the same
+    monkeypatch.setattr(replay_module._Painter, "wait", _counting(replay_module._Painter.wait, drawn))
+    two = replay([runs_dir], tmp_path / "two", formats=["png", "svg", "pdf"], jobs=2, sections=[section()])
+    assert drawn == ["worker"]
+    assert _files(tmp_path / "one") == _files(tmp_path / "two")
+    assert "figures/open-models.png" in _files(tmp_path / "two")
+    assert [p.relative_to(one.out) for p in one.written] == [p.relative_to(two.out) for p in two.written]
+
+
+def _counting(wait, drawn):  # type: ignore[no-untyped-def]
+    def counted(self):  # type: ignore[no-untyped-def]
+        if self.pool is not None and self.pending:
+            drawn.append("worker")
+        return wait(self)
+
+    return counted
 
 
 def test_replay_needs_no_torch_gymnasium_httpx_or_pybullet(runs_dir: Path, tmp_path: Path) -> None:
