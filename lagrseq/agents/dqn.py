@@ -171,6 +171,9 @@ class NetworkGroup:
         self._exp_avgs: list[list[Any]] = []
         self._exp_avg_sqs: list[list[Any]] = []
         self.updates: list[int] = []
+        self._states: dict[int, tuple[list[Any], list[Any], list[Any], list[Any]]] = {}
+        self._target_states: dict[int, list[Any]] = {}
+        self._everyone: list[int] = []
 
     def join(self, generator: Any) -> int:
         """A new member with weights drawn as :func:`mlp` draws them; returns its index."""
@@ -182,9 +185,10 @@ class NetworkGroup:
             tensors += [linear.weight.detach().to(self.device), linear.bias.detach().to(self.device)]
         index = self._members + len(self._joining)
         self._joining.append(tensors)
-        self._steps.append([torch.zeros((), dtype=torch.float32, device=self.device) for _ in tensors])
-        self._exp_avgs.append([torch.zeros_like(t) for t in tensors])
-        self._exp_avg_sqs.append([torch.zeros_like(t) for t in tensors])
+        ordered = tensors[0::2] + tensors[1::2]  # the weights of every layer, then the biases
+        self._steps.append([torch.zeros((), dtype=torch.float32, device=self.device) for _ in ordered])
+        self._exp_avgs.append([torch.zeros_like(t) for t in ordered])
+        self._exp_avg_sqs.append([torch.zeros_like(t) for t in ordered])
         self.updates.append(0)
         return index
 
@@ -211,6 +215,8 @@ class NetworkGroup:
                     self.target_biases.append(biases.clone())
         self._members += len(self._joining)
         self._joining = []
+        self._everyone = list(range(self._members))
+        self._states, self._target_states = {}, {}  # views of the tensors just replaced
 
     def parameters(self, member: int, target: bool = False) -> list[Any]:
         """A member's weights and biases, layer by layer (views: ``nn.Linear``'s shapes)."""
@@ -245,12 +251,13 @@ class NetworkGroup:
         minibatch's loss before the step."""
         torch, device = self._torch, self.device
         self._stack()
+        if len(requests) == 1:
+            return [self._train_one(*requests[0])]
         members = [member for member, _ in requests]
-        everyone = members == list(range(self._members))
-        index = None if everyone else torch.tensor(members, dtype=torch.int64, device=device)
+        index = None if members == self._everyone else torch.tensor(members, dtype=torch.int64, device=device)
 
         def rows(tensors: list[Any]) -> list[Any]:
-            return list(tensors) if index is None else [t.index_select(0, index) for t in tensors]
+            return tensors if index is None else [t.index_select(0, index) for t in tensors]
 
         def stacked(name: str) -> Any:
             return torch.from_numpy(np.stack([getattr(batch, name) for _, batch in requests])).to(device)
@@ -271,31 +278,89 @@ class NetworkGroup:
         biases = [t.detach().requires_grad_() for t in rows(self.biases)]
         predicted = self._forward(weights, biases, observations).gather(2, actions[:, :, None]).squeeze(2)
         losses = torch.nn.functional.mse_loss(predicted, targets, reduction="none").mean(dim=1)
-        leaves = [t for pair in zip(weights, biases, strict=True) for t in pair]
-        gradients = torch.autograd.grad(losses.sum(), leaves)
+        gradients = torch.autograd.grad(losses.sum(), [*weights, *biases])
+        # per member and parameter, in the order of _state: the weights' gradients come out
+        # transposed, a layout the fused kernel misreads, hence contiguous()
+        per_layer = [g.contiguous().unbind(0) for g in gradients[: self.layers]]
+        per_layer += [g.squeeze(1).unbind(0) for g in gradients[self.layers:]]
         parameters: list[Any] = []
         grads: list[Any] = []
         steps: list[Any] = []
         exp_avgs: list[Any] = []
         exp_avg_sqs: list[Any] = []
-        # the weights' gradients come out transposed (a layout the fused kernel misreads)
-        gradients = [g.contiguous() for g in gradients]
         for row, member in enumerate(members):
-            for i in range(self.layers):
-                parameters += [self.weights[i][member], self.biases[i][member, 0]]
-                grads += [gradients[2 * i][row], gradients[2 * i + 1][row, 0]]
-            steps += self._steps[member]
-            exp_avgs += self._exp_avgs[member]
-            exp_avg_sqs += self._exp_avg_sqs[member]
+            state = self._state(member)
+            parameters += state[0]
+            steps += state[1]
+            exp_avgs += state[2]
+            exp_avg_sqs += state[3]
+            grads += [layer[row] for layer in per_layer]
         fused_adam_step(torch, parameters, grads, exp_avgs, exp_avg_sqs, steps, self.learning_rate, KERAS_EPSILON)
+        for member in members:
+            self._count(member)
+        return losses.detach().tolist()  # type: ignore[no-any-return]
+
+    def _train_one(self, member: int, batch: Batch) -> float:
+        """:meth:`train` for one member: the same step with its own slices (``linear`` on
+        matrices, as ``nn.Linear`` computes; the numbers of a batch of one, a little faster)."""
+        torch, device = self._torch, self.device
+        functional = torch.nn.functional
+        parameters, steps, exp_avgs, exp_avg_sqs = self._state(member)
+
+        def forward(tensors: list[Any], x: Any) -> Any:
+            for i in range(self.layers):
+                x = functional.linear(x, tensors[i], tensors[self.layers + i])
+                if i < self.layers - 1:
+                    x = torch.relu(x)
+            return x
+
+        observations = torch.from_numpy(batch.observations).to(device)
+        actions = torch.from_numpy(batch.actions).to(device)
+        rewards = torch.from_numpy(batch.rewards).to(device)
         with torch.no_grad():
-            for member in members:
-                self.updates[member] += 1
-                if self.target_update_interval > 0 and self.updates[member] % self.target_update_interval == 0:
-                    for i in range(self.layers):
-                        self.target_weights[i][member].copy_(self.weights[i][member])
-                        self.target_biases[i][member].copy_(self.biases[i][member])
-        return [float(loss) for loss in losses.detach().cpu()]
+            if self.discount == 0.0:
+                targets = rewards
+            else:
+                bootstrap = self._target_state(member) if self.target_update_interval > 0 else parameters
+                following = forward(bootstrap, torch.from_numpy(batch.next_observations).to(device))
+                alive = 1.0 - torch.from_numpy(batch.terminals).to(device)
+                targets = rewards + self.discount * alive * following.max(dim=1).values
+        leaves = [t.detach().requires_grad_() for t in parameters]
+        predicted = forward(leaves, observations).gather(1, actions[:, None]).squeeze(1)
+        loss = functional.mse_loss(predicted, targets)
+        grads = list(torch.autograd.grad(loss, leaves))
+        fused_adam_step(torch, parameters, grads, exp_avgs, exp_avg_sqs, steps, self.learning_rate, KERAS_EPSILON)
+        self._count(member)
+        return float(loss.detach())
+
+    def _count(self, member: int) -> None:
+        """One more update of ``member``; its target copy is refreshed every interval."""
+        self.updates[member] += 1
+        if self.target_update_interval > 0 and self.updates[member] % self.target_update_interval == 0:
+            with self._torch.no_grad():
+                for online, target in zip(self._state(member)[0], self._target_state(member), strict=True):
+                    target.copy_(online)
+
+    def _target_state(self, member: int) -> list[Any]:
+        """A member's target parameters, in the order of :meth:`_state`."""
+        state = self._target_states.get(member)
+        if state is None:
+            weights = [w[member] for w in self.target_weights]
+            biases = [b[member, 0] for b in self.target_biases]
+            state = self._target_states[member] = [*weights, *biases]
+        return state
+
+    def _state(self, member: int) -> tuple[list[Any], list[Any], list[Any], list[Any]]:
+        """A member's parameters (views: the weights of every layer, then the biases), Adam
+        step counts, first and second moments, as the fused kernel takes them."""
+        state = self._states.get(member)
+        if state is None:
+            weights = [w[member] for w in self.weights]
+            biases = [b[member, 0] for b in self.biases]
+            state = self._states[member] = (
+                [*weights, *biases], self._steps[member], self._exp_avgs[member], self._exp_avg_sqs[member],
+            )
+        return state
 
 
 KERAS_EPSILON = 1e-7
