@@ -22,6 +22,7 @@ a torch generator seeded once per agent from the trial seed; Adam uses Keras' ep
 from __future__ import annotations
 
 import os
+import threading
 from collections.abc import Sequence
 from typing import Any
 
@@ -173,6 +174,10 @@ class NetworkGroup:
         self.updates: list[int] = []
         self._states: dict[int, tuple[list[Any], list[Any], list[Any], list[Any]]] = {}
         self._target_states: dict[int, list[Any]] = {}
+        self.threads = 0
+        """torch's intra-op threads for the training calls (0: torch's default). OpenMP keeps
+        the setting per thread, and in lockstep another thread than the agent's makes them."""
+        self._threads_set: set[int] = set()
         self._everyone: list[int] = []
 
     def join(self, generator: Any) -> int:
@@ -251,6 +256,9 @@ class NetworkGroup:
         minibatch's loss before the step."""
         torch, device = self._torch, self.device
         self._stack()
+        if self.threads and threading.get_ident() not in self._threads_set:
+            torch.set_num_threads(self.threads)
+            self._threads_set.add(threading.get_ident())
         if len(requests) == 1:
             return [self._train_one(*requests[0])]
         members = [member for member, _ in requests]
@@ -392,11 +400,13 @@ class DQN:
     ) -> None:
         torch = import_torch()
         self._torch = torch
-        if cpu_threads > 0:  # process-wide: torch has one intra-op thread pool
+        threads = 0
+        if cpu_threads > 0:
             # never more threads than cores this process may use: 1024 threads on 2 cores made
             # every update 65 times slower (1.9 against 121 updates/s measured), so a run that
             # asked for primary.cpu_threads = 1024 (inside its range) seemed to hang (issue 25)
-            torch.set_num_threads(min(cpu_threads, usable_cores()))
+            threads = min(cpu_threads, usable_cores())
+            torch.set_num_threads(threads)
         self.device = resolve_device(torch, device)
         self.n_actions = n_actions
         self.discount = discount
@@ -412,6 +422,7 @@ class DQN:
         conductor = lockstep.current()
         self.group: NetworkGroup = make() if conductor is None else conductor.shared(key, make)
         self.member = self.group.join(generator)
+        self.group.threads = threads
         self.buffer = ReplayBuffer(buffer_size, observation_size)
         # Normalisation to [0, 1] with the observation space's bounds (None: raw observations).
         self._low: np.ndarray | None = None

@@ -20,6 +20,7 @@ the conductor raises KeyboardInterrupt.
 
 from __future__ import annotations
 
+import contextlib
 import threading
 from collections.abc import Callable, Hashable, Sequence
 from typing import Any
@@ -151,10 +152,8 @@ class Conductor:
     def _yield(self) -> None:
         """Hand control back to the conductor (after a Ctrl-C it no longer waits for it)."""
         if not self._interrupted:
-            try:
+            with contextlib.suppress(RuntimeError):  # a Ctrl-C raced this trial's last step
                 self._back.release()
-            except RuntimeError:  # pragma: no cover - a Ctrl-C raced this trial's last step
-                pass
 
     def _wait(self, slot: _Slot, operation: Operation, payload: Any) -> Any:
         if self._interrupted:
