@@ -21,6 +21,7 @@ a torch generator seeded once per agent from the trial seed; Adam uses Keras' ep
 
 from __future__ import annotations
 
+import functools
 import os
 import threading
 from collections.abc import Sequence
@@ -242,10 +243,14 @@ class NetworkGroup:
         return x
 
     # ------------------------------------------------------------------ learning
-    def _forward(self, weights: list[Any], biases: list[Any], x: Any) -> Any:
+    def _forward(self, weights: list[Any], biases: list[Any], x: Any, grad: bool = False) -> Any:
         torch = self._torch
+        linear = batched_linear(torch).apply if grad else None
         for i in range(self.layers):
-            x = torch.baddbmm(biases[i], x, weights[i].transpose(1, 2))
+            if linear is None:
+                x = torch.baddbmm(biases[i], x, weights[i].transpose(1, 2))
+            else:
+                x = linear(x, weights[i], biases[i])
             if i < self.layers - 1:
                 x = torch.relu(x)
         return x
@@ -284,12 +289,11 @@ class NetworkGroup:
                 targets = rewards + self.discount * alive * following.max(dim=2).values
         weights = [t.detach().requires_grad_() for t in rows(self.weights)]
         biases = [t.detach().requires_grad_() for t in rows(self.biases)]
-        predicted = self._forward(weights, biases, observations).gather(2, actions[:, :, None]).squeeze(2)
+        predicted = self._forward(weights, biases, observations, grad=True).gather(2, actions[:, :, None]).squeeze(2)
         losses = torch.nn.functional.mse_loss(predicted, targets, reduction="none").mean(dim=1)
         gradients = torch.autograd.grad(losses.sum(), [*weights, *biases])
-        # per member and parameter, in the order of _state: the weights' gradients come out
-        # transposed, a layout the fused kernel misreads, hence contiguous()
-        per_layer = [g.contiguous().unbind(0) for g in gradients[: self.layers]]
+        # per member and parameter, in the order of _state
+        per_layer = [g.unbind(0) for g in gradients[: self.layers]]
         per_layer += [g.squeeze(1).unbind(0) for g in gradients[self.layers:]]
         parameters: list[Any] = []
         grads: list[Any] = []
@@ -372,6 +376,30 @@ class NetworkGroup:
 
 
 KERAS_EPSILON = 1e-7
+
+
+@functools.cache
+def batched_linear(torch: Any) -> Any:
+    """``y = x W^T + b`` for stacked members (``baddbmm``, as in the forward pass everywhere
+    here), with the backward pass written out so that the weights' gradient comes out in the
+    weights' own layout, ``(members, out, in)`` and contiguous, as fused Adam needs it
+    (autograd's own gives a transposed view, and copying it cost 16% of a step). Each product
+    is the one ``nn.Linear``'s backward computes for one member (tests/agents/test_dqn.py
+    checks the weights bit for bit)."""
+
+    class BatchedLinear(torch.autograd.Function):  # type: ignore[misc,name-defined]
+        @staticmethod
+        def forward(ctx: Any, x: Any, weight: Any, bias: Any) -> Any:
+            ctx.save_for_backward(x, weight)
+            return torch.baddbmm(bias, x, weight.transpose(1, 2))
+
+        @staticmethod
+        def backward(ctx: Any, grad: Any) -> Any:
+            x, weight = ctx.saved_tensors
+            grad_x = torch.bmm(grad, weight) if ctx.needs_input_grad[0] else None
+            return grad_x, torch.bmm(grad.transpose(1, 2), x), grad.sum(1, keepdim=True)
+
+    return BatchedLinear
 """Adam's epsilon in the released code (Keras' default)."""
 
 
