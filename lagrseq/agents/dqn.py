@@ -120,11 +120,14 @@ class FusedAdam:
 
 
 def fused_adam_step(torch: Any, parameters: list[Any], grads: list[Any], exp_avgs: list[Any], exp_avg_sqs: list[Any],
-                    steps: list[Any], lr: float, eps: float, betas: tuple[float, float] = (0.9, 0.999)) -> None:
+                    steps: list[Any], lr: float, eps: float, betas: tuple[float, float] = (0.9, 0.999),
+                    counters: list[Any] | None = None) -> None:
     """One Adam step of every parameter, in place, in one call of torch's fused kernel. The
-    kernel reads each tensor as flat memory: every gradient must be contiguous."""
+    kernel reads each tensor as flat memory: every gradient must be contiguous. ``steps``: each
+    parameter's step count (the kernel only reads them); ``counters``: the distinct tensors
+    among them, counted up first (default: ``steps`` themselves)."""
     with torch.no_grad():
-        torch._foreach_add_(steps, 1)
+        torch._foreach_add_(steps if counters is None else counters, 1)
         torch._fused_adam_(
             parameters, grads, exp_avgs, exp_avg_sqs, [], steps, amsgrad=False, lr=lr, beta1=betas[0],
             beta2=betas[1], weight_decay=0.0, eps=eps, maximize=False, grad_scale=None, found_inf=None,
@@ -169,7 +172,7 @@ class NetworkGroup:
         self._joining: list[list[Any]] = []
         self._members = 0
         # per member: Adam's step counts and moments (one per parameter), update count
-        self._steps: list[list[Any]] = []
+        self._steps: list[Any] = []
         self._exp_avgs: list[list[Any]] = []
         self._exp_avg_sqs: list[list[Any]] = []
         self.updates: list[int] = []
@@ -192,7 +195,7 @@ class NetworkGroup:
         index = self._members + len(self._joining)
         self._joining.append(tensors)
         ordered = tensors[0::2] + tensors[1::2]  # the weights of every layer, then the biases
-        self._steps.append([torch.zeros((), dtype=torch.float32, device=self.device) for _ in ordered])
+        self._steps.append(torch.zeros((), dtype=torch.float32, device=self.device))  # one count per member
         self._exp_avgs.append([torch.zeros_like(t) for t in ordered])
         self._exp_avg_sqs.append([torch.zeros_like(t) for t in ordered])
         self.updates.append(0)
@@ -300,14 +303,17 @@ class NetworkGroup:
         steps: list[Any] = []
         exp_avgs: list[Any] = []
         exp_avg_sqs: list[Any] = []
+        counters: list[Any] = []
         for row, member in enumerate(members):
             state = self._state(member)
             parameters += state[0]
             steps += state[1]
+            counters.append(self._steps[member])
             exp_avgs += state[2]
             exp_avg_sqs += state[3]
             grads += [layer[row] for layer in per_layer]
-        fused_adam_step(torch, parameters, grads, exp_avgs, exp_avg_sqs, steps, self.learning_rate, KERAS_EPSILON)
+        fused_adam_step(torch, parameters, grads, exp_avgs, exp_avg_sqs, steps, self.learning_rate, KERAS_EPSILON,
+                        counters=counters)
         for member in members:
             self._count(member)
         return losses.detach().tolist()  # type: ignore[no-any-return]
@@ -341,7 +347,8 @@ class NetworkGroup:
         predicted = forward(leaves, observations).gather(1, actions[:, None]).squeeze(1)
         loss = functional.mse_loss(predicted, targets)
         grads = list(torch.autograd.grad(loss, leaves))
-        fused_adam_step(torch, parameters, grads, exp_avgs, exp_avg_sqs, steps, self.learning_rate, KERAS_EPSILON)
+        fused_adam_step(torch, parameters, grads, exp_avgs, exp_avg_sqs, steps, self.learning_rate, KERAS_EPSILON,
+                        counters=[self._steps[member]])
         self._count(member)
         return float(loss.detach())
 
@@ -370,7 +377,8 @@ class NetworkGroup:
             weights = [w[member] for w in self.weights]
             biases = [b[member, 0] for b in self.biases]
             state = self._states[member] = (
-                [*weights, *biases], self._steps[member], self._exp_avgs[member], self._exp_avg_sqs[member],
+                [*weights, *biases], [self._steps[member]] * (2 * self.layers), self._exp_avgs[member],
+                self._exp_avg_sqs[member],
             )
         return state
 

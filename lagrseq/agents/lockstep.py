@@ -1,10 +1,9 @@
 """Lockstep: several trials in one process, their network updates computed as one batched call.
 
 Each trial runs its own, unchanged code in a thread of its own, but only one thread runs at a
-time: the calling thread (the conductor) resumes one trial, which runs until it asks for a
-batched operation (:func:`request`) or ends, then the next. When every trial still running is
-waiting, the conductor serves the waiting requests of one operation in one call and resumes
-those trials. Which operation it serves first is a question of speed only: the operations of
+time: a trial runs until it asks for a batched operation (:func:`request`) or ends, then hands
+on to the next. When every trial still running is waiting, the last to ask serves the waiting
+requests of one operation in one call and resumes those trials. Which operation it serves first is a question of speed only: the operations of
 lagrseq's network groups give every member the same numbers whoever else is in the batch
 (``lagrseq.agents.dqn``), so a trial's results never depend on the other trials.
 
@@ -12,15 +11,14 @@ Without a conductor (a trial run on its own), :func:`request` runs the operation
 batch of one: the same code.
 
 Errors: a trial that raises ends (its error is its outcome) and the others go on; an operation
-that raises raises in every trial that asked for it. Ctrl-C (KeyboardInterrupt in the
-conductor): every trial raises KeyboardInterrupt at its next request (or at once if it is
+that raises raises in every trial that asked for it. Ctrl-C (KeyboardInterrupt in the thread
+that called :meth:`Conductor.run`, which only waits): every trial raises KeyboardInterrupt at its next request (or at once if it is
 waiting), so each runs its own clean-up (a trial's log keeps its finished episodes), and then
 the conductor raises KeyboardInterrupt.
 """
 
 from __future__ import annotations
 
-import contextlib
 import threading
 from collections.abc import Callable, Hashable, Sequence
 from typing import Any
@@ -64,12 +62,21 @@ def request(operation: Operation, payload: Any) -> Any:
 
 class Conductor:
     """Runs trials in lockstep (see the module's docstring). ``shared(key, make)`` gives the
-    trials one object per key (a network group) made by the first trial that asks."""
+    trials one object per key (a network group) made by the first trial that asks.
+
+    The trials pass a baton: a trial that asks for an operation resumes the next trial of the
+    round and waits; the last one to ask serves the waiting requests (in its own thread) and
+    resumes the trials it served. One thread switch per request; the calling thread only
+    waits for the end (or a Ctrl-C)."""
 
     def __init__(self) -> None:
-        self._back = threading.Lock()
-        self._back.acquire()  # released by a trial when it waits or ends
+        self._lock = threading.Lock()  # the baton's state: queue, interrupted
+        self._finished = threading.Lock()
+        self._finished.acquire()  # released when the last trial ends
         self._interrupted = False
+        self._slots: list[_Slot] = []
+        self._queue: list[_Slot] = []
+        """The trials still to resume in this round, in order."""
         self._shared: dict[Hashable, Any] = {}
         self._shared_lock = threading.Lock()
         self.rounds = 0
@@ -85,39 +92,38 @@ class Conductor:
         """Run every trial; returns each one's return value, or the exception it raised.
         ``on_interrupt`` is called first thing after a Ctrl-C (the runner makes a second Ctrl-C
         end the process at once)."""
-        slots = [_Slot(i) for i in range(len(trials))]
+        slots = self._slots = [_Slot(i) for i in range(len(trials))]
+        if not slots:
+            return []
+        self._queue = slots[1:]
         for slot, trial in zip(slots, trials, strict=True):
             slot.thread = threading.Thread(target=self._trial, args=(slot, trial), name=f"lagrseq-trial-{slot.index}", daemon=True)
             slot.thread.start()
+        slots[0].go.release()
         try:
-            ready = list(slots)  # resumed in this order; each then waits or ends
-            while True:
-                for slot in ready:
-                    slot.go.release()
-                    self._back.acquire()
-                waiting = [slot for slot in slots if not slot.done]
-                if not waiting:
-                    break
-                ready = self._serve(waiting)
+            self._finished.acquire()
         except KeyboardInterrupt:
             if on_interrupt is not None:
                 on_interrupt()
-            self._interrupted = True
-            for slot in slots:
-                if not slot.done and slot.go.locked():
-                    slot.go.release()
-            for slot in slots:
-                assert slot.thread is not None
-                slot.thread.join()
+            with self._lock:
+                self._interrupted = True
+                for slot in slots:  # a waiting trial wakes and raises; a running one at its next request
+                    if not slot.done and slot.go.locked():
+                        slot.go.release()
+            self._join()
             raise
-        for slot in slots:
-            assert slot.thread is not None
-            slot.thread.join()
+        self._join()
         return [slot.outcome for slot in slots]
 
-    def _serve(self, waiting: list[_Slot]) -> list[_Slot]:
+    def _join(self) -> None:
+        for slot in self._slots:
+            assert slot.thread is not None
+            slot.thread.join()
+
+    def _serve(self, waiting: list[_Slot], current: _Slot) -> list[_Slot]:
         """Serve the operation fewest trials wait for (the others wait on: those trials catch
-        up with them, so the next call is a full batch); returns the trials served."""
+        up with them, so the next call is a full batch); returns the trials served, ``current``
+        (the serving trial) first when it is one of them."""
         by_operation: dict[Operation, list[_Slot]] = {}
         for slot in waiting:
             assert slot.operation is not None
@@ -126,13 +132,36 @@ class Conductor:
         self.rounds += 1
         try:
             results = operation([slot.payload for slot in served])
-        except Exception as exc:  # noqa: BLE001 - reaches every trial that asked
+        except BaseException as exc:  # noqa: BLE001 - reaches every trial that asked
             for slot in served:
                 slot.error = exc
         else:
             for slot, result in zip(served, results, strict=True):
                 slot.result = result
+        if current in served:
+            served.remove(current)
+            served.insert(0, current)
         return served
+
+    def _pass(self, slot: _Slot) -> bool:
+        """``slot`` waits for an operation or has ended: resume the next trial of the round, or,
+        at the end of a round, serve the waiting trials first. Returns whether ``slot`` must
+        wait for its turn (False: it is the next to run, or it ended)."""
+        while True:
+            with self._lock:
+                if self._interrupted:
+                    return False
+                if self._queue:
+                    following = self._queue.pop(0)
+                    if following is slot:
+                        return False
+                    following.go.release()
+                    return not slot.done
+                waiting = [s for s in self._slots if not s.done]
+                if not waiting:
+                    self._finished.release()
+                    return False
+            self._queue = self._serve(waiting, slot)
 
     def _trial(self, slot: _Slot, trial: Callable[[], Any]) -> None:
         _local.conductor = self
@@ -147,20 +176,14 @@ class Conductor:
         finally:
             slot.done = True
             _local.conductor = None
-            self._yield()
-
-    def _yield(self) -> None:
-        """Hand control back to the conductor (after a Ctrl-C it no longer waits for it)."""
-        if not self._interrupted:
-            with contextlib.suppress(RuntimeError):  # a Ctrl-C raced this trial's last step
-                self._back.release()
+            self._pass(slot)
 
     def _wait(self, slot: _Slot, operation: Operation, payload: Any) -> Any:
         if self._interrupted:
             raise KeyboardInterrupt
         slot.operation, slot.payload, slot.result, slot.error = operation, payload, None, None
-        self._yield()
-        slot.go.acquire()
+        if self._pass(slot):
+            slot.go.acquire()
         slot.operation = slot.payload = None
         if self._interrupted:
             raise KeyboardInterrupt
