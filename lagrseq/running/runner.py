@@ -4,7 +4,9 @@ A run writes ``OUT/<task>/<method>/<name>/trial-NNN.mcap``, one file per trial. 
 trial whose log is complete, but only if that log was made with the same configuration, seed and
 provider (``--name`` lets two configurations meet in one directory: that is refused), and says
 how many trials are complete, missing or unfinished before it starts. Trials run in this process
-(``jobs=1``), in a pool of spawned worker processes, or on Dask (:mod:`lagrseq.running.executors`); a trial
+(``jobs=1``), in a pool of spawned worker processes, or on Dask (:mod:`lagrseq.running.executors`);
+trials that train networks run in lockstep, several in one process (:func:`run_in_lockstep`, one
+group per worker), with the logs they write alone; a trial
 that raises is reported while the others go on; Ctrl-C cancels the trials
 not started, stops the running ones (their flushed episodes stay in ``.partial`` files that
 ``lagrseq recover`` turns into valid logs) and raises KeyboardInterrupt; a second Ctrl-C exits at
