@@ -17,6 +17,10 @@ with the paper's hyperparameter table):
 
 Weights start as Keras' defaults do in the released code (Glorot-uniform, zero biases), drawn from
 a torch generator seeded once per agent from the trial seed; Adam uses Keras' epsilon (1e-7).
+
+Seed-batched: every agent's network is a member of a :class:`NetworkGroup`, which stacks the
+networks of one shape; in a lockstep run (:mod:`lagrseq.agents.lockstep`) the trials' agents share
+groups and train in one batched call per step, with exactly the numbers each network gets alone.
 """
 
 from __future__ import annotations
@@ -84,48 +88,19 @@ def mlp(torch: Any, sizes: Sequence[int], generator: Any) -> Any:
     return torch.nn.Sequential(*layers)
 
 
-class FusedAdam:
-    """Adam (Kingma and Ba; torch's defaults: betas 0.9 and 0.999, no weight decay) as one call
-    of torch's fused kernel per step, the kernel ``torch.optim.Adam(..., fused=True)`` runs: the
-    same numbers bit for bit (tests/agents/test_dqn.py), without ``torch.optim``'s machinery.
-
-    Why not ``torch.optim.Adam`` itself: constructing any ``torch.optim`` optimizer imports
-    ``torch._dynamo`` (its ``add_param_group`` is wrapped in ``torch._disable_dynamo``), 1.6 to
-    2.2 s of CPU in every process that builds an agent, for a compiler lagrseq never uses.
-    """
-
-    def __init__(self, torch: Any, parameters: Sequence[Any], lr: float, eps: float,
-                 betas: tuple[float, float] = (0.9, 0.999)) -> None:
-        self._torch = torch
-        self.parameters = list(parameters)
-        self.lr, self.eps, self.betas = lr, eps, betas
-        # Per parameter, as torch keeps them for fused=True: a float32 step count on the
-        # parameter's device and the two moment estimates.
-        self.steps = [torch.zeros((), dtype=torch.float32, device=p.device) for p in self.parameters]
-        self.exp_avgs = [torch.zeros_like(p, memory_format=torch.preserve_format) for p in self.parameters]
-        self.exp_avg_sqs = [torch.zeros_like(p, memory_format=torch.preserve_format) for p in self.parameters]
-
-    def zero_grad(self, set_to_none: bool = True) -> None:
-        for parameter in self.parameters:
-            if set_to_none:
-                parameter.grad = None
-            elif parameter.grad is not None:
-                parameter.grad.zero_()
-
-    def step(self) -> None:
-        fused_adam_step(
-            self._torch, self.parameters, [p.grad for p in self.parameters], self.exp_avgs, self.exp_avg_sqs,
-            self.steps, self.lr, self.eps, self.betas,
-        )
-
-
 def fused_adam_step(torch: Any, parameters: list[Any], grads: list[Any], exp_avgs: list[Any], exp_avg_sqs: list[Any],
                     steps: list[Any], lr: float, eps: float, betas: tuple[float, float] = (0.9, 0.999),
                     counters: list[Any] | None = None) -> None:
-    """One Adam step of every parameter, in place, in one call of torch's fused kernel. The
-    kernel reads each tensor as flat memory: every gradient must be contiguous. ``steps``: each
-    parameter's step count (the kernel only reads them); ``counters``: the distinct tensors
-    among them, counted up first (default: ``steps`` themselves)."""
+    """One Adam step of every parameter (Kingma and Ba; torch's defaults: betas 0.9 and 0.999, no
+    weight decay), in place, in one call of the fused kernel ``torch.optim.Adam(..., fused=True)``
+    runs, with the same state tensors: the same numbers bit for bit (tests/agents/test_dqn.py),
+    without ``torch.optim``'s machinery. Constructing any ``torch.optim`` optimizer imports
+    ``torch._dynamo`` (its ``add_param_group`` is wrapped in ``torch._disable_dynamo``), 1.6 to
+    2.2 s of CPU in every process that builds an agent, for a compiler lagrseq never uses.
+
+    The kernel reads each tensor as flat memory: every gradient must be contiguous. ``steps``:
+    each parameter's step count, a float32 scalar tensor (the kernel only reads them);
+    ``counters``: the distinct tensors among them, counted up first (default: ``steps``)."""
     with torch.no_grad():
         torch._foreach_add_(steps if counters is None else counters, 1)
         torch._fused_adam_(

@@ -170,23 +170,27 @@ def test_dqn_learns_the_diamond_better_than_random(torch, tmp_path: Path) -> Non
 
 @pytest.mark.torch
 def test_fused_adam_is_torch_adam_bit_for_bit(torch) -> None:  # type: ignore[no-untyped-def]
-    """lagrseq's Adam runs the kernel of ``torch.optim.Adam(fused=True)``: equal weights after
-    every step (with the Keras epsilon the agents use)."""
-    from lagrseq.agents.dqn import FusedAdam, mlp
+    """lagrseq's Adam step runs the kernel of ``torch.optim.Adam(fused=True)``: equal weights
+    after every step (with the Keras epsilon the agents use)."""
+    from lagrseq.agents.dqn import fused_adam_step, mlp
 
     def net():  # type: ignore[no-untyped-def]
         return mlp(torch, (5, 32, 32, 3), torch.Generator().manual_seed(7))
 
     ours, theirs = net(), net()
-    mine = FusedAdam(torch, list(ours.parameters()), 1e-3, eps=1e-7)
+    parameters = list(ours.parameters())
+    steps = [torch.zeros((), dtype=torch.float32) for _ in parameters]
+    exp_avgs = [torch.zeros_like(p) for p in parameters]
+    exp_avg_sqs = [torch.zeros_like(p) for p in parameters]
     reference = torch.optim.Adam(theirs.parameters(), lr=1e-3, eps=1e-7, fused=True)
     data = torch.Generator().manual_seed(3)
     for _ in range(25):
         x, y = torch.rand(16, 5, generator=data), torch.rand(16, 3, generator=data)
-        for model, optimizer in ((ours, mine), (theirs, reference)):
-            optimizer.zero_grad(set_to_none=True)
-            torch.nn.functional.mse_loss(model(x), y).backward()
-            optimizer.step()
+        grads = torch.autograd.grad(torch.nn.functional.mse_loss(ours(x), y), parameters)
+        fused_adam_step(torch, parameters, list(grads), exp_avgs, exp_avg_sqs, steps, 1e-3, 1e-7)
+        reference.zero_grad(set_to_none=True)
+        torch.nn.functional.mse_loss(theirs(x), y).backward()
+        reference.step()
         for a, b in zip(ours.parameters(), theirs.parameters(), strict=True):
             assert torch.equal(a, b)
 
@@ -213,7 +217,7 @@ def test_building_and_training_an_agent_does_not_import_dynamo(torch) -> None:  
 
 def reference_step(torch, network, optimizer, batch, discount: float, target) -> float:  # type: ignore[no-untyped-def]
     """One training step of one network as the agent took it before networks were stacked:
-    ``nn.Sequential`` of ``nn.Linear``, ``mse_loss`` and fused Adam."""
+    ``nn.Sequential`` of ``nn.Linear``, ``mse_loss`` and ``torch.optim.Adam(fused=True)``."""
     observations, actions, rewards = (torch.from_numpy(x) for x in (batch.observations, batch.actions, batch.rewards))
     with torch.no_grad():
         if discount == 0.0:
@@ -241,7 +245,7 @@ def test_a_group_trains_each_member_as_a_network_of_its_own_bit_for_bit(torch, s
     target copies, losses and greedy actions of separate networks stepped alone."""
     import copy
 
-    from lagrseq.agents.dqn import FusedAdam, NetworkGroup, mlp
+    from lagrseq.agents.dqn import NetworkGroup, mlp
     from lagrseq.agents.replay import Batch
 
     torch.set_num_threads(1)
@@ -250,7 +254,7 @@ def test_a_group_trains_each_member_as_a_network_of_its_own_bit_for_bit(torch, s
     assert [group.join(torch.Generator().manual_seed(seed)) for seed in range(members)] == list(range(members))
     networks = [mlp(torch, sizes, torch.Generator().manual_seed(seed)) for seed in range(members)]
     targets = [copy.deepcopy(n).requires_grad_(False) if interval else None for n in networks]
-    optimizers = [FusedAdam(torch, list(n.parameters()), 1e-3, eps=1e-7) for n in networks]
+    optimizers = [torch.optim.Adam(n.parameters(), lr=1e-3, eps=1e-7, fused=True) for n in networks]
     updates = [0] * members
     data = np.random.default_rng(7)
     subsets = [list(range(members)), [0, 2, 4], [3], [1, 2], list(range(members)), [4, 0]]
