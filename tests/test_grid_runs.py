@@ -180,6 +180,23 @@ def test_trials_in_lockstep_write_the_bytes_they_write_alone(torch, tmp_path: Pa
 
 
 @pytest.mark.torch
+def test_a_trial_that_fails_in_lockstep_is_reported_and_the_others_finish(torch, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """Trial 1 cannot open its log (a directory stands where its .partial goes): it fails, is
+    retried alone, fails again and is named; trials 0 and 2, in lockstep with it, finish."""
+    from lagrseq.errors import TrialsFailed
+
+    config = load("object-arrangement", "lagr-seq", "upstream")
+    directory = tmp_path / "run"
+    (directory / "trial-001.mcap.partial").mkdir(parents=True)
+    warned: list[str] = []
+    with pytest.raises(TrialsFailed, match="1 of 3 trials failed"):
+        run_trials(config, 3, 4, "mock", directory, jobs=1, retries=1, warn=warned.append)
+    assert len(warned) == 1 and "trial 1 (seed 4" in warned[0]
+    assert sorted(p.name for p in directory.glob("trial-*.mcap")) == ["trial-000.mcap", "trial-002.mcap"]
+    assert all(read_info(p).complete for p in directory.glob("trial-*.mcap"))
+
+
+@pytest.mark.torch
 def test_lockstep_trains_the_trials_networks_in_shared_batched_calls(torch) -> None:  # type: ignore[no-untyped-def]
     """Agents built inside a lockstep run share one network group per shape (the primary and
     the SEQ networks: two groups), and a step of every trial is one batched call."""
