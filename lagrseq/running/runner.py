@@ -245,10 +245,13 @@ make_executor = executors.make_executor
 
 def lockstep_helps(config: ExperimentConfig) -> bool:
     """Whether the trials of ``config`` gain from running in lockstep: they train networks
-    (the grid tasks' DQN, the neural SEQ agent), which then learn in batched calls."""
+    (the grid tasks' DQN, the neural SEQ agent), which then learn in batched calls; and the
+    ``greenlet`` package lockstep runs on is installed (else one after the other: the same logs)."""
+    from lagrseq.agents import lockstep
     from lagrseq.config import DQNConfig, NeuralSecondaryConfig
 
-    return isinstance(config.primary, DQNConfig) or isinstance(config.secondary, NeuralSecondaryConfig)
+    trains = isinstance(config.primary, DQNConfig) or isinstance(config.secondary, NeuralSecondaryConfig)
+    return trains and lockstep.available()
 
 
 def run_in_lockstep(trials: list[Callable[[], TrialResult]]) -> list[TrialResult | BaseException]:

@@ -9,14 +9,18 @@ from __future__ import annotations
 import os
 import signal
 import threading
+import time
 from collections.abc import Sequence
 
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
-from lagrseq.agents import lockstep
-from lagrseq.agents.lockstep import Conductor
+pytest.importorskip("greenlet")
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from lagrseq.agents import lockstep  # noqa: E402
+from lagrseq.agents.lockstep import Conductor  # noqa: E402
 
 
 class Recorder:
@@ -52,7 +56,7 @@ def test_trials_that_ask_alike_are_served_in_one_call_per_step() -> None:
     assert outcomes == [[100 + 10 * k + step for step in range(5)] for k in range(4)]
     assert op.calls == [[10 * k + step for k in range(4)] for step in range(5)]
     assert conductor.rounds == 5
-    assert threading.get_ident() not in op.threads  # served by the trials' threads
+    assert op.threads == {threading.get_ident()}  # greenlets: no other thread
 
 
 def test_the_rarer_operation_is_served_first_so_the_others_catch_up() -> None:
@@ -106,9 +110,9 @@ def test_an_operation_that_raises_raises_in_every_trial_that_asked() -> None:
 
 
 def test_ctrl_c_raises_in_every_trial_at_its_request_then_in_the_caller() -> None:
-    """A real SIGINT (sent by the third batched call) interrupts the thread that waits in
-    ``run``; every trial then raises KeyboardInterrupt where it waits or at its next request,
-    so each cleans up, and ``run`` raises it; ``on_interrupt`` runs first."""
+    """A real SIGINT (sent by the third batched call) interrupts the conductor; every trial then
+    raises KeyboardInterrupt where it waits, so each cleans up, and ``run`` raises it;
+    ``on_interrupt`` runs first."""
     cleaned: list[int] = []
     told: list[str] = []
     calls = 0
@@ -135,7 +139,33 @@ def test_ctrl_c_raises_in_every_trial_at_its_request_then_in_the_caller() -> Non
     finally:
         signal.signal(signal.SIGINT, previous)
     assert sorted(cleaned) == [0, 1, 2] and told == ["first"]
-    assert not [t for t in threading.enumerate() if t.name.startswith("lagrseq-trial-")]
+    assert lockstep.current() is None
+
+
+def test_ctrl_c_inside_a_trial_stops_the_others_too() -> None:
+    """The Ctrl-C lands in the trial that runs at that moment: it cleans up, then every other
+    trial gets KeyboardInterrupt where it waits, and ``run`` raises it."""
+    cleaned: list[int] = []
+    op = Recorder(0)
+
+    def trial(k: int) -> None:
+        try:
+            for step in range(10):
+                if k == 1 and step == 2:
+                    os.kill(os.getpid(), signal.SIGINT)
+                    time.sleep(5)  # the handler raises KeyboardInterrupt here
+                lockstep.request(op, step)
+        finally:
+            cleaned.append(k)
+
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            Conductor().run([lambda k=k: trial(k) for k in range(3)])  # type: ignore[misc]
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert sorted(cleaned) == [0, 1, 2]
+    assert [len(call) for call in op.calls] == [3, 3]
 
 
 def test_trials_share_one_object_per_key() -> None:
