@@ -14,9 +14,13 @@ processes (``benchmarks/paired.py``), and prints paired CPU-time ratios for:
 1. start-up: ``lagrseq run TASK --method lagr-seq --set run.max_steps=1`` (imports, building the
    DQN agents and their optimisers, one step, the log);
 2. a run of ``--vs-trials`` trials of ``--vs-steps`` steps each (``lagrseq run TASK --method
-   lagr-seq --jobs 1``), whole process.
+   lagr-seq --jobs N`` with ``--vs-jobs``, default 1), whole process including its workers; with
+   ``--vs-steps 0`` each trial has its preset's own length (image 10 000 steps, arrangement
+   5 000), the issue's workload. The trials of one process run in lockstep (seed-batched DQN).
 
     PYTHONPATH=. python benchmarks/bench_grids.py --task image-completion --vs f2d2ceb --pairs 3
+    PYTHONPATH=. python benchmarks/bench_grids.py --task image-completion --vs f2d2ceb --pairs 2 \
+        --vs-trials 10 --vs-steps 0 --no-startup     # issue 21's workload
 """
 
 from __future__ import annotations
@@ -74,10 +78,13 @@ def main(argv: list[str] | None = None) -> int:
     add_vs_argument(parser)
     parser.add_argument("--vs-steps", type=int, default=2000, help="with --vs: steps per trial (default 2000)")
     parser.add_argument("--vs-trials", type=int, default=2, help="with --vs: trials per run (default 2)")
+    parser.add_argument("--vs-jobs", type=int, default=1, help="with --vs: --jobs of the run (default 1)")
+    parser.add_argument("--no-startup", action="store_true", help="with --vs: skip the start-up comparison")
     args = parser.parse_args(argv)
     if args.vs:
         for task in args.task or sorted(STEPS):
-            run_vs(task, args.preset, args.vs, args.pairs, args.vs_steps, args.vs_trials)
+            run_vs(task, args.preset, args.vs, args.pairs, args.vs_steps, args.vs_trials, args.vs_jobs,
+                   not args.no_startup)
         return 0
     where = pin_one_core()
     tasks = args.task or sorted(STEPS)
@@ -107,22 +114,26 @@ def main(argv: list[str] | None = None) -> int:
     return 1 if failed else 0
 
 
-def run_vs(task: str, preset: str, ref: str, pairs: int, steps: int, trials: int) -> None:
-    def command(max_steps: int, count: int) -> object:
+def run_vs(task: str, preset: str, ref: str, pairs: int, steps: int, trials: int, jobs: int = 1,
+           startup: bool = True) -> None:
+    def command(max_steps: int, count: int, run_jobs: int) -> object:
         def make(scratch: Path) -> list[str]:
+            sets = ["--set", f"run.max_steps={max_steps}"] if max_steps else []
             return [
                 sys.executable, "-m", "lagrseq", "run", task, "--method", "lagr-seq", "--preset", preset,
-                "--provider", "mock", "--trials", str(count), "--jobs", "1", "--quiet",
-                "--set", f"run.max_steps={max_steps}", "--out", str(scratch),
+                "--provider", "mock", "--trials", str(count), "--jobs", str(run_jobs), "--quiet",
+                *sets, "--out", str(scratch),
             ]
 
         return make
 
+    length = f"{steps} steps" if steps else "full-length"
     with worktree(ref) as tree:
-        print(f"{task}: start-up (one step), here vs {ref}:")
-        print(compare(command(1, 1), tree, pairs).line(f"{task} start-up", ref))  # type: ignore[arg-type]
-        print(f"{task}: {trials} trials x {steps} steps, here vs {ref}:")
-        print(compare(command(steps, trials), tree, pairs).line(f"{task} {trials}x{steps} steps", ref))  # type: ignore[arg-type]
+        if startup:
+            print(f"{task}: start-up (one step), here vs {ref}:")
+            print(compare(command(1, 1, 1), tree, pairs).line(f"{task} start-up", ref))  # type: ignore[arg-type]
+        print(f"{task}: {trials} {length} trials, --jobs {jobs}, here vs {ref}:")
+        print(compare(command(steps, trials, jobs), tree, pairs).line(f"{task} {trials} trials x {length}", ref))  # type: ignore[arg-type]
 
 
 if __name__ == "__main__":

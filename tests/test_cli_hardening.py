@@ -152,7 +152,7 @@ def test_two_identical_runs_at_once_never_tear_a_log(tmp_path: Path) -> None:
 RUN_8 = ["run", "cube-stacking", "--method", "lagr-seq", "--trials", "8", "--set", "run.episodes=3000", "--quiet"]
 
 
-def _interrupt(extra: list[str], tmp_path: Path, twice: bool = False, command: list[str] = RUN_8) -> tuple[int, float, str]:
+def _interrupt(extra: list[str], tmp_path: Path, twice: bool = False, command: list[str] = RUN_8, settle_s: float = 1.0) -> tuple[int, float, str]:
     args = [sys.executable, "-m", "lagrseq", *command, "--out", str(tmp_path), *extra]
     env = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"}
     process = subprocess.Popen(
@@ -163,7 +163,7 @@ def _interrupt(extra: list[str], tmp_path: Path, twice: bool = False, command: l
     deadline = time.monotonic() + 120
     while not list(tmp_path.rglob("*.partial")) and time.monotonic() < deadline:
         time.sleep(0.1)
-    time.sleep(1.0)  # some episodes flushed
+    time.sleep(settle_s)  # some episodes flushed
     started = time.monotonic()
     os.killpg(process.pid, signal.SIGINT)  # what a terminal's Ctrl-C does: the whole process group
     if twice:
@@ -197,6 +197,25 @@ def test_one_ctrl_c_stops_promptly_leaving_complete_logs_and_partials(tmp_path: 
     line = err.strip()
     assert "\n" not in line and line.startswith("lagrseq run: interrupted;"), err  # no resource-tracker warning after it
     _left_only_complete_logs_and_partials(tmp_path, 8)
+
+
+def test_one_ctrl_c_stops_dqn_trials_in_lockstep_each_keeping_its_finished_episodes(tmp_path: Path) -> None:
+    """--jobs 1 runs the 3 image-completion trials in lockstep (threads of this process): a
+    Ctrl-C stops all three, and each .partial keeps the episodes it finished (recover)."""
+    pytest.importorskip("torch")
+    from lagrseq.logs.reader import read_topic
+    from lagrseq.logs.recover import recover
+
+    command = ["run", "image-completion", "--method", "lagr-seq", "--trials", "3", "--set", "run.max_steps=1000000",
+               "--set", "env.scans=1", "--quiet"]  # fmt: skip
+    code, seconds, err = _interrupt(["--jobs", "1"], tmp_path, command=command, settle_s=3.0)
+    assert code == 130 and seconds < 10, (code, seconds, err)
+    assert err.strip().startswith("lagrseq run: interrupted;") and "\n" not in err.strip(), err
+    partials = sorted(tmp_path.rglob("*.mcap.partial"))
+    assert len(partials) == 3 and not list(tmp_path.rglob("trial-*.mcap"))
+    for partial in partials:
+        episodes = read_topic(recover(partial).path, "/episode")
+        assert episodes and [e["episode"] for e in episodes] == list(range(len(episodes)))
 
 
 @pytest.mark.slow

@@ -152,6 +152,75 @@ def test_same_seed_same_events(torch, tmp_path: Path) -> None:  # type: ignore[n
     assert list(iter_messages(c.path)) != list(iter_messages(a.path))
 
 
+def log_bytes(directory: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(directory.glob("trial-*.mcap"))}
+
+
+@pytest.mark.torch
+@pytest.mark.parametrize(("task", "preset"), [("image-completion", "paper"), ("object-arrangement", "upstream")])
+def test_trials_in_lockstep_write_the_bytes_they_write_alone(torch, tmp_path: Path, task: str, preset: str) -> None:  # type: ignore[no-untyped-def]
+    """Seed-batched DQN: trials run together (in lockstep in this process with --jobs 1, as
+    groups in pool workers with --jobs 2), their networks trained in batched calls, write
+    byte for byte the logs each writes alone; so a log does not depend on --jobs or on which
+    trials ran with it. A rerun after removing one log runs that trial alone: the same bytes."""
+    config = load(task, "lagr-seq", preset)
+    alone = tmp_path / "alone"
+    alone.mkdir()
+    for trial in range(3):
+        run_one(config, trial, 4, "mock", alone / f"trial-{trial:03d}.mcap")
+    reference = log_bytes(alone)
+    assert len(reference) == 3 and len(set(reference.values())) == 3
+    for jobs in (1, 2):
+        results = run_trials(config, 3, 4, "mock", tmp_path / f"jobs{jobs}", jobs=jobs)
+        assert [r.steps for r in results] == [BUDGET[task]] * 3
+        assert log_bytes(tmp_path / f"jobs{jobs}") == reference, f"--jobs {jobs}"
+    (tmp_path / "jobs1" / "trial-001.mcap").unlink()
+    run_trials(config, 3, 4, "mock", tmp_path / "jobs1", jobs=1)
+    assert log_bytes(tmp_path / "jobs1") == reference
+
+
+@pytest.mark.torch
+def test_a_trial_that_fails_in_lockstep_is_reported_and_the_others_finish(torch, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """Trial 1 cannot open its log (a directory stands where its .partial goes): it fails, is
+    retried alone, fails again and is named; trials 0 and 2, in lockstep with it, finish."""
+    from lagrseq.errors import TrialsFailed
+
+    config = load("object-arrangement", "lagr-seq", "upstream")
+    directory = tmp_path / "run"
+    (directory / "trial-001.mcap.partial").mkdir(parents=True)
+    warned: list[str] = []
+    with pytest.raises(TrialsFailed, match="1 of 3 trials failed"):
+        run_trials(config, 3, 4, "mock", directory, jobs=1, retries=1, warn=warned.append)
+    assert len(warned) == 1 and "trial 1 (seed 4" in warned[0]
+    assert sorted(p.name for p in directory.glob("trial-*.mcap")) == ["trial-000.mcap", "trial-002.mcap"]
+    assert all(read_info(p).complete for p in directory.glob("trial-*.mcap"))
+
+
+@pytest.mark.torch
+def test_lockstep_trains_the_trials_networks_in_shared_batched_calls(torch) -> None:  # type: ignore[no-untyped-def]
+    """Agents built inside a lockstep run share one network group per shape (the primary and
+    the SEQ networks: two groups), and a step of every trial is one batched call."""
+    from lagrseq.agents.dqn import DQN
+    from lagrseq.agents.lockstep import Conductor
+
+    conductor = Conductor()
+
+    def trial(seed: int) -> tuple[object, object, int]:
+        primary = DQN(6, 2, (8,), 1e-3, 0.9, 4, 50, 0, seed)
+        seq = DQN(5, 2, (8,), 1e-3, 0.0, 4, 50, 0, seed + 100)
+        rng = np.random.default_rng(seed)
+        for _ in range(10):
+            primary.remember(np.ones(6), 1, 1.0, np.zeros(6), False)
+            primary.train_step(rng)
+        return primary.group, seq.group, primary.updates
+
+    outcomes = conductor.run([lambda s=s: trial(s) for s in range(3)])  # type: ignore[misc]
+    assert len({id(o[0]) for o in outcomes}) == 1 and len({id(o[1]) for o in outcomes}) == 1
+    assert outcomes[0][0] is not outcomes[0][1]
+    assert [o[2] for o in outcomes] == [7, 7, 7]
+    assert conductor.rounds == 7  # 3 trials x 7 updates in 7 calls
+
+
 @pytest.mark.torch
 @pytest.mark.parametrize("task", list(GRIDS))
 def test_guidance_beats_the_dqn_and_seq_asks_less(torch, tmp_path: Path, task: str) -> None:  # type: ignore[no-untyped-def]

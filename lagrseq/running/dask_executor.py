@@ -41,8 +41,8 @@ import distributed
 
 from lagrseq.errors import UsageError
 from lagrseq.running.executor_base import (
+    Job,
     TrialExecutor,
-    TrialJob,
     check_scheduler,
     quiet_resource_tracker,
 )
@@ -158,7 +158,7 @@ class DaskExecutor(TrialExecutor):
             if say is not None:
                 say(f"dask: scheduler {scheduler}, {self.workers} worker{'s' if self.workers != 1 else ''} now")
 
-    def submit(self, fn: Callable[[TrialJob], Any], job: TrialJob) -> Any:
+    def submit(self, fn: Callable[[Any], Any], job: Job) -> Any:
         # pure=False with an explicit key: the key is the trial's, not a hash of the arguments
         future = self.client.submit(fn, job, key=job.key, pure=False)
         self.submitted.append(future)

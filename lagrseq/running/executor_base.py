@@ -1,6 +1,7 @@
 """The executor interface: what the runner needs of any executor, and what its workers run.
 
-A trial is one task: :class:`TrialJob` in, a ``TrialResult`` out. The executors themselves
+A trial is one task: :class:`TrialJob` in, a ``TrialResult`` out; or several trials of one run
+(:class:`GroupJob`) that step in lockstep, one ``TrialResult`` or error per trial out. The executors themselves
 (``lagrseq.running.executors``: the local process pool; ``lagrseq.running.dask_executor``) implement
 :class:`TrialExecutor`; they import this module, never each other.
 """
@@ -41,6 +42,24 @@ class TrialJob:
     """More entries for the trial's run metadata (``lagrseq frontier --tune``'s choice)."""
 
 
+@dataclass(frozen=True)
+class GroupJob:
+    """Several trials of one run as one task: they run in lockstep in one process, their
+    networks trained in batched calls (:mod:`lagrseq.agents.lockstep`). A trial's log does not
+    depend on the group it ran in; the outcome is one ``TrialResult`` or error per trial."""
+
+    jobs: tuple[TrialJob, ...]
+    key: str
+    """``lagrseq-group-<run digest>-<first trial>-<last trial>``."""
+
+
+Job = TrialJob | GroupJob
+
+
+def group_key(digest: str, trials: list[int]) -> str:
+    return f"lagrseq-group-{digest}-{trials[0]:03d}-{trials[-1]:03d}"
+
+
 def run_digest(config_json: str, seed: int, provider_spec: str, directory: str) -> str:
     """12 hex digits naming one run: its configuration, seed, provider and directory."""
     text = "\0".join((config_json, str(seed), provider_spec, os.path.abspath(directory)))
@@ -58,7 +77,7 @@ class TrialExecutor:
     name = "executor"
     workers = 1
 
-    def submit(self, fn: Callable[[TrialJob], Any], job: TrialJob) -> Any:
+    def submit(self, fn: Callable[[Any], Any], job: Job) -> Any:
         raise NotImplementedError  # abstract
 
     def completed(self, handles: Iterable[Any]) -> Iterator[Any]:

@@ -28,19 +28,22 @@ from lagrseq.registry import EXECUTORS as REGISTRY
 from lagrseq.running.executor_base import (
     SCHEDULER_SCHEMES,
     TRACKER_QUIET,
+    GroupJob,
+    Job,
     TrialExecutor,
     TrialJob,
     _ignore_interrupts,
     check_scheduler,
     exit_on_next_interrupt,
+    group_key,
     quiet_resource_tracker,
     run_digest,
     task_key,
 )
 
 __all__ = [
-    "SCHEDULER_SCHEMES", "TRACKER_QUIET", "LocalExecutor", "TrialExecutor", "TrialJob", "_ignore_interrupts",
-    "check_scheduler", "exit_on_next_interrupt", "make_executor", "quiet_resource_tracker", "run_digest",
+    "SCHEDULER_SCHEMES", "TRACKER_QUIET", "GroupJob", "Job", "LocalExecutor", "TrialExecutor", "TrialJob",
+    "_ignore_interrupts", "check_scheduler", "exit_on_next_interrupt", "group_key", "make_executor", "quiet_resource_tracker", "run_digest",
     "stop_pool", "task_key",
 ]
 
@@ -80,7 +83,7 @@ class LocalExecutor(TrialExecutor):
             max_workers=jobs, mp_context=multiprocessing.get_context("spawn"), initializer=_ignore_interrupts
         )
 
-    def submit(self, fn: Callable[[TrialJob], Any], job: TrialJob) -> Future[Any]:
+    def submit(self, fn: Callable[[Any], Any], job: Job) -> Future[Any]:
         return self.pool.submit(fn, job)
 
     def completed(self, handles: Iterable[Future[Any]]) -> Iterator[Future[Any]]:

@@ -4,7 +4,9 @@ A run writes ``OUT/<task>/<method>/<name>/trial-NNN.mcap``, one file per trial. 
 trial whose log is complete, but only if that log was made with the same configuration, seed and
 provider (``--name`` lets two configurations meet in one directory: that is refused), and says
 how many trials are complete, missing or unfinished before it starts. Trials run in this process
-(``jobs=1``), in a pool of spawned worker processes, or on Dask (:mod:`lagrseq.running.executors`); a trial
+(``jobs=1``), in a pool of spawned worker processes, or on Dask (:mod:`lagrseq.running.executors`);
+trials that train networks run in lockstep, several in one process (:func:`run_in_lockstep`, one
+group per worker), with the logs they write alone; a trial
 that raises is reported while the others go on; Ctrl-C cancels the trials
 not started, stops the running ones (their flushed episodes stay in ``.partial`` files that
 ``lagrseq recover`` turns into valid logs) and raises KeyboardInterrupt; a second Ctrl-C exits at
@@ -14,6 +16,7 @@ once.
 from __future__ import annotations
 
 import contextlib
+import functools
 import gc
 import json
 import platform
@@ -240,6 +243,42 @@ stop_pool = executors.stop_pool
 make_executor = executors.make_executor
 
 
+def lockstep_helps(config: ExperimentConfig) -> bool:
+    """Whether the trials of ``config`` gain from running in lockstep: they train networks
+    (the grid tasks' DQN, the neural SEQ agent), which then learn in batched calls; and the
+    ``greenlet`` package lockstep runs on is installed (else one after the other: the same logs)."""
+    from lagrseq.agents import lockstep
+    from lagrseq.config import DQNConfig, NeuralSecondaryConfig
+
+    trains = isinstance(config.primary, DQNConfig) or isinstance(config.secondary, NeuralSecondaryConfig)
+    return trains and lockstep.available()
+
+
+def run_in_lockstep(trials: list[Callable[[], TrialResult]]) -> list[TrialResult | BaseException]:
+    """Trials (each a call of :func:`run_one`) in lockstep in this process
+    (:mod:`lagrseq.agents.lockstep`); each one's result or error. A Ctrl-C stops every trial
+    (each keeps its finished episodes) and is raised; a second one ends the process at once."""
+    from lagrseq.agents.lockstep import Conductor
+
+    with _older_objects_frozen():
+        return Conductor().run(trials, on_interrupt=executors.exit_on_next_interrupt)
+
+
+def run_group_job(group: executors.GroupJob) -> list[TrialResult | BaseException]:
+    """Several trials of one run in lockstep, as one task of an executor; each trial's result
+    or error (an error that cannot be pickled is replaced by one that names it)."""
+    import pickle
+
+    outcomes = run_in_lockstep([functools.partial(run_trial_job, job) for job in group.jobs])
+    for i, outcome in enumerate(outcomes):
+        if isinstance(outcome, BaseException):
+            try:
+                pickle.dumps(outcome)
+            except Exception:  # noqa: BLE001 - any pickling failure
+                outcomes[i] = RuntimeError(_error_line(outcome))
+    return outcomes
+
+
 def run_trial_job(job: executors.TrialJob) -> TrialResult:
     """One trial as a task of an executor (a module-level function: spawned and Dask workers
     import it). Returns the small result record, never the trial's objects."""
@@ -434,26 +473,60 @@ def run_sweep(
 
 
 def _run_here(plan: _Todo, retries: int, failed: Callable[[_Todo, int, BaseException], None]) -> None:
-    """A run's trials one after the other in this process, episode by episode on its bar."""
+    """A run's trials in this process, episode by episode on its bar: in lockstep when they
+    train networks (:func:`lockstep_helps`), else one after the other."""
     run = plan.run
     unit, _ = progress_unit(run.config)
     on_episode = None
     if run.progress is not None:
         bar = run.progress
         on_episode = (lambda steps: bar.update(steps)) if unit == "step" else (lambda _: bar.update(1))
+
+    def trial_call(trial: int) -> Callable[[], TrialResult]:
+        return functools.partial(
+            run_one, run.config, trial, run.seed, run.provider_spec, trial_path(run.directory, trial), on_episode=on_episode,
+            provider_options=plan.options, render_dir=run.render_dir, notes=run.notes,
+        )
+
+    if len(plan.todo) > 1 and lockstep_helps(run.config):
+        todo = list(plan.todo)
+        for attempt in range(retries + 1):
+            outcomes = run_in_lockstep([trial_call(trial) for trial in todo])
+            again: list[int] = []
+            for trial, outcome in zip(todo, outcomes, strict=True):
+                if isinstance(outcome, TrialResult):
+                    plan.results.append(outcome)
+                elif attempt == retries or isinstance(outcome, BudgetExceeded) or not isinstance(outcome, Exception):
+                    failed(plan, trial, outcome)
+                else:
+                    again.append(trial)
+            todo = again
+            if not todo:
+                break
+        return
     for trial in plan.todo:
-        path = trial_path(run.directory, trial)
         for attempt in range(retries + 1):
             try:
-                plan.results.append(run_one(
-                    run.config, trial, run.seed, run.provider_spec, path, on_episode=on_episode,
-                    provider_options=plan.options, render_dir=run.render_dir, notes=run.notes,
-                ))
+                plan.results.append(trial_call(trial)())
                 break
             except Exception as exc:
                 if attempt == retries or isinstance(exc, BudgetExceeded):
                     failed(plan, trial, exc)
                     break
+
+
+def groups_of(todo: list[int], workers: int) -> list[list[int]]:
+    """A run's pending trials as ``workers`` contiguous groups of near-equal size (fewer when
+    there are fewer trials): which trials share a group changes only the speed, never a log."""
+    count = max(1, min(workers, len(todo)))
+    size, extra = divmod(len(todo), count)
+    groups: list[list[int]] = []
+    start = 0
+    for i in range(count):
+        end = start + size + (1 if i < extra else 0)
+        groups.append(todo[start:end])
+        start = end
+    return [g for g in groups if g]
 
 
 def _run_pooled(
@@ -462,42 +535,61 @@ def _run_pooled(
     retries: int,
     failed: Callable[[_Todo, int, BaseException], None],
 ) -> None:
-    """The trials of ``plans`` as tasks of ``pool``, all submitted at once (in run order), each
-    retried up to ``retries`` times."""
-    owners: dict[Any, tuple[_Todo, int, int]] = {}
+    """The trials of ``plans`` as tasks of ``pool``, all submitted at once (in run order): a
+    run whose trials train networks as groups of trials in lockstep (:func:`groups_of`, one
+    group per worker), the others one trial a task. A trial that fails is retried up to
+    ``retries`` times, alone."""
+    owners: dict[Any, tuple[_Todo, list[int], int]] = {}
     digests = {
         id(plan): executors.run_digest(plan.run.config.to_json(), plan.run.seed, plan.run.provider_spec, str(plan.run.directory))
         for plan in plans
     }
     dicts = {id(plan): plan.run.config.to_dict() for plan in plans}
 
-    def submit(plan: _Todo, trial: int, attempt: int) -> Any:
+    def job(plan: _Todo, trial: int, attempt: int) -> executors.TrialJob:
         run = plan.run
-        key = executors.task_key(digests[id(plan)], trial, attempt)
-        job = executors.TrialJob(
-            dicts[id(plan)], trial, run.seed, run.provider_spec, str(trial_path(run.directory, trial)), plan.options, key,
+        return executors.TrialJob(
+            dicts[id(plan)], trial, run.seed, run.provider_spec, str(trial_path(run.directory, trial)), plan.options,
+            executors.task_key(digests[id(plan)], trial, attempt),
             str(run.render_dir) if run.render_dir is not None else None, dict(run.notes) if run.notes else None,
         )
-        handle = pool.submit(run_trial_job, job)
-        owners[handle] = (plan, trial, attempt)
+
+    def submit(plan: _Todo, trials: list[int], attempt: int) -> Any:
+        if len(trials) == 1:
+            handle = pool.submit(run_trial_job, job(plan, trials[0], attempt))
+        else:
+            group = executors.GroupJob(
+                tuple(job(plan, trial, attempt) for trial in trials), executors.group_key(digests[id(plan)], trials)
+            )
+            handle = pool.submit(run_group_job, group)
+        owners[handle] = (plan, trials, attempt)
         return handle
 
-    pending = [submit(plan, trial, 0) for plan in plans for trial in plan.todo]
+    pending = [
+        submit(plan, trials, 0)
+        for plan in plans
+        for trials in (groups_of(plan.todo, pool.workers) if lockstep_helps(plan.run.config) else [[t] for t in plan.todo])
+    ]
     try:
         while pending:
             again: list[Any] = []
             for handle in pool.completed(pending):
-                plan, trial, attempt = owners[handle]
+                plan, trials, attempt = owners[handle]
                 try:
-                    plan.results.append(pool.result(handle))
-                except Exception as exc:
-                    if attempt < retries and not isinstance(exc, BudgetExceeded):
-                        again.append(submit(plan, trial, attempt + 1))
-                    else:
-                        failed(plan, trial, exc)
-                    continue
-                if plan.run.progress is not None:
-                    plan.run.progress.update(plan.per_trial)
+                    value = pool.result(handle)
+                    outcomes = value if len(trials) > 1 else [value]
+                except Exception as exc:  # the task itself failed (a trial alone, or a worker lost)
+                    outcomes = [exc] * len(trials)
+                for trial, outcome in zip(trials, outcomes, strict=True):
+                    if isinstance(outcome, BaseException):
+                        if attempt < retries and isinstance(outcome, Exception) and not isinstance(outcome, BudgetExceeded):
+                            again.append(submit(plan, [trial], attempt + 1))
+                        else:
+                            failed(plan, trial, outcome)
+                        continue
+                    plan.results.append(outcome)
+                    if plan.run.progress is not None:
+                        plan.run.progress.update(plan.per_trial)
             pending = again
     except KeyboardInterrupt:
         # Ctrl-C: nothing more starts, the running trials stop, nothing half-made is renamed.

@@ -51,7 +51,7 @@ def feed(agent, steps: int = 40, seed: int = 0) -> list[float | None]:  # type: 
 
 
 def weights(agent) -> list[np.ndarray]:  # type: ignore[no-untyped-def]
-    return [p.detach().cpu().numpy().copy() for p in agent.online.parameters()]
+    return [p.detach().cpu().numpy().copy() for p in agent.parameters()]
 
 
 @pytest.mark.torch
@@ -69,14 +69,14 @@ def test_same_seed_same_training(torch) -> None:  # type: ignore[no-untyped-def]
 @pytest.mark.torch
 def test_target_network_is_refreshed_every_interval(torch) -> None:  # type: ignore[no-untyped-def]
     agent = make(target_update_interval=5)
-    assert agent.target is not None
+    assert agent.target_parameters() is not None
     feed(agent, steps=8)  # one update so far: the target still holds the initial weights
-    online, target = agent.online.state_dict(), agent.target.state_dict()
-    assert not all(torch.equal(online[k], target[k]) for k in online)
+    online, target = agent.parameters(), agent.target_parameters()
+    assert not all(torch.equal(a, b) for a, b in zip(online, target, strict=True))
     feed(agent, steps=4, seed=5)  # updates 2..5: copied at the 5th
-    online, target = agent.online.state_dict(), agent.target.state_dict()
-    assert agent.updates == 5 and all(torch.equal(online[k], target[k]) for k in online)
-    assert make().target is None  # interval 0: bootstrap from the online network
+    online, target = agent.parameters(), agent.target_parameters()
+    assert agent.updates == 5 and all(torch.equal(a, b) for a, b in zip(online, target, strict=True))
+    assert make().target_parameters() is None  # interval 0: bootstrap from the online network
 
 
 @pytest.mark.torch
@@ -128,7 +128,7 @@ def test_devices(torch) -> None:  # type: ignore[no-untyped-def]
         assert resolve_device(torch, "auto").type == "cuda"
         agent = make(device="cuda")
         feed(agent, steps=12)
-        assert next(agent.online.parameters()).is_cuda
+        assert all(p.is_cuda for p in agent.parameters())
     else:
         assert resolve_device(torch, "auto").type == "cpu"
         with pytest.raises(UsageError, match="sees no CUDA device"):
@@ -170,23 +170,27 @@ def test_dqn_learns_the_diamond_better_than_random(torch, tmp_path: Path) -> Non
 
 @pytest.mark.torch
 def test_fused_adam_is_torch_adam_bit_for_bit(torch) -> None:  # type: ignore[no-untyped-def]
-    """lagrseq's Adam runs the kernel of ``torch.optim.Adam(fused=True)``: equal weights after
-    every step (with the Keras epsilon the agents use)."""
-    from lagrseq.agents.dqn import FusedAdam, mlp
+    """lagrseq's Adam step runs the kernel of ``torch.optim.Adam(fused=True)``: equal weights
+    after every step (with the Keras epsilon the agents use)."""
+    from lagrseq.agents.dqn import fused_adam_step, mlp
 
     def net():  # type: ignore[no-untyped-def]
         return mlp(torch, (5, 32, 32, 3), torch.Generator().manual_seed(7))
 
     ours, theirs = net(), net()
-    mine = FusedAdam(torch, list(ours.parameters()), 1e-3, eps=1e-7)
+    parameters = list(ours.parameters())
+    steps = [torch.zeros((), dtype=torch.float32) for _ in parameters]
+    exp_avgs = [torch.zeros_like(p) for p in parameters]
+    exp_avg_sqs = [torch.zeros_like(p) for p in parameters]
     reference = torch.optim.Adam(theirs.parameters(), lr=1e-3, eps=1e-7, fused=True)
     data = torch.Generator().manual_seed(3)
     for _ in range(25):
         x, y = torch.rand(16, 5, generator=data), torch.rand(16, 3, generator=data)
-        for model, optimizer in ((ours, mine), (theirs, reference)):
-            optimizer.zero_grad(set_to_none=True)
-            torch.nn.functional.mse_loss(model(x), y).backward()
-            optimizer.step()
+        grads = torch.autograd.grad(torch.nn.functional.mse_loss(ours(x), y), parameters)
+        fused_adam_step(torch, parameters, list(grads), exp_avgs, exp_avg_sqs, steps, 1e-3, 1e-7)
+        reference.zero_grad(set_to_none=True)
+        torch.nn.functional.mse_loss(theirs(x), y).backward()
+        reference.step()
         for a, b in zip(ours.parameters(), theirs.parameters(), strict=True):
             assert torch.equal(a, b)
 
@@ -209,3 +213,70 @@ def test_building_and_training_an_agent_does_not_import_dynamo(torch) -> None:  
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "False"
+
+
+def reference_step(torch, network, optimizer, batch, discount: float, target) -> float:  # type: ignore[no-untyped-def]
+    """One training step of one network as the agent took it before networks were stacked:
+    ``nn.Sequential`` of ``nn.Linear``, ``mse_loss`` and ``torch.optim.Adam(fused=True)``."""
+    observations, actions, rewards = (torch.from_numpy(x) for x in (batch.observations, batch.actions, batch.rewards))
+    with torch.no_grad():
+        if discount == 0.0:
+            targets = rewards
+        else:
+            following = (target or network)(torch.from_numpy(batch.next_observations))
+            targets = rewards + discount * (1.0 - torch.from_numpy(batch.terminals)) * following.max(dim=1).values
+    predicted = network(observations).gather(1, actions[:, None]).squeeze(1)
+    loss = torch.nn.functional.mse_loss(predicted, targets)
+    optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    optimizer.step()
+    return float(loss.detach())
+
+
+@pytest.mark.torch
+@pytest.mark.parametrize(("sizes", "discount", "interval", "batch_size"), [
+    ((103, 128, 128, 2), 0.95, 3, 32),  # the image task's primary network (a short target interval)
+    ((100, 128, 128, 2), 0.0, 0, 32),  # its SEQ bandit
+    ((50, 64, 64, 2), 0.95, 0, 64),  # arrangement-sized, the released code's batch of 64
+])  # fmt: skip
+def test_a_group_trains_each_member_as_a_network_of_its_own_bit_for_bit(torch, sizes, discount, interval, batch_size) -> None:  # type: ignore[no-untyped-def]
+    """Members of a :class:`NetworkGroup` stepped together, in changing subsets (a member whose
+    buffer is not full, a SEQ decision in some trials only), end with exactly the weights,
+    target copies, losses and greedy actions of separate networks stepped alone."""
+    import copy
+
+    from lagrseq.agents.dqn import NetworkGroup, mlp
+    from lagrseq.agents.replay import Batch
+
+    torch.set_num_threads(1)
+    members = 5
+    group = NetworkGroup(torch, sizes, 1e-3, discount, interval, torch.device("cpu"))
+    assert [group.join(torch.Generator().manual_seed(seed)) for seed in range(members)] == list(range(members))
+    networks = [mlp(torch, sizes, torch.Generator().manual_seed(seed)) for seed in range(members)]
+    targets = [copy.deepcopy(n).requires_grad_(False) if interval else None for n in networks]
+    optimizers = [torch.optim.Adam(n.parameters(), lr=1e-3, eps=1e-7, fused=True) for n in networks]
+    updates = [0] * members
+    data = np.random.default_rng(7)
+    subsets = [list(range(members)), [0, 2, 4], [3], [1, 2], list(range(members)), [4, 0]]
+    for step in range(20):
+        chosen = sorted(subsets[step % len(subsets)])
+        batches = {
+            m: Batch(data.random((batch_size, sizes[0]), dtype=np.float32), data.integers(0, sizes[-1], batch_size),
+                     data.random(batch_size, dtype=np.float32), data.random((batch_size, sizes[0]), dtype=np.float32),
+                     (data.random(batch_size) < 0.2).astype(np.float32))
+            for m in chosen
+        }  # fmt: skip
+        losses = group.train([(m, batches[m]) for m in chosen])
+        for m, loss in zip(chosen, losses, strict=True):
+            assert loss == reference_step(torch, networks[m], optimizers[m], batches[m], discount, targets[m])
+            updates[m] += 1
+            if interval and updates[m] % interval == 0:
+                targets[m].load_state_dict(networks[m].state_dict())  # type: ignore[union-attr]
+        assert group.updates == updates
+        for m in range(members):
+            assert all(torch.equal(a, b) for a, b in zip(group.parameters(m), networks[m].parameters(), strict=True))
+            if interval:
+                assert all(torch.equal(a, b) for a, b in zip(group.parameters(m, target=True), targets[m].parameters(), strict=True))  # type: ignore[union-attr]
+            x = torch.from_numpy(data.random(sizes[0], dtype=np.float32))
+            with torch.no_grad():
+                assert torch.equal(group.q_values(m, x), networks[m](x[None])[0])

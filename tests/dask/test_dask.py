@@ -75,6 +75,22 @@ def test_the_same_events_on_dask_as_on_the_local_pool_and_in_process(
     assert events(tmp_path / "local") == reference
 
 
+def test_dqn_trials_run_as_groups_on_dask_and_write_the_bytes_they_write_alone(tmp_path: Path, pool: DaskExecutor) -> None:
+    """Seed-batched DQN on Dask: 3 image-completion trials go to the 2 workers as groups in
+    lockstep (trials 0-1 and 2); each log equals, byte for byte, the trial run alone here."""
+    pytest.importorskip("torch")
+    image = cfg.load("image-completion", "lagr-seq", "paper", None, ["run.max_steps=300"])
+    alone = tmp_path / "alone"
+    alone.mkdir()
+    for trial in range(3):
+        runner.run_one(image, trial, 2, "mock", alone / f"trial-{trial:03d}.mcap")
+    results = runner.run_trials(image, 3, 2, "mock", tmp_path / "dask", pool=pool)
+    assert [r.steps for r in results] == [300] * 3
+    for trial in range(3):
+        name = f"trial-{trial:03d}.mcap"
+        assert (tmp_path / "dask" / name).read_bytes() == (alone / name).read_bytes(), name
+
+
 def test_the_command_line_with_executor_dask(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], pool: DaskExecutor, reference: dict[str, object]
 ) -> None:
