@@ -236,6 +236,9 @@ class Estimate:
     runs: float = 0.0
     audit: float = 0.0
     replay: float = 0.0
+    calibration: float = 0.0
+    """The timing itself (already spent when the estimate is printed, but part of the wall time
+    the final line compares with)."""
     per_run: dict[Path, float] = field(default_factory=dict)
     """Each planned run's share of :attr:`runs` (seconds)."""
     audit_per_trial: dict[str, float] = field(default_factory=dict)
@@ -243,7 +246,7 @@ class Estimate:
 
     @property
     def total(self) -> float:
-        return self.runs + self.audit + self.replay
+        return self.calibration + self.runs + self.audit + self.replay
 
 
 def calibration_keys(the_plan: Plan) -> int:
@@ -539,17 +542,19 @@ def reproduce(
         # the frontier's matched-rate random runs of policies still to run: each about as long as
         # its policy's run
         guess.runs += sum(guess.per_run.get(run.path, 0.0) for run in matched_sources(the_plan, matched_items))
+        guess.calibration = time.perf_counter() - started
         say(
             f"{'quick' if quick else 'full'} suite: {len(the_plan.runs)} runs, {trials} trial logs, "
             f"{pending} to run ({trials - pending} already complete); expected about "
             f"{duration(guess.total)} on {jobs} {EXECUTORS.get(executor).workers[jobs > 1]} "
-            f"(runs {duration(guess.runs)}, audits {duration(guess.audit)}, replay {duration(guess.replay)}; "
+            f"(calibration {duration(guess.calibration)} done, runs {duration(guess.runs)}, audits {duration(guess.audit)}, "
+            f"replay {duration(guess.replay)}; "
             f"timed on this machine; LLM latency of live providers not included)"
         )
         bar.unit = "s"  # the unit and format first: reset redraws the bar
         bar.bar_format = "{desc}{percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} estimated s [{elapsed}<{remaining}, {rate_fmt}]"
         bar.set_description("runs", refresh=False)
-        bar.reset(total=max(guess.total, 1e-9))
+        bar.reset(total=max(guess.total - guess.calibration, 1e-9))
         execute(
             the_plan, jobs, bar, on_run=lambda run: bar.set_description(run.describe()),
             executor=executor, scheduler=scheduler, say=say, retries=retries, seconds=guess.per_run,
