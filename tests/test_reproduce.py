@@ -446,3 +446,39 @@ def test_the_progress_bar_counts_grid_runs_in_steps_and_moves(tmp_path: Path) ->
     bar = Bar()
     reproduce.execute(plan, jobs=1, bar=bar)
     assert bar.n == sum(run.units() for run in plan.runs)
+
+
+def test_runs_that_train_networks_are_timed_in_their_lockstep_groups(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A grid run's trials share batched training calls: the estimate times as many trials
+    together as a worker will step (capped), a cube run's one trial alone."""
+    from dataclasses import replace
+
+    from lagrseq.running.suite import load_suite
+    from lagrseq.study import reproduce
+
+    pytest.importorskip("torch")
+    pytest.importorskip("greenlet")
+    suite = load_suite().select(["fig5b", "fig6a"])
+    plan = reproduce.plan(suite, quick=True, provider=None, runs_dir=tmp_path, seed=0)
+    grid = next(run for run in plan.runs if run.config.task.name != "cube-stacking")
+    cube = next(run for run in plan.runs if run.config.task.name == "cube-stacking")
+    grid.trials = 10
+    assert reproduce.lockstep_group(cube, jobs=1) == 1
+    assert reproduce.lockstep_group(grid, jobs=2) == reproduce.LOCKSTEP_CALIBRATION_GROUP  # 10 over 2 workers: 5
+    assert reproduce.lockstep_group(grid, jobs=4) == 3  # groups of 3, 3, 2, 2
+    assert reproduce.calibration_keys(plan, jobs=2) == len({(r.config.task.name, r.config.method, r.config.preset, str(r.config.task)) for r in plan.runs})
+
+    timed: list[int] = []
+    real = runner.run_one
+
+    def counting(*args, **kwargs):  # type: ignore[no-untyped-def]
+        timed.append(args[1])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(reproduce, "CALIBRATION_STEPS", 120)
+    monkeypatch.setattr(reproduce, "WARMUP_STEPS", 40)
+    monkeypatch.setattr(runner, "run_one", counting)
+    grid.config = replace(grid.config, run=replace(grid.config.run, episodes=0, max_steps=120))
+    per_step, _ = reproduce._calibrate(grid, group=3)
+    assert per_step > 0
+    assert sorted(timed) == [0, 0, 1, 2]  # the warm-up, then three trials in lockstep

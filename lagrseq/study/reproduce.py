@@ -15,6 +15,7 @@
 from __future__ import annotations
 
 import contextlib
+import functools
 import tempfile
 import time
 from collections.abc import Callable, Sequence
@@ -249,9 +250,26 @@ class Estimate:
         return self.calibration + self.runs + self.audit + self.replay
 
 
-def calibration_keys(the_plan: Plan) -> int:
+def calibration_keys(the_plan: Plan, jobs: int = 1) -> int:
     """How many distinct experiments :func:`estimate_phases` times (the pending ones)."""
-    return len({_calibration_key(run) for run in the_plan.runs if run.pending()})
+    return len({(*_calibration_key(run), str(lockstep_group(run, jobs))) for run in the_plan.runs if run.pending()})
+
+
+LOCKSTEP_CALIBRATION_GROUP = 5
+"""At most this many trials are timed together for a run whose trials run in lockstep."""
+
+
+def lockstep_group(run: PlannedRun, jobs: int) -> int:
+    """How many trials of ``run`` to time together: its largest lockstep group (its pending trials
+    over ``jobs`` workers, :func:`lagrseq.running.runner.groups_of`; at most
+    :data:`LOCKSTEP_CALIBRATION_GROUP`), or 1 where its trials run one at a time. Lockstep trials
+    share batched training calls, so one trial timed alone overstates their cost (the full suite's
+    estimate was 16.0 min for 11.9 min with single-trial timings)."""
+    if run.kind != "trial" or not runner.lockstep_helps(run.config):
+        return 1
+    pending = run.pending()
+    largest = max((len(group) for group in runner.groups_of(list(range(pending)), max(1, jobs))), default=1)
+    return max(1, min(largest, LOCKSTEP_CALIBRATION_GROUP))
 
 
 def estimate_phases(
@@ -268,9 +286,10 @@ def estimate_phases(
     cache: dict[tuple[str, ...], tuple[float, float]] = {}
 
     def calibrated(run: PlannedRun) -> tuple[float, float]:
-        key = _calibration_key(run)
+        group = lockstep_group(run, jobs)
+        key = (*_calibration_key(run), str(group))
         if key not in cache:
-            cache[key] = _calibrate(run)
+            cache[key] = _calibrate(run, group)
             if on_calibrated is not None:
                 on_calibrated()
         return cache[key]
@@ -328,11 +347,12 @@ WARMUP_STEPS = 100
 """Untimed steps before a calibration: imports (torch), first allocations, caches."""
 
 
-def _calibrate(run: PlannedRun) -> tuple[float, float]:
+def _calibrate(run: PlannedRun, group: int = 1) -> tuple[float, float]:
     """(seconds per step, steps per episode) or, for a probe, (seconds per sample, 0), timed with
     logging to a scratch file (the log is part of the cost) and the mock provider, after an
     untimed warm-up of the same experiment: a cold process pays imports and first calls once,
-    a trial's worker pays them once for many trials."""
+    a trial's worker pays them once for many trials. ``group`` > 1: that many trials timed in
+    lockstep, as the run will step them (seconds per step of one trial)."""
     with tempfile.TemporaryDirectory(prefix="lagrseq-calibration-") as scratch:
         path = Path(scratch) / "calibration.mcap"
         if run.kind == "accuracy":
@@ -345,10 +365,20 @@ def _calibrate(run: PlannedRun) -> tuple[float, float]:
         steps = slow or CALIBRATION_STEPS
         config = replace(run.config, run=replace(run.config.run, max_steps=steps))
         started = time.perf_counter()
-        result = runner.run_one(config, 0, run.seed, "mock", path)
+        if group > 1:
+            outcomes = runner.run_in_lockstep([
+                functools.partial(runner.run_one, config, trial, run.seed, "mock", Path(scratch) / f"calibration-{trial}.mcap")
+                for trial in range(group)
+            ])
+            failed = [outcome for outcome in outcomes if isinstance(outcome, BaseException)]
+            if failed:
+                raise failed[0]
+            results = [outcome for outcome in outcomes if not isinstance(outcome, BaseException)]
+        else:
+            results = [runner.run_one(config, 0, run.seed, "mock", path)]
         seconds = time.perf_counter() - started
-    steps = max(result.steps, 1)
-    return seconds / steps, steps / max(result.episodes, 1)
+    steps = max(sum(result.steps for result in results), 1)
+    return seconds / steps, steps / max(sum(result.episodes for result in results), 1)
 
 
 class _Scaled:
@@ -533,7 +563,7 @@ def reproduce(
     }
     # One display for every phase: calibration (experiments timed), then estimated seconds of
     # runs, audits and replay, with rate and ETA.
-    with progress_bar(max(1, calibration_keys(the_plan) + sum(map(bool, audit_pending.values()))), "experiment", "calibration", quiet) as bar:
+    with progress_bar(max(1, calibration_keys(the_plan, jobs) + sum(map(bool, audit_pending.values()))), "experiment", "calibration", quiet) as bar:
         guess = estimate_phases(
             the_plan, jobs, [(task, runs[0].config, trials) for task, runs, trials in audits if runs and audit_pending[task]],
             len(suite.items), on_calibrated=lambda: bar.update(1), audit_logs=sum(len(runs) * n for _, runs, n in audits),
