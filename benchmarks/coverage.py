@@ -60,6 +60,15 @@ def paired_coverage(n: int, experiments: int, seed: int) -> tuple[float, float]:
     return hits[0] / experiments, hits[1] / experiments
 
 
+def _sizes(spec: str, why: str) -> list[int]:
+    """The sample sizes of ``--n`` (comma-separated), each at least 2."""
+    sizes = [int(text) for text in spec.split(",")]
+    for n in sizes:
+        if n < 2:
+            raise SystemExit(f"--n {n}: {why}")
+    return sizes
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--n", default="2,3,5,10", help="trial counts, comma-separated (default 2,3,5,10)")
@@ -70,19 +79,13 @@ def main() -> None:
     if args.paired:
         print(f"one-sided nominal 95% paired bound on the slowdown, {args.experiments} simulated experiments per n")
         print(f"{'n':>4}  {'normal differences':>18}  {'zero-inflated, skewed':>21}")
-        for text in args.n.split(","):
-            n = int(text)
-            if n < 2:
-                raise SystemExit(f"--n {text}: a bound needs at least 2 pairs")
+        for n in _sizes(args.n, "a bound needs at least 2 pairs"):
             normal, skewed = paired_coverage(n, args.experiments, args.seed)
             print(f"{n:>4}  {normal:>18.1%}  {skewed:>21.1%}")
         return
     print(f"nominal 95% intervals, {args.experiments} simulated experiments per n (normal data)")
     print(f"{'n':>4}  {'t interval':>10}  {'ratio (delta, t)':>16}  {'percentile bootstrap':>20}")
-    for text in args.n.split(","):
-        n = int(text)
-        if n < 2:
-            raise SystemExit(f"--n {text}: an interval needs at least 2 trials")
+    for n in _sizes(args.n, "an interval needs at least 2 trials"):
         t, ratio, boot = coverage(n, args.experiments, args.seed)
         print(f"{n:>4}  {t:>10.1%}  {ratio:>16.1%}  {boot:>20.1%}")
 
