@@ -180,6 +180,53 @@ def test_trials_in_lockstep_write_the_bytes_they_write_alone(torch, tmp_path: Pa
 
 
 @pytest.mark.torch
+def test_trials_of_several_runs_in_lockstep_write_the_bytes_they_write_alone(torch, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """A sweep's runs of one task share lockstep groups across runs (here LaGR-SEQ, LaGR and a
+    LaGR-SEQ with another minibatch size, whose networks must not share a call with the
+    others'), with --jobs 1 (one group in this process) and --jobs 2 (two pool workers): every
+    trial writes the bytes it writes alone."""
+    from lagrseq.running.runner import SweepRun, run_sweep
+
+    configs = {
+        "seq": load("object-arrangement", "lagr-seq", "upstream"),
+        "lagr": load("object-arrangement", "lagr", "upstream"),
+        "seq-batch": load("object-arrangement", "lagr-seq", "upstream", "primary.batch_size=16"),
+    }
+    reference: dict[str, dict[str, bytes]] = {}
+    for name, config in configs.items():
+        (tmp_path / "alone" / name).mkdir(parents=True)
+        for trial in range(2):
+            run_one(config, trial, 4, "mock", tmp_path / "alone" / name / f"trial-{trial:03d}.mcap")
+        reference[name] = log_bytes(tmp_path / "alone" / name)
+    for jobs in (1, 2):
+        sweep = [SweepRun(config, 2, 4, "mock", tmp_path / f"jobs{jobs}" / name) for name, config in configs.items()]
+        outcomes = run_sweep(sweep, jobs)
+        assert [[r.steps for r in results] for results in outcomes] == [[BUDGET["object-arrangement"]] * 2] * 3
+        for name in configs:
+            assert log_bytes(tmp_path / f"jobs{jobs}" / name) == reference[name], f"--jobs {jobs}, {name}"
+
+
+def test_lockstep_groups_span_the_runs_of_one_task_and_leave_the_others_alone() -> None:
+    """Trials that train networks are grouped per task across runs, one group per worker (a
+    multiple of the workers when groups would pass the cap), contiguous and near-equal; cube
+    trials (tabular) are groups of one. Every pending trial is in exactly one group."""
+    from lagrseq.running import runner
+
+    pytest.importorskip("greenlet")  # without it, every trial runs alone
+    image = load("image-completion", "lagr-seq")
+    arrangement = load("object-arrangement", "lagr")
+    cube = cfg.load("cube-stacking", "lagr-seq", "upstream")
+    runs = [(image, [0, 1, 2]), (cube, [0, 1]), (arrangement, [0, 1, 2, 3]), (load("image-completion", "baseline"), [1, 2])]
+    groups = runner.lockstep_groups(runs, 2)
+    assert sorted(member for group in groups for member in group) == sorted((i, t) for i, (_, todo) in enumerate(runs) for t in todo)
+    assert sorted(groups) == sorted([[(0, 0), (0, 1), (0, 2)], [(3, 1), (3, 2)], [(1, 0)], [(1, 1)], [(2, 0), (2, 1)], [(2, 2), (2, 3)]])
+    many = runner.lockstep_groups([(image, list(range(40)))], 2)
+    assert [len(group) for group in many] == [10, 10, 10, 10]  # 40 > 2 x 16: two groups a worker
+    assert all(len(group) <= runner.LOCKSTEP_GROUP_MAX for group in runner.lockstep_groups([(image, list(range(100)))], 3))
+    assert runner.lockstep_groups([(image, [5])], 4) == [[(0, 5)]]
+
+
+@pytest.mark.torch
 def test_a_trial_that_fails_in_lockstep_is_reported_and_the_others_finish(torch, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     """Trial 1 cannot open its log (a directory stands where its .partial goes): it fails, is
     retried alone, fails again and is named; trials 0 and 2, in lockstep with it, finish."""

@@ -449,8 +449,9 @@ def test_the_progress_bar_counts_grid_runs_in_steps_and_moves(tmp_path: Path) ->
 
 
 def test_runs_that_train_networks_are_timed_in_their_lockstep_groups(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """A grid run's trials share batched training calls: the estimate times as many trials
-    together as a worker will step (capped), a cube run's one trial alone."""
+    """A grid run's trials share batched training calls, with the trials of the task's other
+    runs: the estimate times as many trials together as a worker will step (capped), a cube
+    run's one trial alone."""
     from dataclasses import replace
 
     from lagrseq.running.suite import load_suite
@@ -462,10 +463,13 @@ def test_runs_that_train_networks_are_timed_in_their_lockstep_groups(tmp_path: P
     plan = reproduce.plan(suite, quick=True, provider=None, runs_dir=tmp_path, seed=0)
     grid = next(run for run in plan.runs if run.config.task.name != "cube-stacking")
     cube = next(run for run in plan.runs if run.config.task.name == "cube-stacking")
-    grid.trials = 10
-    assert reproduce.lockstep_group(cube, jobs=1) == 1
-    assert reproduce.lockstep_group(grid, jobs=2) == reproduce.LOCKSTEP_CALIBRATION_GROUP  # 10 over 2 workers: 5
-    assert reproduce.lockstep_group(grid, jobs=4) == 3  # groups of 3, 3, 2, 2
+    grid.trials = 10  # and the other image run's 2: 12 trials of one task
+    groups = reproduce.lockstep_groups(plan, jobs=2)
+    assert cube.path not in groups  # timed alone
+    assert groups[grid.path] == reproduce.LOCKSTEP_CALIBRATION_GROUP  # 12 over 2 workers: 6, capped
+    assert reproduce.lockstep_groups(plan, jobs=4)[grid.path] == 3  # groups of 3, 3, 3, 3
+    assert grid.path in reproduce.lockstep_groups(plan, jobs=8)  # 2, 2, 2, 2, 1, 1, 1, 1
+    assert [run.path for run in plan.runs if run.path in reproduce.lockstep_groups(plan, jobs=8)] == [grid.path]
     assert reproduce.calibration_keys(plan, jobs=2) == len({(r.config.task.name, r.config.method, r.config.preset, str(r.config.task)) for r in plan.runs})
 
     timed: list[int] = []

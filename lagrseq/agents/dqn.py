@@ -425,7 +425,9 @@ class DQN:
         self.target_update_interval = target_update_interval
         generator = torch.Generator().manual_seed(int(seed))
         sizes = (observation_size, *hidden_sizes, n_actions)
-        key = ("dqn", sizes, learning_rate, discount, target_update_interval, str(self.device))
+        # trials of different runs may meet in one conductor: only networks whose batched calls
+        # fit together (shapes, minibatch size, hyperparameters, device, threads) share a group
+        key = ("dqn", sizes, batch_size, learning_rate, discount, target_update_interval, str(self.device), threads)
 
         def make() -> NetworkGroup:
             return NetworkGroup(torch, sizes, learning_rate, discount, target_update_interval, self.device)

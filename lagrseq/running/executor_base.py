@@ -13,7 +13,7 @@ import hashlib
 import os
 import signal
 import sys
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -44,20 +44,23 @@ class TrialJob:
 
 @dataclass(frozen=True)
 class GroupJob:
-    """Several trials of one run as one task: they run in lockstep in one process, their
-    networks trained in batched calls (:mod:`lagrseq.agents.lockstep`). A trial's log does not
-    depend on the group it ran in; the outcome is one ``TrialResult`` or error per trial."""
+    """Several trials (of one run or of several runs of one task) as one task: they run in
+    lockstep in one process, their networks trained in batched calls
+    (:mod:`lagrseq.agents.lockstep`). A trial's log does not depend on the group it ran in; the
+    outcome is one ``TrialResult`` or error per trial."""
 
     jobs: tuple[TrialJob, ...]
     key: str
-    """``lagrseq-group-<run digest>-<first trial>-<last trial>``."""
+    """``lagrseq-group-<digest of its trials' task keys>-<trials>`` (:func:`group_key`)."""
 
 
 Job = TrialJob | GroupJob
 
 
-def group_key(digest: str, trials: list[int]) -> str:
-    return f"lagrseq-group-{digest}-{trials[0]:03d}-{trials[-1]:03d}"
+def group_key(jobs: Sequence[TrialJob]) -> str:
+    """A group's task name: unique to its trials and their attempts (their task keys)."""
+    digest = hashlib.sha256("\0".join(job.key for job in jobs).encode()).hexdigest()[:12]
+    return f"lagrseq-group-{digest}-{len(jobs):03d}"
 
 
 def run_digest(config_json: str, seed: int, provider_spec: str, directory: str) -> str:

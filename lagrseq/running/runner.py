@@ -20,7 +20,7 @@ import functools
 import gc
 import json
 import platform
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -456,8 +456,7 @@ def run_sweep(
             warn(failure.describe() if len(runs) == 1 else f"{plan.run.directory}: {failure.describe()}")
 
     if pool is None and (jobs <= 1 or pending <= 1):
-        for plan in plans:
-            _run_here(plan, retries, failed)
+        _run_here(plans, retries, failed)
     else:
         with contextlib.ExitStack() as stack:
             if pool is None:
@@ -472,42 +471,84 @@ def run_sweep(
     return [sorted(p.results, key=lambda r: r.trial) for p in plans]
 
 
-def _run_here(plan: _Todo, retries: int, failed: Callable[[_Todo, int, BaseException], None]) -> None:
-    """A run's trials in this process, episode by episode on its bar: in lockstep when they
-    train networks (:func:`lockstep_helps`), else one after the other."""
-    run = plan.run
-    unit, _ = progress_unit(run.config)
-    on_episode = None
-    if run.progress is not None:
-        bar = run.progress
-        on_episode = (lambda steps: bar.update(steps)) if unit == "step" else (lambda _: bar.update(1))
+LOCKSTEP_GROUP_MAX = 16
+"""At most this many trials in one lockstep group where there are more than one group per
+worker's worth (a group's trials report their progress when the group ends)."""
 
-    def trial_call(trial: int) -> Callable[[], TrialResult]:
+
+def lockstep_family(config: ExperimentConfig) -> str | None:
+    """Which trials may share a lockstep group: trials that train networks (:func:`lockstep_helps`)
+    of one task, whatever their run (their networks have the task's shapes, so they meet in one
+    batched call), or None for a trial that runs alone."""
+    return config.task.name if lockstep_helps(config) else None
+
+
+def lockstep_groups(runs: Sequence[tuple[ExperimentConfig, list[int]]], workers: int) -> list[list[tuple[int, int]]]:
+    """The groups the pending trials of ``runs`` (each a configuration and its pending trials)
+    run in, as (index into ``runs``, trial): trials of one lockstep family
+    (:func:`lockstep_family`), across runs, in contiguous groups of near-equal size, as many as
+    ``workers`` (a multiple of it where groups would be larger than :data:`LOCKSTEP_GROUP_MAX`);
+    every other trial a group of its own. Which trials share a group changes only the speed,
+    never a log (a trial in lockstep writes the bytes it writes alone)."""
+    workers = max(1, workers)
+    families: dict[str, list[tuple[int, int]]] = {}
+    groups: list[list[tuple[int, int]]] = []
+    for index, (config, todo) in enumerate(runs):
+        family = lockstep_family(config)
+        for trial in todo:
+            if family is None:
+                groups.append([(index, trial)])
+            else:
+                families.setdefault(family, []).append((index, trial))
+    for members in families.values():
+        count = workers * -(-len(members) // (workers * LOCKSTEP_GROUP_MAX))
+        groups += [[members[i] for i in group] for group in groups_of(list(range(len(members))), count)]
+    return groups
+
+
+def _groups(plans: list[_Todo], workers: int) -> list[list[tuple[_Todo, int]]]:
+    groups = lockstep_groups([(plan.run.config, plan.todo) for plan in plans], workers)
+    return [[(plans[index], trial) for index, trial in group] for group in groups]
+
+
+def _run_here(plans: list[_Todo], retries: int, failed: Callable[[_Todo, int, BaseException], None]) -> None:
+    """The runs' trials in this process, episode by episode on their bars: trials that train
+    networks in lockstep groups across runs (:func:`lockstep_groups`), the others one after the
+    other."""
+
+    def trial_call(plan: _Todo, trial: int) -> Callable[[], TrialResult]:
+        run = plan.run
+        unit, _ = progress_unit(run.config)
+        on_episode = None
+        if run.progress is not None:
+            bar = run.progress
+            on_episode = (lambda steps: bar.update(steps)) if unit == "step" else (lambda _: bar.update(1))
         return functools.partial(
             run_one, run.config, trial, run.seed, run.provider_spec, trial_path(run.directory, trial), on_episode=on_episode,
             provider_options=plan.options, render_dir=run.render_dir, notes=run.notes,
         )
 
-    if len(plan.todo) > 1 and lockstep_helps(run.config):
-        todo = list(plan.todo)
-        for attempt in range(retries + 1):
-            outcomes = run_in_lockstep([trial_call(trial) for trial in todo])
-            again: list[int] = []
-            for trial, outcome in zip(todo, outcomes, strict=True):
-                if isinstance(outcome, TrialResult):
-                    plan.results.append(outcome)
-                elif attempt == retries or isinstance(outcome, BudgetExceeded) or not isinstance(outcome, Exception):
-                    failed(plan, trial, outcome)
-                else:
-                    again.append(trial)
-            todo = again
-            if not todo:
-                break
-        return
-    for trial in plan.todo:
+    for group in _groups(plans, 1):
+        if len(group) > 1:
+            todo = list(group)
+            for attempt in range(retries + 1):
+                outcomes = run_in_lockstep([trial_call(plan, trial) for plan, trial in todo])
+                again: list[tuple[_Todo, int]] = []
+                for (plan, trial), outcome in zip(todo, outcomes, strict=True):
+                    if isinstance(outcome, TrialResult):
+                        plan.results.append(outcome)
+                    elif attempt == retries or isinstance(outcome, BudgetExceeded) or not isinstance(outcome, Exception):
+                        failed(plan, trial, outcome)
+                    else:
+                        again.append((plan, trial))
+                todo = again
+                if not todo:
+                    break
+            continue
+        [(plan, trial)] = group
         for attempt in range(retries + 1):
             try:
-                plan.results.append(trial_call(trial)())
+                plan.results.append(trial_call(plan, trial)())
                 break
             except Exception as exc:
                 if attempt == retries or isinstance(exc, BudgetExceeded):
@@ -516,8 +557,8 @@ def _run_here(plan: _Todo, retries: int, failed: Callable[[_Todo, int, BaseExcep
 
 
 def groups_of(todo: list[int], workers: int) -> list[list[int]]:
-    """A run's pending trials as ``workers`` contiguous groups of near-equal size (fewer when
-    there are fewer trials): which trials share a group changes only the speed, never a log."""
+    """Pending trials as ``workers`` contiguous groups of near-equal size (fewer when there are
+    fewer trials): which trials share a group changes only the speed, never a log."""
     count = max(1, min(workers, len(todo)))
     size, extra = divmod(len(todo), count)
     groups: list[list[int]] = []
@@ -535,11 +576,11 @@ def _run_pooled(
     retries: int,
     failed: Callable[[_Todo, int, BaseException], None],
 ) -> None:
-    """The trials of ``plans`` as tasks of ``pool``, all submitted at once (in run order): a
-    run whose trials train networks as groups of trials in lockstep (:func:`groups_of`, one
-    group per worker), the others one trial a task. A trial that fails is retried up to
+    """The trials of ``plans`` as tasks of ``pool``, all submitted at once: trials that train
+    networks as lockstep groups across runs (:func:`lockstep_groups`, at least one per worker),
+    first, then the others one trial a task, in run order. A trial that fails is retried up to
     ``retries`` times, alone."""
-    owners: dict[Any, tuple[_Todo, list[int], int]] = {}
+    owners: dict[Any, tuple[list[tuple[_Todo, int]], int]] = {}
     digests = {
         id(plan): executors.run_digest(plan.run.config.to_json(), plan.run.seed, plan.run.provider_spec, str(plan.run.directory))
         for plan in plans
@@ -554,36 +595,31 @@ def _run_pooled(
             str(run.render_dir) if run.render_dir is not None else None, dict(run.notes) if run.notes else None,
         )
 
-    def submit(plan: _Todo, trials: list[int], attempt: int) -> Any:
+    def submit(trials: list[tuple[_Todo, int]], attempt: int) -> Any:
         if len(trials) == 1:
-            handle = pool.submit(run_trial_job, job(plan, trials[0], attempt))
+            handle = pool.submit(run_trial_job, job(*trials[0], attempt))
         else:
-            group = executors.GroupJob(
-                tuple(job(plan, trial, attempt) for trial in trials), executors.group_key(digests[id(plan)], trials)
-            )
-            handle = pool.submit(run_group_job, group)
-        owners[handle] = (plan, trials, attempt)
+            jobs = tuple(job(plan, trial, attempt) for plan, trial in trials)
+            handle = pool.submit(run_group_job, executors.GroupJob(jobs, executors.group_key(jobs)))
+        owners[handle] = (trials, attempt)
         return handle
 
-    pending = [
-        submit(plan, trials, 0)
-        for plan in plans
-        for trials in (groups_of(plan.todo, pool.workers) if lockstep_helps(plan.run.config) else [[t] for t in plan.todo])
-    ]
+    groups = _groups(plans, pool.workers)
+    pending = [submit(group, 0) for group in sorted(groups, key=lambda group: len(group) == 1)]
     try:
         while pending:
             again: list[Any] = []
             for handle in pool.completed(pending):
-                plan, trials, attempt = owners[handle]
+                trials, attempt = owners[handle]
                 try:
                     value = pool.result(handle)
                     outcomes = value if len(trials) > 1 else [value]
                 except Exception as exc:  # the task itself failed (a trial alone, or a worker lost)
                     outcomes = [exc] * len(trials)
-                for trial, outcome in zip(trials, outcomes, strict=True):
+                for (plan, trial), outcome in zip(trials, outcomes, strict=True):
                     if isinstance(outcome, BaseException):
                         if attempt < retries and isinstance(outcome, Exception) and not isinstance(outcome, BudgetExceeded):
-                            again.append(submit(plan, [trial], attempt + 1))
+                            again.append(submit([(plan, trial)], attempt + 1))
                         else:
                             failed(plan, trial, outcome)
                         continue

@@ -252,24 +252,30 @@ class Estimate:
 
 def calibration_keys(the_plan: Plan, jobs: int = 1) -> int:
     """How many distinct experiments :func:`estimate_phases` times (the pending ones)."""
-    return len({(*_calibration_key(run), str(lockstep_group(run, jobs))) for run in the_plan.runs if run.pending()})
+    groups = lockstep_groups(the_plan, jobs)
+    return len({(*_calibration_key(run), str(groups.get(run.path, 1))) for run in the_plan.runs if run.pending()})
 
 
 LOCKSTEP_CALIBRATION_GROUP = 5
 """At most this many trials are timed together for a run whose trials run in lockstep."""
 
 
-def lockstep_group(run: PlannedRun, jobs: int) -> int:
-    """How many trials of ``run`` to time together: its largest lockstep group (its pending trials
-    over ``jobs`` workers, :func:`lagrseq.running.runner.groups_of`; at most
-    :data:`LOCKSTEP_CALIBRATION_GROUP`), or 1 where its trials run one at a time. Lockstep trials
-    share batched training calls, so one trial timed alone overstates their cost (the full suite's
-    estimate was 16.0 min for 11.9 min with single-trial timings)."""
-    if run.kind != "trial" or not runner.lockstep_helps(run.config):
-        return 1
-    pending = run.pending()
-    largest = max((len(group) for group in runner.groups_of(list(range(pending)), max(1, jobs))), default=1)
-    return max(1, min(largest, LOCKSTEP_CALIBRATION_GROUP))
+def lockstep_groups(the_plan: Plan, jobs: int) -> dict[Path, int]:
+    """How many trials to time together for each pending run whose trials run in lockstep: the
+    largest lockstep group its trials are in (:func:`lagrseq.running.runner.lockstep_groups`:
+    trials of one task across runs, over ``jobs`` workers; at most
+    :data:`LOCKSTEP_CALIBRATION_GROUP`). Lockstep trials share batched training calls, so one
+    trial timed alone overstates their cost (the full suite's estimate was 16.0 min for 11.9 min
+    with single-trial timings). Runs not in the mapping are timed one trial alone."""
+    runs = [run for run in the_plan.runs if run.kind == "trial" and run.pending()]
+    groups = runner.lockstep_groups([(run.config, list(range(run.pending()))) for run in runs], max(1, jobs))
+    sizes: dict[Path, int] = {}
+    for group in groups:
+        if len(group) > 1:
+            for index, _ in group:
+                path = runs[index].path
+                sizes[path] = max(sizes.get(path, 1), min(len(group), LOCKSTEP_CALIBRATION_GROUP))
+    return sizes
 
 
 def estimate_phases(
@@ -284,9 +290,10 @@ def estimate_phases(
     in this process; trials share ``jobs`` workers (:func:`execute` submits them all at once), so
     their time is the work over the workers, or the longest trial if that is longer."""
     cache: dict[tuple[str, ...], tuple[float, float]] = {}
+    groups = lockstep_groups(the_plan, jobs)
 
     def calibrated(run: PlannedRun) -> tuple[float, float]:
-        group = lockstep_group(run, jobs)
+        group = groups.get(run.path, 1)
         key = (*_calibration_key(run), str(group))
         if key not in cache:
             cache[key] = _calibrate(run, group)
@@ -363,6 +370,8 @@ def _calibrate(run: PlannedRun, group: int = 1) -> tuple[float, float]:
         warm = replace(run.config, run=replace(run.config.run, max_steps=5 if slow else WARMUP_STEPS))
         runner.run_one(warm, 0, run.seed, "mock", Path(scratch) / "warm-up.mcap")
         steps = slow or CALIBRATION_STEPS
+        if run.config.run.max_steps:  # never more steps than a trial has: its own length is timed whole
+            steps = min(steps, run.config.run.max_steps)
         config = replace(run.config, run=replace(run.config.run, max_steps=steps))
         started = time.perf_counter()
         if group > 1:
