@@ -278,6 +278,13 @@ def lockstep_groups(the_plan: Plan, jobs: int) -> dict[Path, int]:
     return sizes
 
 
+def _group_of_one_run(run: PlannedRun, jobs: int) -> int:
+    """The largest lockstep group of ``run``'s trials alone (an audit's run, which shares its
+    groups with the audit's other runs), at most :data:`LOCKSTEP_CALIBRATION_GROUP`."""
+    groups = runner.lockstep_groups([(run.config, list(range(run.trials)))], max(1, jobs))
+    return min(max(len(group) for group in groups), LOCKSTEP_CALIBRATION_GROUP) if groups else 1
+
+
 def estimate_phases(
     the_plan: Plan, jobs: int, audits: Sequence[tuple[str, ExperimentConfig, int]] = (),
     items: int = 0, on_calibrated: Callable[[], None] | None = None, audit_logs: int = 0,
@@ -291,9 +298,10 @@ def estimate_phases(
     their time is the work over the workers, or the longest trial if that is longer."""
     cache: dict[tuple[str, ...], tuple[float, float]] = {}
     groups = lockstep_groups(the_plan, jobs)
+    planned = {run.path for run in the_plan.runs}
 
     def calibrated(run: PlannedRun) -> tuple[float, float]:
-        group = groups.get(run.path, 1)
+        group = groups.get(run.path, 1) if run.path in planned else _group_of_one_run(run, jobs)
         key = (*_calibration_key(run), str(group))
         if key not in cache:
             cache[key] = _calibrate(run, group)
