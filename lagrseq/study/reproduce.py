@@ -266,8 +266,13 @@ def lockstep_groups(the_plan: Plan, jobs: int) -> dict[Path, int]:
     trials of one task across runs, over ``jobs`` workers; at most
     :data:`LOCKSTEP_CALIBRATION_GROUP`). Lockstep trials share batched training calls, so one
     trial timed alone overstates their cost (the full suite's estimate was 16.0 min for 11.9 min
-    with single-trial timings). Runs not in the mapping are timed one trial alone."""
-    runs = [run for run in the_plan.runs if run.kind == "trial" and run.pending()]
+    with single-trial timings). Runs not in the mapping are timed one trial alone, and so are the
+    runs of a task whose steps are slow (its ``calibration_steps``: the simulated arm, whose
+    networks are a small part of a step; timing 3 arm trials together took 16 s instead of 5)."""
+    runs = [
+        run for run in the_plan.runs
+        if run.kind == "trial" and run.pending() and not TASKS.get(run.config.task.name).calibration_steps
+    ]
     groups = runner.lockstep_groups([(run.config, list(range(run.pending()))) for run in runs], max(1, jobs))
     sizes: dict[Path, int] = {}
     for group in groups:
@@ -281,6 +286,8 @@ def lockstep_groups(the_plan: Plan, jobs: int) -> dict[Path, int]:
 def _group_of_one_run(run: PlannedRun, jobs: int) -> int:
     """The largest lockstep group of ``run``'s trials alone (an audit's run, which shares its
     groups with the audit's other runs), at most :data:`LOCKSTEP_CALIBRATION_GROUP`."""
+    if TASKS.get(run.config.task.name).calibration_steps:
+        return 1
     groups = runner.lockstep_groups([(run.config, list(range(run.trials)))], max(1, jobs))
     return min(max(len(group) for group in groups), LOCKSTEP_CALIBRATION_GROUP) if groups else 1
 
