@@ -486,3 +486,21 @@ def test_runs_that_train_networks_are_timed_in_their_lockstep_groups(tmp_path: P
     per_step, _ = reproduce._calibrate(grid, group=3)
     assert per_step > 0
     assert sorted(timed) == [0, 0, 1, 2]  # the warm-up, then three trials in lockstep
+
+
+def test_the_experiments_are_timed_in_the_pools_workers_side_by_side(tmp_path: Path) -> None:
+    """Given the local process pool the runs will use, every distinct experiment is timed in its
+    workers (spawned: the calibration job is a module-level function of plain data), once each,
+    and the estimate covers every pending run as the in-process timing does."""
+    from lagrseq.running.executors import LocalExecutor
+    from lagrseq.running.suite import load_suite
+    from lagrseq.study import reproduce
+
+    plan = reproduce.plan(load_suite().select(["fig6a", "table2"]), quick=True, provider=None, runs_dir=tmp_path, seed=0)
+    told: list[int] = []
+    with LocalExecutor(2) as pool:
+        pooled = reproduce.estimate_phases(plan, 2, on_calibrated=lambda: told.append(1), pool=pool)
+    here = reproduce.estimate_phases(plan, 2)
+    assert len(told) == reproduce.calibration_keys(plan, jobs=2) > 1
+    assert set(pooled.per_run) == set(here.per_run) == {run.path for run in plan.runs if run.pending()}
+    assert all(seconds > 0 for seconds in pooled.per_run.values()) and pooled.runs > 0

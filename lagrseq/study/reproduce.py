@@ -294,27 +294,37 @@ def _group_of_one_run(run: PlannedRun, jobs: int) -> int:
 
 def estimate_phases(
     the_plan: Plan, jobs: int, audits: Sequence[tuple[str, ExperimentConfig, int]] = (),
-    items: int = 0, on_calibrated: Callable[[], None] | None = None, audit_logs: int = 0,
+    items: int = 0, on_calibrated: Callable[[], None] | None = None, audit_logs: int = 0, pool: Any = None,
 ) -> Estimate:
     """Expected seconds of the pending trials, one trial of each suite audit (``audits``: task, a
     run's configuration, trials per run; :attr:`Estimate.audit_per_trial`, which the caller
     multiplies by the pending audit trials) and the replay of ``items`` suite items, from
     a short timed stretch of each distinct experiment on this machine (mock provider, logged to a
-    scratch file, after an untimed warm-up that pays the imports). Probes run one after the other
-    in this process; trials share ``jobs`` workers (:func:`execute` submits them all at once), so
-    their time is the work over the workers, or the longest trial if that is longer."""
-    cache: dict[tuple[str, ...], tuple[float, float]] = {}
+    scratch file, after an untimed warm-up that pays the imports). The experiments are timed one
+    after the other in this process, or, given the local process ``pool`` the runs will use, in
+    its workers side by side (as the runs will share the cores; the workers pay their imports
+    once for the calibration and the runs); trials share ``jobs`` workers (:func:`execute`
+    submits them all at once), so their time is the work over the workers, or the longest trial
+    if that is longer."""
     groups = lockstep_groups(the_plan, jobs)
     planned = {run.path for run in the_plan.runs}
+    probes = [
+        (task, audit_config, audit_trials, PlannedRun("trial", audit_config, "mock", 0, audit_trials, 0, Path(f"audit-{task}")))
+        for task, audit_config, audit_trials in audits
+    ]
+
+    def key_of(run: PlannedRun) -> tuple[tuple[str, ...], int]:
+        group = groups.get(run.path, 1) if run.path in planned else _group_of_one_run(run, jobs)
+        return (*_calibration_key(run), str(group)), group
+
+    todo: dict[tuple[str, ...], tuple[PlannedRun, int]] = {}
+    for run in [*(run for run in the_plan.runs if run.pending()), *(probe_run for *_, probe_run in probes)]:
+        key, group = key_of(run)
+        todo.setdefault(key, (run, group))
+    cache = _calibrate_all(todo, pool, on_calibrated)
 
     def calibrated(run: PlannedRun) -> tuple[float, float]:
-        group = groups.get(run.path, 1) if run.path in planned else _group_of_one_run(run, jobs)
-        key = (*_calibration_key(run), str(group))
-        if key not in cache:
-            cache[key] = _calibrate(run, group)
-            if on_calibrated is not None:
-                on_calibrated()
-        return cache[key]
+        return cache[key_of(run)[0]]
 
     serial = work = longest = 0.0
     works: dict[Path, float] = {}
@@ -339,8 +349,7 @@ def estimate_phases(
         if run.path in works:
             share = works[run.path] if run.kind == "accuracy" else works[run.path] / work * parallel if work else 0.0
             out.per_run[run.path] = share
-    for task, audit_config, audit_trials in audits:
-        probe_run = PlannedRun("trial", audit_config, "mock", 0, audit_trials, 0, Path(f"audit-{task}"))
+    for task, audit_config, _, probe_run in probes:
         per_unit, steps_per_episode = calibrated(probe_run)
         out.audit_per_trial[task] = _trial_steps(audit_config, steps_per_episode) * per_unit / max(1, jobs)
     logs += audit_logs
@@ -350,6 +359,56 @@ def estimate_phases(
         reading, per_item = REPLAY_SECONDS_PER_LOG * logs / min(jobs, 8), REPLAY_SECONDS_PER_ITEM
     out.replay = REPLAY_SECONDS_FIXED + reading + per_item * items
     return out
+
+
+@dataclass(frozen=True)
+class CalibrationJob:
+    """One experiment to time (:func:`_calibrate`) in a worker process."""
+
+    kind: str
+    config: dict[str, Any]
+    seed: int
+    group: int
+
+
+def calibration_job(job: CalibrationJob) -> tuple[float, float]:
+    """:func:`_calibrate` as a task of a process pool (a module-level function: spawned workers
+    import it)."""
+    run = PlannedRun(job.kind, cfg.from_dict(job.config), "mock", job.seed, job.group, 1, Path("calibration"))
+    return _calibrate(run, job.group)
+
+
+def _calibrate_all(
+    todo: dict[tuple[str, ...], tuple[PlannedRun, int]], pool: Any, on_calibrated: Callable[[], None] | None
+) -> dict[tuple[str, ...], tuple[float, float]]:
+    """Each experiment of ``todo`` (key -> a run and its lockstep group) timed: in the workers of a
+    local process ``pool`` (:class:`lagrseq.running.executors.LocalExecutor`), else here, one
+    after the other; ``on_calibrated`` is told of each as it ends."""
+    from concurrent.futures import as_completed
+
+    from lagrseq.running.executors import LocalExecutor
+
+    timed: dict[tuple[str, ...], tuple[float, float]] = {}
+    if not isinstance(pool, LocalExecutor) or len(todo) <= 1:
+        for key, (run, group) in todo.items():
+            timed[key] = _calibrate(run, group)
+            if on_calibrated is not None:
+                on_calibrated()
+        return timed
+    futures = {
+        pool.pool.submit(calibration_job, CalibrationJob(run.kind, run.config.to_dict(), run.seed, group)): key
+        for key, (run, group) in todo.items()
+    }
+    try:
+        for future in as_completed(futures):
+            timed[futures[future]] = future.result()
+            if on_calibrated is not None:
+                on_calibrated()
+    except KeyboardInterrupt:
+        runner.exit_on_next_interrupt()
+        pool.interrupt()
+        raise
+    return timed
 
 
 def _trial_steps(config: ExperimentConfig, steps_per_episode: float) -> float:
@@ -450,13 +509,15 @@ def execute(
     say: Callable[[str], None] | None = None,
     retries: int = 0,
     seconds: dict[Path, float] | None = None,
+    pool: Any = None,
 ) -> list[TrialResult]:
     """Run every planned run (complete trials are skipped): the accuracy probes in this process,
     then the trials of every run through one warm process pool or one Dask cluster
     (``executor``, ``scheduler``: see :func:`lagrseq.running.executors.make_executor`), all submitted at
     once so that no worker waits for the last trial of one run before the next run starts.
     Without a pool (``jobs = 1``) the runs go one after the other, ``on_run`` told of each.
-    ``seconds`` (run path -> estimated seconds): the bar counts estimated seconds, not units."""
+    ``seconds`` (run path -> estimated seconds): the bar counts estimated seconds, not units.
+    ``pool``: an executor already started (:func:`start_pool`), kept warm across the phases."""
 
     def scale(run: PlannedRun) -> float:
         if seconds is None:
@@ -469,8 +530,7 @@ def execute(
             results += _execute_run(run, bar, on_run, retries, scale(run))
     trial_runs = [run for run in the_plan.runs if run.kind != "accuracy"]
     with contextlib.ExitStack() as stack:
-        pool = None
-        if not EXECUTORS.get(executor).runner_pool or scheduler is not None or jobs > 1:
+        if pool is None and needs_pool(executor, jobs, scheduler):
             pool = stack.enter_context(runner.make_executor(executor, jobs, scheduler, say))
         if pool is None:
             for run in trial_runs:
@@ -488,6 +548,11 @@ def execute(
         for share in shares:
             share.finish()
     return results
+
+
+def needs_pool(executor: str, jobs: int, scheduler: str | None) -> bool:
+    """Whether trials run through an executor (a process pool, Dask) rather than in this process."""
+    return not EXECUTORS.get(executor).runner_pool or scheduler is not None or jobs > 1
 
 
 def _execute_run(
@@ -587,10 +652,16 @@ def reproduce(
     }
     # One display for every phase: calibration (experiments timed), then estimated seconds of
     # runs, audits and replay, with rate and ETA.
-    with progress_bar(max(1, calibration_keys(the_plan, jobs) + sum(map(bool, audit_pending.values()))), "experiment", "calibration", quiet) as bar:
+    # One pool (or Dask cluster) for every phase: its workers time the experiments side by side
+    # and then run the trials, paying their imports once.
+    with contextlib.ExitStack() as stack, progress_bar(
+        max(1, calibration_keys(the_plan, jobs) + sum(map(bool, audit_pending.values()))), "experiment", "calibration", quiet
+    ) as bar:
+        pool = stack.enter_context(runner.make_executor(executor, jobs, scheduler, say)) if needs_pool(executor, jobs, scheduler) else None
         guess = estimate_phases(
             the_plan, jobs, [(task, runs[0].config, trials) for task, runs, trials in audits if runs and audit_pending[task]],
             len(suite.items), on_calibrated=lambda: bar.update(1), audit_logs=sum(len(runs) * n for _, runs, n in audits),
+            pool=pool,
         )
         guess.audit = sum(guess.audit_per_trial.get(task, 0.0) * pending_trials for task, pending_trials in audit_pending.items())
         # the frontier's matched-rate random runs of policies still to run: each about as long as
@@ -611,7 +682,7 @@ def reproduce(
         bar.reset(total=max(guess.total - guess.calibration, 1e-9))
         execute(
             the_plan, jobs, bar, on_run=lambda run: bar.set_description(run.describe()),
-            executor=executor, scheduler=scheduler, say=say, retries=retries, seconds=guess.per_run,
+            executor=executor, scheduler=scheduler, say=say, retries=retries, seconds=guess.per_run, pool=pool,
         )
         matched = plan_matched_random(the_plan, matched_items, runs_dir)
         if matched.runs:
@@ -624,11 +695,13 @@ def reproduce(
                 execute(
                     matched, jobs, bar, on_run=lambda run: bar.set_description(f"{run.describe()} (matched random)"),
                     executor=executor, scheduler=scheduler, say=say, retries=retries,
-                    seconds={run.path: guess.per_run.get(run.source, 0.0) for run in matched.runs if run.source},
+                    seconds={run.path: guess.per_run.get(run.source, 0.0) for run in matched.runs if run.source}, pool=pool,
                 )
         for task, _, _ in audits:
             bar.set_description(f"{task} audit")
-            run_suite_audit(task, runs_dir, quick, jobs, seed, quiet, say, _Scaled(bar, guess.audit_per_trial.get(task, 0.0)))
+            run_suite_audit(task, runs_dir, quick, jobs, seed, quiet, say, _Scaled(bar, guess.audit_per_trial.get(task, 0.0)), pool)
+        if pool is not None:  # the replay's own workers start now: these go first
+            stack.pop_all().close()
         say(f"runs done in {duration(time.perf_counter() - started)}: {runs_dir}")
         bar.set_description("replay")
         sections: list[Any] = []
@@ -723,11 +796,13 @@ def suite_audits(runs_dir: Path, quick: bool, seed: int) -> list[tuple[str, list
 
 
 def run_suite_audit(
-    task: str, runs_dir: Path, quick: bool, jobs: int, seed: int, quiet: bool, say: Callable[[str], None], bar: Any = None
+    task: str, runs_dir: Path, quick: bool, jobs: int, seed: int, quiet: bool, say: Callable[[str], None], bar: Any = None,
+    pool: Any = None,
 ) -> None:
     """The audit of ``task`` (``lagrseq audit TASK``) at the suite's length, into the suite's runs,
     so that replay adds its tables and figures (a preset run the suite also makes is shared).
-    ``bar``: the display to move by one per trial (default: a bar of its own, in trials)."""
+    ``bar``: the display to move by one per trial (default: a bar of its own, in trials);
+    ``pool``: an executor already started (else one of ``jobs`` local processes)."""
     from lagrseq.progress import bar as progress_bar
 
     chosen = SUITE_AUDITS[task]
@@ -744,5 +819,5 @@ def run_suite_audit(
         if bar is None:
             bar = stack.enter_context(progress_bar(len(runs) * trials, "trial", quiet=quiet))
         sweep = [runner.SweepRun(r.config, trials, seed, r.provider, r.path, progress=runner.TrialCount(bar, r.config)) for r in runs]
-        runner.run_sweep(sweep, jobs)
+        runner.run_sweep(sweep, jobs, pool)
 
