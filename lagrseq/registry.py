@@ -56,7 +56,9 @@ class TaskSpec:
     make_task: Callable[[Any], Any]
     """config -> the task (``lagrseq.tasks.base.Task``): prompt, parser, evaluation, guidance."""
     make_env: Callable[[Any, Path | None], Any]
-    """(config, render_dir) -> the task's Gymnasium env."""
+    """(config, render_dir) -> the task's Gymnasium env, or any object with Gymnasium's
+    ``reset``, ``step`` and ``close`` (the built-in cube task hands a run its env's dynamics
+    without Gymnasium, ``lagrseq.tasks.cube_dynamics``)."""
     extrapolator: Callable[[Any, str], Callable[..., str]]
     """(config, profile) -> what ``--provider mock[:PROFILE]`` answers with (``ideal``: the
     rule-based extrapolator; raises UsageError for a profile the task lacks)."""

@@ -488,8 +488,9 @@ def make_task(config: ExperimentConfig) -> Task:
 
 
 def make_env(config: ExperimentConfig, render_dir: Path | None = None) -> Any:
-    """The task's gymnasium env (its registered ``make_env``; imported there: ``lagrseq replay``
-    never needs gymnasium). ``render_dir``: arm tasks write PNG frames and a GIF per episode
+    """The task's env (its registered ``make_env``; imported there: ``lagrseq replay`` never needs
+    gymnasium): a Gymnasium env, or for cube stacking its dynamics alone (the same ``reset``,
+    ``step`` and ``close``). ``render_dir``: arm tasks write PNG frames and a GIF per episode
     there (``--render``)."""
     return TASKS.get(config.task.name).make_env(config, render_dir)
 
@@ -520,11 +521,13 @@ def arm_task(config: ExperimentConfig) -> Task:
 
 
 def cube_env(config: ExperimentConfig, render_dir: Path | None = None) -> Any:
-    from lagrseq.envs.cube_stacking import CubeStackingEnv
+    """The cube env's dynamics without Gymnasium's interface (``CubeStackingEnv`` is this class
+    with it): a run needs nothing more, and importing gymnasium costs about 60 ms of CPU."""
+    from lagrseq.tasks.cube_dynamics import CubeStackingDynamics
 
     task = _expect(config.task, CubeTaskConfig, "task")
     env = _expect(config.env, CubeEnvConfig, "env")
-    return CubeStackingEnv(
+    return CubeStackingDynamics(
         stack_size=task.stack_size,
         horizon=env.horizon,
         bonus=env.bonus,
