@@ -82,7 +82,15 @@ class CubeStackingEnv(CubeStackingDynamics, gym.Env[np.ndarray, np.int64]):
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
         gym.Env.reset(self, seed=seed)
-        return self._restart()
+        obs, info = self._restart()
+        info["action_mask"] = info["action_mask"].copy()
+        return obs.copy(), info
+
+    def step(self, action: np.int64 | int) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        """The dynamics' step, with new arrays (Gymnasium wants a fresh observation every call)."""
+        obs, reward, terminated, truncated, info = super().step(action)
+        info["action_mask"] = info["action_mask"].copy()
+        return obs.copy(), reward, terminated, truncated, info
 
     def render(self) -> str | None:
         if self.render_mode == "ansi":

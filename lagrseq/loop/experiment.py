@@ -133,12 +133,19 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
     global_step = episodes = queries = 0
     total_return = 0.0
     sources: dict[str, int] = {}
+    # What a step calls, looked up once per trial (a trial is about 5,000 steps of a few us each).
+    epsilon_at, progress, armed = parts.primary_epsilon.at, task.progress, trigger.armed
+    act, learn, step_env = parts.primary.act, parts.primary.learn, env.step
+    guide = parts.guide or task_guide(task)
+    lagr, guidance_rng, primary_rng = config.lagr, parts.guidance_rng, parts.primary_rng
+    learn_guided = lagr.update_primary_while_guided
+    max_steps = config.run.max_steps
     with sink, parts.provider:
         for number in itertools.count():
             if _out_of_budget(config, number, global_step):
                 break
             observation, info = env.reset(seed=parts.env_seed if number == 0 else None)
-            if config.lagr.solution_scope == "episode":
+            if lagr.solution_scope == "episode":
                 solution = None  # the released cube code forgets the solution every episode
             trigger.reset_episode()
             episode = _Episode(number, solved=task.is_complete(info["pattern"]))
@@ -146,18 +153,25 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
                 pattern = info["pattern"]
                 following = solution  # a solution accepted at this step guides from the next one
                 # Exploration per episode (cube) or per step (grid DQNs); /episode logs the last.
-                episode.epsilon = parts.primary_epsilon.at(number, global_step)
-                if asks and solution is None and trigger.armed(task.progress(pattern), episode.last_reward):
+                epsilon = episode.epsilon = epsilon_at(number, global_step)
+                if asks and solution is None and armed(progress(pattern), episode.last_reward):
                     solution = _ask(parts, trigger, episode, pattern, global_step, queries + episode.queries)
-                env_action, action, guided, observation, info = _act(parts, following, observation, info, episode.epsilon)
-                next_observation, reward, terminated, truncated, next_info = env.step(env_action)
+                # pi_LLM's action once a solution is held (with probability P), else the primary agent's
+                guided = None
+                if following is not None and follows(lagr, guidance_rng):
+                    guided = guide(following, observation, info)
+                if guided is None:
+                    env_action = action = act(observation, info, epsilon, primary_rng)
+                else:
+                    env_action, action, observation, info = guided.env_action, guided.action, guided.observation, guided.info
+                next_observation, reward, terminated, truncated, next_info = step_env(env_action)
                 # The released cube code does not update the primary agent on guided steps.
-                if not guided or config.lagr.update_primary_while_guided:
-                    parts.primary.learn(Step(observation, info, action, reward, next_observation, next_info, terminated))
-                _log_step(parts, episode, global_step, pattern, action, reward, terminated, truncated, guided, next_info)
+                if guided is None or learn_guided:
+                    learn(Step(observation, info, action, reward, next_observation, next_info, terminated))
+                _log_step(parts, episode, global_step, pattern, action, reward, terminated, truncated, guided is not None, next_info)
                 observation, info = next_observation, next_info
                 global_step += 1
-                if terminated or truncated or _out_of_steps(config, global_step):
+                if terminated or truncated or (max_steps and global_step >= max_steps):
                     break
             sink.write(
                 episode_event(
@@ -224,39 +238,31 @@ def _ask(
     return solution
 
 
-def _act(parts: TrialParts, following: Any, observation: Any, info: dict[str, Any], epsilon: float) -> tuple[int, int, bool, Any, dict[str, Any]]:
-    """pi_LLM's action once a solution is held (with probability P), else the primary agent's.
-    Returns the action as the env takes it, the action, whether it was guided, and the
-    observation and info it acts on."""
-    if following is not None and follows(parts.config.lagr, parts.guidance_rng):
-        guide = parts.guide or task_guide(parts.task)
-        guided = guide(following, observation, info)
-        if guided is not None:
-            return guided.env_action, guided.action, True, guided.observation, guided.info
-    action = parts.primary.act(observation, info, epsilon, parts.primary_rng)
-    return action, action, False, observation, info
-
-
 def _log_step(
     parts: TrialParts, episode: _Episode, global_step: int, pattern: Any, action: int, reward: float,
     terminated: bool, truncated: bool, guided: bool, next_info: dict[str, Any],
 ) -> None:
     """Write the step's transition (and pictures) and add it to the episode's counters."""
-    parts.sink.write(
-        Transition(
-            trial=parts.trial, episode=episode.number, step=episode.steps, global_step=global_step,
-            state=jsonable(pattern), action=int(action), reward=float(reward), terminated=bool(terminated),
-            truncated=bool(truncated), guided=guided,
-            **next_info.get(STEP_LOG, {}),  # what the env adds to the record (an arm's placement)
-        )
+    extra = next_info.get(STEP_LOG)  # what the env adds to the record (an arm's placement)
+    state = pattern if type(pattern) is tuple else jsonable(pattern)  # jsonable keeps a tuple as it is
+    transition = Transition(
+        trial=parts.trial, episode=episode.number, step=episode.steps, global_step=global_step,
+        state=state, action=int(action), reward=float(reward), terminated=bool(terminated),
+        truncated=bool(truncated), guided=guided,
+    ) if extra is None else Transition(
+        trial=parts.trial, episode=episode.number, step=episode.steps, global_step=global_step,
+        state=state, action=int(action), reward=float(reward), terminated=bool(terminated),
+        truncated=bool(truncated), guided=guided, **extra,
     )
+    parts.sink.write(transition)
     if parts.views is not None:
         for view in parts.views(next_info, global_step):
             parts.sink.write(view)
     episode.total += reward
     episode.guided_steps += guided
     episode.last_reward = reward  # the paper's trigger: query only after a positive reward
-    episode.solved = episode.solved or parts.task.is_complete(next_info["pattern"])
+    if not episode.solved:
+        episode.solved = parts.task.is_complete(next_info["pattern"])
     episode.steps += 1
 
 

@@ -21,7 +21,9 @@ from lagrseq.tasks.cube import CubeStacking
 class CubeStackingDynamics:
     """Stack cubes in the order of a hidden target pattern; see ``CubeStackingEnv`` for the
     actions, observations, rewards and ends of an episode. ``reset``/``step``/``close`` take and
-    give what Gymnasium's do."""
+    give what Gymnasium's do, except that the observation and ``info["action_mask"]`` are each
+    stack's one read-only array (writing into one raises), not a fresh copy per call: a run only
+    reads them. ``CubeStackingEnv`` hands out copies, as Gymnasium's checker wants."""
 
     def __init__(
         self,
@@ -49,8 +51,7 @@ class CubeStackingDynamics:
     # ------------------------------------------------------------------ helpers
     def _views(self, stack: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray, int]:
         """The observation, action mask and E(s) of ``stack``, made once per distinct stack (a
-        trial visits a few dozen stacks, 5,000 times); callers hand out copies, since Gymnasium
-        wants new arrays from every call."""
+        trial visits a few dozen stacks, 5,000 times), read-only."""
         views = self._cache.get(stack)
         if views is None:
             obs = np.full(self.n, self.n, dtype=np.int64)
@@ -65,9 +66,6 @@ class CubeStackingDynamics:
             views = self._cache[stack] = (obs, mask, self._evaluation(stack))
         return views
 
-    def _observation(self) -> np.ndarray:
-        return self._views(self._stack)[0].copy()
-
     def action_mask(self) -> np.ndarray:
         """Valid actions as the released code judges them: "remove" always (a no-op on the empty
         stack), "add" unless the cube is already stacked or the stack is full."""
@@ -81,19 +79,11 @@ class CubeStackingDynamics:
                 correct += 1
         return len(stack) * correct
 
-    def _info(self, pre_revert: tuple[int, ...] | None = None) -> dict[str, Any]:
-        _obs, mask, evaluation = self._views(self._stack)
-        return {
-            "pattern": self._stack,
-            "pre_revert_pattern": self._stack if pre_revert is None else pre_revert,
-            "evaluation": evaluation,
-            "action_mask": mask.copy(),
-        }
-
     def _restart(self) -> tuple[np.ndarray, dict[str, Any]]:
         self._stack = ()
         self._steps = 0
-        return self._observation(), self._info()
+        obs, mask, evaluation = self._views(self._stack)
+        return obs, {"pattern": self._stack, "pre_revert_pattern": self._stack, "evaluation": evaluation, "action_mask": mask}
 
     # ------------------------------------------------------------------ the env's interface
     def reset(
@@ -130,8 +120,8 @@ class CubeStackingDynamics:
         terminated = bool(self.terminate_on_complete and after == target)
         truncated = bool(not terminated and self._steps >= self.horizon)
         obs, mask, evaluation = views
-        info = {"pattern": after, "pre_revert_pattern": pre_revert, "evaluation": evaluation, "action_mask": mask.copy()}
-        return obs.copy(), reward, terminated, truncated, info
+        info = {"pattern": after, "pre_revert_pattern": pre_revert, "evaluation": evaluation, "action_mask": mask}
+        return obs, reward, terminated, truncated, info
 
     def close(self) -> None:
         """Nothing to release."""
