@@ -154,8 +154,10 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
                 following = solution  # a solution accepted at this step guides from the next one
                 # Exploration per episode (cube) or per step (grid DQNs); /episode logs the last.
                 epsilon = episode.epsilon = epsilon_at(number, global_step)
-                if asks and solution is None and armed(progress(pattern), episode.last_reward):
-                    solution = _ask(parts, trigger, episode, pattern, global_step, queries + episode.queries)
+                if asks and solution is None:
+                    progressed = progress(pattern)
+                    if armed(progressed, episode.last_reward):
+                        solution = _ask(parts, trigger, episode, pattern, progressed, global_step, queries + episode.queries)
                 # pi_LLM's action once a solution is held (with probability P), else the primary agent's
                 guided = None
                 if following is not None and follows(lagr, guidance_rng):
@@ -198,16 +200,17 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
 
 
 def _ask(
-    parts: TrialParts, trigger: QueryTrigger, episode: _Episode, pattern: Any, global_step: int, queries: int
+    parts: TrialParts, trigger: QueryTrigger, episode: _Episode, pattern: Any, progress: int, global_step: int,
+    queries: int,
 ) -> Any:
     """SEQ + LaGR from the current state: the asking policy decides; a query's answer is parsed,
     evaluated and, above the threshold, accepted. Returns the accepted solution or None.
-    ``queries``: the trial's queries so far."""
+    ``progress``: the task's progress of ``pattern``; ``queries``: the trial's queries so far."""
     config, task, provider = parts.config, parts.task, parts.provider
     policy = parts.secondary
     assert policy is not None  # baseline never asks
     context = AskContext(
-        pattern=pattern, progress=task.progress(pattern), episode=episode.number, episode_step=episode.steps,
+        pattern=pattern, progress=progress, episode=episode.number, episode_step=episode.steps,
         global_step=global_step, epsilon=parts.secondary_epsilon.at(episode.number, global_step),
         rng=parts.secondary_rng, queries_trial=queries, queries_episode=episode.queries,
         peek=lambda: consult(task, provider, config.llm, config.lagr.threshold, pattern),
@@ -215,13 +218,13 @@ def _ask(
     decision = policy.decide(context)
     event = QueryEvent(
         trial=parts.trial, episode=episode.number, step=episode.steps, global_step=global_step,
-        state=jsonable(pattern), decision=int(decision),
+        state=pattern if type(pattern) is tuple else jsonable(pattern), decision=int(decision),
     )
     solution = None
     reward = 0.0  # not querying earns the neutral reward
     if decision == 1:
         result = context.query()
-        trigger.queried(task.progress(pattern))
+        trigger.queried(progress)
         reward = query_reward(result.evaluation, result.accepted, config.secondary) - config.secondary.query_cost
         context.evaluation, context.accepted = result.evaluation, result.accepted
         episode.queries += 1
