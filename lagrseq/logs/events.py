@@ -252,6 +252,14 @@ class Sink(Protocol):
     def write(self, event: Event) -> None:
         """Take one event; its topic and log time follow from its type."""
 
+    def write_steps(self, transitions: list[Transition]) -> None:
+        """Take consecutive transitions at once, in order: the same as writing each (the loop
+        hands over an episode's steps this way when no picture comes between them)."""
+
+    def write_not_asked(self, trial: int, episode: int, step: int, global_step: int, state: Any) -> None:
+        """Take a decision not to query: the same as writing ``QueryEvent(trial, episode, step,
+        global_step, state, 0)`` (a sink that keeps nothing need not build it)."""
+
     def flush(self) -> None:
         """End of an episode: what a Ctrl-C keeps from now on (the MCAP sink writes its chunks
         to the operating system once they are big enough)."""
@@ -268,6 +276,12 @@ class NullSink:
     """A sink that keeps nothing: runs without a log (benchmarks measure the logging's cost)."""
 
     def write(self, event: Event) -> None:
+        return None
+
+    def write_steps(self, transitions: list[Transition]) -> None:
+        return None
+
+    def write_not_asked(self, trial: int, episode: int, step: int, global_step: int, state: Any) -> None:
         return None
 
     def flush(self) -> None:

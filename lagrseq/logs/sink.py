@@ -232,6 +232,32 @@ class McapSink:
         else:
             raise LogError(f"cannot log a {kind.__name__}; expected Transition, QueryEvent, EpisodeEvent or View")
 
+    def write_steps(self, transitions: list[Transition]) -> None:
+        """Consecutive transitions at once (format 3: held for the episode's columnar record in
+        one call, after one check of their rewards); the same as :meth:`write` of each, which
+        takes over where a reward is not finite or not a number (its LogError, the steps
+        before it held as they would be)."""
+        if self._columnar:
+            try:
+                finite = all(-_HUGE < t.reward < _HUGE for t in transitions)
+            except TypeError:
+                finite = False
+            if finite:
+                self._steps += transitions
+                return
+        for transition in transitions:
+            self.write(transition)
+
+    def write_not_asked(self, trial: int, episode: int, step: int, global_step: int, state: Any) -> None:
+        """A decision not to query, ``QueryEvent(trial, episode, step, global_step, state, 0)``:
+        format 3 holds it for the episode's ``/no_query`` record without checking that every
+        later field is at its default (:func:`~lagrseq.logs.events.not_asked`), as it is made so."""
+        event = QueryEvent(trial, episode, step, global_step, state, 0)
+        if self._columnar:
+            self._not_asked.append(event)
+        else:
+            self.write(event)
+
     def _write_columns(self) -> None:
         """Format 3: the held transitions into the open chunk and the held decisions not to
         query into the held messages, one columnar record per episode (log time: the global
