@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Callable
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -41,8 +40,10 @@ def lazy(target: str) -> Callable[..., Any]:
 
 
 def presets(task: str) -> Path:
-    """The packaged preset folder of a built-in task."""
-    return Path(str(resources.files("lagrseq") / "experiments" / task))
+    """The packaged preset folder of a built-in task (next to this module: what
+    ``importlib.resources.files("lagrseq")`` gives for an installed package, without importing
+    ``importlib.resources`` and the ``zipfile`` module it brings)."""
+    return Path(__file__).parent / "experiments" / task
 
 
 WIRING = "lagrseq.running.wiring"

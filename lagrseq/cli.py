@@ -658,7 +658,19 @@ def _add_info(sub: Any) -> None:
     )
 
 
-def build_parser() -> argparse.ArgumentParser:
+_ADDERS: dict[str, Callable[[Any], None]] = {
+    "run": _add_run, "config": _add_config, "record": _add_record, "cache": _add_cache,
+    "reproduce": _add_reproduce, "replay": _add_replay, "recover": _add_recover, "robot": _add_robot,
+    "frontier": _add_frontier, "audit": _add_audit, "serve-llm": _add_serve_llm, "plugins": _add_plugins,
+    "models": _add_models, "screen": _add_screen, "info": _add_info,
+}
+"""Each command's parser, in the order ``lagrseq --help`` lists them."""
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The command line's parser: every command's, or (``command``) only that command's, which
+    parses that command's arguments the same way and leaves out what the other commands' options
+    and help texts import (the study, recording and report modules a run never uses)."""
     parser = _Parser(
         prog="lagrseq",
         description=(
@@ -668,8 +680,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"lagrseq {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    for add in (_add_run, _add_config, _add_record, _add_cache, _add_reproduce, _add_replay, _add_recover, _add_robot, _add_frontier, _add_audit, _add_serve_llm, _add_plugins, _add_models, _add_screen, _add_info):
-        add(sub)
+    for name, add in _ADDERS.items():
+        if command is None or name == command:
+            add(sub)
     return parser
 
 
@@ -702,7 +715,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         pool = _make_executor(args, start=bool(pending))  # no cluster to start for nothing
         if pool is not None:
             stack.enter_context(pool)
-        with _bar(args.trials * per_trial, unit, f"{args.task} {args.method}", args.quiet) as bar:
+        # --quiet: no bar at all (tqdm, never drawn, would cost about 10% of a short run's start-up)
+        quiet: contextlib.AbstractContextManager[Any] = contextlib.nullcontext(None)
+        with quiet if args.quiet else _bar(args.trials * per_trial, unit, f"{args.task} {args.method}", False) as bar:
             results = runner.run_trials(
                 config, args.trials, args.seed, args.provider, directory, args.jobs, bar, options,
                 pool=pool, say=_say, retries=args.retries, render_dir=args.render,
@@ -1046,7 +1061,9 @@ def _terminate(*_: Any) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    words = sys.argv[1:] if argv is None else list(argv)
+    # a command named first (the only place argparse takes it): build that command's parser alone
+    parser = build_parser(words[0] if words and words[0] in _ADDERS else None)
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()

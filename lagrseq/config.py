@@ -998,7 +998,7 @@ def _coerce(section: str, name: str, hint: Any, value: Any) -> Any:
 
 def build_section(cls: type, section: str, data: Mapping[str, Any]) -> Any:
     """Build the dataclass ``cls`` from ``data``, rejecting unknown fields and bad values."""
-    hints = typing.get_type_hints(cls)
+    hints = _hints(cls)  # read only: resolved once per class (each resolution compiles every annotation)
     names = [f.name for f in dataclasses.fields(cls)]
     knobs: tuple[tuple[str, Any], ...] | None = None
     if "knobs" in names:  # [secondary]: a name no field has may be a registered policy's own knob

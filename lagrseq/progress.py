@@ -40,6 +40,9 @@ def bar(total: float, unit: str = "it", desc: str | None = None, quiet: bool = F
 
 def say(line: str) -> None:
     """Print ``line`` to stdout on a line of its own, above any progress bar on screen."""
+    if "tqdm" not in sys.modules:  # no bar was ever made: a plain line (what tqdm.write prints then)
+        print(line, file=sys.stdout, flush=True)
+        return
     from tqdm import tqdm
 
     tqdm.write(line, file=sys.stdout)

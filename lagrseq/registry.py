@@ -56,7 +56,9 @@ class TaskSpec:
     make_task: Callable[[Any], Any]
     """config -> the task (``lagrseq.tasks.base.Task``): prompt, parser, evaluation, guidance."""
     make_env: Callable[[Any, Path | None], Any]
-    """(config, render_dir) -> the task's Gymnasium env."""
+    """(config, render_dir) -> the task's Gymnasium env, or any object with Gymnasium's
+    ``reset``, ``step`` and ``close`` (the built-in cube task hands a run its env's dynamics
+    without Gymnasium, ``lagrseq.tasks.cube_dynamics``)."""
     extrapolator: Callable[[Any, str], Callable[..., str]]
     """(config, profile) -> what ``--provider mock[:PROFILE]`` answers with (``ideal``: the
     rule-based extrapolator; raises UsageError for a profile the task lacks)."""
@@ -402,10 +404,58 @@ def _entry_points() -> Any:
     from the one scan (a scan of the installed distributions' metadata costs about 6 ms of CPU,
     and four registries used to make four)."""
     if not _ENTRY_POINTS:
-        from importlib.metadata import entry_points
+        if _may_declare_plugins():
+            from importlib.metadata import entry_points
 
-        _ENTRY_POINTS.append(entry_points())
+            _ENTRY_POINTS.append(entry_points())
+        else:
+            _ENTRY_POINTS.append(_NoEntryPoints())
     return _ENTRY_POINTS[0]
+
+
+class _NoEntryPoints:
+    """The scan's answer where no installed distribution names a lagrseq group."""
+
+    def select(self, group: str) -> tuple[Any, ...]:
+        return ()
+
+
+def _may_declare_plugins() -> bool:
+    """False only when no distribution on ``sys.path`` can declare a lagrseq entry point: no
+    ``entry_points.txt`` of a ``.dist-info``/``.egg-info`` directory mentions a lagrseq group.
+    It reads the files ``importlib.metadata`` would, without importing it (with the ``email``
+    and ``zipfile`` modules it brings, about 20 ms of a run's start-up). Anything it cannot
+    judge (a zip on the path, another distribution finder, an unreadable directory) counts as
+    a maybe, and the full scan decides."""
+    import os
+    from importlib.machinery import PathFinder
+
+    if any(getattr(finder, "find_distributions", None) is not None and finder is not PathFinder for finder in sys.meta_path):
+        return True
+    groups = [group.encode() for group in GROUPS.values()]
+    for entry in sys.path:
+        where = entry or "."
+        if not os.path.isdir(where):
+            if os.path.exists(where):
+                return True  # a zip file: its distributions are for importlib.metadata to find
+            continue
+        try:
+            names = os.listdir(where)
+        except OSError:
+            return True
+        for name in names:
+            if not name.lower().endswith((".dist-info", ".egg-info")):
+                continue
+            try:
+                with open(os.path.join(where, name, "entry_points.txt"), "rb") as file:
+                    text = file.read()
+            except (FileNotFoundError, NotADirectoryError):
+                continue
+            except OSError:
+                return True
+            if any(group in text for group in groups):
+                return True
+    return False
 
 
 def _load_plugins(registry: Registry[Any]) -> None:

@@ -57,6 +57,11 @@ class EpsilonSchedule:
             self._last[0] = (episode, epsilon)  # one assignment: a reader never sees half of it
         return epsilon
 
+    def steady_from(self, step: int) -> bool:
+        """Whether :meth:`at` gives one epsilon for the rest of an episode that begins at global
+        step ``step``: a per-episode schedule past its warm-up (the loop then asks once)."""
+        return self.unit == "episode" and step >= self.warmup
+
     def __call__(self, index: int) -> float:
         kind, start, minimum = self.kind, self.start, self.minimum
         if kind == "constant":

@@ -15,11 +15,15 @@ id                                        task
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 import gymnasium as gym
 
 from lagrseq.envs.cube_stacking import CubeStackingEnv
-from lagrseq.envs.image_completion import ImageCompletionEnv
-from lagrseq.envs.object_arrangement import ObjectArrangementEnv
+
+if TYPE_CHECKING:
+    from lagrseq.envs.image_completion import ImageCompletionEnv
+    from lagrseq.envs.object_arrangement import ObjectArrangementEnv
 
 CUBE_ENTRY = "lagrseq.envs.cube_stacking:CubeStackingEnv"
 IMAGE_ENTRY = "lagrseq.envs.image_completion:ImageCompletionEnv"
@@ -44,6 +48,17 @@ def register_all() -> None:
 
 
 register_all()
+
+_LAZY = {"ImageCompletionEnv": "image_completion", "ObjectArrangementEnv": "object_arrangement"}
+"""The grid envs, imported when first named (a cube run imports this package, never them)."""
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 __all__ = [
     "CubeStackingEnv",

@@ -8,10 +8,10 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from lagrseq.tasks.cube import CubeStacking
+from lagrseq.tasks.cube_dynamics import CubeStackingDynamics
 
 
-class CubeStackingEnv(gym.Env[np.ndarray, np.int64]):
+class CubeStackingEnv(CubeStackingDynamics, gym.Env[np.ndarray, np.int64]):
     """Stack cubes in the order of a hidden target pattern.
 
     ## Description
@@ -50,6 +50,10 @@ class CubeStackingEnv(gym.Env[np.ndarray, np.int64]):
     ``stack_size``, ``horizon``, ``bonus``, ``bonus_on``, ``revert_wrong_cube``,
     ``wrong_cube_reward``, ``terminate_on_complete``, ``render_mode`` (``"ansi"``).
 
+    ## Dynamics
+    Everything but Gymnasium's interface is ``lagrseq.tasks.cube_dynamics.CubeStackingDynamics``,
+    which a run steps directly (without importing Gymnasium).
+
     ## Version History
     * v0: initial version.
     """
@@ -67,106 +71,25 @@ class CubeStackingEnv(gym.Env[np.ndarray, np.int64]):
         terminate_on_complete: bool = True,
         render_mode: str | None = None,
     ) -> None:
-        self.task = CubeStacking(stack_size)
-        self.n = stack_size
-        self.horizon = horizon
-        self.bonus = bonus
-        self.bonus_on = bonus_on
-        self.revert_wrong_cube = revert_wrong_cube
-        self.wrong_cube_reward = wrong_cube_reward
-        self.terminate_on_complete = terminate_on_complete
+        super().__init__(stack_size, horizon, bonus, bonus_on, revert_wrong_cube, wrong_cube_reward, terminate_on_complete)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode {render_mode!r} not in {self.metadata['render_modes']}")
         self.render_mode = render_mode
         self.action_space = spaces.Discrete(self.n + 1)
         self.observation_space = spaces.MultiDiscrete(np.full(self.n, self.n + 1, dtype=np.int64))
-        self._target = self.task.target
-        self._stack: tuple[int, ...] = ()
-        self._steps = 0
-        self._cache: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray, int]] = {}
 
-    # ------------------------------------------------------------------ helpers
-    def _views(self, stack: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray, int]:
-        """The observation, action mask and E(s) of ``stack``, made once per distinct stack (a
-        trial visits a few dozen stacks, 5,000 times); callers hand out copies, since Gymnasium
-        wants new arrays from every call."""
-        views = self._cache.get(stack)
-        if views is None:
-            obs = np.full(self.n, self.n, dtype=np.int64)
-            obs[: len(stack)] = stack
-            mask = np.zeros(self.n + 1, dtype=np.int8)
-            mask[0] = 1
-            if len(stack) < self.n:
-                mask[1:] = 1
-                for cube in stack:
-                    mask[cube + 1] = 0
-            obs.flags.writeable = mask.flags.writeable = False
-            views = self._cache[stack] = (obs, mask, self._evaluation(stack))
-        return views
-
-    def _observation(self) -> np.ndarray:
-        return self._views(self._stack)[0].copy()
-
-    def action_mask(self) -> np.ndarray:
-        """Valid actions as the released code judges them: "remove" always (a no-op on the empty
-        stack), "add" unless the cube is already stacked or the stack is full."""
-        return self._views(self._stack)[1].copy()
-
-    def _evaluation(self, stack: tuple[int, ...]) -> int:
-        target = self._target
-        correct = 0
-        for a, b in zip(stack, target):
-            if a == b:
-                correct += 1
-        return len(stack) * correct
-
-    def _info(self, pre_revert: tuple[int, ...] | None = None) -> dict[str, Any]:
-        _obs, mask, evaluation = self._views(self._stack)
-        return {
-            "pattern": self._stack,
-            "pre_revert_pattern": self._stack if pre_revert is None else pre_revert,
-            "evaluation": evaluation,
-            "action_mask": mask.copy(),
-        }
-
-    # ------------------------------------------------------------------ gymnasium API
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
-        super().reset(seed=seed)
-        self._stack = ()
-        self._steps = 0
-        return self._observation(), self._info()
+        gym.Env.reset(self, seed=seed)
+        obs, info = self._restart()
+        info["action_mask"] = info["action_mask"].copy()
+        return obs.copy(), info
 
     def step(self, action: np.int64 | int) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        action = int(action)
-        if not 0 <= action <= self.n:
-            raise ValueError(f"action {action} outside Discrete({self.n + 1})")
-        before = self._stack
-        if action == 0:
-            after = before[:-1]
-        elif len(before) < self.n and (action - 1) not in before:
-            after = before + (action - 1,)
-        else:
-            after = before  # no-op: cube already stacked, or the stack is full
-        target = self._target
-        cache = self._cache  # each stack's views, looked up once per step and stack
-        views = cache.get(after) or self._views(after)
-        views_before = views if after is before else (cache.get(before) or self._views(before))
-        reward = float(views[2] - views_before[2])
-        if after == target or (self.bonus_on == "either-state" and before == target):
-            reward += self.bonus
-        pre_revert = after
-        if self.revert_wrong_cube and len(after) > len(before) and after[-1] != target[len(after) - 1]:
-            after, views = before, views_before  # the wrong cube is taken off again
-            if self.wrong_cube_reward == "zero":
-                reward = 0.0
-        self._stack = after
-        self._steps += 1
-        terminated = bool(self.terminate_on_complete and after == target)
-        truncated = bool(not terminated and self._steps >= self.horizon)
-        obs, mask, evaluation = views
-        info = {"pattern": after, "pre_revert_pattern": pre_revert, "evaluation": evaluation, "action_mask": mask.copy()}
+        """The dynamics' step, with new arrays (Gymnasium wants a fresh observation every call)."""
+        obs, reward, terminated, truncated, info = super().step(action)
+        info["action_mask"] = info["action_mask"].copy()
         return obs.copy(), reward, terminated, truncated, info
 
     def render(self) -> str | None:

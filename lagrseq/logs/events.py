@@ -14,7 +14,7 @@ measures what logging costs). A sink dispatches on the record's type (``McapSink
 from __future__ import annotations
 
 from itertools import groupby
-from operator import attrgetter
+from operator import attrgetter, itemgetter
 from typing import Any, NamedTuple, Protocol
 
 import msgspec
@@ -164,7 +164,9 @@ def not_asked(event: QueryEvent) -> bool:
 
 _COLUMNS_FROM = 2
 """Where the columns start in a record's fields (after ``trial`` and ``episode``)."""
-_DECISION_COLUMNS = attrgetter("trial", "episode", *NO_QUERY_COLUMNS)
+decision_entry = attrgetter("trial", "episode", *NO_QUERY_COLUMNS)
+"""A decision not to query as what its ``/no_query`` record keeps: (trial, episode, step,
+global_step, state)."""
 _EPISODE_OF = attrgetter("trial", "episode")
 
 
@@ -189,12 +191,13 @@ def transitions_records(steps: list[Transition]) -> list[dict[str, Any]]:
     return [record]
 
 
-def no_query_records(decisions: list[QueryEvent]) -> list[dict[str, Any]]:
-    """Decisions not to query as the columns of ``/no_query`` records (log format 3), one per
-    episode (a run of decisions with one trial and episode)."""
-    columns = list(zip(*map(_DECISION_COLUMNS, decisions)))
+def no_query_records(decisions: list[tuple[Any, ...]]) -> list[dict[str, Any]]:
+    """Decisions not to query, each as its :data:`decision_entry`, as the columns of
+    ``/no_query`` records (log format 3), one per episode (a run of decisions with one trial and
+    episode)."""
+    columns = list(zip(*decisions))
     if not _one_episode(columns, len(decisions)):
-        return [record for _, group in groupby(decisions, _EPISODE_OF) for record in no_query_records(list(group))]
+        return [record for _, group in groupby(decisions, itemgetter(0, 1)) for record in no_query_records(list(group))]
     record: dict[str, Any] = {"trial": columns[0][0], "episode": columns[1][0]}
     record.update(zip(NO_QUERY_COLUMNS, columns[_COLUMNS_FROM:]))
     return [record]
@@ -252,6 +255,14 @@ class Sink(Protocol):
     def write(self, event: Event) -> None:
         """Take one event; its topic and log time follow from its type."""
 
+    def write_steps(self, transitions: list[Transition]) -> None:
+        """Take consecutive transitions at once, in order: the same as writing each (the loop
+        hands over an episode's steps this way when no picture comes between them)."""
+
+    def write_not_asked(self, trial: int, episode: int, step: int, global_step: int, state: Any) -> None:
+        """Take a decision not to query: the same as writing ``QueryEvent(trial, episode, step,
+        global_step, state, 0)`` (a sink that keeps nothing need not build it)."""
+
     def flush(self) -> None:
         """End of an episode: what a Ctrl-C keeps from now on (the MCAP sink writes its chunks
         to the operating system once they are big enough)."""
@@ -268,6 +279,12 @@ class NullSink:
     """A sink that keeps nothing: runs without a log (benchmarks measure the logging's cost)."""
 
     def write(self, event: Event) -> None:
+        return None
+
+    def write_steps(self, transitions: list[Transition]) -> None:
+        return None
+
+    def write_not_asked(self, trial: int, episode: int, step: int, global_step: int, state: Any) -> None:
         return None
 
     def flush(self) -> None:

@@ -42,6 +42,7 @@ try:
     import fcntl
 except ImportError:  # pragma: no cover - not on Windows: no lock, as before
     fcntl = None  # type: ignore[assignment]
+from operator import attrgetter
 from pathlib import Path
 from typing import Any
 
@@ -61,6 +62,7 @@ from lagrseq.logs.events import (
     Sink,
     Transition,
     View,
+    decision_entry,
     encode,
     encode_into,
     no_query_records,
@@ -94,6 +96,7 @@ message records. Measured on cube LaGR-SEQ trials (``benchmarks/bench_cube.py``,
 per episode put logging at +33%; every 4 episodes (about 36 KB) +23%, every 8 (about 72 KB) +19%."""
 
 _HUGE = float("inf")
+_REWARD = attrgetter("reward")
 _dumps = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
 
 
@@ -182,7 +185,8 @@ class McapSink:
         # Format 3: the current episode's transitions and decisions not to query, held until
         # its end, when each becomes one columnar record.
         self._steps: list[Transition] = []
-        self._not_asked: list[QueryEvent] = []
+        self._not_asked: list[tuple[Any, ...]] = []
+        """Format 3: the episode's decisions not to query, as their ``decision_entry``."""
         self._expanded = {TRANSITION_TOPIC: 0, QUERY_TOPIC: 0}
         """Format 3: records written inside columnar ones, per topic the readers give them as."""
         # Transitions and pictures of the current episode go straight into the writer's open
@@ -212,7 +216,7 @@ class McapSink:
                 return
             if kind is QueryEvent or kind is ProbeQueryEvent:
                 if self._columnar and not_asked(event):  # type: ignore[arg-type]
-                    self._not_asked.append(event)  # type: ignore[arg-type]
+                    self._not_asked.append(decision_entry(event))
                     return
                 e = event
                 for value in (e.evaluation, e.query_reward, e.temperature, e.cost_usd, e.latency_s):  # type: ignore[union-attr]
@@ -231,6 +235,31 @@ class McapSink:
             self._writer.add_message(self._channels[event.topic], event.log_time, _encode(event.message))  # type: ignore[union-attr]
         else:
             raise LogError(f"cannot log a {kind.__name__}; expected Transition, QueryEvent, EpisodeEvent or View")
+
+    def write_steps(self, transitions: list[Transition]) -> None:
+        """Consecutive transitions at once (format 3: held for the episode's columnar record in
+        one call, after one check of their rewards); the same as :meth:`write` of each, which
+        takes over where a reward is not finite or not a number (its LogError, the steps
+        before it held as they would be)."""
+        if self._columnar:
+            try:  # a NaN or an infinity makes the sum one too (a false alarm only takes the slow way)
+                finite = -_HUGE < sum(map(_REWARD, transitions)) < _HUGE
+            except TypeError:
+                finite = False
+            if finite:
+                self._steps += transitions
+                return
+        for transition in transitions:
+            self.write(transition)
+
+    def write_not_asked(self, trial: int, episode: int, step: int, global_step: int, state: Any) -> None:
+        """A decision not to query, ``QueryEvent(trial, episode, step, global_step, state, 0)``:
+        format 3 holds it for the episode's ``/no_query`` record without checking that every
+        later field is at its default (:func:`~lagrseq.logs.events.not_asked`), as it is made so."""
+        if self._columnar:
+            self._not_asked.append((trial, episode, step, global_step, state))
+        else:
+            self.write(QueryEvent(trial, episode, step, global_step, state, 0))
 
     def _write_columns(self) -> None:
         """Format 3: the held transitions into the open chunk and the held decisions not to

@@ -14,7 +14,7 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 
 from lagrseq import seeding
-from lagrseq.agents.tabular import TabularQ
+from lagrseq.agents.tabular import TabularQ, epsilon_greedy
 from lagrseq.config import DQNConfig, NeuralSecondaryConfig, TabularConfig
 from lagrseq.loop.seq import TabularSecondary
 from lagrseq.seeding import Stream
@@ -80,7 +80,10 @@ class TabularPrimary:
             self.key = tuple
 
     def act(self, observation: Any, info: dict[str, Any], epsilon: float, rng: np.random.Generator) -> int:
-        return self.agent.act(self.key(info["pattern"]), epsilon, rng, info["action_mask"], self.invalid)
+        key = self.key(info["pattern"])
+        agent = self.agent  # TabularQ.act, its row looked up here (one call fewer a step)
+        row = agent.table.get(key)
+        return epsilon_greedy(agent.values(key) if row is None else row, epsilon, rng, info["action_mask"], self.invalid)
 
     def learn(self, step: Step) -> None:
         # The released cube code bootstraps from the wrong stack before its revert (value 0).

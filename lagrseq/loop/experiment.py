@@ -133,32 +133,76 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
     global_step = episodes = queries = 0
     total_return = 0.0
     sources: dict[str, int] = {}
+    # What a step calls, looked up once per trial (a trial is about 5,000 steps of a few us each).
+    schedule, progress, armed, is_complete = parts.primary_epsilon, task.progress, trigger.armed, task.is_complete
+    act, learn, step_env, write, views = parts.primary.act, parts.primary.learn, env.step, sink.write, parts.views
+    # Without pictures between them, an episode's transitions go to the sink in one call at its
+    # end (or where it stops early): a sink call a step was most of what logging cost a cube trial.
+    held: list[Transition] = []
+    hold: Callable[[Transition], None] = held.append if views is None else write
+    guide = parts.guide or task_guide(task)
+    lagr, guidance_rng, primary_rng, trial = config.lagr, parts.guidance_rng, parts.primary_rng, parts.trial
+    learn_guided = lagr.update_primary_while_guided
+    max_steps = config.run.max_steps
     with sink, parts.provider:
         for number in itertools.count():
             if _out_of_budget(config, number, global_step):
                 break
             observation, info = env.reset(seed=parts.env_seed if number == 0 else None)
-            if config.lagr.solution_scope == "episode":
+            if lagr.solution_scope == "episode":
                 solution = None  # the released cube code forgets the solution every episode
             trigger.reset_episode()
             episode = _Episode(number, solved=task.is_complete(info["pattern"]))
-            while True:
-                pattern = info["pattern"]
-                following = solution  # a solution accepted at this step guides from the next one
-                # Exploration per episode (cube) or per step (grid DQNs); /episode logs the last.
-                episode.epsilon = parts.primary_epsilon.at(number, global_step)
-                if asks and solution is None and trigger.armed(task.progress(pattern), episode.last_reward):
-                    solution = _ask(parts, trigger, episode, pattern, global_step, queries + episode.queries)
-                env_action, action, guided, observation, info = _act(parts, following, observation, info, episode.epsilon)
-                next_observation, reward, terminated, truncated, next_info = env.step(env_action)
-                # The released cube code does not update the primary agent on guided steps.
-                if not guided or config.lagr.update_primary_while_guided:
-                    parts.primary.learn(Step(observation, info, action, reward, next_observation, next_info, terminated))
-                _log_step(parts, episode, global_step, pattern, action, reward, terminated, truncated, guided, next_info)
-                observation, info = next_observation, next_info
-                global_step += 1
-                if terminated or truncated or _out_of_steps(config, global_step):
-                    break
+            # Exploration per episode (cube: asked once here) or per step (grid DQNs, a warm-up);
+            # /episode logs the last.
+            steady = schedule.steady_from(global_step)
+            epsilon = episode.epsilon = schedule.at(number, global_step)
+            try:
+                while True:
+                    pattern = info["pattern"]
+                    following = solution  # a solution accepted at this step guides from the next one
+                    if not steady:
+                        epsilon = episode.epsilon = schedule.at(number, global_step)
+                    if asks and solution is None:
+                        progressed = progress(pattern)
+                        if armed(progressed, episode.last_reward):
+                            solution = _ask(parts, trigger, episode, pattern, progressed, global_step, queries + episode.queries)
+                    # pi_LLM's action once a solution is held (with probability P), else the primary agent's
+                    guided = None
+                    if following is not None and follows(lagr, guidance_rng):
+                        guided = guide(following, observation, info)
+                    if guided is None:
+                        env_action = action = act(observation, info, epsilon, primary_rng)
+                    else:
+                        env_action, action, observation, info = guided.env_action, guided.action, guided.observation, guided.info
+                    next_observation, reward, terminated, truncated, next_info = step_env(env_action)
+                    is_guided = guided is not None
+                    # The released cube code does not update the primary agent on guided steps.
+                    if not is_guided or learn_guided:
+                        learn(Step(observation, info, action, reward, next_observation, next_info, terminated))
+                    # The step's transition (and pictures); jsonable keeps a tuple state as it is.
+                    state = pattern if type(pattern) is tuple else jsonable(pattern)
+                    extra = next_info.get(STEP_LOG)  # what the env adds to the record (an arm's placement)
+                    fields = (trial, number, episode.steps, global_step, state, int(action), float(reward), bool(terminated), bool(truncated), is_guided)
+                    hold(Transition(*fields) if extra is None else Transition(*fields, **extra))
+                    if views is not None:
+                        for view in views(next_info, global_step):
+                            write(view)
+                    episode.total += reward
+                    episode.guided_steps += is_guided
+                    episode.last_reward = reward  # the paper's trigger: query only after a positive reward
+                    if not episode.solved:
+                        episode.solved = is_complete(next_info["pattern"])
+                    episode.steps += 1
+                    observation, info = next_observation, next_info
+                    global_step += 1
+                    if terminated or truncated or (max_steps and global_step >= max_steps):
+                        break
+            finally:
+                if held:  # the episode's transitions (also those of an episode stopped by an error)
+                    steps = held[:]
+                    held.clear()
+                    sink.write_steps(steps)
             sink.write(
                 episode_event(
                     info.get(EPISODE_LOG),  # what the env counted (an arm's placements)
@@ -184,30 +228,36 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
 
 
 def _ask(
-    parts: TrialParts, trigger: QueryTrigger, episode: _Episode, pattern: Any, global_step: int, queries: int
+    parts: TrialParts, trigger: QueryTrigger, episode: _Episode, pattern: Any, progress: int, global_step: int,
+    queries: int,
 ) -> Any:
     """SEQ + LaGR from the current state: the asking policy decides; a query's answer is parsed,
     evaluated and, above the threshold, accepted. Returns the accepted solution or None.
-    ``queries``: the trial's queries so far."""
+    ``progress``: the task's progress of ``pattern``; ``queries``: the trial's queries so far."""
     config, task, provider = parts.config, parts.task, parts.provider
     policy = parts.secondary
     assert policy is not None  # baseline never asks
     context = AskContext(
-        pattern=pattern, progress=task.progress(pattern), episode=episode.number, episode_step=episode.steps,
+        pattern=pattern, progress=progress, episode=episode.number, episode_step=episode.steps,
         global_step=global_step, epsilon=parts.secondary_epsilon.at(episode.number, global_step),
         rng=parts.secondary_rng, queries_trial=queries, queries_episode=episode.queries,
         peek=lambda: consult(task, provider, config.llm, config.lagr.threshold, pattern),
     )
     decision = policy.decide(context)
+    state = pattern if type(pattern) is tuple else jsonable(pattern)  # jsonable keeps a tuple as it is
+    if decision == 0:  # not querying earns the neutral reward
+        policy.update(context, decision, 0.0)
+        parts.sink.write_not_asked(parts.trial, episode.number, episode.steps, global_step, state)
+        return None
     event = QueryEvent(
         trial=parts.trial, episode=episode.number, step=episode.steps, global_step=global_step,
-        state=jsonable(pattern), decision=int(decision),
+        state=state, decision=int(decision),
     )
     solution = None
-    reward = 0.0  # not querying earns the neutral reward
+    reward = 0.0
     if decision == 1:
         result = context.query()
-        trigger.queried(task.progress(pattern))
+        trigger.queried(progress)
         reward = query_reward(result.evaluation, result.accepted, config.secondary) - config.secondary.query_cost
         context.evaluation, context.accepted = result.evaluation, result.accepted
         episode.queries += 1
@@ -222,42 +272,6 @@ def _ask(
     policy.update(context, decision, reward)
     parts.sink.write(event)
     return solution
-
-
-def _act(parts: TrialParts, following: Any, observation: Any, info: dict[str, Any], epsilon: float) -> tuple[int, int, bool, Any, dict[str, Any]]:
-    """pi_LLM's action once a solution is held (with probability P), else the primary agent's.
-    Returns the action as the env takes it, the action, whether it was guided, and the
-    observation and info it acts on."""
-    if following is not None and follows(parts.config.lagr, parts.guidance_rng):
-        guide = parts.guide or task_guide(parts.task)
-        guided = guide(following, observation, info)
-        if guided is not None:
-            return guided.env_action, guided.action, True, guided.observation, guided.info
-    action = parts.primary.act(observation, info, epsilon, parts.primary_rng)
-    return action, action, False, observation, info
-
-
-def _log_step(
-    parts: TrialParts, episode: _Episode, global_step: int, pattern: Any, action: int, reward: float,
-    terminated: bool, truncated: bool, guided: bool, next_info: dict[str, Any],
-) -> None:
-    """Write the step's transition (and pictures) and add it to the episode's counters."""
-    parts.sink.write(
-        Transition(
-            trial=parts.trial, episode=episode.number, step=episode.steps, global_step=global_step,
-            state=jsonable(pattern), action=int(action), reward=float(reward), terminated=bool(terminated),
-            truncated=bool(truncated), guided=guided,
-            **next_info.get(STEP_LOG, {}),  # what the env adds to the record (an arm's placement)
-        )
-    )
-    if parts.views is not None:
-        for view in parts.views(next_info, global_step):
-            parts.sink.write(view)
-    episode.total += reward
-    episode.guided_steps += guided
-    episode.last_reward = reward  # the paper's trigger: query only after a positive reward
-    episode.solved = episode.solved or parts.task.is_complete(next_info["pattern"])
-    episode.steps += 1
 
 
 def query_event(event: QueryEvent, result: Consultation, provider: str, temperature: float, reward: float) -> QueryEvent:

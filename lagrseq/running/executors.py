@@ -18,10 +18,8 @@ runner (:func:`lagrseq.running.runner.run_trials`) drives either through :meth:`
 from __future__ import annotations
 
 import contextlib
-import multiprocessing
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import Future, ProcessPoolExecutor, as_completed
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from lagrseq.errors import UsageError
 from lagrseq.registry import EXECUTORS as REGISTRY
@@ -40,6 +38,9 @@ from lagrseq.running.executor_base import (
     run_digest,
     task_key,
 )
+
+if TYPE_CHECKING:
+    from concurrent.futures import Future, ProcessPoolExecutor
 
 __all__ = [
     "SCHEDULER_SCHEMES", "TRACKER_QUIET", "GroupJob", "Job", "LocalExecutor", "TrialExecutor", "TrialJob",
@@ -77,6 +78,11 @@ class LocalExecutor(TrialExecutor):
     name = "local"
 
     def __init__(self, jobs: int) -> None:
+        # imported only here: a run of --jobs 1 never starts a pool (multiprocessing's imports cost
+        # a few per cent of a short run's start-up)
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
         self.workers = jobs
         quiet_resource_tracker()
         self.pool = ProcessPoolExecutor(
@@ -87,6 +93,8 @@ class LocalExecutor(TrialExecutor):
         return self.pool.submit(fn, job)
 
     def completed(self, handles: Iterable[Future[Any]]) -> Iterator[Future[Any]]:
+        from concurrent.futures import as_completed
+
         return as_completed(list(handles))
 
     def result(self, handle: Future[Any]) -> Any:

@@ -23,14 +23,13 @@ import platform
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from lagrseq import __version__
 from lagrseq.config import ExperimentConfig
 from lagrseq.errors import BudgetExceeded, LagrseqError, TrialsFailed, UsageError
-from lagrseq.logs.reader import LogInfo, is_complete, read_info
 from lagrseq.logs.sink import PARTIAL_SUFFIX, McapSink, NullSink, Sink
 from lagrseq.loop.experiment import TrialResult, run_trial
 from lagrseq.registry import find_part, logged_options, replace_part
@@ -44,6 +43,9 @@ from lagrseq.running.wiring import (
     view_topics,
     with_provider_model,
 )
+
+if TYPE_CHECKING:
+    from lagrseq.logs.reader import LogInfo
 
 
 def run_metadata(
@@ -174,6 +176,7 @@ def _unfinished_info(path: Path) -> LogInfo | None:
     from mcap.records import Metadata
 
     from lagrseq.logs.mcap_reader import Damage, McapFile
+    from lagrseq.logs.reader import LogInfo, read_info
     from lagrseq.logs.sink import RUN_METADATA
 
     with contextlib.suppress(LagrseqError):
@@ -201,6 +204,8 @@ def check_resumable(
 
     unfinished = info is not None
     if info is None:
+        from lagrseq.logs.reader import read_info
+
         info = read_info(path)
     wanted = json.loads(config.to_json())
     try:
@@ -311,6 +316,12 @@ class ResumePlan:
         )
 
 
+def _is_complete(path: Path) -> bool:
+    from lagrseq.logs.reader import is_complete
+
+    return is_complete(path)
+
+
 def resume_plan(config: ExperimentConfig, trials: int, seed: int, provider_spec: str, directory: Path) -> ResumePlan:
     """Sort trials 0..trials-1 by what their log says; a complete log made by another run is
     refused (:func:`check_resumable`)."""
@@ -319,7 +330,8 @@ def resume_plan(config: ExperimentConfig, trials: int, seed: int, provider_spec:
     unfinished: list[int] = []
     for trial in range(trials):
         path = trial_path(directory, trial)
-        if is_complete(path):
+        # the log reader is imported only where there is a log to read (a fresh run has none)
+        if path.exists() and _is_complete(path):
             check_resumable(path, config, seed, provider_spec, trial)
             complete.append(trial)
         elif path.exists() or path.with_name(path.name + PARTIAL_SUFFIX).exists():

@@ -63,10 +63,11 @@ from lagrseq.registry import (
     task_profiles,
 )
 from lagrseq.seeding import Stream
-from lagrseq.tasks import cube, grid, grid_profiles
-from lagrseq.tasks.arrangement import arm_arrangement, object_arrangement
+from lagrseq.tasks import cube, grid_profiles
 from lagrseq.tasks.base import Task
-from lagrseq.tasks.image import image_completion
+
+# The grid tasks' modules (lagrseq.tasks.grid, .image, .arrangement) are imported where a grid
+# task is built: a cube run never needs them.
 
 
 def provider_help() -> str:
@@ -451,6 +452,8 @@ def cube_extrapolator(config: ExperimentConfig, profile: str) -> Callable[[str, 
 
 def grid_extrapolator(config: ExperimentConfig, profile: str) -> Callable[[str, float, np.random.Generator], str]:
     """The grid extrapolator or one of the grid profiles (``grid_profiles.PROFILES``)."""
+    from lagrseq.tasks import grid
+
     if profile in grid_profiles.PROFILES:
         task = make_task(config)
         if isinstance(task, grid.GridTask):
@@ -485,8 +488,9 @@ def make_task(config: ExperimentConfig) -> Task:
 
 
 def make_env(config: ExperimentConfig, render_dir: Path | None = None) -> Any:
-    """The task's gymnasium env (its registered ``make_env``; imported there: ``lagrseq replay``
-    never needs gymnasium). ``render_dir``: arm tasks write PNG frames and a GIF per episode
+    """The task's env (its registered ``make_env``; imported there: ``lagrseq replay`` never needs
+    gymnasium): a Gymnasium env, or for cube stacking its dynamics alone (the same ``reset``,
+    ``step`` and ``close``). ``render_dir``: arm tasks write PNG frames and a GIF per episode
     there (``--render``)."""
     return TASKS.get(config.task.name).make_env(config, render_dir)
 
@@ -496,26 +500,34 @@ def cube_task(config: ExperimentConfig) -> Task:
 
 
 def image_task(config: ExperimentConfig) -> Task:
+    from lagrseq.tasks.image import image_completion
+
     task = _expect(config.task, ImageTaskConfig, "task")
     return image_completion(task.target, task.goal_threshold, task.prompt_matrix, task.guidance)
 
 
 def arrangement_task(config: ExperimentConfig) -> Task:
+    from lagrseq.tasks.arrangement import object_arrangement
+
     task = _expect(config.task, ArrangementTaskConfig, "task")
     return object_arrangement(task.target, task.goal_threshold, task.prompt_matrix, task.guidance)
 
 
 def arm_task(config: ExperimentConfig) -> Task:
+    from lagrseq.tasks.arrangement import arm_arrangement
+
     task = _expect(config.task, ArmTaskConfig, "task")
     return arm_arrangement(task.target, task.goal_threshold, task.prompt_matrix, task.guidance)
 
 
 def cube_env(config: ExperimentConfig, render_dir: Path | None = None) -> Any:
-    from lagrseq.envs.cube_stacking import CubeStackingEnv
+    """The cube env's dynamics without Gymnasium's interface (``CubeStackingEnv`` is this class
+    with it): a run needs nothing more, and importing gymnasium costs about 60 ms of CPU."""
+    from lagrseq.tasks.cube_dynamics import CubeStackingDynamics
 
     task = _expect(config.task, CubeTaskConfig, "task")
     env = _expect(config.env, CubeEnvConfig, "env")
-    return CubeStackingEnv(
+    return CubeStackingDynamics(
         stack_size=task.stack_size,
         horizon=env.horizon,
         bonus=env.bonus,
@@ -595,6 +607,8 @@ def make_secondary(config: ExperimentConfig, task: Task, seed: int, trial: int) 
 
     def seq_agent() -> Any:
         if isinstance(section, NeuralSecondaryConfig):
+            from lagrseq.tasks import grid
+
             return NeuralSeq(section, _expect(task, grid.GridTask, "task").cells, seed, trial)
         return TabularSeq(section.learning_rate)
 

@@ -22,10 +22,12 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lagrseq.tasks import grid, shapes
+if TYPE_CHECKING:  # imported where used: the profiles' names and help alone need neither
+    from lagrseq.tasks import grid
 
 BIN_EDGES = (0.25, 0.5, 0.75)
 """Upper edges of the fraction-of-target-shown bins (the last bin runs to 1)."""
@@ -127,6 +129,8 @@ def profile_extrapolator(
     chosen = PROFILES[profile]
     threshold = ACCEPT.get(task.name, 1.0) if accept is None else accept
     chosen.probability(task.name, 0.0, False)  # a task the profile lacks fails now
+    from lagrseq.tasks import grid, shapes
+
     library = shapes.library(task.rows, task.cols)
     salt: list[int] = []
 

@@ -2,9 +2,17 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
+import gymnasium as gym
+import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from lagrseq.envs.cube_stacking import CubeStackingEnv
+from lagrseq.tasks.cube_dynamics import CubeStackingDynamics
 
 E, F, G, A, B, C, D, H = 4, 5, 6, 0, 1, 2, 3, 7
 TARGET = (E, F, G, A, B, C, D, H)
@@ -114,3 +122,51 @@ def test_paper_reading_of_the_wrong_cube_reward_is_zero() -> None:
     stack(env, TARGET[:6])
     _, reward, _, _, info = env.step(H + 1)
     assert reward == 0 and info["pattern"] == TARGET[:6]
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    stack_size=st.sampled_from((5, 8, 11)),
+    upstream=st.booleans(),
+    terminate=st.booleans(),
+    data=st.data(),
+)
+def test_a_run_s_gymnasium_free_dynamics_step_as_the_gymnasium_env(stack_size: int, upstream: bool, terminate: bool, data: st.DataObject) -> None:
+    """A run steps ``CubeStackingDynamics`` (no gymnasium import); the registered env is that
+    class with Gymnasium's interface, and both give the same observations, rewards, ends and
+    infos on any action sequence, across episodes."""
+    settings_ = dict(
+        stack_size=stack_size, horizon=12, bonus_on="either-state" if upstream else "next-state",
+        revert_wrong_cube=upstream, wrong_cube_reward="pre-revert" if upstream else "zero",
+        terminate_on_complete=terminate,
+    )
+    env, dynamics = CubeStackingEnv(**settings_), CubeStackingDynamics(**settings_)  # type: ignore[arg-type]
+    assert isinstance(env, CubeStackingDynamics) and not isinstance(dynamics, gym.Env)
+    actions = data.draw(st.lists(st.integers(0, stack_size), min_size=1, max_size=60))
+    ours, theirs = env.reset(seed=3), dynamics.reset(seed=3)
+    for action in actions:
+        assert (ours[0] == theirs[0]).all() and ours[0].dtype == theirs[0].dtype
+        assert ours[1].keys() == theirs[1].keys()
+        for key in ours[1]:
+            assert np.array_equal(ours[1][key], theirs[1][key])
+        assert (env.action_mask() == dynamics.action_mask()).all()
+        ours, theirs = env.step(action), dynamics.step(action)  # type: ignore[assignment]
+        assert ours[1:4] == theirs[1:4] and type(ours[1]) is type(theirs[1])
+        ours, theirs = (ours[0], ours[4]), (theirs[0], theirs[4])
+        if env._steps >= 12 or env._stack == env._target and terminate:
+            ours, theirs = env.reset(), dynamics.reset()
+    dynamics.close()
+    env.close()
+
+
+def test_a_cube_run_imports_no_gymnasium() -> None:
+    """``lagrseq run cube-stacking`` (its env is the dynamics alone) never imports gymnasium."""
+    code = (
+        "import sys, tempfile\n"
+        "from lagrseq.cli import main\n"
+        "with tempfile.TemporaryDirectory() as out:\n"
+        "    assert main(['run', 'cube-stacking', '--trials', '1', '--quiet', '--set', 'run.episodes=2', '--out', out]) == 0\n"
+        "print(sorted(m for m in sys.modules if m.split('.')[0] in ('gymnasium', 'tqdm', 'torch')))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
+    assert done.stdout.strip().splitlines()[-1] == "[]", done.stdout

@@ -332,3 +332,56 @@ def test_a_rollback_leaves_the_file_as_if_nothing_was_added_after_the_mark() -> 
         return out.getvalue()
 
     assert written(extra=True) == written(extra=False)
+
+
+def _episode_events(episode: int, first: int) -> list[tuple[str, object]]:
+    """One episode's calls as the loop makes them: steps, decisions not to query, one query."""
+    calls: list[tuple[str, object]] = []
+    for step in range(6):
+        state = tuple(range(step % 3))
+        if step % 2 == 0:
+            calls.append(("not_asked", (0, episode, step, first + step, state)))
+        if step == 3:
+            calls.append(("event", QueryEvent(0, episode, step, first + step, state, 1, queried=True, answer="[a]")))
+        calls.append(("step", Transition(0, episode, step, first + step, state, step % 4, float(step), False, step == 5, step == 1)))
+    calls.append(("event", EpisodeEvent(0, episode, 15.0, 6, 1, 0, 0.1, False, 1, first + 6)))
+    return calls
+
+
+@pytest.mark.parametrize("log_format", ["3", "2"])
+def test_write_steps_and_write_not_asked_write_the_bytes_of_a_write_each(tmp_path: Path, log_format: str) -> None:
+    """The loop's batched calls (an episode's transitions at once, decisions not to query
+    without a QueryEvent) give the same file as writing every event on its own."""
+    paths = {}
+    for way in ("each", "batched"):
+        paths[way] = tmp_path / f"{way}.mcap"
+        with McapSink(paths[way], {"run": "x"}, log_format=log_format) as sink:
+            for episode in range(3):
+                held: list[Transition] = []
+                for kind, payload in _episode_events(episode, 6 * episode):
+                    if way == "each":
+                        sink.write(QueryEvent(*payload, 0) if kind == "not_asked" else payload)  # type: ignore[arg-type, misc]
+                    elif kind == "not_asked":
+                        sink.write_not_asked(*payload)  # type: ignore[misc]
+                    elif kind == "step":
+                        held.append(payload)  # type: ignore[arg-type]
+                    else:
+                        if isinstance(payload, EpisodeEvent):
+                            sink.write_steps(held)
+                        sink.write(payload)  # type: ignore[arg-type]
+                sink.flush()
+    assert paths["each"].read_bytes() == paths["batched"].read_bytes()
+    NullSink().write_steps([])
+    NullSink().write_not_asked(0, 0, 0, 0, ())
+
+
+def test_write_steps_refuses_a_reward_that_is_not_finite_as_write_does(tmp_path: Path) -> None:
+    good = Transition(0, 0, 0, 0, (), 1, 1.0, False, False, False)
+    bad = Transition(0, 0, 1, 1, (), 1, float("nan"), False, False, False)
+    with McapSink(tmp_path / "a.mcap", {}) as sink:
+        with pytest.raises(LogError, match="reward") as batched:
+            sink.write_steps([good, bad])
+        assert sink._steps == [good]  # the steps before it are held, as with a write each
+    with McapSink(tmp_path / "b.mcap", {}) as sink, pytest.raises(LogError) as each:
+        sink.write(bad)
+    assert str(batched.value) == str(each.value)
