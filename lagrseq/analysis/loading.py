@@ -3,7 +3,7 @@
 A *run* is every trial log of one experiment: the same task, method, preset, provider, seed and
 configuration (its digest, i.e. the run directory's suffix). Everything comes from the logs: the
 ``lagrseq.run`` metadata and the ``/episode`` and ``/query`` topics, read through the chunk index
-so that no transition chunk is decompressed (:func:`lagrseq.logs.reader.read_topics`).
+so that no transition chunk is decompressed (:func:`lagrseq.logs.reader.read_rows`).
 
 Logs that are unfinished (``.mcap.partial``), unreadable, or whose trial did not complete are left
 out with a one-line warning each, never failing the whole load. A warning names the log by its
@@ -25,11 +25,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from lagrseq.config import config_digest
 from lagrseq.errors import LogError
-from lagrseq.logs.reader import ReadStats, full_path, read_log, recover_command
+from lagrseq.logs.reader import ReadStats, full_path, read_rows, recover_command
 from lagrseq.logs.schemas import ACCURACY_METHOD
 from lagrseq.logs.sink import PARTIAL_SUFFIX
 from lagrseq.paths import expand_user, input_path, walk_files
@@ -228,9 +229,10 @@ def _unfinished(path: Path) -> str:
 
 def _read_trial(path: Path, root: Path, stats: ReadStats) -> _Trial:
     display = _display(path, root)
-    # Only complete trials count; the topics are read in the same pass (cheap: summary chunks).
-    data = read_log(path, ["/episode", "/query"], stats)
-    info, topics, counts = data.info, data.topics, data.counts
+    # Only complete trials count; the topics are read in the same pass (cheap: summary chunks),
+    # each record straight into the row of its frame
+    data = read_rows(path, {"/episode": EPISODE_COLUMNS, "/query": QUERY_COLUMNS}, stats, missing=np.nan)
+    info, topics, counts = data.info, data.rows, data.counts
     status = info.status.get("status", "unfinished")
     run = info.run
     method = run.get("method", "")
@@ -260,7 +262,7 @@ def _read_trial(path: Path, root: Path, stats: ReadStats) -> _Trial:
         size=path.stat().st_size,
         display=display,
         trial=int(run.get("trial", 0)),
-        # Frames right away: a file's records as dicts are big, its columns are small.
+        # Frames right away: a file's records as rows are big, its columns are small.
         episodes=_frame(topics["/episode"], EPISODE_COLUMNS),
         queries=_frame(topics["/query"], QUERY_COLUMNS),
         counts=counts,
@@ -268,8 +270,10 @@ def _read_trial(path: Path, root: Path, stats: ReadStats) -> _Trial:
     )
 
 
-def _frame(records: list[dict[str, Any]], columns: Sequence[str]) -> pd.DataFrame:
-    return pd.DataFrame.from_records(records, columns=list(columns))
+def _frame(rows: list[tuple[Any, ...]], columns: Sequence[str]) -> pd.DataFrame:
+    """The frame of ``rows`` (the same as of the records they come from, each column's type
+    inferred from its values)."""
+    return pd.DataFrame.from_records(rows, columns=list(columns))
 
 
 def _concat(frames: list[pd.DataFrame], columns: Sequence[str]) -> pd.DataFrame:
