@@ -15,6 +15,7 @@ the logs that were used, :attr:`Logs.skipped` the others.
 from __future__ import annotations
 
 import contextlib
+import functools
 import gc
 import hashlib
 import json
@@ -123,8 +124,9 @@ class Run:
     paths: tuple[str, ...] = ()
     """The log files themselves, in trial order (for pictures read from one trial's log)."""
 
-    @property
+    @functools.cached_property
     def episodes_per_trial(self) -> int:
+        """Worked out once (a replay asks for it about 600 times; the frames are not changed)."""
         if self.episodes.empty:
             return 0
         return int(self.episodes.groupby("trial")["episode"].count().max())
@@ -138,9 +140,13 @@ class Run:
         return len(self.trials) * self.episodes_per_trial
 
     def total_per_trial(self, column: str) -> dict[int, float]:
-        """Sum of an ``/episode`` column over each trial (e.g. queries or return per trial)."""
-        sums = self.episodes.groupby("trial")[column].sum()
-        return {int(t): float(v) for t, v in sums.items()}
+        """Sum of an ``/episode`` column over each trial (e.g. queries or return per trial);
+        each column's sums are worked out once."""
+        totals: dict[str, dict[int, float]] = self.__dict__.setdefault("_totals", {})
+        if column not in totals:
+            sums = self.episodes.groupby("trial")[column].sum()
+            totals[column] = {int(t): float(v) for t, v in sums.items()}
+        return dict(totals[column])
 
 
 @dataclass(frozen=True)

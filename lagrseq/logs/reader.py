@@ -393,8 +393,9 @@ class _Unusual(Exception):
 
 
 @functools.lru_cache(maxsize=32)
-def _row_decoder(names: tuple[str, ...], fill: bool, missing: Any) -> Callable[[bytes], tuple[Any, ...]]:
-    """Message data -> the tuple of its ``names`` values (``missing`` where it lacks one). With ``fill``
+def _row_decoder(names: tuple[str, ...], fill: bool, missing: Any) -> Callable[[list[bytes]], list[tuple[Any, ...]]]:
+    """Messages' data -> the tuples of their ``names`` values (``missing`` where one lacks a
+    field). With ``fill``
     (a ``/query`` record of log format 2 and later) a field with a default (:data:`QUERY_DEFAULTS`)
     that the record leaves out reads as that default, and a field no ``/query`` record has is an
     error (a record with unknown fields is read as :func:`read_log` reads it)."""
@@ -410,12 +411,11 @@ def _row_decoder(names: tuple[str, ...], fill: bool, missing: Any) -> Callable[[
         ]
     row = msgspec.defstruct("Row", fields, forbid_unknown_fields=fill, gc=False)
     decode = msgspec.json.Decoder(row).decode
-    width = len(names)
     astuple = msgspec.structs.astuple
-
-    if fill and len(fields) > width:
-        return lambda data: astuple(decode(data))[:width]
-    return lambda data: astuple(decode(data))
+    if len(fields) > len(names):  # the fields after the columns were only checked
+        cut = itemgetter(slice(0, len(names)))
+        return lambda texts: list(map(cut, map(astuple, map(decode, texts))))
+    return lambda texts: list(map(astuple, map(decode, texts)))
 
 
 def _chunk_rows(
@@ -443,7 +443,7 @@ def _chunk_rows(
             joined = b"\0".join(texts)
             if any(name in joined for name in _PROBE_FIELDS):
                 raise _Unusual  # format 2's defaults are put back by a record's field count
-        found[topic] = list(map(_row_decoder(columns[topic], query, missing), texts))
+        found[topic] = _row_decoder(columns[topic], query, missing)(texts)
     for topic, cid in expanded.items():
         source, _topic, expand = wanted[cid]
         rows = found.setdefault(topic, [])
