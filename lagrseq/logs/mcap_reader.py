@@ -319,6 +319,8 @@ class McapFile:
         self._summary: Summary | None = None
         self._data: bytes | None = None
         self._whole = self.size <= WHOLE_FILE_BYTES
+        self._heads: dict[int, tuple[ChunkIndex, int, int]] = {}
+        """Chunk offset -> (its checked index, its CRC, where its data starts)."""
 
     def __enter__(self) -> McapFile:
         return self
@@ -424,15 +426,15 @@ class McapFile:
                 raise Damage(start, f"summary CRC mismatch (stored {footer.summary_crc}, computed {crc})")
         summary = Summary()
         for offset, opcode, record in self._records_in(section, start):
-            if isinstance(record, Schema):
+            if isinstance(record, ChunkIndex):  # most of a summary: two per episode
+                self._check_chunk_index(record, offset, start)
+                summary.chunk_indexes.append(record)
+            elif isinstance(record, Schema):
                 summary.schemas[record.id] = record
             elif isinstance(record, Channel):
                 summary.channels[record.id] = record
             elif isinstance(record, Statistics):
                 summary.statistics = record
-            elif isinstance(record, ChunkIndex):
-                self._check_chunk_index(record, offset, start)
-                summary.chunk_indexes.append(record)
             elif isinstance(record, MetadataIndex):
                 self._check_span(record.offset, record.length, start, offset, "metadata index")
                 summary.metadata_indexes.append(record)
@@ -506,6 +508,7 @@ class McapFile:
             raise Damage(at, "chunk record: its size or times differ from its index's")
         if data_length != index.compressed_size or tail[:name_length] != index.compression.encode():
             raise Damage(at, "chunk record: its compressed size or compression differs from its index's")
+        self._heads[at] = (index, _crc, at + _CHUNK_HEAD.size + name_length + 8)
 
     # ------------------------------------------------------------------ content
     def metadata(self) -> list[Metadata]:
@@ -524,6 +527,19 @@ class McapFile:
 
     def chunk(self, index: ChunkIndex) -> Chunk:
         """The chunk an index points at (its length must be the index's)."""
+        head = self._heads.get(index.chunk_start_offset)
+        if head is not None and head[0] is index and self._data is not None:
+            # every field of this chunk's record was checked against ``index`` (_check_chunk_head)
+            # in the bytes read into memory: the record is the index's fields, its CRC and its data
+            _, crc, begin = head
+            return Chunk(
+                compression=index.compression,
+                data=self._data[begin : index.chunk_start_offset + index.chunk_length],
+                message_end_time=index.message_end_time,
+                message_start_time=index.message_start_time,
+                uncompressed_crc=crc,
+                uncompressed_size=index.uncompressed_size,
+            )
         chunk, end = self.parse_at(index.chunk_start_offset, Opcode.CHUNK)
         if end - index.chunk_start_offset != index.chunk_length:
             raise Damage(
