@@ -8,9 +8,8 @@ process it waited for (its worker pool), from ``os.wait4``. Runs alternate (HEAD
 HEAD, ...), so a machine whose load drifts slows both alike; each pair gives one ratio
 REF / HEAD (above 1: this tree is faster), and the median ratio is the figure reported.
 
-The worktree is made with ``git worktree add --detach`` under a temporary directory, its package
-byte-compiled once (as this tree's is), and removed at the end (``git worktree prune`` cleans up
-after a run that was killed).
+The worktree is made with ``git worktree add --detach`` under a temporary directory and removed
+at the end (``git worktree prune`` cleans up after a run that was killed).
 """
 
 from __future__ import annotations
@@ -57,9 +56,6 @@ def worktree(ref: str) -> Iterator[Path]:
         ["git", "worktree", "add", "--detach", "--quiet", str(tree), commit.stdout.strip()],
         cwd=HERE, check=True,
     )
-    # byte-compiled once, as this tree is: the runs do not write bytecode, so a fresh worktree
-    # would otherwise compile every module it imports in every run (about 0.5 s of CPU)
-    subprocess.run([sys.executable, "-m", "compileall", "-q", str(tree / "lagrseq")], check=False, stdout=subprocess.DEVNULL)
     try:
         yield tree
     finally:
