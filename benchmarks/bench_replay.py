@@ -16,6 +16,7 @@ and from a worktree of REF, alternating, and prints paired CPU-time (and wall-ti
 paired comparison runs.
 
     PYTHONPATH=. python benchmarks/bench_replay.py --runs /tmp/q/runs --repeat 1 --vs f2d2ceb --pairs 3
+    PYTHONPATH=. python benchmarks/bench_replay.py --runs /tmp/q/runs --vs f2d2ceb --replay-jobs 1
 """
 
 from __future__ import annotations
@@ -82,11 +83,19 @@ def main() -> None:
     parser.add_argument(
         "--repeat", type=int, default=3, help="timed repetitions (best is reported)"
     )
+    parser.add_argument(
+        "--replay-jobs", type=int, default=None,
+        help="with --vs: this tree's `lagrseq replay --jobs` (default: its default, the cores, at most 8)",
+    )
+    parser.add_argument(
+        "--ref-jobs", type=int, default=None,
+        help="with --vs: REF's `lagrseq replay --jobs` (a REF that has the option; f2d2ceb has not)",
+    )
     add_vs_argument(parser)
     args = parser.parse_args()
 
     if args.vs and args.runs is not None:  # the paired comparison alone
-        run_vs(args.runs.absolute(), args.vs, args.pairs)
+        run_vs(args.runs.absolute(), args.vs, args.pairs, args.replay_jobs, args.ref_jobs)
         return
     with tempfile.TemporaryDirectory(prefix="lagrseq-bench-") as scratch:
         runs = (
@@ -140,16 +149,23 @@ def main() -> None:
             f"({all_stats.bytes_decompressed / 1e6:.1f} MB)"
         )
         if args.vs:
-            run_vs(runs.absolute(), args.vs, args.pairs)
+            run_vs(runs.absolute(), args.vs, args.pairs, args.replay_jobs, args.ref_jobs)
 
 
-def run_vs(runs: Path, ref: str, pairs: int) -> None:
-    def command(scratch: Path) -> list[str]:
-        return [sys.executable, "-m", "lagrseq", "replay", str(runs), "--out", str(scratch / "report")]
+def run_vs(runs: Path, ref: str, pairs: int, jobs: int | None = None, ref_jobs: int | None = None) -> None:
+    """Paired runs of ``lagrseq replay RUNS``; ``jobs`` / ``ref_jobs``: this tree's / REF's
+    ``--jobs`` (default: none given; ``f2d2ceb`` has no ``--jobs``, it reads in one process)."""
 
-    print(f"whole process, lagrseq replay of {runs}, here vs {ref} ({pairs} alternating pairs):")
+    def command(scratch: Path, given: int | None) -> list[str]:
+        line = [sys.executable, "-m", "lagrseq", "replay", str(runs), "--out", str(scratch / "report")]
+        return [*line, *(["--jobs", str(given)] if given is not None else [])]
+
+    flags = [f"{who} with --jobs {n}" for who, n in (("here", jobs), (ref, ref_jobs)) if n is not None]
+    flag = f" ({', '.join(flags)})" if flags else ""
+    print(f"whole process, lagrseq replay of {runs}, here vs {ref}{flag} ({pairs} alternating pairs):")
     with worktree(ref) as tree:
-        print(compare(command, tree, pairs).line("replay", ref))
+        paired = compare(lambda s: command(s, ref_jobs), tree, pairs, here=lambda s: command(s, jobs))
+        print(paired.line("replay", ref))
 
 
 if __name__ == "__main__":

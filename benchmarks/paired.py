@@ -101,17 +101,25 @@ class Paired:
         )
 
 
-def compare(make_command: Callable[[Path], Sequence[str]], ref_tree: Path, pairs: int, cwd: Path | None = None) -> Paired:
+def compare(
+    make_command: Callable[[Path], Sequence[str]],
+    ref_tree: Path,
+    pairs: int,
+    cwd: Path | None = None,
+    here: Callable[[Path], Sequence[str]] | None = None,
+) -> Paired:
     """Run the workload from this tree and from ``ref_tree`` in ``pairs`` alternating pairs (the
     order flips each pair: H R, R H, ...). ``make_command(scratch)`` gives the command line,
-    writing whatever it writes under the empty directory ``scratch`` (a new one each run)."""
+    writing whatever it writes under the empty directory ``scratch`` (a new one each run);
+    ``here``, if given, gives this tree's (an option REF lacks)."""
     result = Paired()
     for i in range(pairs):
         order = (HERE, ref_tree) if i % 2 == 0 else (ref_tree, HERE)
         seconds, wall = {}, {}
         for tree in order:
+            make = here if here is not None and tree == HERE else make_command
             with tempfile.TemporaryDirectory(prefix="lagrseq-vs-run-") as scratch:
-                seconds[tree], wall[tree] = cpu_seconds(make_command(Path(scratch)), tree, cwd)
+                seconds[tree], wall[tree] = cpu_seconds(make(Path(scratch)), tree, cwd)
         result.head.append(seconds[HERE])
         result.ref.append(seconds[ref_tree])
         result.head_wall.append(wall[HERE])

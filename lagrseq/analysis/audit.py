@@ -27,6 +27,7 @@ between a measured value and the paper's.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import json
 import math
@@ -75,7 +76,14 @@ def _flat(config: dict[str, Any]) -> dict[str, Any]:
 
 
 def preset_dict(task: str, method: str, preset: str) -> dict[str, Any]:
-    return json.loads(cfg.load(task, method, preset).to_json())
+    return json.loads(_preset_json(task, method, preset))
+
+
+@functools.lru_cache(maxsize=256)
+def _preset_json(task: str, method: str, preset: str) -> str:
+    """A preset's configuration as JSON, resolved once per process (a replay asks for each one
+    about ten times; resolving takes about a millisecond)."""
+    return cfg.load(task, method, preset).to_json()
 
 
 def audited_fields(task: str) -> list[tuple[str, Any, Any]]:

@@ -3,7 +3,7 @@
 A *run* is every trial log of one experiment: the same task, method, preset, provider, seed and
 configuration (its digest, i.e. the run directory's suffix). Everything comes from the logs: the
 ``lagrseq.run`` metadata and the ``/episode`` and ``/query`` topics, read through the chunk index
-so that no transition chunk is decompressed (:func:`lagrseq.logs.reader.read_topics`).
+so that no transition chunk is decompressed (:func:`lagrseq.logs.reader.read_rows`).
 
 Logs that are unfinished (``.mcap.partial``), unreadable, or whose trial did not complete are left
 out with a one-line warning each, never failing the whole load. A warning names the log by its
@@ -15,6 +15,7 @@ the logs that were used, :attr:`Logs.skipped` the others.
 from __future__ import annotations
 
 import contextlib
+import functools
 import gc
 import hashlib
 import json
@@ -25,11 +26,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from lagrseq.config import config_digest
 from lagrseq.errors import LogError
-from lagrseq.logs.reader import ReadStats, full_path, read_log, recover_command
+from lagrseq.logs.reader import ReadStats, full_path, read_rows, recover_command
 from lagrseq.logs.schemas import ACCURACY_METHOD
 from lagrseq.logs.sink import PARTIAL_SUFFIX
 from lagrseq.paths import expand_user, input_path, walk_files
@@ -122,8 +124,9 @@ class Run:
     paths: tuple[str, ...] = ()
     """The log files themselves, in trial order (for pictures read from one trial's log)."""
 
-    @property
+    @functools.cached_property
     def episodes_per_trial(self) -> int:
+        """Worked out once (a replay asks for it about 600 times; the frames are not changed)."""
         if self.episodes.empty:
             return 0
         return int(self.episodes.groupby("trial")["episode"].count().max())
@@ -137,9 +140,13 @@ class Run:
         return len(self.trials) * self.episodes_per_trial
 
     def total_per_trial(self, column: str) -> dict[int, float]:
-        """Sum of an ``/episode`` column over each trial (e.g. queries or return per trial)."""
-        sums = self.episodes.groupby("trial")[column].sum()
-        return {int(t): float(v) for t, v in sums.items()}
+        """Sum of an ``/episode`` column over each trial (e.g. queries or return per trial);
+        each column's sums are worked out once."""
+        totals: dict[str, dict[int, float]] = self.__dict__.setdefault("_totals", {})
+        if column not in totals:
+            sums = self.episodes.groupby("trial")[column].sum()
+            totals[column] = {int(t): float(v) for t, v in sums.items()}
+        return dict(totals[column])
 
 
 @dataclass(frozen=True)
@@ -228,9 +235,10 @@ def _unfinished(path: Path) -> str:
 
 def _read_trial(path: Path, root: Path, stats: ReadStats) -> _Trial:
     display = _display(path, root)
-    # Only complete trials count; the topics are read in the same pass (cheap: summary chunks).
-    data = read_log(path, ["/episode", "/query"], stats)
-    info, topics, counts = data.info, data.topics, data.counts
+    # Only complete trials count; the topics are read in the same pass (cheap: summary chunks),
+    # each record straight into the row of its frame
+    data = read_rows(path, {"/episode": EPISODE_COLUMNS, "/query": QUERY_COLUMNS}, stats, missing=np.nan)
+    info, topics, counts = data.info, data.rows, data.counts
     status = info.status.get("status", "unfinished")
     run = info.run
     method = run.get("method", "")
@@ -260,7 +268,7 @@ def _read_trial(path: Path, root: Path, stats: ReadStats) -> _Trial:
         size=path.stat().st_size,
         display=display,
         trial=int(run.get("trial", 0)),
-        # Frames right away: a file's records as dicts are big, its columns are small.
+        # Frames right away: a file's records as rows are big, its columns are small.
         episodes=_frame(topics["/episode"], EPISODE_COLUMNS),
         queries=_frame(topics["/query"], QUERY_COLUMNS),
         counts=counts,
@@ -268,8 +276,10 @@ def _read_trial(path: Path, root: Path, stats: ReadStats) -> _Trial:
     )
 
 
-def _frame(records: list[dict[str, Any]], columns: Sequence[str]) -> pd.DataFrame:
-    return pd.DataFrame.from_records(records, columns=list(columns))
+def _frame(rows: list[tuple[Any, ...]], columns: Sequence[str]) -> pd.DataFrame:
+    """The frame of ``rows`` (the same as of the records they come from, each column's type
+    inferred from its values)."""
+    return pd.DataFrame.from_records(rows, columns=list(columns))
 
 
 def _concat(frames: list[pd.DataFrame], columns: Sequence[str]) -> pd.DataFrame:

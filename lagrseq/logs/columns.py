@@ -9,6 +9,7 @@ one length, integer global steps), and what does not fit is :class:`~lagrseq.log
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable, Sequence
 from operator import itemgetter
 from typing import Any
@@ -39,7 +40,9 @@ QUERY_DEFAULTS: dict[str, Any] = {
 (:data:`lagrseq.logs.sink.LOG_FORMAT`) a decision record omits every field at its default (a
 decision not to ask: the 19 nulls, ``queried`` false and ``query_reward`` 0); readers put them
 back, so a record reads the same from an old log and a new one."""
-_QUERY_FIELDS = len(msgspec.structs.fields(QueryEvent))
+QUERY_FIELDS = tuple(f.encode_name for f in msgspec.structs.fields(QueryEvent))
+"""The fields a ``/query`` record may have (an accuracy probe's add ``prefix_length`` and ``fraction``)."""
+_QUERY_FIELDS = len(QUERY_FIELDS)
 
 
 def fill_query_defaults(record: dict[str, Any]) -> dict[str, Any]:
@@ -97,6 +100,20 @@ def expand_no_query(record: dict[str, Any], offset: int = 0) -> list[dict[str, A
          "decision": 0, **QUERY_DEFAULTS}
         for step, global_step, state in zip(*columns)
     ]
+
+
+def no_query_rows(record: dict[str, Any], names: Sequence[str], missing: Any) -> list[tuple[Any, ...]]:
+    """The ``/query`` records one format-3 ``/no_query`` record holds, as rows of ``names``
+    (``missing`` for a field the records lack): :func:`expand_no_query`'s records, checked the
+    same way, without making a dict for each."""
+    columns = dict(zip(NO_QUERY_COLUMNS, _columns(record, NO_QUERY_COLUMNS, NO_QUERY_TOPIC, offset=0), strict=True))
+    count = len(columns["global_step"])
+    constant = {"trial": record["trial"], "episode": record["episode"], "decision": 0, **QUERY_DEFAULTS}
+    parts = [
+        columns[name] if name in columns else itertools.repeat(constant.get(name, missing), count)
+        for name in names
+    ]
+    return list(zip(*parts)) if parts else [() for _ in range(count)]
 
 
 Expand = Callable[[dict[str, Any], int], list[dict[str, Any]]]

@@ -10,10 +10,12 @@ becomes one :class:`~lagrseq.errors.LogError` line naming the log's full path an
 
 from __future__ import annotations
 
+import functools
 import json
+import math
 import os
 import shlex
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from operator import itemgetter
 from pathlib import Path
@@ -25,14 +27,16 @@ from mcap.records import Message
 from lagrseq.errors import LogError
 from lagrseq.logs.columns import (
     EXPANDS,
+    QUERY_FIELDS,
     Expand,
     by_global_step,
     fill_query_defaults,
+    no_query_rows,
 )
 from lagrseq.logs.columns import (
     QUERY_DEFAULTS as QUERY_DEFAULTS,  # where readers of format 2 found it
 )
-from lagrseq.logs.events import QUERY_TOPIC, TRANSITION_TOPIC
+from lagrseq.logs.events import NO_QUERY_TOPIC, QUERY_TOPIC, TRANSITION_TOPIC
 from lagrseq.logs.mcap_reader import MAGIC, Damage, McapFile, Summary
 from lagrseq.logs.sink import RECORDS_METADATA, RUN_METADATA, STATUS_METADATA
 from lagrseq.paths import expand_user, input_path, open_input, walk_files
@@ -124,9 +128,9 @@ def _fills_defaults(metadata: Sequence[Any]) -> bool:
     return False
 
 
-def _json(message: Message, topic: str, offset: int, fill: bool = False) -> dict[str, Any]:
+def _json(data: bytes, topic: str, offset: int, fill: bool = False) -> dict[str, Any]:
     try:
-        record = _decode(message.data)
+        record = _decode(data)
     except (ValueError, RecursionError) as exc:
         raise Damage(offset, f"a {topic} message in this chunk is not JSON ({type(exc).__name__})") from None
     if not isinstance(record, dict):
@@ -190,7 +194,7 @@ def iter_messages(
                 for position, item in enumerate(records):
                     if isinstance(item, Message) and item.channel_id in wanted:
                         source, topic, expand = wanted[item.channel_id]
-                        record = _json(item, source, offset, fill)
+                        record = _json(item.data, source, offset, fill)
                         if expand is None:
                             found.append(((item.log_time, offset, position), topic, record))
                             continue
@@ -262,8 +266,23 @@ def read_log(
     Uses the chunk index: a chunk that holds none of ``topics`` is never read from disk nor
     decompressed, and ``stats`` (if given) counts what was. Chunk CRCs are checked.
     """
-    path = Path(path)
-    out: dict[str, list[dict[str, Any]]] = {topic: [] for topic in topics}
+    info, counts, out = _read(Path(path), topics, stats, _chunk_dicts)
+    return LogData(info, counts, out)
+
+
+ChunkReader = Callable[
+    [list[tuple[int, bytes]], dict[int, tuple[str, str, Expand | None]], int, bool], dict[str, list[Any]]
+]
+"""``read(messages, wanted, offset, fill)``: a chunk's ``(channel id, data)`` messages (those of
+the ``wanted`` channels, in order) as records per topic."""
+
+
+def _read(
+    path: Path, topics: Sequence[str], stats: ReadStats | None, read_chunk: ChunkReader
+) -> tuple[LogInfo, dict[str, int], dict[str, list[Any]]]:
+    """What :func:`read_log` and :func:`read_rows` share: one pass over the log's summary and
+    the chunks that hold ``topics``, each chunk's messages made records by ``read_chunk``."""
+    out: dict[str, list[Any]] = {topic: [] for topic in topics}
     local = ReadStats(files=1)
     try:
         with McapFile(path) as log:
@@ -287,27 +306,163 @@ def read_log(
                 local.chunks_decompressed += 1
                 local.bytes_decompressed += chunk.uncompressed_size
                 offset = index.chunk_start_offset
-                queries = len(out[QUERY_TOPIC]) if QUERY_TOPIC in out else 0
-                merge = False
-                for record in log.chunk_records(chunk, offset):
-                    if isinstance(record, Message) and record.channel_id in wanted:
-                        source, topic, expand = wanted[record.channel_id]
-                        if expand is None:
-                            out[topic].append(_json(record, source, offset, fill))
-                            local.messages += 1
-                        else:
-                            rows = expand(_json(record, source, offset), offset)
-                            out[topic].extend(rows)
-                            local.messages += len(rows)
-                            merge = merge or topic == QUERY_TOPIC
-                if merge:
-                    out[QUERY_TOPIC][queries:] = by_global_step(out[QUERY_TOPIC][queries:], offset)
+                messages = log.chunk_messages(chunk, offset, wanted)
+                for topic, records in read_chunk(messages, wanted, offset, fill).items():
+                    out[topic] += records
+                    local.messages += len(records)
     except (Damage, OSError) as exc:
         raise _fail(path, exc) from None
     info = _info(path, metadata)
     if stats is not None:
         stats.add(local)
-    return LogData(info, counts, out)
+    return info, counts, out
+
+
+def _chunk_dicts(
+    messages: list[tuple[int, bytes]], wanted: dict[int, tuple[str, str, Expand | None]], offset: int, fill: bool
+) -> dict[str, list[Any]]:
+    """A chunk's messages as records (dicts) per topic, in file order; format 3's columnar
+    records expanded, and a chunk's ``/query`` records in step order where it held a
+    ``/no_query`` record."""
+    found: dict[str, list[Any]] = {}
+    merge = False
+    for cid, data in messages:
+        source, topic, expand = wanted[cid]
+        if expand is None:
+            found.setdefault(topic, []).append(_json(data, source, offset, fill))
+        else:
+            found.setdefault(topic, []).extend(expand(_json(data, source, offset), offset))
+            merge = merge or topic == QUERY_TOPIC
+    if merge:
+        found[QUERY_TOPIC] = by_global_step(found[QUERY_TOPIC], offset)
+    return found
+
+
+@dataclass(frozen=True)
+class LogRows:
+    """One log read by :func:`read_rows`: metadata, per-topic message counts, and the records of
+    the topics asked for as tuples of the columns asked for."""
+
+    info: LogInfo
+    counts: dict[str, int]
+    rows: dict[str, list[tuple[Any, ...]]]
+
+
+def read_rows(
+    path: str | Path,
+    columns: Mapping[str, Sequence[str]],
+    stats: ReadStats | None = None,
+    missing: Any = math.nan,
+) -> LogRows:
+    """:func:`read_log` of the topics ``columns`` names, each record given as the tuple of its
+    values of ``columns[topic]`` (``missing`` for a field the record lacks: with ``numpy.nan``,
+    what ``pandas.DataFrame.from_records(records, columns=...)`` makes of the records), in the
+    same order.
+
+    The same records, cheaper: a message is decoded straight into its columns (a
+    ``msgspec.Struct`` made for them; fields that are not asked for are skipped, not built into
+    Python objects), and a format-3 ``/no_query`` record's rows are made without a dict each. A
+    chunk holding anything that way does not read exactly as :func:`read_log` reads it (a record
+    that is not a JSON object or names a field a ``/query`` record cannot have, an accuracy
+    probe's query in a log that leaves defaults out, a step told twice) is read the way
+    :func:`read_log` reads it, so the two agree on every log, its errors included.
+    """
+    wanted = {topic: tuple(names) for topic, names in columns.items()}
+
+    def read_chunk(
+        messages: list[tuple[int, bytes]], channels: dict[int, tuple[str, str, Expand | None]], offset: int, fill: bool
+    ) -> dict[str, list[Any]]:
+        try:
+            return _chunk_rows(messages, channels, fill, wanted, missing)
+        except Exception:  # anything unusual, damage included: read_log's way, which says what is wrong
+            found = _chunk_dicts(messages, channels, offset, fill)
+            return {
+                topic: [tuple([record.get(name, missing) for name in wanted[topic]]) for record in records]
+                for topic, records in found.items()
+            }
+
+    info, counts, out = _read(Path(path), list(wanted), stats, read_chunk)
+    return LogRows(info, counts, out)
+
+
+_PROBE_FIELDS = (b'"prefix_length"', b'"fraction"')
+
+
+class _Unusual(Exception):
+    """A chunk that :func:`_chunk_rows` leaves to :func:`_chunk_dicts`."""
+
+
+@functools.lru_cache(maxsize=32)
+def _row_decoder(names: tuple[str, ...], fill: bool, missing: Any) -> Callable[[list[bytes]], list[tuple[Any, ...]]]:
+    """Messages' data -> the tuples of their ``names`` values (``missing`` where one lacks a
+    field). With ``fill``
+    (a ``/query`` record of log format 2 and later) a field with a default (:data:`QUERY_DEFAULTS`)
+    that the record leaves out reads as that default, and a field no ``/query`` record has is an
+    error (a record with unknown fields is read as :func:`read_log` reads it)."""
+    fields: list[tuple[str, Any, Any]] = [
+        (f"f{i}", Any, msgspec.field(name=name, default=QUERY_DEFAULTS.get(name, missing) if fill else missing))
+        for i, name in enumerate(names)
+    ]
+    if fill:
+        fields += [
+            (f"g{i}", msgspec.Raw, msgspec.field(name=name, default=None))
+            for i, name in enumerate(QUERY_FIELDS)
+            if name not in names
+        ]
+    row = msgspec.defstruct("Row", fields, forbid_unknown_fields=fill, gc=False)
+    decode = msgspec.json.Decoder(row).decode
+    astuple = msgspec.structs.astuple
+    if len(fields) > len(names):  # the fields after the columns were only checked
+        cut = itemgetter(slice(0, len(names)))
+        return lambda texts: list(map(cut, map(astuple, map(decode, texts))))
+    return lambda texts: list(map(astuple, map(decode, texts)))
+
+
+def _chunk_rows(
+    messages: list[tuple[int, bytes]],
+    wanted: dict[int, tuple[str, str, Expand | None]],
+    fill: bool,
+    columns: dict[str, tuple[str, ...]],
+    missing: Any,
+) -> dict[str, list[Any]]:
+    """:func:`_chunk_dicts` as rows of ``columns``, for chunks as lagrseq writes them; raises
+    where a chunk is anything else."""
+    plain: dict[str, int] = {}
+    expanded: dict[str, int] = {}
+    for cid in {cid for cid, _ in messages}:
+        _source, topic, expand = wanted[cid]
+        group = plain if expand is None else expanded
+        if topic in group:  # two channels of one topic: their records interleave
+            raise _Unusual
+        group[topic] = cid
+    found: dict[str, list[Any]] = {}
+    for topic, cid in plain.items():
+        texts = [d for c, d in messages if c == cid]
+        query = fill and wanted[cid][0] == QUERY_TOPIC
+        if query:
+            joined = b"\0".join(texts)
+            if any(name in joined for name in _PROBE_FIELDS):
+                raise _Unusual  # format 2's defaults are put back by a record's field count
+        found[topic] = _row_decoder(columns[topic], query, missing)(texts)
+    for topic, cid in expanded.items():
+        source, _topic, expand = wanted[cid]
+        rows = found.setdefault(topic, [])
+        for data in (d for c, d in messages if c == cid):
+            record = _decode(data)
+            if not isinstance(record, dict):
+                raise _Unusual
+            if source == NO_QUERY_TOPIC:
+                rows += no_query_rows(record, columns[topic], missing)
+            elif expand is not None:
+                rows += [tuple([row.get(name, missing) for name in columns[topic]]) for row in expand(record, 0)]
+    if QUERY_TOPIC in expanded:  # format 3: an episode's decisions after the queries it sent
+        step = columns[QUERY_TOPIC].index("global_step")
+        rows = found[QUERY_TOPIC]
+        steps = [row[step] for row in rows]
+        if not all(type(s) is int for s in steps) or len(set(steps)) != len(steps):
+            raise _Unusual
+        found[QUERY_TOPIC] = sorted(rows, key=itemgetter(step))
+    return found
 
 
 def _expanded_counts(log: McapFile, summary: Summary, metadata: Sequence[Any], counts: dict[str, int]) -> dict[str, int]:
@@ -332,7 +487,7 @@ def _expanded_counts(log: McapFile, summary: Summary, metadata: Sequence[Any], c
         for record in log.chunk_records(log.chunk(index), offset):
             if isinstance(record, Message) and record.channel_id in columnar:
                 topic, expand = EXPANDS[columnar[record.channel_id]]
-                out[topic] += len(expand(_json(record, columnar[record.channel_id], offset), offset))
+                out[topic] += len(expand(_json(record.data, columnar[record.channel_id], offset), offset))
     return out
 
 

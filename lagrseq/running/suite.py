@@ -15,6 +15,7 @@ This module reads TOML and resolves configurations; it imports nothing but :mod:
 
 from __future__ import annotations
 
+import functools
 import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -107,7 +108,14 @@ class RunSpec:
 
     def resolved_dict(self, quick: bool = False) -> dict[str, Any]:
         """:meth:`resolve` as the JSON a log stores (tuples become lists)."""
-        return json.loads(self.resolve(quick).to_json())
+        return json.loads(_resolved_json(self.task, self.method, self.preset, self.all_overrides(quick)))
+
+
+@functools.lru_cache(maxsize=1024)
+def _resolved_json(task: str, method: str, preset: str, overrides: tuple[str, ...]) -> str:
+    """A run's configuration as JSON, resolved once per process (replay matches every suite
+    entry against the logs, and resolving takes about a millisecond)."""
+    return cfg.load(task, method, preset, None, overrides).to_json()
 
 
 @dataclass(frozen=True)

@@ -146,13 +146,13 @@ def test_the_cycle_collector_is_paused_while_logs_are_read_and_left_as_it_was(
     import gc
 
     seen: list[bool] = []
-    real = loading.read_log
+    real = loading.read_rows
 
     def watched(*args, **kwargs):  # type: ignore[no-untyped-def]
         seen.append(gc.isenabled())
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(loading, "read_log", watched)
+    monkeypatch.setattr(loading, "read_rows", watched)
     assert gc.isenabled()
     clean = loading.load([runs_dir])
     assert seen and not any(seen) and gc.isenabled() and clean.runs

@@ -25,6 +25,7 @@ from lagrseq.logs.reader import (
     message_counts,
     read_info,
     read_log,
+    read_rows,
     read_topics,
 )
 from lagrseq.logs.recover import recover
@@ -249,7 +250,7 @@ def test_a_columnar_record_that_does_not_fit_is_a_one_line_damage_error(tmp_path
         sink.write_record(topic, record, 0)
         sink.flush()
     wanted = "/transition" if topic == "/transitions" else "/query"
-    for read in (lambda: read_topics(path, [wanted]), lambda: list(iter_messages(path))):
+    for read in (lambda: read_topics(path, [wanted]), lambda: list(iter_messages(path)), lambda: read_rows(path, {wanted: ("global_step",)})):
         with pytest.raises(LogError, match=said) as info:
             read()
         assert "\n" not in str(info.value) and str(path) in str(info.value)
