@@ -8,8 +8,10 @@ process it waited for (its worker pool), from ``os.wait4``. Runs alternate (HEAD
 HEAD, ...), so a machine whose load drifts slows both alike; each pair gives one ratio
 REF / HEAD (above 1: this tree is faster), and the median ratio is the figure reported.
 
-The worktree is made with ``git worktree add --detach`` under a temporary directory and removed
-at the end (``git worktree prune`` cleans up after a run that was killed).
+The worktree is made with ``git worktree add --detach`` under a temporary directory, byte-compiled
+once (``compileall``: runs do not write bytecode, so each tree runs from what is compiled before
+the pairs start; compile this tree too, ``python -m compileall -q lagrseq``, for the same footing),
+and removed at the end (``git worktree prune`` cleans up after a run that was killed).
 """
 
 from __future__ import annotations
@@ -56,6 +58,10 @@ def worktree(ref: str) -> Iterator[Path]:
         ["git", "worktree", "add", "--detach", "--quiet", str(tree), commit.stdout.strip()],
         cwd=HERE, check=True,
     )
+    # byte-compiled once, as an installed package is and as this tree usually is (its tests write
+    # __pycache__): an uncompiled REF would pay compiling its modules in every run, which made
+    # short whole-process workloads (a cube run) look faster here than they are
+    subprocess.run([sys.executable, "-m", "compileall", "-q", str(tree / "lagrseq")], check=False, stdout=subprocess.DEVNULL)
     try:
         yield tree
     finally:
