@@ -239,14 +239,17 @@ def test_the_local_servers_readiness_probe_ends_against_a_dripping_server(tmp_pa
     script = tmp_path / "drip-server"
     script.write_text(
         f"#!{sys.executable}\n"
-        "import socket, sys, time, pathlib\n"
+        "import os, socket, sys, time, pathlib\n"
         "port = int(sys.argv[sys.argv.index('--port') + 1])\n"
         "listener = socket.create_server(('127.0.0.1', port))\n"
         "conn, _ = listener.accept()\n"
         f"for count, byte in enumerate(b'HTTP/1.1 200 OK' + b'a' * {DRIP_BYTES}, 1):\n"
         f"    time.sleep({DRIP_S})\n"
         "    conn.sendall(bytes([byte]))\n"
-        f"    pathlib.Path({str(sent)!r}).write_text(str(count))\n",
+        # written whole or not at all: the server is killed at any moment, and a plain
+        # write_text killed between truncating and writing left an empty file
+        f"    pathlib.Path({str(sent) + '.tmp'!r}).write_text(str(count))\n"
+        f"    os.replace({str(sent) + '.tmp'!r}, {str(sent)!r})\n",
         encoding="utf-8",
     )
     script.chmod(script.stat().st_mode | stat.S_IXUSR)
