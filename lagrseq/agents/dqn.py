@@ -114,8 +114,11 @@ class NetworkGroup:
     ``(members, 1, out)`` tensor, so that one training step of many members is one ``baddbmm``
     per layer, forward and backward, and one Adam call.
 
-    Each member keeps its own Adam state (over views of its slices), target-network copy and
-    update count, so any subset of members can take a step while the others stay untouched.
+    Each member keeps its own Adam state (its rows of the stacked moments and its own step
+    count), target-network copy and update count, so any subset of members can take a step
+    while the others stay untouched (Adam then runs over each member's views); when every
+    member steps at one count, Adam runs over the stacked tensors in one piece where that gives
+    each member's numbers (:data:`WHOLE_VECTORS`).
     The batched operations give each member the very numbers a network of its own gives
     (``nn.Sequential`` of ``nn.Linear``, ``mse_loss``, fused Adam), bit for bit
     (tests/agents/test_dqn.py): a member's results never depend on which members share its
@@ -239,7 +242,7 @@ class NetworkGroup:
     def _forward(self, weights: list[Any], biases: list[Any], x: Any) -> Any:
         torch = self._torch
         for i in range(self.layers):
-            x = torch.baddbmm(biases[i], x, weights[i].transpose(1, 2))
+            x = _linear(torch, x, weights[i], biases[i])
             if i < self.layers - 1:
                 x = torch.relu(x)
         return x
@@ -347,7 +350,7 @@ class NetworkGroup:
         x = observations
         for i in range(self.layers):
             inputs.append(x)
-            x = torch.baddbmm(biases[i], x, weights[i].transpose(1, 2))
+            x = _linear(torch, x, weights[i], biases[i])
             if i < self.layers - 1:
                 x = torch.relu(x)
         chosen = actions[:, :, None]
@@ -359,10 +362,10 @@ class NetworkGroup:
         weight_grads: list[Any] = [None] * self.layers
         bias_grads: list[Any] = [None] * self.layers
         for i in reversed(range(self.layers)):
-            weight_grads[i] = torch.bmm(grad.transpose(1, 2), inputs[i])
+            weight_grads[i] = _bmm(torch, grad.transpose(1, 2), inputs[i])
             bias_grads[i] = grad.sum(1, keepdim=True)
             if i > 0:
-                grad = aten.threshold_backward(torch.bmm(grad, weights[i]), inputs[i], 0)  # relu's backward
+                grad = aten.threshold_backward(_bmm(torch, grad, weights[i]), inputs[i], 0)  # relu's backward
         return losses, weight_grads, bias_grads
 
     def _train_one(self, member: int, batch: Batch) -> float:
@@ -467,6 +470,27 @@ the elements after the last whole vector one at a time, which rounds differently
 parameter whose members each hold a multiple of this many elements (enough for vectors of up to
 2,048 bits) is stepped in one piece, every element where the member's own tensor puts it; the
 others (the output layer's 2 biases) per member."""
+
+
+SMALL_PRODUCT = 400
+"""torch's ``bmm`` and ``baddbmm`` on the CPU compute a product of fewer multiply-adds than this
+(per member) with a loop of their own instead of BLAS, which sums in another order than the
+``mm`` and ``addmm`` of ``nn.Linear``; such products are computed per member."""
+
+
+def _linear(torch: Any, x: Any, weight: Any, bias: Any) -> Any:
+    """``x W^T + b`` for every member: ``(members, rows, in)`` by ``(members, out, in)`` plus
+    ``(members, 1, out)``, as ``nn.Linear`` computes each member's."""
+    if x.shape[1] * x.shape[2] * weight.shape[1] >= SMALL_PRODUCT:
+        return torch.baddbmm(bias, x, weight.transpose(1, 2))
+    return torch.stack([torch.addmm(bias[m, 0], x[m], weight[m].t()) for m in range(x.shape[0])])
+
+
+def _bmm(torch: Any, a: Any, b: Any) -> Any:
+    """``a @ b`` for every member, as ``mm`` computes each member's."""
+    if a.shape[1] * a.shape[2] * b.shape[2] >= SMALL_PRODUCT:
+        return torch.bmm(a, b)
+    return torch.stack([torch.mm(a[m], b[m]) for m in range(a.shape[0])])
 
 
 class DQN:

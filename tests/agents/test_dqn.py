@@ -254,6 +254,7 @@ def test_a_group_trains_each_member_as_a_network_of_its_own_bit_for_bit(torch, s
     ((100, 128, 128, 2), 0.0, 0, 24),  # its SEQ bandit, a batch whose mean divides by 24
     ((50, 64, 64, 2), 0.95, 4, 64),  # arrangement-sized
     ((30, 20, 3), 0.95, 2, 8),  # no parameter fills whole vectors of the fused kernel
+    ((7, 12, 3), 0.95, 2, 5),  # products of fewer than 400 multiply-adds (bmm loops on its own)
 ])  # fmt: skip
 def test_a_whole_group_steps_at_once_with_each_members_own_numbers(torch, sizes, discount, interval, batch_size) -> None:  # type: ignore[no-untyped-def]
     """Every member stepping at one update count (a lockstep run's primary networks) is one
