@@ -25,7 +25,6 @@ groups and train in one batched call per step, with exactly the numbers each net
 
 from __future__ import annotations
 
-import functools
 import os
 import threading
 from collections.abc import Sequence
@@ -115,8 +114,11 @@ class NetworkGroup:
     ``(members, 1, out)`` tensor, so that one training step of many members is one ``baddbmm``
     per layer, forward and backward, and one Adam call.
 
-    Each member keeps its own Adam state (over views of its slices), target-network copy and
-    update count, so any subset of members can take a step while the others stay untouched.
+    Each member keeps its own Adam state (its rows of the stacked moments and its own step
+    count), target-network copy and update count, so any subset of members can take a step
+    while the others stay untouched (Adam then runs over each member's views); when every
+    member steps at one count, Adam runs over the stacked tensors in one piece where that gives
+    each member's numbers (:data:`WHOLE_VECTORS`).
     The batched operations give each member the very numbers a network of its own gives
     (``nn.Sequential`` of ``nn.Linear``, ``mse_loss``, fused Adam), bit for bit
     (tests/agents/test_dqn.py): a member's results never depend on which members share its
@@ -147,9 +149,17 @@ class NetworkGroup:
         self._joining: list[list[Any]] = []
         self._members = 0
         # per member: Adam's step counts and moments (one per parameter), update count
+        self._step_counts: Any = None
+        """Adam's step count of every member, ``(members,)`` float32 (the kernel reads one
+        per parameter tensor: views of it, ``_steps``)."""
         self._steps: list[Any] = []
-        self._exp_avgs: list[list[Any]] = []
-        self._exp_avg_sqs: list[list[Any]] = []
+        self.exp_avgs: list[Any] = []
+        """Adam's first moments of every member, stacked as the parameters are: the weights of
+        every layer, then the biases (:meth:`_state`'s order)."""
+        self.exp_avg_sqs: list[Any] = []
+        """Adam's second moments, stacked likewise."""
+        self._whole: tuple[list[Any], list[Any], list[Any], list[int]] | None = None
+        self._buffers: dict[tuple[Any, ...], tuple[dict[str, np.ndarray], dict[str, Any]]] = {}
         self.updates: list[int] = []
         self._states: dict[int, tuple[list[Any], list[Any], list[Any], list[Any]]] = {}
         self._target_states: dict[int, list[Any]] = {}
@@ -169,10 +179,6 @@ class NetworkGroup:
             tensors += [linear.weight.detach().to(self.device), linear.bias.detach().to(self.device)]
         index = self._members + len(self._joining)
         self._joining.append(tensors)
-        ordered = tensors[0::2] + tensors[1::2]  # the weights of every layer, then the biases
-        self._steps.append(torch.zeros((), dtype=torch.float32, device=self.device))  # one count per member
-        self._exp_avgs.append([torch.zeros_like(t) for t in ordered])
-        self._exp_avg_sqs.append([torch.zeros_like(t) for t in ordered])
         self.updates.append(0)
         return index
 
@@ -197,10 +203,22 @@ class NetworkGroup:
                 if self.target_update_interval > 0:
                     self.target_weights.append(weights.clone())
                     self.target_biases.append(biases.clone())
-        self._members += len(self._joining)
+        joining = len(self._joining)
+        for j, parameter in enumerate([*self.weights, *self.biases]):  # Adam's moments: zero for the new members
+            zeros = torch.zeros_like(parameter[self._members:])
+            if self._members:
+                self.exp_avgs[j] = torch.cat([self.exp_avgs[j], zeros])
+                self.exp_avg_sqs[j] = torch.cat([self.exp_avg_sqs[j], zeros.clone()])
+            else:
+                self.exp_avgs.append(zeros)
+                self.exp_avg_sqs.append(zeros.clone())
+        zeros = torch.zeros(joining, dtype=torch.float32, device=self.device)
+        self._step_counts = zeros if self._step_counts is None else torch.cat([self._step_counts, zeros])
+        self._steps = list(self._step_counts.unbind(0))
+        self._members += joining
         self._joining = []
         self._everyone = list(range(self._members))
-        self._states, self._target_states = {}, {}  # views of the tensors just replaced
+        self._states, self._target_states, self._whole = {}, {}, None  # views of the tensors just replaced
 
     def parameters(self, member: int, target: bool = False) -> list[Any]:
         """A member's weights and biases, layer by layer (views: ``nn.Linear``'s shapes)."""
@@ -221,14 +239,10 @@ class NetworkGroup:
         return x
 
     # ------------------------------------------------------------------ learning
-    def _forward(self, weights: list[Any], biases: list[Any], x: Any, grad: bool = False) -> Any:
+    def _forward(self, weights: list[Any], biases: list[Any], x: Any) -> Any:
         torch = self._torch
-        linear = batched_linear(torch).apply if grad else None
         for i in range(self.layers):
-            if linear is None:
-                x = torch.baddbmm(biases[i], x, weights[i].transpose(1, 2))
-            else:
-                x = linear(x, weights[i], biases[i])
+            x = _linear(torch, x, weights[i], biases[i])
             if i < self.layers - 1:
                 x = torch.relu(x)
         return x
@@ -250,8 +264,13 @@ class NetworkGroup:
         def rows(tensors: list[Any]) -> list[Any]:
             return tensors if index is None else [t.index_select(0, index) for t in tensors]
 
+        arrays, tensors = self._batch_buffers(requests)
+        for row, (_, batch) in enumerate(requests):
+            for name, array in arrays.items():
+                array[row] = getattr(batch, name)
+
         def stacked(name: str) -> Any:
-            return torch.from_numpy(np.stack([getattr(batch, name) for _, batch in requests])).to(device)
+            return tensors[name]
 
         observations, actions, rewards = stacked("observations"), stacked("actions"), stacked("rewards")
         with torch.no_grad():
@@ -265,33 +284,89 @@ class NetworkGroup:
                 following = self._forward(weights, biases, stacked("next_observations"))
                 alive = 1.0 - stacked("terminals")
                 targets = rewards + self.discount * alive * following.max(dim=2).values
-        weights = [t.detach().requires_grad_() for t in rows(self.weights)]
-        biases = [t.detach().requires_grad_() for t in rows(self.biases)]
-        predicted = self._forward(weights, biases, observations, grad=True).gather(2, actions[:, :, None]).squeeze(2)
+            weights, biases = rows(self.weights), rows(self.biases)
+            losses, weight_grads, bias_grads = self._gradients(weights, biases, observations, actions, targets)
+            counters = [self._steps[member] for member in members]
+            updates = self.updates[members[0]]
+            if index is None and all(self.updates[member] == updates for member in members):
+                # every member, at one step count: the stacked tensors in one piece where that
+                # gives the kernel's numbers per member (see _whole_state), the rest per member
+                parameters, exp_avgs, exp_avg_sqs, apart = self._whole_state()
+                gradients = [*weight_grads, *bias_grads]
+                grads = [gradients[j] for j in range(len(gradients)) if j not in apart]
+                grads += [gradients[j][row] if j < self.layers else gradients[j][row, 0]
+                          for row in range(len(members)) for j in apart]
+                fused_adam_step(torch, parameters, grads, exp_avgs, exp_avg_sqs, [counters[0]] * len(parameters),
+                                self.learning_rate, KERAS_EPSILON, counters=[self._step_counts])
+                self._count_everyone()
+            else:
+                parameters, grads, steps, exp_avgs, exp_avg_sqs = [], [], [], [], []
+                for row, member in enumerate(members):
+                    state = self._state(member)
+                    parameters += state[0]
+                    steps += state[1]
+                    exp_avgs += state[2]
+                    exp_avg_sqs += state[3]
+                    grads += [g[row] for g in weight_grads] + [g[row, 0] for g in bias_grads]
+                fused_adam_step(torch, parameters, grads, exp_avgs, exp_avg_sqs, steps, self.learning_rate,
+                                KERAS_EPSILON, counters=counters)
+                for member in members:
+                    self._count(member)
+        return losses.tolist()  # type: ignore[no-any-return]
+
+    def _batch_buffers(self, requests: Sequence[tuple[int, Batch]]) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Arrays to stack the requests' minibatches in (one row per request), and the tensors
+        on the group's device that hold them (on the CPU, the same memory), kept from call to
+        call: only one call uses them at a time, and nothing of it outlives the call."""
+        first = requests[0][1]
+        key = (len(requests), first.observations.shape, *(value.dtype for value in first))
+        buffers = self._buffers.get(key)
+        if buffers is None:
+            torch = self._torch
+            arrays = {name: np.empty((len(requests), *value.shape), dtype=value.dtype)
+                      for name, value in zip(Batch._fields, first, strict=True)}
+            if self.discount == 0.0:  # a bandit bootstraps from nothing
+                del arrays["next_observations"], arrays["terminals"]
+            tensors = {name: torch.from_numpy(array) for name, array in arrays.items()}
+            buffers = self._buffers[key] = (arrays, tensors)
+        arrays, tensors = buffers
+        if self.device.type != "cpu":
+            tensors = {name: tensor.to(self.device) for name, tensor in tensors.items()}
+        return arrays, tensors
+
+    def _gradients(self, weights: list[Any], biases: list[Any], observations: Any, actions: Any,
+                   targets: Any) -> tuple[Any, list[Any], list[Any]]:
+        """Each member's loss (the mean squared error between Q(s, a) and its target) and its
+        gradients with respect to each layer's weights ``(members, out, in)`` and biases
+        ``(members, 1, out)``, contiguous as fused Adam reads them. The backward pass is written
+        out with the operations autograd runs for ``nn.Linear``, ``relu``, ``gather`` and
+        ``mse_loss`` (``threshold_backward``, ``scatter_add_``, ``mse_loss_backward``), so the
+        numbers are autograd's bit for bit (tests/agents/test_dqn.py), without its
+        bookkeeping, and the weights' gradient comes out in the weights' own layout (autograd
+        gives a transposed view, which fused Adam misreads and which cost 16% of a step to copy)."""
+        torch = self._torch
+        aten = torch.ops.aten
+        inputs = []
+        x = observations
+        for i in range(self.layers):
+            inputs.append(x)
+            x = _linear(torch, x, weights[i], biases[i])
+            if i < self.layers - 1:
+                x = torch.relu(x)
+        chosen = actions[:, :, None]
+        predicted = x.gather(2, chosen).squeeze(2)
         losses = torch.nn.functional.mse_loss(predicted, targets, reduction="none").mean(dim=1)
-        gradients = torch.autograd.grad(losses.sum(), [*weights, *biases])
-        # per member and parameter, in the order of _state
-        per_layer = [g.unbind(0) for g in gradients[: self.layers]]
-        per_layer += [g.squeeze(1).unbind(0) for g in gradients[self.layers:]]
-        parameters: list[Any] = []
-        grads: list[Any] = []
-        steps: list[Any] = []
-        exp_avgs: list[Any] = []
-        exp_avg_sqs: list[Any] = []
-        counters: list[Any] = []
-        for row, member in enumerate(members):
-            state = self._state(member)
-            parameters += state[0]
-            steps += state[1]
-            counters.append(self._steps[member])
-            exp_avgs += state[2]
-            exp_avg_sqs += state[3]
-            grads += [layer[row] for layer in per_layer]
-        fused_adam_step(torch, parameters, grads, exp_avgs, exp_avg_sqs, steps, self.learning_rate, KERAS_EPSILON,
-                        counters=counters)
-        for member in members:
-            self._count(member)
-        return losses.detach().tolist()  # type: ignore[no-any-return]
+        # d sum(losses) / d predicted: mean's backward (1 / batch), then mse_loss's (reduction none)
+        grad = aten.mse_loss_backward(torch.ones_like(predicted).div_(predicted.shape[1]), predicted, targets, 0)
+        grad = torch.zeros_like(x).scatter_add_(2, chosen, grad[:, :, None])  # gather's backward
+        weight_grads: list[Any] = [None] * self.layers
+        bias_grads: list[Any] = [None] * self.layers
+        for i in reversed(range(self.layers)):
+            weight_grads[i] = _bmm(torch, grad.transpose(1, 2), inputs[i])
+            bias_grads[i] = grad.sum(1, keepdim=True)
+            if i > 0:
+                grad = aten.threshold_backward(_bmm(torch, grad, weights[i]), inputs[i], 0)  # relu's backward
+        return losses, weight_grads, bias_grads
 
     def _train_one(self, member: int, batch: Batch) -> float:
         """:meth:`train` for one member: the same step with its own slices (``linear`` on
@@ -335,6 +410,15 @@ class NetworkGroup:
                 for online, target in zip(self._state(member)[0], self._target_state(member), strict=True):
                     target.copy_(online)
 
+    def _count_everyone(self) -> None:
+        """:meth:`_count` for every member, all at one update count: the target copies are
+        refreshed in one piece."""
+        self.updates[:] = [count + 1 for count in self.updates]
+        if self.target_update_interval > 0 and self.updates[0] % self.target_update_interval == 0:
+            for online, target in zip([*self.weights, *self.biases], [*self.target_weights, *self.target_biases],
+                                      strict=True):
+                target.copy_(online)
+
     def _target_state(self, member: int) -> list[Any]:
         """A member's target parameters, in the order of :meth:`_state`."""
         state = self._target_states.get(member)
@@ -351,39 +435,62 @@ class NetworkGroup:
         if state is None:
             weights = [w[member] for w in self.weights]
             biases = [b[member, 0] for b in self.biases]
+            exp_avgs, exp_avg_sqs = ([t[member] if j < self.layers else t[member, 0] for j, t in enumerate(stacked)]
+                                     for stacked in (self.exp_avgs, self.exp_avg_sqs))
             state = self._states[member] = (
-                [*weights, *biases], [self._steps[member]] * (2 * self.layers), self._exp_avgs[member],
-                self._exp_avg_sqs[member],
+                [*weights, *biases], [self._steps[member]] * (2 * self.layers), exp_avgs, exp_avg_sqs,
             )
         return state
 
+    def _whole_state(self) -> tuple[list[Any], list[Any], list[Any], list[int]]:
+        """Adam's tensors for a step of every member at once: each stacked parameter whose
+        members fill whole vectors of the fused kernel (:data:`WHOLE_VECTORS`), with its stacked
+        moments, then every member's own views of the others; and the indices (in
+        :meth:`_state`'s order) of the parameters taken per member."""
+        if self._whole is None:
+            parameters = [*self.weights, *self.biases]
+            whole = [j for j, t in enumerate(parameters) if t[0].numel() % WHOLE_VECTORS == 0]
+            apart = [j for j in range(len(parameters)) if j not in whole]
+            per_member = [self._state(member) for member in range(self._members)]
+            self._whole = (
+                [parameters[j] for j in whole] + [state[0][j] for state in per_member for j in apart],
+                [self.exp_avgs[j] for j in whole] + [state[2][j] for state in per_member for j in apart],
+                [self.exp_avg_sqs[j] for j in whole] + [state[3][j] for state in per_member for j in apart],
+                apart,
+            )
+        return self._whole
+
 
 KERAS_EPSILON = 1e-7
-
-
-@functools.cache
-def batched_linear(torch: Any) -> Any:
-    """``y = x W^T + b`` for stacked members (``baddbmm``, as in the forward pass everywhere
-    here), with the backward pass written out so that the weights' gradient comes out in the
-    weights' own layout, ``(members, out, in)`` and contiguous, as fused Adam needs it
-    (autograd's own gives a transposed view, and copying it cost 16% of a step). Each product
-    is the one ``nn.Linear``'s backward computes for one member (tests/agents/test_dqn.py
-    checks the weights bit for bit)."""
-
-    class BatchedLinear(torch.autograd.Function):  # type: ignore[misc,name-defined]
-        @staticmethod
-        def forward(ctx: Any, x: Any, weight: Any, bias: Any) -> Any:
-            ctx.save_for_backward(x, weight)
-            return torch.baddbmm(bias, x, weight.transpose(1, 2))
-
-        @staticmethod
-        def backward(ctx: Any, grad: Any) -> Any:
-            x, weight = ctx.saved_tensors
-            grad_x = torch.bmm(grad, weight) if ctx.needs_input_grad[0] else None
-            return grad_x, torch.bmm(grad.transpose(1, 2), x), grad.sum(1, keepdim=True)
-
-    return BatchedLinear
 """Adam's epsilon in the released code (Keras' default)."""
+
+WHOLE_VECTORS = 64
+"""Fused Adam on the CPU runs over a tensor's flat memory in vectors (16 floats with AVX-512),
+the elements after the last whole vector one at a time, which rounds differently. A stacked
+parameter whose members each hold a multiple of this many elements (enough for vectors of up to
+2,048 bits) is stepped in one piece, every element where the member's own tensor puts it; the
+others (the output layer's 2 biases) per member."""
+
+
+SMALL_PRODUCT = 400
+"""torch's ``bmm`` and ``baddbmm`` on the CPU compute a product of fewer multiply-adds than this
+(per member) with a loop of their own instead of BLAS, which sums in another order than the
+``mm`` and ``addmm`` of ``nn.Linear``; such products are computed per member."""
+
+
+def _linear(torch: Any, x: Any, weight: Any, bias: Any) -> Any:
+    """``x W^T + b`` for every member: ``(members, rows, in)`` by ``(members, out, in)`` plus
+    ``(members, 1, out)``, as ``nn.Linear`` computes each member's."""
+    if x.shape[1] * x.shape[2] * weight.shape[1] >= SMALL_PRODUCT:
+        return torch.baddbmm(bias, x, weight.transpose(1, 2))
+    return torch.stack([torch.addmm(bias[m, 0], x[m], weight[m].t()) for m in range(x.shape[0])])
+
+
+def _bmm(torch: Any, a: Any, b: Any) -> Any:
+    """``a @ b`` for every member, as ``mm`` computes each member's."""
+    if a.shape[1] * a.shape[2] * b.shape[2] >= SMALL_PRODUCT:
+        return torch.bmm(a, b)
+    return torch.stack([torch.mm(a[m], b[m]) for m in range(a.shape[0])])
 
 
 class DQN:

@@ -211,6 +211,15 @@ class View(NamedTuple):
     log_time: int
 
 
+class EncodedMessage(dict):  # type: ignore[type-arg]
+    """A view's message that carries its JSON already encoded (``json``: the very bytes the
+    sink's own encoding of the message gives), so the sink writes them as they are; see
+    :class:`lagrseq.logs.foxglove.RawImages`."""
+
+    __slots__ = ("json",)
+    json: bytes
+
+
 Event = Transition | QueryEvent | EpisodeEvent | ArmEpisodeEvent | View
 
 def _numpy_scalar(value: Any) -> Any:

@@ -25,6 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from lagrseq.logs.events import EncodedMessage
+
 IMAGE_TOPIC = "/view/image"
 GRID_TOPIC = "/view/grid"
 
@@ -173,6 +175,35 @@ def raw_image(pattern: Any, log_time: int, frame_id: str = "image") -> dict[str,
         "step": int(width),
         "data": base64.b64encode((cells * 255).tobytes()).decode("ascii"),
     }
+
+
+_dumps = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode  # as the sink encodes a message
+
+
+class RawImages:
+    """:func:`raw_image` for the steps of one trial, each message with its JSON already encoded
+    (:class:`~lagrseq.logs.events.EncodedMessage`: the sink writes the bytes as they are, the
+    very bytes it would encode itself). The picture (the base64 data) is made once per distinct
+    pattern in a row: most steps leave the pattern as it was, so a step costs a comparison of
+    the pattern's bytes and a timestamp instead of a picture and a JSON encoding."""
+
+    def __init__(self, frame_id: str = "image") -> None:
+        self.frame_id = frame_id
+        self._key: tuple[Any, ...] | None = None
+        self._fields: dict[str, Any] = {}
+        self._tail = b""
+
+    def __call__(self, pattern: Any, log_time: int) -> EncodedMessage:
+        cells = pattern if type(pattern) is np.ndarray else np.asarray(pattern)
+        key = (cells.shape, cells.dtype.str, cells.tobytes())
+        if key != self._key:
+            fields = raw_image(cells, 0, self.frame_id)
+            del fields["timestamp"]
+            self._fields, self._tail, self._key = fields, _dumps(fields)[1:].encode(), key
+        timestamp = _timestamp(log_time)
+        message = EncodedMessage(timestamp=timestamp, **self._fields)
+        message.json = b'{"timestamp":{"sec":%d,"nsec":%d},%b' % (timestamp["sec"], timestamp["nsec"], self._tail)
+        return message
 
 
 def grid(

@@ -54,6 +54,7 @@ from lagrseq.logs.events import (
     TRANSITION_TOPIC,
     TRANSITIONS_TOPIC,
     ArmEpisodeEvent,
+    EncodedMessage,
     EpisodeEvent,
     Event,
     NullSink,
@@ -232,7 +233,9 @@ class McapSink:
         except (TypeError, ValueError, OverflowError) as exc:
             raise LogError(f"record is not JSON-serialisable ({exc}): {kind.__name__}") from None
         if kind is View:
-            self._writer.add_message(self._channels[event.topic], event.log_time, _encode(event.message))  # type: ignore[union-attr]
+            message = event.message  # type: ignore[union-attr]
+            data = message.json if type(message) is EncodedMessage else _encode(message)
+            self._writer.add_message(self._channels[event.topic], event.log_time, data)  # type: ignore[union-attr]
         else:
             raise LogError(f"cannot log a {kind.__name__}; expected Transition, QueryEvent, EpisodeEvent or View")
 

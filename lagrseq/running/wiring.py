@@ -712,7 +712,7 @@ def _pictures(topic: str, picture: Callable[[Any, int], dict[str, Any]]) -> Call
 
 
 def image_views(config: ExperimentConfig, env: Any) -> Callable[[dict[str, Any], int], list[View]]:
-    return _pictures(foxglove.IMAGE_TOPIC, foxglove.raw_image)
+    return _pictures(foxglove.IMAGE_TOPIC, foxglove.RawImages())
 
 
 def grid_views(config: ExperimentConfig, env: Any) -> Callable[[dict[str, Any], int], list[View]]:

@@ -243,13 +243,40 @@ def test_a_group_trains_each_member_as_a_network_of_its_own_bit_for_bit(torch, s
     """Members of a :class:`NetworkGroup` stepped together, in changing subsets (a member whose
     buffer is not full, a SEQ decision in some trials only), end with exactly the weights,
     target copies, losses and greedy actions of separate networks stepped alone."""
+    everyone = list(range(5))
+    check_group_against_networks(torch, sizes, discount, interval, batch_size, 5,
+                                 ([everyone, [0, 2, 4], [3], [1, 2], everyone, [4, 0]] * 4)[:20])
+
+
+@pytest.mark.torch
+@pytest.mark.parametrize(("sizes", "discount", "interval", "batch_size"), [
+    ((103, 128, 128, 2), 0.95, 3, 32),  # the image task's primary network (a short target interval)
+    ((100, 128, 128, 2), 0.0, 0, 24),  # its SEQ bandit, a batch whose mean divides by 24
+    ((50, 64, 64, 2), 0.95, 4, 64),  # arrangement-sized
+    ((30, 20, 3), 0.95, 2, 8),  # no parameter fills whole vectors of the fused kernel
+    ((7, 12, 3), 0.95, 2, 5),  # products of fewer than 400 multiply-adds (bmm loops on its own)
+])  # fmt: skip
+def test_a_whole_group_steps_at_once_with_each_members_own_numbers(torch, sizes, discount, interval, batch_size) -> None:  # type: ignore[no-untyped-def]
+    """Every member stepping at one update count (a lockstep run's primary networks) is one
+    fused Adam call over the stacked tensors and one refresh of the stacked target copies;
+    after members fall out of step (one skipped a step), each is stepped on its own views.
+    Either way each member ends with the numbers of its own network stepped alone."""
+    everyone = list(range(4))
+    check_group_against_networks(torch, sizes, discount, interval, batch_size, 4,
+                                 [everyone] * 7 + [[1, 3]] + [everyone] * 4)
+
+
+def check_group_against_networks(torch, sizes, discount: float, interval: int, batch_size: int, members: int,  # type: ignore[no-untyped-def]
+                                 schedule: list[list[int]]) -> None:
+    """Step a group's members in the subsets of ``schedule``, one subset a step, and separate
+    networks (``nn.Sequential``, ``torch.optim.Adam(fused=True)``) alongside; compare after
+    every step."""
     import copy
 
     from lagrseq.agents.dqn import NetworkGroup, mlp
     from lagrseq.agents.replay import Batch
 
     torch.set_num_threads(1)
-    members = 5
     group = NetworkGroup(torch, sizes, 1e-3, discount, interval, torch.device("cpu"))
     assert [group.join(torch.Generator().manual_seed(seed)) for seed in range(members)] == list(range(members))
     networks = [mlp(torch, sizes, torch.Generator().manual_seed(seed)) for seed in range(members)]
@@ -257,9 +284,8 @@ def test_a_group_trains_each_member_as_a_network_of_its_own_bit_for_bit(torch, s
     optimizers = [torch.optim.Adam(n.parameters(), lr=1e-3, eps=1e-7, fused=True) for n in networks]
     updates = [0] * members
     data = np.random.default_rng(7)
-    subsets = [list(range(members)), [0, 2, 4], [3], [1, 2], list(range(members)), [4, 0]]
-    for step in range(20):
-        chosen = sorted(subsets[step % len(subsets)])
+    for subset in schedule:
+        chosen = sorted(subset)
         batches = {
             m: Batch(data.random((batch_size, sizes[0]), dtype=np.float32), data.integers(0, sizes[-1], batch_size),
                      data.random(batch_size, dtype=np.float32), data.random((batch_size, sizes[0]), dtype=np.float32),

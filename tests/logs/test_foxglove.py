@@ -9,11 +9,13 @@ from pathlib import Path
 import jsonschema
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from lagrseq.logs import foxglove
 from lagrseq.logs.events import View
 from lagrseq.logs.reader import ReadStats, read_topics
-from lagrseq.logs.sink import McapSink
+from lagrseq.logs.sink import McapSink, _encode
 
 X_SHAPE = np.eye(10, dtype=int) | np.fliplr(np.eye(10, dtype=int))
 DIAMOND = np.array(
@@ -89,3 +91,38 @@ def test_views_round_trip_through_the_sink_in_transition_chunks(tmp_path: Path) 
     assert len(views[foxglove.IMAGE_TOPIC]) == 12
     assert all(np.array_equal(foxglove.decode(m), X_SHAPE) for m in views[foxglove.IMAGE_TOPIC])
     assert all(np.array_equal(foxglove.decode(m), DIAMOND) for m in views[foxglove.GRID_TOPIC])
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    st.lists(
+        st.tuples(st.integers(0, 3), st.integers(0, 4_000_000_000), st.sampled_from(["int8", "int64", "bool", "float64"])),
+        min_size=1, max_size=12,
+    ),
+    st.integers(1, 5),
+    st.integers(1, 7),
+)  # fmt: skip
+def test_raw_images_give_raw_image_and_its_json_bytes_for_any_steps(steps, rows: int, cols: int) -> None:
+    """The pictures of a trial's steps (the pattern often unchanged from the step before, or
+    changed, in any dtype): each message is raw_image's, and its ready bytes are the sink's own
+    encoding of it."""
+    images = foxglove.RawImages()
+    for seed, log_time, dtype in steps:
+        pattern = np.random.default_rng(seed).integers(0, 2, (rows, cols)).astype(dtype)
+        message = images(pattern, log_time)
+        expected = foxglove.raw_image(pattern, log_time)
+        assert message == expected and list(message) == list(expected)
+        assert message.json == _encode(expected)
+
+
+def test_raw_images_refuse_what_raw_image_refuses_and_the_sink_writes_their_bytes(tmp_path: Path) -> None:
+    images = foxglove.RawImages()
+    with pytest.raises(ValueError, match="2-D pattern"):
+        images([1, 0, 1], 0)
+    path = tmp_path / "images.mcap"
+    with McapSink(path, {"config": "{}"}, extra_topics=foxglove.view_topics(image=True)) as sink:
+        for t in range(5):
+            sink.write(View(foxglove.IMAGE_TOPIC, images(X_SHAPE if t < 3 else DIAMOND, t), t))
+        sink.write_record("/episode", {"episode": 0}, 4)
+    views = read_topics(path, [foxglove.IMAGE_TOPIC])[foxglove.IMAGE_TOPIC]
+    assert [m for m in views] == [foxglove.raw_image(X_SHAPE if t < 3 else DIAMOND, t) for t in range(5)]
