@@ -419,6 +419,9 @@ class SweepRun:
     progress: Any = None
     notes: Mapping[str, str] | None = None
     """More entries for each trial's run metadata (:func:`run_metadata`)."""
+    seconds: float | None = None
+    """Expected seconds of one of its trials, if known (``reproduce``'s estimate): a pool starts
+    the longest groups of trials first, so that no long group starts last and runs alone."""
 
 
 @dataclass
@@ -590,8 +593,9 @@ def _run_pooled(
 ) -> None:
     """The trials of ``plans`` as tasks of ``pool``, all submitted at once: trials that train
     networks as lockstep groups across runs (:func:`lockstep_groups`, at least one per worker),
-    first, then the others one trial a task, in run order. A trial that fails is retried up to
-    ``retries`` times, alone."""
+    the others one trial a task; the longest first where every run's trial length is known
+    (:attr:`SweepRun.seconds`), else the groups first, in run order. A trial that fails is
+    retried up to ``retries`` times, alone."""
     owners: dict[Any, tuple[list[tuple[_Todo, int]], int]] = {}
     digests = {
         id(plan): executors.run_digest(plan.run.config.to_json(), plan.run.seed, plan.run.provider_spec, str(plan.run.directory))
@@ -617,7 +621,11 @@ def _run_pooled(
         return handle
 
     groups = _groups(plans, pool.workers)
-    pending = [submit(group, 0) for group in sorted(groups, key=lambda group: len(group) == 1)]
+    if all(plan.run.seconds is not None for plan in plans):  # the longest first (as a list scheduler does)
+        groups.sort(key=lambda group: -sum(plan.run.seconds or 0.0 for plan, _ in group))
+    else:  # groups (long) first, then the trials alone
+        groups.sort(key=lambda group: len(group) == 1)
+    pending = [submit(group, 0) for group in groups]
     try:
         while pending:
             again: list[Any] = []

@@ -540,7 +540,10 @@ def execute(
             bar.set_description(f"{len(trial_runs)} runs on {pool.describe()}")
         shares = [_RunProgress(bar, run.units(), scale(run)) for run in trial_runs]
         sweep = [
-            runner.SweepRun(run.config, run.trials, run.seed, run.provider, run.path, run.options, progress=share)
+            runner.SweepRun(
+                run.config, run.trials, run.seed, run.provider, run.path, run.options, progress=share,
+                seconds=seconds.get(run.path, 0.0) / max(1, run.pending()) if seconds is not None else None,
+            )
             for run, share in zip(trial_runs, shares, strict=True)
         ]
         for outcome in runner.run_sweep(sweep, jobs, pool, retries=retries):
