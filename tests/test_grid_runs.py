@@ -206,6 +206,58 @@ def test_trials_of_several_runs_in_lockstep_write_the_bytes_they_write_alone(tor
             assert log_bytes(tmp_path / f"jobs{jobs}" / name) == reference[name], f"--jobs {jobs}, {name}"
 
 
+class _InOrder:
+    """An executor that runs its tasks here, in the order they were submitted (a pool of one
+    worker that takes its queue in order), recording what each task held."""
+
+    name = "in-order"
+    workers = 1
+
+    def __init__(self) -> None:
+        self.order: list[list[str]] = []
+        self.tasks: list[tuple[object, object]] = []
+
+    def submit(self, fn, job):  # type: ignore[no-untyped-def]
+        jobs = getattr(job, "jobs", (job,))
+        self.order.append([Path(j.path).parent.name for j in jobs])
+        self.tasks.append((fn, job))
+        return len(self.tasks) - 1
+
+    def completed(self, handles):  # type: ignore[no-untyped-def]
+        return iter(list(handles))
+
+    def result(self, handle):  # type: ignore[no-untyped-def]
+        fn, job = self.tasks[handle]
+        return fn(job)
+
+    def interrupt(self) -> None:
+        pass
+
+
+@pytest.mark.torch
+def test_a_pool_starts_the_longest_groups_first_where_trial_lengths_are_known(torch, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """With every run's expected trial seconds known (reproduce's estimate), groups and lone
+    trials are submitted longest first; without them, the lockstep groups first in run order."""
+    from lagrseq.running.runner import SweepRun, run_sweep
+
+    cube = cfg.load("cube-stacking", "lagr-seq", "upstream", overrides=["run.episodes=2"])
+    grid = load("object-arrangement", "lagr", "upstream", "run.max_steps=60")
+    for seconds, expected in [
+        ({"cube": 5.0, "grid": 0.1}, [["cube"], ["cube"], ["grid", "grid"]]),  # 2 x 5 s alone, then a 0.2 s group
+        ({"cube": 0.01, "grid": 0.1}, [["grid", "grid"], ["cube"], ["cube"]]),
+        (None, [["grid", "grid"], ["cube"], ["cube"]]),
+    ]:
+        out = tmp_path / str(len(list(tmp_path.iterdir())))
+        pool = _InOrder()
+        sweep = [
+            SweepRun(config, 2, 0, "mock", out / name, seconds=None if seconds is None else seconds[name])
+            for name, config in (("cube", cube), ("grid", grid))
+        ]
+        results = run_sweep(sweep, 2, pool)
+        assert pool.order == expected, seconds
+        assert [len(r) for r in results] == [2, 2] and all(read_info(r.path).complete for rs in results for r in rs)
+
+
 def test_lockstep_groups_span_the_runs_of_one_task_and_leave_the_others_alone() -> None:
     """Trials that train networks are grouped per task across runs, one group per worker (a
     multiple of the workers when groups would pass the cap), contiguous and near-equal; cube
