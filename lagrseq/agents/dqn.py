@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from lagrseq.agents import lockstep
-from lagrseq.agents.replay import Batch, ReplayBuffer
+from lagrseq.agents.replay import Batch, Draw, ReplayBuffer
 from lagrseq.errors import UsageError
 
 DEVICES = ("cpu", "cuda", "auto")
@@ -247,17 +247,19 @@ class NetworkGroup:
                 x = torch.relu(x)
         return x
 
-    def train(self, requests: Sequence[tuple[int, Batch]]) -> list[float]:
+    def train(self, requests: Sequence[tuple[int, Batch | Draw]]) -> list[float]:
         """One Adam step for each requesting member on its minibatch (``(member, batch)``, at
-        most one request per member); the other members are untouched. Returns each
-        minibatch's loss before the step."""
+        most one request per member; a :class:`Draw` is copied straight into the stacked
+        arrays); the other members are untouched. Returns each minibatch's loss before the
+        step."""
         torch, device = self._torch, self.device
         self._stack()
         if self.threads and threading.get_ident() not in self._threads_set:
             torch.set_num_threads(self.threads)
             self._threads_set.add(threading.get_ident())
         if len(requests) == 1:
-            return [self._train_one(*requests[0])]
+            member, batch = requests[0]
+            return [self._train_one(member, batch.batch() if isinstance(batch, Draw) else batch)]
         members = [member for member, _ in requests]
         index = None if members == self._everyone else torch.tensor(members, dtype=torch.int64, device=device)
 
@@ -266,8 +268,11 @@ class NetworkGroup:
 
         arrays, tensors = self._batch_buffers(requests)
         for row, (_, batch) in enumerate(requests):
-            for name, array in arrays.items():
-                array[row] = getattr(batch, name)
+            if isinstance(batch, Draw):
+                batch.copy_into(arrays, row)
+            else:
+                for name, array in arrays.items():
+                    array[row] = getattr(batch, name)
 
         def stacked(name: str) -> Any:
             return tensors[name]
@@ -314,17 +319,23 @@ class NetworkGroup:
                     self._count(member)
         return losses.tolist()  # type: ignore[no-any-return]
 
-    def _batch_buffers(self, requests: Sequence[tuple[int, Batch]]) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    def _batch_buffers(self, requests: Sequence[tuple[int, Batch | Draw]]) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         """Arrays to stack the requests' minibatches in (one row per request), and the tensors
         on the group's device that hold them (on the CPU, the same memory), kept from call to
         call: only one call uses them at a time, and nothing of it outlives the call."""
         first = requests[0][1]
-        key = (len(requests), first.observations.shape, *(value.dtype for value in first))
+        if isinstance(first, Draw):
+            rows = len(first.index)
+            layout = [((rows, *column.shape[1:]), column.dtype)
+                      for column in (getattr(first.buffer, name) for name in Batch._fields)]
+        else:
+            layout = [(value.shape, value.dtype) for value in first]
+        key = (len(requests), *layout)
         buffers = self._buffers.get(key)
         if buffers is None:
             torch = self._torch
-            arrays = {name: np.empty((len(requests), *value.shape), dtype=value.dtype)
-                      for name, value in zip(Batch._fields, first, strict=True)}
+            arrays = {name: np.empty((len(requests), *shape), dtype=dtype)
+                      for name, (shape, dtype) in zip(Batch._fields, layout, strict=True)}
             if self.discount == 0.0:  # a bandit bootstraps from nothing
                 del arrays["next_observations"], arrays["terminals"]
             tensors = {name: torch.from_numpy(array) for name, array in arrays.items()}
@@ -603,5 +614,5 @@ class DQN:
         together with the other trials' (:func:`lagrseq.agents.lockstep.request`)."""
         if len(self.buffer) < self.batch_size:
             return None
-        batch = self.buffer.sample(self.batch_size, rng)
-        return lockstep.request(self.group.train, (self.member, batch))  # type: ignore[no-any-return]
+        draw = self.buffer.draw(self.batch_size, rng)
+        return lockstep.request(self.group.train, (self.member, draw))  # type: ignore[no-any-return]

@@ -17,6 +17,37 @@ class Batch(NamedTuple):
     terminals: np.ndarray
 
 
+class Draw:
+    """The rows of a minibatch drawn from a buffer, not yet copied: a lockstep training call
+    copies them straight into the arrays it stacks the trials' minibatches in
+    (:meth:`copy_into`), one copy instead of two. The buffer must not change before it is
+    used (a trial waits for its training call)."""
+
+    __slots__ = ("buffer", "index")
+
+    def __init__(self, buffer: ReplayBuffer, index: np.ndarray) -> None:
+        self.buffer = buffer
+        self.index = index
+
+    def batch(self) -> Batch:
+        """The minibatch as arrays of its own."""
+        buffer, index = self.buffer, self.index
+        return Batch(
+            buffer.observations[index],
+            buffer.actions[index],
+            buffer.rewards[index],
+            buffer.next_observations[index],
+            buffer.terminals[index],
+        )
+
+    def copy_into(self, arrays: dict[str, np.ndarray], row: int) -> None:
+        """Row ``row`` of each of ``arrays`` (keyed by :class:`Batch` field) = that field of
+        the minibatch: the values :meth:`batch` gives."""
+        buffer, index = self.buffer, self.index
+        for name, array in arrays.items():
+            getattr(buffer, name).take(index, 0, array[row], "clip")  # positional: the cheap call
+
+
 class ReplayBuffer:
     """The last ``capacity`` transitions (the oldest is overwritten first, like a bounded deque).
 
@@ -61,11 +92,10 @@ class ReplayBuffer:
         """``batch_size`` distinct stored transitions, drawn uniformly with ``rng``."""
         if batch_size > self.size:
             raise ValueError(f"cannot sample {batch_size} transitions from {self.size}")
-        index = rng.choice(self.size, size=batch_size, replace=False)
-        return Batch(
-            self.observations[index],
-            self.actions[index],
-            self.rewards[index],
-            self.next_observations[index],
-            self.terminals[index],
-        )
+        return self.draw(batch_size, rng).batch()
+
+    def draw(self, batch_size: int, rng: np.random.Generator) -> Draw:
+        """The rows :meth:`sample` takes (the same draws from ``rng``), not yet copied."""
+        if batch_size > self.size:
+            raise ValueError(f"cannot sample {batch_size} transitions from {self.size}")
+        return Draw(self, rng.choice(self.size, size=batch_size, replace=False))

@@ -94,14 +94,14 @@ class ImageCompletionEnv(GridEnv):
     def step(self, action: int) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         action = self._check(action)
         grid, target, cursor = self._grid, self._target, self._cursor
-        before = self._matches()
+        before = after = self._matches()  # counted once a step: a flip changes one cell's match
         blocked = False
         if action == 1:
             if self.block_wrong_flips and grid[cursor] == 0 and target[cursor] == 0:
                 blocked = True  # released code: a wrong pixel turned on is undone, reward 0
             else:
                 grid[cursor] = 1 - grid[cursor]
-        after = self._matches()
+                after += 1 if grid[cursor] == target[cursor] else -1
         goal = self._goal(after) and not blocked
         reward = 0.0 if blocked else (after - before) / self._cells + (self.bonus if goal else 0.0)
 

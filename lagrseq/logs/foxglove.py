@@ -184,22 +184,34 @@ class RawImages:
     """:func:`raw_image` for the steps of one trial, each message with its JSON already encoded
     (:class:`~lagrseq.logs.events.EncodedMessage`: the sink writes the bytes as they are, the
     very bytes it would encode itself). The picture (the base64 data) is made once per distinct
-    pattern in a row: most steps leave the pattern as it was, so a step costs a comparison of
-    the pattern's bytes and a timestamp instead of a picture and a JSON encoding."""
+    pattern in a row, and the JSON around it once per shape: a step that leaves the pattern as
+    it was costs a comparison of the pattern's bytes and a timestamp, one that changes it the
+    base64 of its cells pasted between bytes made before (base64 needs no JSON escaping)."""
 
     def __init__(self, frame_id: str = "image") -> None:
         self.frame_id = frame_id
         self._key: tuple[Any, ...] | None = None
         self._fields: dict[str, Any] = {}
         self._tail = b""
+        self._shape: tuple[int, ...] | None = None
+        self._head = b""  # the JSON of the fields up to the data's opening quote, no "{"
 
     def __call__(self, pattern: Any, log_time: int) -> EncodedMessage:
         cells = pattern if type(pattern) is np.ndarray else np.asarray(pattern)
         key = (cells.shape, cells.dtype.str, cells.tobytes())
         if key != self._key:
-            fields = raw_image(cells, 0, self.frame_id)
-            del fields["timestamp"]
-            self._fields, self._tail, self._key = fields, _dumps(fields)[1:].encode(), key
+            if cells.shape != self._shape:
+                fields = raw_image(cells, 0, self.frame_id)  # raises on a pattern that is not 2-D
+                del fields["timestamp"]
+                fields["data"] = ""
+                empty = _dumps(fields).encode()
+                if not empty.endswith(b',"data":""}'):  # the data last, as raw_image orders it
+                    raise AssertionError(f"unexpected RawImage JSON {empty[-40:]!r}")
+                self._head, self._shape = empty[1:-2], cells.shape
+                self._fields = fields
+            data = base64.b64encode(((cells != 0).view(np.uint8) * np.uint8(255)).tobytes())
+            self._fields["data"] = data.decode("ascii")  # each message copies the fields
+            self._tail, self._key = b'%b%b"}' % (self._head, data), key
         timestamp = _timestamp(log_time)
         message = EncodedMessage(timestamp=timestamp, **self._fields)
         message.json = b'{"timestamp":{"sec":%d,"nsec":%d},%b' % (timestamp["sec"], timestamp["nsec"], self._tail)

@@ -334,10 +334,11 @@ class GridTask:
         """
         if self.guidance_mode != "next-missing":
             return None
-        missing = np.flatnonzero((np.asarray(solution) == 1).ravel() & (np.asarray(pattern) == 0).ravel())
-        if missing.size == 0:
+        missing = (np.asarray(solution) == 1) & (np.asarray(pattern) == 0)
+        first = int(missing.argmax())  # the first True in row-major order (0 when there is none)
+        if not missing.flat[first]:
             return cursor
-        return divmod(int(missing[0]), self.cols)
+        return divmod(first, self.cols)
 
     def guidance(
         self, pattern: np.ndarray, solution: np.ndarray, cursor: tuple[int, int] | None = None

@@ -96,21 +96,26 @@ def test_views_round_trip_through_the_sink_in_transition_chunks(tmp_path: Path) 
 @settings(max_examples=150, deadline=None)
 @given(
     st.lists(
-        st.tuples(st.integers(0, 3), st.integers(0, 4_000_000_000), st.sampled_from(["int8", "int64", "bool", "float64"])),
+        st.tuples(st.integers(0, 3), st.integers(0, 4_000_000_000), st.sampled_from(["int8", "int64", "bool", "float64"]),
+                  st.integers(0, 1), st.booleans()),
         min_size=1, max_size=12,
     ),
     st.integers(1, 5),
     st.integers(1, 7),
+    st.sampled_from(["image", 'a "quoted"\\ frame/\u00e9']),
 )  # fmt: skip
-def test_raw_images_give_raw_image_and_its_json_bytes_for_any_steps(steps, rows: int, cols: int) -> None:
+def test_raw_images_give_raw_image_and_its_json_bytes_for_any_steps(steps, rows: int, cols: int, frame_id: str) -> None:
     """The pictures of a trial's steps (the pattern often unchanged from the step before, or
-    changed, in any dtype): each message is raw_image's, and its ready bytes are the sink's own
-    encoding of it."""
-    images = foxglove.RawImages()
-    for seed, log_time, dtype in steps:
-        pattern = np.random.default_rng(seed).integers(0, 2, (rows, cols)).astype(dtype)
+    changed, in any dtype, any values, a shape changed, a transposed view; a frame id JSON
+    escapes): each message is raw_image's, and its ready bytes are the sink's own encoding of
+    it."""
+    images = foxglove.RawImages(frame_id)
+    for seed, log_time, dtype, wider, transposed in steps:
+        pattern = np.random.default_rng(seed).integers(-1, 3, (rows, cols + wider)).astype(dtype)
+        if transposed:
+            pattern = pattern.T
         message = images(pattern, log_time)
-        expected = foxglove.raw_image(pattern, log_time)
+        expected = foxglove.raw_image(pattern, log_time, frame_id)
         assert message == expected and list(message) == list(expected)
         assert message.json == _encode(expected)
 

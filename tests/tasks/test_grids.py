@@ -6,6 +6,8 @@ import hashlib
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from lagrseq.tasks import grid, shapes
 from lagrseq.tasks.arrangement import object_arrangement
@@ -195,6 +197,23 @@ def test_next_missing_guidance_picks_the_first_missing_cell() -> None:
     extra[0, 1] = 1
     assert image.guided_cell(extra, X) is None
     assert image.guidance(extra, X, (0, 1)) == 0  # the released LLMgreedy never turns pixels off
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.booleans(), st.booleans())
+def test_next_missing_cell_is_the_first_in_row_major_order_for_any_grids(seed: int, transposed: bool, empty: bool) -> None:
+    """pi_LLM's cell is the first (row-major) that the solution has on (1) and the pattern off
+    (0), whatever else the grids hold (a parsed answer may hold 2s), their dtype or layout."""
+    task = object_arrangement(guidance_mode="next-missing")
+    rng = np.random.default_rng(seed)
+    solution = rng.integers(0, 3, (5, 5))
+    pattern = rng.integers(0, 2, (5, 5)).astype(np.int8)
+    if empty:
+        pattern[solution == 1] = 1
+    if transposed:
+        solution, pattern = solution.T, pattern.T
+    cells = [(r, c) for r in range(5) for c in range(5) if solution[r, c] == 1 and pattern[r, c] == 0]
+    assert task.guided_cell(pattern, solution, (4, 4)) == (cells[0] if cells else (4, 4))
 
 
 # ------------------------------------------------------------------------------------------
