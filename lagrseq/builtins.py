@@ -114,7 +114,7 @@ TASKS.register(
         views=lazy(f"{WIRING}:arm_views"),
         missing_dependency=lazy(f"{WIRING}:arm_dependency"),
         renders=True,
-        calibration_steps=100,  # a simulated arm step is slow: 100 steps time it well enough
+        calibration_steps=40,  # a simulated arm step is slow: 40 steps time it within about 10% of 100 (docs/performance.md)
         description="object arrangement placed by a simulated or remote UR5e arm (the arm extra)",
     )
 )

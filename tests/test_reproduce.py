@@ -472,20 +472,25 @@ def test_runs_that_train_networks_are_timed_in_their_lockstep_groups(tmp_path: P
     assert [run.path for run in plan.runs if run.path in reproduce.lockstep_groups(plan, jobs=8)] == [grid.path]
     assert reproduce.calibration_keys(plan, jobs=2) == len({(r.config.task.name, r.config.method, r.config.preset, str(r.config.task)) for r in plan.runs})
 
-    timed: list[int] = []
+    timed: list[tuple[int, int]] = []
     real = runner.run_one
 
     def counting(*args, **kwargs):  # type: ignore[no-untyped-def]
-        timed.append(args[1])
+        timed.append((args[1], args[0].run.max_steps))
         return real(*args, **kwargs)
 
     monkeypatch.setattr(reproduce, "CALIBRATION_STEPS", 120)
+    monkeypatch.setattr(reproduce, "LOCKSTEP_CALIBRATION_STEPS", 60)
     monkeypatch.setattr(reproduce, "WARMUP_STEPS", 40)
     monkeypatch.setattr(runner, "run_one", counting)
     grid.config = replace(grid.config, run=replace(grid.config.run, episodes=0, max_steps=120))
     per_step, _ = reproduce._calibrate(grid, group=3)
     assert per_step > 0
-    assert sorted(timed) == [0, 0, 1, 2]  # the warm-up, then three trials in lockstep
+    # the warm-up, then three trials in lockstep, each of the lockstep length
+    assert sorted(timed) == [(0, 40), (0, 60), (1, 60), (2, 60)]
+    timed.clear()
+    reproduce._calibrate(grid, group=1)  # one trial alone: the longer stretch, never past the trial's length
+    assert timed == [(0, 40), (0, 120)]
 
 
 def test_the_experiments_are_timed_in_the_pools_workers_side_by_side(tmp_path: Path) -> None:
