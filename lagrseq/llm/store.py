@@ -34,7 +34,6 @@ trial asking the same key for the n-th time always gets the same sample from the
 from __future__ import annotations
 
 import contextlib
-import difflib
 import hashlib
 import json
 import os
@@ -655,8 +654,7 @@ class RecordStore:
             if same_messages:
                 similarity = 2.0
             else:
-                matcher = difflib.SequenceMatcher(None, entry.prompt, prompt, autojunk=False)
-                similarity = matcher.ratio()
+                similarity = prompt_similarity(entry.prompt, prompt)
                 differences.insert(0, f"another prompt ({similarity:.1%} alike{_diff_hint(entry.prompt, prompt)})")
             score = similarity - 0.1 * len(differences)
             scored.append((-score, entry.key, entry, "; ".join(differences) or "identical"))
@@ -680,6 +678,26 @@ class RecordStore:
 
     def __repr__(self) -> str:
         return f"RecordStore({str(self.directory)!r})"
+
+
+def prompt_similarity(recorded: str, asked: str) -> float:
+    """How alike two prompts are, 0 to 1, in time linear in their length: the characters of their
+    common beginning and end, and of the stretch between them the characters equal at the same
+    place, over the longer prompt's length. Prompts of one task share their wording and differ
+    in the partial pattern, which this measures cell by cell. (``difflib``'s ratio took 0.3 s a
+    pair on the 10 x 10 image prompts, 131 s for one miss in a store of 418 of them.)"""
+    longest = max(len(recorded), len(asked))
+    if longest == 0:
+        return 1.0
+    shortest = min(len(recorded), len(asked))
+    head = 0
+    while head < shortest and recorded[head] == asked[head]:
+        head += 1
+    tail = 0
+    while tail < shortest - head and recorded[-1 - tail] == asked[-1 - tail]:
+        tail += 1
+    middle = sum(x == y for x, y in zip(recorded[head : len(recorded) - tail], asked[head : len(asked) - tail]))
+    return (head + tail + middle) / longest
 
 
 def _diff_hint(recorded: str, asked: str) -> str:
