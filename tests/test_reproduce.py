@@ -470,7 +470,7 @@ def test_runs_that_train_networks_are_timed_in_their_lockstep_groups(tmp_path: P
     assert reproduce.lockstep_groups(plan, jobs=4)[grid.path] == 3  # groups of 3, 3, 3, 3
     assert grid.path in reproduce.lockstep_groups(plan, jobs=8)  # 2, 2, 2, 2, 1, 1, 1, 1
     assert [run.path for run in plan.runs if run.path in reproduce.lockstep_groups(plan, jobs=8)] == [grid.path]
-    assert reproduce.calibration_keys(plan, jobs=2) == len({(r.config.task.name, r.config.method, r.config.preset, str(r.config.task)) for r in plan.runs})
+    assert reproduce.calibration_keys(plan, jobs=2) == len({(r.kind, r.config.to_json(), r.provider) for r in plan.runs})
 
     timed: list[tuple[int, int]] = []
     real = runner.run_one
@@ -483,14 +483,28 @@ def test_runs_that_train_networks_are_timed_in_their_lockstep_groups(tmp_path: P
     monkeypatch.setattr(reproduce, "LOCKSTEP_CALIBRATION_STEPS", 60)
     monkeypatch.setattr(reproduce, "WARMUP_STEPS", 40)
     monkeypatch.setattr(runner, "run_one", counting)
+    monkeypatch.setattr(reproduce, "_WARM", set())
     grid.config = replace(grid.config, run=replace(grid.config.run, episodes=0, max_steps=120))
-    per_step, _ = reproduce._calibrate(grid, group=3)
-    assert per_step > 0
+    per_step, _, start = reproduce._calibrate(grid, group=3)
+    assert per_step > 0 and start > 0
     # the warm-up, then three trials in lockstep, each of the lockstep length
     assert sorted(timed) == [(0, 40), (0, 60), (1, 60), (2, 60)]
     timed.clear()
-    reproduce._calibrate(grid, group=1)  # one trial alone: the longer stretch, never past the trial's length
-    assert timed == [(0, 40), (0, 120)]
+    # one trial alone: the longer stretch, never past the trial's length; the process is warm
+    reproduce._calibrate(grid, group=1)
+    assert timed == [(0, 120)]
+    timed.clear()
+    grid.trials = 2  # a group larger than the run: its own trials in turn (a store holds answers for those)
+    reproduce._calibrate(grid, group=3)
+    assert sorted(timed) == [(0, 60), (0, 60), (1, 60)]
+    timed.clear()
+    # a cube trial is timed whole (its first episodes are its longest), after its own warm-up
+    monkeypatch.setattr(reproduce, "EPISODES_CALIBRATION_STEPS", 6000)
+    per_step, steps_per_episode, start = reproduce._calibrate(cube, group=1)
+    assert timed == [(0, 40), (0, reproduce.EPISODES_CALIBRATION_STEPS)]
+    whole = real(cube.config, 0, cube.seed, "mock", tmp_path / "whole.mcap")
+    assert whole.steps < reproduce.EPISODES_CALIBRATION_STEPS and steps_per_episode == whole.steps / whole.episodes
+    assert per_step > 0 and start > 0
 
 
 def test_the_experiments_are_timed_in_the_pools_workers_side_by_side(tmp_path: Path) -> None:
@@ -509,3 +523,56 @@ def test_the_experiments_are_timed_in_the_pools_workers_side_by_side(tmp_path: P
     assert len(told) == reproduce.calibration_keys(plan, jobs=2) > 1
     assert set(pooled.per_run) == set(here.per_run) == {run.path for run in plan.runs if run.pending()}
     assert all(seconds > 0 for seconds in pooled.per_run.values()) and pooled.runs > 0
+
+
+def test_each_configuration_is_timed_with_the_provider_it_runs_on_where_that_asks_no_model(tmp_path: Path) -> None:
+    """An asking policy or a provider changes how often a trial asks and is guided, so runs that
+    differ in either are timed apart; a mock profile or a recorded store is timed as the run
+    uses it, a live model never (the mock stands in), and an accuracy probe with the mock."""
+    from dataclasses import replace
+
+    from lagrseq.running.suite import load_suite
+    from lagrseq.study import reproduce
+
+    plan = reproduce.plan(load_suite().select(["frontier-image", "table3", "fig4"]), quick=True, provider=None, runs_dir=tmp_path, seed=0)
+    image = [run for run in plan.runs if run.config.task.name == "image-completion" and run.config.method == "lagr-seq"]
+    policies = {run.config.secondary.policy for run in image}
+    assert len(policies) > 1
+    by_policy = {run.config.secondary.policy: reproduce._calibration_key(run) for run in image if run.provider == image[0].provider}
+    assert len(set(by_policy.values())) == len(by_policy)
+    recorded = next(run for run in plan.runs if run.provider.startswith("recorded:") and run.kind == "trial")
+    assert reproduce._timed_provider(recorded) == (recorded.provider, recorded.options)
+    profile = next(run for run in plan.runs if run.provider.startswith("mock:") and run.kind == "trial")
+    assert reproduce._timed_provider(profile) == (profile.provider, profile.options)
+    live = replace(profile, provider="live:gpt-4o-mini")
+    assert reproduce._timed_provider(live) == ("mock", None)
+    probe_run = next(run for run in plan.runs if run.kind == "accuracy")
+    assert reproduce._timed_provider(probe_run) == ("mock", None)
+    assert reproduce._calibration_key(live) != reproduce._calibration_key(profile)
+
+
+def test_a_store_that_cannot_answer_the_timing_is_timed_with_the_mock(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A recorded store without the answers a timed trial asks for (the run itself will say so,
+    as a strict miss) does not stop the estimate: that experiment is timed with the mock."""
+    from dataclasses import replace
+
+    from lagrseq.llm.store import RecordStore
+    from lagrseq.running.suite import load_suite
+    from lagrseq.study import reproduce
+
+    RecordStore(tmp_path / "store").close()
+    plan = reproduce.plan(load_suite().select(["fig6a"]), quick=True, provider=None, runs_dir=tmp_path / "runs", seed=0)
+    cube = next(run for run in plan.runs if run.config.method == "lagr")
+    run = replace(cube, provider=f"recorded:{tmp_path / 'store'}", options=None)
+    asked: list[str] = []
+    real = runner.run_one
+
+    def counting(*args, **kwargs):  # type: ignore[no-untyped-def]
+        asked.append(args[3])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(runner, "run_one", counting)
+    monkeypatch.setattr(reproduce, "EPISODES_CALIBRATION_STEPS", 200)
+    per_step, steps_per_episode, _ = reproduce._calibrate(run, group=1)
+    assert per_step > 0 and steps_per_episode > 0
+    assert asked[0] == run.provider and asked[-1] == "mock"

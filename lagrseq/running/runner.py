@@ -86,10 +86,13 @@ def run_one(
     provider_options: Any = None,
     render_dir: Path | None = None,
     notes: Mapping[str, str] | None = None,
+    on_ready: Callable[[], None] | None = None,
 ) -> TrialResult:
     """Build trial ``trial``'s parts and run it into ``path`` (``log=False``: no file, for
     benchmarks). ``on_episode(length)`` is called after every episode. ``render_dir``: arm
-    tasks write PNG frames and GIFs of the trial's episodes under it (``--render``)."""
+    tasks write PNG frames and GIFs of the trial's episodes under it (``--render``).
+    ``on_ready()`` is called once the parts are built, before the first step (the estimate
+    times a trial's start apart from its steps)."""
     config = with_provider_model(config, provider_spec)  # live:MODEL asks MODEL, and the log says so
 
     def open_sink() -> Sink:
@@ -99,6 +102,8 @@ def run_one(
         return McapSink(path, metadata, extra_topics=view_topics(config))
 
     parts = trial_parts(config, trial, seed, provider_spec, open_sink, provider_options, render_dir)
+    if on_ready is not None:
+        on_ready()
     with _older_objects_frozen():
         return run_trial(parts, path, on_episode)
 

@@ -34,13 +34,19 @@ from lagrseq.running.suite import RunSpec, Suite, is_authors_provider
 from lagrseq.study import probe
 
 CALIBRATION_STEPS = 1000
-"""Environment steps timed per distinct experiment to estimate the suite's duration."""
-LOCKSTEP_CALIBRATION_STEPS = 400
-"""Environment steps of each trial when a lockstep group of trials is timed (at most 2,000
-trial-steps for a group of :data:`LOCKSTEP_CALIBRATION_GROUP`, instead of 5,000). Measured on the
-quick suite's image-completion experiments, group of 5: 0.434 and 0.534 ms a step timed over 400
-steps against 0.407 and 0.528 over 1,000 (alternating, same minutes), for 0.9 to 1.1 s of CPU
-instead of 2.1 to 2.6 (docs/performance.md, "Sixth round")."""
+"""Environment steps timed per distinct experiment to estimate the suite's duration (one trial
+alone with a step budget)."""
+EPISODES_CALIBRATION_STEPS = 5000
+"""The same for a trial that ends after a number of episodes (cube stacking): timed whole, up to
+this many steps. Its first episodes are the longest (the agent has learned nothing yet), so steps
+per episode from its first 1,000 steps made a trial 4.5x longer than it is (91 steps an episode
+against 24 over a whole trial of 2,454 steps, 18 ms)."""
+LOCKSTEP_CALIBRATION_STEPS = 300
+"""Environment steps of each trial when a lockstep group of trials is timed (at most 900
+trial-steps for a group of :data:`LOCKSTEP_CALIBRATION_GROUP`). Each distinct configuration is
+timed (an asking policy or the provider changes how often a trial asks and is guided), so each
+timing is short; the sum over the quick suite's 16 image and 16 object-arrangement experiments
+came within 6% of their in-process CPU time (docs/performance.md, "Seventh round")."""
 
 
 @dataclass
@@ -215,9 +221,24 @@ def _resolve(
     return config, ""
 
 
+def _timed_provider(run: PlannedRun) -> tuple[str, Any]:
+    """The provider a calibration of ``run`` asks, and its options: the run's own where it answers
+    on this machine with no model to start and no money to spend (a mock profile, a recorded
+    store: how often it is right decides how often a trial asks and is guided, a large part of a
+    grid trial's cost), else the mock with its defaults (a live or local model is never asked
+    for an estimate). An accuracy probe is timed with the mock: one sample would mostly time
+    the provider's start."""
+    kind = wiring.provider_kind(run.provider)
+    if run.kind == "trial" and (kind.synthetic or kind.replays) and not (kind.paid or kind.local_server):
+        return run.provider, run.options
+    return "mock", None
+
+
 def _calibration_key(run: PlannedRun) -> tuple[str, ...]:
-    config = run.config
-    return (run.kind, config.task.name, config.method, config.preset, str(config.task))
+    """What makes two runs' steps cost alike: the whole configuration (an asking policy, a
+    solution scope or a reward changes how often a trial asks and trains) and the provider timed."""
+    provider, options = _timed_provider(run)
+    return (run.kind, run.config.task.name, run.config.to_json(), provider, repr(options))
 
 
 REPLAY_SECONDS_PER_LOG = 0.013
@@ -262,7 +283,7 @@ def calibration_keys(the_plan: Plan, jobs: int = 1) -> int:
     return len({(*_calibration_key(run), str(groups.get(run.path, 1))) for run in the_plan.runs if run.pending()})
 
 
-LOCKSTEP_CALIBRATION_GROUP = 5
+LOCKSTEP_CALIBRATION_GROUP = 3
 """At most this many trials are timed together for a run whose trials run in lockstep."""
 
 
@@ -329,7 +350,7 @@ def estimate_phases(
         todo.setdefault(key, (run, group))
     cache = _calibrate_all(todo, pool, on_calibrated)
 
-    def calibrated(run: PlannedRun) -> tuple[float, float]:
+    def calibrated(run: PlannedRun) -> tuple[float, float, float]:
         return cache[key_of(run)[0]]
 
     serial = work = longest = 0.0
@@ -340,15 +361,15 @@ def estimate_phases(
         logs += run.trials if run.kind == "trial" else 1
         if pending == 0:
             continue
-        per_unit, steps_per_episode = calibrated(run)
+        per_unit, steps_per_episode, start = calibrated(run)
         if run.kind == "accuracy":
             serial += per_unit * run.samples
             works[run.path] = per_unit * run.samples
             continue
-        steps = _trial_steps(run.config, steps_per_episode)
-        works[run.path] = pending * steps * per_unit
+        trial_seconds = start + _trial_steps(run.config, steps_per_episode) * per_unit
+        works[run.path] = pending * trial_seconds
         work += works[run.path]
-        longest = max(longest, steps * per_unit)
+        longest = max(longest, trial_seconds)
     parallel = max(work / max(1, jobs), longest)
     out = Estimate(runs=serial + parallel)
     for run in the_plan.runs:
@@ -356,8 +377,8 @@ def estimate_phases(
             share = works[run.path] if run.kind == "accuracy" else works[run.path] / work * parallel if work else 0.0
             out.per_run[run.path] = share
     for task, audit_config, _, probe_run in probes:
-        per_unit, steps_per_episode = calibrated(probe_run)
-        out.audit_per_trial[task] = _trial_steps(audit_config, steps_per_episode) * per_unit / max(1, jobs)
+        per_unit, steps_per_episode, start = calibrated(probe_run)
+        out.audit_per_trial[task] = (start + _trial_steps(audit_config, steps_per_episode) * per_unit) / max(1, jobs)
     logs += audit_logs
     if jobs <= 1:
         reading, per_item = REPLAY_SECONDS_PER_LOG_ONE_PROCESS * logs, REPLAY_SECONDS_PER_ITEM + REPLAY_DRAW_SECONDS_PER_ITEM
@@ -375,18 +396,23 @@ class CalibrationJob:
     config: dict[str, Any]
     seed: int
     group: int
+    provider: str = "mock"
+    options: Any = None
+    trials: int = 1
+    """The run's trials: the timed trials take their numbers in turn (a recorded store holds
+    answers for those trials only)."""
 
 
-def calibration_job(job: CalibrationJob) -> tuple[float, float]:
+def calibration_job(job: CalibrationJob) -> tuple[float, float, float]:
     """:func:`_calibrate` as a task of a process pool (a module-level function: spawned workers
     import it)."""
-    run = PlannedRun(job.kind, cfg.from_dict(job.config), "mock", job.seed, job.group, 1, Path("calibration"))
+    run = PlannedRun(job.kind, cfg.from_dict(job.config), job.provider, job.seed, job.trials, 1, Path("calibration"), options=job.options)
     return _calibrate(run, job.group)
 
 
 def _calibrate_all(
     todo: dict[tuple[str, ...], tuple[PlannedRun, int]], pool: Any, on_calibrated: Callable[[], None] | None
-) -> dict[tuple[str, ...], tuple[float, float]]:
+) -> dict[tuple[str, ...], tuple[float, float, float]]:
     """Each experiment of ``todo`` (key -> a run and its lockstep group) timed: in the workers of a
     local process ``pool`` (:class:`lagrseq.running.executors.LocalExecutor`), else here, one
     after the other; ``on_calibrated`` is told of each as it ends."""
@@ -394,7 +420,7 @@ def _calibrate_all(
 
     from lagrseq.running.executors import LocalExecutor
 
-    timed: dict[tuple[str, ...], tuple[float, float]] = {}
+    timed: dict[tuple[str, ...], tuple[float, float, float]] = {}
     if not isinstance(pool, LocalExecutor) or len(todo) <= 1:
         for key, (run, group) in todo.items():
             timed[key] = _calibrate(run, group)
@@ -402,7 +428,9 @@ def _calibrate_all(
                 on_calibrated()
         return timed
     futures = {
-        pool.pool.submit(calibration_job, CalibrationJob(run.kind, run.config.to_dict(), run.seed, group)): key
+        pool.pool.submit(calibration_job, CalibrationJob(
+            run.kind, run.config.to_dict(), run.seed, group, *_timed_provider(run), trials=run.trials,
+        )): key
         for key, (run, group) in todo.items()
     }
     try:
@@ -431,32 +459,60 @@ def estimate(the_plan: Plan, jobs: int) -> float:
 
 
 WARMUP_STEPS = 100
-"""Untimed steps before a calibration: imports (torch), first allocations, caches."""
+"""Untimed steps before the first calibration of a task and method in a process: imports (torch,
+pybullet), first allocations, caches. Later calibrations of that task and method in the process
+(a worker times many experiments) start warm."""
+_WARM: set[tuple[str, str]] = set()
 
 
-def _calibrate(run: PlannedRun, group: int = 1) -> tuple[float, float]:
-    """(seconds per step, steps per episode) or, for a probe, (seconds per sample, 0), timed with
-    logging to a scratch file (the log is part of the cost) and the mock provider, after an
-    untimed warm-up of the same experiment: a cold process pays imports and first calls once,
+def _calibrate(run: PlannedRun, group: int = 1) -> tuple[float, float, float]:
+    """(seconds per step, steps per episode, seconds of a trial's start) or, for a probe,
+    (seconds per sample, 0, 0), timed with
+    logging to a scratch file (the log is part of the cost) and the provider of
+    :func:`_timed_provider`, after an untimed warm-up of the same experiment: a cold process pays imports and first calls once,
     a trial's worker pays them once for many trials. ``group`` > 1: that many trials timed in
-    lockstep, as the run will step them (seconds per step of one trial)."""
+    lockstep, as the run will step them (seconds per step of one trial). A timing that fails
+    with the run's provider (a store without the answers the run will miss on: the run says so
+    itself) is taken again with the mock."""
+    provider, options = _timed_provider(run)
+    if provider == "mock":
+        return _timed(run, group, provider, options)
+    try:
+        return _timed(run, group, provider, options)
+    except Exception:  # noqa: BLE001 - an estimate only; the run reports its own errors
+        return _timed(run, group, "mock", None)
+
+
+def _timed(run: PlannedRun, group: int, provider: str, options: Any) -> tuple[float, float, float]:
     with tempfile.TemporaryDirectory(prefix="lagrseq-calibration-") as scratch:
         path = Path(scratch) / "calibration.mcap"
         if run.kind == "accuracy":
             started = time.perf_counter()
-            probe.run_accuracy_probe(run.config, 1, run.seed, "mock", path)
-            return time.perf_counter() - started, 0.0
+            probe.run_accuracy_probe(run.config, 1, run.seed, provider, path)
+            return time.perf_counter() - started, 0.0, 0.0
         slow = TASKS.get(run.config.task.name).calibration_steps
-        warm = replace(run.config, run=replace(run.config.run, max_steps=5 if slow else WARMUP_STEPS))
-        runner.run_one(warm, 0, run.seed, "mock", Path(scratch) / "warm-up.mcap")
-        steps = slow or (LOCKSTEP_CALIBRATION_STEPS if group > 1 else CALIBRATION_STEPS)
+        if (run.config.task.name, run.config.method) not in _WARM:
+            warm = replace(run.config, run=replace(run.config.run, max_steps=5 if slow else WARMUP_STEPS))
+            runner.run_one(warm, 0, run.seed, provider, Path(scratch) / "warm-up.mcap", provider_options=options)
+            _WARM.add((run.config.task.name, run.config.method))
+        steps = slow or (
+            LOCKSTEP_CALIBRATION_STEPS if group > 1 else EPISODES_CALIBRATION_STEPS if run.config.run.episodes else CALIBRATION_STEPS
+        )
         if run.config.run.max_steps:  # never more steps than a trial has: its own length is timed whole
             steps = min(steps, run.config.run.max_steps)
         config = replace(run.config, run=replace(run.config.run, max_steps=steps))
+        ready: list[float] = []
+
+        def on_ready() -> None:
+            ready.append(time.perf_counter())
+
         started = time.perf_counter()
         if group > 1:
             outcomes = runner.run_in_lockstep([
-                functools.partial(runner.run_one, config, trial, run.seed, "mock", Path(scratch) / f"calibration-{trial}.mcap")
+                functools.partial(
+                    runner.run_one, config, trial % max(1, run.trials), run.seed, provider,
+                    Path(scratch) / f"calibration-{trial}.mcap", provider_options=options, on_ready=on_ready,
+                )
                 for trial in range(group)
             ])
             failed = [outcome for outcome in outcomes if isinstance(outcome, BaseException)]
@@ -464,10 +520,13 @@ def _calibrate(run: PlannedRun, group: int = 1) -> tuple[float, float]:
                 raise failed[0]
             results = [outcome for outcome in outcomes if not isinstance(outcome, BaseException)]
         else:
-            results = [runner.run_one(config, 0, run.seed, "mock", path)]
+            results = [runner.run_one(config, 0, run.seed, provider, path, provider_options=options, on_ready=on_ready)]
         seconds = time.perf_counter() - started
+    # the trials' starts (lockstep: each is built before the first batched step, one after the
+    # other) apart from their steps: a cube trial's start is a large part of a short trial
+    start = max(ready) - started if ready else 0.0
     steps = max(sum(result.steps for result in results), 1)
-    return seconds / steps, steps / max(sum(result.episodes for result in results), 1)
+    return (seconds - start) / steps, steps / max(sum(result.episodes for result in results), 1), start / len(results)
 
 
 class _Scaled:
