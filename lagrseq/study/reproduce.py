@@ -3,8 +3,9 @@
 1. Plan: every run the suite's items list, each distinct configuration once (Fig. 5(a), Fig. 6(a)
    and Table 2 share runs); items whose task or provider this lagrseq lacks are set aside with a
    one-line reason.
-2. Estimate: time a short stretch of every distinct experiment on this machine (no logs, mock
-   provider) and report the expected wall time before starting.
+2. Estimate: time a short stretch of every distinct configuration on this machine (logged to a
+   scratch file, with the run's own provider where that asks no model) and report the expected
+   wall time before starting.
 3. Run: trials in parallel on local processes or Dask workers through
    :func:`lagrseq.running.runner.run_trials`; trials whose log is complete are skipped, so a rerun resumes.
    Then the frontier items' second phase (:func:`plan_matched_random`): ``random`` at each
@@ -326,8 +327,9 @@ def estimate_phases(
     """Expected seconds of the pending trials, one trial of each suite audit (``audits``: task, a
     run's configuration, trials per run; :attr:`Estimate.audit_per_trial`, which the caller
     multiplies by the pending audit trials) and the replay of ``items`` suite items, from
-    a short timed stretch of each distinct experiment on this machine (mock provider, logged to a
-    scratch file, after an untimed warm-up that pays the imports). The experiments are timed one
+    a short timed stretch of each distinct configuration on this machine (:func:`_calibrate`: the
+    provider of :func:`_timed_provider`, logged to a scratch file, a trial's start apart from its
+    steps, after an untimed warm-up that pays the imports). The experiments are timed one
     after the other in this process, or, given the local process ``pool`` the runs will use, in
     its workers side by side (as the runs will share the cores; the workers pay their imports
     once for the calibration and the runs); trials share ``jobs`` workers (:func:`execute`
