@@ -46,8 +46,8 @@ LOCKSTEP_CALIBRATION_STEPS = 300
 """Environment steps of each trial when a lockstep group of trials is timed (at most 900
 trial-steps for a group of :data:`LOCKSTEP_CALIBRATION_GROUP`). Each distinct configuration is
 timed (an asking policy or the provider changes how often a trial asks and is guided), so each
-timing is short; the sum over the quick suite's 16 image and 16 object-arrangement experiments
-came within 6% of their in-process CPU time (docs/performance.md, "Seventh round")."""
+timing is short; the sums over the quick suite's 16 image-completion and 16 object-arrangement
+runs came within 7% of their CPU time (docs/performance.md, "Seventh round")."""
 
 
 @dataclass
@@ -469,10 +469,10 @@ _WARM: set[tuple[str, str]] = set()
 
 def _calibrate(run: PlannedRun, group: int = 1) -> tuple[float, float, float]:
     """(seconds per step, steps per episode, seconds of a trial's start) or, for a probe,
-    (seconds per sample, 0, 0), timed with
-    logging to a scratch file (the log is part of the cost) and the provider of
-    :func:`_timed_provider`, after an untimed warm-up of the same experiment: a cold process pays imports and first calls once,
-    a trial's worker pays them once for many trials. ``group`` > 1: that many trials timed in
+    (seconds per sample, 0, 0), timed with logging to a scratch file (the log is part of the
+    cost) and the provider of :func:`_timed_provider`, after an untimed warm-up (:data:`WARMUP_STEPS`):
+    a cold process pays imports and first calls once, a trial's worker pays them once for many
+    trials. ``group`` > 1: that many trials timed in
     lockstep, as the run will step them (seconds per step of one trial). A timing that fails
     with the run's provider (a store without the answers the run will miss on: the run says so
     itself) is taken again with the mock."""
