@@ -40,7 +40,7 @@ def main() -> None:
     plan = reproduce.plan(suite, not args.full, None, runs_dir, suite.seed)
     plan.runs = [run for run in plan.runs if run.config.task.name in tasks and run.kind == "trial"]
     if not plan.runs:
-        raise SystemExit(f"no trial runs of {', '.join(sorted(tasks))} in the suite; --tasks takes task names, e.g. cube-stacking")
+        parser.exit(2, f"no trial runs of {', '.join(sorted(tasks))} in the suite; --tasks takes task names, e.g. cube-stacking\n")
     started = time.perf_counter()
     with runner.make_executor("local", 2, None, print) as pool:
         guess = reproduce.estimate_phases(plan, 2, pool=pool)
