@@ -534,12 +534,11 @@ def test_each_configuration_is_timed_with_the_provider_it_runs_on_where_that_ask
     from lagrseq.running.suite import load_suite
     from lagrseq.study import reproduce
 
-    plan = reproduce.plan(load_suite().select(["frontier-image", "table3", "fig4"]), quick=True, provider=None, runs_dir=tmp_path, seed=0)
-    image = [run for run in plan.runs if run.config.task.name == "image-completion" and run.config.method == "lagr-seq"]
-    policies = {run.config.secondary.policy for run in image}
-    assert len(policies) > 1
-    by_policy = {run.config.secondary.policy: reproduce._calibration_key(run) for run in image if run.provider == image[0].provider}
-    assert len(set(by_policy.values())) == len(by_policy)
+    plan = reproduce.plan(load_suite(), quick=True, provider=None, runs_dir=tmp_path, seed=0)  # the cube: no extra needed
+    plan.runs = [run for run in plan.runs if run.config.task.name == "cube-stacking"]
+    seq = [run for run in plan.runs if run.config.method == "lagr-seq" and run.provider == "mock" and run.config.preset == "paper"]
+    by_policy = {run.config.secondary.policy: reproduce._calibration_key(run) for run in seq}
+    assert len(by_policy) > 1 and len(set(by_policy.values())) == len(by_policy)
     recorded = next(run for run in plan.runs if run.provider.startswith("recorded:") and run.kind == "trial")
     assert reproduce._timed_provider(recorded) == (recorded.provider, recorded.options)
     profile = next(run for run in plan.runs if run.provider.startswith("mock:") and run.kind == "trial")
