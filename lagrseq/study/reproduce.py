@@ -477,11 +477,11 @@ def _calibrate(run: PlannedRun, group: int = 1) -> tuple[float, float, float]:
     with the run's provider (a store without the answers the run will miss on: the run says so
     itself) is taken again with the mock."""
     provider, options = _timed_provider(run)
-    if provider == "mock":
-        return _timed(run, group, provider, options)
     try:
         return _timed(run, group, provider, options)
     except Exception:  # noqa: BLE001 - an estimate only; the run reports its own errors
+        if provider == "mock":
+            raise
         return _timed(run, group, "mock", None)
 
 
