@@ -23,8 +23,6 @@ so an interrupted recording loses nothing already answered.
 
 from __future__ import annotations
 
-import shutil
-import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -35,6 +33,7 @@ from lagrseq.llm.base import Answer, Provider, Query, sample, samples_per_reques
 from lagrseq.llm.servers import RECORD_MODES
 from lagrseq.llm.store import (
     Entry,
+    JsonlStore,
     RecordStore,
     Sample,
     SampleChooser,
@@ -76,7 +75,7 @@ class RecordedProvider:
 
     def __init__(
         self,
-        store: RecordStore,
+        store: RecordStore | JsonlStore,
         endpoint: str,
         run_seed: int,
         fallback: Provider | None = None,
@@ -115,31 +114,16 @@ class RecordedProvider:
 
 
 class JsonlRecordedProvider(RecordedProvider):
-    """:class:`RecordedProvider` over a JSONL export (``--provider recorded:FILE.jsonl``): the file
-    is imported into a temporary store, removed again by ``close``. Its keys are matched under
+    """:class:`RecordedProvider` over a JSONL export (``--provider recorded:FILE.jsonl``), read into
+    memory once per process (:class:`~lagrseq.llm.store.JsonlStore`). Its keys are matched under
     the endpoint the file's answers were recorded at (when they name one), so answers of a local
     server (endpoint ``local``) replay without ``--base-url``."""
 
     def __init__(self, path: str | Path, endpoint: str, run_seed: int, fallback: Provider | None = None) -> None:
-        from lagrseq.llm.store import import_jsonl_file
-
-        self.directory = Path(tempfile.mkdtemp(prefix="lagrseq-jsonl-store-"))
-        try:
-            import_jsonl_file(path, self.directory / "store", Path(path).name)
-            store = RecordStore(self.directory / "store", create=False)
-            endpoints = {entry.request.get("endpoint") for entry in store.entries()}
-        except BaseException:
-            shutil.rmtree(self.directory, ignore_errors=True)
-            raise
-        if len(endpoints) == 1:
-            endpoint = str(endpoints.pop())
+        store = JsonlStore(path, Path(path).name)
+        if len(store.endpoints) == 1:
+            endpoint = str(next(iter(store.endpoints)))
         super().__init__(store, endpoint, run_seed, fallback)
-
-    def close(self) -> None:
-        try:
-            super().close()
-        finally:
-            shutil.rmtree(self.directory, ignore_errors=True)
 
 
 class RecordingProvider:

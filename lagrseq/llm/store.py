@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import io
 import json
 import os
 import sqlite3
@@ -42,7 +43,7 @@ import tempfile
 import threading
 import time
 import zlib
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -638,28 +639,8 @@ class RecordStore:
 
     # ------------------------------------------------------------------ misses
     def nearest(self, request: dict[str, Any], task: str | None = None, limit: int = 3) -> list[tuple[Entry, str]]:
-        """The recorded entries most like ``request`` and, for each, how it differs: same prompt
-        with other settings first, then the most similar prompts of the same task."""
-        prompt = str(request["messages"][-1]["content"]) if request.get("messages") else ""
-        scored: list[tuple[float, str, Entry, str]] = []
-        for entry in self.entries():
-            if task is not None and entry.task not in (None, task):
-                continue
-            differences = [
-                f"{name} {entry.request.get(name)!r} instead of {request.get(name)!r}"
-                for name in ("endpoint", "model", "temperature", "top_p", "max_tokens", "stop", "seed")
-                if entry.request.get(name) != request.get(name)
-            ]
-            same_messages = entry.request.get("messages") == request.get("messages")
-            if same_messages:
-                similarity = 2.0
-            else:
-                similarity = prompt_similarity(entry.prompt, prompt)
-                differences.insert(0, f"another prompt ({similarity:.1%} alike{_diff_hint(entry.prompt, prompt)})")
-            score = similarity - 0.1 * len(differences)
-            scored.append((-score, entry.key, entry, "; ".join(differences) or "identical"))
-        scored.sort(key=lambda item: (item[0], item[1]))
-        return [(entry, why) for _, _, entry, why in scored[:limit]]
+        """The recorded entries most like ``request`` (:func:`nearest_entries`)."""
+        return nearest_entries(self.entries(), request, task, limit)
 
     # ------------------------------------------------------------------ lifecycle
     def close(self) -> None:
@@ -678,6 +659,33 @@ class RecordStore:
 
     def __repr__(self) -> str:
         return f"RecordStore({str(self.directory)!r})"
+
+
+def nearest_entries(
+    entries: Iterable[Entry], request: dict[str, Any], task: str | None = None, limit: int = 3
+) -> list[tuple[Entry, str]]:
+    """The ``entries`` most like ``request`` and, for each, how it differs: same prompt
+    with other settings first, then the most similar prompts of the same task."""
+    prompt = str(request["messages"][-1]["content"]) if request.get("messages") else ""
+    scored: list[tuple[float, str, Entry, str]] = []
+    for entry in entries:
+        if task is not None and entry.task not in (None, task):
+            continue
+        differences = [
+            f"{name} {entry.request.get(name)!r} instead of {request.get(name)!r}"
+            for name in ("endpoint", "model", "temperature", "top_p", "max_tokens", "stop", "seed")
+            if entry.request.get(name) != request.get(name)
+        ]
+        same_messages = entry.request.get("messages") == request.get("messages")
+        if same_messages:
+            similarity = 2.0
+        else:
+            similarity = prompt_similarity(entry.prompt, prompt)
+            differences.insert(0, f"another prompt ({similarity:.1%} alike{_diff_hint(entry.prompt, prompt)})")
+        score = similarity - 0.1 * len(differences)
+        scored.append((-score, entry.key, entry, "; ".join(differences) or "identical"))
+    scored.sort(key=lambda item: (item[0], item[1]))
+    return [(entry, why) for _, _, entry, why in scored[:limit]]
 
 
 def prompt_similarity(recorded: str, asked: str) -> float:
@@ -715,7 +723,7 @@ def _diff_hint(recorded: str, asked: str) -> str:
 # ------------------------------------------------------------------------------------------
 # The strict-miss message
 # ------------------------------------------------------------------------------------------
-def miss_message(store: RecordStore, key: str, request: dict[str, Any], task: str | None) -> str:
+def miss_message(store: RecordStore | JsonlStore, key: str, request: dict[str, Any], task: str | None) -> str:
     """One line: what was asked (task, model, temperature, key), the nearest recorded keys and how
     they differ, and what to do."""
     near = store.nearest(request, task)
@@ -930,6 +938,109 @@ def import_jsonl(
     except OSError as exc:  # reading the file, or the temporary copy of its checked lines
         raise StoreError(f"cannot import {name}: {exc.strerror or exc}") from None
     return JsonlReport(lines=records, keys=keys, added=added, already_present=records - added)
+
+
+JSONL_IN_MEMORY_MAX_BYTES = 64 * 2**20
+"""The largest JSONL export :class:`JsonlStore` reads into memory (the recorded open-model files
+are at most 1.7 MB); a larger file is refused with the command that imports it into a store."""
+JSONL_OPENED_MAX = 16
+"""How many JSONL exports a process keeps read (least recently opened dropped first)."""
+_jsonl_opened: dict[tuple[Any, ...], tuple[dict[str, Entry], frozenset[Any]]] = {}
+_jsonl_lock = threading.Lock()
+
+
+class JsonlStore:
+    """A JSONL export, read only, held in memory: what ``recorded:FILE.jsonl`` answers from.
+
+    Every line is checked as :func:`import_jsonl` checks it (a bad line: one :class:`StoreError`
+    naming it) and a key's samples merge as an import into an empty store merges them (a sample
+    id the key already holds is skipped; the first request and task stand), so a run gets the
+    answers it would get from the file imported with ``lagrseq cache import``. A process reads
+    a file once: opening the same unchanged file again (same device, inode, size and
+    modification time) shares its entries, as every trial of a run in one worker does (the file
+    was imported into a temporary store per trial before: 40-55 ms a cube trial, 0.2 s an image
+    trial). Files over :data:`JSONL_IN_MEMORY_MAX_BYTES` are refused."""
+
+    def __init__(self, path: str | Path, name: str | None = None) -> None:
+        self.directory = Path(path)
+        """The file (named ``directory`` as :class:`RecordStore`'s, for the messages that name a store)."""
+        name = name or str(path)
+        if self.directory.is_dir():
+            raise StoreError(f"{path} is a directory; expected a JSONL file (a lagrseq export)")
+        handle = open_input(self.directory, "JSONL file", StoreError)  # a FIFO or device is refused
+        with handle:
+            try:
+                info = os.fstat(handle.fileno())
+            except OSError as exc:
+                raise StoreError(f"cannot read {name}: {exc.strerror or exc}") from None
+            if info.st_size > JSONL_IN_MEMORY_MAX_BYTES:
+                raise StoreError(
+                    f"{name} is {info.st_size / 2**20:.0f} MiB, over the {JSONL_IN_MEMORY_MAX_BYTES // 2**20} MiB a JSONL "
+                    "export is replayed from; import it into a store (lagrseq cache import FILE STORE) and run "
+                    "with --provider recorded:STORE"
+                )
+            identity = (str(self.directory.resolve()), info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns)
+            with _jsonl_lock:
+                opened = _jsonl_opened.pop(identity, None)
+            if opened is None:
+                opened = _read_jsonl(handle, name)
+            with _jsonl_lock:
+                _jsonl_opened[identity] = opened  # most recently opened last
+                while len(_jsonl_opened) > JSONL_OPENED_MAX:
+                    del _jsonl_opened[next(iter(_jsonl_opened))]
+        self._entries, self.endpoints = opened
+
+    def entry(self, key: str) -> Entry | None:
+        return self._entries.get(key)
+
+    def keys(self) -> list[str]:
+        return list(self._entries)
+
+    def entries(self) -> Iterator[Entry]:
+        """Every entry, in key order."""
+        return iter(self._entries.values())
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def nearest(self, request: dict[str, Any], task: str | None = None, limit: int = 3) -> list[tuple[Entry, str]]:
+        """The recorded entries most like ``request`` (:func:`nearest_entries`)."""
+        return nearest_entries(self.entries(), request, task, limit)
+
+    def close(self) -> None:
+        """Nothing to release: the entries stay with the process for the next open."""
+
+    def __enter__(self) -> JsonlStore:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"JsonlStore({str(self.directory)!r})"
+
+
+def _read_jsonl(handle: IO[bytes], name: str) -> tuple[dict[str, Entry], frozenset[Any]]:
+    """The entries of a JSONL export in key order, and the endpoints their requests name."""
+    spool = io.StringIO()
+    try:
+        _check_jsonl(handle, name, spool, None)
+    except OSError as exc:
+        raise StoreError(f"cannot import {name}: {exc.strerror or exc}") from None
+    merged: dict[str, tuple[dict[str, Any], list[str | None], dict[str, Sample]]] = {}
+    for line in spool.getvalue().splitlines():
+        key, task, request, data = json.loads(line)
+        sample = Sample.from_json(data)
+        request_of, task_of, samples = merged.setdefault(key, (request, [None], {}))
+        if sample.id not in samples:
+            samples[sample.id] = sample
+            if task_of[0] is None:
+                task_of[0] = task
+    entries = {
+        key: Entry(key, request, task_of[0], tuple(samples.values()))
+        for key, (request, task_of, samples) in sorted(merged.items())
+    }
+    return entries, frozenset(entry.request.get("endpoint") for entry in entries.values())
 
 
 def import_jsonl_file(

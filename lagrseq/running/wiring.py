@@ -214,7 +214,7 @@ def make_recorded(provider: ProviderSpec, config: ExperimentConfig, rng: np.rand
 
     endpoint = endpoint_of(options.live.base_url)
     asks_live = options.pays
-    if provider.argument.endswith(".jsonl"):  # a JSONL export, replayed from a temporary store
+    if provider.argument.endswith(".jsonl"):  # a JSONL export, read into memory (once per process)
         from lagrseq.llm.recorded import JsonlRecordedProvider
 
         if asks_live:
