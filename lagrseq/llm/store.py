@@ -944,7 +944,9 @@ JSONL_IN_MEMORY_MAX_BYTES = 64 * 2**20
 """The largest JSONL export :class:`JsonlStore` reads into memory (the recorded open-model files
 are at most 1.7 MB); a larger file is refused with the command that imports it into a store."""
 JSONL_OPENED_MAX = 16
-"""How many JSONL exports a process keeps read (least recently opened dropped first)."""
+"""How many JSONL exports a process keeps read (least recently opened dropped first), and at
+most :data:`JSONL_OPENED_MAX_BYTES` of them (their files' sizes)."""
+JSONL_OPENED_MAX_BYTES = 128 * 2**20
 _jsonl_opened: dict[tuple[Any, ...], tuple[dict[str, Entry], frozenset[Any]]] = {}
 _jsonl_lock = threading.Lock()
 
@@ -986,7 +988,9 @@ class JsonlStore:
                 opened = _read_jsonl(handle, name)
             with _jsonl_lock:
                 _jsonl_opened[identity] = opened  # most recently opened last
-                while len(_jsonl_opened) > JSONL_OPENED_MAX:
+                while len(_jsonl_opened) > JSONL_OPENED_MAX or (
+                    len(_jsonl_opened) > 1 and sum(kept[3] for kept in _jsonl_opened) > JSONL_OPENED_MAX_BYTES
+                ):
                     del _jsonl_opened[next(iter(_jsonl_opened))]
         self._entries, self.endpoints = opened
 

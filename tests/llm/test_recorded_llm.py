@@ -126,3 +126,15 @@ def test_a_miss_in_a_jsonl_file_names_the_file_and_the_nearest_keys(tmp_path: Pa
         runner.run_one(config, 0, 0, spec, tmp_path / "t.mcap", provider_options=wiring.provider_options(spec, {"on_miss": "error"}))
     message = str(caught.value)
     assert "smollm2-135m-cube-t0.jsonl" in message and "model 'SmolLM2-135M-Instruct' instead of 'gpt-4o-mini'" in message, message
+
+
+def test_a_process_keeps_a_bounded_number_of_jsonl_files(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(store_module, "_jsonl_opened", {})
+    monkeypatch.setattr(store_module, "JSONL_OPENED_MAX", 2)
+    files = sorted(RECORDED.glob("*cube-t*.jsonl"))[:3]
+    for path in files:
+        JsonlStore(path)
+    assert [kept[0] for kept in store_module._jsonl_opened] == [str(path.resolve()) for path in files[1:]]
+    monkeypatch.setattr(store_module, "JSONL_OPENED_MAX_BYTES", 1)  # over the bytes: only the latest stays
+    JsonlStore(files[0])
+    assert [kept[0] for kept in store_module._jsonl_opened] == [str(files[0].resolve())]
