@@ -63,6 +63,17 @@ def test_what_the_quick_start_writes_is_ignored() -> None:
         assert pattern in ignored, pattern
 
 
+def test_the_test_command_leaves_no_venv_file_in_the_install_commands_way() -> None:
+    """tox >= 4.6x writes a PEP 832 redirect *file* named .venv after a run, and then the install
+    command's `python3 -m venv .venv` fails ("Unable to create directory"): tox.ini turns it off
+    (checked by hand: tox 4.67.17 -e type wrote `.tox/type` into .venv without the setting, nothing with it)."""
+    import configparser
+
+    tox = configparser.ConfigParser()
+    tox.read(ROOT / "tox.ini", encoding="utf-8")
+    assert tox.getboolean("tox", "venv_redirect") is False
+
+
 def _nav_pages(nav: object) -> list[str]:
     if isinstance(nav, str):
         return [nav]
