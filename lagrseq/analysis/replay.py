@@ -9,15 +9,17 @@ for a Markdown viewer). Items the logs do not cover get one line saying why.
 
 Same logs in, same bytes out: figures are saved without timestamps or software versions (PNG
 ``Software``, PDF dates, SVG ids from a fixed salt), runs and rows are sorted, floats have fixed
-formats, and no wall-clock time is written. No path outside the output directory is written
-either, except in the warnings about skipped logs, which name each log by its full path so that
-the command they suggest can be run as written. The header's totals count the logs read; skipped
-logs are counted apart.
+formats, and no wall-clock time is written. No absolute path is written either (issue 38): the
+warnings about skipped logs name each log by its path from the folder replay was given (as the
+user typed it when relative, else from that folder's name), while the terminal names it by its full
+path so that the command a warning suggests runs as written. The header's totals count the logs
+read; skipped logs are counted apart.
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import html
 from collections.abc import Mapping, Sequence
 from concurrent.futures import Executor, Future
@@ -240,10 +242,31 @@ def replay(
             raise LogError(f"no complete lagrseq trial logs under {', '.join(map(str, roots))}{detail}")
         reports, extra, board, written = _make(logs, suite, out, formats, provider, unavailable, price, sections, painter)
         painter.wait()
-    _write(out / "index.html", _index_html(reports, extra, logs, produced_by, board), written)
-    _write(out / "index.md", _index_markdown(reports, extra, logs, produced_by, board), written)
+    shown = dataclasses.replace(logs, warnings=tuple(report_warnings(logs.warnings, roots)))
+    _write(out / "index.html", _index_html(reports, extra, shown, produced_by, board), written)
+    _write(out / "index.md", _index_markdown(reports, extra, shown, produced_by, board), written)
     _drop_stale(out, written)
     return Report(out, logs, reports, written)
+
+
+def report_warnings(warnings: Sequence[str], roots: Sequence[str | Path]) -> list[str]:
+    """``warnings`` as a report file shows them: every absolute spelling of a folder (or file)
+    replay was given replaced by that folder as the user typed it when it is relative, else by its
+    name, so that a report's bytes do not depend on where its logs sat (issue 38)."""
+    spellings: dict[str, str] = {}
+    for root in roots:
+        given = Path(root).expanduser()
+        base = given if given.is_dir() or not given.suffix else given.parent
+        name = base.as_posix() if not base.is_absolute() else (base.name or "logs")
+        for absolute in {str(base.absolute()), str(base.resolve())}:
+            spellings.setdefault(absolute, name)
+    cwd = str(Path.cwd())
+    shown = []
+    for text in warnings:
+        for absolute in sorted(spellings, key=len, reverse=True):
+            text = text.replace(absolute, spellings[absolute])
+        shown.append(text.replace(cwd + "/", ""))
+    return shown
 
 
 def _make(

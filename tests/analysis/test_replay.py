@@ -267,3 +267,45 @@ def test_a_report_folder_made_before_the_manifest_loses_its_stale_items_too(runs
     replay([runs_dir], out)
     assert not (out / "figures" / "fig5c-arm-arm.gif").exists()
     assert (out / "figures" / "my-sketch.png").exists() and (out / MANIFEST).is_file()
+
+
+def _absolute_paths_in(report: Path, places: list[Path]) -> list[str]:
+    """Every report file that holds one of ``places`` (absolute folders) or the home folder, in
+    any spelling a report could use (as written, resolved, URL-quoted)."""
+    import urllib.parse
+
+    needles = set()
+    for place in [*places, Path.home()]:
+        for spelling in {str(place), str(place.resolve())}:
+            needles |= {spelling.encode(), urllib.parse.quote(spelling).encode()}
+    found = []
+    for path in sorted(report.rglob("*")):
+        if path.is_file():
+            data = path.read_bytes()
+            found += [f"{path.relative_to(report)}: {n.decode()}" for n in needles if n in data]
+    return found
+
+
+def test_no_report_file_holds_an_absolute_path(runs_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # issue 38: a report's bytes do not depend on where its logs sat. The logs are given by their
+    # absolute path, and some are unfinished, damaged or duplicated, so that the warnings (which
+    # name logs, and suggest `lagrseq recover` commands) are in the report too.
+    root = tmp_path / "somewhere" / "runs"
+    shutil.copytree(runs_dir, root)
+    trial = sorted(root.rglob("lagr-seq/*/trial-000.mcap"))[0]
+    data = trial.read_bytes()
+    (trial.parent / "trial-005.mcap.partial").write_bytes(data[: len(data) // 2])
+    (trial.parent / "trial-006.mcap").write_bytes(data[: len(data) // 2])
+    (trial.parent / "trial-007.mcap").write_bytes(data)  # trial 0 again
+    monkeypatch.chdir(tmp_path)
+    report = replay([root.absolute()], tmp_path / "out", formats=["png", "svg", "pdf"])
+    assert len(report.logs.warnings) == 3
+    assert _absolute_paths_in(tmp_path / "out", [tmp_path, root]) == []
+    page = (tmp_path / "out" / "index.md").read_text()
+    assert "runs/cube-stacking/" in page and "trial-005.mcap.partial" in page  # named from the folder given
+    # the terminal keeps the full path, so the command a warning suggests runs as written
+    assert any(str(trial.parent / "trial-006.mcap") in w for w in report.logs.warnings)
+    # given relative to the working directory: named as typed, so a suggested command runs from there
+    relative = replay([Path("somewhere/runs")], tmp_path / "out2")
+    assert relative.logs.warnings and _absolute_paths_in(tmp_path / "out2", [tmp_path, root]) == []
+    assert "- somewhere/runs/cube-stacking/" in (tmp_path / "out2" / "index.md").read_text()
