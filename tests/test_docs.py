@@ -63,6 +63,35 @@ def test_what_the_quick_start_writes_is_ignored() -> None:
         assert pattern in ignored, pattern
 
 
+def test_the_readme_examples_write_only_ignored_places(tmp_path: Path) -> None:
+    """Every output folder of the README's example commands (--out, --store, the run's runs/) is
+    ignored by git, so running the examples leaves `git status` clean (issue 38)."""
+    import shutil
+    import subprocess
+
+    git = shutil.which("git")
+    if git is None or not (ROOT / ".git").exists():
+        pytest.skip("needs git and a clone")
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    outputs = set(re.findall(r"--(?:out|store) (\S+)", text)) | {"runs/cube-stacking/x.mcap"}
+    outputs = {o.removeprefix("recorded:") for o in outputs}
+    assert {"lagrseq-out/report", "lagrseq-out/store/"} <= outputs
+    for path in outputs:
+        probe = path.rstrip("/") + "/x"
+        result = subprocess.run([git, "-C", str(ROOT), "check-ignore", "-q", "--no-index", probe], capture_output=True)
+        assert result.returncode == 0, f"{path} (an example's output) is not ignored by .gitignore"
+
+
+def test_the_docs_site_lands_where_the_readme_says() -> None:
+    import configparser
+
+    tox = configparser.ConfigParser(interpolation=None)
+    tox.read(ROOT / "tox.ini", encoding="utf-8")
+    assert "--site-dir {tox_root}{/}site" in tox.get("testenv:docs", "commands")
+    assert "site_dir: site" in (ROOT / "mkdocs.yml").read_text(encoding="utf-8")
+    assert "the site lands in `site/`" in (ROOT / "README.md").read_text(encoding="utf-8")
+
+
 def test_the_test_command_leaves_no_venv_file_in_the_install_commands_way() -> None:
     """tox >= 4.6x writes a PEP 832 redirect *file* named .venv after a run, and then the install
     command's `python3 -m venv .venv` fails ("Unable to create directory"): tox.ini turns it off
