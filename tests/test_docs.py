@@ -170,3 +170,17 @@ def test_each_topic_has_its_page(page: str, phrases: list[str]) -> None:
     text = (DOCS / page).read_text(encoding="utf-8")
     for phrase in phrases:
         assert phrase in text, (page, phrase)
+
+
+def test_llama_cpp_is_built_portably_where_the_project_builds_it() -> None:
+    """issue 38: a -march=native llama.cpp dies of SIGILL on another CPU; the local-llm tox env and
+    the install docs build it with GGML_NATIVE off and without pip's cache of a native wheel."""
+    tox = configparser.ConfigParser(interpolation=None)
+    tox.read(ROOT / "tox.ini", encoding="utf-8")
+    env = tox.get("testenv:local-llm", "set_env")
+    assert "CMAKE_ARGS = -DGGML_NATIVE=OFF" in env and "PIP_NO_CACHE_DIR = 1" in env
+    install = (ROOT / "docs" / "install.md").read_text(encoding="utf-8")
+    assert 'CMAKE_ARGS="-DGGML_NATIVE=OFF" .venv/bin/python -m pip install --no-cache-dir' in install
+    from lagrseq.llm import local
+
+    assert "-DGGML_NATIVE=OFF" in local.REBUILD_COMMAND and "--no-cache-dir" in local.REBUILD_COMMAND

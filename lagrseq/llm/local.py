@@ -45,13 +45,29 @@ DEFAULT_MODEL_NAME = "SmolLM2-135M-Instruct"
 LOCAL_ENDPOINT = "local"
 """The endpoint part of recorded keys for answers of a locally served model: the server's port is
 chosen afresh on every start, so keys name no port (replay them with ``--base-url local``)."""
-EXTRA_HINT = "pip install 'lagrseq[local-llm]' (builds llama.cpp from source: about 11 minutes on 2 cores)"
+EXTRA_HINT = (
+    "CMAKE_ARGS=-DGGML_NATIVE=OFF pip install --no-cache-dir 'lagrseq[local-llm]' (builds llama.cpp from source "
+    "for any AVX2 CPU: about 11 minutes on 2 cores)"
+)
 SERVER_MODULES = ("llama_cpp", "uvicorn", "fastapi", "sse_starlette", "starlette_context", "pydantic_settings")
 """What ``python -m llama_cpp.server`` needs (the ``[server]`` extra of llama-cpp-python)."""
 LOG_TAIL_CHARS = 2000
 MAX_RESTARTS = 1
 """How many times a server that died (or stopped answering) mid-run is restarted per provider
 (per trial of a run; once for a whole ``record``) before the request fails."""
+REBUILD_COMMAND = (
+    "CMAKE_ARGS=-DGGML_NATIVE=OFF pip install --no-cache-dir --force-reinstall --no-deps "
+    "'llama-cpp-python[server]' -c constraints.txt"
+)
+"""Rebuilds llama.cpp without ``-march=native`` (docs/install.md "A llama.cpp build for every machine")."""
+
+ILLEGAL_INSTRUCTION = (
+    "the llama.cpp build uses CPU instructions this machine lacks (it was compiled with -march=native "
+    f"on another CPU, or pip reused a wheel built there); rebuild it portably: {REBUILD_COMMAND}"
+)
+"""What a server killed by SIGILL means, and its fix (issue 38)."""
+
+
 HEALTH_PROBE_S = 2.0
 """Seconds a liveness probe of ``/v1/models`` may take after a failed request."""
 
@@ -277,6 +293,9 @@ class LocalServer:
         while True:
             code = self.process.poll()
             if code is not None:
+                self.exit_status = code
+                if code == -signal.SIGILL:
+                    raise ProviderError(f"the llama.cpp server exited with status {code} (SIGILL) before answering: {ILLEGAL_INSTRUCTION}")
                 raise ProviderError(f"the llama.cpp server exited with status {code} before answering: {self._log_reason()}")
             # each probe ends within 2 s, also against a server that drips its headers
             if status_of(f"{self.base_url}/models", min(2.0, max(deadline - time.monotonic(), 0.1))) == 200:
@@ -339,6 +358,12 @@ class LocalServer:
 
     def failure(self) -> str | None:
         """Why the server can no longer answer (exited with a status, or stopped), or None."""
+        problem = self._failure()
+        if problem is not None and self.exit_status == -signal.SIGILL:
+            return f"{problem}: {ILLEGAL_INSTRUCTION}"
+        return problem
+
+    def _failure(self) -> str | None:
         if self.process is None:
             return "it is not running"
         try:  # a server just killed closes its sockets before its exit can be collected
@@ -446,7 +471,8 @@ class Supervisor:
                 self.say(message)
                 return
             log = self.server.log
-            if self.restarts >= self.max_restarts:
+            # an illegal instruction happens again on every start: the build, not the run, is wrong
+            if self.restarts >= self.max_restarts or self.server.exit_status == -signal.SIGILL:
                 self.server._keep_log = True
                 self.server.stop()
                 raise ProviderError(

@@ -163,7 +163,7 @@ def test_the_extra_missing_is_one_line_and_exit_status_2(monkeypatch: pytest.Mon
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name in local.SERVER_MODULES else real(name, *a))
     assert cli.main(["run", "cube-stacking", "--provider", "local", "--trials", "1"]) == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "pip install 'lagrseq[local-llm]'" in err
+    assert len(err.splitlines()) == 1 and "pip install --no-cache-dir 'lagrseq[local-llm]'" in err and "-DGGML_NATIVE=OFF" in err
     assert cli.main(["serve-llm"]) == 2
     assert "local-llm extra is not installed" in capsys.readouterr().err
 

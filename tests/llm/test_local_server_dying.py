@@ -86,6 +86,32 @@ def test_a_server_killed_mid_run_is_restarted_once_then_the_request_fails_in_one
     kept.unlink()
 
 
+def test_a_server_killed_by_an_illegal_instruction_says_what_it_means_and_is_not_restarted(model: Path) -> None:
+    # issue 38: a llama.cpp built with -march=native on another CPU (or a wheel pip cached there)
+    # dies of SIGILL at its first request; restarting it only dies again
+    provider, query, said = provider_and_query(model)
+    try:
+        server = provider.server  # type: ignore[attr-defined]
+        assert provider.complete(query).text  # type: ignore[attr-defined]
+        pid = server.process.pid
+        os.kill(pid, signal.SIGILL)
+        started = time.monotonic()
+        with pytest.raises(ProviderError) as failed:
+            provider.complete(query)  # type: ignore[attr-defined]
+        assert time.monotonic() - started < 30
+        message = str(failed.value)
+        assert "\n" not in message and "exited with status -4 (SIGILL)" in message
+        assert "CPU instructions this machine lacks" in message and local.REBUILD_COMMAND in message
+        assert "CMAKE_ARGS=-DGGML_NATIVE=OFF" in message and "restarted 0 times already" in message
+        assert not any("restarting it" in line for line in said), said
+        assert gone(pid)
+        kept = Path(message.rsplit("the server's output is in ", 1)[1].rstrip(")"))
+        assert kept.exists()
+        kept.unlink()
+    finally:
+        provider.close()  # type: ignore[attr-defined]
+
+
 @pytest.mark.slow
 def test_a_run_whose_server_dies_twice_ends_in_bounded_time_with_one_line(model: Path, tmp_path: Path) -> None:
     process = subprocess.Popen(
