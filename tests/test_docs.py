@@ -156,7 +156,7 @@ def test_the_docs_extra_is_what_tox_builds_the_site_with() -> None:
         # topics of the README of before, each on its page now
         ("tasks.md", ["--name NAME", "--jobs N", "lagrseq/CubeStacking-v0", "One environment, two defaults"]),
         ("logs.md", ["/transition", "/query", "/episode", "Foxglove"]),
-        ("reproduce.md", ["--authors-caches", "lagrseq recover", "Ctrl-C", "lagrseq replay", "docs/reference-report"]),
+        ("reproduce.md", ["--authors-caches", "lagrseq recover", "Ctrl-C", "lagrseq replay", "reports/reference"]),
         ("dask.md", ["--executor dask", "SLURMCluster", "budget-ledger.sqlite"]),
         ("arm.md", ["pybullet", "robot.proto", "ur_rtde", "lagrseq robot serve"]),
         ("providers.md", ["recorded:STORE", "--provider local", "Limits on what comes back", "mock:authors-gpt4", "How the mock profiles were calibrated"]),

@@ -1,5 +1,5 @@
 """lagrseq reproduce end to end on a tiny suite, the report in a real browser, and the committed
-docs/reference-report/ against freshly made runs."""
+reports/reference/ against freshly made runs."""
 
 from __future__ import annotations
 
@@ -310,10 +310,10 @@ def test_index_page_loads_in_headless_chromium_with_every_image(reproduced, tmp_
 
 
 # ------------------------------------------------------------------------------------------
-# The committed reference report (docs/reference-report/: lagrseq reproduce --quick) against
+# The committed reference report (reports/reference/: lagrseq reproduce --quick) against
 # freshly made runs
 # ------------------------------------------------------------------------------------------
-COMMITTED = ROOT / "docs" / "reference-report"
+COMMITTED = ROOT / "reports" / "reference"
 
 
 def _rows(path: Path) -> list[dict[str, str]]:
@@ -331,7 +331,7 @@ def _same_numbers(fresh: dict[str, str], committed: dict[str, str]) -> None:
             assert value == committed[key], key
 
 
-@pytest.mark.skipif(not (COMMITTED / "tables").is_dir(), reason="no committed docs/reference-report/")
+@pytest.mark.skipif(not (COMMITTED / "tables").is_dir(), reason="no committed reports/reference/")
 def test_committed_reports_match_fresh_runs(tmp_path: Path) -> None:
     # Table 2's tau = 0 row, Fig. 6(a) and the 8-cube performance ratio: upstream preset, mock
     # provider at tau = 0 (no sampling), seed 0, 10 trials x 100 episodes, as --quick runs them.
