@@ -9,6 +9,7 @@ function of its numbers.
 from __future__ import annotations
 
 import math
+import re
 import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -214,6 +215,17 @@ def bars(
     return ax
 
 
+def _without_repeated_tags(label: str) -> str:
+    """``label`` without a bracketed tag whose words the label already says ("open model
+    (Qwen2.5-Coder-1.5B, recorded), τ=0 [open model]" said "open model" twice)."""
+    out = label
+    for tag in re.findall(r" \[([^\[\]]+)\]", label):
+        head = out.split(" [", 1)[0].lower()
+        if tag.lower() in head:
+            out = out.replace(f" [{tag}]", "", 1)
+    return out
+
+
 @dataclass(frozen=True)
 class AccuracyLine:
     """Answer accuracy (percent) at each fraction of the sequence shown."""
@@ -231,8 +243,13 @@ def accuracy(
     title: str | None = None,
 ) -> Axes:
     """Fig. 4: percentage of answers equal to the target vs the fraction of the target sequence
-    given in the prompt, one line per provider and temperature."""
-    ax = new_axes() if ax is None else ax
+    given in the prompt, one line per provider and temperature. On a figure of its own, the
+    figure grows with the legend under the axes, so the axes keep their height (eight long labels
+    squeezed them to a quarter of the picture)."""
+    if ax is None:
+        labels = [_without_repeated_tags(f"{line.label} ({line.samples} per point)") for line in lines]
+        rows = sum(len(textwrap.wrap(label, 72)) for label in labels)
+        ax = new_axes((FIGSIZE[0] + 1.6, FIGSIZE[1] + 0.19 * rows))
     markers = "osD^vP*X"
     styles = ("-", "--", "-.", ":")
     for i, line in enumerate(lines):
@@ -249,7 +266,7 @@ def accuracy(
             markeredgewidth=1.4,
             linestyle=styles[i % len(styles)],
             linewidth=max(1.2, 4.0 - 0.7 * i),
-            label=f"{line.label} ({line.samples} per point)",
+            label=_without_repeated_tags(f"{line.label} ({line.samples} per point)"),
         )
     ax.set_xlabel("Fraction of the sequence in the prompt")
     ax.set_ylabel("Accuracy (%)")

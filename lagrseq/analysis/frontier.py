@@ -52,6 +52,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
+from matplotlib.ticker import FixedLocator, FuncFormatter, NullLocator
 
 from lagrseq.analysis import inference, stats
 from lagrseq.analysis.figures import COLORS, STYLE
@@ -535,7 +536,11 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
     shown = provider if provider is not None else (first.provider if first else "")
     title = "Frontier"
     if first:
-        scope = SCOPE_TEXT.get(scope_of(points[0].run.config), scope_of(points[0].run.config))
+        # the regime of the panel's asking policies: ``never`` (the baseline) joins every panel
+        # and asks nothing, so its own configuration names no regime (issue 34: both blocks of a
+        # grid frontier were titled "answer kept for the trial")
+        asking = next((p for p in points if p.run.key.method != "baseline"), points[0])
+        scope = SCOPE_TEXT.get(scope_of(asking.run.config), scope_of(asking.run.config))
         role = " (tuning seeds)" if any(p.tuning.get("role") == "tuning" for p in points) else ""
         title = f"Query-efficiency frontier: {first.task} ({first.preset}, {shown}, seed {first.seed}{role}; {scope})"
         if points[0].run.config.get("env", {}).get("wrong_cube_reward") == "pre-revert":
@@ -622,9 +627,12 @@ def draw(points: Sequence[Point], title: str, miss_threshold: float = MISS_THRES
                 hollow = p.flagged(miss_threshold)
                 marker = markers[id(p)]
                 size = 10 if marker == "*" else 6
+                # the paper's rows (stars) above the other policies' points: a policy that lands
+                # where always does (thompson at a high query rate) hid always's star
                 ax.errorbar(
                     [x], [y], xerr=xerr, yerr=yerr, fmt=marker, color=color, markersize=size,
                     markerfacecolor="white" if hollow else color, capsize=2, linewidth=0.8,
+                    zorder=3.5 if marker == "*" else 2.5,
                 )
                 credited = verdicts[id(p)].credited
                 if credited:  # ringed: credited by the protocol
@@ -665,8 +673,31 @@ def _spread(ax: Any, xs: Sequence[float]) -> None:
     point at 0 (never) stays on the axis (linear below the smallest positive value)."""
     positive = [x for x in xs if not math.isnan(x) and x > 0]
     if len(positive) >= 2 and max(positive) >= 5 * min(positive):
-        ax.set_xscale("symlog", linthresh=min(positive), linscale=0.5)
-        ax.set_xlim(left=-0.25 * min(positive))  # nothing is negative: no room for the mirror side
+        threshold = min(positive)
+        ax.set_xscale("symlog", linthresh=threshold, linscale=0.5)
+        ax.set_xlim(left=-0.25 * threshold)  # nothing is negative: no room for the mirror side
+        ticks = symlog_ticks(threshold, max(positive))
+        ax.xaxis.set_major_locator(FixedLocator(ticks))
+        ax.xaxis.set_major_formatter(FuncFormatter(_plain_number))  # a module function: figures are pickled to the drawing worker
+        ax.xaxis.set_minor_locator(NullLocator())
+
+
+def _plain_number(value: float, _position: int | None = None) -> str:
+    return f"{value:g}"
+
+
+def symlog_ticks(threshold: float, largest: float) -> list[float]:
+    """Ticks of a symmetric-log axis from 0 to ``largest``: 0, then 1, 2 and 5 times each power
+    of ten from ``threshold`` on (issue 34: the default put ticks only at 0, 10 and 100, and a
+    decade tick inside the linear part, 10^-1 next to 0, overlapped the 0). Where that gives more
+    than 10 ticks, the powers of ten alone."""
+    low = math.floor(math.log10(threshold))
+    high = math.ceil(math.log10(largest * 1.2))
+    steps = [m * 10.0**k for k in range(low, high + 1) for m in (1, 2, 5)]
+    inside = [v for v in steps if threshold <= v <= largest * 1.2]
+    if len(inside) > 10:
+        inside = [v for v in inside if math.log10(v).is_integer()] or inside[:: max(1, len(inside) // 6)]
+    return [0.0, *inside]
 
 
 def _zoom(ax: Any, points: Sequence[Point], y_name: str) -> None:

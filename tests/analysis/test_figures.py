@@ -84,3 +84,39 @@ def test_accuracy_plots_percent_against_fraction() -> None:
     assert plotted.get_ydata().tolist() == [0.0, 50.0, 100.0]
     assert ax.get_ylabel() == "Accuracy (%)"
     assert plotted.get_label() == "mock, τ=0 (20 per point)"
+
+
+def test_an_accuracy_label_says_a_tag_once_and_the_axes_keep_their_height() -> None:
+    # issue 34: "open model (Qwen...), τ=0 [open model]" said it twice, and eight two-line labels
+    # squeezed Fig. 4's axes to a quarter of the picture
+    import numpy as np
+
+    from lagrseq.analysis import figures
+
+    assert figures._without_repeated_tags("open model (Qwen), τ=0 [all 80 answers recorded] [open model] (10 per point)") == (
+        "open model (Qwen), τ=0 [all 80 answers recorded] (10 per point)"
+    )
+    assert figures._without_repeated_tags("mock, τ=0 [rule-based mock]") == "mock, τ=0 [rule-based mock]"
+    lines = [
+        figures.AccuracyLine(f"open model number {i} with a long label, recorded, τ=0 [all 80 answers recorded] [open model]",
+                             np.linspace(0.125, 1, 8), np.linspace(0, 100, 8), 10)
+        for i in range(8)
+    ]
+    ax = figures.accuracy(lines)
+    figure = ax.figure
+    figure.canvas.draw()  # type: ignore[attr-defined]
+    height = ax.get_position().height  # a share of the figure
+    legend = ax.get_legend().get_window_extent()
+    axes_box = ax.get_window_extent()
+    assert axes_box.height >= 0.8 * legend.height and height > 0.3
+
+
+def test_symlog_ticks_start_at_zero_and_never_sit_inside_the_linear_part() -> None:
+    from lagrseq.analysis.frontier import symlog_ticks
+
+    for threshold, largest in ((1.0, 444.0), (0.025, 2.2), (0.8, 50.0), (25.0, 1800.0), (1e-4, 0.5)):
+        ticks = symlog_ticks(threshold, largest)
+        assert ticks[0] == 0.0 and all(t >= threshold for t in ticks[1:])
+        assert 3 <= len(ticks) <= 11 and ticks == sorted(ticks)
+        assert max(ticks) >= largest / 5
+    assert symlog_ticks(1.0, 100.0) == [0.0, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0]
