@@ -5,6 +5,7 @@ summary, and the exit status is the documented 3. A rerun prints the same plan."
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 import subprocess
@@ -187,3 +188,55 @@ def test_a_run_that_cannot_start_fails_its_items_and_not_the_suite(tmp_path: Pat
     assert failures[0].failed == failures[0].total == 2
     assert failures[0].advice == runner.FIX_ADVICE and len(failures[0].line()) <= reproduce.LINE_WIDTH
     assert runner.trial_path(second.path, 1).is_file()  # the other run went on
+
+
+def test_a_suite_whose_every_run_failed_still_writes_a_report_listing_them(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    store = tmp_path / "tiny-store.jsonl"
+    store.write_text((ROOT / "recorded_llm" / "smollm2-135m-cube-t0.jsonl").read_text(encoding="utf-8").splitlines()[0] + "\n")
+    head, broken = SUITE.split("[[items]]")[0], SUITE[SUITE.index('[[items]]\nid = "broken"'):]
+    (tmp_path / "suite.toml").write_text(head + broken.replace("STORE", store.as_posix()), encoding="utf-8")
+    monkeypatch.chdir(tmp_path)
+    status = cli.main(["reproduce", "--quick", "--suite", "suite.toml", "--out", "out", "--jobs", "1", "--quiet"])
+    err = capsys.readouterr().err.splitlines()
+    assert status == 3
+    assert err[-1] == "lagrseq reproduce: 1 of 1 items failed: broken (1 run); details in out/reproduce-errors.log"
+    index = (tmp_path / "out" / "reports" / "index.md").read_text(encoding="utf-8")
+    assert "## Queries on a store that misses (FAILED)" in index
+    assert "rerun it alone: `lagrseq reproduce --quick --items broken --suite suite.toml --out out`" in index
+    # a later run in which nothing fails removes the stale log (here: the item left out)
+    (tmp_path / "suite.toml").write_text(SUITE.split('[[items]]\nid = "asking"')[0], encoding="utf-8")
+    assert cli.main(["reproduce", "--quick", "--suite", "suite.toml", "--out", "out", "--jobs", "1", "--quiet"]) == 0
+    assert not (tmp_path / "out" / "reproduce-errors.log").exists()
+    assert "FAILED" not in (tmp_path / "out" / "reports" / "index.md").read_text(encoding="utf-8")
+
+
+def test_a_failed_audit_run_is_reported_and_the_audit_goes_on(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The cube audit at 1 trial of 2 episodes, one of its run folders holding another run's log."""
+    from lagrseq.analysis.replay import replay
+    from lagrseq.running.suite import load_suite
+
+    monkeypatch.setitem(reproduce.SUITE_AUDITS, "cube-stacking", reproduce.SuiteAudit("mock:authors-t0", (1, 2, -1), (1, 2, -1)))
+    runs_dir = tmp_path / "runs"
+    planned, _ = reproduce._audit_plan("cube-stacking", runs_dir, True, 0, lambda line: None)
+    victim, donor = planned[0], planned[1]
+    runner.run_trials(donor.config, 1, 0, donor.provider, donor.path)
+    victim.path.mkdir(parents=True)
+    runner.trial_path(donor.path, 0).rename(runner.trial_path(victim.path, 0))
+    failures: list[reproduce.RunFailure] = []
+    reproduce.run_suite_audit("cube-stacking", runs_dir, True, 1, 0, True, lambda line: None, failures=failures)
+    assert [(f.audit, f.items, f.path) for f in failures] == [("cube-stacking", (), victim.path)]
+    assert all(runner.trial_path(r.path, 0).is_file() for r in planned[1:])  # the others ran
+    # the report names it (and is written): the whole suite's command reruns the audits
+    rerun = functools.partial(
+        reproduce.rerun_command, quick=True, suite_path=None, provider=None, out=tmp_path / "out", seed=None, authors_caches=None,
+    )
+    failed, problems = reproduce.item_failures(failures, rerun)
+    assert failed == {} and list(problems) == ["cube-stacking audit"]
+    assert problems["cube-stacking audit"].rerun == f"lagrseq reproduce --quick --out {tmp_path / 'out'}"
+    suite_file = tmp_path / "suite.toml"
+    suite_file.write_text(SUITE.split("[[items]]")[0] + "[[items]]" + SUITE.split("[[items]]")[1], encoding="utf-8")
+    (tmp_path / "no-runs").mkdir()  # the failure alone (the audit's tables: test_audit.py)
+    report = replay([tmp_path / "no-runs"], tmp_path / "report", suite=load_suite(suite_file), problems=problems, jobs=1)
+    assert report.problems and "cube-stacking audit: FAILED: 1 of 1 trials of cube-stacking" in (tmp_path / "report" / "index.md").read_text()

@@ -261,7 +261,7 @@ def replay(
                 painter.pending.append((painter.pool.submit(figures.ready), []))
 
         logs = loading.load(roots, jobs, found)
-        if not logs.runs:
+        if not logs.runs and not failed and not problems:  # with failures: a report that lists them
             detail = f" ({'; '.join(logs.warnings)})" if logs.warnings else ""
             raise LogError(f"no complete lagrseq trial logs under {', '.join(map(str, roots))}{detail}")
         failed = dict(failed or {})
