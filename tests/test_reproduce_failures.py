@@ -160,10 +160,10 @@ def test_a_rerun_prints_the_first_runs_plan_and_fails_the_same_way(failed) -> No
     # the frontier's matched-rate random run was made after the first plan and is planned with
     # the others by the rerun: both count it apart, by the policy it follows
     assert plan(first) == plan(again) == (
-        "quick suite: 3 runs, 6 trial logs, , then up to 1 runs of random at the frontier policies' "
+        "quick suite: 3 runs, 6 trial logs, , then up to 1 run of random at the frontier policies' "
         "matched query rates (2 trial logs"
     )
-    assert "3 runs, 6 trial logs, 2 to run (4 already complete), then up to 1 runs" in again.stdout
+    assert "3 runs, 6 trial logs, 2 to run (4 already complete), then up to 1 run of" in again.stdout
     assert "(2 trial logs, 2 already complete)" in again.stdout
     # the store still misses: the same item fails, and nothing else ran again
     assert again.stderr.splitlines()[-1] == first.stderr.splitlines()[-1]
@@ -240,3 +240,24 @@ def test_a_failed_audit_run_is_reported_and_the_audit_goes_on(tmp_path: Path, mo
     (tmp_path / "no-runs").mkdir()  # the failure alone (the audit's tables: test_audit.py)
     report = replay([tmp_path / "no-runs"], tmp_path / "report", suite=load_suite(suite_file), problems=problems, jobs=1)
     assert report.problems and "cube-stacking audit: FAILED: 1 of 1 trials of cube-stacking" in (tmp_path / "report" / "index.md").read_text()
+
+
+def test_the_exit_status_is_documented_in_the_help(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit):
+        cli.main(["reproduce", "--help"])
+    assert f"{cli.ITEMS_FAILED} finished, but some items failed (one summary line on stderr)" in capsys.readouterr().out
+    text = (ROOT / "docs" / "reproduce.md").read_text(encoding="utf-8")
+    assert f"| {cli.ITEMS_FAILED} | finished, but some items failed" in text and reproduce.ERRORS_LOG in text
+
+
+@pytest.mark.parametrize(
+    ("text", "shown"),
+    [
+        ("no recorded answer in /tmp/x/store.jsonl for task t", "no recorded answer in store.jsonl for task t"),
+        ("recorded:/srv/a b/s.jsonl (config 1)", "recorded:a b/s.jsonl (config 1)"),
+        ("a log at /home/u/out/runs/t/trial-000.mcap.", "a log at trial-000.mcap."),
+        ("relative recorded_llm/s.jsonl, http://127.0.0.1:8080/v1 and ~/x stay", "relative recorded_llm/s.jsonl, http://127.0.0.1:8080/v1 and ~/x stay"),
+    ],
+)
+def test_a_failure_in_a_report_names_no_absolute_path(text: str, shown: str) -> None:
+    assert reproduce.without_absolute_paths(text) == shown

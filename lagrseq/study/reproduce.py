@@ -108,7 +108,7 @@ LINE_WIDTH = 300
 """At most this many characters in a failed run's line on the terminal."""
 REASON_WIDTH = 200
 """At most this many characters in a failed item's reason on the report."""
-_ABSOLUTE = re.compile(r"(?<![\w.~-])/[^\s;,()'\"`<>|]+")
+_ABSOLUTE = re.compile(r"(?<![\w.~/-])/(?!/)[^\s;,()'\"`<>|]+")
 
 
 def _clip(text: str, width: int) -> str:
@@ -994,7 +994,7 @@ def reproduce(
             f"{'quick' if quick else 'full'} suite: {len(own)} runs, {trials} trial logs, "
             f"{pending} to run ({trials - pending} already complete)"
             + (
-                f", then up to {len(to_match)} runs of random at the frontier policies' matched query rates "
+                f", then up to {len(to_match)} run{'s' if len(to_match) != 1 else ''} of random at the frontier policies' matched query rates "
                 f"({match_trials} trial logs, {match_complete} already complete)"
                 if to_match else ""
             )
