@@ -146,6 +146,7 @@ def test_the_terminal_gets_short_lines_and_the_log_the_whole_text(failed) -> Non
     assert f"what to do: {runner.MISS_ADVICE}" in log
     assert "run: runs/cube-stacking/lagr-seq/" in log  # paths inside OUT relative to it
     assert "2 of 2 trials failed" in log
+    assert log.endswith("== to rerun each alone\nbroken: lagrseq reproduce --quick --items broken --suite suite.toml --out out\n")
 
 
 def test_a_rerun_prints_the_first_runs_plan_and_fails_the_same_way(failed) -> None:  # type: ignore[no-untyped-def]

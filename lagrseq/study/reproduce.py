@@ -269,9 +269,10 @@ def rerun_command(
     return " ".join(words)
 
 
-def write_errors_log(out: Path, failures: Sequence[RunFailure]) -> Path:
-    """``OUT/reproduce-errors.log`` with every failure's whole text (secrets blanked); a stale one
-    is removed when nothing failed."""
+def write_errors_log(out: Path, failures: Sequence[RunFailure], reruns: Mapping[str, str] | None = None) -> Path:
+    """``OUT/reproduce-errors.log`` with every failure's whole text (secrets blanked), then the
+    command that reruns each failed item (``reruns``: item id or "TASK audit" -> command); a
+    stale one is removed when nothing failed."""
     from lagrseq.llm.redaction import redact_key_like
 
     path = out / ERRORS_LOG
@@ -285,6 +286,8 @@ def write_errors_log(out: Path, failures: Sequence[RunFailure]) -> Path:
         "",
     ]
     text = "\n".join(header) + "\n".join(f.log_text(out) for f in failures)
+    if reruns:
+        text += "\n".join(["== to rerun each alone", *(f"{key}: {command}" for key, command in reruns.items()), ""])
     path.write_text(redact_key_like(text), encoding="utf-8", newline="\n")
     return path
 
@@ -1045,7 +1048,11 @@ def reproduce(
                 failures=failures,
             )
             tell()
-        write_errors_log(out, failures)
+        rerun = functools.partial(
+            rerun_command, quick=quick, suite_path=suite_path, provider=provider, out=out, seed=asked_seed,
+            authors_caches=authors_caches,
+        )
+        write_errors_log(out, failures, {key: f.rerun for found in item_failures(failures, rerun) for key, f in found.items()})
         if pool is not None:  # the replay's own workers start now: these go first
             stack.pop_all().close()
         say(f"runs done in {duration(time.perf_counter() - started)}: {runs_dir}")
@@ -1056,11 +1063,7 @@ def reproduce(
 
             sections, line = report_sections()
             say(line)
-        rerun = functools.partial(
-            rerun_command, quick=quick, suite_path=suite_path, provider=provider, out=out, seed=asked_seed,
-            authors_caches=authors_caches, relative=True,
-        )
-        failed, problems = item_failures(failures, rerun)
+        failed, problems = item_failures(failures, functools.partial(rerun, relative=True))
         report = replay(
             [runs_dir],
             reports_dir,
