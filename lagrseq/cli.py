@@ -947,7 +947,12 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         executor=args.executor, scheduler=args.scheduler, retries=args.retries,
         authors_caches=args.authors_caches, warn=_say_error,
     )
-    _print_report(report, elapsed, not_run_said=True, width=reproduce.LINE_WIDTH)
+    failed_runs = [Path(folder).resolve() for f in (*report.failed.values(), *report.problems.values()) for folder in f.folders]
+
+    def said(warning: str) -> bool:  # a failed run's logs: its line was printed when it failed
+        return any(Path(warning.split(": ", 1)[0]).is_relative_to(folder) for folder in failed_runs)
+
+    _print_report(report, elapsed, not_run_said=True, width=reproduce.LINE_WIDTH, said=said)
     if report.failed or report.problems:
         summary = reproduce.failure_summary(report.failed, report.problems, len(report.items), args.out)
         print(f"lagrseq reproduce: {summary}", file=sys.stderr)
@@ -990,9 +995,13 @@ def _config_toml(resolved: Any) -> str:
     return "\n".join(lines)
 
 
-def _print_report(report: Any, elapsed: float | None = None, not_run_said: bool = False, width: int | None = None) -> None:
+def _print_report(
+    report: Any, elapsed: float | None = None, not_run_said: bool = False, width: int | None = None,
+    said: Callable[[str], bool] | None = None,
+) -> None:
     """The items not made and the warnings (``width``: each warning cut to that many characters;
-    the whole text is on the report's page), then one line on what was made."""
+    the whole text is on the report's page; ``said``: warnings already said otherwise, left out),
+    then one line on what was made."""
     made = [r for r in report.items if r.made]
     for r in report.items:
         if not r.made:
@@ -1002,6 +1011,8 @@ def _print_report(report: Any, elapsed: float | None = None, not_run_said: bool 
         elif r.status == "partial":
             print(f"{r.item.id}: partial; missing {'; '.join(r.missing())}")
     for warning in report.warnings:
+        if said is not None and said(warning):
+            continue
         line = f"warning: {' '.join(warning.split())}"
         if width is not None and len(line) > width:
             line = line[: width - 1] + "…"

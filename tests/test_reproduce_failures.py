@@ -139,6 +139,7 @@ def test_the_terminal_gets_short_lines_and_the_log_the_whole_text(failed) -> Non
         "lagrseq reproduce: 1 of 3 items failed: broken (1 run); details in out/reproduce-errors.log"
     )
     assert max(map(len, errors)) <= reproduce.LINE_WIDTH
+    assert not any(line.startswith("warning:") for line in errors)  # the failed trials' logs: said above
     log = (root / "out" / "reproduce-errors.log").read_text(encoding="utf-8")
     trials = re.findall(r"^trial (\d) \(seed 0, config [0-9a-f]+\) failed: no recorded answer in (\S+)", log, re.M)
     assert [t for t, _ in trials] == ["0", "1"] and trials[0][1] == str(root / "tiny-store.jsonl")

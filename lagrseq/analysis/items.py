@@ -65,6 +65,9 @@ class ItemFailure:
     """The command that reruns this item alone."""
     runs: int = 1
     """How many of its runs failed."""
+    folders: tuple[str, ...] = ()
+    """The failed runs' folders, as the run was given them (for the terminal, which has said
+    their errors already; never written to the report)."""
 
     def line(self) -> str:
         return f"FAILED: {self.reason}; {self.advice}; rerun it alone: `{self.rerun}`"

@@ -228,7 +228,7 @@ def item_failures(failures: Sequence[RunFailure], rerun: Callable[[list[str]], s
 
     def made(runs: list[RunFailure], command: str) -> ItemFailure:
         advice = "; ".join(dict.fromkeys(f.advice for f in runs))
-        return ItemFailure(runs[0].reason(), advice, command, len(runs))
+        return ItemFailure(runs[0].reason(), advice, command, len(runs), tuple(str(f.path) for f in runs))
 
     whole = rerun([])
     return (
