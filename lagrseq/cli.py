@@ -1,6 +1,7 @@
 """The ``lagrseq`` command line. Exit status: 0 success, 2 bad usage or bad input (one line on
-stderr), 130 interrupted by Ctrl-C (SIGINT), 143 stopped by SIGTERM (a batch scheduler, ``kill``:
-the same clean stop as Ctrl-C, logs kept), 1 an unexpected failure.
+stderr), 3 ``reproduce`` finished but some items failed (their runs failed; every other item is
+reported, one summary line on stderr), 130 interrupted by Ctrl-C (SIGINT), 143 stopped by SIGTERM
+(a batch scheduler, ``kill``: the same clean stop as Ctrl-C, logs kept), 1 an unexpected failure.
 
 The parsers are declared once per option group (parent parsers) and take their choices from the
 code's own constants; each ``cmd_*`` handler parses, calls one function and prints.
@@ -21,6 +22,9 @@ from lagrseq import __version__
 from lagrseq.errors import LagrseqError, UsageError
 
 _RAW = argparse.RawDescriptionHelpFormatter
+ITEMS_FAILED = 3
+"""Exit status of ``reproduce`` when it finished but some items failed (distinct from 2, bad usage
+or input, and 130, interrupted)."""
 DEFAULT_REPRODUCE_OUT = Path("lagrseq-out")
 """Where ``lagrseq reproduce`` writes by default: a folder of its own (in .gitignore), so that a
 run in a clone never touches a tracked file."""
@@ -205,6 +209,13 @@ def _say(line: str) -> None:
     from lagrseq.progress import say
 
     say(line)
+
+
+def _say_error(line: str) -> None:
+    """A line on stderr, above any progress bar."""
+    from lagrseq.progress import say
+
+    say(line, stderr=True)
 
 
 def _bar(total: float, unit: str, desc: str | None, quiet: bool) -> Any:
@@ -483,7 +494,12 @@ def _add_reproduce(sub: Any) -> None:
             "OUT/runs, then replay the logs into OUT/reports (index.html, figures, tables). Reports "
             "the expected time before starting and shows progress; trials run in parallel on local "
             "cores; a rerun skips trials whose log is complete. Items whose task or provider is not "
-            "available here are not run, with one line saying why."
+            "available here are not run, with one line saying why. A run whose trials fail does not stop "
+            "the others: it gets one short line on stderr, its whole error goes to OUT/reproduce-errors.log, "
+            "and the items it feeds are marked FAILED on the report's index and scoreboard with the "
+            "command that reruns them alone.\n\n"
+            f"exit status: 0 every item made or set aside; {ITEMS_FAILED} finished, but some items failed "
+            "(one summary line on stderr); 2 bad usage or input; 130 interrupted (Ctrl-C)"
         ),
         epilog=(
             "examples:\n"
@@ -929,9 +945,18 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         args.suite, items, args.quick, args.provider, args.out, args.jobs, args.seed,
         args.formats, _price_function(args.price_table), quiet=args.quiet, say=_say,
         executor=args.executor, scheduler=args.scheduler, retries=args.retries,
-        authors_caches=args.authors_caches,
+        authors_caches=args.authors_caches, warn=_say_error,
     )
-    _print_report(report, elapsed, not_run_said=True)
+    failed_runs = [Path(folder).resolve() for f in (*report.failed.values(), *report.problems.values()) for folder in f.folders]
+
+    def said(warning: str) -> bool:  # a failed run's logs: its line was printed when it failed
+        return any(Path(warning.split(": ", 1)[0]).is_relative_to(folder) for folder in failed_runs)
+
+    _print_report(report, elapsed, not_run_said=True, width=reproduce.LINE_WIDTH, said=said)
+    if report.failed or report.problems:
+        summary = reproduce.failure_summary(report.failed, report.problems, len(report.items), args.out)
+        print(f"lagrseq reproduce: {summary}", file=sys.stderr)
+        return ITEMS_FAILED
     return 0
 
 
@@ -970,17 +995,28 @@ def _config_toml(resolved: Any) -> str:
     return "\n".join(lines)
 
 
-def _print_report(report: Any, elapsed: float | None = None, not_run_said: bool = False) -> None:
-    made = [r for r in report.items if r.status != "not run"]
+def _print_report(
+    report: Any, elapsed: float | None = None, not_run_said: bool = False, width: int | None = None,
+    said: Callable[[str], bool] | None = None,
+) -> None:
+    """The items not made and the warnings (``width``: each warning cut to that many characters;
+    the whole text is on the report's page; ``said``: warnings already said otherwise, left out),
+    then one line on what was made."""
+    made = [r for r in report.items if r.made]
     for r in report.items:
-        if r.status == "not run":
-            if not_run_said:
+        if not r.made:
+            if not_run_said:  # said while it ran (not run: before; failed: when its run failed)
                 continue
             print(f"{r.item.id}: {r.not_run_line()}")
         elif r.status == "partial":
             print(f"{r.item.id}: partial; missing {'; '.join(r.missing())}")
     for warning in report.warnings:
-        print(f"warning: {warning}", file=sys.stderr)
+        if said is not None and said(warning):
+            continue
+        line = f"warning: {' '.join(warning.split())}"
+        if width is not None and len(line) > width:
+            line = line[: width - 1] + "…"
+        print(line, file=sys.stderr)
     took = f" in {elapsed:.1f} s" if elapsed is not None else ""
     print(f"{len(made)} of {len(report.items)} suite items made from {report.logs.files} logs{took}: {report.out / 'index.html'}")
 

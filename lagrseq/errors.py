@@ -11,12 +11,16 @@ re-raised as one of these, so the command line can print a single line and exit 
     │   ├── StoreError       a recorded store, JSONL file or authors' pickle that cannot be used
     │   │   └── RecordMiss   a query with no recorded answer (strict mode)
     │   └── BudgetExceeded   the next call would pass --max-cost-usd or --max-queries (not sent)
-    └── LogError             an MCAP log that cannot be written or read (truncated, corrupt, wrong schema)
+    ├── LogError             an MCAP log that cannot be written or read (truncated, corrupt, wrong schema)
+    └── TrialsFailed         some trials of a sweep failed (the others finished); says which and what to do
 
 Every message says what was expected, what was found and, where there is one, what to do.
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
 
 
 class LagrseqError(Exception):
@@ -56,4 +60,10 @@ class LogError(LagrseqError):
 
 
 class TrialsFailed(LagrseqError):
-    """Some trials of a sweep raised; the others ran to their end."""
+    """Some trials of a sweep raised; the others ran to their end. ``runs``: what failed, one
+    entry per run (:class:`lagrseq.running.runner.RunFailures`), for a caller that reports each
+    run apart (``lagrseq reproduce``)."""
+
+    def __init__(self, message: str, runs: Sequence[Any] = ()) -> None:
+        super().__init__(message)
+        self.runs = tuple(runs)

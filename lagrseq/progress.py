@@ -38,12 +38,14 @@ def bar(total: float, unit: str = "it", desc: str | None = None, quiet: bool = F
     )
 
 
-def say(line: str) -> None:
-    """Print ``line`` to stdout on a line of its own, above any progress bar on screen."""
+def say(line: str, stderr: bool = False) -> None:
+    """Print ``line`` to stdout (``stderr``: to stderr) on a line of its own, above any progress
+    bar on screen."""
+    stream = sys.stderr if stderr else sys.stdout
     if "tqdm" not in sys.modules:  # no bar was ever made: a plain line (what tqdm.write prints then)
-        print(line, file=sys.stdout, flush=True)
+        print(line, file=stream, flush=True)
         return
     from tqdm import tqdm
 
-    tqdm.write(line, file=sys.stdout)
-    sys.stdout.flush()
+    tqdm.write(line, file=stream)
+    stream.flush()

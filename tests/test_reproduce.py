@@ -174,7 +174,10 @@ def test_reproduce_reports_its_plan_and_what_it_could_not_run(reproduced) -> Non
     plan = next(line for line in lines if line.startswith("quick suite:"))
     # lagr-seq, baseline and lagr trials (2 each, shared with the frontier), the frontier's two
     # thompson runs (2 each) + one probe; the GPT4 profile is not available
-    assert "6 runs, 11 trial logs, 11 to run (0 already complete); expected about" in plan
+    assert (
+        "6 runs, 11 trial logs, 11 to run (0 already complete), then up to 3 runs of random at the frontier "
+        "policies' matched query rates (6 trial logs, 0 already complete); expected about"
+    ) in plan
     assert any(
         line.startswith("accuracy: partial; missing GPT4 profile: provider not available")
         for line in lines
@@ -242,9 +245,13 @@ def test_a_rerun_skips_complete_trials(reproduced) -> None:  # type: ignore[no-u
     logs = {p: p.read_bytes() for p in (out / "runs").rglob("*.mcap")}
     result = _cli("reproduce", "--quick", "--suite", str(suite), "--out", str(out), "--quiet")
     assert result.returncode == 0, result.stderr
-    # the matched-rate random runs of complete policies are planned with the rest (and complete)
-    assert "9 runs, 17 trial logs, 0 to run (17 already complete)" in result.stdout
-    assert "matched query rates" not in result.stdout
+    # the matched-rate random runs of complete policies are planned with the rest (and complete),
+    # counted apart as in the first run's plan
+    assert (
+        "6 runs, 11 trial logs, 0 to run (11 already complete), then up to 3 runs of random at the frontier "
+        "policies' matched query rates (6 trial logs, 6 already complete); expected about"
+    ) in result.stdout
+    assert "random at the frontier policies' matched query rates:" not in result.stdout  # no second phase
     assert {p: p.read_bytes() for p in (out / "runs").rglob("*.mcap")} == logs
 
 

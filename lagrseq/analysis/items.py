@@ -52,6 +52,27 @@ class Match:
         return (self.spec.row or "").replace("{provider}", self.provider)
 
 
+@dataclass(frozen=True)
+class ItemFailure:
+    """An item whose runs were started but failed (``lagrseq reproduce``): the item is reported
+    as failed, not made from what its runs left."""
+
+    reason: str
+    """One short line: which run failed and with what error (no absolute path)."""
+    advice: str
+    """What to do, by the cause (a store's miss is not cured by running again)."""
+    rerun: str
+    """The command that reruns this item alone."""
+    runs: int = 1
+    """How many of its runs failed."""
+    folders: tuple[str, ...] = ()
+    """The failed runs' folders, as the run was given them (for the terminal, which has said
+    their errors already; never written to the report)."""
+
+    def line(self) -> str:
+        return f"FAILED: {self.reason}; {self.advice}; rerun it alone: `{self.rerun}`"
+
+
 @dataclass
 class Built:
     """What a builder made."""

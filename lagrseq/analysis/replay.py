@@ -33,6 +33,7 @@ from matplotlib.figure import Figure
 
 from lagrseq import __version__
 from lagrseq.analysis import audit, costs, figures, items, loading, scoreboard, stats
+from lagrseq.analysis.items import ItemFailure
 from lagrseq.analysis.tables import Table, plus_minus, to_csv, to_html, to_markdown
 from lagrseq.errors import LogError, UsageError
 from lagrseq.running.suite import (
@@ -54,6 +55,10 @@ _SAVE_METADATA: dict[str, dict[str, None]] = {
 _RC = {**figures.STYLE, "svg.hashsalt": "lagrseq", "pdf.compression": 6, "path.simplify": True}
 
 
+FAILED = "failed"
+"""The status of an item a failed run feeds (shown as FAILED)."""
+
+
 @dataclass
 class ItemReport:
     """What replay made of one suite item."""
@@ -70,9 +75,13 @@ class ItemReport:
     animation: str | None = None
     """Arm items: a GIF of the arm in one episode (from the camera frames of a log)."""
     animation_note: str = ""
+    failure: ItemFailure | None = None
+    """A run it needs failed (``lagrseq reproduce``): reported as failed, not made."""
 
     @property
     def status(self) -> str:
+        if self.failure is not None:
+            return FAILED
         present = sum(m.run is not None for m in self.matched)
         if present == 0:
             return "not run"
@@ -82,8 +91,15 @@ class ItemReport:
         return [f"{m.label}: {m.reason}" for m in self.matched if m.run is None]
 
     def not_run_line(self) -> str:
+        if self.failure is not None:
+            return self.failure.line()
         reasons = sorted({m.reason for m in self.matched if m.run is None})
         return "not run: " + "; ".join(reasons)
+
+    @property
+    def made(self) -> bool:
+        """Whether replay made anything of it (neither "not run" nor failed)."""
+        return self.status not in ("not run", FAILED)
 
 
 @dataclass
@@ -94,6 +110,10 @@ class Report:
     logs: loading.Logs
     items: list[ItemReport]
     written: list[Path]
+    failed: dict[str, ItemFailure] = field(default_factory=dict)
+    """Suite items that a failed run feeds (item id -> why, what to do, the command to rerun it)."""
+    problems: dict[str, ItemFailure] = field(default_factory=dict)
+    """Other failures the report names (``lagrseq reproduce``'s suite audits: "TASK audit" -> ...)."""
 
     @property
     def warnings(self) -> tuple[str, ...]:
@@ -207,6 +227,8 @@ def replay(
     produced_by: str = "lagrseq replay",
     jobs: int | None = None,
     sections: Sequence[tuple[str, Table, Figure | None]] = (),
+    failed: Mapping[str, ItemFailure] | None = None,
+    problems: Mapping[str, ItemFailure] | None = None,
 ) -> Report:
     """Rebuild the suite's items that ``roots`` cover into ``out`` (see the module docstring).
 
@@ -215,7 +237,11 @@ def replay(
     re-costs queries from their token usage; ``jobs``: processes that read the logs (see
     :func:`lagrseq.analysis.loading.load`; the output does not depend on it); ``sections``:
     report sections made from something other than the logs (``lagrseq reproduce``'s "open
-    models", from recorded answers), as (stem, table, figure or None), written after the tables.
+    models", from recorded answers), as (stem, table, figure or None), written after the tables;
+    ``failed`` (item id -> :class:`~lagrseq.analysis.ItemFailure`): items whose runs failed
+    (``lagrseq reproduce``), shown as FAILED on the index and the scoreboard with their reason and
+    the command that reruns them, and not made from what their runs left; ``problems``: other
+    failures to list (its suite audits), with the same fields.
     """
     bad = [f for f in formats if f not in FORMATS]
     if bad:
@@ -237,16 +263,18 @@ def replay(
                 painter.pending.append((painter.pool.submit(figures.ready), []))
 
         logs = loading.load(roots, jobs, found)
-        if not logs.runs:
+        if not logs.runs and not failed and not problems:  # with failures: a report that lists them
             detail = f" ({'; '.join(logs.warnings)})" if logs.warnings else ""
             raise LogError(f"no complete lagrseq trial logs under {', '.join(map(str, roots))}{detail}")
-        reports, extra, board, written = _make(logs, suite, out, formats, provider, unavailable, price, sections, painter)
+        failed = dict(failed or {})
+        problems = dict(problems or {})
+        reports, extra, board, written = _make(logs, suite, out, formats, provider, unavailable, price, sections, painter, failed)
         painter.wait()
     shown = dataclasses.replace(logs, warnings=tuple(report_warnings(logs.warnings, roots)))
-    _write(out / "index.html", _index_html(reports, extra, shown, produced_by, board), written)
-    _write(out / "index.md", _index_markdown(reports, extra, shown, produced_by, board), written)
+    _write(out / "index.html", _index_html(reports, extra, shown, produced_by, board, problems), written)
+    _write(out / "index.md", _index_markdown(reports, extra, shown, produced_by, board, problems), written)
     _drop_stale(out, written)
-    return Report(out, logs, reports, written)
+    return Report(out, logs, reports, written, {r.item.id: r.failure for r in reports if r.failure is not None}, problems)
 
 
 def report_warnings(warnings: Sequence[str], roots: Sequence[str | Path]) -> list[str]:
@@ -279,6 +307,7 @@ def _make(
     price: costs.Price | None,
     sections: Sequence[tuple[str, Table, Figure | None]],
     painter: _Painter,
+    failed: Mapping[str, ItemFailure] | None = None,
 ) -> tuple[list[ItemReport], list[tuple[str, Table]], Table, list[Path]]:
     """Every item, table and figure of the report (the figures through ``painter``)."""
     suite = with_logged_authors_runs(suite, logs.runs)
@@ -291,9 +320,9 @@ def _make(
             matched = items.match(
                 item, logs.runs, suite.provider, provider, dict(unavailable or {})
             )
-            report = ItemReport(item, matched)
+            report = ItemReport(item, matched, failure=(failed or {}).get(item.id))
             reports.append(report)
-            if report.status == "not run":
+            if not report.made:
                 continue
             built = items.build(item, matched, price, logs.runs)
             report.method = built.method
@@ -328,7 +357,10 @@ def _make(
         _write(out / "tables" / f"{stem}.md", to_markdown(table), written)
         _write(out / "tables" / f"{stem}.csv", to_csv(table.data), written)
     audits = audit.build(logs.runs)
-    board = scoreboard.build([(r.item, r.matched) for r in reports if r.status != "not run"], audits)
+    board = scoreboard.build(
+        [(r.item, r.matched) for r in reports if r.made], audits,
+        failed=[(r.item, r.failure) for r in reports if r.failure is not None],
+    )
     _write(out / "scoreboard.md", to_markdown(board), written)
     _write(out / "tables" / "scoreboard.csv", to_csv(board.data), written)
     for made in audits:  # lagrseq audit runs in these logs: what each deviation does (and its interaction runs)
@@ -445,7 +477,18 @@ th { background: #f4f4f4; }
 .missing, .warn { color: #a33; } .links { font-size: 0.85em; }
 ul.how { font-size: 0.85em; color: #444; margin-top: 0; }
 .status { font-size: 0.8em; padding: 0.1em 0.5em; border-radius: 0.6em; background: #eee; }
+.status.failed { background: #a33; color: #fff; font-weight: 600; }
 """
+
+
+def _shown_status(report: ItemReport) -> str:
+    return "FAILED" if report.status == FAILED else report.status
+
+
+def _failure_lines(reports: Sequence[ItemReport], problems: Mapping[str, ItemFailure]) -> list[str]:
+    """One line per failed item and per other failure (a suite audit), for the page's top."""
+    lines = [f"{r.item.id}: {r.not_run_line()}" for r in reports if r.failure is not None]
+    return lines + [f"{key}: {failure.line()}" for key, failure in problems.items()]
 
 
 def _summary_line(logs: loading.Logs) -> str:
@@ -477,7 +520,7 @@ def _scoreboard_html(board: Table) -> list[str]:
     parts.append("<table><thead><tr>" + "".join(f"<th>{e(c)}</th>" for c in board.columns) + "</tr></thead><tbody>")
     for row in board.rows:
         cells = [f"<td>{e(c)}</td>" for c in row[:-2]]
-        outside = row[-2].startswith("✗")
+        outside = row[-2].startswith(("✗", "FAILED"))
         cells.append(f'<td class="{"missing" if outside else ""}">{e(row[-2])}</td>')
         link = row[-1].startswith("#")  # the audits' own text (scoreboard.Explain) is shown as it is
         cells.append(f'<td><a href="{e(row[-1])}">{e(row[-1].lstrip("#"))}</a></td>' if link else f"<td>{e(row[-1])}</td>")
@@ -492,8 +535,10 @@ def _index_html(
     logs: loading.Logs,
     produced_by: str,
     board: Table | None = None,
+    problems: Mapping[str, ItemFailure] | None = None,
 ) -> str:
     e = html.escape
+    failures = _failure_lines(reports, problems or {})
     parts = [
         "<!DOCTYPE html>",
         '<html lang="en">',
@@ -504,22 +549,24 @@ def _index_html(
         f"<p>{e(_summary_line(logs))}; lagrseq {e(__version__)}. Every number below was "
         f"computed offline from these logs by <code>{e(produced_by)}</code>.</p>",
         *(_scoreboard_html(board) if board is not None else []),
-        "<ul>",
     ]
+    if failures:
+        parts += ['<section id="failures"><h2>Failed</h2><ul>', *(f'<li class="missing">{e(line)}</li>' for line in failures), "</ul></section>"]
+    parts.append("<ul>")
     for r in reports:
-        parts.append(
-            f'<li><a href="#{e(r.item.id)}">{e(r.item.title)}</a> <span class="status">{e(r.status)}</span></li>'
-        )
+        status = f'<span class="status{" failed" if r.status == FAILED else ""}">{e(_shown_status(r))}</span>'
+        parts.append(f'<li><a href="#{e(r.item.id)}">{e(r.item.title)}</a> {status}</li>')
     parts += ['<li><a href="#costs">LLM costs</a></li>', '<li><a href="#runs">Runs</a></li>']
     if logs.warnings:
         parts.append('<li><a href="#warnings">Warnings</a></li>')
     parts.append("</ul>")
     for r in reports:
         parts.append(f'<section id="{e(r.item.id)}">')
-        parts.append(f'<h2>{e(r.item.title)} <span class="status">{e(r.status)}</span></h2>')
+        status = f'<span class="status{" failed" if r.status == FAILED else ""}">{e(_shown_status(r))}</span>'
+        parts.append(f"<h2>{e(r.item.title)} {status}</h2>")
         if r.item.caption:
             parts.append(f'<p class="caption">Paper: {e(r.item.caption)}</p>')
-        if r.status == "not run":
+        if not r.made:
             parts.append(f'<p class="missing">{e(r.not_run_line())}</p>')
             parts.append("</section>")
             continue
@@ -576,7 +623,9 @@ def _index_markdown(
     logs: loading.Logs,
     produced_by: str,
     board: Table | None = None,
+    problems: Mapping[str, ItemFailure] | None = None,
 ) -> str:
+    failures = _failure_lines(reports, problems or {})
     lines = [
         "# LaGR-SEQ: the paper's figures and tables, rebuilt from MCAP logs",
         "",
@@ -585,11 +634,13 @@ def _index_markdown(
     ]
     if board is not None:
         lines += [to_markdown(board)]
+    if failures:
+        lines += ["## Failed", "", *(f"- {line}" for line in failures), ""]
     for r in reports:
-        lines += [f"## {r.item.title} ({r.status})", ""]
+        lines += [f"## {r.item.title} ({_shown_status(r)})", ""]
         if r.item.caption:
             lines += [f"*Paper: {r.item.caption}*", ""]
-        if r.status == "not run":
+        if not r.made:
             lines += [r.not_run_line(), ""]
             continue
         if r.figure:

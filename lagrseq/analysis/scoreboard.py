@@ -26,7 +26,7 @@ import pandas as pd
 
 from lagrseq.analysis import audit, inference, stats
 from lagrseq.analysis import provenance as prov
-from lagrseq.analysis.items import Match
+from lagrseq.analysis.items import ItemFailure, Match
 from lagrseq.analysis.loading import Run
 from lagrseq.analysis.tables import Table
 from lagrseq.registry import kind_of
@@ -113,10 +113,13 @@ def build(
     items: Sequence[tuple[Item, Sequence[Match]]],
     audits: Sequence[audit.Audit | str] = (),
     explain: Explain | None = None,
+    failed: Sequence[tuple[Item, ItemFailure]] = (),
 ) -> Table:
     """The scoreboard of ``items`` (each with its matched runs). ``explain`` fills the last
     column from each row's data (default: :func:`default_explanation` of ``audits``: the audits
-    the logs hold, or the names of the tasks audited)."""
+    the logs hold, or the names of the tasks audited). ``failed``: items whose runs failed
+    (``lagrseq reproduce``), one row each after the others: FAILED, its reason, and the command
+    that reruns it in the last column."""
     rows: list[dict[str, Any]] = []
     explain = default_explanation(audits) if explain is None else explain
     alpha = inference.ALPHA
@@ -218,8 +221,12 @@ def build(
                     add(item, f"{row} cubes: performance ratio {numerator} / {denominator}", str(paper), m, made,
                         inference.t_interval(ratios, 1 - 2 * alpha), inference.t_interval(ratios, 1 - alpha), 3,
                         quantity=audit.RATIO_QUANTITY if (numerator, denominator) == ("LaGR-SEQ", "Q-learning") else None)
+    rows += [_failed_row(item, failure) for item, failure in failed]
     display = []
     for r in rows:
+        if r["verdict"] == FAILED_VERDICT:
+            display.append((r["title"], r["what"], r["paper"], "—", "—", "FAILED", f"FAILED: {r['verdict_reason']}", r["explained_by"]))
+            continue
         d = r["digits"]
         value = f"{r['mean']:.{d}f} [{r['ci_low']:.{d}f}, {r['ci_high']:.{d}f}] (n={r['trials']})"
         if np.isnan(r["ci_low"]):
@@ -240,6 +247,42 @@ def build(
         tuple(display),
         data,
     )
+
+
+FAILED_VERDICT = "failed"
+"""The verdict column of an item whose runs failed (shown as FAILED)."""
+
+
+def _failed_row(item: Item, failure: ItemFailure) -> dict[str, Any]:
+    """The scoreboard's row for an item whose runs failed: no number, its reason and advice, and
+    the command that reruns it alone (the last column)."""
+    reference = item.options.get("reference", {})
+    stated = len(reference) if isinstance(reference, dict) else 0
+    return {
+        "item": item.id,
+        "title": item.title.split(":")[0],
+        "task": item.runs[0].task if item.runs else "",
+        "what": "not measured: a run it needs failed",
+        "paper": f"{stated} value{'s' if stated != 1 else ''}" if stated else "—",
+        "paper_value": None,
+        "margin": float("nan"),
+        "margin_reason": "",
+        "source": "",
+        "provenance": "",
+        "provenance_why": "",
+        "mean": float("nan"),
+        "ci_low": float("nan"),
+        "ci_high": float("nan"),
+        "ci90_low": float("nan"),
+        "ci90_high": float("nan"),
+        "trials": 0,
+        "verdict": FAILED_VERDICT,
+        "verdict_reason": f"{failure.reason}; {failure.advice}",
+        "note": "",
+        "preset": "",
+        "quantity": None,
+        "explained_by": f"rerun it alone: {failure.rerun}",
+    }
 
 
 def stats_ratios(top: Run, bottom: Run) -> np.ndarray:

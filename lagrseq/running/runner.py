@@ -29,7 +29,16 @@ import numpy as np
 
 from lagrseq import __version__
 from lagrseq.config import ExperimentConfig
-from lagrseq.errors import BudgetExceeded, LagrseqError, TrialsFailed, UsageError
+from lagrseq.errors import (
+    BudgetExceeded,
+    ConfigError,
+    LagrseqError,
+    ParseError,
+    RecordMiss,
+    StoreError,
+    TrialsFailed,
+    UsageError,
+)
 from lagrseq.logs.sink import PARTIAL_SUFFIX, McapSink, NullSink, Sink
 from lagrseq.loop.experiment import TrialResult, run_trial
 from lagrseq.registry import find_part, logged_options, replace_part
@@ -350,15 +359,57 @@ def resume_plan(config: ExperimentConfig, trials: int, seed: int, provider_spec:
     return ResumePlan(complete, missing, unfinished)
 
 
+RERUN_ADVICE = "run the same command again to rerun the failed trials"
+"""What to do about a failure that may pass (a server that did not answer, a worker that died)."""
+MISS_ADVICE = (
+    "a store miss is deterministic (a rerun misses again): record the prompt (lagrseq record) "
+    "or set what a miss does (on_miss, --on-miss mock|refuse)"
+)
+"""What to do about a recorded store's miss (:class:`~lagrseq.errors.RecordMiss`)."""
+BUDGET_ADVICE = "the budget is spent: raise --max-cost-usd or --max-queries, then run the same command again"
+FIX_ADVICE = "a rerun fails the same way: fix what the error names, then run the same command again"
+
+
+def rerun_advice(exc: BaseException) -> str:
+    """What to do about a trial that raised ``exc``, by its cause: "run again" only where the
+    cause may pass (a network error, a lost worker, anything unforeseen); a store's miss, a spent
+    budget or a bad configuration or store say what to change instead."""
+    if isinstance(exc, RecordMiss):
+        return MISS_ADVICE
+    if isinstance(exc, BudgetExceeded):
+        return BUDGET_ADVICE
+    if isinstance(exc, (ConfigError, UsageError, StoreError, ParseError)):
+        return FIX_ADVICE
+    return RERUN_ADVICE
+
+
 @dataclass(frozen=True)
 class TrialFailure:
     trial: int
     seed: int
     digest: str
     error: str
+    """The error's whole text, on one line (an exception that is no lagrseq error: with its type)."""
+    advice: str = RERUN_ADVICE
+    """:func:`rerun_advice` of the error."""
 
     def describe(self) -> str:
         return f"trial {self.trial} (seed {self.seed}, config {self.digest}) failed: {self.error}"
+
+
+@dataclass(frozen=True)
+class RunFailures:
+    """One run's failed trials: what :class:`~lagrseq.errors.TrialsFailed` carries per run."""
+
+    directory: Path
+    total: int
+    """Trials the run had to run (the failed ones among them)."""
+    failures: tuple[TrialFailure, ...]
+
+    @property
+    def advice(self) -> str:
+        """The failures' advice (each distinct one once, the first failure's first)."""
+        return "; ".join(dict.fromkeys(f.advice for f in self.failures))
 
 
 def _error_line(exc: BaseException) -> str:
@@ -369,13 +420,15 @@ def _error_line(exc: BaseException) -> str:
 def _failed(failures: list[TrialFailure], total: int, directory: Path) -> TrialsFailed:
     """The one line that ends a sweep in which some trials raised."""
     failures = sorted(failures, key=lambda f: f.trial)
+    run = RunFailures(directory, total, tuple(failures))
     if total == 1 and len(failures) == 1:
-        return TrialsFailed(failures[0].describe())
+        return TrialsFailed(f"{failures[0].describe()}; {run.advice}", [run])
     shown = ", ".join(str(f.trial) for f in failures[:10]) + (", ..." if len(failures) > 10 else "")
     others = f"the other logs in {directory} are complete" if len(failures) < total else "no trial finished"
     return TrialsFailed(
         f"{len(failures)} of {total} trials failed (trials {shown}; first: {failures[0].describe()}); "
-        f"{others}; run the same command again to rerun the failed trials"
+        f"{others}; {run.advice}",
+        [run],
     )
 
 
@@ -448,17 +501,29 @@ def run_sweep(
     say: Callable[[str], None] | None = None,
     warn: Callable[[str], None] | None = None,
     retries: int = 0,
+    keep_going: bool = False,
 ) -> list[list[TrialResult]]:
     """Several runs' trials through one executor, as :func:`run_trials` runs one run's: every
     pending trial of every run is submitted at once, so no worker waits for the last trial of one
     run before the next run starts (a frontier's policies, a suite's runs). Each run's directory
     is checked (resume plan, refused foreign logs) before any trial starts. Returns each run's
     results, in the order of ``runs``; a trial that keeps failing is reported to ``warn`` while
-    the others go on, and one :class:`TrialsFailed` at the end names them all."""
+    the others go on, and one :class:`TrialsFailed` at the end names them all (and carries each
+    run's failures). ``keep_going``: a run whose directory or provider is refused before it
+    starts (a foreign log, a store that cannot be read) counts as a run whose trials all failed,
+    and the other runs go on (``lagrseq reproduce``); otherwise nothing starts."""
     plans: list[_Todo] = []
+    refused: list[RunFailures] = []
     for run in runs:
-        parse_provider(run.provider_spec)
-        found = resume_plan(run.config, run.trials, run.seed, run.provider_spec, run.directory)
+        try:
+            parse_provider(run.provider_spec)
+            found = resume_plan(run.config, run.trials, run.seed, run.provider_spec, run.directory)
+        except LagrseqError as exc:
+            if not keep_going:
+                raise
+            failure = functools.partial(TrialFailure, seed=run.seed, digest=run.config.digest(), error=_error_line(exc), advice=rerun_advice(exc))
+            refused.append(RunFailures(run.directory, run.trials, tuple(failure(trial) for trial in range(run.trials))))
+            continue
         if say is not None and (found.complete or found.unfinished):
             say(found.describe() if len(runs) == 1 else f"{run.directory}: {found.describe()}")
         _, per_trial = progress_unit(run.config)
@@ -470,7 +535,7 @@ def run_sweep(
     pending = sum(len(p.todo) for p in plans)
 
     def failed(plan: _Todo, trial: int, exc: BaseException) -> None:
-        failure = TrialFailure(trial, plan.run.seed, plan.run.config.digest(), _error_line(exc))
+        failure = TrialFailure(trial, plan.run.seed, plan.run.config.digest(), _error_line(exc), rerun_advice(exc))
         plan.failures.append(failure)
         if warn is not None and pending > 1:
             warn(failure.describe() if len(runs) == 1 else f"{plan.run.directory}: {failure.describe()}")
@@ -485,9 +550,13 @@ def run_sweep(
     broken = [p for p in plans if p.failures]
     if len(broken) == 1 and len(runs) == 1:
         raise _failed(broken[0].failures, len(broken[0].todo), broken[0].run.directory)
-    if broken:
-        lines = [str(_failed(p.failures, len(p.todo), p.run.directory)) for p in broken]
-        raise TrialsFailed(f"{len(broken)} of {len(runs)} runs had failed trials: " + " | ".join(lines))
+    if broken or refused:
+        ended = [_failed(p.failures, len(p.todo), p.run.directory) for p in broken]
+        ended += [_failed(list(r.failures), r.total, r.directory) for r in refused]
+        raise TrialsFailed(
+            f"{len(ended)} of {len(runs)} runs had failed trials: " + " | ".join(map(str, ended)),
+            [run for error in ended for run in error.runs],
+        )
     return [sorted(p.results, key=lambda r: r.trial) for p in plans]
 
 

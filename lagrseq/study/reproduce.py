@@ -17,16 +17,19 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import os
+import re
+import shlex
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from lagrseq import config as cfg
 from lagrseq.config import ExperimentConfig
-from lagrseq.errors import ConfigError, UsageError
+from lagrseq.errors import ConfigError, LagrseqError, TrialsFailed, UsageError
 from lagrseq.logs.reader import is_complete
 from lagrseq.loop.experiment import TrialResult
 from lagrseq.registry import EXECUTORS, PROVIDERS, TASKS
@@ -96,6 +99,213 @@ class Plan:
     """Suite item id -> why none of its runs can be made here."""
     unavailable: dict[str, str]
     """Provider spec -> why it is not available."""
+
+
+ERRORS_LOG = "reproduce-errors.log"
+"""``OUT/reproduce-errors.log``: the whole text of every failure of the latest ``reproduce`` into
+OUT (removed by a run in which nothing failed). The terminal gets one short line per run."""
+LINE_WIDTH = 300
+"""At most this many characters in a failed run's line on the terminal."""
+REASON_WIDTH = 200
+"""At most this many characters in a failed item's reason on the report."""
+_ABSOLUTE = re.compile(r"(?<![\w.~/-])/(?!/)[^\s;,()'\"`<>|]+")
+
+
+def _clip(text: str, width: int) -> str:
+    one = " ".join(text.split())
+    return one if len(one) <= width else one[: max(0, width - 1)].rstrip() + "…"
+
+
+def without_absolute_paths(text: str) -> str:
+    """``text`` with every absolute path shortened to its file or folder name (a report's bytes
+    must not depend on where its inputs sat)."""
+    return _ABSOLUTE.sub(lambda m: Path(m.group(0).rstrip(".")).name + ("." if m.group(0).endswith(".") else ""), text)
+
+
+@dataclass(frozen=True)
+class RunFailure:
+    """A run of the suite (or of one of its audits) some of whose trials failed, or that could
+    not start: what ``reproduce`` says about it on the terminal, in the report and in
+    :data:`ERRORS_LOG`."""
+
+    what: str
+    """The run as people name it: task, method, preset, provider, config digest."""
+    path: Path
+    """Its run directory (or probe log)."""
+    failed: int
+    total: int
+    """Trials that failed, of those it had to run."""
+    errors: tuple[str, ...]
+    """One whole text per failed trial (``trial N (seed S, config D) failed: ...``)."""
+    error: str
+    """The first failure's error (whole)."""
+    advice: str
+    """What to do, by the cause (:func:`lagrseq.running.runner.rerun_advice`)."""
+    items: tuple[str, ...] = ()
+    """The suite items it feeds."""
+    audit: str = ""
+    """The task whose suite audit it belongs to ("" for a suite item's run)."""
+    short: str = ""
+    """The run's name on the terminal (default: :attr:`what`)."""
+
+    @property
+    def owner(self) -> str:
+        return f"{self.audit} audit" if self.audit else ",".join(self.items)
+
+    def reason(self) -> str:
+        """One short line, with no absolute path (for the report)."""
+        return _clip(without_absolute_paths(f"{self.failed} of {self.total} trials of {self.what} failed: {self.error}"), REASON_WIDTH)
+
+    def line(self) -> str:
+        """One line of at most :data:`LINE_WIDTH` characters (for the terminal): who, which run,
+        the error cut short (at least 60 characters of it) and what to do; the whole text is in
+        :data:`ERRORS_LOG`, which the summary line names."""
+        head = f"failed: {self.owner}: {self.failed} of {self.total} trials of "
+        tail = f"; {self.advice}"
+        what = _clip(without_absolute_paths(self.short or self.what), max(20, LINE_WIDTH - len(head) - len(tail) - 2 - 60))
+        room = LINE_WIDTH - len(head) - len(what) - 2 - len(tail)
+        return _clip(f"{head}{what}: {_clip(self.error, max(room, 20))}{tail}", LINE_WIDTH)
+
+    def log_text(self, out: Path) -> str:
+        """Its block of :data:`ERRORS_LOG`: everything, paths relative to ``out`` where inside it."""
+        try:
+            where = self.path.relative_to(out).as_posix()
+        except ValueError:
+            where = str(self.path)
+        lines = [
+            f"== {self.owner}: {self.what}",
+            f"run: {where}; {self.failed} of {self.total} trials failed",
+            f"what to do: {self.advice}",
+            *self.errors,
+            "",
+        ]
+        return "\n".join(lines)
+
+
+def _describe_config(config: ExperimentConfig, provider: str) -> str:
+    return f"{config.task.name} {config.method} --preset {config.preset} on {provider} (config {config.digest()})"
+
+
+def _short_name(config: ExperimentConfig, provider: str) -> str:
+    return f"{config.task.name} {config.method} on {provider}"
+
+
+def run_failures(caught: TrialsFailed, runs: Sequence[PlannedRun]) -> list[RunFailure]:
+    """What ``caught`` says about each of ``runs`` (matched by directory)."""
+    by_path = {run.path: run for run in runs}
+    out = []
+    for failed in caught.runs:
+        run = by_path.get(failed.directory)
+        if run is None:  # not one of ours: nothing to attribute it to
+            raise caught
+        failures = failed.failures
+        out.append(
+            RunFailure(
+                _describe_config(run.config, run.provider), run.path, len(failures), failed.total,
+                tuple(f.describe() for f in failures), failures[0].error, failed.advice, tuple(run.items),
+                short=_short_name(run.config, run.provider),
+            )
+        )
+    if not out:
+        raise caught
+    return out
+
+
+def item_failures(failures: Sequence[RunFailure], rerun: Callable[[list[str]], str]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The suite items the failed runs feed (item id -> :class:`~lagrseq.analysis.items.ItemFailure`,
+    in the order first failed) and the audits that failed ("TASK audit" -> the same), each with
+    the first failed run's reason, every distinct advice and ``rerun([item id])``, the command that
+    reruns it alone (an audit: the whole suite's command, which runs the audits)."""
+    from lagrseq.analysis.items import ItemFailure
+
+    by_item: dict[str, list[RunFailure]] = {}
+    by_audit: dict[str, list[RunFailure]] = {}
+    for failure in failures:
+        if failure.audit:
+            by_audit.setdefault(f"{failure.audit} audit", []).append(failure)
+        for item in failure.items:
+            by_item.setdefault(item, []).append(failure)
+
+    def made(runs: list[RunFailure], command: str) -> ItemFailure:
+        advice = "; ".join(dict.fromkeys(f.advice for f in runs))
+        return ItemFailure(runs[0].reason(), advice, command, len(runs), tuple(str(f.path) for f in runs))
+
+    whole = rerun([])
+    return (
+        {item: made(runs, rerun([item])) for item, runs in by_item.items()},
+        {audit: made(runs, whole) for audit, runs in by_audit.items()},
+    )
+
+
+def rerun_command(
+    items: Sequence[str],
+    quick: bool,
+    suite_path: Path | None,
+    provider: str | None,
+    out: Path,
+    seed: int | None,
+    authors_caches: Path | None,
+    relative: bool = False,
+) -> str:
+    """The ``lagrseq reproduce`` command that reruns ``items`` alone (none: the whole suite), with the user's flags that
+    change what runs or where it goes (``relative``: paths relative to this directory, for a
+    report, which must hold no absolute path)."""
+
+    def shown(path: Path) -> str:
+        text = os.path.relpath(path) if relative and path.is_absolute() else str(path)
+        return shlex.quote(text)
+
+    words = ["lagrseq reproduce"] + (["--quick"] if quick else []) + (["--items", ",".join(items)] if items else [])
+    if suite_path is not None:
+        words += ["--suite", shown(suite_path)]
+    if provider is not None:
+        words += ["--provider", shlex.quote(provider)]
+    if seed is not None:
+        words += ["--seed", str(seed)]
+    if authors_caches is not None:
+        words += ["--authors-caches", shown(authors_caches)]
+    if out != Path("lagrseq-out"):  # the command line's default (lagrseq.cli.DEFAULT_REPRODUCE_OUT)
+        words += ["--out", shown(out)]
+    return " ".join(words)
+
+
+def write_errors_log(out: Path, failures: Sequence[RunFailure], reruns: Mapping[str, str] | None = None) -> Path:
+    """``OUT/reproduce-errors.log`` with every failure's whole text (secrets blanked), then the
+    command that reruns each failed item (``reruns``: item id or "TASK audit" -> command); a
+    stale one is removed when nothing failed."""
+    from lagrseq.llm.redaction import redact_key_like
+
+    path = out / ERRORS_LOG
+    if not failures:
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
+        return path
+    header = [
+        f"lagrseq reproduce: {len(failures)} failed run{'s' if len(failures) != 1 else ''} "
+        "(each: who, the run, what to do, then every failed trial's whole error)",
+        "",
+    ]
+    text = "\n".join(header) + "\n".join(f.log_text(out) for f in failures)
+    if reruns:
+        text += "\n".join(["== to rerun each alone", *(f"{key}: {command}" for key, command in reruns.items()), ""])
+    path.write_text(redact_key_like(text), encoding="utf-8", newline="\n")
+    return path
+
+
+def failure_summary(failed: Mapping[str, Any], problems: Mapping[str, Any], items_total: int, out: Path) -> str:
+    """The one line ``reproduce`` ends with when something failed: ``3 of 23 items failed: table3
+    (2 runs), ...; details in OUT/reproduce-errors.log`` (``failed``: item id -> its
+    :class:`~lagrseq.analysis.items.ItemFailure`; ``problems``: the audits that failed)."""
+
+    def runs(n: int) -> str:
+        return f"{n} run{'s' if n != 1 else ''}"
+
+    parts = []
+    if failed:
+        parts.append(f"{len(failed)} of {items_total} items failed: " + ", ".join(f"{key} ({runs(f.runs)})" for key, f in failed.items()))
+    if problems:
+        parts.append(("also " if failed else "") + ", ".join(f"the {key} ({runs(f.runs)})" for key, f in problems.items()) + " failed")
+    return "; ".join(parts) + f"; details in {out / ERRORS_LOG}"
 
 
 def _provider_problem(spec: str) -> str | None:
@@ -577,6 +787,7 @@ def execute(
     retries: int = 0,
     seconds: dict[Path, float] | None = None,
     pool: Any = None,
+    failures: list[RunFailure] | None = None,
 ) -> list[TrialResult]:
     """Run every planned run (complete trials are skipped): the accuracy probes in this process,
     then the trials of every run through one warm process pool or one Dask cluster
@@ -584,24 +795,47 @@ def execute(
     once so that no worker waits for the last trial of one run before the next run starts.
     Without a pool (``jobs = 1``) the runs go one after the other, ``on_run`` told of each.
     ``seconds`` (run path -> estimated seconds): the bar counts estimated seconds, not units.
-    ``pool``: an executor already started (:func:`start_pool`), kept warm across the phases."""
+    ``pool``: an executor already started (:func:`start_pool`), kept warm across the phases.
+    ``failures``: where runs whose trials failed (or that could not start) are added, while the
+    other runs go on; without it the first such failure is raised (:class:`TrialsFailed`) at the
+    end of its phase."""
 
     def scale(run: PlannedRun) -> float:
         if seconds is None:
             return 1.0
         return seconds.get(run.path, 0.0) / max(1, run.units())
 
+    def one(run: PlannedRun) -> list[TrialResult]:
+        try:
+            return _execute_run(run, bar, on_run, retries, scale(run))
+        except TrialsFailed as caught:
+            if failures is None:
+                raise
+            failures.extend(run_failures(caught, [run]))
+        except LagrseqError as caught:  # an accuracy probe's provider, a store that cannot be read
+            if failures is None:
+                raise
+            error = " ".join(str(caught).split())
+            total = 1 if run.kind == "accuracy" else run.trials
+            failures.append(
+                RunFailure(
+                    _describe_config(run.config, run.provider), run.path, total, total, (f"{run.describe()} failed: {error}",),
+                    error, runner.rerun_advice(caught), tuple(run.items), short=_short_name(run.config, run.provider),
+                )
+            )
+        return []
+
     results: list[TrialResult] = []
     for run in the_plan.runs:
         if run.kind == "accuracy":
-            results += _execute_run(run, bar, on_run, retries, scale(run))
+            results += one(run)
     trial_runs = [run for run in the_plan.runs if run.kind != "accuracy"]
     with contextlib.ExitStack() as stack:
         if pool is None and needs_pool(executor, jobs, scheduler):
             pool = stack.enter_context(runner.make_executor(executor, jobs, scheduler, say))
         if pool is None:
             for run in trial_runs:
-                results += _execute_run(run, bar, on_run, retries, scale(run))
+                results += one(run)
             return results
         if bar is not None and hasattr(bar, "set_description") and trial_runs:
             bar.set_description(f"{len(trial_runs)} runs on {pool.describe()}")
@@ -613,8 +847,13 @@ def execute(
             )
             for run, share in zip(trial_runs, shares, strict=True)
         ]
-        for outcome in runner.run_sweep(sweep, jobs, pool, retries=retries):
-            results += outcome
+        try:
+            for outcome in runner.run_sweep(sweep, jobs, pool, retries=retries, keep_going=failures is not None):
+                results += outcome
+        except TrialsFailed as caught:
+            if failures is None:
+                raise
+            failures.extend(run_failures(caught, trial_runs))
         for share in shares:
             share.finish()
     return results
@@ -676,10 +915,17 @@ def reproduce(
     scheduler: str | None = None,
     retries: int = 0,
     authors_caches: Path | None = None,
+    warn: Callable[[str], None] | None = None,
 ) -> tuple[Any, float]:
     """``lagrseq reproduce``: plan the suite, say what will run and how long it should take, run
     it with one progress bar (episodes of cube runs, steps of grid runs), then replay the logs into
-    ``out/reports``. Returns the replay report and the seconds it all took."""
+    ``out/reports``. Returns the replay report and the seconds it all took.
+
+    A run whose trials fail (or that cannot start) does not stop the others: ``warn`` (default
+    ``say``) gets one short line per failed run (:meth:`RunFailure.line`), the whole text goes to
+    ``out/reproduce-errors.log`` (:data:`ERRORS_LOG`), and the items it feeds are reported as
+    failed, each with its reason and the command that reruns it alone (``report.failed``; a
+    failed suite audit: ``report.problems``)."""
     from lagrseq.analysis.replay import replay
     from lagrseq.paths import writable_directory
     from lagrseq.progress import bar as progress_bar
@@ -690,6 +936,7 @@ def reproduce(
         if not items:
             raise UsageError("--items is empty; give suite item ids, e.g. --items fig6a,table2 (or leave --items out for all)")
         suite = suite.select(items)
+    asked_seed = seed
     seed = suite.seed if seed is None else seed
     if provider is not None:
         wiring.parse_provider(provider)
@@ -713,8 +960,16 @@ def reproduce(
     the_plan.runs += plan_matched_random(the_plan, matched_items, runs_dir).runs
     for item_id, reason in the_plan.not_run.items():
         say(f"{item_id}: not run: {reason}")
-    pending = sum(run.pending() for run in the_plan.runs)
-    trials = sum(run.trials if run.kind == "trial" else 1 for run in the_plan.runs)
+    # The plan's counts are the suite's own runs; the matched-rate random runs are counted apart,
+    # by the policies they follow, so that a first run and a rerun print the same plan (a rerun
+    # has them planned already, a first run makes them once their policies' runs are complete).
+    own = [run for run in the_plan.runs if run.source is None]
+    matched_now = [run for run in the_plan.runs if run.source is not None]
+    pending = sum(run.pending() for run in own)
+    trials = sum(run.trials if run.kind == "trial" else 1 for run in own)
+    to_match = matched_sources(Plan(own, {}, {}), matched_items)
+    match_trials = sum(run.trials for run in to_match)
+    match_complete = sum(run.trials - run.pending() for run in matched_now)
     audits = suite_audits(runs_dir, quick, seed) if suite_path is None and not items else []  # the whole suite
     audit_pending = {
         task: sum(not is_complete(runner.trial_path(r.path, t)) for r in runs for t in range(trials))
@@ -739,8 +994,14 @@ def reproduce(
         guess.runs += sum(guess.per_run.get(run.path, 0.0) for run in matched_sources(the_plan, matched_items))
         guess.calibration = time.perf_counter() - started
         say(
-            f"{'quick' if quick else 'full'} suite: {len(the_plan.runs)} runs, {trials} trial logs, "
-            f"{pending} to run ({trials - pending} already complete); expected about "
+            f"{'quick' if quick else 'full'} suite: {len(own)} runs, {trials} trial logs, "
+            f"{pending} to run ({trials - pending} already complete)"
+            + (
+                f", then up to {len(to_match)} run{'s' if len(to_match) != 1 else ''} of random at the frontier policies' matched query rates "
+                f"({match_trials} trial logs, {match_complete} already complete)"
+                if to_match else ""
+            )
+            + "; expected about "
             f"{duration(guess.total)} on {jobs} {EXECUTORS.get(executor).workers[jobs > 1]} "
             f"(calibration {duration(guess.calibration)} done, runs {duration(guess.runs)}, audits {duration(guess.audit)}, "
             f"replay {duration(guess.replay)}; "
@@ -750,10 +1011,21 @@ def reproduce(
         bar.bar_format = "{desc}{percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} estimated s [{elapsed}<{remaining}, {rate_fmt}]"
         bar.set_description("runs", refresh=False)
         bar.reset(total=max(guess.total - guess.calibration, 1e-9))
+        failures: list[RunFailure] = []
+        told = 0
+
+        def tell() -> None:  # the phase's failed runs, one short line each
+            nonlocal told
+            for failure in failures[told:]:
+                (warn or say)(failure.line())
+            told = len(failures)
+
         execute(
             the_plan, jobs, bar, on_run=lambda run: bar.set_description(run.describe()),
             executor=executor, scheduler=scheduler, say=say, retries=retries, seconds=guess.per_run, pool=pool,
+            failures=failures,
         )
+        tell()
         matched = plan_matched_random(the_plan, matched_items, runs_dir)
         if matched.runs:
             pending_matched = sum(run.pending() for run in matched.runs)
@@ -766,10 +1038,21 @@ def reproduce(
                     matched, jobs, bar, on_run=lambda run: bar.set_description(f"{run.describe()} (matched random)"),
                     executor=executor, scheduler=scheduler, say=say, retries=retries,
                     seconds={run.path: guess.per_run.get(run.source, 0.0) for run in matched.runs if run.source}, pool=pool,
+                    failures=failures,
                 )
+                tell()
         for task, _, _ in audits:
             bar.set_description(f"{task} audit")
-            run_suite_audit(task, runs_dir, quick, jobs, seed, quiet, say, _Scaled(bar, guess.audit_per_trial.get(task, 0.0)), pool)
+            run_suite_audit(
+                task, runs_dir, quick, jobs, seed, quiet, say, _Scaled(bar, guess.audit_per_trial.get(task, 0.0)), pool,
+                failures=failures,
+            )
+            tell()
+        rerun = functools.partial(
+            rerun_command, quick=quick, suite_path=suite_path, provider=provider, out=out, seed=asked_seed,
+            authors_caches=authors_caches,
+        )
+        write_errors_log(out, failures, {key: f.rerun for found in item_failures(failures, rerun) for key, f in found.items()})
         if pool is not None:  # the replay's own workers start now: these go first
             stack.pop_all().close()
         say(f"runs done in {duration(time.perf_counter() - started)}: {runs_dir}")
@@ -780,6 +1063,7 @@ def reproduce(
 
             sections, line = report_sections()
             say(line)
+        failed, problems = item_failures(failures, functools.partial(rerun, relative=True))
         report = replay(
             [runs_dir],
             reports_dir,
@@ -791,6 +1075,8 @@ def reproduce(
             price=price,
             jobs=jobs,
             sections=sections,
+            failed=failed,
+            problems=problems,
         )
         bar.update(max(0.0, bar.total - bar.n))
     elapsed = time.perf_counter() - started
@@ -867,12 +1153,29 @@ def suite_audits(runs_dir: Path, quick: bool, seed: int) -> list[tuple[str, list
 
 def run_suite_audit(
     task: str, runs_dir: Path, quick: bool, jobs: int, seed: int, quiet: bool, say: Callable[[str], None], bar: Any = None,
-    pool: Any = None,
+    pool: Any = None, failures: list[RunFailure] | None = None,
 ) -> None:
     """The audit of ``task`` (``lagrseq audit TASK``) at the suite's length, into the suite's runs,
     so that replay adds its tables and figures (a preset run the suite also makes is shared).
     ``bar``: the display to move by one per trial (default: a bar of its own, in trials);
-    ``pool``: an executor already started (else one of ``jobs`` local processes)."""
+    ``pool``: an executor already started (else one of ``jobs`` local processes); ``failures``:
+    where its failed runs are added while the others go on (else :class:`TrialsFailed` is raised)."""
+    if failures is None:
+        _run_suite_audit(task, runs_dir, quick, jobs, seed, quiet, say, bar, pool, None)
+        return
+    try:
+        _run_suite_audit(task, runs_dir, quick, jobs, seed, quiet, say, bar, pool, failures)
+    except LagrseqError as caught:  # the audit could not be planned or started at all
+        error = " ".join(str(caught).split())
+        failures.append(
+            RunFailure(f"the {task} audit", runs_dir, 1, 1, (f"the {task} audit failed: {error}",), error, runner.rerun_advice(caught), audit=task)
+        )
+
+
+def _run_suite_audit(
+    task: str, runs_dir: Path, quick: bool, jobs: int, seed: int, quiet: bool, say: Callable[[str], None], bar: Any,
+    pool: Any, failures: list[RunFailure] | None,
+) -> None:
     from lagrseq.progress import bar as progress_bar
 
     chosen = SUITE_AUDITS[task]
@@ -889,5 +1192,20 @@ def run_suite_audit(
         if bar is None:
             bar = stack.enter_context(progress_bar(len(runs) * trials, "trial", quiet=quiet))
         sweep = [runner.SweepRun(r.config, trials, seed, r.provider, r.path, progress=runner.TrialCount(bar, r.config)) for r in runs]
-        runner.run_sweep(sweep, jobs, pool)
+        try:
+            runner.run_sweep(sweep, jobs, pool, keep_going=failures is not None)
+        except TrialsFailed as caught:
+            if failures is None:
+                raise
+            by_path = {r.path: r for r in runs}
+            for failed in caught.runs:
+                audited = by_path[failed.directory]
+                found = failed.failures
+                failures.append(
+                    RunFailure(
+                        _describe_config(audited.config, audited.provider), failed.directory, len(found), failed.total,
+                        tuple(f.describe() for f in found), found[0].error, failed.advice, audit=task,
+                        short=_short_name(audited.config, audited.provider),
+                    )
+                )
 
