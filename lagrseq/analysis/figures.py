@@ -249,7 +249,8 @@ def accuracy(
     if ax is None:
         labels = [_without_repeated_tags(f"{line.label} ({line.samples} per point)") for line in lines]
         rows = sum(len(textwrap.wrap(label, 72)) for label in labels)
-        ax = new_axes((FIGSIZE[0] + 1.6, FIGSIZE[1] + 0.19 * rows))
+        # a whole number of tenths of an inch: a whole number of pixels at the report's DPI
+        ax = new_axes((FIGSIZE[0] + 1.6, round(FIGSIZE[1] + 0.19 * rows, 1)))
     markers = "osD^vP*X"
     styles = ("-", "--", "-.", ":")
     for i, line in enumerate(lines):
