@@ -56,6 +56,7 @@ from matplotlib.lines import Line2D
 from lagrseq.analysis import inference, stats
 from lagrseq.analysis.figures import COLORS, STYLE
 from lagrseq.analysis.loading import Run, load
+from lagrseq.analysis.misses import missed
 from lagrseq.analysis.tables import Table, interval, number, to_csv, to_markdown
 from lagrseq.errors import LogError
 from lagrseq.logs.reader import read_info
@@ -283,8 +284,8 @@ def point_of(run: Run, price: Price | None, fallback_tokens: tuple[float, float]
     recorded = kind is not None and kind.replays
     queries = np.array([float((sent["trial"] == t).sum()) if len(sent) else 0.0 for t in trials])
     if kind is not None and kind.replays and len(sent):
-        missed = ~sent["source"].isin(stored_sources())
-        fallback = np.array([float(((sent["trial"] == t) & missed).sum()) for t in trials])
+        missing = missed(sent["source"])
+        fallback = np.array([float(((sent["trial"] == t) & missing).sum()) for t in trials])
     else:
         fallback = np.zeros(len(trials))
     outside = np.zeros(len(trials), dtype=bool)

@@ -51,7 +51,7 @@ from lagrseq.loop.adapters import (
 )
 from lagrseq.loop.experiment import Guide, Guided, TrialParts
 from lagrseq.loop.policies import Always, AskingPolicy, make_policy
-from lagrseq.paths import expand_user, input_path
+from lagrseq.paths import expand_user, input_path, source_checkout
 from lagrseq.registry import (
     POLICIES,
     PROVIDERS,
@@ -136,16 +136,19 @@ def check_recorded_spec(spec: ProviderSpec) -> None:
 def recorded_file(argument: str) -> Path:
     """The JSONL export of ``recorded:FILE.jsonl``: FILE as given, or, for a relative path that is
     not there, FILE in the source checkout lagrseq runs from (the packaged suite's
-    ``recorded_llm/`` files)."""
+    ``recorded_llm/`` files, found from any directory with an editable install). Only where the
+    answers are read from: logs and reports keep ``argument`` as written."""
     path = expand_user(argument, "recorded answers")
     if path.exists():
         return input_path(path, "recorded answers", "file")  # a FIFO or a directory: one line
-    import lagrseq
-
-    checkout = Path(lagrseq.__file__).resolve().parents[1] / argument  # the folder holding the package
+    checkout = source_checkout() / argument
     if not path.is_absolute() and checkout.is_file():
         return checkout
-    raise UsageError(f"recorded answers {argument!r}: no such JSONL file (relative paths are looked up here and in the lagrseq source checkout)")
+    raise UsageError(
+        f"recorded answers {argument!r}: no such JSONL file here or in a lagrseq source checkout (relative paths are "
+        "looked up in both; a non-editable install ships no recorded_llm/): run from a clone of the repository, "
+        "or copy its recorded_llm/ folder into this directory"
+    )
 
 
 def provider_options(spec: str, given: dict[str, Any], elsewhere: tuple[str, ...] = ()) -> Any:

@@ -96,6 +96,9 @@ class Plan:
     """Suite item id -> why none of its runs can be made here."""
     unavailable: dict[str, str]
     """Provider spec -> why it is not available."""
+    set_aside: dict[str, str] = field(default_factory=dict)
+    """Suite item id -> which of its runs cannot be made here and why, for items with others that
+    can (e.g. a recorded store's file not found: the item and the file, one line)."""
 
 
 def _provider_problem(spec: str) -> str | None:
@@ -114,6 +117,7 @@ def plan(suite: Suite, quick: bool, provider: str | None, runs_dir: Path, seed: 
     planned: dict[Path, PlannedRun] = {}
     not_run: dict[str, str] = {}
     unavailable: dict[str, str] = {}
+    set_aside: dict[str, str] = {}
     for item in suite.items:
         reasons: list[str] = []
         made = 0
@@ -130,19 +134,42 @@ def plan(suite: Suite, quick: bool, provider: str | None, runs_dir: Path, seed: 
                 path = probe.probe_path(runs_dir, config, spec_provider, seed, samples)
             else:
                 path = runner.run_directory(runs_dir, config, spec_provider, seed)
+            options = run_options(spec, spec_provider)
             run = planned.get(path)
             if run is None:
                 run = planned[path] = PlannedRun(
-                    spec.kind, config, spec_provider, seed, trials, samples, path
+                    spec.kind, config, spec_provider, seed, trials, samples, path, options=options
                 )
-                if is_authors_provider(spec_provider):
-                    run.options = wiring.provider_options(spec_provider, {"on_miss": "mock"})
+            elif run.options != options:
+                raise ConfigError(
+                    f"suite item {item.id!r}: run {spec.label!r} is the same run as item {run.items[0]!r}'s but "
+                    f"answers store misses otherwise ({_miss_rule(options)} vs {_miss_rule(run.options)}); "
+                    "give both the same on_miss"
+                )
             run.trials = max(run.trials, trials)
             if item.id not in run.items:
                 run.items.append(item.id)
         if made == 0:
             not_run[item.id] = "; ".join(sorted(set(reasons)))
-    return Plan(list(planned.values()), not_run, unavailable)
+        elif reasons:
+            set_aside[item.id] = f"{len(reasons)} of {len(item.runs)} runs not run: " + "; ".join(sorted(set(reasons)))
+    return Plan(list(planned.values()), not_run, unavailable, set_aside)
+
+
+def run_options(spec: RunSpec, provider: str) -> Any:
+    """The provider options of a suite run on ``provider``: runs on the authors' answers answer
+    store misses with the mock (counted beside each number, no verdict where it decided); a run
+    whose suite entry declares ``on_miss`` answers them as it says; else None (the kind's defaults:
+    a miss stops the run)."""
+    if is_authors_provider(provider):
+        return wiring.provider_options(provider, {"on_miss": "mock"})
+    if spec.on_miss is not None and wiring.provider_kind(provider).replays:
+        return wiring.provider_options(provider, {"on_miss": spec.on_miss})
+    return None
+
+
+def _miss_rule(options: Any) -> str:
+    return f"on_miss = {getattr(options, 'on_miss', None) or 'error (default)'}"
 
 
 def frontier_items(suite: Suite) -> set[str]:
@@ -640,7 +667,7 @@ def _execute_run(
     if run.kind == "accuracy":
         if not is_complete(run.path):
             results.append(
-                probe.run_accuracy_probe(run.config, run.samples, run.seed, run.provider, run.path)
+                probe.run_accuracy_probe(run.config, run.samples, run.seed, run.provider, run.path, provider_options=run.options)
             )
     else:
         results = runner.run_trials(
@@ -713,6 +740,8 @@ def reproduce(
     the_plan.runs += plan_matched_random(the_plan, matched_items, runs_dir).runs
     for item_id, reason in the_plan.not_run.items():
         say(f"{item_id}: not run: {reason}")
+    for item_id, reason in the_plan.set_aside.items():
+        say(f"{item_id}: {reason}")
     pending = sum(run.pending() for run in the_plan.runs)
     trials = sum(run.trials if run.kind == "trial" else 1 for run in the_plan.runs)
     audits = suite_audits(runs_dir, quick, seed) if suite_path is None and not items else []  # the whole suite
