@@ -216,8 +216,10 @@ def test_a_recorded_file_found_nowhere_is_one_line_naming_the_item_and_the_file(
     plan = reproduce.plan(load_suite(tmp_path / "suite.toml"), quick=True, provider=None, runs_dir=tmp_path / "runs", seed=0)
     line = plan.set_aside["open-llm"]
     assert "\n" not in line and line.startswith("1 of 2 runs not run: ")
-    assert f"recorded answers '{SMOLLM2}': no such JSONL file here or in a lagrseq source checkout" in line
-    assert "run from a clone of the repository, or copy its recorded_llm/ folder into this directory" in line
+    assert line == (
+        f"1 of 2 runs not run: recorded answers not found here or in a lagrseq source checkout: {SMOLLM2} (a non-editable "
+        "install ships no recorded_llm/: run from a clone of the repository, or copy its recorded_llm/ folder into this directory)"
+    )
     assert [run.provider for run in plan.runs] == ["mock"]  # the item's other run still runs
 
 

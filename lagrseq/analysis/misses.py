@@ -65,14 +65,16 @@ class Misses:
         """ "misses: k of n answers (x%)", and what answered them: refused (counted as wrong
         answers), or a fallback that can be right (named)."""
         line = f"misses: {self.missed} of {self.answers} answers ({percent(self.missed, self.answers)})"
-        parts = []
-        if self.refused:
-            parts.append(f"{self.refused} refused (counted as wrong answers)")
-        for source, count in self.by_source:
-            if source != REFUSED_SOURCE:
-                parts.append(f"{count} answered by the {source} fallback, which can be right")
-        if parts:
-            line += ": " + ", ".join(parts)
+
+        def what(source: str) -> str:
+            if source == REFUSED_SOURCE:
+                return "refused (counted as wrong answers)"
+            return f"answered by the {source} fallback, which can be right"
+
+        if len(self.by_source) == 1:
+            return f"{line}, {what(self.by_source[0][0])}"
+        if self.by_source:
+            line += ": " + ", ".join(f"{count} {what(source)}" for source, count in self.by_source)
         return line
 
 

@@ -133,6 +133,25 @@ def check_recorded_spec(spec: ProviderSpec) -> None:
         recorded_file(spec.argument)  # a JSONL export that is not there: one line now, not per trial
 
 
+MISSING_RECORDED_FIX = (
+    "a non-editable install ships no recorded_llm/: run from a clone of the repository, or copy its recorded_llm/ folder into this directory"
+)
+
+
+def missing_recorded_file(spec: str) -> str | None:
+    """The JSONL file of a ``recorded:FILE.jsonl`` spec when it is found neither here nor in the
+    source checkout (:func:`recorded_file`), as written; None for any other spec."""
+    kind = PROVIDERS.find(spec.partition(":")[0])
+    argument = spec.partition(":")[2]
+    if kind is None or not kind.replays or not argument.endswith(".jsonl"):
+        return None
+    try:
+        recorded_file(argument)
+    except UsageError:
+        return argument
+    return None
+
+
 def recorded_file(argument: str) -> Path:
     """The JSONL export of ``recorded:FILE.jsonl``: FILE as given, or, for a relative path that is
     not there, FILE in the source checkout lagrseq runs from (the packaged suite's
@@ -146,8 +165,7 @@ def recorded_file(argument: str) -> Path:
         return checkout
     raise UsageError(
         f"recorded answers {argument!r}: no such JSONL file here or in a lagrseq source checkout (relative paths are "
-        "looked up in both; a non-editable install ships no recorded_llm/): run from a clone of the repository, "
-        "or copy its recorded_llm/ folder into this directory"
+        f"looked up in both; {MISSING_RECORDED_FIX})"
     )
 
 

@@ -120,12 +120,17 @@ def plan(suite: Suite, quick: bool, provider: str | None, runs_dir: Path, seed: 
     set_aside: dict[str, str] = {}
     for item in suite.items:
         reasons: list[str] = []
+        files: list[str] = []
         made = 0
         for spec in item.runs:
             spec_provider = spec.provider_spec(default)
             config, reason = _resolve(spec, quick, spec_provider, unavailable)
             if config is None:
-                reasons.append(reason)
+                missing = wiring.missing_recorded_file(spec_provider)
+                if missing is None:
+                    reasons.append(reason)
+                elif missing not in files:
+                    files.append(missing)
                 continue
             made += 1
             trials, _, _ = spec.length(quick)
@@ -149,10 +154,15 @@ def plan(suite: Suite, quick: bool, provider: str | None, runs_dir: Path, seed: 
             run.trials = max(run.trials, trials)
             if item.id not in run.items:
                 run.items.append(item.id)
+        missed = len(item.runs) - made
+        if files:  # one reason for all the files an item needs and this machine lacks
+            reasons.append(
+                f"recorded answers not found here or in a lagrseq source checkout: {', '.join(files)} ({wiring.MISSING_RECORDED_FIX})"
+            )
         if made == 0:
             not_run[item.id] = "; ".join(sorted(set(reasons)))
-        elif reasons:
-            set_aside[item.id] = f"{len(reasons)} of {len(item.runs)} runs not run: " + "; ".join(sorted(set(reasons)))
+        elif missed:
+            set_aside[item.id] = f"{missed} of {len(item.runs)} runs not run: " + "; ".join(sorted(set(reasons)))
     return Plan(list(planned.values()), not_run, unavailable, set_aside)
 
 
