@@ -138,6 +138,13 @@ def test_a_table_made_on_a_store_that_lacks_prompts_shows_the_refused_misses(tmp
     assert (int(row["answers"]), int(row["misses"]), row["misses_answered_by"]) == (len(asked), refused, "refused")
     assert float(row["miss_share"]) == pytest.approx(refused / len(asked), rel=1e-5)
     assert shown in row["provenance_why"]
+    # a frontier point on the store says the same, in the same words
+    from lagrseq.analysis import frontier
+
+    points = frontier.points_of(load([tmp_path / "runs"]).runs, None)
+    board = frontier.table(points)
+    cell = board.rows[0][board.columns.index("store misses (refused, or answered by a fallback)")]
+    assert cell == f"misses: {refused} of {len(asked)} answers ({share}), refused"
     # replay stays byte for byte: the same logs give the same tables
     again = replay([tmp_path / "runs"], tmp_path / "again", suite=suite)
     for name in ("tables/queries.md", "tables/queries.csv", "tables/scoreboard.csv", "scoreboard.md", "index.md"):
