@@ -2,7 +2,8 @@
 
 ``lagrseq/experiments/paper_suite.toml`` lists the paper's items. Each item names the function
 that renders it (``render``) and the runs it needs; a run is a task, a method, a preset, a provider
-and ``--set`` overrides, with its length for the full suite and for ``--quick``. Runs that several
+(on a recorded store, with what answers a query the store lacks: ``on_miss``) and ``--set``
+overrides, with its length for the full suite and for ``--quick``. Runs that several
 items share (Fig. 5(a), Fig. 6(a) and the tau = 0 row of Table 2 use the same LaGR-SEQ runs) are
 run once, because a run's directory is named after its whole configuration.
 
