@@ -33,6 +33,14 @@ from lagrseq.errors import LagrseqError, UsageError
 Expect = Literal["file", "directory", "any"]
 
 
+def source_checkout() -> Path:
+    """The folder holding the lagrseq package: the clone for an editable install (where the
+    packaged suite's ``recorded_llm/`` lies), site-packages otherwise."""
+    import lagrseq
+
+    return Path(lagrseq.__file__).resolve().parents[1]
+
+
 def writable_directory(path: str | Path, flag: str = "--out") -> Path:
     """``path`` as a directory this process can write into (created if missing)."""
     path = expand_user(path, flag)

@@ -484,6 +484,14 @@ def _load_plugins(registry: Registry[Any]) -> None:
         registry._entries.update(staged._entries)
 
 
+ON_MISS = ("error", "mock", "live", "refuse")
+"""What answers a query a recorded store lacks (``--on-miss``, a suite run's ``on_miss``): stop
+with an error, the rule-based mock, the live server (recorded), or a refusal (source ``miss``,
+never accepted). Here, below both the command line and the suite file, which both check it."""
+REFUSED_SOURCE = "miss"
+"""The ``source`` of a refused miss (``on_miss = refuse``) in a ``/query`` record."""
+
+
 def kind_of(spec: str) -> ProviderKind | None:
     """The registered kind of a ``--provider`` value (``KIND[:ARGUMENT]``), None if unknown."""
     return PROVIDERS.find(spec.partition(":")[0])

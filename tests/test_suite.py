@@ -92,6 +92,67 @@ def test_bad_suites_give_one_line(tmp_path: Path, edit: tuple[str, str], message
     assert "\n" not in str(info.value)
 
 
+ON_MISS_SUITE = """
+[suite]
+provider = "mock"
+
+[[items]]
+id = "t"
+title = "T"
+render = "query-table"
+task = "cube-stacking"
+preset = "upstream"
+on_miss = "refuse"
+
+[[items.runs]]
+label = "on the store, inherited"
+method = "lagr"
+provider = "recorded:store.jsonl"
+
+[[items.runs]]
+label = "on the store, its own"
+method = "lagr-seq"
+provider = "recorded:store.jsonl"
+on_miss = "mock"
+
+[[items.runs]]
+label = "the mock: an inherited on_miss does not apply"
+method = "lagr"
+provider = "mock"
+
+[[items.runs]]
+label = "the suite's default provider (reproduce --provider may make it a store)"
+method = "lagr-seq"
+"""
+
+
+def test_on_miss_is_a_run_key_an_item_passes_to_its_store_runs(tmp_path: Path) -> None:
+    inherited, own, mocked, default = load_suite(_write(tmp_path, ON_MISS_SUITE)).items[0].runs
+    assert (inherited.on_miss, own.on_miss, mocked.on_miss, default.on_miss) == ("refuse", "mock", None, "refuse")
+    plain = load_suite(_write(tmp_path, SUITE)).items[0].runs[0]
+    assert plain.on_miss is None  # not declared: the provider's default (a miss stops the run)
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (('on_miss = "mock"', 'on_miss = "ignore"'), "run 2: on_miss = 'ignore'; expected one of error, mock, live, refuse$"),
+        (('on_miss = "mock"', "on_miss = 1"), "on_miss = 1; expected one of error, mock, live, refuse$"),
+        (('on_miss = "refuse"', 'on_miss = "later"'), "run 1: on_miss = 'later'; expected one of"),
+        (
+            ('method = "lagr"\nprovider = "mock"', 'method = "lagr"\nprovider = "mock"\non_miss = "refuse"'),
+            "run 3: on_miss = 'refuse' with provider = 'mock'; on_miss applies to recorded:STORE runs only",
+        ),
+    ],
+)
+def test_a_bad_on_miss_gives_one_line(tmp_path: Path, edit: tuple[str, str], message: str) -> None:
+    text = ON_MISS_SUITE.replace(*edit, 1)
+    assert text != ON_MISS_SUITE
+    with pytest.raises(ConfigError, match=message) as info:
+        load_suite(_write(tmp_path, text))
+    assert "\n" not in str(info.value) and str(info.value).startswith("suite item 't', run ")
+
+
 def test_items_and_runs_that_are_not_tables_give_one_line(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match=r"^items = 3; expected a list of tables"):
         load_suite(_write(tmp_path, "items = 3\n"))

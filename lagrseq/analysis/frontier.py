@@ -57,6 +57,7 @@ from matplotlib.ticker import FixedLocator, FuncFormatter, NullLocator
 from lagrseq.analysis import inference, stats
 from lagrseq.analysis.figures import COLORS, STYLE
 from lagrseq.analysis.loading import Run, load
+from lagrseq.analysis.misses import missed, on_store, percent
 from lagrseq.analysis.tables import Table, interval, number, to_csv, to_markdown
 from lagrseq.errors import LogError
 from lagrseq.logs.reader import read_info
@@ -284,8 +285,8 @@ def point_of(run: Run, price: Price | None, fallback_tokens: tuple[float, float]
     recorded = kind is not None and kind.replays
     queries = np.array([float((sent["trial"] == t).sum()) if len(sent) else 0.0 for t in trials])
     if kind is not None and kind.replays and len(sent):
-        missed = ~sent["source"].isin(stored_sources())
-        fallback = np.array([float(((sent["trial"] == t) & missed).sum()) for t in trials])
+        missing = missed(sent["source"])
+        fallback = np.array([float(((sent["trial"] == t) & missing).sum()) for t in trials])
     else:
         fallback = np.zeros(len(trials))
     outside = np.zeros(len(trials), dtype=bool)
@@ -301,6 +302,20 @@ def point_of(run: Run, price: Price | None, fallback_tokens: tuple[float, float]
         on_miss=str(_json_field(metadata.get("provider_options")).get("on_miss", "")) if recorded else "",
         tuning=_json_field(metadata.get(TUNING_NOTE)),
     )
+
+
+def _misses_cell(p: Point) -> str:
+    """A point's store misses as every table shows them ("misses: k of n answers (x%)", with what
+    answered them: refused, or a fallback that can be right); "—" for a point on no store."""
+    if not on_store(str(p.run.key.provider)):
+        return "—"
+    missed_answers, answers = int(p.fallback.sum()), int(p.queries.sum())
+    line = f"misses: {missed_answers} of {answers} answers ({percent(missed_answers, answers)})"
+    if p.on_miss == "refuse":
+        return line + ", refused"
+    if missed_answers and p.on_miss:
+        return line + f", answered by the {p.on_miss} fallback, which can be right"
+    return line
 
 
 def policy_order(name: str) -> int:
@@ -448,7 +463,7 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
         "steps to first solve [95% CI]", "episodes solved / trial [95% CI]", "solved trials",
         f"vs always on steps to first solve (margin {number(margin, 0)})", "random at the matched rate: steps to first solve",
         "vs matched random", "credited", "vs always on episodes solved (margin 10%)", "return / trial [95% CI]", "return IQM [95% CI]", "P(return > always) [95% CI]",
-        "fallback answers (refused: store misses)", "trials decided outside the store", "queries vs always",
+        "store misses (refused, or answered by a fallback)", "trials decided outside the store", "queries vs always",
     )
     rows: list[tuple[str, ...]] = []
     data: list[dict[str, Any]] = []
@@ -491,7 +506,7 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
             f"{number(r[0], 1)} {interval(r[1], r[2], 1)}",
             f"{number(iqm, 1)} {interval(iqm_low, iqm_high, 1)}",
             f"{number(poi, 2)} {interval(poi_low, poi_high, 2)}",
-            f"{int(p.fallback.sum())} ({100 * p.miss_share:.0f}%)" + (" refused" if p.on_miss == "refuse" else ""),
+            _misses_cell(p),
             f"{int(p.outside.sum())}/{len(p.outside)}",
             "n/a" if math.isnan(ratio) else f"{100 * ratio:+.0f}%",
         ))

@@ -22,9 +22,10 @@ from lagrseq import config as cfg
 from lagrseq.analysis import figures, stats
 from lagrseq.analysis import provenance as prov
 from lagrseq.analysis.loading import ACCURACY_METHOD, Run
+from lagrseq.analysis.misses import Misses, count_misses
 from lagrseq.analysis.tables import Table, interval, number, plus_minus
 from lagrseq.errors import ConfigError
-from lagrseq.registry import kind_of, stored_sources
+from lagrseq.registry import stored_sources
 from lagrseq.running.suite import Item, RunSpec, is_authors_provider, matches
 
 Price = Callable[[str, int, int], float | None]
@@ -45,7 +46,10 @@ class Match:
     provider: str = ""
     """The provider spec shown for this run (replaces ``{provider}`` in its row name)."""
     note: str = ""
-    """Recorded runs: how many answers were misses answered by another source (e.g. the mock)."""
+    """Recorded runs: how many answers missed the store and what answered them ("misses: k of n
+    answers (x%)", :func:`recorded_misses`)."""
+    misses: Misses | None = None
+    """Recorded runs: the count behind :attr:`note`."""
 
     @property
     def row(self) -> str:
@@ -148,7 +152,7 @@ def match(
         short = shorter_than_asked(spec, resolved, best) if is_authors_provider(best.key.provider) else ""
         note = "; ".join(part for part in (short, note) if part)
         label = spec.display_label(best.key.provider) + (f" [{note}]" if note else "")
-        out.append(Match(spec, label, best, "", best.key.provider, note))
+        out.append(Match(spec, label, best, "", best.key.provider, note, run_misses(best)))
     return out
 
 
@@ -172,26 +176,25 @@ def shorter_than_asked(spec: RunSpec, full: dict[str, Any], run: Run) -> str:
 
 
 def recorded_misses(run: Run) -> str:
-    """For a run on a recorded store: "all N answers recorded", or "K of N answers from the
-    fallback mock" (K answered by the fallback, not the store) from its queries' ``source``
-    column, with the trials whose first accepted answer came from the fallback; empty for other
-    runs."""
-    kind = kind_of(run.key.provider)
-    if kind is None or not kind.replays or ":" not in run.key.provider or run.queries.empty:
+    """For a run on a recorded store: "misses: K of N answers (x%)" and what answered them
+    (:meth:`lagrseq.analysis.misses.Misses.text`: refused, or a fallback that can be right), from
+    its queries' ``source`` column; where a fallback that can be right answered misses, the trials
+    whose first accepted answer came from it (a refusal is never accepted). Empty for other runs."""
+    found = run_misses(run)
+    if found is None:
         return ""
-    asked = run.queries[run.queries["queried"].fillna(False).astype(bool)]
-    sources = asked["source"].fillna("").astype(str)
-    misses = sources[~sources.isin(stored_sources())]
-    if len(asked) == 0:
+    if found.answers == 0:
         return "no queries"
     decided_text = ""
-    if run.key.method != ACCURACY_METHOD:  # an accuracy probe accepts nothing: no trial to decide
+    if found.answered_by_fallback and run.key.method != ACCURACY_METHOD:  # an accuracy probe accepts nothing: no trial to decide
         decided, trials = fallback_decided(run)
         decided_text = f"; first accepted answer from the fallback in {decided}/{trials} trials"
-    if len(misses) == 0:
-        return f"all {len(asked)} answers recorded{decided_text}"
-    kinds = "/".join(sorted(set(misses)))
-    return f"{len(misses)} of {len(asked)} answers from the fallback {kinds}{decided_text}"
+    return found.text() + decided_text
+
+
+def run_misses(run: Run) -> Misses | None:
+    """The misses of a run on a recorded store (None for other runs)."""
+    return count_misses(run.key.provider, run.queries)
 
 
 def fallback_decided(run: Run) -> tuple[int, int]:
@@ -444,7 +447,7 @@ def build_query_table(item: Item, matched: Sequence[Match]) -> Built:
         tuple(display),
         pd.DataFrame(data),
     )
-    method = "LLM queries per run (trial), mean ± standard error over trials (n per cell), next to the paper's values, each row with what made it (provenance); the CSV adds the standard deviation and a 95% Student-t interval. On recorded answers, each cell counts the answers that were not recorded and the trials whose first accepted answer came from the fallback."
+    method = "LLM queries per run (trial), mean ± standard error over trials (n per cell), next to the paper's values, each row with what made it (provenance); the CSV adds the standard deviation and a 95% Student-t interval. On recorded answers, each cell shows its misses (answers the store lacked: k of n, refused or answered by a fallback that can be right) and, for such a fallback, the trials whose first accepted answer came from it."
     return Built(None, None, [(item.id, table)], method)
 
 

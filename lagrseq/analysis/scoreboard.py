@@ -146,7 +146,7 @@ def build(
             "margin_reason": margin_reason(value, spread) if value is not None else "",
             "source": source_name(m.provider) + (f" ({m.spec.preset} preset)" if m.spec.preset != "upstream" else ""),
             "provenance": made.kind,
-            "provenance_why": made.why,
+            "provenance_why": made.why + (f"; {m.misses.text()}" if m.misses is not None else ""),
             "mean": wide.mean,
             "ci_low": wide.low,
             "ci_high": wide.high,
@@ -157,6 +157,12 @@ def build(
             "verdict_reason": reason,
             "digits": digits,
             "note": m.note,
+            # a number made on a recorded store: its answers, those the store lacked, and what
+            # answered them (refused, or a fallback that can be right)
+            "answers": m.misses.answers if m.misses is not None else None,
+            "misses": m.misses.missed if m.misses is not None else None,
+            "miss_share": m.misses.share if m.misses is not None else None,
+            "misses_answered_by": m.misses.answered_by if m.misses is not None else None,
             "preset": m.spec.preset,
             "quantity": quantity,
             "_config": m.run.config if m.run is not None else None,
@@ -238,7 +244,10 @@ def build(
             verdict = f"✗ {verdict}"
         if r["paper_value"] is not None and r["verdict"] != inference.FITTED:
             verdict += f" (margin ±{r['margin']:.3g}: {r['margin_reason']})"
-        display.append((r["title"], r["what"], r["paper"], r["source"], r["provenance"], value, verdict, r["explained_by"]))
+        made_by = r["provenance"]
+        if r["misses"]:
+            made_by += f" ({r['misses_answered_by']} misses: {r['misses']} of {r['answers']})"
+        display.append((r["title"], r["what"], r["paper"], r["source"], made_by, value, verdict, r["explained_by"]))
     data = pd.DataFrame(rows).drop(columns=["digits", "_config"], errors="ignore")
     return Table(
         "Scoreboard: the paper's numbers beside lagrseq's (mean [95% t-interval] (n)); verdict: reproduced / ✗ differs / "

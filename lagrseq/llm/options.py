@@ -17,9 +17,7 @@ from lagrseq.config import number_type
 from lagrseq.errors import UsageError
 from lagrseq.llm.servers import DEFAULT_BASE_URL, SERVER_KINDS, base_url_problem
 from lagrseq.registry import NOT_LOGGED, flag
-
-ON_MISS = ("error", "mock", "live", "refuse")
-"""What answers a query a recorded store lacks (``--on-miss``)."""
+from lagrseq.registry import ON_MISS as ON_MISS  # defined below the suite file, which checks it too
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,8 @@
 
 ``lagrseq/experiments/paper_suite.toml`` lists the paper's items. Each item names the function
 that renders it (``render``) and the runs it needs; a run is a task, a method, a preset, a provider
-and ``--set`` overrides, with its length for the full suite and for ``--quick``. Runs that several
+(on a recorded store, with what answers a query the store lacks: ``on_miss``) and ``--set``
+overrides, with its length for the full suite and for ``--quick``. Runs that several
 items share (Fig. 5(a), Fig. 6(a) and the tau = 0 row of Table 2 use the same LaGR-SEQ runs) are
 run once, because a run's directory is named after its whole configuration.
 
@@ -25,7 +26,7 @@ from typing import Any
 
 from lagrseq import config as cfg
 from lagrseq.errors import ConfigError
-from lagrseq.registry import kind_of
+from lagrseq.registry import ON_MISS, kind_of
 
 RENDERERS = ("returns", "query-bars", "query-table", "ratio-table", "accuracy", "config-table", "frontier")
 KINDS = ("trial", "accuracy")
@@ -43,7 +44,7 @@ _INT_RANGES = {
 }
 _INT_KEYS = tuple(_INT_RANGES)
 _SEED = cfg.Range(ge=0, le=cfg.INT64_MAX)
-_RUN_KEYS = {"label", "kind", "task", "method", "preset", "provider", "set", "row", "column"}
+_RUN_KEYS = {"label", "kind", "task", "method", "preset", "provider", "on_miss", "set", "row", "column"}
 _RUN_KEYS |= set(_INT_KEYS)
 _INHERITED = _RUN_KEYS - {"label", "row", "column"}
 _OPTIONS = ("x", "band", "window", "ylabel", "numerator", "denominator", "reference", "row_header")
@@ -63,6 +64,10 @@ class RunSpec:
     preset: str
     provider: str | None
     """Provider spec; None means the suite's default (``lagrseq reproduce --provider``)."""
+    on_miss: str | None = None
+    """``recorded:STORE`` runs: what answers a query the store lacks (``--on-miss``: error, mock,
+    live, refuse); None: the provider's default (error). A store whose prompts depend on the
+    learner's path (a DQN's, which differs between CPUs) must say (DESIGN section 12)."""
     overrides: tuple[str, ...] = ()
     """``--set section.field=value`` overrides, run length excluded."""
     kind: str = "trial"
@@ -228,6 +233,7 @@ def _run(item_id: str, index: int, defaults: Mapping[str, Any], data: Mapping[st
             raise ConfigError(f"{where}: give run.{name} as {name} / quick_{name}, not in set")
     ints = {key: _int(where, key, merged[key], _INT_RANGES[key]) for key in _INT_KEYS if key in merged}
     trials = ints.get("trials", 10)
+    on_miss = _on_miss(where, merged, "on_miss" in data)
     label = data.get("label")
     if not isinstance(label, str) or not label:
         raise ConfigError(f"{where}: label is missing")
@@ -237,6 +243,7 @@ def _run(item_id: str, index: int, defaults: Mapping[str, Any], data: Mapping[st
         method=merged["method"],
         preset=merged["preset"],
         provider=merged.get("provider"),
+        on_miss=on_miss,
         overrides=tuple(merged["set"]),
         kind=kind,
         trials=trials,
@@ -250,6 +257,27 @@ def _run(item_id: str, index: int, defaults: Mapping[str, Any], data: Mapping[st
         row=None if data.get("row") is None else str(data["row"]),
         column=None if data.get("column") is None else str(data["column"]),
     )
+
+
+def _on_miss(where: str, merged: Mapping[str, Any], own: bool) -> str | None:
+    """A run's ``on_miss``: one of :data:`lagrseq.registry.ON_MISS`. Set on the run itself, its
+    provider must be a store (``recorded:STORE``) or the suite's default (which ``reproduce
+    --provider`` may make one); inherited from the item, it applies to the item's store runs only."""
+    value = merged.get("on_miss")
+    if value is None:
+        return None
+    if value not in ON_MISS:
+        raise ConfigError(f"{where}: on_miss = {cfg.show_value(value)}; expected one of {', '.join(ON_MISS)}")
+    provider = merged.get("provider")
+    kind = None if provider is None else kind_of(provider)
+    if kind is not None and not kind.replays:
+        if own:
+            raise ConfigError(
+                f"{where}: on_miss = {cfg.show_value(value)} with provider = {cfg.show_value(provider)}; "
+                "on_miss applies to recorded:STORE runs only: remove it or give a recorded provider"
+            )
+        return None
+    return str(value)
 
 
 def load_suite(path: str | Path | None = None) -> Suite:

@@ -51,7 +51,7 @@ from lagrseq.loop.adapters import (
 )
 from lagrseq.loop.experiment import Guide, Guided, TrialParts
 from lagrseq.loop.policies import Always, AskingPolicy, make_policy
-from lagrseq.paths import expand_user, input_path
+from lagrseq.paths import expand_user, input_path, source_checkout
 from lagrseq.registry import (
     POLICIES,
     PROVIDERS,
@@ -133,19 +133,40 @@ def check_recorded_spec(spec: ProviderSpec) -> None:
         recorded_file(spec.argument)  # a JSONL export that is not there: one line now, not per trial
 
 
+MISSING_RECORDED_FIX = (
+    "a non-editable install ships no recorded_llm/: run from a clone of the repository, or copy its recorded_llm/ folder into this directory"
+)
+
+
+def missing_recorded_file(spec: str) -> str | None:
+    """The JSONL file of a ``recorded:FILE.jsonl`` spec when it is found neither here nor in the
+    source checkout (:func:`recorded_file`), as written; None for any other spec."""
+    kind = PROVIDERS.find(spec.partition(":")[0])
+    argument = spec.partition(":")[2]
+    if kind is None or not kind.replays or not argument.endswith(".jsonl"):
+        return None
+    try:
+        recorded_file(argument)
+    except UsageError:
+        return argument
+    return None
+
+
 def recorded_file(argument: str) -> Path:
     """The JSONL export of ``recorded:FILE.jsonl``: FILE as given, or, for a relative path that is
     not there, FILE in the source checkout lagrseq runs from (the packaged suite's
-    ``recorded_llm/`` files)."""
+    ``recorded_llm/`` files, found from any directory with an editable install). Only where the
+    answers are read from: logs and reports keep ``argument`` as written."""
     path = expand_user(argument, "recorded answers")
     if path.exists():
         return input_path(path, "recorded answers", "file")  # a FIFO or a directory: one line
-    import lagrseq
-
-    checkout = Path(lagrseq.__file__).resolve().parents[1] / argument  # the folder holding the package
+    checkout = source_checkout() / argument
     if not path.is_absolute() and checkout.is_file():
         return checkout
-    raise UsageError(f"recorded answers {argument!r}: no such JSONL file (relative paths are looked up here and in the lagrseq source checkout)")
+    raise UsageError(
+        f"recorded answers {argument!r}: no such JSONL file here or in a lagrseq source checkout (relative paths are "
+        f"looked up in both; {MISSING_RECORDED_FIX})"
+    )
 
 
 def provider_options(spec: str, given: dict[str, Any], elsewhere: tuple[str, ...] = ()) -> Any:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Any
 
 import msgspec
 
@@ -29,18 +30,21 @@ def run_accuracy_probe(
     provider_spec: str,
     path: Path,
     log: bool = True,
+    provider_options: Any = None,
 ) -> TrialResult:
     """Query the provider ``samples`` times with every prefix of the target (1/N to N/N of the
     sequence) and log each answer as a ``/query`` record with ``prefix_length`` and ``fraction``
-    (= prefix length / N)."""
+    (= prefix length / N). ``provider_options``: the provider kind's (None: its defaults), logged
+    with the run; a store's ``on_miss`` applies here as in a trial (the prefixes are fixed, so a
+    miss is a prefix nobody recorded: a refused one counts as a wrong answer, source ``miss``)."""
     from lagrseq.running.runner import run_metadata
 
     started = time.perf_counter()
     task = make_task(config)
     if not isinstance(task, cube.CubeStacking):
         raise UsageError(f"the accuracy probe needs a sequence task (cube-stacking), not {config.task.name!r}")
-    provider = make_provider(provider_spec, config, seeding.generator(seed, 0, Stream.LLM))
-    metadata = {**run_metadata(config, 0, seed, provider_spec), "method": ACCURACY_METHOD}
+    provider = make_provider(provider_spec, config, seeding.generator(seed, 0, Stream.LLM), provider_options)
+    metadata = {**run_metadata(config, 0, seed, provider_spec, provider_options), "method": ACCURACY_METHOD}
     metadata["samples"] = str(samples)
     # a chunk per prefix (chunk_bytes=0): a crash keeps every finished prefix, live answers included
     sink: Sink = McapSink(path, metadata, chunk_bytes=0) if log else NullSink()

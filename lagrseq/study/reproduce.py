@@ -99,6 +99,9 @@ class Plan:
     """Suite item id -> why none of its runs can be made here."""
     unavailable: dict[str, str]
     """Provider spec -> why it is not available."""
+    set_aside: dict[str, str] = field(default_factory=dict)
+    """Suite item id -> which of its runs cannot be made here and why, for items with others that
+    can (e.g. a recorded store's file not found: the item and the file, one line)."""
 
 
 ERRORS_LOG = "reproduce-errors.log"
@@ -324,14 +327,20 @@ def plan(suite: Suite, quick: bool, provider: str | None, runs_dir: Path, seed: 
     planned: dict[Path, PlannedRun] = {}
     not_run: dict[str, str] = {}
     unavailable: dict[str, str] = {}
+    set_aside: dict[str, str] = {}
     for item in suite.items:
         reasons: list[str] = []
+        files: list[str] = []
         made = 0
         for spec in item.runs:
             spec_provider = spec.provider_spec(default)
             config, reason = _resolve(spec, quick, spec_provider, unavailable)
             if config is None:
-                reasons.append(reason)
+                missing = wiring.missing_recorded_file(spec_provider)
+                if missing is None:
+                    reasons.append(reason)
+                elif missing not in files:
+                    files.append(missing)
                 continue
             made += 1
             trials, _, _ = spec.length(quick)
@@ -340,19 +349,47 @@ def plan(suite: Suite, quick: bool, provider: str | None, runs_dir: Path, seed: 
                 path = probe.probe_path(runs_dir, config, spec_provider, seed, samples)
             else:
                 path = runner.run_directory(runs_dir, config, spec_provider, seed)
+            options = run_options(spec, spec_provider)
             run = planned.get(path)
             if run is None:
                 run = planned[path] = PlannedRun(
-                    spec.kind, config, spec_provider, seed, trials, samples, path
+                    spec.kind, config, spec_provider, seed, trials, samples, path, options=options
                 )
-                if is_authors_provider(spec_provider):
-                    run.options = wiring.provider_options(spec_provider, {"on_miss": "mock"})
+            elif run.options != options:
+                raise ConfigError(
+                    f"suite item {item.id!r}: run {spec.label!r} is the same run as item {run.items[0]!r}'s but "
+                    f"answers store misses otherwise ({_miss_rule(options)} vs {_miss_rule(run.options)}); "
+                    "give both the same on_miss"
+                )
             run.trials = max(run.trials, trials)
             if item.id not in run.items:
                 run.items.append(item.id)
+        missed = len(item.runs) - made
+        if files:  # one reason for all the files an item needs and this machine lacks
+            reasons.append(
+                f"recorded answers not found here or in a lagrseq source checkout: {', '.join(files)} ({wiring.MISSING_RECORDED_FIX})"
+            )
         if made == 0:
             not_run[item.id] = "; ".join(sorted(set(reasons)))
-    return Plan(list(planned.values()), not_run, unavailable)
+        elif missed:
+            set_aside[item.id] = f"{missed} of {len(item.runs)} runs not run: " + "; ".join(sorted(set(reasons)))
+    return Plan(list(planned.values()), not_run, unavailable, set_aside)
+
+
+def run_options(spec: RunSpec, provider: str) -> Any:
+    """The provider options of a suite run on ``provider``: runs on the authors' answers answer
+    store misses with the mock (counted beside each number, no verdict where it decided); a run
+    whose suite entry declares ``on_miss`` answers them as it says; else None (the kind's defaults:
+    a miss stops the run)."""
+    if is_authors_provider(provider):
+        return wiring.provider_options(provider, {"on_miss": "mock"})
+    if spec.on_miss is not None and wiring.provider_kind(provider).replays:
+        return wiring.provider_options(provider, {"on_miss": spec.on_miss})
+    return None
+
+
+def _miss_rule(options: Any) -> str:
+    return f"on_miss = {getattr(options, 'on_miss', None) or 'error (default)'}"
 
 
 def frontier_items(suite: Suite) -> set[str]:
@@ -879,7 +916,7 @@ def _execute_run(
     if run.kind == "accuracy":
         if not is_complete(run.path):
             results.append(
-                probe.run_accuracy_probe(run.config, run.samples, run.seed, run.provider, run.path)
+                probe.run_accuracy_probe(run.config, run.samples, run.seed, run.provider, run.path, provider_options=run.options)
             )
     else:
         results = runner.run_trials(
@@ -960,6 +997,8 @@ def reproduce(
     the_plan.runs += plan_matched_random(the_plan, matched_items, runs_dir).runs
     for item_id, reason in the_plan.not_run.items():
         say(f"{item_id}: not run: {reason}")
+    for item_id, reason in the_plan.set_aside.items():
+        say(f"{item_id}: {reason}")
     # The plan's counts are the suite's own runs; the matched-rate random runs are counted apart,
     # by the policies they follow, so that a first run and a rerun print the same plan (a rerun
     # has them planned already, a first run makes them once their policies' runs are complete).

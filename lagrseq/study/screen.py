@@ -594,9 +594,19 @@ def _with_predictions(fig: Any, screens: Sequence[Screen], model: Any) -> Any:
     return fig
 
 
-def report_sections(root: Path = Path(".")) -> tuple[list[tuple[str, Any, Any]], str]:
+def report_sections(root: Path | None = None) -> tuple[list[tuple[str, Any, Any]], str]:
     """The sections of the report's "open models" item, as (stem, table, figure or None), and a
-    line saying what they were made of (or why there are none)."""
+    line saying what they were made of (or why there are none). The files are read under
+    ``root``; by default under the current directory, else under the source checkout lagrseq was
+    installed from (an editable install: ``reproduce`` started in another directory finds them)."""
+    if root is None:
+        from lagrseq.paths import source_checkout
+
+        roots = [Path("."), source_checkout()]
+        root = next((where for where in roots if any(where.glob(SCREEN_FILES))), roots[0])
+        where = "here or in a lagrseq source checkout (a non-editable install ships none)"
+    else:
+        where = f"under {root}"
     import pandas as pd
 
     from lagrseq.analysis.tables import Table
@@ -605,7 +615,7 @@ def report_sections(root: Path = Path(".")) -> tuple[list[tuple[str, Any, Any]],
 
     files = sorted(root.glob(SCREEN_FILES))
     if not files:
-        return [], f"open models: not made: no {SCREEN_FILES} under {root.resolve()} (lagrseq reproduce reads them from the repository root)"
+        return [], f"open models: not made: no {SCREEN_FILES} {where}: run lagrseq reproduce from a clone of the repository, or copy its recorded_llm/ folder here"
     configs = [record_config(task, "upstream", None, []) for task in SCREEN_TASKS]
     screens = screens_from(files, configs)
     data = pd.read_csv(io.StringIO(csv_text(screens)))

@@ -273,7 +273,7 @@ def test_a_row_on_the_authors_answers_counts_fallback_decided_trials_and_says_wh
     (m,) = items.match(_item("returns", spec), [run], "mock")
     assert m.run is run
     assert "first accepted answer from the fallback in 2/5 trials" in m.note
-    assert "2 of 15 answers from the fallback mock" in m.note
+    assert "misses: 2 of 15 answers (13.3%), answered by the mock fallback, which can be right" in m.note
     # the quick length is named against the paper's (the preset's 10,001 steps, 10 trials)
     assert m.note.startswith("shorter than the full suite: 5 trials × 2000 steps (full: 10 trials × 10001 steps)")
     assert m.note in m.label
