@@ -883,7 +883,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     from lagrseq.analysis.replay import replay
     from lagrseq.paths import writable_directory
-    from lagrseq.running.suite import load_suite
+    from lagrseq.suite import load_suite
 
     started = time.perf_counter()
     suite = load_suite(args.suite)

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from lagrseq.errors import ConfigError
-from lagrseq.running.suite import load_suite, matches
+from lagrseq.suite import load_suite, matches
 
 SUITE = """
 [suite]

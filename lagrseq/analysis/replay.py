@@ -33,7 +33,7 @@ from lagrseq import __version__
 from lagrseq.analysis import audit, costs, figures, items, loading, scoreboard, stats
 from lagrseq.analysis.tables import Table, plus_minus, to_csv, to_html, to_markdown
 from lagrseq.errors import LogError, UsageError
-from lagrseq.running.suite import (
+from lagrseq.suite import (
     AUTHORS_HINT,
     Item,
     Suite,
