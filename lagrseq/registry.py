@@ -92,6 +92,12 @@ class TaskSpec:
     keep an accepted answer for the trial, so asking again only matters per episode); empty: the
     preset's own."""
     description: str = ""
+    """One line on what the task asks for, shown by ``lagrseq plugins``."""
+    suite: Path | str | None = None
+    """The task's own suite file (docs/suites.md): a ``Path``, or ``"package:resource.toml"`` (a
+    file inside an installed package, read with ``importlib.resources``). ``lagrseq replay``
+    draws its items for logs of this task without ``--suite``, and ``lagrseq reproduce --suite
+    NAME`` runs it (None: the task ships no suite)."""
 
 
 def task_profiles(spec: TaskSpec) -> tuple[str, ...]:

@@ -38,7 +38,7 @@ from lagrseq.suite import (
     Item,
     Suite,
     is_authors_provider,
-    load_suite,
+    logged_tasks_suite,
     with_recorded,
 )
 
@@ -92,6 +92,8 @@ class Report:
     logs: loading.Logs
     items: list[ItemReport]
     written: list[Path]
+    notes: tuple[str, ...] = ()
+    """Suites left out because no log is of their tasks (one line each; replay without a suite)."""
 
     @property
     def warnings(self) -> tuple[str, ...]:
@@ -208,6 +210,9 @@ def replay(
 ) -> Report:
     """Rebuild the suite's items that ``roots`` cover into ``out`` (see the module docstring).
 
+    ``suite`` None: the suites of the logged tasks (:func:`lagrseq.suite.logged_tasks_suite`:
+    the paper's when a log is of one of its tasks, and each logged task's own); a suite none of
+    whose tasks the logs hold is left out with one line (``Report.notes``), not item by item.
     ``provider`` restricts the suite's default-provider runs to one provider; ``unavailable``
     (provider spec -> reason) lets ``lagrseq reproduce`` say why an item was not run; ``price``
     re-costs queries from their token usage; ``jobs``: processes that read the logs (see
@@ -219,7 +224,6 @@ def replay(
     if bad:
         raise UsageError(f"unknown figure format {bad[0]!r}; expected some of {', '.join(FORMATS)}")
     formats = ["png", *[f for f in FORMATS if f in formats and f != "png"]]
-    suite = load_suite() if suite is None else suite
     out = Path(out)
     jobs = loading.default_jobs() if jobs is None else jobs
     # the figures' artists are many small objects too (see loading.no_cycle_collection)
@@ -238,12 +242,15 @@ def replay(
         if not logs.runs:
             detail = f" ({'; '.join(logs.warnings)})" if logs.warnings else ""
             raise LogError(f"no complete lagrseq trial logs under {', '.join(map(str, roots))}{detail}")
+        notes: tuple[str, ...] = ()
+        if suite is None:
+            suite, notes = logged_tasks_suite({run.key.task for run in logs.runs})
         reports, extra, board, written = _make(logs, suite, out, formats, provider, unavailable, price, sections, painter)
         painter.wait()
-    _write(out / "index.html", _index_html(reports, extra, logs, produced_by, board), written)
-    _write(out / "index.md", _index_markdown(reports, extra, logs, produced_by, board), written)
+    _write(out / "index.html", _index_html(reports, extra, logs, produced_by, board, notes), written)
+    _write(out / "index.md", _index_markdown(reports, extra, logs, produced_by, board, notes), written)
     _drop_stale(out, written)
-    return Report(out, logs, reports, written)
+    return Report(out, logs, reports, written, notes)
 
 
 def _make(
@@ -469,6 +476,7 @@ def _index_html(
     logs: loading.Logs,
     produced_by: str,
     board: Table | None = None,
+    notes: Sequence[str] = (),
 ) -> str:
     e = html.escape
     parts = [
@@ -480,6 +488,7 @@ def _index_html(
         "<h1>LaGR-SEQ: the paper's figures and tables, rebuilt from MCAP logs</h1>",
         f"<p>{e(_summary_line(logs))}; lagrseq {e(__version__)}. Every number below was "
         f"computed offline from these logs by <code>{e(produced_by)}</code>.</p>",
+        *(f'<p class="missing">{e(note)}</p>' for note in notes),
         *(_scoreboard_html(board) if board is not None else []),
         "<ul>",
     ]
@@ -553,12 +562,14 @@ def _index_markdown(
     logs: loading.Logs,
     produced_by: str,
     board: Table | None = None,
+    notes: Sequence[str] = (),
 ) -> str:
     lines = [
         "# LaGR-SEQ: the paper's figures and tables, rebuilt from MCAP logs",
         "",
         f"{_summary_line(logs)}; lagrseq {__version__}. Made offline from these logs by `{produced_by}`.",
         "",
+        *(line for note in notes for line in (note, "")),
     ]
     if board is not None:
         lines += [to_markdown(board)]
