@@ -30,6 +30,7 @@ from typing import Any
 from lagrseq import config as cfg
 from lagrseq.errors import ConfigError
 from lagrseq.registry import kind_of
+from lagrseq.tomlfile import shown as _shown_path
 
 RENDERERS = ("returns", "query-bars", "query-table", "ratio-table", "accuracy", "config-table", "frontier")
 KINDS = ("trial", "accuracy")
@@ -345,8 +346,8 @@ def suite_argument(text: str | Path | None) -> Path | None:
     if text is None:
         return None
     path = Path(text)
-    if path.is_file() or path.suffix == ".toml":
-        return path
+    if path.exists() or path.suffix == ".toml" or len(path.parts) > 1:
+        return path  # a path: load_suite says what is wrong with it, naming it in full
     from lagrseq.registry import TASKS
 
     if str(text) in TASKS:
@@ -358,7 +359,7 @@ def suite_argument(text: str | Path | None) -> Path | None:
             )
         return found
     raise ConfigError(
-        f"--suite {cfg.show_value(str(text))}: no such suite file, and no task of that name; expected FILE.toml "
+        f"--suite {_shown_path(path)}: no such suite file, and no task of that name; expected FILE.toml "
         f"or a task that ships a suite ({', '.join(t for t in TASKS.names() if TASKS.get(t).suite is not None) or 'none installed'})"
     )
 
