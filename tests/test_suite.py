@@ -160,3 +160,13 @@ def test_replay_without_a_suite_draws_the_papers_suite_only_for_logs_of_its_task
     chosen, notes = logged_tasks_suite({"someone-elses-task"})
     assert chosen.items == () and len(notes) == 1
     assert f"the paper's suite ({len(paper.items)} items) left out" in notes[0] and "someone-elses-task" in notes[0]
+
+
+def test_the_suite_format_page_names_every_key_and_renderer() -> None:
+    """docs/suites.md is the format's reference: every item key, run key, renderer option and
+    renderer the reader accepts is on it."""
+    from lagrseq import suite
+
+    page = (Path(__file__).resolve().parents[1] / "docs" / "suites.md").read_text(encoding="utf-8")
+    names = {*suite._ITEM_KEYS, *suite._RUN_KEYS, *suite._OPTIONS, *suite.RENDERERS, *suite.KINDS, "seed", "provider"}
+    assert sorted(n for n in names if f"`{n}`" not in page and f'"{n}"' not in page) == []
