@@ -6,7 +6,10 @@ and its submodules). A module that matches no layer fails the test, so a new mod
 placed on the map. The map is written over the packages that name the layers (base, parts,
 ``lagrseq.loop``, ``lagrseq.running``, ``lagrseq.analysis``, ``lagrseq.study``, the command line),
 with finer rules for single modules; ``test_no_import_cycle_between_modules`` checks the import
-graph (lazy imports included) has no cycle.
+graph (lazy imports included) has no cycle. Analysis is also checked in its source (lazy imports
+included): it imports neither the loop, running nor study; the suite's data (``lagrseq.suite``)
+and the frontier protocol's helpers (``lagrseq.frontier_protocol``) sit in the base layer. A
+planted tree shows both checks catch a bad import.
 """
 
 from __future__ import annotations
