@@ -29,8 +29,8 @@ def main() -> None:
     args = parser.parse_args()
 
     from lagrseq.running import runner
-    from lagrseq.running.suite import load_suite
     from lagrseq.study import reproduce
+    from lagrseq.suite import load_suite
 
     tasks = set(args.tasks.split(","))
     shutil.rmtree(args.out, ignore_errors=True)

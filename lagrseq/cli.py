@@ -91,7 +91,7 @@ def _experiment_options() -> argparse.ArgumentParser:
 
     p = argparse.ArgumentParser(add_help=False)
     g = p.add_argument_group("configuration")
-    g.add_argument("--preset", choices=PRESETS, default="upstream", help="upstream: as the released code runs; paper: as the paper's text says (default: upstream)")
+    g.add_argument("--preset", choices=PRESETS, default="upstream", help="upstream: as the released code runs; paper: as the paper's text says (a task with no paper ships upstream only; default: upstream)")
     g.add_argument("--config", type=Path, default=None, metavar="FILE.toml", help="a TOML file of [section] fields applied over the preset")
     g.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.FIELD=VALUE", help="override one field (repeatable), e.g. --set env.horizon=100")
     return p
@@ -173,7 +173,7 @@ def _report_options() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(add_help=False)
     g = p.add_argument_group("report")
     g.add_argument("--formats", type=_formats, default=["png"], metavar="png,svg,pdf", help="figure formats; PNG is always written (default: png)")
-    g.add_argument("--suite", type=Path, default=None, metavar="FILE.toml", help="a suite file instead of the packaged paper suite")
+    g.add_argument("--suite", default=None, metavar="FILE.toml|TASK", help="a suite file (docs/suites.md), or a task that ships one, instead of the default: the paper's suite (replay: and the suites of the logged tasks)")
     g.add_argument("--price-table", default=None, metavar="FILE.toml", help="re-cost every logged query's token usage with these prices over the built-in dated table")
     return p
 
@@ -899,10 +899,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     from lagrseq.analysis.replay import replay
     from lagrseq.paths import writable_directory
-    from lagrseq.running.suite import load_suite
+    from lagrseq.suite import load_suite, suite_argument
 
     started = time.perf_counter()
-    suite = load_suite(args.suite)
+    suite = None if args.suite is None else load_suite(suite_argument(args.suite))  # None: the logged tasks' suites
     price = _price_function(args.price_table)  # every input checked before OUT is made
     out = writable_directory(args.out)
     report = replay(args.runs, out, args.formats, suite, provider=args.provider, price=price, jobs=args.jobs)
@@ -939,10 +939,11 @@ def cmd_frontier(args: argparse.Namespace) -> int:
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
     from lagrseq.study import reproduce
+    from lagrseq.suite import suite_argument
 
     items = [i.strip() for i in args.items.split(",") if i.strip()] if args.items is not None else None
     report, elapsed = reproduce.reproduce(
-        args.suite, items, args.quick, args.provider, args.out, args.jobs, args.seed,
+        suite_argument(args.suite), items, args.quick, args.provider, args.out, args.jobs, args.seed,
         args.formats, _price_function(args.price_table), quiet=args.quiet, say=_say,
         executor=args.executor, scheduler=args.scheduler, retries=args.retries,
         authors_caches=args.authors_caches, warn=_say_error,
@@ -1010,6 +1011,8 @@ def _print_report(
             print(f"{r.item.id}: {r.not_run_line()}")
         elif r.status == "partial":
             print(f"{r.item.id}: partial; missing {'; '.join(r.missing())}")
+    for note in report.notes:
+        print(note)
     for warning in report.warnings:
         if said is not None and said(warning):
             continue

@@ -1028,8 +1028,26 @@ def _merge(base: dict[str, Any], extra: Mapping[str, Any], origin: str) -> dict[
     return out
 
 
+OPTIONAL_PRESETS = ("paper",)
+"""Presets a task may leave out: a task with no paper ships ``upstream.toml`` alone (its own
+settings), and ``--preset paper`` on it is one line naming the presets it has."""
+
+
+def task_presets(task: str) -> tuple[str, ...]:
+    """The presets ``task`` ships, in :data:`PRESETS` order: ``upstream`` always, ``paper`` where
+    its preset folder holds ``paper.toml``."""
+    from lagrseq.registry import TASKS
+
+    spec = TASKS.find(task)
+    if spec is None:
+        raise ConfigError(f"unknown task {task!r}; expected one of {', '.join(tasks())}")
+    folder = Path(spec.presets)
+    return tuple(p for p in PRESETS if p not in OPTIONAL_PRESETS or (folder / f"{p}.toml").is_file())
+
+
 def preset_path(task: str, preset: str) -> Path:
-    """The TOML file of a preset (in the task's registered preset folder)."""
+    """The TOML file of a preset (in the task's registered preset folder); ConfigError (one line)
+    for an optional preset the task does not ship."""
     from lagrseq.registry import TASKS
 
     spec = TASKS.find(task)
@@ -1037,7 +1055,13 @@ def preset_path(task: str, preset: str) -> Path:
         raise ConfigError(f"unknown task {task!r}; expected one of {', '.join(tasks())}")
     if preset not in PRESETS:
         raise ConfigError(f"unknown preset {preset!r}; expected one of {', '.join(PRESETS)}")
-    return Path(spec.presets) / f"{preset}.toml"
+    path = Path(spec.presets) / f"{preset}.toml"
+    if preset in OPTIONAL_PRESETS and not path.is_file():
+        raise ConfigError(
+            f"task {task!r} has no {preset!r} preset (its folder {_shown_path(path.parent)} holds no {path.name}: "
+            f"the task ships no paper's settings); expected one of {', '.join(task_presets(task))}, e.g. --preset upstream"
+        )
+    return path
 
 
 def read_toml(path: Path | str, what: str = "config") -> dict[str, Any]:

@@ -41,18 +41,39 @@ GROUPS = {kind: f"lagrseq.{kind}" for kind in ("tasks", "providers", "policies",
 # ------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class TaskSpec:
-    """A pattern-completion task, registered in one place.
+    """A pattern-completion task, registered in one place (entry-point group ``lagrseq.tasks``).
 
-    Every callable takes the resolved ``ExperimentConfig`` first. Only ``sections``,
-    ``presets``, ``make_task``, ``make_env`` and ``extrapolator`` are required."""
+    Every callable takes the resolved ``ExperimentConfig`` first. Only ``name``, ``sections``,
+    ``presets``, ``make_task``, ``make_env`` and ``extrapolator`` are required; the rest have
+    defaults that suit a task without pictures, guidance of its own or extras. An example (the
+    full walk-through, tested: docs/extending.md):
+
+    ```python
+    TaskSpec(
+        name="countdown",
+        sections={"task": CountdownTaskConfig, "env": CountdownEnvConfig,
+                  "primary": TabularConfig, "secondary": TabularSecondaryConfig},
+        presets=Path(__file__).parent / "presets",      # upstream.toml (paper.toml optional)
+        make_task=lambda config: Countdown(config.task.length),
+        make_env=lambda config, render_dir: CountdownEnv(Countdown(config.task.length)),
+        extrapolator=extrapolator,                       # (config, profile) -> answer function
+        profiles=("lazy",),                              # --provider mock:lazy
+        description="count down to zero one number at a time",
+        suite="countdown_plugin:suite.toml",             # replay draws it without --suite
+    )
+    ```"""
 
     name: str
-    """The task's name (``[task] name``, ``lagrseq run NAME``)."""
+    """The task's name (``[task] name``, ``lagrseq run NAME``): printable, no ``:`` or ``,``."""
     sections: Mapping[str, type]
-    """The dataclass reading each task-specific section: ``task``, ``env``, ``primary``,
-    ``secondary`` (the ``[lagr]``, ``[llm]`` and ``[run]`` sections are shared)."""
+    """The frozen dataclass reading each task-specific section, by section name: ``task``,
+    ``env``, ``primary``, ``secondary`` (the ``[lagr]``, ``[llm]`` and ``[run]`` sections are
+    shared by every task). Each field is checked against its annotation, unknown fields are
+    refused, and the field's docstring is what ``lagrseq config`` shows."""
     presets: Path
-    """The folder holding the task's preset files, ``upstream.toml`` and ``paper.toml``."""
+    """The folder holding the task's preset files: ``upstream.toml`` (required: the default
+    preset) and ``paper.toml`` (optional: a task with no paper leaves it out, and ``--preset
+    paper`` on it is refused in one line)."""
     make_task: Callable[[Any], Any]
     """config -> the task (``lagrseq.tasks.base.Task``): prompt, parser, evaluation, guidance."""
     make_env: Callable[[Any, Path | None], Any]
@@ -63,8 +84,10 @@ class TaskSpec:
     """(config, profile) -> what ``--provider mock[:PROFILE]`` answers with (``ideal``: the
     rule-based extrapolator; raises UsageError for a profile the task lacks)."""
     profiles: tuple[str, ...] | Callable[[], tuple[str, ...]] = ()
-    """Mock profiles besides ``ideal`` (``--provider mock:PROFILE``), or a function returning
-    them (read when a spec is parsed)."""
+    """The names of the mock profiles besides ``ideal`` (``--provider mock:PROFILE``), as a
+    tuple of strings or a function of no arguments returning one (called when a provider spec
+    is parsed, so the profiles may live in a module imported only then). ``extrapolator`` gets
+    the name."""
     view_topics: Callable[[Any], dict[str, tuple[str, str, bytes]] | None] | None = None
     """config -> the picture topics the sink registers (None: no pictures)."""
     views: Callable[[Any, Any], Callable[[dict[str, Any], int], list[Any]] | None] | None = None
@@ -92,6 +115,12 @@ class TaskSpec:
     keep an accepted answer for the trial, so asking again only matters per episode); empty: the
     preset's own."""
     description: str = ""
+    """One line on what the task asks for, shown by ``lagrseq plugins`` (empty: nothing shown)."""
+    suite: Path | str | None = None
+    """The task's own suite file (docs/suites.md): a ``Path``, or ``"package:resource.toml"`` (a
+    file inside an installed package, read with ``importlib.resources``). ``lagrseq replay``
+    draws its items for logs of this task without ``--suite``, and ``lagrseq reproduce --suite
+    NAME`` runs it (None: the task ships no suite)."""
 
 
 def task_profiles(spec: TaskSpec) -> tuple[str, ...]:
@@ -153,12 +182,27 @@ not what)."""
 
 @dataclass(frozen=True)
 class ProviderKind:
-    """A kind of answer source (``--provider KIND[:ARGUMENT]``)."""
+    """A kind of answer source (``--provider KIND[:ARGUMENT]``; entry-point group
+    ``lagrseq.providers``). ``name``, ``usage`` and ``make`` are required; the flags below say
+    what the kind can do, so no code compares kind names. An example:
+
+    ```python
+    ProviderKind(
+        name="echo",
+        usage="echo, echo:PROFILE",
+        make=make_echo,                # (spec, config, rng, options) -> a Provider
+        options=EchoOptions,           # its own flags (lagrseq.registry.flag)
+        source="mock",                 # what its answers' /query records say
+        synthetic=True,                # made up by the task's extrapolator
+        description="the task's mock under another name (example plugin)",
+    )
+    ```"""
 
     name: str
-    """The spec prefix."""
+    """The spec prefix, ``KIND`` in ``--provider KIND[:ARGUMENT]``."""
     usage: str
-    """How the spec is written (``recorded:STORE``), for help and errors."""
+    """How the spec is written (``recorded:STORE``; several forms joined by ``, `` or
+    `` or ``), for help and errors."""
     make: Callable[..., Any]
     """(spec, config, rng, options) -> the provider of one trial (``options``: an instance of
     ``options``, or None for a kind without options)."""
@@ -188,6 +232,7 @@ class ProviderKind:
     replays: bool = False
     """It answers from stored answers (``--on-miss`` applies)."""
     description: str = ""
+    """One line on the kind, shown by ``lagrseq plugins`` and in every ``--provider`` help."""
 
 
 @dataclass(frozen=True)
@@ -197,9 +242,18 @@ class Knob:
     from ``lagrseq frontier --policies POLICY:NAME=VALUE``; ``candidates`` are what
     ``frontier --tune`` tries. A knob named like a ``[secondary]`` field is that field (the
     built-ins' knobs: their type, range and default are the field's, and a test keeps the two
-    equal); any other is kept in the section's ``knobs`` (``section.knob(NAME)``)."""
+    equal); any other is kept in the section's ``knobs`` (``section.knob(NAME)``). An example:
+
+    ```python
+    Knob("backoff_factor", 0.5, ge=0.0, le=1.0, candidates=("0.25", "0.5", "0.75"),
+         help="what the asking probability is multiplied by after a rejected answer")
+    ```
+
+    Signature: ``Knob(name, default, ge=None, le=None, choices=(), candidates=(), help="")``."""
 
     name: str
+    """``[secondary] NAME``, ``--set secondary.NAME=V``, ``frontier --policies POLICY:NAME=V``
+    (a name like a ``[secondary]`` field is that field)."""
     default: Any
     """Its value when not set; its type (bool, int, float, str) is the knob's (an int is taken
     for a float)."""
@@ -213,6 +267,7 @@ class Knob:
     """The values ``lagrseq frontier --tune`` tries, as written on the command line (empty: the
     knob is not tuned; a policy's first knob with candidates is its tuned one)."""
     help: str = ""
+    """One line on what it does, for people reading ``lagrseq plugins`` and the docs."""
 
     def check(self, value: Any, where: str) -> Any:
         """``value`` as this knob's type, or ConfigError (one line naming ``where``)."""
@@ -241,9 +296,22 @@ class Knob:
 
 @dataclass(frozen=True)
 class PolicySpec:
-    """An asking policy (``secondary.policy``, ``lagrseq frontier --policies``)."""
+    """An asking policy (``secondary.policy``, ``lagrseq frontier --policies``; entry-point
+    group ``lagrseq.policies``). ``name`` and ``make`` are required. An example:
+
+    ```python
+    PolicySpec(
+        name="backoff",
+        make=make_backoff,             # (section, seq_agent) -> decide / update
+        knobs=("ask_probability", "min_progress", "budget", "budget_scope", "query_cost",
+               Knob("backoff_factor", 0.5, ge=0.0, le=1.0)),
+        order=20,                      # after the built-ins (0 to 5)
+        description="halve the asking probability after each rejected answer",
+    )
+    ```"""
 
     name: str
+    """``secondary.policy = "NAME"``, ``frontier --policies NAME``."""
     make: Callable[[Any, Callable[[], Any]], Any]
     """(the ``[secondary]`` section, a builder of the paper's SEQ agent) -> the policy
     (``decide(context)``, ``update(context, asked, query_reward)``)."""
@@ -253,20 +321,33 @@ class PolicySpec:
     method: str = "lagr-seq"
     """The method that runs it without knobs (``never``: baseline, ``always``: lagr)."""
     order: int = 100
-    """Its place in frontier tables and figures (built-ins 0-9, plugins after them)."""
+    """Its place in frontier tables and figures, lowest first: the built-ins use 0 (never) to 5
+    (oracle); a plugin's default, 100, puts it after them; a plugin may choose its own, e.g. 20."""
     peeks: bool = False
     """It looks at the provider's answer before deciding (refused with paid answers)."""
     comparator: bool = False
     """It is the frontier's yardstick: the other policies are compared with it run at their
     own query rate (``random``), so it is never matched itself."""
     description: str = ""
+    """One line on how it decides, shown by ``lagrseq plugins``."""
 
 
 @dataclass(frozen=True)
 class ExecutorSpec:
-    """Where a run's trials run (``--executor NAME``)."""
+    """Where a run's trials run (``--executor NAME``; entry-point group ``lagrseq.executors``).
+    ``name`` and ``make`` are required. An example:
+
+    ```python
+    ExecutorSpec(
+        name="threads",
+        make=lambda jobs, scheduler, say: ThreadExecutor(jobs),   # a TrialExecutor
+        workers=("thread", "threads"),
+        description="trials in threads of this process",
+    )
+    ```"""
 
     name: str
+    """``--executor NAME``."""
     make: Callable[[int, str | None, Callable[[str], None] | None], Any]
     """(jobs, scheduler address or None, say) -> a ``TrialExecutor``."""
     takes_scheduler: bool = False
@@ -277,6 +358,7 @@ class ExecutorSpec:
     workers: tuple[str, str] = ("process", "processes")
     """What its workers are called, one and many (the suite's time estimate)."""
     description: str = ""
+    """One line on where trials run, shown by ``lagrseq plugins``."""
 
 
 # ------------------------------------------------------------------------------------------

@@ -155,8 +155,8 @@ def test_the_scoreboard_says_what_explains_each_gap_from_the_audit_in_the_logs(t
 
     from lagrseq.analysis.replay import replay
     from lagrseq.running import runner
-    from lagrseq.running.suite import load_suite
     from lagrseq.study.audit import run_audit
+    from lagrseq.suite import load_suite
 
     run_audit("cube-stacking", "mock", 2, 3, -1, tmp_path, 1, 0, ["png"], quiet=True, say=lambda _: None)
     config = cfg.load("cube-stacking", "lagr", "upstream", None, ["run.episodes=3", "llm.temperature=0.5"])

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from lagrseq.errors import UsageError
-from lagrseq.running.suite import AUTHORS_STORE_NAME, is_authors_provider, load_suite, with_recorded
 from lagrseq.study import authors
+from lagrseq.suite import AUTHORS_STORE_NAME, is_authors_provider, load_suite, with_recorded
 from tests.conftest import AUTHORS_CACHES
 
 NAMES = {

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import pytest
@@ -99,3 +100,33 @@ def test_digest_tells_configurations_apart() -> None:
     a = cfg.load("cube-stacking", "lagr", "upstream")
     b = cfg.load("cube-stacking", "lagr", "upstream", overrides=["env.horizon=51"])
     assert a.digest() != b.digest() and a.digest() == cfg.load("cube-stacking", "lagr", "upstream").digest()
+
+
+@dataclasses.dataclass(frozen=True)
+class PaperlessTask(cfg.CubeTaskConfig):
+    """The cube task's section under another task's name (a task that has no paper)."""
+
+    name: str = "paperless"  # type: ignore[assignment]
+
+
+def test_a_task_without_a_paper_ships_upstream_alone(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """paper.toml is optional: a task whose preset folder holds only upstream.toml runs on it,
+    and ``--preset paper`` (or the audit, which needs both) is one line naming what it has."""
+    from lagrseq.errors import UsageError
+    from lagrseq.registry import TASKS, Entry
+    from lagrseq.study.audit import plan
+
+    cube = TASKS.get("cube-stacking")
+    upstream = (Path(cube.presets) / "upstream.toml").read_text(encoding="utf-8")
+    (tmp_path / "upstream.toml").write_text(upstream.replace('name = "cube-stacking"', 'name = "paperless"'), encoding="utf-8")
+    sections = {**cube.sections, "task": PaperlessTask}
+    spec = dataclasses.replace(cube, name="paperless", presets=tmp_path, sections=sections)
+    monkeypatch.setitem(TASKS._entries, "paperless", Entry("paperless", spec, "a test"))
+    assert cfg.task_presets("paperless") == ("upstream",)
+    assert cfg.task_presets("cube-stacking") == ("upstream", "paper")
+    assert cfg.load("paperless", "lagr", "upstream").task.name == "paperless"
+    with pytest.raises(ConfigError, match=r"task 'paperless' has no 'paper' preset .*expected one of upstream") as refused:
+        cfg.load("paperless", "lagr", "paper")
+    assert "\n" not in str(refused.value)
+    with pytest.raises(UsageError, match="ships no 'paper' preset"):
+        plan("paperless", "mock", 1, 1, -1, tmp_path / "runs", 0, say=lambda _: None)

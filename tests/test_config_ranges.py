@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from lagrseq import config as cfg
 from lagrseq.errors import ConfigError
-from lagrseq.running.suite import load_suite
+from lagrseq.suite import load_suite
 
 EXPERIMENTS = Path(cfg.__file__).parent / "experiments"
 

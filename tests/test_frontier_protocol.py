@@ -13,8 +13,8 @@ import pytest
 from lagrseq import cli
 from lagrseq.analysis.frontier import Point, judge, summarise, table
 from lagrseq.analysis.loading import Run, RunKey
+from lagrseq.frontier_protocol import matched_probability
 from lagrseq.logs.reader import read_info, read_topic
-from lagrseq.study.frontier import matched_probability
 from tests.llm.conftest import authors_cache
 
 
@@ -197,9 +197,10 @@ def test_tuning_never_touches_evaluation_seeds_and_the_choice_is_in_the_logs(tmp
     import json
 
     from lagrseq.config import from_dict as config_from_dict
+    from lagrseq.frontier_protocol import TUNING_NOTE
     from lagrseq.running.runner import run_directory
     from lagrseq.seeding import Stream, integer_seed
-    from lagrseq.study.frontier import TUNE_GRID, TUNING_NOTE, matched_random_config
+    from lagrseq.study.frontier import TUNE_GRID, matched_random_config
 
     out = tmp_path / "fr"
     args = [

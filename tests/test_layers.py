@@ -6,7 +6,10 @@ and its submodules). A module that matches no layer fails the test, so a new mod
 placed on the map. The map is written over the packages that name the layers (base, parts,
 ``lagrseq.loop``, ``lagrseq.running``, ``lagrseq.analysis``, ``lagrseq.study``, the command line),
 with finer rules for single modules; ``test_no_import_cycle_between_modules`` checks the import
-graph (lazy imports included) has no cycle.
+graph (lazy imports included) has no cycle. Analysis is also checked in its source (lazy imports
+included): it imports neither the loop, running nor study; the suite's data (``lagrseq.suite``)
+and the frontier protocol's helpers (``lagrseq.frontier_protocol``) sit in the base layer. A
+planted tree shows both checks catch a bad import.
 """
 
 from __future__ import annotations
@@ -33,6 +36,10 @@ STUDY = ("lagrseq.study", *CLI)
 RUNNING = ("lagrseq.running", "lagrseq.analysis", *STUDY)
 LOOP = ("lagrseq.loop", *RUNNING)
 PARTS = ("lagrseq.tasks", "lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", "lagrseq.robot")
+
+ANALYSIS_FORBIDS = ("lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.loop", "lagrseq.running", *STUDY, *HEAVY)
+"""DESIGN section 2: analysis imports no env, agent, provider, loop, runner or study (the suite's
+data and the frontier protocol's helpers live below it, in the base layer)."""
 
 LAYERS: dict[str, tuple[str, ...]] = {
     # base: config, errors, seeding, paths, tomlfile, registry, builtins (stdlib + numpy; the
@@ -63,10 +70,8 @@ LAYERS: dict[str, tuple[str, ...]] = {
     "lagrseq.running.executor_base": ("lagrseq.running.executors", "lagrseq.running.dask_executor", "lagrseq.running.recording", "lagrseq.analysis", *STUDY, "dask", "distributed", *HEAVY),
     "lagrseq.running.executors": ("lagrseq.running.recording", "lagrseq.analysis", *STUDY, "dask", "distributed", *HEAVY),
     "lagrseq.running.dask_executor": ("lagrseq.running.executors", "lagrseq.running.recording", "lagrseq.analysis", *STUDY, *HEAVY),
-    # the suite is data (what the paper's items run): read by analysis too
-    "lagrseq.running.suite": ("lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", "lagrseq.loop", "lagrseq.analysis", *STUDY, *HEAVY),
-    # analysis: replay from the MCAP logs alone (of running, only the suite's definitions)
-    "lagrseq.analysis": ("lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.loop.experiment", "lagrseq.loop.adapters", "lagrseq.running.wiring", "lagrseq.running.runner", "lagrseq.running.recording", "lagrseq.study.probe", "lagrseq.study.reproduce", *CLI, *HEAVY),
+    # analysis: replay from the MCAP logs and the suite's data alone: nothing that runs anything
+    "lagrseq.analysis": ANALYSIS_FORBIDS,
     # study: the commands that plan many runs and report on them; never the command line
     "lagrseq.study": (*CLI, *HEAVY),
     "lagrseq.study.frontier": ("lagrseq.analysis", *CLI, *HEAVY),
@@ -87,7 +92,19 @@ OPTIONAL = {
 }
 """Modules that need an extra to import at all (the Dask executor, generated gRPC code): checked
 only where it is installed."""
-ANYONE = ("lagrseq.config", "lagrseq.errors", "lagrseq.seeding", "lagrseq.paths", "lagrseq.progress", "lagrseq.tomlfile", "lagrseq.registry", "lagrseq.builtins")
+ANYONE = (
+    "lagrseq.config",
+    "lagrseq.errors",
+    "lagrseq.seeding",
+    "lagrseq.paths",
+    "lagrseq.progress",
+    "lagrseq.tomlfile",
+    "lagrseq.registry",
+    "lagrseq.builtins",
+    # data and definitions that analysis and running (or study) both read, so below both
+    "lagrseq.suite",
+    "lagrseq.frontier_protocol",
+)
 
 
 def modules() -> list[str]:
@@ -101,9 +118,11 @@ def layer_of(module: str) -> str:
     return max(matches, key=len)
 
 
-def loaded_after_import(names: list[str]) -> dict[str, list[str]]:
+def loaded_after_import(names: list[str], root: Path = ROOT, *, site: bool = True) -> dict[str, list[str] | None]:
     """For each module, what ``import module`` loads in a fresh interpreter (one forked child per
-    module from a parent that has imported nothing of lagrseq)."""
+    module from a parent that has imported nothing of lagrseq), with ``root`` first on the path;
+    None where the import failed. ``site=False``: without site-packages (``python -S``), so a
+    tree at ``root`` is not shadowed by the installed package's editable finder."""
     code = (
         "import json, os, sys\n"
         f"names = {names!r}\n"
@@ -128,10 +147,68 @@ def loaded_after_import(names: list[str]) -> dict[str, list[str]]:
         "print(json.dumps(out))\n"
     )
     done = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, env={"PYTHONPATH": str(ROOT)}, timeout=300
+        [sys.executable, *(() if site else ("-S",)), "-c", code],
+        capture_output=True,
+        text=True,
+        env={"PYTHONPATH": str(root)},
+        cwd=root,
+        timeout=300,
     )
     assert done.returncode == 0, done.stderr
     return json.loads(done.stdout)
+
+
+def _under(module: str, prefixes: tuple[str, ...]) -> bool:
+    return any(module == p or module.startswith(p + ".") for p in prefixes)
+
+
+def forbidden_loads(loaded: dict[str, list[str] | None]) -> dict[str, list[str]]:
+    """Module -> what its import loaded that its layer (LAYERS) forbids; a failed import is
+    reported as such (it hides what the module loads)."""
+    problems = {}
+    for name, modules_loaded in loaded.items():
+        if modules_loaded is None:
+            problems[name] = ["(import failed)"]
+            continue
+        bad = sorted(m for m in modules_loaded if _under(m, LAYERS[layer_of(name)]) and m != name)
+        if bad:
+            problems[name] = bad
+    return problems
+
+
+def static_imports(root: Path, package: str = "lagrseq") -> dict[str, set[str]]:
+    """Module -> every dotted name its source imports, anywhere (top level or inside a function:
+    a lazy import breaks a layer as much as an eager one), for the package at ``root/package``;
+    relative imports resolved."""
+    import ast
+
+    out: dict[str, set[str]] = {}
+    for path in sorted((root / package).rglob("*.py")):
+        parts = path.relative_to(root).with_suffix("").parts
+        is_package = parts[-1] == "__init__"
+        name = ".".join(parts[:-1] if is_package else parts)
+        here = name if is_package else name.rpartition(".")[0]
+        found: set[str] = set()
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                found |= {alias.name for alias in node.names}
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:
+                    parent = here.rsplit(".", node.level - 1)[0] if node.level > 1 else here
+                    base = f"{parent}.{base}" if base else parent
+                found |= {base} | {f"{base}.{alias.name}" for alias in node.names}
+        out[name] = found
+    return out
+
+
+def static_breaks(imports: dict[str, set[str]], layer: str, forbidden: tuple[str, ...]) -> dict[str, list[str]]:
+    """The modules of ``layer`` whose source imports anything under ``forbidden``, with what."""
+    return {
+        name: sorted(n for n in names if _under(n, forbidden))
+        for name, names in sorted(imports.items())
+        if _under(name, (layer,)) and any(_under(n, forbidden) for n in names)
+    }
 
 
 def test_every_module_is_on_the_layer_map() -> None:
@@ -152,15 +229,50 @@ def test_no_module_imports_what_its_layer_forbids() -> None:
 
     names = [m for m in modules() if m != "lagrseq.__main__"]  # importing it runs the command line
     names = [m for m in names if all(installed(x) for x in OPTIONAL.get(m, ()))]
-    loaded = loaded_after_import(names)
-    problems = {}
-    for name in names:
-        assert loaded[name] is not None, f"importing {name} failed"
-        forbidden = LAYERS[layer_of(name)]
-        bad = sorted(m for m in loaded[name] if any(m == f or m.startswith(f + ".") for f in forbidden) and m != name)
-        if bad:
-            problems[name] = bad
+    problems = forbidden_loads(loaded_after_import(names))
     assert problems == {}, f"layer rules broken (module: what it loads): {problems}"
+
+
+def test_analysis_imports_neither_running_nor_study_nor_the_loop_even_lazily() -> None:
+    """DESIGN section 2, read from the source (lazy imports inside functions included): replay
+    needs only the logs, the suite's data and analysis code."""
+    imports = static_imports(ROOT)
+    assert "lagrseq.analysis.replay" in imports and "lagrseq.suite" in imports
+    internal = tuple(f for f in ANALYSIS_FORBIDS if f.startswith("lagrseq."))
+    assert static_breaks(imports, "lagrseq.analysis", internal) == {}
+
+
+PLANTED = {
+    "lagrseq/__init__.py": "",
+    "lagrseq/suite.py": "ITEMS = ()\n",
+    "lagrseq/running/__init__.py": "",
+    "lagrseq/running/runner.py": "",
+    "lagrseq/study/__init__.py": "",
+    "lagrseq/study/frontier.py": "",
+    "lagrseq/analysis/__init__.py": "",
+    "lagrseq/analysis/good.py": "from lagrseq.suite import ITEMS\n",
+    "lagrseq/analysis/eager.py": "import lagrseq.running.runner\n",
+    "lagrseq/analysis/lazy.py": "def frontier():\n    from ..study import frontier\n    return frontier\n",
+}
+"""A tree shaped like the package in which two analysis modules break the layers: one imports
+running at import time, one imports study inside a function (relatively)."""
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="uses os.fork")
+def test_the_checks_catch_a_planted_bad_import(tmp_path: Path) -> None:
+    for relative, text in PLANTED.items():
+        (tmp_path / relative).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / relative).write_text(text, encoding="utf-8")
+    # the source check: both breaks, lazy and relative included; the good module passes
+    internal = tuple(f for f in ANALYSIS_FORBIDS if f.startswith("lagrseq."))
+    assert static_breaks(static_imports(tmp_path), "lagrseq.analysis", internal) == {
+        "lagrseq.analysis.eager": ["lagrseq.running.runner"],
+        "lagrseq.analysis.lazy": ["lagrseq.study", "lagrseq.study.frontier"],
+    }
+    # the fresh-interpreter check: the import-time break (the planted tree in place of the package)
+    names = ["lagrseq.analysis.good", "lagrseq.analysis.eager", "lagrseq.analysis.lazy"]
+    problems = forbidden_loads(loaded_after_import(names, root=tmp_path, site=False))
+    assert problems == {"lagrseq.analysis.eager": ["lagrseq.running", "lagrseq.running.runner"]}
 
 
 def import_graph() -> dict[str, set[str]]:

@@ -14,7 +14,7 @@ from lagrseq.analysis.loading import load
 from lagrseq.analysis.replay import replay
 from lagrseq.errors import ConfigError
 from lagrseq.running import wiring
-from lagrseq.running.suite import load_suite
+from lagrseq.suite import load_suite
 from lagrseq.study import reproduce
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -377,8 +377,8 @@ def test_committed_reports_match_fresh_runs(tmp_path: Path) -> None:
 # Planning the packaged suite (nothing is run)
 # ------------------------------------------------------------------------------------------
 def test_the_packaged_suite_plans_each_configuration_once(tmp_path: Path) -> None:
-    from lagrseq.running.suite import load_suite
     from lagrseq.study import reproduce
+    from lagrseq.suite import load_suite
 
     suite = load_suite()
     plan = reproduce.plan(suite, quick=True, provider=None, runs_dir=tmp_path, seed=0)
@@ -411,8 +411,8 @@ def test_the_packaged_suite_plans_each_configuration_once(tmp_path: Path) -> Non
 
 
 def test_estimate_counts_only_pending_trials(tmp_path: Path) -> None:
-    from lagrseq.running.suite import load_suite
     from lagrseq.study import reproduce
+    from lagrseq.suite import load_suite
 
     suite = load_suite().select(["fig6a"])
     plan = reproduce.plan(suite, quick=True, provider=None, runs_dir=tmp_path, seed=0)
@@ -427,8 +427,8 @@ def test_estimate_counts_only_pending_trials(tmp_path: Path) -> None:
 def test_the_progress_bar_counts_grid_runs_in_steps_and_moves(tmp_path: Path) -> None:
     """Grid trials have a step budget and no episode count: the bar counts their steps (it used to
     count episodes, 0 of them, and stood still)."""
-    from lagrseq.running.suite import load_suite
     from lagrseq.study import reproduce
+    from lagrseq.suite import load_suite
 
     pytest.importorskip("torch")
     suite = load_suite().select(["fig5b"])
@@ -461,8 +461,8 @@ def test_runs_that_train_networks_are_timed_in_their_lockstep_groups(tmp_path: P
     run's one trial alone."""
     from dataclasses import replace
 
-    from lagrseq.running.suite import load_suite
     from lagrseq.study import reproduce
+    from lagrseq.suite import load_suite
 
     pytest.importorskip("torch")
     pytest.importorskip("greenlet")
@@ -519,8 +519,8 @@ def test_the_experiments_are_timed_in_the_pools_workers_side_by_side(tmp_path: P
     workers (spawned: the calibration job is a module-level function of plain data), once each,
     and the estimate covers every pending run as the in-process timing does."""
     from lagrseq.running.executors import LocalExecutor
-    from lagrseq.running.suite import load_suite
     from lagrseq.study import reproduce
+    from lagrseq.suite import load_suite
 
     plan = reproduce.plan(load_suite().select(["fig6a", "table2"]), quick=True, provider=None, runs_dir=tmp_path, seed=0)
     told: list[int] = []
@@ -538,8 +538,8 @@ def test_each_configuration_is_timed_with_the_provider_it_runs_on_where_that_ask
     uses it, a live model never (the mock stands in), and an accuracy probe with the mock."""
     from dataclasses import replace
 
-    from lagrseq.running.suite import load_suite
     from lagrseq.study import reproduce
+    from lagrseq.suite import load_suite
 
     plan = reproduce.plan(load_suite(), quick=True, provider=None, runs_dir=tmp_path, seed=0)  # the cube: no extra needed
     plan.runs = [run for run in plan.runs if run.config.task.name == "cube-stacking"]
@@ -563,8 +563,8 @@ def test_a_store_that_cannot_answer_the_timing_is_timed_with_the_mock(tmp_path: 
     from dataclasses import replace
 
     from lagrseq.llm.store import RecordStore
-    from lagrseq.running.suite import load_suite
     from lagrseq.study import reproduce
+    from lagrseq.suite import load_suite
 
     RecordStore(tmp_path / "store").close()
     plan = reproduce.plan(load_suite().select(["fig6a"]), quick=True, provider=None, runs_dir=tmp_path / "runs", seed=0)

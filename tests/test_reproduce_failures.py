@@ -173,7 +173,7 @@ def test_a_rerun_prints_the_first_runs_plan_and_fails_the_same_way(failed) -> No
 
 def test_a_run_that_cannot_start_fails_its_items_and_not_the_suite(tmp_path: Path) -> None:
     """Any failing run, not only a store's miss: here a run directory holding another run's log."""
-    from lagrseq.running.suite import load_suite
+    from lagrseq.suite import load_suite
 
     suite_file = tmp_path / "suite.toml"
     suite_file.write_text(SUITE.split("[[items]]\nid = \"asking\"")[0], encoding="utf-8")
@@ -217,7 +217,7 @@ def test_a_suite_whose_every_run_failed_still_writes_a_report_listing_them(
 def test_a_failed_audit_run_is_reported_and_the_audit_goes_on(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The cube audit at 1 trial of 2 episodes, one of its run folders holding another run's log."""
     from lagrseq.analysis.replay import replay
-    from lagrseq.running.suite import load_suite
+    from lagrseq.suite import load_suite
 
     monkeypatch.setitem(reproduce.SUITE_AUDITS, "cube-stacking", reproduce.SuiteAudit("mock:authors-t0", (1, 2, -1), (1, 2, -1)))
     runs_dir = tmp_path / "runs"

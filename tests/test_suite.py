@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from lagrseq.errors import ConfigError
-from lagrseq.running.suite import load_suite, matches
+from lagrseq.suite import load_suite, matches
 
 SUITE = """
 [suite]
@@ -198,3 +198,36 @@ def test_packaged_suite_covers_the_papers_items() -> None:
         "appendix-extended-arrangement",
         "appendix-binary-reward",
     } <= ids
+
+
+def test_suite_argument_takes_a_file_or_a_task_that_ships_a_suite(tmp_path: Path) -> None:
+    from lagrseq.suite import suite_argument
+
+    assert suite_argument(None) is None
+    assert suite_argument(str(tmp_path / "mine.toml")) == tmp_path / "mine.toml"  # a file, even one still to be made
+    with pytest.raises(ConfigError, match="ships no suite of its own"):
+        suite_argument("cube-stacking")  # the paper's suite covers the built-in tasks
+    with pytest.raises(ConfigError, match="no such suite file, and no task of that name"):
+        suite_argument("no-such-suite")
+
+
+def test_replay_without_a_suite_draws_the_papers_suite_only_for_logs_of_its_tasks() -> None:
+    from lagrseq.suite import logged_tasks_suite
+
+    paper = load_suite()
+    chosen, notes = logged_tasks_suite({"cube-stacking"})
+    assert chosen == paper and notes == ()
+    # logs of a task the paper's suite does not run (a plugin's): one line, not one per item
+    chosen, notes = logged_tasks_suite({"someone-elses-task"})
+    assert chosen.items == () and len(notes) == 1
+    assert f"the paper's suite ({len(paper.items)} items) left out" in notes[0] and "someone-elses-task" in notes[0]
+
+
+def test_the_suite_format_page_names_every_key_and_renderer() -> None:
+    """docs/suites.md is the format's reference: every item key, run key, renderer option and
+    renderer the reader accepts is on it."""
+    from lagrseq import suite
+
+    page = (Path(__file__).resolve().parents[1] / "docs" / "suites.md").read_text(encoding="utf-8")
+    names = {*suite._ITEM_KEYS, *suite._RUN_KEYS, *suite._OPTIONS, *suite.RENDERERS, *suite.KINDS, "seed", "provider"}
+    assert sorted(n for n in names if f"`{n}`" not in page and f'"{n}"' not in page) == []

@@ -14,7 +14,7 @@ import pytest
 from lagrseq import config as cfg
 from lagrseq.errors import ConfigError
 from lagrseq.llm.pricing import read_price_table
-from lagrseq.running.suite import load_suite
+from lagrseq.suite import load_suite
 from lagrseq.tomlfile import MAX_TOML_BYTES, read_toml
 
 READERS: dict[str, Callable[[Path], Any]] = {

@@ -24,7 +24,7 @@ per-trial differences (:func:`lagrseq.analysis.inference.paired_noninferiority`)
 missing, Welch's test of two independent arms (:func:`lagrseq.analysis.inference.noninferiority`),
 and the table names the test used. Each learning policy's point is also compared with
 ``random`` asking at the point's own mean query rate (queries / decisions, from its logs; the
-random run is found by its ``ask_probability``, :func:`lagrseq.study.frontier.matched_probability`):
+random run is found by its ``ask_probability``, :func:`lagrseq.frontier_protocol.matched_probability`):
 it beats it when the same one-sided test at level 0.05 (margin 0) says its mean steps to the first
 solve are lower. Every verdict is at level 0.05 on its own; the CSV adds Holm-adjusted p-values
 over the panel's points for a family-wise reading. A point is *credited* only when it is non-inferior to always and beats random at the
@@ -60,9 +60,9 @@ from lagrseq.analysis.loading import Run, load
 from lagrseq.analysis.misses import missed, on_store, percent
 from lagrseq.analysis.tables import Table, interval, number, to_csv, to_markdown
 from lagrseq.errors import LogError
+from lagrseq.frontier_protocol import TUNING_NOTE, matched_probability, wants_match
 from lagrseq.logs.reader import read_info
 from lagrseq.registry import kind_of, paid_sources, stored_sources
-from lagrseq.study.frontier import TUNING_NOTE, matched_probability, wants_match
 
 Price = Callable[[str, int, int], float | None]
 MISS_THRESHOLD = 0.1

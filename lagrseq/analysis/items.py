@@ -25,8 +25,8 @@ from lagrseq.analysis.loading import ACCURACY_METHOD, Run
 from lagrseq.analysis.misses import Misses, count_misses
 from lagrseq.analysis.tables import Table, interval, number, plus_minus
 from lagrseq.errors import ConfigError
-from lagrseq.registry import stored_sources
-from lagrseq.running.suite import Item, RunSpec, is_authors_provider, matches
+from lagrseq.registry import kind_of, stored_sources
+from lagrseq.suite import Item, RunSpec, is_authors_provider, matches
 
 Price = Callable[[str, int, int], float | None]
 """(model, prompt tokens, completion tokens) -> US dollars or None (unpriced)."""
@@ -620,10 +620,10 @@ def _policy_free(config: dict[str, Any]) -> dict[str, Any]:
 
 def matched_randoms(panel: Sequence[Run], runs: Sequence[Run]) -> list[Run]:
     """The runs of ``random`` among ``runs`` at the query rate of one of the ``panel``'s learning
-    policies (:func:`lagrseq.study.frontier.matched_probability` of its queries / decisions) that
+    policies (:func:`lagrseq.frontier_protocol.matched_probability` of its queries / decisions) that
     differ from it in the asking policy alone (the same task, preset, provider, seed, regime and
     every other field): ``lagrseq reproduce``'s second phase for the frontier items."""
-    from lagrseq.study.frontier import matched_probability, wants_match
+    from lagrseq.frontier_protocol import matched_probability, wants_match
 
     wanted: list[tuple[float, dict[str, Any], Run]] = []
     for run in panel:

@@ -38,7 +38,7 @@ CLASSES = (AUTHORS, OPEN_MODEL, FITTED, RULE_BASED, NO_LLM)
 
 AUTHORS_STORE_NAME = "authors-answers"
 """The store ``reproduce --authors-caches`` imports into (the same name as
-:data:`lagrseq.running.suite.AUTHORS_STORE_NAME`, which tests keep equal)."""
+:data:`lagrseq.suite.AUTHORS_STORE_NAME`, which tests keep equal)."""
 FITTED_PROFILE_PREFIX = "authors-"
 """Mock profiles calibrated on the authors' answers (``mock:authors-t0``, ``mock:authors-gpt4``)."""
 BASELINE = "baseline"

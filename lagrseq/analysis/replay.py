@@ -36,12 +36,12 @@ from lagrseq.analysis import audit, costs, figures, items, loading, scoreboard, 
 from lagrseq.analysis.items import ItemFailure
 from lagrseq.analysis.tables import Table, plus_minus, to_csv, to_html, to_markdown
 from lagrseq.errors import LogError, UsageError
-from lagrseq.running.suite import (
+from lagrseq.suite import (
     AUTHORS_HINT,
     Item,
     Suite,
     is_authors_provider,
-    load_suite,
+    logged_tasks_suite,
     with_recorded,
 )
 
@@ -114,6 +114,8 @@ class Report:
     """Suite items that a failed run feeds (item id -> why, what to do, the command to rerun it)."""
     problems: dict[str, ItemFailure] = field(default_factory=dict)
     """Other failures the report names (``lagrseq reproduce``'s suite audits: "TASK audit" -> ...)."""
+    notes: tuple[str, ...] = ()
+    """Suites left out because no log is of their tasks (one line each; replay without a suite)."""
 
     @property
     def warnings(self) -> tuple[str, ...]:
@@ -232,6 +234,9 @@ def replay(
 ) -> Report:
     """Rebuild the suite's items that ``roots`` cover into ``out`` (see the module docstring).
 
+    ``suite`` None: the suites of the logged tasks (:func:`lagrseq.suite.logged_tasks_suite`:
+    the paper's when a log is of one of its tasks, and each logged task's own); a suite none of
+    whose tasks the logs hold is left out with one line (``Report.notes``), not item by item.
     ``provider`` restricts the suite's default-provider runs to one provider; ``unavailable``
     (provider spec -> reason) lets ``lagrseq reproduce`` say why an item was not run; ``price``
     re-costs queries from their token usage; ``jobs``: processes that read the logs (see
@@ -247,7 +252,6 @@ def replay(
     if bad:
         raise UsageError(f"unknown figure format {bad[0]!r}; expected some of {', '.join(FORMATS)}")
     formats = ["png", *[f for f in FORMATS if f in formats and f != "png"]]
-    suite = load_suite() if suite is None else suite
     out = Path(out)
     jobs = loading.default_jobs() if jobs is None else jobs
     # the figures' artists are many small objects too (see loading.no_cycle_collection)
@@ -268,13 +272,16 @@ def replay(
             raise LogError(f"no complete lagrseq trial logs under {', '.join(map(str, roots))}{detail}")
         failed = dict(failed or {})
         problems = dict(problems or {})
+        notes: tuple[str, ...] = ()
+        if suite is None:
+            suite, notes = logged_tasks_suite({run.key.task for run in logs.runs})
         reports, extra, board, written = _make(logs, suite, out, formats, provider, unavailable, price, sections, painter, failed)
         painter.wait()
     shown = dataclasses.replace(logs, warnings=tuple(report_warnings(logs.warnings, roots)))
-    _write(out / "index.html", _index_html(reports, extra, shown, produced_by, board, problems), written)
-    _write(out / "index.md", _index_markdown(reports, extra, shown, produced_by, board, problems), written)
+    _write(out / "index.html", _index_html(reports, extra, shown, produced_by, board, problems, notes), written)
+    _write(out / "index.md", _index_markdown(reports, extra, shown, produced_by, board, problems, notes), written)
     _drop_stale(out, written)
-    return Report(out, logs, reports, written, {r.item.id: r.failure for r in reports if r.failure is not None}, problems)
+    return Report(out, logs, reports, written, {r.item.id: r.failure for r in reports if r.failure is not None}, problems, notes)
 
 
 def report_warnings(warnings: Sequence[str], roots: Sequence[str | Path]) -> list[str]:
@@ -536,6 +543,7 @@ def _index_html(
     produced_by: str,
     board: Table | None = None,
     problems: Mapping[str, ItemFailure] | None = None,
+    notes: Sequence[str] = (),
 ) -> str:
     e = html.escape
     failures = _failure_lines(reports, problems or {})
@@ -548,6 +556,7 @@ def _index_html(
         "<h1>LaGR-SEQ: the paper's figures and tables, rebuilt from MCAP logs</h1>",
         f"<p>{e(_summary_line(logs))}; lagrseq {e(__version__)}. Every number below was "
         f"computed offline from these logs by <code>{e(produced_by)}</code>.</p>",
+        *(f'<p class="missing">{e(note)}</p>' for note in notes),
         *(_scoreboard_html(board) if board is not None else []),
     ]
     if failures:
@@ -624,6 +633,7 @@ def _index_markdown(
     produced_by: str,
     board: Table | None = None,
     problems: Mapping[str, ItemFailure] | None = None,
+    notes: Sequence[str] = (),
 ) -> str:
     failures = _failure_lines(reports, problems or {})
     lines = [
@@ -631,6 +641,7 @@ def _index_markdown(
         "",
         f"{_summary_line(logs)}; lagrseq {__version__}. Made offline from these logs by `{produced_by}`.",
         "",
+        *(line for note in notes for line in (note, "")),
     ]
     if board is not None:
         lines += [to_markdown(board)]

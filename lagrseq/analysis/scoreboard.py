@@ -30,7 +30,7 @@ from lagrseq.analysis.items import ItemFailure, Match
 from lagrseq.analysis.loading import Run
 from lagrseq.analysis.tables import Table
 from lagrseq.registry import kind_of
-from lagrseq.running.suite import PAPER_MODEL_ROWS, RECORDED_NAME, Item, is_authors_provider
+from lagrseq.suite import PAPER_MODEL_ROWS, RECORDED_NAME, Item, is_authors_provider
 
 _NUMBER = re.compile(r"[-+]?\d+(?:\.\d+)?")
 _PLUS_MINUS = re.compile(r"(?:±|\+-|\+/-)\s*(\d+(?:\.\d+)?)")

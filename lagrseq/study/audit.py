@@ -22,7 +22,7 @@ from typing import Any
 
 from lagrseq import config as cfg
 from lagrseq.config import ExperimentConfig
-from lagrseq.errors import ConfigError
+from lagrseq.errors import ConfigError, UsageError
 from lagrseq.logs.reader import is_complete
 from lagrseq.running import runner, wiring
 
@@ -62,6 +62,12 @@ def plan(
         switched_value,
     )
 
+    missing = [p for p in PRESETS if p not in cfg.task_presets(task)]
+    if missing:
+        raise UsageError(
+            f"lagrseq audit switches fields between the {' and '.join(PRESETS)} presets; task {task!r} ships no "
+            f"{missing[0]!r} preset (it has: {', '.join(cfg.task_presets(task))}); audit a task that ships both"
+        )
     length = ([f"run.episodes={episodes}"] if episodes > 0 else []) + ([f"run.max_steps={max_steps}"] if max_steps >= 0 else [])
     fields = audited_fields(task)
     out: list[AuditRun] = []

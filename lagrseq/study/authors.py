@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from lagrseq.errors import StoreError, UsageError
-from lagrseq.running.suite import AUTHORS_STORE_NAME
+from lagrseq.suite import AUTHORS_STORE_NAME
 
 MAX_FILE_BYTES = 64 * 1024 * 1024
 """Largest file considered (the authors' biggest cache, the image one, is 1.3 MB)."""

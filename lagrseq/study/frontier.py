@@ -15,10 +15,10 @@ The protocol (issue 20; the verdicts are :mod:`lagrseq.analysis.frontier`'s):
   accepted answer guides one episode, so a policy must ask again; ``trial``: it guides the rest of
   the trial);
 - random at a matched rate: after the variants, every learning policy's run is read back and
-  ``random`` runs at its mean query rate (queries / decisions, :func:`matched_probability`);
+  ``random`` runs at its mean query rate (queries / decisions, :func:`lagrseq.frontier_protocol.matched_probability`);
 - ``--tune``: each named policy's knob (:data:`TUNE_GRID`) is chosen on tuning seeds (another
   run seed, so no trial shares a seed with the evaluation) by :data:`TUNE_RULE`, the choice is
-  written into the evaluation logs' metadata (:data:`TUNING_NOTE`), then evaluated. The variants
+  written into the evaluation logs' metadata (:data:`lagrseq.frontier_protocol.TUNING_NOTE`), then evaluated. The variants
   as given stay: they are the task-agnostic settings, the same on every task.
 """
 
@@ -32,11 +32,8 @@ from pathlib import Path
 from typing import Any
 
 from lagrseq.errors import UsageError
+from lagrseq.frontier_protocol import TUNING_NOTE, matched_probability, wants_match
 from lagrseq.registry import POLICIES, TASKS, knob_names, tuned_knob
-
-TUNING_NOTE = "frontier_tuning"
-"""The run-metadata entry (JSON) of a run that ``--tune`` made: ``role`` ``tuning`` (a candidate or
-the control on the tuning seeds) or ``tuned`` (the evaluation of the chosen setting)."""
 
 
 def tune_grid() -> dict[str, tuple[str, tuple[str, ...]]]:
@@ -148,32 +145,6 @@ def parse_sweep(text: str) -> list[Variant]:
         name, knobs = _item(f"{prefix}:{field}={value}")
         out.append(Variant(name, tuple(knobs)))
     return out
-
-
-def wants_match(policy: str, knobs: object) -> bool:
-    """Whether a point is compared with random at its query rate, read from the policy's
-    registry entry: every asking policy but the yardstick itself (random), one that peeks (the
-    oracle), the baseline's (never), and a policy of plain LaGR without knobs (always: random at
-    rate 1 is always). A policy this installation does not know (a plugin's, read back from
-    its logs) is an asking policy like any other: matched."""
-    from lagrseq.registry import POLICIES
-
-    spec = POLICIES.find(policy)
-    if spec is None:
-        return True
-    if spec.peeks or spec.comparator or spec.method == "baseline":
-        return False
-    return spec.method != "lagr" or bool(knobs)
-
-
-def matched_probability(queries: float, decisions: float) -> float:
-    """The ``ask_probability`` of random at a run's mean query rate (queries / decisions over all
-    its trials), to 2 significant digits and at least 0.001 (so the report finds the same run
-    again from the logs)."""
-    if decisions <= 0:
-        raise ValueError("no decisions: the run never reached a trigger")
-    rate = min(max(queries / decisions, 0.001), 1.0)
-    return float(f"{rate:.2g}")
 
 
 @dataclass(frozen=True)

@@ -34,8 +34,8 @@ from lagrseq.logs.reader import is_complete
 from lagrseq.loop.experiment import TrialResult
 from lagrseq.registry import EXECUTORS, PROVIDERS, TASKS
 from lagrseq.running import runner, wiring
-from lagrseq.running.suite import RunSpec, Suite, is_authors_provider
 from lagrseq.study import probe
+from lagrseq.suite import RunSpec, Suite, is_authors_provider
 
 CALIBRATION_STEPS = 1000
 """Environment steps timed per distinct experiment to estimate the suite's duration (one trial
@@ -399,9 +399,9 @@ def frontier_items(suite: Suite) -> set[str]:
 
 def matched_sources(the_plan: Plan, items: set[str]) -> list[PlannedRun]:
     """The planned runs of the frontier ``items`` that the protocol compares with ``random`` at
-    their own query rate (:func:`lagrseq.study.frontier.wants_match`): learning policies, not on
+    their own query rate (:func:`lagrseq.frontier_protocol.wants_match`): learning policies, not on
     the authors' answers with mock fallbacks (those points get no verdict)."""
-    from lagrseq.study import frontier
+    from lagrseq.frontier_protocol import wants_match
 
     out = []
     for run in the_plan.runs:
@@ -409,7 +409,7 @@ def matched_sources(the_plan: Plan, items: set[str]) -> list[PlannedRun]:
             continue
         if run.options is not None and run.options.on_miss == "mock":
             continue
-        if frontier.wants_match(run.config.secondary.policy, ()):
+        if wants_match(run.config.secondary.policy, ()):
             out.append(run)
     return out
 
@@ -417,11 +417,12 @@ def matched_sources(the_plan: Plan, items: set[str]) -> list[PlannedRun]:
 def plan_matched_random(the_plan: Plan, items: set[str], runs_dir: Path) -> Plan:
     """The suite's second phase for its frontier ``items`` (issue 20): for each run of
     :func:`matched_sources` whose trials are complete, its query rate from its logs (queries /
-    decisions, :func:`lagrseq.study.frontier.matched_probability`) and a run of ``random`` at that
+    decisions, :func:`lagrseq.frontier_protocol.matched_probability`) and a run of ``random`` at that
     rate with otherwise the same configuration, provider, seed and trials (so its trials pair with
     the policy's), as ``lagrseq frontier`` runs it. None where the rate is 0 or 1 (random at rate 1
     is always) or the run is already planned (the suite's own random); a run whose trials are not
     all complete gets none (a rerun resumes it first)."""
+    from lagrseq.frontier_protocol import matched_probability
     from lagrseq.study import frontier
 
     planned: dict[Path, PlannedRun] = {}
@@ -432,7 +433,7 @@ def plan_matched_random(the_plan: Plan, items: set[str], runs_dir: Path) -> Plan
         queries, decisions = frontier.rate_counts(run.path, run.trials)
         if queries == 0 or decisions == 0:
             continue
-        probability = frontier.matched_probability(queries, decisions)
+        probability = matched_probability(queries, decisions)
         if probability >= 1.0:
             continue
         config = frontier.matched_random_config(run.config, probability)
@@ -966,7 +967,7 @@ def reproduce(
     from lagrseq.analysis.replay import replay
     from lagrseq.paths import writable_directory
     from lagrseq.progress import bar as progress_bar
-    from lagrseq.running.suite import load_suite
+    from lagrseq.suite import load_suite
 
     suite = load_suite(suite_path)
     if items is not None:
@@ -1142,8 +1143,8 @@ def with_authors_answers(suite: Suite, caches: Path, out: Path, say: Callable[[s
     """``reproduce --authors-caches DIR``: import every authors' cache found in DIR into
     ``OUT/authors-answers`` and add a recorded-GPT run to every item they cover. Replay finds
     those runs in the logs by their provider (no suite change is needed to rebuild them)."""
-    from lagrseq.running.suite import with_recorded
     from lagrseq.study import authors
+    from lagrseq.suite import with_recorded
 
     found = authors.find_caches(caches, warn=lambda line: say(f"warning: {line}"))
     for line in authors.import_caches(found, out, warn=lambda line: say(f"note: {line}")):

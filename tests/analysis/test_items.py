@@ -10,7 +10,7 @@ import pytest
 
 from lagrseq.analysis import inference, items, loading
 from lagrseq.analysis.loading import EPISODE_COLUMNS, QUERY_COLUMNS, Run, RunKey
-from lagrseq.running.suite import Item, RunSpec, load_suite
+from lagrseq.suite import Item, RunSpec, load_suite
 
 
 def _spec(**kw: object) -> RunSpec:

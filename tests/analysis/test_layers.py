@@ -1,4 +1,5 @@
-"""The analysis layer imports no environment, agent, LLM provider or heavy dependency."""
+"""The analysis layer imports no environment, agent, LLM provider, loop, runner, study or heavy
+dependency (DESIGN section 2: replay needs only the logs, the suite's data and analysis code)."""
 
 from __future__ import annotations
 
@@ -15,7 +16,9 @@ FORBIDDEN = (
     "lagrseq.envs",
     "lagrseq.agents",
     "lagrseq.llm",
-    "lagrseq.loop.experiment",
+    "lagrseq.loop",
+    "lagrseq.running",
+    "lagrseq.study",
     "torch",
     "gymnasium",
     "httpx",
@@ -29,6 +32,7 @@ def test_analysis_imports_stay_in_their_layer() -> None:
         "import lagrseq.analysis.costs, lagrseq.analysis.figures, lagrseq.analysis.items\n"
         "import lagrseq.analysis.loading, lagrseq.analysis.replay, lagrseq.analysis.stats\n"
         "import lagrseq.analysis.tables, lagrseq.logs.recover, lagrseq.logs.foxglove\n"
+        "import lagrseq.analysis.frontier, lagrseq.analysis.scoreboard, lagrseq.analysis.audit\n"
         f"print(json.dumps(sorted(m for m in sys.modules if m.startswith({FORBIDDEN!r}))))\n"
     )
     result = subprocess.run(

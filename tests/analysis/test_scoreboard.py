@@ -16,7 +16,7 @@ from lagrseq.analysis import provenance as prov
 from lagrseq.analysis.loading import EPISODE_COLUMNS, QUERY_COLUMNS, Run, RunKey
 from lagrseq.analysis.tables import to_markdown
 from lagrseq.running import runner
-from lagrseq.running.suite import AUTHORS_STORE_NAME, Item, RunSpec
+from lagrseq.suite import AUTHORS_STORE_NAME, Item, RunSpec
 
 # -- one test per provenance class --------------------------------------------------------------
 

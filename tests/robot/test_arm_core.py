@@ -53,8 +53,8 @@ def test_without_the_arm_extra_runs_say_what_to_install(monkeypatch: pytest.Monk
 
 
 def test_reproduce_sets_the_arm_items_aside_without_the_extra(monkeypatch: pytest.MonkeyPatch, tmp_path) -> None:  # type: ignore[no-untyped-def]
-    from lagrseq.running.suite import load_suite
     from lagrseq.study import reproduce
+    from lagrseq.suite import load_suite
 
     _without(monkeypatch, "pybullet", "airo_models")
     suite = load_suite().select(["fig5c-arm", "fig6c-arm"])

@@ -124,3 +124,26 @@ def test_plugins_run_frontier_and_replay_through_the_command_line(tmp_path: Path
     assert [(v["policy"], v["method"]) for v in variants][:2] == [("always", "lagr"), ("backoff", "lagr-seq")]
     assert all(v["policy"].startswith("random:ask_probability=") for v in variants[2:] if "policy" in v)
     assert list((tmp_path / "again").glob("*.png"))
+
+
+def test_the_tasks_own_suite_is_run_by_name_and_drawn_by_replay_without_a_suite_flag(tmp_path: Path) -> None:
+    """The task ships ``suite.toml`` (``TaskSpec.suite``): ``reproduce --suite number-sequence``
+    runs it, and ``replay`` of its logs draws its figures with no ``--suite``, the paper's items
+    left out in one line instead of 23 "not run" lines."""
+    made = lagrseq("reproduce", "--suite", "number-sequence", "--quick", "--jobs", "1", "--quiet", "--out", str(tmp_path / "out"), cwd=tmp_path)
+    assert made.returncode == 0, made.stderr
+    assert "2 of 2 suite items made" in made.stdout, made.stdout
+    replayed = lagrseq("replay", str(tmp_path / "out" / "runs"), "--out", str(tmp_path / "report"), cwd=tmp_path)
+    assert replayed.returncode == 0, replayed.stderr
+    assert "2 of 2 suite items made from 6 logs" in replayed.stdout, replayed.stdout
+    assert "not run" not in replayed.stdout, replayed.stdout
+    left_out = [line for line in replayed.stdout.splitlines() if "paper's suite" in line]
+    assert len(left_out) == 1 and "left out: no log is of its tasks" in left_out[0], replayed.stdout
+    for item in ("numseq-returns", "numseq-queries"):
+        assert (tmp_path / "report" / "figures" / f"{item}.png").stat().st_size > 0
+        assert (tmp_path / "report" / "figures" / f"{item}.csv").read_text().count("\n") > 1
+    assert "Number sequence: return per episode" in (tmp_path / "report" / "index.md").read_text()
+    # a task that ships no suite, or a name that is neither file nor task: one line, exit 2
+    for bad, message in [("cube-stacking", "ships no suite of its own"), ("no-such-thing", "no such suite file")]:
+        refused = lagrseq("replay", str(tmp_path / "out" / "runs"), "--suite", bad, "--out", str(tmp_path / "bad"), cwd=tmp_path)
+        assert refused.returncode == 2 and refused.stderr.count("\n") == 1 and message in refused.stderr, refused.stderr

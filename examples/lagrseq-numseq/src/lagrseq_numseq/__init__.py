@@ -4,7 +4,8 @@ It adds, through entry points (see this package's ``pyproject.toml``):
 
 - the task ``number-sequence`` (group ``lagrseq.tasks``): write an arithmetic sequence one number
   at a time, with its Gymnasium env, prompt, parser, evaluation, guidance and a rule-based mock
-  extrapolator, plus two presets;
+  extrapolator, plus two presets and its own suite (``suite.toml``: what ``lagrseq replay``
+  draws for its logs without ``--suite``);
 - the asking policy ``backoff`` (group ``lagrseq.policies``): ask with probability
   ``ask_probability``, multiplied by its own knob ``backoff_factor`` (default 0.5: halved) after
   every rejected answer of the episode.
@@ -57,6 +58,7 @@ def task_spec() -> TaskSpec:
         make_env=_make_env,
         extrapolator=_extrapolator,
         description="write an arithmetic sequence one number at a time (example plugin)",
+        suite="lagrseq_numseq:suite.toml",  # its own suite: `lagrseq replay` draws it without --suite
     )
 
 

@@ -14,6 +14,7 @@ class NumSeqTaskConfig:
     """[task] the arithmetic sequence to write: start, start + step, ..., ``length`` numbers."""
 
     name: Literal["number-sequence"] = "number-sequence"
+    """The task's name (``lagrseq run number-sequence``)."""
     start: int = 2
     """First number of the target sequence."""
     step: int = 3

@@ -1,6 +1,9 @@
-"""The paper's suite as data: which runs feed which figure or table (SPEC section 4 and 7).
+"""A suite as data: which runs feed which figure or table (SPEC section 4 and 7); the format is
+docs/suites.md.
 
-``lagrseq/experiments/paper_suite.toml`` lists the paper's items. Each item names the function
+``lagrseq/experiments/paper_suite.toml`` lists the paper's items; a task may ship a suite of its
+own (``TaskSpec.suite``), which ``lagrseq replay`` draws for that task's logs without ``--suite``
+(:func:`logged_tasks_suite`) and ``lagrseq reproduce --suite TASK`` runs (:func:`suite_argument`). Each item names the function
 that renders it (``render``) and the runs it needs; a run is a task, a method, a preset, a provider
 (on a recorded store, with what answers a query the store lacks: ``on_miss``) and ``--set``
 overrides, with its length for the full suite and for ``--quick``. Runs that several
@@ -11,7 +14,8 @@ run once, because a run's directory is named after its whole configuration.
 feed which item, matching a log's stored configuration against the item's resolved one (run
 length aside). Adding a figure for a new task or provider is adding entries to the file.
 
-This module reads TOML and resolves configurations; it imports nothing but :mod:`lagrseq.config`.
+This module reads TOML and resolves configurations; it imports nothing but :mod:`lagrseq.config`
+and :mod:`lagrseq.registry`, so analysis and running both read it (it sits below both).
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from typing import Any
 from lagrseq import config as cfg
 from lagrseq.errors import ConfigError
 from lagrseq.registry import ON_MISS, kind_of
+from lagrseq.tomlfile import shown as _shown_path
 
 RENDERERS = ("returns", "query-bars", "query-table", "ratio-table", "accuracy", "config-table", "frontier")
 KINDS = ("trial", "accuracy")
@@ -281,7 +286,8 @@ def _on_miss(where: str, merged: Mapping[str, Any], own: bool) -> str | None:
 
 
 def load_suite(path: str | Path | None = None) -> Suite:
-    """Read and check a suite file (default: the packaged ``paper_suite.toml``)."""
+    """Read and check a suite file (default: the packaged ``paper_suite.toml``; the format:
+    docs/suites.md)."""
     data = cfg.read_toml(default_path() if path is None else path, "suite")
     unknown_sections = sorted(set(data) - {"suite", "items"})
     if unknown_sections:
@@ -330,6 +336,119 @@ def load_suite(path: str | Path | None = None) -> Suite:
             )
         )
     return Suite(seed=seed, provider=str(provider), items=tuple(items))
+
+
+# ------------------------------------------------------------------------------------------
+# Suites a task ships (``TaskSpec.suite``): found by task, by ``replay`` and ``reproduce --suite``
+# ------------------------------------------------------------------------------------------
+def task_suite_path(task: str) -> Path | None:
+    """The suite file the registered task ``task`` ships (``TaskSpec.suite``), None if it ships
+    none or is not registered; ConfigError (one line) for a reference that names no file."""
+    from lagrseq.registry import TASKS
+
+    spec = TASKS.find(task)
+    reference = None if spec is None else spec.suite
+    if reference is None:
+        return None
+    if isinstance(reference, Path):
+        path = reference
+    else:
+        package, sep, resource = str(reference).partition(":")
+        if not sep or not package or not resource:
+            raise ConfigError(
+                f"task {task!r}: suite = {cfg.show_value(reference)}; expected a Path or \"package:resource.toml\""
+            )
+        try:
+            path = Path(str(resources.files(package).joinpath(resource)))
+        except (ModuleNotFoundError, TypeError, ValueError) as exc:
+            raise ConfigError(f"task {task!r}: suite = {cfg.show_value(reference)} names no package file ({exc}); fix the task's TaskSpec.suite") from None
+    if not path.is_file():
+        raise ConfigError(f"task {task!r}: its suite file {cfg.show_value(str(path))} does not exist; fix the task's TaskSpec.suite or reinstall it")
+    return path
+
+
+def suite_argument(text: str | Path | None) -> Path | None:
+    """``--suite``'s value as a file: a path to a suite file, or the name of a registered task
+    that ships one (``lagrseq reproduce --suite number-sequence``); None stays None (the default
+    suite). An existing file wins over a task of the same name."""
+    if text is None:
+        return None
+    path = Path(text)
+    if path.exists() or path.suffix == ".toml" or len(path.parts) > 1:
+        return path  # a path: load_suite says what is wrong with it, naming it in full
+    from lagrseq.registry import TASKS
+
+    if str(text) in TASKS:
+        found = task_suite_path(str(text))
+        if found is None:
+            raise ConfigError(
+                f"--suite {cfg.show_value(str(text))}: the task ships no suite of its own (TaskSpec.suite); "
+                "give a suite file (docs/suites.md), or leave --suite out for the paper's suite"
+            )
+        return found
+    raise ConfigError(
+        f"--suite {_shown_path(path)}: no such suite file, and no task of that name; expected FILE.toml "
+        f"or a task that ships a suite ({', '.join(t for t in TASKS.names() if TASKS.get(t).suite is not None) or 'none installed'})"
+    )
+
+
+def suite_tasks(suite: Suite) -> set[str]:
+    """Every task a suite's runs name."""
+    return {run.task for item in suite.items for run in item.runs}
+
+
+def _pinned(suite: Suite, provider: str) -> Suite:
+    """``suite`` with its default-provider runs given its own default explicitly (so it keeps it
+    when merged into a suite of another default)."""
+    if suite.provider == provider:
+        return suite
+    items = tuple(
+        replace(item, runs=tuple(run if run.provider is not None else replace(run, provider=suite.provider) for run in item.runs))
+        for item in suite.items
+    )
+    return Suite(suite.seed, suite.provider, items)
+
+
+def logged_tasks_suite(tasks: Sequence[str] | set[str]) -> tuple[Suite, tuple[str, ...]]:
+    """The suite ``lagrseq replay`` draws without ``--suite`` for logs of ``tasks``, and the
+    lines saying what it left out.
+
+    The paper's suite when the logs hold a run of one of its tasks; then, for each logged task
+    that ships a suite (``TaskSpec.suite``), that suite's items. A suite whose tasks no log holds
+    is left out as one line (logs of a plugin's task alone do not list the paper's 23 items as
+    "not run"). Item ids must be unique across the suites (ConfigError, one line)."""
+    paper = load_suite()
+    logged = set(tasks)
+    chosen: list[tuple[str, Suite]] = []
+    left_out: list[str] = []
+    if suite_tasks(paper) & logged:
+        chosen.append(("the paper's suite", paper))
+    else:
+        left_out.append(
+            f"the paper's suite ({len(paper.items)} items) left out: no log is of its tasks "
+            f"({', '.join(sorted(suite_tasks(paper)))}); logs of: {', '.join(sorted(logged)) or 'none'}"
+        )
+    seen: set[Path] = set()
+    for task in sorted(logged):
+        path = task_suite_path(task)
+        if path is None or path.resolve() in seen:
+            continue
+        seen.add(path.resolve())
+        chosen.append((f"the suite of task {task!r} ({path.name})", load_suite(path)))
+    if not chosen:
+        return Suite(paper.seed, paper.provider, ()), tuple(left_out)
+    base = chosen[0][1]
+    items: list[Item] = []
+    owner: dict[str, str] = {}
+    for where, suite in chosen:
+        for item in _pinned(suite, base.provider).items:
+            if item.id in owner:
+                raise ConfigError(
+                    f"suite item {item.id!r} is in {owner[item.id]} and in {where}; give the task's items their own ids"
+                )
+            owner[item.id] = where
+            items.append(item)
+    return Suite(base.seed, base.provider, tuple(items)), tuple(left_out)
 
 
 def matches(stored: Mapping[str, Any], resolved: Mapping[str, Any]) -> bool:
