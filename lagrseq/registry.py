@@ -91,7 +91,42 @@ class TaskSpec:
     """The ``lagr.solution_scope`` regimes ``frontier --scopes auto`` compares (the grid tasks
     keep an accepted answer for the trial, so asking again only matters per episode); empty: the
     preset's own."""
+    episode_fields: Mapping[str, str] = field(default_factory=dict)
+    """Fields of its own that its env logs per episode (``info["log_episode"]``, counted since
+    the env's reset), by name -> JSON type (one of :data:`FIELD_TYPES`): added to the
+    ``/episode`` record and its schema in the task's logs, read back by ``lagrseq replay`` (the
+    runs table and its CSV). An episode whose env leaves one out logs it as null."""
+    step_fields: Mapping[str, str] = field(default_factory=dict)
+    """Fields of its own that its env logs per step (``info["log_step"]``, on the steps that have
+    them), by name -> JSON type: added to the ``/transition`` record (a column of
+    ``/transitions``) and its schema; null on steps that do not set them."""
     description: str = ""
+
+    def __post_init__(self) -> None:
+        for what, fields, taken in (("episode_fields", self.episode_fields, LOGGED_EPISODE_FIELDS), ("step_fields", self.step_fields, LOGGED_STEP_FIELDS)):
+            if not isinstance(fields, Mapping):
+                raise TypeError(f"task {self.name!r}: {what} is a {type(fields).__name__}; expected a mapping of field name -> JSON type")
+            for name, kind in fields.items():
+                if not isinstance(name, str) or not name.isidentifier():
+                    raise ValueError(f"task {self.name!r}: {what} name {name!r} is not an identifier; expected e.g. 'wrong_bits'")
+                if name in taken:
+                    raise ValueError(f"task {self.name!r}: {what} {name!r} is a field lagrseq logs itself; give the task's own field another name")
+                if kind not in FIELD_TYPES:
+                    raise ValueError(f"task {self.name!r}: {what} {name!r} has the type {kind!r}; expected one of {', '.join(FIELD_TYPES)}")
+
+
+FIELD_TYPES = ("integer", "number", "boolean", "string")
+"""The JSON types of a task's own logged fields (:attr:`TaskSpec.episode_fields`,
+:attr:`TaskSpec.step_fields`)."""
+LOGGED_EPISODE_FIELDS = frozenset(
+    {"trial", "episode", "return", "return_", "length", "queries", "accepted", "epsilon", "solved", "guided_steps", "global_step", "placements", "failed_placements"}
+)
+"""The ``/episode`` fields lagrseq writes itself (``lagrseq.logs.events.EpisodeEvent`` and the
+arm's record; a test keeps the two equal): a task's own fields take other names."""
+LOGGED_STEP_FIELDS = frozenset(
+    {"trial", "episode", "step", "global_step", "state", "action", "reward", "terminated", "truncated", "guided", "placement"}
+)
+"""The ``/transition`` fields lagrseq writes itself (``lagrseq.logs.events.Transition``)."""
 
 
 def task_profiles(spec: TaskSpec) -> tuple[str, ...]:

@@ -39,6 +39,7 @@ from lagrseq.running.wiring import (
     parse_provider,
     pays,
     provider_kind,
+    task_fields,
     trial_parts,
     view_topics,
     with_provider_model,
@@ -99,7 +100,7 @@ def run_one(
         if not log:
             return NullSink()
         metadata = run_metadata(config, trial, seed, provider_spec, provider_options, notes)
-        return McapSink(path, metadata, extra_topics=view_topics(config))
+        return McapSink(path, metadata, extra_topics=view_topics(config), task_fields=task_fields(config))
 
     parts = trial_parts(config, trial, seed, provider_spec, open_sink, provider_options, render_dir)
     if on_ready is not None:

@@ -42,6 +42,7 @@ from lagrseq.llm.servers import RECORD_MODES as RECORD_MODES  # for the command 
 from lagrseq.llm.servers import SERVER_KINDS as SERVER_KINDS  # for the command line
 from lagrseq.logs import foxglove
 from lagrseq.logs.events import Sink, View
+from lagrseq.logs.task_fields import TaskFields, of_spec
 from lagrseq.loop.adapters import (
     DQNPrimary,
     NeuralSeq,
@@ -773,7 +774,14 @@ def trial_parts(
         guidance_rng=seeding.generator(seed, trial, Stream.GUIDANCE),
         views=step_views(config, env),
         guide=make_guide(config, task, env),
+        task_fields=task_fields(config),
     )
+
+
+def task_fields(config: ExperimentConfig) -> TaskFields | None:
+    """The record types of ``config``'s task when it logs fields of its own (its TaskSpec's
+    ``episode_fields``, ``step_fields``); None when it declares none."""
+    return of_spec(TASKS.get(config.task.name))
 
 
 def make_guide(config: ExperimentConfig, task: Task, env: Any) -> Guide | None:
