@@ -124,3 +124,44 @@ def test_plugins_run_frontier_and_replay_through_the_command_line(tmp_path: Path
     assert [(v["policy"], v["method"]) for v in variants][:2] == [("always", "lagr"), ("backoff", "lagr-seq")]
     assert all(v["policy"].startswith("random:ask_probability=") for v in variants[2:] if "policy" in v)
     assert list((tmp_path / "again").glob("*.png"))
+
+
+def test_the_env_counts_refused_numbers_in_its_own_episode_field() -> None:
+    env = NumberSequenceEnv(TASK, horizon=20, bonus=1.0)
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(7)
+    _, _, _, _, info = env.step(2)
+    _, _, _, _, info = env.step(3)
+    assert info["log_episode"] == {"wrong_numbers": 2}
+    _, info = env.reset()
+    assert "log_episode" not in info
+    assert TASKS.get("number-sequence").episode_fields == {"wrong_numbers": "integer"}
+
+
+def test_wrong_numbers_is_logged_under_the_tasks_schema_and_replayed_into_the_runs_csv(tmp_path: Path) -> None:
+    """The MCAP (read with the plain mcap library, as Foxglove reads it) holds wrong_numbers in
+    every /episode record and its schema; replay's runs table and CSV have its mean per episode."""
+    import csv
+
+    from mcap.reader import make_reader
+
+    run = lagrseq("run", "number-sequence", "--method", "lagr-seq", "--trials", "2", "--jobs", "1", "--quiet", "--out", str(tmp_path / "runs"), cwd=tmp_path)
+    assert run.returncode == 0, run.stderr
+    per_trial = []
+    for log in sorted((tmp_path / "runs").rglob("trial-*.mcap")):
+        with log.open("rb") as stream:
+            reader = make_reader(stream)
+            summary = reader.get_summary()
+            assert summary is not None
+            (channel,) = [c for c in summary.channels.values() if c.topic == "/episode"]
+            schema = json.loads(summary.schemas[channel.schema_id].data)
+            assert schema["properties"]["wrong_numbers"]["type"] == ["integer", "null"]
+            episodes = [json.loads(m.data) for _, _, m in reader.iter_messages(topics=["/episode"])]
+        assert episodes and all(type(e["wrong_numbers"]) is int and e["wrong_numbers"] <= e["length"] for e in episodes)
+        per_trial.append(sum(e["wrong_numbers"] for e in episodes) / len(episodes))
+    replayed = lagrseq("replay", str(tmp_path / "runs"), "--out", str(tmp_path / "report"), cwd=tmp_path)
+    assert replayed.returncode == 0, replayed.stderr
+    with (tmp_path / "report" / "tables" / "runs.csv").open() as file:
+        (row,) = list(csv.DictReader(file))
+    assert float(row["wrong_numbers_per_episode_mean"]) == pytest.approx(sum(per_trial) / len(per_trial), rel=1e-4)
+    assert "wrong_numbers per episode" in (tmp_path / "report" / "tables" / "runs.md").read_text()
