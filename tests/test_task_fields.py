@@ -179,5 +179,5 @@ def test_a_task_spec_refuses_bad_declarations_and_the_reserved_names_are_lagrseq
     with pytest.raises(ValueError, match="not an identifier"):
         TaskSpec(**base, episode_fields={"a b": "integer"})  # type: ignore[arg-type]
     episode = {f.encode_name for f in msgspec.structs.fields(ArmEpisodeEvent)} | {"return_"}
-    assert LOGGED_EPISODE_FIELDS == episode
-    assert LOGGED_STEP_FIELDS == {f.encode_name for f in msgspec.structs.fields(Transition)}
+    assert episode == LOGGED_EPISODE_FIELDS
+    assert {f.encode_name for f in msgspec.structs.fields(Transition)} == LOGGED_STEP_FIELDS

@@ -38,8 +38,8 @@ from lagrseq.logs.columns import (
 )
 from lagrseq.logs.events import NO_QUERY_TOPIC, QUERY_TOPIC, TRANSITION_TOPIC
 from lagrseq.logs.mcap_reader import MAGIC, Damage, McapFile, Summary
-from lagrseq.logs.task_fields import declared
 from lagrseq.logs.sink import RECORDS_METADATA, RUN_METADATA, STATUS_METADATA
+from lagrseq.logs.task_fields import declared
 from lagrseq.paths import expand_user, input_path, open_input, walk_files
 
 _decode = msgspec.json.Decoder().decode

@@ -165,15 +165,15 @@ def task_fields(task: str, episode_fields: tuple[tuple[str, str], ...], step_fie
     made once per declaration."""
     if not episode_fields and not step_fields:
         return None
-    transition = Transition
+    transition: type[Transition] = Transition
     if step_fields:
-        transition = msgspec.defstruct(
+        transition = msgspec.defstruct(  # type: ignore[assignment]
             "TaskTransition", [(name, Any, None) for name, _ in step_fields], bases=(Transition,),
             frozen=True, gc=False, omit_defaults=True,
         )
-    episode = EpisodeEvent
+    episode: type[EpisodeEvent] = EpisodeEvent
     if episode_fields:
-        episode = msgspec.defstruct(
+        episode = msgspec.defstruct(  # type: ignore[assignment]
             "TaskEpisodeEvent", [(name, Any, None) for name, _ in episode_fields], bases=(EpisodeEvent,),
             frozen=True, gc=False,
         )
