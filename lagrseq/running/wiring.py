@@ -433,7 +433,21 @@ def extrapolator(config: ExperimentConfig, profile: str = "ideal") -> Callable[[
     task-free: it reads the same prompt text a real LLM would see."""
     if profile == REFUSING:
         return lambda prompt, temperature, rng: REFUSAL
-    return TASKS.get(config.task.name).extrapolator(config, profile)  # type: ignore[no-any-return]
+    spec = TASKS.get(config.task.name)
+    own = task_mock_profiles(spec)
+    if profile not in own:  # a profile belongs to its task: another task's never reaches this one's extrapolator
+        others = sorted({p for task in TASKS.specs() if task.name != spec.name for p in task_profiles(task)} - set(own))
+        elsewhere = f" ({profile} is another task's)" if profile in others else ""
+        raise UsageError(
+            f"mock profile {profile!r} is not one of task {spec.name}'s{elsewhere}; "
+            f"expected --provider mock or mock:PROFILE with PROFILE one of: {', '.join(own)}"
+        )
+    return spec.extrapolator(config, profile)  # type: ignore[no-any-return]
+
+
+def task_mock_profiles(spec: Any) -> tuple[str, ...]:
+    """The ``--provider mock:PROFILE`` profiles a task takes: ``ideal``, its own, ``refuses``."""
+    return tuple(dict.fromkeys(("ideal", *task_profiles(spec), REFUSING)))
 
 
 def cube_profiles() -> tuple[str, ...]:
