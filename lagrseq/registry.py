@@ -535,6 +535,18 @@ def paid_sources() -> set[str]:
     return {kind.source for kind in PROVIDERS.specs() if kind.paid}
 
 
+def _knob_lines(spec: Any) -> list[str]:
+    """A policy's knobs for ``lagrseq plugins``: the shared ``[secondary]`` fields it reads, then
+    each knob of its own with its default and help."""
+    if not isinstance(spec, PolicySpec) or not spec.knobs:
+        return []
+    shared = [k for k in spec.knobs if isinstance(k, str)]
+    lines = [f"      reads [secondary] {', '.join(shared)}"] if shared else []
+    for knob in own_knobs(spec):
+        lines.append(f"      knob {knob.name} = {knob.default!r}" + (f": {knob.help}" if knob.help else ""))
+    return lines
+
+
 def listing() -> list[str]:
     """``lagrseq plugins``: every registered part by registry, with its source distribution,
     then the plugins that were skipped."""
@@ -547,6 +559,7 @@ def listing() -> list[str]:
             about = getattr(entry.spec, "description", "")
             where = entry.source if not entry.entry_point else f"{entry.source} [{entry.entry_point}]"
             lines.append(f"  {entry.name:<{width}}  {where}" + (f": {about}" if about else ""))
+            lines += _knob_lines(entry.spec)
     if FAILURES:
         lines.append(f"skipped plugins: {len(FAILURES)}")
         lines += [f"  {f.entry_point} ({f.source}, group {f.group}): {f.problem}" for f in FAILURES]
