@@ -181,3 +181,23 @@ def test_a_task_spec_refuses_bad_declarations_and_the_reserved_names_are_lagrseq
     episode = {f.encode_name for f in msgspec.structs.fields(ArmEpisodeEvent)} | {"return_"}
     assert episode == LOGGED_EPISODE_FIELDS
     assert {f.encode_name for f in msgspec.structs.fields(Transition)} == LOGGED_STEP_FIELDS
+
+
+@pytest.mark.parametrize("log_format", ["2", "3"])
+def test_both_log_formats_write_and_read_back_a_tasks_own_fields(tmp_path: Path, log_format: str) -> None:
+    from lagrseq.logs.reader import read_rows, read_topic
+    from lagrseq.logs.sink import McapSink
+
+    own = task_fields("t", (("wrong_bits", "integer"),), (("parity", "boolean"),))
+    assert own is not None
+    path = tmp_path / "trial-000.mcap"
+    with McapSink(path, {"task": "t"}, log_format=log_format, task_fields=own) as sink:
+        sink.write_steps([own.step((0, 0, 0, 0, (), 1, 1.0, False, False, False), {"parity": True}), own.transition(0, 0, 1, 1, (1,), 2, 0.0, True, False, False)])
+        sink.write(own.episode_event({"wrong_bits": 1}, trial=0, episode=0, return_=1.0, length=2, global_step=2))
+        sink.write(own.episode_event(None, trial=0, episode=1, return_=0.0, length=0, global_step=2))
+    steps = read_topic(path, "/transition")
+    assert [s.get("parity") for s in steps] == [True, None] and "parity" not in steps[1]
+    assert [e["wrong_bits"] for e in read_topic(path, "/episode")] == [1, None]
+    rows = read_rows(path, {"/episode": ("episode", "return")}, task_fields=True)
+    assert rows.task_fields == {"/episode": (("wrong_bits", "integer"),)}
+    assert rows.rows["/episode"] == [(0, 1.0, 1), (1, 0.0, None)]

@@ -165,3 +165,23 @@ def test_wrong_numbers_is_logged_under_the_tasks_schema_and_replayed_into_the_ru
         (row,) = list(csv.DictReader(file))
     assert float(row["wrong_numbers_per_episode_mean"]) == pytest.approx(sum(per_trial) / len(per_trial), rel=1e-4)
     assert "wrong_numbers per episode" in (tmp_path / "report" / "tables" / "runs.md").read_text()
+
+
+def test_another_tasks_profile_and_another_policys_knob_are_refused_in_one_line(tmp_path: Path) -> None:
+    """A mock profile belongs to its task and a knob to its policy: each refused before anything
+    is made (no --out folder), one line, exit 2."""
+    small = ["--trials", "1", "--jobs", "1", "--quiet"]
+    for args, message in [
+        (["run", "number-sequence", "--provider", "mock:authors-t0"], "mock profile 'authors-t0' is not one of task number-sequence's"),
+        (["frontier", "number-sequence", "--policies", "always,backoff:query_reward=logistic"], "query_reward is a knob of seq, thompson, not of backoff"),
+        (["frontier", "number-sequence", "--policies", "always,backoff:backoff_factor=2"], "secondary.backoff_factor = 2 is out of range"),
+    ]:
+        out = tmp_path / "out"
+        refused = lagrseq(*args, *small, "--out", str(out), cwd=tmp_path)
+        assert refused.returncode == 2 and refused.stderr.count("\n") == 1 and message in refused.stderr, refused.stderr
+        assert not out.exists()
+    shown = lagrseq("config", "number-sequence", "--set", 'secondary.policy="backoff"', cwd=tmp_path)
+    assert shown.returncode == 0, shown.stderr
+    assert "\nbackoff_factor = 0.5  # what the asking probability is multiplied by after a rejected answer (0.5: halved); a knob of policy backoff, not set (default 0.5)\n" in shown.stdout
+    listed = lagrseq("plugins", cwd=tmp_path)
+    assert "      knob backoff_factor = 0.5: what the asking probability is multiplied by" in listed.stdout
