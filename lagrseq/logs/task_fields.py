@@ -20,7 +20,7 @@ from __future__ import annotations
 import functools
 import json
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -29,13 +29,15 @@ import numpy as np
 
 from lagrseq.errors import LogError
 from lagrseq.logs import schemas
-from lagrseq.logs.events import EpisodeEvent, Transition, episode_event
+from lagrseq.logs.events import EPISODE_RECORDS, EpisodeEvent, Transition, episode_event
 
 SCHEMA_KEY = "x-lagrseq-task-fields"
 """The key of a topic's JSON schema that names the task's own fields and their JSON types
 (``{"wrong_bits": "integer"}``); JSON Schema ignores keys it does not know."""
 EPISODE_KEY = "log_episode"
+"""``lagrseq.tasks.base.EPISODE_LOG`` (the logs layer imports no task code)."""
 STEP_KEY = "log_step"
+"""``lagrseq.tasks.base.STEP_LOG``."""
 
 _JSON_TYPES = ("integer", "number", "boolean", "string")
 
@@ -134,8 +136,11 @@ def builtin_episode(extra: Mapping[str, Any] | None = None, **summary: Any) -> E
     """The ``/episode`` record for a task without fields of its own (:func:`episode_event`)."""
     try:
         return episode_event(dict(extra) if extra else None, **summary)
-    except ValueError:
-        name = sorted(extra or ())[0]
+    except ValueError as exc:
+        known = {f.encode_name for record in EPISODE_RECORDS for f in msgspec.structs.fields(record)}
+        name = next((n for n in sorted(extra or ()) if n not in known), None)
+        if name is None:  # lagrseq's own fields, but not those of one record
+            raise LogError(f"{exc}; expected the fields of one record: {', '.join(sorted(known - {f.encode_name for f in msgspec.structs.fields(EpisodeEvent)}))}") from None
         raise LogError(_undeclared("", EPISODE_KEY, name, "episode_fields", (extra or {}).get(name))) from None
 
 
@@ -197,6 +202,3 @@ def declared(schema_data: bytes) -> tuple[tuple[str, str], ...]:
         return ()
     return tuple((str(k), str(v)) for k, v in found.items() if isinstance(k, str) and v in _JSON_TYPES)
 
-
-StepRecord = Callable[[tuple[Any, ...], Mapping[str, Any]], Transition]
-EpisodeRecord = Callable[..., EpisodeEvent]
