@@ -324,7 +324,7 @@ def _add_frontier(sub: Any) -> None:
     from lagrseq.config import tasks
 
     p.add_argument("task", metavar="TASK", nargs="?", choices=tasks(), help=f"one of: {', '.join(tasks())} (not with --replay)")
-    p.add_argument("--policies", default="never,always,seq,thompson,oracle", metavar="LIST", help=f"comma-separated NAME or NAME:FIELD=VALUE[:FIELD=VALUE]; names: {', '.join(NAMES)}; fields: {', '.join(KNOBS)} (default: never,always,seq,thompson,oracle)")
+    p.add_argument("--policies", default="never,always,seq,thompson,oracle", metavar="LIST", help=f"comma-separated NAME or NAME:FIELD=VALUE[:FIELD=VALUE]; names: {', '.join(NAMES)}; fields: those NAME reads (lagrseq plugins lists each policy's), among {', '.join(KNOBS)} (default: never,always,seq,thompson,oracle)")
     p.add_argument("--sweep", action="append", default=[], metavar="NAME:FIELD=V1,V2", help="one variant per value, drawn as a curve (repeatable), e.g. thompson:query_cost=0.25,0.5,0.75")
     _provider_argument(p, "mock", "LLM provider of every policy's runs")
     p.add_argument("--trials", type=_COUNT, default=5, help="trials per policy (default 5)")
