@@ -260,8 +260,9 @@ def _add_run(sub: Any) -> None:
     from lagrseq.tasks import grid_profiles
 
     grids = {name: f"(image completion, object arrangement) {made.description}" for name, made in grid_profiles.PROFILES.items()}
+    cubes = {name: (about if name == "ideal" else f"(cube stacking) {about}") for name, about in PROFILE_HELP.items()}
     # every profile --provider accepts (wiring.mock_profiles), each with its meaning; % escaped for argparse
-    profiles = "; ".join(f"{k}: {v}" for k, v in {**PROFILE_HELP, **grids, REFUSING: REFUSING_HELP}.items()).replace("%", "%%")
+    profiles = "; ".join(f"{k}: {v}" for k, v in {**cubes, **grids, REFUSING: REFUSING_HELP}.items()).replace("%", "%%")
     _provider_argument(p, "mock", f"LLM provider (mock:PROFILE: {profiles})")
     p.add_argument("--trials", type=_COUNT, default=10, help="number of independent trials (default 10)")
     p.add_argument("--seed", type=_SEED, default=0, help="run seed, 0 <= S < 2**63; trial k uses a stream spawned from (seed, k) (default 0)")
@@ -334,7 +335,7 @@ def _add_frontier(sub: Any) -> None:
     from lagrseq.config import tasks
 
     p.add_argument("task", metavar="TASK", nargs="?", choices=tasks(), help=f"one of: {', '.join(tasks())} (not with --replay)")
-    p.add_argument("--policies", default="never,always,seq,thompson,oracle", metavar="LIST", help=f"comma-separated NAME or NAME:FIELD=VALUE[:FIELD=VALUE]; names: {', '.join(NAMES)}; fields: {', '.join(KNOBS)} (default: never,always,seq,thompson,oracle)")
+    p.add_argument("--policies", default="never,always,seq,thompson,oracle", metavar="LIST", help=f"comma-separated NAME or NAME:FIELD=VALUE[:FIELD=VALUE]; names: {', '.join(NAMES)}; fields: those NAME reads (lagrseq plugins lists each policy's), among {', '.join(KNOBS)} (default: never,always,seq,thompson,oracle)")
     p.add_argument("--sweep", action="append", default=[], metavar="NAME:FIELD=V1,V2", help="one variant per value, drawn as a curve (repeatable), e.g. thompson:query_cost=0.25,0.5,0.75")
     _provider_argument(p, "mock", "LLM provider of every policy's runs")
     p.add_argument("--trials", type=_COUNT, default=5, help="trials per policy (default 5)")
@@ -929,10 +930,11 @@ def cmd_frontier(args: argparse.Namespace) -> int:
     made = report(roots, out, price, args.miss_threshold)
     for warning in made.warnings:
         print(f"lagrseq frontier: warning: {warning}", file=sys.stderr)
+    width = max((len(row[0]) for table in made.tables for row in table.rows), default=0)  # the longest label
     for table in made.tables:
         print(table.title)
         for row in table.rows:
-            print(f"  {row[0]:<32} queries {row[4]:<22} steps to first solve {row[7]:<22} vs always: {row[10]}; vs matched random: {row[12]}; credited: {row[13]}")
+            print(f"  {row[0]:<{width}} queries {row[4]:<22} steps to first solve {row[7]:<22} vs always: {row[10]}; vs matched random: {row[12]}; credited: {row[13]}")
     print(f"{len(made.written)} files in {out} ({time.perf_counter() - started:.1f} s)")
     return 0
 
@@ -985,12 +987,12 @@ def _config_toml(resolved: Any) -> str:
         value = getattr(resolved, section.name)
         if not dataclasses.is_dataclass(value):
             continue
-        docs = cfg.field_docs(type(value))
+        docs = cfg.section_docs(value)
         lines.append(f"\n[{section.name}]")
         for f in dataclasses.fields(value):
             doc = docs.get(f.name, "")
-            if f.name == "knobs":  # a plugin policy's own knobs: NAME = VALUE, as they are written
-                lines += [f"{name} = {_toml_value(knob)}  # a knob of secondary.policy" for name, knob in getattr(value, f.name)]
+            if f.name == "knobs":  # the policy's own knobs: NAME = VALUE, as they are written, unset ones at their default
+                lines += [f"{k.name} = {_toml_value(k.value)}  # {k.help}" for k in cfg.knob_lines(value)]
                 continue
             lines.append(f"{f.name} = {_toml_value(getattr(value, f.name))}" + (f"  # {doc}" if doc else ""))
     return "\n".join(lines)

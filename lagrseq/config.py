@@ -147,14 +147,19 @@ def numeric_fields(cls: type) -> list[dataclasses.Field[Any]]:
     return [f for f in dataclasses.fields(cls) if _is_numeric(_hints(cls)[f.name])]
 
 
-def check_ranges(section: str, obj: Any) -> None:
-    """Check every numeric field of the dataclass ``obj`` against its declared :class:`Range`."""
+def check_ranges(section: str, obj: Any, declared_only: bool = False) -> None:
+    """Check every numeric field of the dataclass ``obj`` against its declared :class:`Range`
+    (``declared_only``: a field that declares none is not checked, else it is a TypeError).
+    A section read from a configuration (:func:`build_section`) is checked without a call:
+    lagrseq's sections in their ``__post_init__``, a plugin's when it is built."""
     hints = _hints(type(obj))
     for f in dataclasses.fields(obj):
         hint = hints[f.name]
         if not _is_numeric(hint):
             continue
         bounds = f.metadata.get("range")
+        if bounds is None and declared_only:
+            continue
         if bounds is None:  # pragma: no cover - a programming error, caught by the tests
             raise TypeError(f"{type(obj).__name__}.{f.name} is numeric but declares no range")
         value = getattr(obj, f.name)
@@ -1012,7 +1017,10 @@ def build_section(cls: type, section: str, data: Mapping[str, Any]) -> Any:
     values = {k: _coerce(section, k, hints[k], v) for k, v in data.items()}
     if knobs:
         values["knobs"] = knobs
-    return cls(**values)
+    built = cls(**values)
+    if not isinstance(built, _Section):  # a plugin's section: its declared ranges, checked here (ours check their own)
+        check_ranges(section, built, declared_only=True)
+    return built
 
 
 def _merge(base: dict[str, Any], extra: Mapping[str, Any], origin: str) -> dict[str, Any]:
@@ -1137,6 +1145,55 @@ def load(
     data["method"] = method
     data["preset"] = preset
     return from_dict(data)
+
+
+def policy_help() -> str:
+    """The help of ``secondary.policy``: every registered asking policy (the built-ins and the
+    plugins'), in frontier order, each with what it does."""
+    from lagrseq.registry import POLICIES
+
+    specs = sorted(POLICIES.specs(), key=lambda spec: spec.order)
+    listed = "; ".join(f"{spec.name}: {spec.description}" if spec.description else spec.name for spec in specs)
+    return f"When to ask, with method lagr-seq: one of the registered policies (lagrseq plugins lists them): {listed}. Paper: seq."
+
+
+def section_docs(section: Any) -> dict[str, str]:
+    """The help of each field of a resolved section (for ``lagrseq config``): its attribute
+    docstring; in ``[secondary]``, ``policy`` lists every registered policy."""
+    docs = field_docs(type(section))
+    if "knobs" in docs and "policy" in docs:
+        docs["policy"] = policy_help()
+    return docs
+
+
+@dataclass(frozen=True)
+class KnobLine:
+    """One of the configured policy's own knobs, as ``lagrseq config`` shows it."""
+
+    name: str
+    value: Any
+    help: str
+    """Its help, whether it was set, and its default."""
+
+
+def knob_lines(section: Any) -> list[KnobLine]:
+    """The own knobs (not fields) of ``section.policy`` in ``[secondary]``, set or not: each with
+    its value (its default when unset) and its help (``Knob.help``)."""
+    from lagrseq.registry import POLICIES, own_knobs
+
+    if not any(f.name == "knobs" for f in dataclasses.fields(section)):
+        return []
+    spec = POLICIES.find(section.policy)
+    fields = {f.name for f in dataclasses.fields(section)}
+    given = dict(section.knobs)
+    out = []
+    for knob in own_knobs(spec) if spec is not None else ():
+        if knob.name in fields:
+            continue  # a built-in's knob is a field of the section, shown with its docstring
+        state = "set" if knob.name in given else "not set"
+        about = f"{knob.help}; " if knob.help else ""
+        out.append(KnobLine(knob.name, given.get(knob.name, knob.default), f"{about}a knob of policy {spec.name}, {state} (default {knob.default!r})"))  # type: ignore[union-attr]
+    return out
 
 
 def field_docs(cls: type) -> dict[str, str]:

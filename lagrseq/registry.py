@@ -114,6 +114,15 @@ class TaskSpec:
     """The ``lagr.solution_scope`` regimes ``frontier --scopes auto`` compares (the grid tasks
     keep an accepted answer for the trial, so asking again only matters per episode); empty: the
     preset's own."""
+    episode_fields: Mapping[str, str] = field(default_factory=dict)
+    """Fields of its own that its env logs per episode (``info["log_episode"]``, counted since
+    the env's reset), by name -> JSON type (one of :data:`FIELD_TYPES`): added to the
+    ``/episode`` record and its schema in the task's logs, read back by ``lagrseq replay`` (the
+    runs table and its CSV). An episode whose env leaves one out logs it as null."""
+    step_fields: Mapping[str, str] = field(default_factory=dict)
+    """Fields of its own that its env logs per step (``info["log_step"]``, on the steps that have
+    them), by name -> JSON type: added to the ``/transition`` record (a column of
+    ``/transitions``) and its schema; null on steps that do not set them."""
     description: str = ""
     """One line on what the task asks for, shown by ``lagrseq plugins`` (empty: nothing shown)."""
     suite: Path | str | None = None
@@ -121,6 +130,32 @@ class TaskSpec:
     file inside an installed package, read with ``importlib.resources``). ``lagrseq replay``
     draws its items for logs of this task without ``--suite``, and ``lagrseq reproduce --suite
     NAME`` runs it (None: the task ships no suite)."""
+
+    def __post_init__(self) -> None:
+        for what, fields, taken in (("episode_fields", self.episode_fields, LOGGED_EPISODE_FIELDS), ("step_fields", self.step_fields, LOGGED_STEP_FIELDS)):
+            if not isinstance(fields, Mapping):
+                raise TypeError(f"task {self.name!r}: {what} is a {type(fields).__name__}; expected a mapping of field name -> JSON type")
+            for name, kind in fields.items():
+                if not isinstance(name, str) or not name.isidentifier():
+                    raise ValueError(f"task {self.name!r}: {what} name {name!r} is not an identifier; expected e.g. 'wrong_bits'")
+                if name in taken:
+                    raise ValueError(f"task {self.name!r}: {what} {name!r} is a field lagrseq logs itself; give the task's own field another name")
+                if kind not in FIELD_TYPES:
+                    raise ValueError(f"task {self.name!r}: {what} {name!r} has the type {kind!r}; expected one of {', '.join(FIELD_TYPES)}")
+
+
+FIELD_TYPES = ("integer", "number", "boolean", "string")
+"""The JSON types of a task's own logged fields (:attr:`TaskSpec.episode_fields`,
+:attr:`TaskSpec.step_fields`)."""
+LOGGED_EPISODE_FIELDS = frozenset(
+    {"trial", "episode", "return", "return_", "length", "queries", "accepted", "epsilon", "solved", "guided_steps", "global_step", "placements", "failed_placements"}
+)
+"""The ``/episode`` fields lagrseq writes itself (``lagrseq.logs.events.EpisodeEvent`` and the
+arm's record; a test keeps the two equal): a task's own fields take other names."""
+LOGGED_STEP_FIELDS = frozenset(
+    {"trial", "episode", "step", "global_step", "state", "action", "reward", "terminated", "truncated", "guided", "placement"}
+)
+"""The ``/transition`` fields lagrseq writes itself (``lagrseq.logs.events.Transition``)."""
 
 
 def task_profiles(spec: TaskSpec) -> tuple[str, ...]:
@@ -590,6 +625,18 @@ def paid_sources() -> set[str]:
     return {kind.source for kind in PROVIDERS.specs() if kind.paid}
 
 
+def _knob_lines(spec: Any) -> list[str]:
+    """A policy's knobs for ``lagrseq plugins``: the shared ``[secondary]`` fields it reads, then
+    each knob of its own with its default and help."""
+    if not isinstance(spec, PolicySpec) or not spec.knobs:
+        return []
+    shared = [k for k in spec.knobs if isinstance(k, str)]
+    lines = [f"      reads [secondary] {', '.join(shared)}"] if shared else []
+    for knob in own_knobs(spec):
+        lines.append(f"      knob {knob.name} = {knob.default!r}" + (f": {knob.help}" if knob.help else ""))
+    return lines
+
+
 def listing() -> list[str]:
     """``lagrseq plugins``: every registered part by registry, with its source distribution,
     then the plugins that were skipped."""
@@ -602,6 +649,7 @@ def listing() -> list[str]:
             about = getattr(entry.spec, "description", "")
             where = entry.source if not entry.entry_point else f"{entry.source} [{entry.entry_point}]"
             lines.append(f"  {entry.name:<{width}}  {where}" + (f": {about}" if about else ""))
+            lines += _knob_lines(entry.spec)
     if FAILURES:
         lines.append(f"skipped plugins: {len(FAILURES)}")
         lines += [f"  {f.entry_point} ({f.source}, group {f.group}): {f.problem}" for f in FAILURES]

@@ -203,7 +203,7 @@ def test_a_plugin_policy_declares_its_own_knob(tmp_path: Path) -> None:
     secondary = json.loads(read_info(log).run["config"])["secondary"]
     assert secondary["knobs"] == {"every_n": 3} and secondary["policy"] == "every"
     shown = lagrseq(site, "config", "cube-stacking", *every, "--set", "secondary.every_n=3", cwd=tmp_path)
-    assert shown.returncode == 0 and "\nevery_n = 3  # a knob of secondary.policy" in shown.stdout, shown.stderr
+    assert shown.returncode == 0 and re.search(r"\nevery_n = 3  # .*a knob of policy every, set \(default \d+\)\n", shown.stdout), shown.stderr
     for sets, message in [
         (["--set", "secondary.every_n=0"], "secondary.every_n = 0 is out of range"),
         (["--set", 'secondary.every_n="3"'], "secondary.every_n = '3' has the wrong type; expected int"),

@@ -81,6 +81,14 @@ DPI = 150
 _DEFAULTS = {"query_cost": 0.0, "budget": 0, "ask_probability": 0.5, "thompson_prior": [1.0, 1.0], "min_progress": 0}
 
 
+def _knob_text(name: str, value: Any) -> str:
+    """A plugin knob as a point's label shows it: ``flag yes``/``flag no`` for a boolean,
+    ``factor 0.25`` for a number."""
+    if isinstance(value, bool):
+        return f"{name} {'yes' if value else 'no'}"
+    return f"{name} {value:g}" if isinstance(value, float) else f"{name} {value}"
+
+
 def policy_of(config: dict[str, Any]) -> tuple[str, str]:
     """(policy, knobs) of a run's configuration: ``("never", "")``, ``("thompson", "cost 0.5")``."""
     method = config.get("method")
@@ -103,7 +111,7 @@ def policy_of(config: dict[str, Any]) -> tuple[str, str]:
     if section.get("min_progress", 0):
         knobs.append(f"gate {section['min_progress']}")
     own = section.get("knobs") or {}  # a plugin policy's own knobs, where set
-    knobs += [f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in sorted(own.items())]
+    knobs += [_knob_text(k, v) for k, v in sorted(own.items())]
     return name, " ".join(knobs)
 
 

@@ -114,7 +114,7 @@ class Run:
     """Log paths relative to the directory given to :func:`load`."""
     trials: tuple[int, ...]
     episodes: pd.DataFrame
-    """One row per episode: :data:`EPISODE_COLUMNS`."""
+    """One row per episode: :data:`EPISODE_COLUMNS`, then the task's own fields."""
     queries: pd.DataFrame
     """One row per secondary decision (or probe query): :data:`QUERY_COLUMNS`."""
     transitions: int
@@ -123,6 +123,9 @@ class Run:
     """Accuracy probes: answers per prefix."""
     paths: tuple[str, ...] = ()
     """The log files themselves, in trial order (for pictures read from one trial's log)."""
+    task_fields: tuple[tuple[str, str], ...] = ()
+    """The task's own ``/episode`` fields (name, JSON type), columns of :attr:`episodes` after
+    :data:`EPISODE_COLUMNS` (``TaskSpec.episode_fields``, read from the logs' schema)."""
 
     @functools.cached_property
     def episodes_per_trial(self) -> int:
@@ -178,6 +181,7 @@ class _Trial:
     queries: pd.DataFrame
     counts: dict[str, int]
     samples: int
+    task_fields: tuple[tuple[str, str], ...] = ()
 
 
 def _display(path: Path, root: Path) -> str:
@@ -237,7 +241,8 @@ def _read_trial(path: Path, root: Path, stats: ReadStats) -> _Trial:
     display = _display(path, root)
     # Only complete trials count; the topics are read in the same pass (cheap: summary chunks),
     # each record straight into the row of its frame
-    data = read_rows(path, {"/episode": EPISODE_COLUMNS, "/query": QUERY_COLUMNS}, stats, missing=np.nan)
+    data = read_rows(path, {"/episode": EPISODE_COLUMNS, "/query": QUERY_COLUMNS}, stats, missing=np.nan, task_fields=True)
+    own = data.task_fields.get("/episode", ())  # the task's own /episode fields, named by the log's schema
     info, topics, counts = data.info, data.rows, data.counts
     status = info.status.get("status", "unfinished")
     run = info.run
@@ -269,10 +274,11 @@ def _read_trial(path: Path, root: Path, stats: ReadStats) -> _Trial:
         display=display,
         trial=int(run.get("trial", 0)),
         # Frames right away: a file's records as rows are big, its columns are small.
-        episodes=_frame(topics["/episode"], EPISODE_COLUMNS),
+        episodes=_frame(topics["/episode"], (*EPISODE_COLUMNS, *(name for name, _ in own))),
         queries=_frame(topics["/query"], QUERY_COLUMNS),
         counts=counts,
         samples=samples,
+        task_fields=own,
     )
 
 
@@ -280,6 +286,15 @@ def _frame(rows: list[tuple[Any, ...]], columns: Sequence[str]) -> pd.DataFrame:
     """The frame of ``rows`` (the same as of the records they come from, each column's type
     inferred from its values)."""
     return pd.DataFrame.from_records(rows, columns=list(columns))
+
+
+def _task_fields(trials: Sequence[_Trial]) -> tuple[tuple[str, str], ...]:
+    """The task's own fields of a run's trials (every one its logs name, in order)."""
+    out: dict[str, str] = {}
+    for trial in trials:
+        for name, kind in trial.task_fields:
+            out.setdefault(name, kind)
+    return tuple(out.items())
 
 
 def _concat(frames: list[pd.DataFrame], columns: Sequence[str]) -> pd.DataFrame:
@@ -412,6 +427,7 @@ def load(
                 queries=queries,
                 transitions=sum(t.counts.get("/transition", 0) for t in ordered),
                 samples=ordered[0].samples,
+                task_fields=_task_fields(ordered),
             )
         )
     return Logs(

@@ -171,10 +171,43 @@ def _write(path: Path, text: str, written: list[Path]) -> None:
     written.append(path)
 
 
+_TASK_FIELD_HEADINGS = {
+    "integer": "{name} per episode (mean ± s.e. over trials)",
+    "number": "{name} per episode (mean ± s.e. over trials)",
+    "boolean": "{name} (share of episodes, mean ± s.e. over trials)",
+    "string": "{name} (most common)",
+}
+
+
+def _task_field_cells(run: loading.Run, name: str, kind: str) -> tuple[str, dict[str, float | int | str]]:
+    """One task's own ``/episode`` field of one run, for the runs table: a number or boolean as
+    its mean per episode, averaged over the trials (mean ± s.e., n = the trials that logged it;
+    a boolean's mean is the share of episodes where it was true); a string as its most frequent
+    value with the episodes that had it. Markdown cell, CSV columns."""
+    logged = run.episodes[["trial", name]].dropna() if name in run.episodes else pd.DataFrame(columns=["trial", name])
+    if kind == "string":
+        counts = logged[name].astype(str).value_counts(sort=False)
+        if counts.empty:
+            return "—", {f"{name}_most_common": "", f"{name}_most_common_episodes": 0, f"{name}_episodes": 0}
+        top = min(counts.items(), key=lambda kv: (-kv[1], kv[0]))  # ties: the first in sort order
+        return f"{top[0]} ({top[1]} of {len(logged)} episodes)", {
+            f"{name}_most_common": top[0], f"{name}_most_common_episodes": int(top[1]), f"{name}_episodes": len(logged),
+        }
+    per_trial = logged.astype({name: float}).groupby("trial")[name].mean() if not logged.empty else pd.Series(dtype=float)
+    mean, _, se = stats.mean_std_se(list(per_trial.values))
+    cell = "—" if per_trial.empty else f"{plus_minus(mean, se, 2)} (n = {len(per_trial)})"
+    return cell, {f"{name}_per_episode_mean": mean, f"{name}_per_episode_se": se, f"{name}_trials": len(per_trial)}
+
+
 def runs_table(runs: Sequence[loading.Run]) -> Table:
-    """Every run found: trials, length, queries and return per trial."""
+    """Every run found: trials, length, queries and return per trial; then the tasks' own
+    ``/episode`` fields (``TaskSpec.episode_fields``) where some run logged them."""
     rows = []
     data = []
+    own: dict[str, str] = {}
+    for run in runs:
+        for name, kind in run.task_fields:
+            own.setdefault(name, kind)
     for run in runs:
         if run.key.kind == "accuracy":
             length = f"{run.samples} answers per prefix"
@@ -187,8 +220,14 @@ def runs_table(runs: Sequence[loading.Run]) -> Table:
             r_mean, _, r_se = stats.mean_std_se(list(run.total_per_trial("return").values()))
             queries = plus_minus(q_mean, q_se, 1)
             ret = plus_minus(r_mean, r_se, 1)
+        cells: list[str] = []
+        columns: dict[str, float | int | str] = {}
+        for name, kind in own.items():
+            cell, values = _task_field_cells(run, name, kind) if run.key.kind != "accuracy" else ("—", {})
+            cells.append(cell)
+            columns.update(values)
         rows.append(
-            (run.key.name, str(len(run.trials)), length, str(run.transitions), queries, ret)
+            (run.key.name, str(len(run.trials)), length, str(run.transitions), queries, ret, *cells)
         )
         data.append(
             {
@@ -201,6 +240,7 @@ def runs_table(runs: Sequence[loading.Run]) -> Table:
                 "queries_per_trial_se": q_se,
                 "return_per_trial_mean": r_mean,
                 "return_per_trial_se": r_se,
+                **columns,
             }
         )
     return Table(
@@ -212,6 +252,7 @@ def runs_table(runs: Sequence[loading.Run]) -> Table:
             "transitions",
             "queries per trial (mean ± s.e.)",
             "return per trial (mean ± s.e.)",
+            *(_TASK_FIELD_HEADINGS[kind].format(name=name) for name, kind in own.items()),
         ),
         tuple(rows),
         pd.DataFrame(data),

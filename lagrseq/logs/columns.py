@@ -71,9 +71,13 @@ def _columns(record: dict[str, Any], names: Sequence[str], topic: str, offset: i
     return columns
 
 
+_TRANSITION_KEYS = frozenset(("trial", "episode", *TRANSITION_COLUMNS, *TRANSITION_OPTIONAL))
+
+
 def expand_transitions(record: dict[str, Any], offset: int = 0) -> list[dict[str, Any]]:
     """The ``/transition`` records of one format-3 ``/transitions`` record, one per step, as
-    format 2 wrote them (a ``placement`` entry that is null is left out, as format 2 did)."""
+    format 2 wrote them (a ``placement`` entry that is null is left out, as format 2 did; so is
+    a null entry of a task's own column, ``lagrseq.logs.task_fields``)."""
     columns = _columns(record, TRANSITION_COLUMNS, TRANSITIONS_TOPIC, offset)
     trial, episode = record["trial"], record["episode"]
     rows = [
@@ -81,7 +85,9 @@ def expand_transitions(record: dict[str, Any], offset: int = 0) -> list[dict[str
          "action": action, "reward": reward, "terminated": terminated, "truncated": truncated, "guided": guided}
         for step, global_step, state, action, reward, terminated, truncated, guided in zip(*columns)
     ]
-    for name in TRANSITION_OPTIONAL:
+    # the optional columns: an arm's placement, then a task's own step fields (any other key)
+    optional = [*TRANSITION_OPTIONAL, *(k for k in record if k not in _TRANSITION_KEYS)]
+    for name in optional:
         if name in record:
             (column,) = _columns(record, (name, "global_step"), TRANSITIONS_TOPIC, offset)[:1]
             for row, value in zip(rows, column):

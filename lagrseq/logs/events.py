@@ -13,6 +13,7 @@ measures what logging costs). A sink dispatches on the record's type (``McapSink
 
 from __future__ import annotations
 
+import functools
 from itertools import groupby
 from operator import attrgetter, itemgetter
 from typing import Any, NamedTuple, Protocol
@@ -149,6 +150,15 @@ TRANSITION_OPTIONAL: tuple[str, ...] = tuple(
 )
 """The columns a ``/transitions`` record has only when one of its steps set them (``placement``);
 their entries are null where a step did not, and a step's ``/transition`` record then lacks them."""
+
+
+@functools.cache
+def optional_columns(record: type[Transition]) -> tuple[str, ...]:
+    """The optional columns of a ``/transitions`` record of ``record``s: :data:`TRANSITION_OPTIONAL`,
+    then a task's own step fields (``lagrseq.logs.task_fields``)."""
+    return tuple(f.encode_name for f in msgspec.structs.fields(record) if f.default is not msgspec.NODEFAULT)
+
+
 NO_QUERY_COLUMNS: tuple[str, ...] = ("step", "global_step", "state")
 """The columns of every ``/no_query`` record, after ``trial`` and ``episode`` (log format 3)."""
 astuple = msgspec.structs.astuple
@@ -185,7 +195,8 @@ def transitions_records(steps: list[Transition]) -> list[dict[str, Any]]:
         return [record for _, group in groupby(steps, _EPISODE_OF) for record in transitions_records(list(group))]
     record: dict[str, Any] = {"trial": columns[0][0], "episode": columns[1][0]}
     record.update(zip(TRANSITION_COLUMNS, columns[_COLUMNS_FROM:]))
-    for name, column in zip(TRANSITION_OPTIONAL, columns[_COLUMNS_FROM + len(TRANSITION_COLUMNS):]):
+    optional = TRANSITION_OPTIONAL if type(steps[0]) is Transition else optional_columns(type(steps[0]))
+    for name, column in zip(optional, columns[_COLUMNS_FROM + len(TRANSITION_COLUMNS):]):
         if column.count(None) < len(column):  # written only by the tasks that set it
             record[name] = column
     return [record]
@@ -241,8 +252,8 @@ def log_time(event: Event) -> int:
     """An event's logical log time: the trial's step counter (an episode ends at its last step)."""
     if type(event) is View:
         return event.log_time
-    if type(event) is EpisodeEvent or type(event) is ArmEpisodeEvent:
-        return max(event.global_step - 1, 0)  # type: ignore[union-attr]
+    if isinstance(event, EpisodeEvent):  # a task's own episode record too
+        return max(event.global_step - 1, 0)
     return event.global_step  # type: ignore[union-attr]
 
 
@@ -251,8 +262,10 @@ def to_record(event: Event) -> dict[str, Any]:
     if type(event) is View:
         return event.message
     record = msgspec.structs.asdict(event)  # type: ignore[arg-type]
-    if type(event) is Transition and record["placement"] is None:
-        del record["placement"]  # as encoded: written by arm tasks only
+    if isinstance(event, Transition):  # as encoded: optional fields (an arm's placement) only when set
+        for name in optional_columns(type(event)):
+            if record[name] is None:
+                del record[name]
     if isinstance(event, EpisodeEvent):
         return {("return" if k == "return_" else k): v for k, v in record.items()}
     return record

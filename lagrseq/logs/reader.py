@@ -39,6 +39,7 @@ from lagrseq.logs.columns import (
 from lagrseq.logs.events import NO_QUERY_TOPIC, QUERY_TOPIC, TRANSITION_TOPIC
 from lagrseq.logs.mcap_reader import MAGIC, Damage, McapFile, Summary
 from lagrseq.logs.sink import RECORDS_METADATA, RUN_METADATA, STATUS_METADATA
+from lagrseq.logs.task_fields import declared
 from lagrseq.paths import expand_user, input_path, open_input, walk_files
 
 _decode = msgspec.json.Decoder().decode
@@ -278,15 +279,22 @@ the ``wanted`` channels, in order) as records per topic."""
 
 
 def _read(
-    path: Path, topics: Sequence[str], stats: ReadStats | None, read_chunk: ChunkReader
+    path: Path,
+    topics: Sequence[str],
+    stats: ReadStats | None,
+    read_chunk: ChunkReader,
+    on_summary: Callable[[Summary], None] | None = None,
 ) -> tuple[LogInfo, dict[str, int], dict[str, list[Any]]]:
     """What :func:`read_log` and :func:`read_rows` share: one pass over the log's summary and
-    the chunks that hold ``topics``, each chunk's messages made records by ``read_chunk``."""
+    the chunks that hold ``topics``, each chunk's messages made records by ``read_chunk``
+    (``on_summary(summary)`` is called before any chunk is read)."""
     out: dict[str, list[Any]] = {topic: [] for topic in topics}
     local = ReadStats(files=1)
     try:
         with McapFile(path) as log:
             summary = _summary(log)
+            if on_summary is not None:
+                on_summary(summary)
             metadata = log.metadata()
             fill = _fills_defaults(metadata)
             statistics = summary.statistics
@@ -346,6 +354,9 @@ class LogRows:
     info: LogInfo
     counts: dict[str, int]
     rows: dict[str, list[tuple[Any, ...]]]
+    task_fields: dict[str, tuple[tuple[str, str], ...]] = field(default_factory=dict)
+    """``read_rows(task_fields=True)``: per topic, the task's own fields its schema names (name,
+    JSON type), whose values follow the columns asked for in each row."""
 
 
 def read_rows(
@@ -353,6 +364,7 @@ def read_rows(
     columns: Mapping[str, Sequence[str]],
     stats: ReadStats | None = None,
     missing: Any = math.nan,
+    task_fields: bool = False,
 ) -> LogRows:
     """:func:`read_log` of the topics ``columns`` names, each record given as the tuple of its
     values of ``columns[topic]`` (``missing`` for a field the record lacks: with ``numpy.nan``,
@@ -366,8 +378,23 @@ def read_rows(
     that is not a JSON object or names a field a ``/query`` record cannot have, an accuracy
     probe's query in a log that leaves defaults out, a step told twice) is read the way
     :func:`read_log` reads it, so the two agree on every log, its errors included.
+
+    ``task_fields``: each topic's rows also hold, after ``columns[topic]``, the fields of the
+    run's task that the topic's schema in the log names (``lagrseq.logs.task_fields``), listed
+    in :attr:`LogRows.task_fields`.
     """
     wanted = {topic: tuple(names) for topic, names in columns.items()}
+    own: dict[str, tuple[tuple[str, str], ...]] = {}
+
+    def add_task_fields(summary: Summary) -> None:
+        for channel in summary.channels.values():
+            schema = summary.schemas.get(channel.schema_id)
+            topic = channel.topic
+            if schema is not None and topic in wanted and topic not in own:
+                found = tuple(f for f in declared(schema.data) if f[0] not in wanted[topic])
+                if found:
+                    own[topic] = found
+                    wanted[topic] = (*wanted[topic], *(name for name, _ in found))
 
     def read_chunk(
         messages: list[tuple[int, bytes]], channels: dict[int, tuple[str, str, Expand | None]], offset: int, fill: bool
@@ -381,8 +408,8 @@ def read_rows(
                 for topic, records in found.items()
             }
 
-    info, counts, out = _read(Path(path), list(wanted), stats, read_chunk)
-    return LogRows(info, counts, out)
+    info, counts, out = _read(Path(path), list(wanted), stats, read_chunk, add_task_fields if task_fields else None)
+    return LogRows(info, counts, out, own)
 
 
 _PROBE_FIELDS = (b'"prefix_length"', b'"fraction"')

@@ -117,8 +117,12 @@ TOPICS: dict[str, dict[str, Any]] = {
 """The topics of log formats 1 and 2: one message per transition and per decision."""
 
 
-def _column(item: dict[str, Any], description: str) -> dict[str, Any]:
+def column(item: dict[str, Any], description: str) -> dict[str, Any]:
+    """The schema of a column of a format-3 record: an array of ``item``."""
     return {"type": "array", "items": item, "description": description}
+
+
+_column = column
 
 
 TRANSITIONS = _object(

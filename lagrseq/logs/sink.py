@@ -44,7 +44,7 @@ except ImportError:  # pragma: no cover - not on Windows: no lock, as before
     fcntl = None  # type: ignore[assignment]
 from operator import attrgetter
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from lagrseq.errors import LogError
 from lagrseq.logs.events import (
@@ -72,6 +72,9 @@ from lagrseq.logs.events import (
 )
 from lagrseq.logs.mcap_writer import LeanWriter, Mark
 from lagrseq.logs.schemas import SCHEMA_BYTES, TOPICS, TOPICS_3
+
+if TYPE_CHECKING:
+    from lagrseq.logs.task_fields import TaskFields
 
 __all__ = ["McapSink", "NullSink", "Sink"]
 
@@ -152,10 +155,12 @@ class McapSink:
         extra_topics: dict[str, tuple[str, str, bytes]] | None = None,
         chunk_bytes: int = CHUNK_BYTES,
         log_format: str = LOG_FORMAT,
+        task_fields: TaskFields | None = None,
     ) -> None:
         """``chunk_bytes``: an episode's end writes the open chunks once the transition chunk
         holds this many bytes (0: at every episode's end). ``log_format``: ``"3"`` (columnar
-        episodes) or ``"2"`` (a record per transition and per decision)."""
+        episodes) or ``"2"`` (a record per transition and per decision). ``task_fields``: the
+        records and schemas of a task that logs fields of its own (None: lagrseq's)."""
         if log_format not in LOG_FORMATS:
             raise LogError(f"log format {log_format!r} cannot be written; expected one of {', '.join(LOG_FORMATS)}")
         self.path = Path(path)
@@ -167,9 +172,8 @@ class McapSink:
         self._writer = LeanWriter(self._stream, library="lagrseq", profile=PROFILE)
         self._channels: dict[str, int] = {}
         for topic, schema in (TOPICS_3 if self._columnar else TOPICS).items():
-            schema_id = self._writer.register_schema(
-                name=schema["title"], encoding="jsonschema", data=SCHEMA_BYTES[schema["title"]]
-            )
+            data = SCHEMA_BYTES[schema["title"]] if task_fields is None else task_fields.schema(schema["title"])
+            schema_id = self._writer.register_schema(name=schema["title"], encoding="jsonschema", data=data)
             self._channels[topic] = self._writer.register_channel(
                 topic=topic, message_encoding="json", schema_id=schema_id
             )
@@ -182,6 +186,9 @@ class McapSink:
         self._query_channel = self._channels[QUERY_TOPIC]
         self._no_query_channel = self._channels.get(NO_QUERY_TOPIC, 0)
         self._episode_channel = self._channels[EPISODE_TOPIC]
+        # A task's own record types (None: it has none, and only lagrseq's types are taken)
+        self._task_transition = None if task_fields is None or task_fields.transition is Transition else task_fields.transition
+        self._task_episode = None if task_fields is None or task_fields.episode is EpisodeEvent else task_fields.episode
         self._writer.add_metadata(RUN_METADATA, {**metadata, "log_format": log_format})
         # Format 3: the current episode's transitions and decisions not to query, held until
         # its end, when each becomes one columnar record.
@@ -206,7 +213,7 @@ class McapSink:
         (or :meth:`flush`) and then written as one columnar record each."""
         kind = type(event)
         try:
-            if kind is Transition:
+            if kind is Transition or kind is self._task_transition:
                 reward = event.reward  # type: ignore[union-attr]
                 if not -_HUGE < reward < _HUGE:  # NaN and the infinities fail both comparisons
                     _finite(event, ("reward",))
@@ -225,7 +232,7 @@ class McapSink:
                         _finite(event, _QUERY_FLOATS)
                 self._pending.append((self._query_channel, event.global_step, encode(event)))  # type: ignore[union-attr]
                 return
-            if kind is EpisodeEvent or kind is ArmEpisodeEvent:
+            if kind is EpisodeEvent or kind is ArmEpisodeEvent or kind is self._task_episode:
                 _finite(event, _EPISODE_FLOATS)
                 self._write_columns()  # the episode's columnar records go before its summary
                 self._pending.append((self._episode_channel, max(event.global_step - 1, 0), encode(event)))  # type: ignore[union-attr]

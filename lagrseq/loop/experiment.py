@@ -24,7 +24,8 @@ import numpy as np
 from lagrseq.agents.schedules import EpsilonSchedule
 from lagrseq.config import ExperimentConfig
 from lagrseq.llm.base import Provider
-from lagrseq.logs.events import QueryEvent, Sink, Transition, View, episode_event, jsonable
+from lagrseq.logs.events import QueryEvent, Sink, Transition, View, jsonable
+from lagrseq.logs.task_fields import TaskFields, builtin_episode, builtin_step
 from lagrseq.loop.adapters import PrimaryAgent, Step
 from lagrseq.loop.lagr import Consultation, QueryTrigger, consult, follows
 from lagrseq.loop.policies import AskContext, AskingPolicy
@@ -104,6 +105,9 @@ class TrialParts:
     the run opens in Foxglove; an arm's camera and joints)."""
     guide: Guide | None = None
     """pi_LLM (None: :func:`task_guide`, the task's guidance where the env is)."""
+    task_fields: TaskFields | None = None
+    """The record types of a task that logs fields of its own (``TaskSpec.episode_fields``,
+    ``step_fields``); None: lagrseq's records."""
 
 
 @dataclass
@@ -138,6 +142,10 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
     act, learn, step_env, write, views = parts.primary.act, parts.primary.learn, env.step, sink.write, parts.views
     # Without pictures between them, an episode's transitions go to the sink in one call at its
     # end (or where it stops early): a sink call a step was most of what logging cost a cube trial.
+    # A task's own fields (declared by it) make its records subclasses of lagrseq's, checked.
+    own = parts.task_fields
+    record, step_record = (Transition, builtin_step) if own is None else (own.transition, own.step)
+    episode_record = builtin_episode if own is None else own.episode_event
     held: list[Transition] = []
     hold: Callable[[Transition], None] = held.append if views is None else write
     guide = parts.guide or task_guide(task)
@@ -184,7 +192,7 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
                     state = pattern if type(pattern) is tuple else jsonable(pattern)
                     extra = next_info.get(STEP_LOG)  # what the env adds to the record (an arm's placement)
                     fields = (trial, number, episode.steps, global_step, state, int(action), float(reward), bool(terminated), bool(truncated), is_guided)
-                    hold(Transition(*fields) if extra is None else Transition(*fields, **extra))
+                    hold(record(*fields) if extra is None else step_record(fields, extra))
                     if views is not None:
                         for view in views(next_info, global_step):
                             write(view)
@@ -204,8 +212,8 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
                     held.clear()
                     sink.write_steps(steps)
             sink.write(
-                episode_event(
-                    info.get(EPISODE_LOG),  # what the env counted (an arm's placements)
+                episode_record(
+                    info.get(EPISODE_LOG),  # what the env counted (an arm's placements, a task's own fields)
                     trial=parts.trial, episode=number, return_=float(episode.total), length=episode.steps,
                     queries=episode.queries, accepted=episode.accepted, epsilon=float(episode.epsilon),
                     solved=bool(episode.solved), guided_steps=episode.guided_steps, global_step=global_step,

@@ -48,6 +48,7 @@ from lagrseq.running.wiring import (
     parse_provider,
     pays,
     provider_kind,
+    task_fields,
     trial_parts,
     view_topics,
     with_provider_model,
@@ -108,7 +109,7 @@ def run_one(
         if not log:
             return NullSink()
         metadata = run_metadata(config, trial, seed, provider_spec, provider_options, notes)
-        return McapSink(path, metadata, extra_topics=view_topics(config))
+        return McapSink(path, metadata, extra_topics=view_topics(config), task_fields=task_fields(config))
 
     parts = trial_parts(config, trial, seed, provider_spec, open_sink, provider_options, render_dir)
     if on_ready is not None:
@@ -783,19 +784,30 @@ def prepare(
     """What ``lagrseq run`` checks before any trial starts: the output directory, the
     configuration, the installed extras and the provider (a missing key or store fails here,
     nothing sent). Returns the resolved configuration and the run directory."""
-    from lagrseq import config as cfg
     from lagrseq.paths import writable_directory
-    from lagrseq.running.wiring import check_provider, missing_dependency
 
     if name is not None:
         check_name(name)
+    config = check(task, method, preset, config_file, overrides, provider_spec, options)
+    writable_directory(out)
+    return config, run_directory(out, config, provider_spec, seed, name)
+
+
+def check(
+    task: str, method: str, preset: str, config_file: Path | None, overrides: list[str], provider_spec: str, options: Any,
+) -> ExperimentConfig:
+    """:func:`prepare`'s checks that write nothing: the configuration, the installed extras and
+    the provider. Returns the resolved configuration (a command that runs several
+    configurations checks them all before it makes its output folder)."""
+    from lagrseq import config as cfg
+    from lagrseq.running.wiring import check_provider, missing_dependency
+
     config = with_provider_model(cfg.load(task, method, preset, config_file, overrides), provider_spec)
     missing = missing_dependency(config)
     if missing:
         raise UsageError(f"{task} {missing}")
     check_provider(provider_spec, config, options)
-    writable_directory(out)
-    return config, run_directory(out, config, provider_spec, seed, name)
+    return config
 
 
 def miss_report(results: list[TrialResult], provider_spec: str) -> list[str]:

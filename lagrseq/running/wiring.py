@@ -42,6 +42,7 @@ from lagrseq.llm.servers import RECORD_MODES as RECORD_MODES  # for the command 
 from lagrseq.llm.servers import SERVER_KINDS as SERVER_KINDS  # for the command line
 from lagrseq.logs import foxglove
 from lagrseq.logs.events import Sink, View
+from lagrseq.logs.task_fields import TaskFields, of_spec
 from lagrseq.loop.adapters import (
     DQNPrimary,
     NeuralSeq,
@@ -453,7 +454,21 @@ def extrapolator(config: ExperimentConfig, profile: str = "ideal") -> Callable[[
     task-free: it reads the same prompt text a real LLM would see."""
     if profile == REFUSING:
         return lambda prompt, temperature, rng: REFUSAL
-    return TASKS.get(config.task.name).extrapolator(config, profile)  # type: ignore[no-any-return]
+    spec = TASKS.get(config.task.name)
+    own = task_mock_profiles(spec)
+    if profile not in own:  # a profile belongs to its task: another task's never reaches this one's extrapolator
+        others = sorted({p for task in TASKS.specs() if task.name != spec.name for p in task_profiles(task)} - set(own))
+        elsewhere = f" ({profile} is another task's)" if profile in others else ""
+        raise UsageError(
+            f"mock profile {profile!r} is not one of task {spec.name}'s{elsewhere}; "
+            f"expected --provider mock or mock:PROFILE with PROFILE one of: {', '.join(own)}"
+        )
+    return spec.extrapolator(config, profile)  # type: ignore[no-any-return]
+
+
+def task_mock_profiles(spec: Any) -> tuple[str, ...]:
+    """The ``--provider mock:PROFILE`` profiles a task takes: ``ideal``, its own, ``refuses``."""
+    return tuple(dict.fromkeys(("ideal", *task_profiles(spec), REFUSING)))
 
 
 def cube_profiles() -> tuple[str, ...]:
@@ -794,7 +809,14 @@ def trial_parts(
         guidance_rng=seeding.generator(seed, trial, Stream.GUIDANCE),
         views=step_views(config, env),
         guide=make_guide(config, task, env),
+        task_fields=task_fields(config),
     )
+
+
+def task_fields(config: ExperimentConfig) -> TaskFields | None:
+    """The record types of ``config``'s task when it logs fields of its own (its TaskSpec's
+    ``episode_fields``, ``step_fields``); None when it declares none."""
+    return of_spec(TASKS.get(config.task.name))
 
 
 def make_guide(config: ExperimentConfig, task: Task, env: Any) -> Guide | None:

@@ -105,11 +105,17 @@ def _item(text: str) -> tuple[str, list[tuple[str, str]]]:
     if name not in policy_names():
         raise UsageError(f"policy {name!r} in {text!r}; expected one of {', '.join(policy_names())} (optionally NAME:FIELD=VALUE)")
     knobs: list[tuple[str, str]] = []
-    allowed = policy_knobs()
+    allowed = knob_names(POLICIES.get(name))  # a knob belongs to its policy: another's would be ignored
     for part in parts:
         field, sep, value = part.partition("=")
+        if sep and value and field not in allowed and field in policy_knobs():
+            owners = ", ".join(spec.name for spec in POLICIES.specs() if field in knob_names(spec))
+            raise UsageError(
+                f"{text!r}: {field} is a knob of {owners}, not of {name}, which would ignore it; "
+                f"{name}'s knobs: {', '.join(allowed) or 'none'}"
+            )
         if not sep or field not in allowed or not value:
-            raise UsageError(f"{text!r}: expected NAME:FIELD=VALUE with FIELD one of {', '.join(allowed)}")
+            raise UsageError(f"{text!r}: expected NAME:FIELD=VALUE with FIELD one of {', '.join(allowed) or 'none (' + name + ' has no knobs)'}")
         if any(field == seen for seen, _ in knobs):
             raise UsageError(f"{text!r} sets {field} twice; give each field once (for several values: --sweep {name}:{field}=V1,V2)")
         knobs.append((field, value))
@@ -459,12 +465,35 @@ def runs_or_replay(
         return writable_directory(out), [replay]
     if task is None:
         raise UsageError("frontier needs a TASK (or --replay DIR)")
+    chosen_scopes = parse_scopes(scopes, task)
+    check_variants(task, variants, provider, options, preset, config_file, overrides, chosen_scopes)
     made = run_protocol(  # out is made once every configuration is checked
         task, list(variants), provider, options, out, trials, seed, preset, config_file, list(overrides), jobs,
-        progress=progress, say=say, scopes=parse_scopes(scopes, task), matched_random=matched_random, tune=tune,
+        progress=progress, say=say, scopes=chosen_scopes, matched_random=matched_random, tune=tune,
     )
     write_index(out, made.variants, made.directories, made.chosen)
     return out / "frontier", list(made.directories)
+
+
+def check_variants(
+    task: str,
+    variants: Sequence[Variant],
+    provider: str,
+    options: Any,
+    preset: str,
+    config_file: Path | None,
+    overrides: Sequence[str],
+    scopes: Sequence[str | None],
+) -> None:
+    """Every variant's configuration in every scope checked (with the extras and the provider)
+    before anything is made: a variant refused late in ``--policies`` leaves no ``--out``
+    folder behind."""
+    from lagrseq.running import runner
+
+    for scope in scopes:
+        extra = [*overrides, f'lagr.solution_scope="{scope}"'] if scope else list(overrides)
+        for variant in variants:
+            runner.check(task, variant.method, preset, config_file, [*extra, *variant.overrides()], provider, options)
 
 
 def write_index(

@@ -147,3 +147,64 @@ def test_the_tasks_own_suite_is_run_by_name_and_drawn_by_replay_without_a_suite_
     for bad, message in [("cube-stacking", "ships no suite of its own"), ("no-such-thing", "no such suite file")]:
         refused = lagrseq("replay", str(tmp_path / "out" / "runs"), "--suite", bad, "--out", str(tmp_path / "bad"), cwd=tmp_path)
         assert refused.returncode == 2 and refused.stderr.count("\n") == 1 and message in refused.stderr, refused.stderr
+
+
+def test_the_env_counts_refused_numbers_in_its_own_episode_field() -> None:
+    env = NumberSequenceEnv(TASK, horizon=20, bonus=1.0)
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(7)
+    _, _, _, _, info = env.step(2)
+    _, _, _, _, info = env.step(3)
+    assert info["log_episode"] == {"wrong_numbers": 2}
+    _, info = env.reset()
+    assert "log_episode" not in info
+    assert TASKS.get("number-sequence").episode_fields == {"wrong_numbers": "integer"}
+
+
+def test_wrong_numbers_is_logged_under_the_tasks_schema_and_replayed_into_the_runs_csv(tmp_path: Path) -> None:
+    """The MCAP (read with the plain mcap library, as Foxglove reads it) holds wrong_numbers in
+    every /episode record and its schema; replay's runs table and CSV have its mean per episode."""
+    import csv
+
+    from mcap.reader import make_reader
+
+    run = lagrseq("run", "number-sequence", "--method", "lagr-seq", "--trials", "2", "--jobs", "1", "--quiet", "--out", str(tmp_path / "runs"), cwd=tmp_path)
+    assert run.returncode == 0, run.stderr
+    per_trial = []
+    for log in sorted((tmp_path / "runs").rglob("trial-*.mcap")):
+        with log.open("rb") as stream:
+            reader = make_reader(stream)
+            summary = reader.get_summary()
+            assert summary is not None
+            (channel,) = [c for c in summary.channels.values() if c.topic == "/episode"]
+            schema = json.loads(summary.schemas[channel.schema_id].data)
+            assert schema["properties"]["wrong_numbers"]["type"] == ["integer", "null"]
+            episodes = [json.loads(m.data) for _, _, m in reader.iter_messages(topics=["/episode"])]
+        assert episodes and all(type(e["wrong_numbers"]) is int and e["wrong_numbers"] <= e["length"] for e in episodes)
+        per_trial.append(sum(e["wrong_numbers"] for e in episodes) / len(episodes))
+    replayed = lagrseq("replay", str(tmp_path / "runs"), "--out", str(tmp_path / "report"), cwd=tmp_path)
+    assert replayed.returncode == 0, replayed.stderr
+    with (tmp_path / "report" / "tables" / "runs.csv").open() as file:
+        (row,) = list(csv.DictReader(file))
+    assert float(row["wrong_numbers_per_episode_mean"]) == pytest.approx(sum(per_trial) / len(per_trial), rel=1e-4)
+    assert "wrong_numbers per episode" in (tmp_path / "report" / "tables" / "runs.md").read_text()
+
+
+def test_another_tasks_profile_and_another_policys_knob_are_refused_in_one_line(tmp_path: Path) -> None:
+    """A mock profile belongs to its task and a knob to its policy: each refused before anything
+    is made (no --out folder), one line, exit 2."""
+    small = ["--trials", "1", "--jobs", "1", "--quiet"]
+    for args, message in [
+        (["run", "number-sequence", "--provider", "mock:authors-t0"], "mock profile 'authors-t0' is not one of task number-sequence's"),
+        (["frontier", "number-sequence", "--policies", "always,backoff:query_reward=logistic"], "query_reward is a knob of seq, thompson, not of backoff"),
+        (["frontier", "number-sequence", "--policies", "always,backoff:backoff_factor=2"], "secondary.backoff_factor = 2 is out of range"),
+    ]:
+        out = tmp_path / "out"
+        refused = lagrseq(*args, *small, "--out", str(out), cwd=tmp_path)
+        assert refused.returncode == 2 and refused.stderr.count("\n") == 1 and message in refused.stderr, refused.stderr
+        assert not out.exists()
+    shown = lagrseq("config", "number-sequence", "--set", 'secondary.policy="backoff"', cwd=tmp_path)
+    assert shown.returncode == 0, shown.stderr
+    assert "\nbackoff_factor = 0.5  # what the asking probability is multiplied by after a rejected answer (0.5: halved); a knob of policy backoff, not set (default 0.5)\n" in shown.stdout
+    listed = lagrseq("plugins", cwd=tmp_path)
+    assert "      knob backoff_factor = 0.5: what the asking probability is multiplied by" in listed.stdout

@@ -5,7 +5,7 @@ It adds, through entry points (see this package's ``pyproject.toml``):
 - the task ``number-sequence`` (group ``lagrseq.tasks``): write an arithmetic sequence one number
   at a time, with its Gymnasium env, prompt, parser, evaluation, guidance and a rule-based mock
   extrapolator, plus two presets and its own suite (``suite.toml``: what ``lagrseq replay``
-  draws for its logs without ``--suite``);
+  draws for its logs without ``--suite``); its env logs a field of its own, ``wrong_numbers`` per episode;
 - the asking policy ``backoff`` (group ``lagrseq.policies``): ask with probability
   ``ask_probability``, multiplied by its own knob ``backoff_factor`` (default 0.5: halved) after
   every rejected answer of the episode.
@@ -48,6 +48,11 @@ def _extrapolator(config: Any, profile: str) -> Callable[..., str]:
     return extrapolate
 
 
+EPISODE_FIELDS = {"wrong_numbers": "integer"}
+"""The task's own ``/episode`` field: the numbers its env refused in the episode (the env's
+``info["log_episode"]``); ``lagrseq replay`` shows its mean per episode in the runs table."""
+
+
 def task_spec() -> TaskSpec:
     """The ``lagrseq.tasks`` entry point."""
     return TaskSpec(
@@ -57,6 +62,7 @@ def task_spec() -> TaskSpec:
         make_task=_make_task,
         make_env=_make_env,
         extrapolator=_extrapolator,
+        episode_fields=EPISODE_FIELDS,
         description="write an arithmetic sequence one number at a time (example plugin)",
         suite="lagrseq_numseq:suite.toml",  # its own suite: `lagrseq replay` draws it without --suite
     )

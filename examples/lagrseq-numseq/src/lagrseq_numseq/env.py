@@ -2,7 +2,9 @@
 
 Action ``n`` writes the number n. The right next number is appended (reward 1 / length, plus
 ``bonus`` when the sequence is complete, which ends the episode); a wrong one is refused (reward
-0). ``info``: ``pattern`` (the numbers written), ``action_mask`` (every number allowed).
+0). ``info``: ``pattern`` (the numbers written), ``action_mask`` (every number allowed), and
+after each step ``log_episode``: ``wrong_numbers``, the numbers refused since the reset (a field
+of the task's own in its ``/episode`` log records, declared by ``TaskSpec.episode_fields``).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ class NumberSequenceEnv(gym.Env[np.ndarray, int]):
         self.observation_space = spaces.Box(-1, task.values, shape=(task.length,), dtype=np.int64)
         self._written: list[int] = []
         self._steps = 0
+        self._wrong = 0
 
     def _observe(self) -> np.ndarray:
         out = np.full(self.task.length, -1, dtype=np.int64)
@@ -40,6 +43,7 @@ class NumberSequenceEnv(gym.Env[np.ndarray, int]):
         super().reset(seed=seed)
         self._written = []
         self._steps = 0
+        self._wrong = 0
         return self._observe(), self._info()
 
     def step(self, action: int) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
@@ -50,9 +54,13 @@ class NumberSequenceEnv(gym.Env[np.ndarray, int]):
         if len(self._written) < self.task.length and action == self.task.target[len(self._written)]:
             self._written.append(action)
             reward = 1.0 / self.task.length
+        else:
+            self._wrong += 1
         self._steps += 1
         terminated = self.task.is_complete(tuple(self._written))
         if terminated:
             reward += self.bonus
         truncated = not terminated and self._steps >= self.horizon
-        return self._observe(), reward, terminated, truncated, self._info()
+        info = self._info()
+        info["log_episode"] = {"wrong_numbers": self._wrong}  # logged in the /episode record
+        return self._observe(), reward, terminated, truncated, info
