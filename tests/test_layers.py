@@ -87,7 +87,7 @@ OPTIONAL = {
 }
 """Modules that need an extra to import at all (the Dask executor, generated gRPC code): checked
 only where it is installed."""
-ANYONE = ("lagrseq.config", "lagrseq.errors", "lagrseq.seeding", "lagrseq.paths", "lagrseq.progress", "lagrseq.tomlfile", "lagrseq.registry", "lagrseq.builtins")
+ANYONE = ("lagrseq.config", "lagrseq.errors", "lagrseq.seeding", "lagrseq.paths", "lagrseq.lifetime", "lagrseq.progress", "lagrseq.tomlfile", "lagrseq.registry", "lagrseq.builtins")
 
 
 def modules() -> list[str]:
