@@ -1061,6 +1061,14 @@ def _terminate(*_: Any) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    if argv is None:  # the program itself prints plugin skip lines, its pool workers do not
+        from lagrseq import registry
+
+        os.environ[registry.NOTICES_ENV] = str(os.getpid())
+    return _main(argv)
+
+
+def _main(argv: Sequence[str] | None) -> int:
     words = sys.argv[1:] if argv is None else list(argv)
     # a command named first (the only place argparse takes it): build that command's parser alone
     parser = build_parser(words[0] if words and words[0] in _ADDERS else None)
