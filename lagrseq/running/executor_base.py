@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from lagrseq.errors import UsageError
-from lagrseq.lifetime import die_with_parent as die_with_parent  # where the workers of every layer find it
+from lagrseq.lifetime import die_with_parent
 
 
 @dataclass(frozen=True)
