@@ -624,7 +624,7 @@ def _load_plugins(registry: Registry[Any]) -> None:
             source = "unknown distribution"
         module = str(getattr(ep, "module", "") or str(ep.value).partition(":")[0])
         if module in _HUNG_MODULES:
-            _skip(registry, ep.name, source, f"its module {module} did not finish importing for another entry point")
+            _skip(registry, ep.name, source, f"its module {printable(module)} did not finish importing for another entry point")
             continue
         staged = _guarded(registry, ep, source, timeout_s)
         if isinstance(staged, str):
