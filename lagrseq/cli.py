@@ -1102,6 +1102,14 @@ def _terminate(*_: Any) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    if argv is None:  # the program itself prints plugin skip lines, its pool workers do not
+        from lagrseq import registry
+
+        os.environ[registry.NOTICES_ENV] = str(os.getpid())
+    return _main(argv)
+
+
+def _main(argv: Sequence[str] | None) -> int:
     words = sys.argv[1:] if argv is None else list(argv)
     # a command named first (the only place argparse takes it): build that command's parser alone
     parser = build_parser(words[0] if words and words[0] in _ADDERS else None)
@@ -1110,17 +1118,26 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     previous = None
+    previous_int = None
     with contextlib.suppress(ValueError):  # not the main thread (a caller's own thread): left alone
         previous = signal.signal(signal.SIGTERM, _terminate)  # a batch scheduler's stop: as Ctrl-C
         # a wrapper that blocked SIGTERM (or SIGINT) hands the mask down across exec: undo that,
         # or the stop would never arrive (the handler above also replaces an inherited SIG_IGN)
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGTERM, signal.SIGINT})
+        if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+            # started in the background by a shell (``lagrseq run ... &`` in a script), which
+            # ignores SIGINT for its children; Python then installs no Ctrl-C handler and
+            # ``kill -INT`` did nothing. A command stops on SIGINT as on SIGTERM.
+            previous_int = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         return _dispatch(args, argv)
     finally:
-        if previous is not None and argv is not None:  # a caller's main([...]): its handler back
+        if argv is not None:  # a caller's main([...]): its handlers back
             with contextlib.suppress(ValueError):
-                signal.signal(signal.SIGTERM, previous)
+                if previous is not None:
+                    signal.signal(signal.SIGTERM, previous)
+                if previous_int is not None:
+                    signal.signal(signal.SIGINT, previous_int)
 
 
 def _dispatch(args: argparse.Namespace, argv: Sequence[str] | None) -> int:

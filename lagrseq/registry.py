@@ -9,6 +9,21 @@ sequence of specs, or a function of no arguments returning either. A plugin whos
 registration raises is skipped with one stderr line naming it; the others, and every built-in,
 keep working.
 
+Plugins load under a guard (:func:`_load_plugins`): each entry point is imported, called and
+registered in a daemon thread that the loading thread waits for at most
+:data:`PLUGIN_TIMEOUT_ENV` seconds (default :data:`DEFAULT_PLUGIN_TIMEOUT_S`). Whatever a plugin
+raises there, ``SystemExit`` and ``KeyboardInterrupt`` included (and an exception whose ``str``
+raises), skips it with one line; an import that does not finish in time is reported and skipped,
+its thread left behind (a daemon: it never holds the process's exit), and the other entry
+points of its module skipped at once (its import lock is held). Every thread a plugin starts
+while it loads is made a daemon, ``daemon=False`` or not (:func:`_daemon_start`), so none holds
+the exit of the command or of a pool worker. What no in-process guard can stop (``os._exit``, a
+busy loop inside a C extension that keeps the GIL, a forked daemon, threads started later by
+the parts it registered) is listed in docs/security.md. Text from
+plugins is printed through :func:`printable`. Where several processes load plugins (``--jobs``
+workers), only the process named by :data:`NOTICES_ENV` prints the skip lines (the command line
+sets it to its own pid), so a broken plugin is named once per command.
+
 This module is stdlib only: a spec's factories are plain callables, and the built-ins import
 the heavy parts inside them, so reading a registry never imports torch, gymnasium or httpx.
 Callers ask a spec what a part can do instead of comparing its name (``spec.paid``, not
@@ -20,8 +35,11 @@ from __future__ import annotations
 import dataclasses
 import functools
 import importlib
+import os
 import sys
+import threading
 import typing
+import unicodedata
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -503,14 +521,64 @@ def _builtins() -> None:
     importlib.import_module("lagrseq.builtins")
 
 
+PLUGIN_TIMEOUT_ENV = "LAGRSEQ_PLUGIN_TIMEOUT_S"
+"""The environment variable bounding one plugin's import and registration, in seconds."""
+DEFAULT_PLUGIN_TIMEOUT_S = 10.0
+"""A plugin whose import, call and registration take longer is reported and skipped."""
+NOTICES_ENV = "LAGRSEQ_PLUGIN_NOTICES_PID"
+"""The pid of the process that prints plugin skip lines (set by the command line to its own);
+other processes of the command (pool workers, which inherit it) skip plugins silently. Unset:
+every process prints its own."""
+
+_ESCAPED = frozenset(("Cc", "Cf", "Cs", "Co", "Cn", "Zl", "Zp"))
+
+
+def printable(text: str) -> str:
+    """``text`` with control and format characters (newlines, ANSI escapes, bidi overrides,
+    zero-width characters, line separators) written as Python escapes (``\\n``, ``\\x1b``,
+    ``\\u202e``), so a plugin's text can neither forge a line nor drive the terminal; ordinary
+    text of any script is kept."""
+    if text.isprintable() and text.isascii():
+        return text
+    out = []
+    for char in text:
+        if unicodedata.category(char) in _ESCAPED:
+            code = ord(char)
+            named = {"\n": "\\n", "\r": "\\r", "\t": "\\t"}.get(char)
+            out.append(named or (f"\\x{code:02x}" if code <= 0xFF else f"\\u{code:04x}" if code <= 0xFFFF else f"\\U{code:08x}"))
+        else:
+            out.append(char)
+    return "".join(out)
+
+
+def _text(value: Any) -> str:
+    """A plugin's text (a description: meant to be a string) made printable, never raising."""
+    try:
+        return printable(value if isinstance(value, str) else repr(value))
+    except BaseException:  # noqa: BLE001 - a hostile __repr__
+        return "(unreadable)"
+
+
 def _say(line: str) -> None:
-    print(f"lagrseq: {line}", file=sys.stderr)
+    print(f"lagrseq: {line}", file=sys.stderr, flush=True)
 
 
 def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
+    """``Type: message`` on one printable line; an exception whose ``str`` (or type name)
+    raises is named as such, never raising itself."""
+    try:
+        name = printable(str(type(exc).__name__))
+    except BaseException:  # noqa: BLE001 - a hostile type: its name unreadable too
+        name = "an exception"
+    try:
+        text = printable(" ".join(str(exc).split()))
+    except BaseException as inner:  # noqa: BLE001 - a plugin's __str__ may raise anything
+        try:
+            text = f"(its message cannot be read: str() raised {type(inner).__name__})"
+        except BaseException:  # noqa: BLE001
+            text = "(its message cannot be read)"
     text = text if len(text) <= 200 else text[:197] + "..."
-    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+    return f"{name}: {text}" if text else name
 
 
 _ENTRY_POINTS: list[Any] = []
@@ -575,28 +643,109 @@ def _may_declare_plugins() -> bool:
     return False
 
 
+def plugin_timeout_s() -> float:
+    """The bound on one plugin's loading (:data:`PLUGIN_TIMEOUT_ENV`, else the default); a value
+    that is not a positive number is the default."""
+    try:
+        value = float(os.environ.get(PLUGIN_TIMEOUT_ENV, ""))
+    except ValueError:
+        return DEFAULT_PLUGIN_TIMEOUT_S
+    return value if 0 < value < float("inf") else DEFAULT_PLUGIN_TIMEOUT_S
+
+
+_HUNG_MODULES: set[str] = set()
+"""Modules whose import did not finish in time (their import lock is held by the abandoned
+thread: importing them again would wait for it)."""
+_LOADERS: set[threading.Thread] = set()
+"""The threads loading plugins (also those abandoned: a hung import may start threads later)."""
+_THREAD_START = threading.Thread.start
+
+
+def _daemon_start(self: threading.Thread) -> None:
+    """``Thread.start`` while plugins load: a thread started from a plugin loader is made a
+    daemon first (a non-daemon thread is joined at interpreter exit, so a plugin's
+    ``Thread(daemon=False)`` started at import kept every command, and every pool worker, from
+    ever exiting). Any other thread starts as it asked."""
+    if threading.current_thread() in _LOADERS and not self.daemon:
+        self.daemon = True
+    _THREAD_START(self)
+
+
+def _notices() -> bool:
+    owner = os.environ.get(NOTICES_ENV)
+    return owner is None or owner == str(os.getpid())
+
+
+def _skip(registry: Registry[Any], name: str, source: str, problem: str) -> None:
+    FAILURES.append(Failure(registry.group, name, source, problem))
+    if _notices():
+        _say(f"plugin {printable(repr(name))} ({printable(source)}, group {registry.group}) skipped: {problem}")
+
+
+def _stage(registry: Registry[Any], ep: Any, source: str) -> Registry[Any]:
+    """Import the entry point, call it, and register what it gives in a copy of ``registry``."""
+    loaded = ep.load()
+    if callable(loaded) and not isinstance(loaded, type):
+        loaded = loaded()
+    specs = list(loaded) if isinstance(loaded, (list, tuple)) else [loaded]
+    staged: Registry[Any] = Registry(registry.kind, registry.group, registry.spec_type, dict(registry._entries), True)
+    for spec in specs:
+        staged.register(spec, source, f"{ep.name} = {ep.value}")
+    return staged
+
+
+def _guarded(registry: Registry[Any], ep: Any, source: str, timeout_s: float) -> Registry[Any] | str:
+    """:func:`_stage` in a daemon thread waited for at most ``timeout_s``: the staged registry,
+    or one line saying why the plugin is skipped. Anything the plugin raises is caught in its
+    thread (``SystemExit``, ``KeyboardInterrupt``...); a Ctrl-C of the user arrives in this
+    thread, which only waits, and stops the command as usual."""
+    result: list[Any] = []
+
+    def load() -> None:
+        try:
+            result.append(_stage(registry, ep, source))
+        except BaseException as exc:  # noqa: BLE001 - whatever a plugin raises, it is only skipped
+            result.append(_one_line(exc))
+
+    loader = threading.Thread(target=load, name=f"lagrseq-plugin-{ep.name}"[:60], daemon=True)
+    _LOADERS.add(loader)
+    threading.Thread.start = _daemon_start  # type: ignore[method-assign]  # stays: see _daemon_start
+    loader.start()
+    loader.join(timeout_s)
+    if loader.is_alive():
+        _HUNG_MODULES.add(str(getattr(ep, "module", "") or ep.value.partition(":")[0]))
+        return (  # the loader stays in _LOADERS: threads its import starts later are daemons too
+            f"its loading did not finish within {timeout_s:g} s (an import that loops, sleeps or waits); "
+            f"it is left running in a background thread: fix or uninstall the plugin, or raise {PLUGIN_TIMEOUT_ENV}"
+        )
+    _LOADERS.discard(loader)
+    return result[0] if result else "its loading ended without a result"
+
+
 def _load_plugins(registry: Registry[Any]) -> None:
     """Add the specs of every entry point of ``registry.group``; one that raises (on import, on
-    the call, or on registration) is skipped with one stderr line naming it."""
+    the call, or on registration), or does not finish within :func:`plugin_timeout_s`, is
+    skipped with one stderr line naming it."""
     try:
         found = sorted(_entry_points().select(group=registry.group), key=lambda ep: ep.name)
     except Exception as exc:  # noqa: BLE001 - broken metadata of some distribution: skip them all, say so
-        _say(f"plugins of {registry.group} skipped: the installed packages' metadata cannot be read ({_one_line(exc)})")
+        if _notices():
+            _say(f"plugins of {registry.group} skipped: the installed packages' metadata cannot be read ({_one_line(exc)})")
         return
+    timeout_s = plugin_timeout_s()
     for ep in found:
         dist = getattr(ep, "dist", None)
-        source = f"{dist.name} {dist.version}" if dist is not None else "unknown distribution"
         try:
-            loaded = ep.load()
-            if callable(loaded) and not isinstance(loaded, type):
-                loaded = loaded()
-            specs = list(loaded) if isinstance(loaded, (list, tuple)) else [loaded]
-            staged: Registry[Any] = Registry(registry.kind, registry.group, registry.spec_type, dict(registry._entries), True)
-            for spec in specs:
-                staged.register(spec, source, f"{ep.name} = {ep.value}")
-        except Exception as exc:  # noqa: BLE001 - a broken plugin never breaks lagrseq
-            FAILURES.append(Failure(registry.group, ep.name, source, _one_line(exc)))
-            _say(f"plugin {ep.name!r} ({source}, group {registry.group}) skipped: {_one_line(exc)}")
+            source = f"{dist.name} {dist.version}" if dist is not None else "unknown distribution"
+        except Exception:  # noqa: BLE001 - metadata without a name or version
+            source = "unknown distribution"
+        module = str(getattr(ep, "module", "") or str(ep.value).partition(":")[0])
+        if module in _HUNG_MODULES:
+            _skip(registry, ep.name, source, f"its module {printable(module)} did not finish importing for another entry point")
+            continue
+        staged = _guarded(registry, ep, source, timeout_s)
+        if isinstance(staged, str):
+            _skip(registry, ep.name, source, staged)
             continue
         registry._entries.update(staged._entries)
 
@@ -646,13 +795,13 @@ def listing() -> list[str]:
         lines.append(f"{kind} (entry-point group {registry.group}): {len(entries)}")
         width = max((len(e.name) for e in entries), default=0)
         for entry in entries:
-            about = getattr(entry.spec, "description", "")
+            about = _text(getattr(entry.spec, "description", ""))
             where = entry.source if not entry.entry_point else f"{entry.source} [{entry.entry_point}]"
-            lines.append(f"  {entry.name:<{width}}  {where}" + (f": {about}" if about else ""))
+            lines.append(f"  {printable(entry.name):<{width}}  {printable(where)}" + (f": {about}" if about else ""))
             lines += _knob_lines(entry.spec)
     if FAILURES:
         lines.append(f"skipped plugins: {len(FAILURES)}")
-        lines += [f"  {f.entry_point} ({f.source}, group {f.group}): {f.problem}" for f in FAILURES]
+        lines += [f"  {printable(f.entry_point)} ({printable(f.source)}, group {f.group}): {f.problem}" for f in FAILURES]
     return lines
 
 

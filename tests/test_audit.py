@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from lagrseq import config as cfg
@@ -173,3 +174,23 @@ def test_the_scoreboard_says_what_explains_each_gap_from_the_audit_in_the_logs(t
         assert "audit-cube-stacking, mock" in text
     assert by_what["0: query reduction with SEQ (%)"].startswith("not audited: audit-cube-stacking does not measure")
     assert (report.out / "figures" / "audit-cube-stacking-interactions.png").stat().st_size > 0
+
+
+def test_an_audit_of_one_episode_gives_a_result_where_a_baseline_earned_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 37: at one episode a baseline may earn no return; its ratio is no value (n counts
+    only the ratios that exist), not a ZeroDivisionError."""
+    from lagrseq.cli import main
+
+    code = main(["audit", "cube-stacking", "--trials", "1", "--jobs", "1", "--episodes", "1", "--out", str(tmp_path)])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    table = (tmp_path / "reports" / "audit-cube-stacking.md").read_text()
+    ratio = "performance ratio (LaGR-SEQ / baseline)"
+    data = pd.read_csv(tmp_path / "reports" / "audit-cube-stacking.csv")
+    ratios = data[data["quantity"] == ratio]
+    assert len(ratios) and (ratios["trials"] <= 1).all()
+    missing = ratios[ratios["trials"] == 0]
+    assert len(missing) and "no value (n=0/1: an arm has no trial with a value" in table  # the paper preset's resample run
+    assert "nan" not in table.split("### Interactions")[0]

@@ -97,6 +97,7 @@ ANYONE = (
     "lagrseq.errors",
     "lagrseq.seeding",
     "lagrseq.paths",
+    "lagrseq.lifetime",
     "lagrseq.progress",
     "lagrseq.tomlfile",
     "lagrseq.registry",

@@ -148,3 +148,62 @@ def test_sigterm_is_honoured_when_the_parent_ignored_it(tmp_path: Path) -> None:
     os.kill(lagrseq_pid, signal.SIGTERM)
     _, err = wrapper.communicate(timeout=60)
     assert wrapper.returncode == 143 and "stopped by SIGTERM" in err, err
+
+
+def test_sigint_is_honoured_when_started_with_it_ignored(tmp_path: Path) -> None:
+    """Issue 37: a shell starts background jobs with SIGINT ignored, and Python then installs no
+    Ctrl-C handler, so ``kill -INT`` did nothing while SIGTERM worked; lagrseq installs its own."""
+    code = (
+        "import signal, subprocess, sys\n"
+        "signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
+        "sys.exit(subprocess.call([sys.executable, '-m', 'lagrseq', *sys.argv[1:]]))\n"
+    )
+    wrapper = subprocess.Popen([sys.executable, "-c", code, *RUN, "--jobs", "1", "--out", str(tmp_path / "runs")], cwd=tmp_path,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 90
+    while not list((tmp_path / "runs").rglob("*.mcap.partial")) and time.monotonic() < deadline:
+        time.sleep(0.2)  # the command runs (its handlers are installed before the first trial)
+    lagrseq_pid = min(children_of(wrapper.pid))  # the command itself (its helpers start later)
+    os.kill(lagrseq_pid, signal.SIGINT)
+    _, err = wrapper.communicate(timeout=60)
+    assert wrapper.returncode == 130 and "lagrseq run: interrupted" in err and "Traceback" not in err, err
+
+
+def _session(sid: int) -> set[int]:
+    """The living processes of session ``sid`` (not zombies)."""
+    found = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if fields[0] != "Z" and int(fields[3]) == sid:
+            found.add(int(stat.parent.name))
+    return found
+
+
+def test_sigkill_of_replay_leaves_no_process_of_its_session(tmp_path: Path) -> None:
+    """Issue 37: ``replay --jobs 2`` killed with SIGKILL left its spawn workers and the resource
+    tracker alive; its workers now die with it, and the tracker with them."""
+    golden = ROOT / "fixtures" / "golden" / "cube-stacking-lagr-seq-upstream-4ep.mcap"
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    for i in range(3000):  # hard links: 3,000 logs to read, no disk used
+        os.link(golden, runs / f"trial-{i:04d}.mcap")
+    process = subprocess.Popen([sys.executable, "-m", "lagrseq", "replay", str(runs), "--jobs", "2", "--out", str(tmp_path / "reports")],
+                               cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+                               env={**os.environ, "MPLBACKEND": "Agg"})
+    deadline = time.monotonic() + 120
+    while len(_session(process.pid)) < 4 and time.monotonic() < deadline and process.poll() is None:
+        time.sleep(0.1)  # the parent, the resource tracker and the two readers
+    assert len(_session(process.pid)) >= 4, "replay --jobs 2 did not start its workers"
+    time.sleep(0.5)
+    process.kill()
+    process.wait(timeout=30)
+    deadline = time.monotonic() + 20
+    while _session(process.pid) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    left = _session(process.pid)
+    for pid in left:  # whatever the outcome, this test leaves nothing running
+        os.kill(pid, signal.SIGKILL)
+    assert left == set(), "processes of replay's session left after SIGKILL"

@@ -237,6 +237,12 @@ QUANTITIES = (
 )
 
 
+def _mean(values: np.ndarray) -> float:
+    """The mean of the finite values, NaN (and no warning) where there are none."""
+    x = _finite(values)
+    return float(x.mean()) if x.size else math.nan
+
+
 def _finite(values: np.ndarray) -> np.ndarray:
     x = np.asarray(values, dtype=float).ravel()
     return x[np.isfinite(x)]
@@ -357,8 +363,8 @@ def build(runs: Sequence[Run]) -> list[Audit]:
                             "field": name,
                             "switched_to": json.dumps(value),
                             "quantity": q.name,
-                            "preset_mean": float(np.nanmean(b)),
-                            "switched_mean": float(np.nanmean(a)),
+                            "preset_mean": _mean(b),
+                            "switched_mean": _mean(a),
                             "effect": interval.mean,
                             "ci_low": interval.low,
                             "ci_high": interval.high,
@@ -458,6 +464,8 @@ def _n(row: pd.Series) -> str:
 
 
 def _cell(row: pd.Series) -> str:
+    if not np.isfinite(row["effect"]):  # an arm without a value (a ratio over a baseline that earned 0)
+        return f"no value ({_n(row)}: an arm has no trial with a value; a ratio has none where its baseline earned no return)"
     if not np.isfinite(row["ci_low"]):
         text = f"{row['effect']:+.3g} (no interval)"
     else:

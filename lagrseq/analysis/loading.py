@@ -358,7 +358,10 @@ def worker_pool(jobs: int) -> ProcessPoolExecutor:
     imports only what its work needs, no fork of a process holding threads or big figures."""
     import multiprocessing
 
-    return ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"))
+    from lagrseq.lifetime import die_with_parent
+
+    # a replay killed with SIGKILL leaves no worker (nor, with them gone, resource tracker) behind
+    return ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"), initializer=die_with_parent)
 
 
 def _read_all(paths: list[tuple[Path, Path]], jobs: int) -> list[tuple[_Trial | str, ReadStats]]:

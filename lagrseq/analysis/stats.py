@@ -178,9 +178,11 @@ def finished_episodes(
 
 def paired_ratios(numerator: Mapping[int, float], denominator: Mapping[int, float]) -> np.ndarray:
     """Per-trial ratios numerator / denominator over the trial indices both have, in trial order
-    (trial k of two runs with one seed share their environment seed)."""
+    (trial k of two runs with one seed share their environment seed). A trial whose denominator
+    is 0 (a baseline that earned no return, e.g. one short episode) has no ratio and is left
+    out, so the ``n`` a table shows counts only the ratios that exist."""
     trials = sorted(set(numerator) & set(denominator))
-    return np.array([numerator[t] / denominator[t] for t in trials], dtype=float)
+    return np.array([numerator[t] / denominator[t] for t in trials if denominator[t] != 0], dtype=float)
 
 
 # --------------------------------------------------------------------------------------------

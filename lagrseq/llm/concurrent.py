@@ -12,7 +12,10 @@ thread) is the only one that touches the budget and the store:
   request that could pass a limit is not sent, the ones in flight are waited for and stored, and
   then :class:`~lagrseq.errors.BudgetExceeded` is raised;
 - each request's answers are stored as soon as it returns (requests that end together: one
-  transaction), so an interrupted recording loses nothing already answered.
+  transaction), so an interrupted recording loses nothing already answered;
+- a key's requests are made only once its claim is held (:meth:`RecordStore.claim`) and the key
+  read again under it, so recorders in other processes into the same store share what they
+  record; a key claimed elsewhere is tried again after the others.
 
 A failed request (after the live provider's own retries) stops the dispatch the same way: what is
 in flight is waited for and stored, then the error is raised.
@@ -26,6 +29,8 @@ import math
 import os
 import signal
 import threading
+import time
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
@@ -35,7 +40,7 @@ from lagrseq.llm.base import Answer, Provider, Query, sample, samples_per_reques
 from lagrseq.llm.budget import Budget
 from lagrseq.llm.pricing import PriceTable
 from lagrseq.llm.recorded import RecordingProvider, RecordReport
-from lagrseq.llm.store import Sample, query_key, sample_from_answer
+from lagrseq.llm.store import KeyClaim, Sample, query_key, sample_from_answer
 
 
 @dataclass
@@ -90,21 +95,45 @@ def record_concurrently(
         raise ValueError(f"concurrency must be at least 1, got {concurrency}")
     inner: Provider = recorder.inner
     per_request = samples_per_request(inner)
-    units: list[_Unit] = []
-    left: list[int] = []
+    keys = [query_key(query, recorder.endpoint)[0] for query in queries]
+    left = [0] * len(queries)
+    """Per query: its requests not yet stored (set when its key is claimed)."""
+    todo: deque[int] = deque()
     for index, query in enumerate(queries):
-        need = recorder.wanted(recorder.store.entry(query_key(query, recorder.endpoint)[0]))
-        left.append(math.ceil(need / per_request) if need > 0 else 0)
-        while need > 0:
-            units.append(_Unit(index, query, min(need, per_request)))
-            need -= per_request
-    for index, query in enumerate(queries):  # queries with nothing to ask are done at once
-        if left[index] == 0 and on_query is not None:
+        if recorder.wanted(recorder.store.entry(keys[index])) > 0:
+            todo.append(index)
+        elif on_query is not None:  # queries with nothing to ask are done at once
             on_query(query)
+    later: deque[int] = deque()
+    """Queries whose key another recorder was filling: tried again once ``todo`` is empty."""
+    ready: deque[_Unit] = deque()
+    claims: dict[int, KeyClaim] = {}
     answers = 0
     stop: BaseException | None = None
-    pending = iter(units)
     flying: dict[cf.Future[list[Answer]], _Unit] = {}
+
+    def next_unit() -> _Unit | None:
+        """The next request to send: of a key this recorder has claimed and read again."""
+        while not ready:
+            if not todo:
+                return None
+            index = todo.popleft()
+            claim = recorder.store.claim(keys[index])
+            if claim is None:
+                later.append(index)
+                continue
+            need = recorder.wanted(recorder.store.entry(keys[index]))  # what the holder before left
+            if need <= 0:
+                claim.release()
+                if on_query is not None:
+                    on_query(queries[index])
+                continue
+            claims[index] = claim
+            left[index] = math.ceil(need / per_request)
+            while need > 0:
+                ready.append(_Unit(index, queries[index], min(need, per_request)))
+                need -= per_request
+        return ready.popleft()
 
     def ask(unit: _Unit) -> list[Answer]:
         return sample(inner, unit.query, unit.n)
@@ -122,8 +151,12 @@ def record_concurrently(
                 key = query_key(unit.query, recorder.endpoint)[0]
                 on_answers([replace(a, record_key=key) for a in batch])
             left[unit.index] -= 1
-            if left[unit.index] == 0 and on_query is not None:
-                on_query(unit.query)
+            if left[unit.index] == 0:
+                claim = claims.pop(unit.index, None)
+                if claim is not None:  # its answers are stored: other recorders may read the key
+                    claim.release()
+                if on_query is not None:
+                    on_query(unit.query)
         return sum(len(batch) for _, batch in arrived)
 
     arrived: list[tuple[_Unit, list[Answer]]] = []
@@ -132,7 +165,7 @@ def record_concurrently(
         while True:
             # first send what the finished requests made room for, then store their answers
             while stop is None and len(flying) < concurrency:
-                unit = next(pending, None)
+                unit = next_unit()
                 if unit is None:
                     break
                 requests = math.ceil(unit.n / per_request)
@@ -145,6 +178,12 @@ def record_concurrently(
             with _interrupt_after():
                 answers += store(arrived)
                 arrived = []
+            if stop is None and not todo and not ready and later:
+                todo.extend(later)  # keys other recorders were filling: try them again
+                later.clear()
+                if not flying:
+                    time.sleep(poll_s)
+                    continue
             if not flying:
                 break
             done, _ = cf.wait(flying, timeout=poll_s, return_when=cf.FIRST_COMPLETED)
@@ -163,6 +202,8 @@ def record_concurrently(
                 store(arrived)
         # on Ctrl-C nothing new starts; requests in flight end on their own deadline
         pool.shutdown(wait=not flying, cancel_futures=True)
+        for claim in claims.values():
+            claim.release()
     if stop is not None:
         raise stop
     complete = 0

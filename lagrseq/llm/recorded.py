@@ -23,6 +23,7 @@ so an interrupted recording loses nothing already answered.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -126,6 +127,11 @@ class JsonlRecordedProvider(RecordedProvider):
         super().__init__(store, endpoint, run_seed, fallback)
 
 
+CLAIM_WAIT_S = math.inf
+"""How long :meth:`RecordingProvider.top_up` waits for a key that another recorder is filling, by
+default (until it is done: the key's claim is let go when its answers are stored)."""
+
+
 class RecordingProvider:
     """Replay from ``store`` and send what is missing to ``inner``, storing its answers."""
 
@@ -161,30 +167,42 @@ class RecordingProvider:
             return self.samples
         return max(self.samples - (len(entry.samples) if entry else 0), 0)
 
-    def top_up(self, query: Query, on_answers: Callable[[list[Answer]], None] | None = None) -> list[Answer]:
+    def top_up(
+        self, query: Query, on_answers: Callable[[list[Answer]], None] | None = None, wait_s: float = CLAIM_WAIT_S
+    ) -> list[Answer] | None:
         """Ask ``inner`` for the answers the mode wants for this query and store them, one request's
-        worth at a time; return them (with their record key set)."""
-        return [answer for _, answer in self._top_up(query, on_answers)]
+        worth at a time; return them (with their record key set). None: another recorder held
+        the key's claim for ``wait_s`` seconds (nothing was asked; try again later)."""
+        fetched = self._top_up(query, on_answers, wait_s)
+        return None if fetched is None else [answer for _, answer in fetched]
 
     def _top_up(
-        self, query: Query, on_answers: Callable[[list[Answer]], None] | None = None
-    ) -> list[tuple[Sample, Answer]]:
+        self, query: Query, on_answers: Callable[[list[Answer]], None] | None = None, wait_s: float = CLAIM_WAIT_S
+    ) -> list[tuple[Sample, Answer]] | None:
         key, request = query_key(query, self.endpoint)
-        need = self.wanted(self.store.entry(key))
-        per_request = samples_per_request(self.inner)
-        fetched: list[tuple[Sample, Answer]] = []
-        while need > 0:
-            batch = sample(self.inner, query, min(need, per_request))
-            stored = [sample_from_answer(a, key) for a in batch]
-            self.store.add(key, request, query.task, stored)
-            fetched.extend((s, replace(a, record_key=key)) for s, a in zip(stored, batch, strict=True))
-            need -= len(batch)
-            if on_answers is not None:
-                on_answers(batch)
+        if self.wanted(self.store.entry(key)) <= 0:
+            return []
+        # another recorder into this store may be paying for this key right now: claim it, then
+        # read it again and ask only for what it still lacks (llm/store.py: Claims)
+        claim = self.store.claim(key, wait_s)
+        if claim is None:
+            return None
+        with claim:
+            need = self.wanted(self.store.entry(key))
+            per_request = samples_per_request(self.inner)
+            fetched: list[tuple[Sample, Answer]] = []
+            while need > 0:
+                batch = sample(self.inner, query, min(need, per_request))
+                stored = [sample_from_answer(a, key) for a in batch]
+                self.store.add(key, request, query.task, stored)
+                fetched.extend((s, replace(a, record_key=key)) for s, a in zip(stored, batch, strict=True))
+                need -= len(batch)
+                if on_answers is not None:
+                    on_answers(batch)
         return fetched
 
     def complete(self, query: Query) -> Answer:
-        fresh = dict((s.id, a) for s, a in self._top_up(query))
+        fresh = dict((s.id, a) for s, a in self._top_up(query) or ())
         key, request = query_key(query, self.endpoint)
         if self.mode == "all" and fresh:
             return next(iter(fresh.values()))  # vcrpy's "all": the answer of a real request, every time
@@ -238,15 +256,22 @@ def record_queries(
     on_answers: Callable[[list[Answer]], None] | None = None,
     on_query: Callable[[Query], None] | None = None,
 ) -> RecordReport:
-    """Top every query up to the recorder's sample count, in order. A budget stop or an
+    """Top every query up to the recorder's sample count, in order; a query whose key another
+    recorder is filling is left for the end (and then waited for). A budget stop or an
     interruption propagates; everything answered before it is already in the store."""
     answers = 0
     done = 0
-    for query in queries:
-        answers += len(recorder.top_up(query, on_answers))
-        key, _ = query_key(query, recorder.endpoint)
-        entry = recorder.store.entry(key)
-        done += int(entry is not None and len(entry.samples) >= recorder.samples)
-        if on_query is not None:
-            on_query(query)
+    later: list[Query] = []
+    for wait_s, batch in ((0.0, queries), (math.inf, later)):
+        for query in batch:
+            fetched = recorder.top_up(query, on_answers, wait_s)
+            if fetched is None:
+                later.append(query)
+                continue
+            answers += len(fetched)
+            key, _ = query_key(query, recorder.endpoint)
+            entry = recorder.store.entry(key)
+            done += int(entry is not None and len(entry.samples) >= recorder.samples)
+            if on_query is not None:
+                on_query(query)
     return RecordReport(queries=len(queries), complete=done, answers=answers)

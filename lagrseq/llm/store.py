@@ -22,6 +22,15 @@ writes: rows are read through a read-only SQLite connection (:class:`ReadOnlyDat
 diskcache that writes is opened only for the first write, so a read-only store can be read. Every
 row is checked when read and every sample before it is written (:mod:`lagrseq.llm.records`).
 
+Claims: several ``lagrseq record`` processes into one store share what they record. Before a
+recorder pays for a key it takes the key's claim (:meth:`RecordStore.claim`: an exclusive
+``flock`` on ``claims/KEY.lock`` in the store directory, which the kernel releases when the
+holder dies, so a killed recorder leaves no stale claim), reads the key again, and asks only for
+what it still lacks; the claim is let go after the answers are stored. A key claimed elsewhere is
+left for later. Left over: answers paid for by a process killed before it stored them are paid
+again; ``--mode all`` pays by design; on a file system whose ``flock`` does not reach other
+machines (some network file systems) recorders there may still pay twice.
+
 Portable form: JSONL, one sample per line (``recorded_llm/README.md`` documents it), written by
 :func:`export_jsonl` in a stable order and read back by :func:`import_jsonl`, which checks
 every line before it writes any. Sample ids make imports idempotent: importing the same file
@@ -70,7 +79,14 @@ from lagrseq.llm.records import (
 from lagrseq.llm.servers import DEFAULT_BASE_URL, base_url_problem  # noqa: F401 - DEFAULT_BASE_URL re-exported for callers
 from lagrseq.paths import kind_of, open_input
 
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - not on Windows: no claims, each recorder reads before it pays
+    fcntl = None  # type: ignore[assignment]
+
 STORE_FORMAT = "lagrseq.recorded-store"
+CLAIMS_DIR = "claims"
+"""The store's subdirectory holding the per-key claim files (empty when no recorder runs)."""
 META_KEY = "lagrseq-store"
 _DEFAULT_PORTS = {"http": 80, "https": 443}
 
@@ -458,6 +474,32 @@ def entry_problems(key: str, value: Any) -> list[str]:
     return found
 
 
+class KeyClaim:
+    """A held claim on one key (:meth:`RecordStore.claim`); ``release`` (idempotent) lets it go.
+    A context manager."""
+
+    def __init__(self, path: Path | None, fd: int | None) -> None:
+        self.path = path
+        self._fd = fd
+
+    def release(self) -> None:
+        fd, self._fd = self._fd, None
+        if fd is None:
+            return
+        try:
+            if self.path is not None:  # unlinked while still held: a waiter sees a new file
+                with contextlib.suppress(OSError):
+                    os.unlink(self.path)
+        finally:
+            os.close(fd)  # closing the file lets the lock go
+
+    def __enter__(self) -> KeyClaim:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+
 class RecordStore:
     """A directory of recorded answers (module docstring). A context manager; ``close`` is
     idempotent. ``create=False`` refuses a directory that is not already a store.
@@ -636,6 +678,42 @@ class RecordStore:
                 value["task"] = task
             cache.set(key, value)
         return len(value["samples"]), len(added)
+
+    # ------------------------------------------------------------------ claims
+    def claim(self, key: str, wait_s: float = 0.0, poll_s: float = 0.05) -> KeyClaim | None:
+        """The claim on ``key`` for this caller alone, or None when another recorder (another
+        process, or another claim of this one) holds it for ``wait_s`` seconds (0: do not wait).
+        Read the key again once claimed: the holder before may have recorded it."""
+        if fcntl is None:  # pragma: no cover - no flock: every recorder reads before it pays
+            return KeyClaim(None, None)
+        if not key or not all(c in "0123456789abcdef" for c in key):
+            raise StoreError(f"key {key[:12]!r} is not a hex digest; refusing to claim it")
+        folder = self.directory / CLAIMS_DIR
+        path = folder / f"{key}.lock"
+        deadline = time.monotonic() + wait_s
+        while True:
+            with _translated(self.directory, "write a claim"):
+                folder.mkdir(exist_ok=True)
+                fd = os.open(path, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0), 0o644)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                os.close(fd)
+            except OSError:
+                os.close(fd)
+                raise
+            else:
+                try:  # the file may have been unlinked by the holder just before: take a fresh one
+                    same = os.fstat(fd).st_ino == os.stat(path, follow_symlinks=False).st_ino
+                except OSError:
+                    same = False
+                if same:
+                    return KeyClaim(path, fd)
+                os.close(fd)
+                continue
+            if time.monotonic() >= deadline:
+                return None
+            time.sleep(poll_s)
 
     # ------------------------------------------------------------------ misses
     def nearest(self, request: dict[str, Any], task: str | None = None, limit: int = 3) -> list[tuple[Entry, str]]:

@@ -11,7 +11,14 @@ makes it read garbage. A log is a file from outside, so this module reads it def
 - a chunk's uncompressed size is capped (:data:`MAX_CHUNK_BYTES`), and the chunk is decompressed
   in pieces of at most :data:`_PIECE` bytes, stopping as soon as more comes out than the chunk
   says it holds, so memory follows what the data really holds, not what a field claims;
-- the summary is checked against its CRC and every index in it against the file's layout.
+- the summary is checked against its CRC and every index in it against the file's layout;
+- a walk through records stops at the first byte that cannot start one: opcode 0x00 is no MCAP
+  record (zeros are what a crash or a preallocating copy leaves), a chunk holds only schemas,
+  channels and messages, and at most :data:`MAX_UNKNOWN_RECORDS` records of kinds this reader does
+  not know are skipped. A run of zeros is measured with ``bytes`` operations in C (at memory or
+  disk speed, never record by record, and at most :data:`MAX_ZERO_SCAN` bytes of it), so a log
+  padded with hundreds of megabytes of zeros is judged in well under a second
+  (``benchmarks/bench_scan.py``).
 
 What is wrong is raised as :class:`Damage` (an offset and what was found there); the public
 readers in :mod:`lagrseq.logs.reader` turn it into a one-line :class:`~lagrseq.errors.LogError`.
@@ -63,6 +70,14 @@ WHOLE_FILE_BYTES = 64 << 20
 is a slice of it (a log is read in hundreds of small reads: a chunk's head and body, every chunk
 index's check; one system call each cost more than all of them from memory). A bigger file is
 read piece by piece as asked. Either way, reading a log costs at most its own size in memory."""
+MAX_UNKNOWN_RECORDS = 1024
+"""Records of a kind this reader does not know (private opcodes 0x80-0xff, kinds of later MCAP
+versions) skipped in one walk; lagrseq writes none, so more is damage, not data (a flood of
+9-byte unknown records would otherwise be walked one Python step each)."""
+MAX_ZERO_SCAN = 1 << 30
+"""The most bytes of a run of zeros measured to say how far it goes (1 GiB, about half a second);
+a longer run is reported as "at least" that much."""
+_ZERO_PIECE = 8 << 20
 _HEAD = struct.Struct("<BQ")
 _MESSAGE_HEAD = struct.Struct("<HIQQ")
 _FOOTER_LENGTH = 20
@@ -103,6 +118,39 @@ class Damage(Exception):
         super().__init__(f"{what} at byte {offset}")
         self.offset = offset
         self.what = what
+
+
+def _zero_run(data: memoryview) -> int:
+    """How many zero bytes ``data`` starts with (at most :data:`MAX_ZERO_SCAN`), in pieces of
+    :data:`_ZERO_PIECE` bytes so that no more than one piece is copied at a time."""
+    run = 0
+    while run < min(len(data), MAX_ZERO_SCAN):
+        piece = bytes(data[run : run + _ZERO_PIECE])
+        zeros = len(piece) - len(piece.lstrip(b"\0"))
+        run += zeros
+        if zeros < len(piece):
+            break
+    return min(run, MAX_ZERO_SCAN)
+
+
+def _zeros_found(run: int, left: int, end: str) -> str:
+    """The damage text for ``run`` zero bytes where a record should start (``left`` bytes to
+    ``end``)."""
+    if run >= left:
+        where = f"{run} zero bytes from here to {end}"
+    elif run >= MAX_ZERO_SCAN:
+        where = f"at least {run} zero bytes (measured no further)"
+    else:
+        where = f"{run} zero bytes, then other bytes again at {run} bytes further"
+    return f"no record where one should start: {where} (zeros are no MCAP record: padding, or space a crash never wrote)"
+
+
+def _not_in_chunk(opcode: int, data: bytes, pos: int, offset: int) -> Damage:
+    """The damage for a record a chunk cannot hold (found at ``pos`` of the chunk at ``offset``)."""
+    if opcode == 0:
+        text = _zeros_found(_zero_run(memoryview(data)[pos:]), len(data) - pos, "the end of the chunk's data")
+        return Damage(offset, f"chunk (at {pos} of {len(data)}): {text}")
+    return Damage(offset, f"chunk: a {opcode_name(opcode)} record at {pos} of {len(data)}; a chunk holds schemas, channels and messages only")
 
 
 class _Fields(ReadDataStream):
@@ -463,6 +511,8 @@ class McapFile:
             if pos + 9 > len(data):
                 raise Damage(base + pos, f"a record header runs past its section ({len(data) - pos} bytes left)")
             opcode, length = _HEAD.unpack_from(data, pos)
+            if opcode == 0:
+                raise Damage(base + pos, _zeros_found(_zero_run(memoryview(data)[pos:]), len(data) - pos, "its section"))
             if length > len(data) - pos - 9:
                 raise Damage(base + pos, f"{opcode_name(opcode)} record of {length} bytes runs past its section")
             yield base + pos, opcode, parse(opcode, data[pos + 9 : pos + 9 + length], base + pos)
@@ -579,6 +629,8 @@ class McapFile:
                     found.append((channel_id, data[pos + 9 + head : end]))
             elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
                 parse(opcode, data[pos + 9 : end], offset)
+            else:
+                raise _not_in_chunk(opcode, data, pos, offset)
             pos = end
         return found
 
@@ -611,6 +663,8 @@ class McapFile:
                 record = parse(opcode, data[pos + 9 : pos + 9 + length], offset)
                 assert record is not None
                 records.append(record)
+            else:
+                raise _not_in_chunk(opcode, data, pos, offset)
             pos += 9 + length
         return records
 
@@ -620,15 +674,43 @@ class McapFile:
         where a record cannot be read."""
         self.header()
         offset = len(MAGIC)
+        unknown = 0
         while True:
             opcode, body, end = self.record_at(offset)
+            if opcode == 0:  # no record: zeros (measured in C, never walked 9 bytes at a time)
+                raise Damage(offset, _zeros_found(self.zero_run(offset), self.size - offset, "the end of the file"))
             record = parse(opcode, body, offset)
+            if record is None:
+                unknown += 1
+                if unknown > MAX_UNKNOWN_RECORDS:
+                    raise Damage(
+                        offset,
+                        f"more than {MAX_UNKNOWN_RECORDS} records of kinds no lagrseq log holds "
+                        f"(this one: {opcode_name(opcode)}); not a lagrseq log, or damaged",
+                    )
             yield offset, end, record
             if isinstance(record, Footer):
                 if self.read(end, len(MAGIC), "closing magic") != MAGIC:
                     raise Damage(end, "no MCAP magic after the footer")
                 return
             offset = end
+
+    def zero_run(self, offset: int) -> int:
+        """How many zero bytes follow ``offset`` (at most :data:`MAX_ZERO_SCAN`), measured a
+        piece at a time in C, never record by record."""
+        if self._data is not None:
+            return _zero_run(memoryview(self._data)[offset:])
+        run = 0
+        self._handle.seek(offset)
+        while run < MAX_ZERO_SCAN:
+            piece = self._handle.read(min(_ZERO_PIECE, MAX_ZERO_SCAN - run))
+            if not piece:
+                break
+            zeros = len(piece) - len(piece.lstrip(b"\0"))
+            run += zeros
+            if zeros < len(piece):
+                break
+        return run
 
     def verify(self) -> Summary:
         """Read everything a reader can ask for: footer, summary, metadata and every chunk.

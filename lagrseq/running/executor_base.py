@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from lagrseq.errors import UsageError
+from lagrseq.lifetime import die_with_parent
 
 
 @dataclass(frozen=True)
@@ -116,38 +117,6 @@ def _ignore_interrupts() -> None:
     their parent (:func:`die_with_parent`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     die_with_parent()
-
-
-PR_SET_PDEATHSIG = 1
-
-
-def die_with_parent(poll_s: float = 1.0) -> None:
-    """End this process when the process that started it dies, however it dies (SIGKILL
-    included), so no worker outlives a stopped run; with no worker left, multiprocessing's
-    resource tracker (which reads until every holder of its pipe is gone) ends too.
-
-    Linux: the kernel sends SIGKILL at the parent's death (``prctl(PR_SET_PDEATHSIG)``); the
-    parent may have died before the call, so the parent is checked once after it. Elsewhere, and
-    as a second line on Linux, a daemon thread polls ``os.getppid()`` every ``poll_s``."""
-    import threading
-
-    parent = os.getppid()
-    if sys.platform.startswith("linux"):
-        with contextlib.suppress(Exception):
-            import ctypes
-
-            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-    if os.getppid() != parent or parent == 1:
-        os._exit(143)
-
-    def watch() -> None:
-        import time
-
-        while os.getppid() == parent:
-            time.sleep(poll_s)
-        os._exit(143)
-
-    threading.Thread(target=watch, name="lagrseq-parent-watch", daemon=True).start()
 
 
 def exit_on_next_interrupt() -> None:

@@ -92,3 +92,9 @@ def test_only_a_last_episode_cut_off_by_the_budget_is_unfinished() -> None:
 def test_paired_ratios_pair_by_trial_index() -> None:
     ratios = stats.paired_ratios({0: 10.0, 1: 12.0, 2: 9.0}, {1: 6.0, 0: 5.0})
     assert ratios.tolist() == [2.0, 2.0]
+
+
+def test_paired_ratios_leave_out_a_trial_whose_denominator_is_zero() -> None:
+    ratios = stats.paired_ratios({0: 10.0, 1: 12.0, 2: 9.0}, {0: 5.0, 1: 0.0, 2: 3.0})
+    assert ratios.tolist() == [2.0, 3.0]
+    assert stats.paired_ratios({0: 1.0}, {0: 0.0}).size == 0
