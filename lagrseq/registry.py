@@ -780,9 +780,9 @@ def _knob_lines(spec: Any) -> list[str]:
     if not isinstance(spec, PolicySpec) or not spec.knobs:
         return []
     shared = [k for k in spec.knobs if isinstance(k, str)]
-    lines = [f"      reads [secondary] {', '.join(shared)}"] if shared else []
-    for knob in own_knobs(spec):
-        lines.append(f"      knob {knob.name} = {knob.default!r}" + (f": {knob.help}" if knob.help else ""))
+    lines = [f"      reads [secondary] {_text(', '.join(shared))}"] if shared else []
+    for knob in own_knobs(spec):  # a plugin's text: control characters escaped
+        lines.append(f"      knob {_text(knob.name)} = {_text(repr(knob.default))}" + (f": {_text(knob.help)}" if knob.help else ""))
     return lines
 
 
