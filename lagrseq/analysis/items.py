@@ -176,16 +176,10 @@ def recorded_misses(run: Run) -> str:
 def fallback_decided(run: Run) -> tuple[int, int]:
     """(trials whose first accepted answer came from a fallback rather than the recorded store,
     trials): in those trials the fallback, not the recorded model, decided when the agent first
-    got a usable suggestion. A trial with no accepted answer counts as not decided by it."""
-    trials = len(run.trials)
-    if run.queries.empty:
-        return 0, trials
-    asked = run.queries[run.queries["queried"].fillna(False).astype(bool) & run.queries["accepted"].fillna(False).astype(bool)]
-    decided = 0
-    for _, group in asked.groupby("trial", sort=True):
-        first = group.sort_values(["global_step", "step"], kind="stable").iloc[0]
-        decided += str(first["source"] or "") not in stored_sources()
-    return decided, trials
+    got a usable suggestion (:func:`lagrseq.analysis.provenance.decided_by_fallback`). A trial
+    with no accepted answer counts as not decided by it."""
+    decided = prov.decided_by_fallback(run)
+    return sum(decided), len(decided)
 
 
 def made_by(run: Run) -> str:
