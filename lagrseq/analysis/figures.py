@@ -180,7 +180,7 @@ def bars(
     items: Sequence[Bar],
     ax: Axes | None = None,
     *,
-    ylabel: str = "LLM queries per trial (mean, 95% t interval on the log scale)",
+    ylabel: str = "LLM queries per trial\n(mean, 95% t interval, log scale)",
     title: str | None = None,
 ) -> Axes:
     """Bars of the mean with error bars that are the tables' intervals (each summary's

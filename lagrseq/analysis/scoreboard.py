@@ -1,18 +1,29 @@
 """The scoreboard: every number the paper states beside lagrseq's value from every source.
 
-For each reference value of a table item (Table 2, Table 3, the stack-size ratios) and the query
-reductions those tables imply (1 - LaGR-SEQ / LaGR), one row per source the logs hold (the mock,
-a calibrated mock profile, the authors' recorded answers, any other recorded store): what made the
-number (:mod:`lagrseq.analysis.provenance`, from the run's logged provider and configuration),
-lagrseq's mean with its 95% Student-t interval and n, and a three-way verdict against the paper's
-value (:func:`lagrseq.analysis.inference.judge`): ``reproduced`` (the 90% interval lies inside the
-margin band, at least 5 trials), ``differs`` (the 95% interval excludes the band) or
-``inconclusive``; a fitted number's verdict is ``fitted``, whatever its interval. The margin is the
-larger of 10% of the paper's value and the paper's own +- (:func:`inference.margin_for`), stated
-per row. The last column says what explains the gap: a callable that :func:`build` takes
-(``explain``); by default, where the logs hold an audit of the row's task,
-:func:`lagrseq.analysis.audit.gap_explained_by` (the audit rows that account for the gap, with
-their sum, or ``unexplained``), else a link to the item.
+For each reference value of a table item (Table 2, Table 3, the stack-size ratios), the query
+reductions those tables imply (1 - LaGR-SEQ / LaGR) and the trends the paper claims over a table's
+rows (Table 2: queries rise with tau, SEQ's reduction holds across tau; the appendix: LaGR's
+advantage grows with stack size), one row per source the logs hold: what made the number
+(:mod:`lagrseq.analysis.provenance`), lagrseq's mean with its 95% interval and n (counts and ratios
+on the log scale, so it never leaves their range; a slope's t interval), and a verdict:
+
+* against a paper value, a two-sample Welch TOST of lagrseq's mean against the paper's value with
+  the paper's own ± (a standard error) and n (:func:`lagrseq.analysis.inference.tost`):
+  ``reproduced`` (the 90% interval of the difference lies inside ± margin), ``differs`` (the 95%
+  interval lies outside) or ``inconclusive``;
+* for a trend, the slope against a threshold (:func:`lagrseq.analysis.inference.above`);
+* ``fitted`` for a fitted number whatever its interval; **no verdict** where any trial's first
+  accepted answer came from a fallback (:func:`lagrseq.analysis.provenance.decided_by_fallback`;
+  the row says how many trials), where lagrseq has fewer than
+  :data:`lagrseq.analysis.inference.MIN_N_REPRODUCED` trials, or where the paper gives no value.
+
+Every margin and threshold, its scale and why, is in one table, :mod:`lagrseq.analysis.margins`,
+fixed from the paper's numbers. Beside the paper's stack-size ratio (total return over 100
+episodes, ~1 by construction once Q-learning levels off) the table adds lagrseq's early measure:
+the same ratio over the first :data:`lagrseq.analysis.margins.EARLY_EPISODES` episodes. The last
+column says what explains the gap: a callable that :func:`build` takes (``explain``); by default,
+where the logs hold an audit of the row's task, :func:`lagrseq.analysis.audit.gap_explained_by`
+(within the row's margin), else a link to the item.
 """
 
 from __future__ import annotations
