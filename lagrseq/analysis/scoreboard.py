@@ -118,15 +118,6 @@ def paper_estimate(item_id: str, text: str) -> inference.Estimate | None:
     return inference.paper_estimate(value, spread, sample.n, sample.spread)
 
 
-def margin_reason(value: float, spread: float | None) -> str:
-    """Why :func:`inference.margin_for`'s margin is what it is (10% of the paper's value, or its
-    own ± where larger): the rule the audits' gap column falls back to."""
-    relative = inference.RELATIVE_MARGIN * abs(value)
-    if spread is not None and abs(spread) > relative:
-        return "the paper's ±"
-    return f"{inference.RELATIVE_MARGIN:.0%} of the paper's value"
-
-
 def default_explanation(audits: Sequence[audit.Audit | str]) -> Explain:
     """The default "gap explained by": where the logs hold an audit of the row's task, the audit
     rows that account for the gap (:func:`lagrseq.analysis.audit.gap_explained_by`, within the
@@ -171,10 +162,6 @@ def _part(runs: Sequence[Run], estimate: inference.Estimate, shown: inference.In
 def _count_part(run: Run) -> _Part:
     estimate = inference.mean_estimate(_queries(run))
     return _part([run], estimate, estimate.log_interval(0.95))
-
-
-def _trend_text(m: margins.Margin) -> str:
-    return f"{m.trend}: threshold {m.value:+.4g} {m.scale}: {m.why}"
 
 
 def build(
@@ -246,6 +233,7 @@ def build(
             "test_low95": d95.low,
             "test_high95": d95.high,
             "fallback_decided": part.decided,
+            "fallback_trials": part.trials,
             "verdict": verdict,
             "verdict_reason": reason,
             "test_verdict": judged_verdict,
