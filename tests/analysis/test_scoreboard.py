@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy import stats
 
 from lagrseq import config as cfg
@@ -138,6 +140,16 @@ def test_intervals_of_counts_and_reductions_stay_inside_their_range() -> None:
     assert data.loc[SEQ_CELL, "ci_low"] > 0 and data.loc[LAGR_CELL, "ci_low"] > 0
     assert data.loc[REDUCTION, "ci_high"] < 100
     assert inference.t_interval([2.0, 80.0]).low < 0  # what it replaces
+
+
+@settings(max_examples=20, deadline=None)
+@given(seq=st.lists(st.integers(0, 500), min_size=2, max_size=12), lagr=st.lists(st.integers(1, 900), min_size=2, max_size=12))
+def test_every_count_and_reduction_interval_on_the_board_stays_in_range(seq: list[int], lagr: list[int]) -> None:
+    data = _board([float(v) for v in seq], [float(v) for v in lagr])
+    for cell in (SEQ_CELL, LAGR_CELL):
+        assert data.loc[cell, "ci_low"] >= 0 and data.loc[cell, "ci_low"] <= data.loc[cell, "mean"] <= data.loc[cell, "ci_high"]
+    if sum(seq) > 0:
+        assert data.loc[REDUCTION, "ci_low"] <= data.loc[REDUCTION, "mean"] <= data.loc[REDUCTION, "ci_high"] < 100
 
 
 def test_a_fitted_number_is_fitted_however_well_it_matches() -> None:
