@@ -10,7 +10,15 @@ Verdicts are three-way and never read from overlapping intervals:
 * :func:`equivalence` compares trials with a published value and a stated margin (two one-sided
   tests, TOST): ``reproduced`` when the (1 - 2 alpha) interval lies inside ``value +- margin``,
   ``differs`` when the (1 - alpha) interval lies entirely outside that band, else
-  ``inconclusive``. ``reproduced`` also needs ``min_n`` trials.
+  ``inconclusive``; fewer than ``min_n`` trials gives no verdict either way.
+* :func:`tost` is the same verdict against a paper value that has its own uncertainty (the
+  paper's ± and n, :func:`paper_estimate`): a two-sample Welch TOST on the difference, with
+  Welch-Satterthwaite degrees of freedom; :func:`above` judges a directional claim (a trend's
+  slope, :func:`contrast` with :func:`slope_weights`) against a threshold. Fewer than
+  :data:`MIN_N_REPRODUCED` trials is :data:`NO_VERDICT` in every one of them.
+* :class:`Estimate` carries a value with its standard error and degrees of freedom;
+  :meth:`Estimate.log_interval` is the interval of a positive quantity (a count's mean, a ratio)
+  on the log scale, which never leaves (0, inf).
 * :func:`noninferiority` compares a treatment with a control on an outcome and a margin (one-sided
   Welch test at level alpha): ``non-inferior``, ``inferior`` or ``inconclusive``; fewer than
   ``min_n`` trials in either arm is always ``inconclusive``.
