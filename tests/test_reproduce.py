@@ -327,15 +327,33 @@ def _rows(path: Path) -> list[dict[str, str]]:
     return list(csv.DictReader(io.StringIO(path.read_text())))
 
 
+INTERVAL = ("ci_low", "ci_high")
+
+
 def _same_numbers(fresh: dict[str, str], committed: dict[str, str]) -> None:
     """Equal cells; numbers may differ in the 6th significant digit (the CSV's precision), the
-    only place a different platform's floating point could show."""
+    only place a different platform's floating point could show. The interval columns are derived
+    numbers: the fresh interval must be the current rule (issue 34: counts and ratios on the log
+    scale) applied to the committed mean, standard error and n, whichever rule made the committed
+    report (the committed interval is that, to the CSV's precision, once the report is
+    regenerated)."""
+    from lagrseq.analysis.inference import Estimate
+
     assert fresh.keys() == committed.keys()
     for key, value in fresh.items():
+        if key in INTERVAL:
+            continue
         try:
             assert float(value) == pytest.approx(float(committed[key]), rel=2e-6), key
         except ValueError:
             assert value == committed[key], key
+    if INTERVAL[0] not in fresh:
+        return
+    mean, se = (committed["mean"], committed["se"]) if "mean" in committed else (committed["ratio_mean"], committed["ratio_se"])
+    n = int(committed["n"])
+    rule = Estimate(float(mean), float(se), n - 1, n).log_interval(0.95)
+    for key, expected in zip(INTERVAL, (rule.low, rule.high), strict=True):
+        assert float(fresh[key]) == pytest.approx(expected, rel=5e-5), key
 
 
 @pytest.mark.skipif(not (COMMITTED / "tables").is_dir(), reason="no committed reports/reference/")

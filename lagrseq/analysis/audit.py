@@ -633,11 +633,13 @@ def gap_explained_by(
     measured: float,
     paper: str,
     config: dict[str, Any] | None = None,
+    margin: float | None = None,
 ) -> str | None:
     """What accounts for the gap between a measured value and the paper's (a scoreboard row):
     the audit rows of ``task`` whose measured effects on ``quantity``, from ``preset``, add up to
     the gap ``paper - measured`` within the equivalence margin
-    (:func:`lagrseq.analysis.inference.margin_for`: 10% of the paper's value or its own +-), with
+    (``margin``: the scoreboard's, :mod:`lagrseq.analysis.margins`; without one,
+    :func:`lagrseq.analysis.inference.margin_for`: 10% of the paper's value or its own +-), with
     their sum; or the interaction run that does so (fields switched together); or ``partly``, or
     ``unexplained``. Only effects marked by the audit (Holm, enough trials) count, or, where none
     is marked, intervals that exclude 0 on fewer trials (said to be indicative). A row the audit
@@ -664,7 +666,8 @@ def gap_explained_by(
     if found is None or not math.isfinite(measured):
         return f"not audited: no paper number to compare ({anchor})"
     value = float(found.group(1))
-    margin = inference.margin_for(value, float(found.group(2)) if found.group(2) else None)
+    if margin is None or not math.isfinite(margin):
+        margin = inference.margin_for(value, float(found.group(2)) if found.group(2) else None)
     gap = value - measured
     if abs(gap) <= margin:
         return f"no gap beyond the margin (gap {_signed(gap)}, margin ±{margin:.3g})"

@@ -181,29 +181,32 @@ def bars(
     items: Sequence[Bar],
     ax: Axes | None = None,
     *,
-    ylabel: str = "LLM queries per trial (mean ± s.e.)",
+    ylabel: str = "LLM queries per trial\n(mean, 95% t interval, log scale)",
     title: str | None = None,
 ) -> Axes:
-    """Bars of the mean with standard-error error bars (Fig. 6), each labelled mean ± s.e."""
+    """Bars of the mean with error bars that are the tables' intervals (each summary's
+    ``ci_low``/``ci_high``: for queries, the 95% t interval on the log scale, which never reaches
+    below 0), each bar labelled with its mean."""
     ax = new_axes() if ax is None else ax
     positions = np.arange(len(items))
     means = np.array([b.summary.mean for b in items])
-    errors = np.array([0.0 if math.isnan(b.summary.se) else b.summary.se for b in items])
+    below = np.array([0.0 if math.isnan(b.summary.ci_low) else b.summary.mean - b.summary.ci_low for b in items])
+    above = np.array([0.0 if math.isnan(b.summary.ci_high) else b.summary.ci_high - b.summary.mean for b in items])
     ax.bar(
         positions,
         means,
-        yerr=errors,
+        yerr=np.vstack([below, above]) if len(items) else None,
         width=0.6,
         color=[COLORS[i % len(COLORS)] for i in range(len(items))],
         capsize=6,
         error_kw={"elinewidth": 1.2},
     )
-    top = float(np.nanmax(means + errors)) if len(items) else 1.0
-    for x, b, err in zip(positions.tolist(), items, errors.tolist(), strict=True):
+    top = float(np.nanmax(means + above)) if len(items) else 1.0
+    for x, b, err in zip(positions.tolist(), items, above.tolist(), strict=True):
         text = (
             f"{b.summary.mean:.1f}"
-            if math.isnan(b.summary.se)
-            else f"{b.summary.mean:.1f} ± {err:.1f}"
+            if math.isnan(b.summary.ci_low)
+            else f"{b.summary.mean:.1f} [{b.summary.ci_low:.1f}, {b.summary.ci_high:.1f}]"
         )
         ax.text(x, b.summary.mean + err + 0.02 * top, text, ha="center", va="bottom", fontsize=9)
     ax.set_xticks(positions, [f"{b.label}\n(n={b.summary.n})" for b in items])

@@ -55,6 +55,7 @@ from matplotlib.lines import Line2D
 from matplotlib.ticker import FixedLocator, FuncFormatter, NullLocator
 
 from lagrseq.analysis import inference, stats
+from lagrseq.analysis import provenance as prov
 from lagrseq.analysis.figures import COLORS, STYLE
 from lagrseq.analysis.loading import Run, load
 from lagrseq.analysis.misses import missed, on_store, percent
@@ -297,11 +298,7 @@ def point_of(run: Run, price: Price | None, fallback_tokens: tuple[float, float]
         fallback = np.array([float(((sent["trial"] == t) & missing).sum()) for t in trials])
     else:
         fallback = np.zeros(len(trials))
-    outside = np.zeros(len(trials), dtype=bool)
-    if recorded and len(sent):
-        taken = sent[sent["accepted"].fillna(False).astype(bool)].sort_values(["trial", "global_step"])
-        first = taken.groupby("trial")["source"].first()
-        outside = np.array([t in first.index and first[t] not in stored_sources() for t in trials], dtype=bool)
+    outside = np.array(prov.decided_by_fallback(run), dtype=bool)
     dollars, estimated = _dollars(run, price, fallback_tokens)
     metadata = _metadata(run)
     return Point(

@@ -3,15 +3,22 @@
 A reproduction is judged on 3 to 20 trials per cell. Percentile-bootstrap intervals under-cover
 there (nominal 95% covers about 76% of normal means at n = 3 and 84% at n = 5); Student's t
 interval has its nominal coverage for normal data at every n >= 2, so every verdict here is built
-on it (Welch's version for a difference of two means). The t distribution is computed here, from
-the regularized incomplete beta function, so the analysis layer needs nothing beyond numpy.
+on it (Welch's version for a difference of two means). The t distribution is ``scipy.stats.t``.
 
 Verdicts are three-way and never read from overlapping intervals:
 
 * :func:`equivalence` compares trials with a published value and a stated margin (two one-sided
   tests, TOST): ``reproduced`` when the (1 - 2 alpha) interval lies inside ``value +- margin``,
   ``differs`` when the (1 - alpha) interval lies entirely outside that band, else
-  ``inconclusive``. ``reproduced`` also needs ``min_n`` trials.
+  ``inconclusive``; fewer than ``min_n`` trials gives no verdict either way.
+* :func:`tost` is the same verdict against a paper value that has its own uncertainty (the
+  paper's ± and n, :func:`paper_estimate`): a two-sample Welch TOST on the difference, with
+  Welch-Satterthwaite degrees of freedom; :func:`above` judges a directional claim (a trend's
+  slope, :func:`contrast` with :func:`slope_weights`) against a threshold. Fewer than
+  :data:`MIN_N_REPRODUCED` trials is :data:`NO_VERDICT` in every one of them.
+* :class:`Estimate` carries a value with its standard error and degrees of freedom;
+  :meth:`Estimate.log_interval` is the interval of a positive quantity (a count's mean, a ratio)
+  on the log scale, which never leaves (0, inf).
 * :func:`noninferiority` compares a treatment with a control on an outcome and a margin (one-sided
   Welch test at level alpha): ``non-inferior``, ``inferior`` or ``inconclusive``; fewer than
   ``min_n`` trials in either arm is always ``inconclusive``.
@@ -30,102 +37,45 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import t as _t
 
 REPRODUCED = "reproduced"
 DIFFERS = "differs"
 INCONCLUSIVE = "inconclusive"
 FITTED = "fitted"
+NO_VERDICT = "no verdict"
+"""Not a verdict: what a row says where none may be given (fewer than :data:`MIN_N_REPRODUCED`
+trials, a fallback decided a trial, no paper value)."""
 NON_INFERIOR = "non-inferior"
 INFERIOR = "inferior"
 
 ALPHA = 0.05
 MIN_N_REPRODUCED = 5
-"""No cell is called reproduced on fewer trials than this."""
+"""No verdict (reproduced or differs) on fewer trials than this: below it a t interval is honest
+but so wide (t(0.975, 3) = 3.18) that a verdict would rest on one or two trials."""
 MIN_N_NONINFERIORITY = 10
 """No policy is called non-inferior (or inferior) on fewer evaluation trials than this."""
 RELATIVE_MARGIN = 0.10
 """The default equivalence margin: 10% of the paper's value, or the paper's own +- if larger."""
 
 
-# -- Student's t distribution ---------------------------------------------------------------------
-
-
-def _betacf(a: float, b: float, x: float) -> float:
-    """Continued fraction of the incomplete beta function (modified Lentz)."""
-    tiny = 1e-300
-    qab, qap, qam = a + b, a + 1.0, a - 1.0
-    c, d = 1.0, 1.0 - qab * x / qap
-    d = 1.0 / (d if abs(d) > tiny else tiny)
-    h = d
-    for m in range(1, 500):
-        m2 = 2 * m
-        aa = m * (b - m) * x / ((qam + m2) * (a + m2))
-        d = 1.0 + aa * d
-        d = 1.0 / (d if abs(d) > tiny else tiny)
-        c = 1.0 + aa / c
-        c = c if abs(c) > tiny else tiny
-        h *= d * c
-        aa = -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2))
-        d = 1.0 + aa * d
-        d = 1.0 / (d if abs(d) > tiny else tiny)
-        c = 1.0 + aa / c
-        c = c if abs(c) > tiny else tiny
-        delta = d * c
-        h *= delta
-        if abs(delta - 1.0) < 1e-15:
-            break
-    return h
-
-
-def _betainc(a: float, b: float, x: float) -> float:
-    """Regularized incomplete beta function I_x(a, b)."""
-    if x <= 0.0:
-        return 0.0
-    if x >= 1.0:
-        return 1.0
-    log_front = (
-        math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b) + a * math.log(x) + b * math.log1p(-x)
-    )
-    front = math.exp(log_front)
-    if x < (a + 1.0) / (a + b + 2.0):
-        return front * _betacf(a, b, x) / a
-    return 1.0 - front * _betacf(b, a, 1.0 - x) / b
+# -- Student's t distribution (scipy.stats) --------------------------------------------------------
 
 
 def t_cdf(t: float, df: float) -> float:
-    """P(T <= t) for Student's t with ``df`` degrees of freedom (df > 0)."""
+    """P(T <= t) for Student's t with ``df`` degrees of freedom (df > 0): ``scipy.stats.t``."""
     if not df > 0:
         raise ValueError(f"degrees of freedom must be positive, got {df}")
-    if math.isnan(t):
-        return math.nan
-    if math.isinf(t):
-        return 1.0 if t > 0 else 0.0
-    tail = 0.5 * _betainc(df / 2.0, 0.5, df / (df + t * t))
-    return 1.0 - tail if t > 0 else tail
+    return float(_t.cdf(t, df))
 
 
 def t_ppf(p: float, df: float) -> float:
     """The ``p`` quantile of Student's t with ``df`` degrees of freedom (0 < p < 1)."""
     if not 0.0 < p < 1.0:
         raise ValueError(f"probability must lie strictly between 0 and 1, got {p}")
-    if p == 0.5:
-        return 0.0
-    if p < 0.5:
-        return -t_ppf(1.0 - p, df)
-    low, high = 0.0, 1.0
-    while t_cdf(high, df) < p:
-        low, high = high, high * 2.0
-        if high > 1e12:
-            return math.inf
-    for _ in range(200):  # bisection: monotone, exact to the float's resolution
-        mid = 0.5 * (low + high)
-        if t_cdf(mid, df) < p:
-            low = mid
-        else:
-            high = mid
-        if high - low <= 1e-12 * max(1.0, high):
-            break
-    return 0.5 * (low + high)
+    if not df > 0:
+        raise ValueError(f"degrees of freedom must be positive, got {df}")
+    return float(_t.ppf(p, df))
 
 
 # -- intervals ------------------------------------------------------------------------------------
@@ -229,6 +179,115 @@ def welch_p(x: Sequence[float] | np.ndarray, y: Sequence[float] | np.ndarray) ->
     return 2.0 * (1.0 - t_cdf(abs(diff) / se, df))
 
 
+# -- estimates with a standard error: lagrseq's and the paper's -----------------------------------
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A mean-like number with its standard error and Student-t degrees of freedom: lagrseq's
+    mean over ``n`` trials, a paper value with its reported ``±`` (:func:`paper_estimate`), a
+    ratio of two means or a contrast of several (``n``: the smallest arm's count). ``se`` is NaN
+    with fewer than 2 values (no interval); 0 with no spread (an exact value)."""
+
+    value: float
+    se: float
+    df: float
+    n: int
+
+    def interval(self, level: float = 0.95) -> Interval:
+        """The t interval ``value ± t(df) se`` (no range: a difference or a slope)."""
+        if math.isnan(self.se) or math.isnan(self.value):
+            return Interval(self.n, self.value, math.nan, math.nan, level)
+        half = t_ppf(0.5 + level / 2.0, self.df) * self.se if self.se > 0 else 0.0
+        return Interval(self.n, self.value, self.value - half, self.value + half, level)
+
+    def log_interval(self, level: float = 0.95) -> Interval:
+        """The interval of a positive quantity (a count's mean, a ratio) on the log scale:
+        ``value * exp(± t(df) se / value)`` (the delta method for ``log(value)``), so it never
+        leaves (0, inf); a value of 0 with no spread is [0, 0]; NaN bounds for a value <= 0 with
+        spread (no log scale) or without a standard error."""
+        if math.isnan(self.se) or math.isnan(self.value):
+            return Interval(self.n, self.value, math.nan, math.nan, level)
+        if self.se == 0.0:
+            return Interval(self.n, self.value, self.value, self.value, level)
+        if self.value <= 0.0:
+            return Interval(self.n, self.value, math.nan, math.nan, level)
+        half = t_ppf(0.5 + level / 2.0, self.df) * self.se / self.value
+        return Interval(self.n, self.value, self.value * math.exp(-half), self.value * math.exp(half), level)
+
+
+def satterthwaite(variances: Sequence[float], dfs: Sequence[float]) -> float:
+    """Welch-Satterthwaite degrees of freedom of a sum of independent variance terms (each a
+    squared standard error with its own degrees of freedom); a term with variance 0 adds none."""
+    total = float(sum(variances))
+    denominator = sum(v * v / d for v, d in zip(variances, dfs, strict=True) if v > 0)
+    if total == 0.0 or denominator == 0.0:
+        return float(sum(dfs))
+    return total * total / denominator
+
+
+def mean_estimate(values: Sequence[float] | np.ndarray) -> Estimate:
+    """The mean of the finite ``values``, its standard error and ``n - 1`` degrees of freedom."""
+    x = _finite(values)
+    n = int(x.size)
+    if n == 0:
+        return Estimate(math.nan, math.nan, math.nan, 0)
+    if n < 2:
+        return Estimate(float(x.mean()), math.nan, math.nan, n)
+    return Estimate(float(x.mean()), float(x.std(ddof=1)) / math.sqrt(n), float(n - 1), n)
+
+
+def paper_estimate(value: float, plus_minus: float, n: int, spread: str = "se") -> Estimate:
+    """A paper's ``value ± plus_minus`` over ``n`` runs as an estimate: ``spread`` says what the
+    ± is, ``se`` (a standard error: as it stands) or ``sd`` (a standard deviation: divided by
+    sqrt(n)); ``n - 1`` degrees of freedom."""
+    if n < 2:
+        raise ValueError(f"a paper value needs n >= 2 runs for a standard error, got {n}")
+    if spread not in ("se", "sd"):
+        raise ValueError(f"the paper's ± is a standard error (se) or a standard deviation (sd), got {spread!r}")
+    se = abs(plus_minus) if spread == "se" else abs(plus_minus) / math.sqrt(n)
+    return Estimate(float(value), se, float(n - 1), n)
+
+
+def ratio_estimate(top: Estimate, bottom: Estimate) -> Estimate:
+    """``top / bottom`` of two independent estimates (e.g. queries with and without SEQ): the delta
+    method's standard error ``|r| sqrt(se_t^2 / t^2 + se_b^2 / b^2)`` with Welch-Satterthwaite
+    degrees of freedom of the two relative variances (NaN with a zero denominator)."""
+    n = min(top.n, bottom.n)
+    if bottom.value == 0.0 or math.isnan(bottom.value) or math.isnan(top.value):
+        return Estimate(math.nan, math.nan, math.nan, n)
+    ratio = top.value / bottom.value
+    if math.isnan(top.se) or math.isnan(bottom.se) or top.value == 0.0:
+        return Estimate(ratio, math.nan, math.nan, n)
+    rt, rb = (top.se / top.value) ** 2, (bottom.se / bottom.value) ** 2
+    return Estimate(ratio, abs(ratio) * math.sqrt(rt + rb), satterthwaite((rt, rb), (top.df, bottom.df)), n)
+
+
+def contrast(estimates: Sequence[Estimate], weights: Sequence[float]) -> Estimate:
+    """``sum(w_i * value_i)`` of independent estimates (a slope, a difference of rows), its
+    standard error ``sqrt(sum(w_i^2 se_i^2))`` and Welch-Satterthwaite degrees of freedom."""
+    if len(estimates) != len(weights) or not estimates:
+        raise ValueError(f"a contrast needs one weight per estimate, got {len(estimates)} and {len(weights)}")
+    n = min(e.n for e in estimates)
+    value = float(sum(w * e.value for e, w in zip(estimates, weights, strict=True)))
+    if any(math.isnan(e.se) for e, w in zip(estimates, weights, strict=True) if w != 0.0):
+        return Estimate(value, math.nan, math.nan, n)
+    variances = [w * w * e.se * e.se for e, w in zip(estimates, weights, strict=True)]
+    return Estimate(value, math.sqrt(sum(variances)), satterthwaite(variances, [e.df for e in estimates]), n)
+
+
+def slope_weights(xs: Sequence[float]) -> list[float]:
+    """Least-squares slope weights of means at ``xs``: ``(x_i - mean(x)) / sum((x - mean(x))^2)``
+    (with two points, the difference over the distance; three equally spaced points, the last
+    minus the first over the range)."""
+    x = np.asarray(xs, dtype=float)
+    centred = x - x.mean()
+    spread = float((centred**2).sum())
+    if x.size < 2 or spread == 0.0:
+        raise ValueError(f"a slope needs at least two distinct x values, got {list(xs)}")
+    return [float(c / spread) for c in centred]
+
+
 # -- verdicts -------------------------------------------------------------------------------------
 
 
@@ -269,19 +328,65 @@ def judge(inner: Interval, wide: Interval, target: float, margin: float, min_n: 
     """The three-way verdict from intervals already computed: ``inner`` at (1 - 2 alpha), which
     must lie inside ``target +- margin`` for ``reproduced``, and ``wide`` at (1 - alpha), which
     must exclude that band for ``differs`` (:func:`equivalence` for a mean; any other estimate
-    with an interval, such as :func:`ratio_interval`, is judged the same way)."""
+    with an interval, such as :func:`ratio_interval`, is judged the same way). Fewer than
+    ``min_n`` trials is :data:`NO_VERDICT` either way."""
     if not (math.isfinite(target) and math.isfinite(margin) and margin >= 0):
         raise ValueError(f"target and margin must be finite (margin >= 0), got {target}, {margin}")
     low_band, high_band = target - margin, target + margin
-    if inner.n < 2 or math.isnan(inner.low) or math.isnan(wide.low):
+    if inner.n < min_n:
+        return Equivalence(NO_VERDICT, target, margin, inner, wide, f"n = {inner.n} < {min_n}: no verdict below {min_n} trials")
+    if math.isnan(inner.low) or math.isnan(wide.low):
         return Equivalence(INCONCLUSIVE, target, margin, inner, wide, f"n = {inner.n}: no interval")
     if wide.high < low_band or wide.low > high_band:
         return Equivalence(DIFFERS, target, margin, inner, wide, "the interval excludes the margin band")
     if low_band <= inner.low and inner.high <= high_band:
-        if inner.n < min_n:
-            return Equivalence(INCONCLUSIVE, target, margin, inner, wide, f"n = {inner.n} < {min_n}")
         return Equivalence(REPRODUCED, target, margin, inner, wide, "the interval lies inside the margin")
     return Equivalence(INCONCLUSIVE, target, margin, inner, wide, "the interval overlaps the margin's edge")
+
+
+def tost(ours: Estimate, paper: Estimate, margin: float, alpha: float = ALPHA, min_n: int = MIN_N_REPRODUCED) -> Equivalence:
+    """Two-sample Welch TOST of lagrseq's estimate against the paper's (its value, its ± as a
+    standard error, its n: :func:`paper_estimate`): the difference ``ours - paper``, its standard
+    error ``sqrt(se_ours^2 + se_paper^2)`` and Welch-Satterthwaite degrees of freedom.
+    ``reproduced`` when its (1 - 2 alpha) interval lies inside ``± margin``, ``differs`` when its
+    (1 - alpha) interval lies outside, else ``inconclusive``; fewer than ``min_n`` of lagrseq's
+    trials is :data:`NO_VERDICT`. ``interval``/``wide`` of the result are the difference's."""
+    difference = contrast([ours, paper], [1.0, -1.0])
+    inner, wide = difference.interval(1.0 - 2.0 * alpha), difference.interval(1.0 - alpha)
+    inner = Interval(ours.n, inner.mean, inner.low, inner.high, inner.level)
+    return judge(inner, wide, 0.0, margin, min_n)
+
+
+@dataclass(frozen=True)
+class Directional:
+    """The verdict on a directional claim (a trend the paper states): lagrseq's ``estimate`` (a
+    slope or a contrast) against ``threshold``; ``inner``/``wide`` its (1 - 2 alpha) and
+    (1 - alpha) intervals."""
+
+    verdict: str
+    estimate: Estimate
+    threshold: float
+    inner: Interval
+    wide: Interval
+    reason: str
+
+
+def above(estimate: Estimate, threshold: float, alpha: float = ALPHA, min_n: int = MIN_N_REPRODUCED) -> Directional:
+    """Whether ``estimate`` lies above ``threshold``: ``reproduced`` when its one-sided (1 - alpha)
+    lower bound (the (1 - 2 alpha) interval's low end) lies above it, ``differs`` when its
+    (1 - alpha) interval lies entirely below it, else ``inconclusive``; fewer than ``min_n``
+    trials in an arm is :data:`NO_VERDICT`. For "rises" the threshold is a smallest rise worth
+    the name; for "holds" (does not fall) minus a largest fall that still holds."""
+    inner, wide = estimate.interval(1.0 - 2.0 * alpha), estimate.interval(1.0 - alpha)
+    if estimate.n < min_n:
+        return Directional(NO_VERDICT, estimate, threshold, inner, wide, f"n = {estimate.n} < {min_n}: no verdict below {min_n} trials")
+    if math.isnan(inner.low) or math.isnan(wide.high):
+        return Directional(INCONCLUSIVE, estimate, threshold, inner, wide, "no interval")
+    if inner.low > threshold:
+        return Directional(REPRODUCED, estimate, threshold, inner, wide, "the lower bound lies above the threshold")
+    if wide.high < threshold:
+        return Directional(DIFFERS, estimate, threshold, inner, wide, "the interval lies below the threshold")
+    return Directional(INCONCLUSIVE, estimate, threshold, inner, wide, "the interval straddles the threshold")
 
 
 @dataclass(frozen=True)

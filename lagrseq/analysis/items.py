@@ -200,16 +200,10 @@ def run_misses(run: Run) -> Misses | None:
 def fallback_decided(run: Run) -> tuple[int, int]:
     """(trials whose first accepted answer came from a fallback rather than the recorded store,
     trials): in those trials the fallback, not the recorded model, decided when the agent first
-    got a usable suggestion. A trial with no accepted answer counts as not decided by it."""
-    trials = len(run.trials)
-    if run.queries.empty:
-        return 0, trials
-    asked = run.queries[run.queries["queried"].fillna(False).astype(bool) & run.queries["accepted"].fillna(False).astype(bool)]
-    decided = 0
-    for _, group in asked.groupby("trial", sort=True):
-        first = group.sort_values(["global_step", "step"], kind="stable").iloc[0]
-        decided += str(first["source"] or "") not in stored_sources()
-    return decided, trials
+    got a usable suggestion (:func:`lagrseq.analysis.provenance.decided_by_fallback`). A trial
+    with no accepted answer counts as not decided by it."""
+    decided = prov.decided_by_fallback(run)
+    return sum(decided), len(decided)
 
 
 def made_by(run: Run) -> str:
@@ -333,9 +327,10 @@ def build_returns(item: Item, matched: Sequence[Match]) -> Built:
 
 
 def _summary_row(label: str, values: np.ndarray, run: Run) -> tuple[stats.Summary, dict[str, Any]]:
-    """Summary of per-trial values with Student's t interval of the mean (the same for one run in
-    every table that shows it), and the provenance of the run."""
-    s = stats.summarize_t(values)
+    """Summary of per-trial counts with the t interval of the mean on the log scale (the same for
+    one run in every table and figure that shows it; it never reaches below 0), and the
+    provenance of the run."""
+    s = stats.summarize_t(values, positive=True)
     row = {
         "label": label,
         "provenance": made_by(run),
@@ -372,11 +367,11 @@ def build_query_bars(item: Item, matched: Sequence[Match]) -> Built:
     axes = figures.bars(bars, title=item.title)
     table = Table(
         f"{item.title}: LLM queries per trial",
-        ("", "made by", "trials", "mean ± s.e.", "std", "95% t-interval"),
+        ("", "made by", "trials", "mean ± s.e.", "std", "95% t interval (log scale)"),
         tuple(display),
         pd.DataFrame(rows),
     )
-    method = "LLM queries per trial (summed over its episodes), mean with standard-error bars; 95% Student-t interval of the mean in the table; each bar says what made it (provenance)."
+    method = "LLM queries per trial (summed over its episodes): bars are means, error bars the table's 95% t interval of the mean on the log scale (asymmetric, never below 0; the table also gives mean ± s.e.); each bar says what made it (provenance)."
     return Built(axes, pd.DataFrame(rows), [(item.id, table)], method)
 
 
@@ -447,7 +442,7 @@ def build_query_table(item: Item, matched: Sequence[Match]) -> Built:
         tuple(display),
         pd.DataFrame(data),
     )
-    method = "LLM queries per run (trial), mean ± standard error over trials (n per cell), next to the paper's values, each row with what made it (provenance); the CSV adds the standard deviation and a 95% Student-t interval. On recorded answers, each cell shows its misses (answers the store lacked: k of n, refused or answered by a fallback that can be right) and, for such a fallback, the trials whose first accepted answer came from it."
+    method = "LLM queries per run (trial), mean ± standard error over trials (n per cell), next to the paper's values, each row with what made it (provenance); the CSV adds the standard deviation and a 95% t interval of the mean on the log scale (it never reaches below 0). On recorded answers, each cell shows its misses (answers the store lacked: k of n, refused or answered by a fallback that can be right) and, for such a fallback, the trials whose first accepted answer came from it."
     return Built(None, None, [(item.id, table)], method)
 
 
@@ -469,7 +464,7 @@ def build_ratio_table(item: Item, matched: Sequence[Match]) -> Built:
         if top is None or bottom is None:
             return None
         values = stats.paired_ratios(top.total_per_trial("return"), bottom.total_per_trial("return"))
-        return stats.summarize_t(values), top, bottom
+        return stats.summarize_t(values, positive=True), top, bottom
 
     def shown(made: tuple[stats.Summary, Run, Run] | None, row: str, column: str) -> str:
         if made is None:
@@ -535,7 +530,7 @@ def build_ratio_table(item: Item, matched: Sequence[Match]) -> Built:
     beside_text = "".join(f"; {c}'s ratio over the same trials beside it" for c in others)
     method = (
         f"Per trial, the total return of {numerator} divided by that of {denominator} with the same trial index "
-        f"(same seed){beside_text}; mean ± standard error over trials (n per cell), and a 95% Student-t interval in the CSV."
+        f"(same seed){beside_text}; mean ± standard error over trials (n per cell), and a 95% t interval of the mean on the log scale in the CSV (a ratio of returns is positive; the interval stays so)."
     )
     return Built(None, None, [(item.id, table)], method)
 

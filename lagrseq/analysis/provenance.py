@@ -106,3 +106,32 @@ def combined(parts: list[Provenance]) -> Provenance:
     if not chosen:
         return Provenance(UNKNOWN, "no run")
     return min(chosen, key=lambda p: order.index(p.kind) if p.kind in order else 0)
+
+
+def replays(run: Any) -> bool:
+    """Whether a loaded run's provider replays stored answers (a recorded store)."""
+    spec = kind_of(str(run.key.provider))
+    return spec is not None and spec.replays
+
+
+def decided_by_fallback(run: Any) -> list[bool]:
+    """Per trial of a loaded run (in ``run.trials`` order): whether its first accepted answer came
+    from a fallback rather than the stored answers it replays (any ``source`` other than a stored
+    one: the rule-based mock answering a miss, a ``miss`` record, a live call). In such a trial
+    the fallback, not the named source, decided when the agent first got a usable suggestion, so
+    no verdict may rest on it (the scoreboard, :mod:`lagrseq.analysis.frontier`, the tables'
+    cells). A trial without an accepted answer, and every trial of a run whose provider replays
+    nothing, is not decided by a fallback."""
+    from lagrseq.registry import stored_sources
+
+    trials = list(run.trials)
+    q = run.queries
+    if not replays(run) or q.empty:
+        return [False] * len(trials)
+    taken = q[q["queried"].fillna(False).astype(bool) & q["accepted"].fillna(False).astype(bool)]
+    stored = stored_sources()
+    first: dict[int, bool] = {}
+    for trial, group in taken.groupby("trial", sort=True):
+        row = group.sort_values(["global_step", "step"], kind="stable").iloc[0]
+        first[int(trial)] = str(row["source"] or "") not in stored
+    return [first.get(int(t), False) for t in trials]

@@ -53,18 +53,23 @@ def test_returns_creates_axes_when_none_given() -> None:
     assert isinstance(ax.figure, Figure)
 
 
-def test_bars_have_standard_error_bars_and_labels() -> None:
-    a = stats.summarize([120.0, 130.0, 140.0], stats.generator("a"))
-    b = stats.summarize([280.0, 290.0, 300.0], stats.generator("b"))
+def test_bar_error_bars_are_the_tables_intervals_and_never_reach_below_zero() -> None:
+    """The bars draw each summary's interval (the tables' 95% t interval on the log scale), not
+    mean ± s.e.: asymmetric, and above 0 even for two very different trials."""
+    a = stats.summarize_t([120.0, 130.0, 140.0], positive=True)
+    b = stats.summarize_t([5.0, 290.0], positive=True)
+    assert b.ci_low > 0 and stats.summarize_t([5.0, 290.0]).ci_low < 0  # the plain t interval would
     ax = figures.bars([figures.Bar("LaGR-SEQ", a), figures.Bar("LaGR", b)])
     heights = [p.get_height() for p in ax.patches]
-    assert heights == [130.0, 290.0]
+    assert heights == [130.0, 147.5]
     texts = [t.get_text() for t in ax.texts]
-    assert texts == [f"130.0 ± {a.se:.1f}", f"290.0 ± {b.se:.1f}"]
-    caps = [c for c in ax.get_children() if c.__class__.__name__ == "LineCollection"]
-    assert caps, "error bars are drawn"
+    assert texts == [f"130.0 [{a.ci_low:.1f}, {a.ci_high:.1f}]", f"147.5 [{b.ci_low:.1f}, {b.ci_high:.1f}]"]
+    (lines,) = [c for c in ax.get_children() if c.__class__.__name__ == "LineCollection"]
+    ends = [(float(seg[:, 1].min()), float(seg[:, 1].max())) for seg in lines.get_segments()]
+    assert ends == [(pytest.approx(a.ci_low), pytest.approx(a.ci_high)), (pytest.approx(b.ci_low), pytest.approx(b.ci_high))]
+    assert "95% t interval" in ax.get_ylabel()
     ticks = [t.get_text() for t in ax.get_xticklabels()]
-    assert ticks == ["LaGR-SEQ\n(n=3)", "LaGR\n(n=3)"]
+    assert ticks == ["LaGR-SEQ\n(n=3)", "LaGR\n(n=2)"]
 
 
 def test_bars_with_a_single_trial_show_no_error() -> None:
