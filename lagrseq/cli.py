@@ -196,8 +196,17 @@ def _provider_options(args: argparse.Namespace, elsewhere: tuple[str, ...] = ())
     return provider_options(args.provider, {name: getattr(args, name, None) for name in option_flags()}, elsewhere)
 
 
+def _shown(text: object) -> str:
+    """Outside text for one line of the terminal: every guarded key blanked (:func:`lagrseq.keys.scrub`),
+    control and format characters escaped (:func:`lagrseq.text.printable`)."""
+    from lagrseq.keys import scrub
+    from lagrseq.text import printable
+
+    return printable(scrub(str(text)))
+
+
 def _warn(command: str) -> Callable[[str], None]:
-    return lambda message: print(f"lagrseq {command}: warning: {message}", file=sys.stderr)
+    return lambda message: print(f"lagrseq {command}: warning: {_shown(message)}", file=sys.stderr)
 
 
 def _say(line: str) -> None:
@@ -722,7 +731,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                 config, args.trials, args.seed, args.provider, directory, args.jobs, bar, options,
                 pool=pool, say=_say, retries=args.retries, render_dir=args.render,
                 # a failed trial is named at once above the bar; --quiet: only in the closing line
-                warn=None if args.quiet else (lambda line: bar.write(f"lagrseq run: warning: {line}", file=sys.stderr)),
+                warn=None if args.quiet else (lambda line: bar.write(f"lagrseq run: warning: {_shown(line)}", file=sys.stderr)),
             )
     print(runner.summary(results, directory, args.provider))
     return 0
@@ -797,7 +806,7 @@ def cmd_serve_llm(args: argparse.Namespace) -> int:
     from lagrseq.running.wiring import serve_llm
 
     def say(line: str) -> None:
-        print(f"lagrseq serve-llm: {line}", file=sys.stderr, flush=True)
+        print(f"lagrseq serve-llm: {_shown(line)}", file=sys.stderr, flush=True)
 
     serve_llm(args.model, args.port, args.n_ctx, args.threads, args.log, lambda line: print(line, flush=True), say)
     return 0  # pragma: no cover - serve_llm returns only by an exception
@@ -807,8 +816,8 @@ def cmd_models(args: argparse.Namespace) -> int:
     from lagrseq.running.wiring import model_listing
 
     lines, problems = model_listing(args.paths, hash_files=not args.no_hash, as_json=args.json)
-    if lines:
-        print("\n".join(lines).rstrip("\n"))
+    if lines:  # paths and GGUF metadata are outside text: one line each, escaped
+        print("\n".join(_shown(line) for line in lines).rstrip("\n"))
     if problems:  # the paths the user gave that are not GGUF files: one line, status 2
         raise UsageError("; ".join(problems[:3]) + "; give GGUF model files or directories")
     if not lines:
@@ -874,7 +883,7 @@ def cmd_recover(args: argparse.Namespace) -> int:
         if outcome.ok:
             print(outcome.message)
         else:
-            print(f"lagrseq recover: error: {outcome.message}", file=sys.stderr)
+            print(f"lagrseq recover: error: {_shown(outcome.message)}", file=sys.stderr)
     return 0 if all(outcome.ok for outcome in outcomes) else 2
 
 
@@ -912,7 +921,7 @@ def cmd_frontier(args: argparse.Namespace) -> int:
     )
     made = report(roots, out, price, args.miss_threshold)
     for warning in made.warnings:
-        print(f"lagrseq frontier: warning: {warning}", file=sys.stderr)
+        print(f"lagrseq frontier: warning: {_shown(warning)}", file=sys.stderr)
     for table in made.tables:
         print(table.title)
         for row in table.rows:
@@ -980,7 +989,7 @@ def _print_report(report: Any, elapsed: float | None = None, not_run_said: bool 
         elif r.status == "partial":
             print(f"{r.item.id}: partial; missing {'; '.join(r.missing())}")
     for warning in report.warnings:
-        print(f"warning: {warning}", file=sys.stderr)
+        print(f"warning: {_shown(warning)}", file=sys.stderr)
     took = f" in {elapsed:.1f} s" if elapsed is not None else ""
     print(f"{len(made)} of {len(report.items)} suite items made from {report.logs.files} logs{took}: {report.out / 'index.html'}")
 
@@ -1064,6 +1073,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     words = sys.argv[1:] if argv is None else list(argv)
     # a command named first (the only place argparse takes it): build that command's parser alone
     parser = build_parser(words[0] if words and words[0] in _ADDERS else None)
+    if argv is None:  # the program itself: a name its encoding cannot write is escaped, never a traceback
+        from lagrseq.text import safe_streams
+
+        safe_streams()
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()
@@ -1086,7 +1099,7 @@ def _dispatch(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
     try:
         return COMMANDS[args.command](args)
     except LagrseqError as exc:
-        print(f"lagrseq {args.command}: error: {exc}", file=sys.stderr)
+        print(f"lagrseq {args.command}: error: {_shown(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as stop:
         from lagrseq.running.runner import exit_on_next_interrupt
@@ -1107,9 +1120,9 @@ def _dispatch(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 1
     except OSError as exc:  # the last resort: a full disk, a path that vanished, a read-only file system
-        where = f" ({exc.filename})" if exc.filename else ""
+        where = f" ({os.fsdecode(exc.filename) if isinstance(exc.filename, (str, bytes)) else exc.filename})" if exc.filename else ""
         reason = exc.strerror or str(exc) or type(exc).__name__
-        print(f"lagrseq {args.command}: error: {reason}{where}; nothing finished is lost", file=sys.stderr)
+        print(f"lagrseq {args.command}: error: {_shown(reason + where)}; nothing finished is lost", file=sys.stderr)
         return 2
 
 

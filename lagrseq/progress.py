@@ -39,7 +39,11 @@ def bar(total: float, unit: str = "it", desc: str | None = None, quiet: bool = F
 
 
 def say(line: str) -> None:
-    """Print ``line`` to stdout on a line of its own, above any progress bar on screen."""
+    """Print ``line`` to stdout on a line of its own, above any progress bar on screen (every
+    guarded API key blanked out of it: :func:`lagrseq.keys.scrub`)."""
+    from lagrseq.keys import scrub
+
+    line = scrub(line)
     if "tqdm" not in sys.modules:  # no bar was ever made: a plain line (what tqdm.write prints then)
         print(line, file=sys.stdout, flush=True)
         return

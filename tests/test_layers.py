@@ -35,7 +35,7 @@ LOOP = ("lagrseq.loop", *RUNNING)
 PARTS = ("lagrseq.tasks", "lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", "lagrseq.robot")
 
 LAYERS: dict[str, tuple[str, ...]] = {
-    # base: config, errors, seeding, paths, tomlfile, registry, builtins (stdlib + numpy; the
+    # base: config, errors, seeding, paths, tomlfile, registry, builtins, keys, text (stdlib + numpy; the
     # built-in parts are registered by lazy reference); anyone may import them
     "lagrseq": (*PARTS, *LOOP, *HEAVY, "mcap", "pandas", "matplotlib"),
     # parts: each knows its own interface, none the loop or anything above it
@@ -87,7 +87,7 @@ OPTIONAL = {
 }
 """Modules that need an extra to import at all (the Dask executor, generated gRPC code): checked
 only where it is installed."""
-ANYONE = ("lagrseq.config", "lagrseq.errors", "lagrseq.seeding", "lagrseq.paths", "lagrseq.progress", "lagrseq.tomlfile", "lagrseq.registry", "lagrseq.builtins")
+ANYONE = ("lagrseq.config", "lagrseq.errors", "lagrseq.seeding", "lagrseq.paths", "lagrseq.progress", "lagrseq.tomlfile", "lagrseq.registry", "lagrseq.builtins", "lagrseq.keys", "lagrseq.text")
 
 
 def modules() -> list[str]:

@@ -53,6 +53,7 @@ import diskcache
 import numpy as np
 from diskcache.core import MODE_BINARY, MODE_PICKLE, MODE_RAW
 
+from lagrseq import keys
 from lagrseq.errors import StoreError
 from lagrseq.llm.base import Answer, Query, RecordedAs, Usage
 from lagrseq.llm.records import (
@@ -87,15 +88,15 @@ def endpoint_of(base_url: str) -> str:
         raise StoreError(problem)
     try:
         parts = urlsplit(base_url if "://" in base_url else f"https://{base_url}")
-    except ValueError as exc:  # e.g. an unclosed '[' of an IPv6 host
-        raise StoreError(f"base URL {base_url!r} is not a URL ({exc}); expected e.g. https://api.openai.com/v1") from None
+    except ValueError:  # e.g. an unclosed '[' of an IPv6 host
+        raise StoreError("the base URL (not shown) is not a URL (an unclosed [ of an IPv6 host, or characters no host name holds); expected e.g. https://api.openai.com/v1") from None
     host = (parts.hostname or "").lower()
     if not host:
-        raise StoreError(f"base URL {base_url!r} has no host; expected e.g. https://api.openai.com/v1")
+        raise StoreError("the base URL (not shown) has no host; expected e.g. https://api.openai.com/v1")
     try:
         port = parts.port
     except ValueError:
-        raise StoreError(f"base URL {base_url!r} has a bad port") from None
+        raise StoreError("the base URL (not shown) has a bad port: expected a number from 0 to 65535, e.g. http://127.0.0.1:8000/v1") from None
     if port is not None and port != _DEFAULT_PORTS.get(parts.scheme):
         return f"{host}:{port}"
     return host
@@ -626,10 +627,11 @@ class RecordStore:
             self._entry(key, value)  # a damaged row is named, never extended
         have = {s["id"] for s in value["samples"]}
         added = []
+        guarded = keys.active()  # an answer that echoes a guarded key is stored without it
         for sample in samples:
             if sample.id not in have:
                 have.add(sample.id)
-                added.append(sample.to_json())
+                added.append(keys.scrub_value(sample.to_json()) if guarded else sample.to_json())
         if added:
             value["samples"] = list(value["samples"]) + added
             if value.get("task") is None:
