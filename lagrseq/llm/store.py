@@ -480,6 +480,12 @@ class RecordStore:
         self._closed = False
         if self.directory.exists() and not self.directory.is_dir():
             raise StoreError(f"store path {self.directory} is {kind_of(self.directory.stat().st_mode)}; expected a directory")
+        for name in ("cache.db", "cache.db-wal", "cache.db-shm", "cache.db-journal"):
+            if os.path.islink(self.directory / name):  # SQLite would write through it, into someone's file
+                raise StoreError(
+                    f"store {self.directory}: {name} is a symbolic link; lagrseq never opens a store's database through a "
+                    "link: remove the link or give another store directory"
+                )
         if not (self.directory / "cache.db").is_file() and (
             not create or readonly or (self.directory / "cache.db").exists()
         ):

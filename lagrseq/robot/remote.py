@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from lagrseq import keys
 from lagrseq.paths import input_path
 from lagrseq.robot import OUTCOMES, JointState, PlacementResult, Robot, RobotError
 
@@ -103,6 +104,7 @@ def read_token(path: str | os.PathLike[str], flag: str = "--token-file") -> str:
             f"{flag} {file}: expected one line of at least {MIN_TOKEN_CHARS} printable ASCII characters without spaces; "
             "make one with: python -c 'import secrets; print(secrets.token_urlsafe(32))' > FILE"
         )
+    keys.remember(token)  # blanked out of every line printed and every log written, as an API key is
     return token
 
 

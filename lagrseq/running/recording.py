@@ -354,27 +354,29 @@ def import_answers(
 
 def export_answers(store_path: Path, out: str, stdout: Any) -> str:
     """``lagrseq cache export``: the store as JSONL into ``out`` (``-``: ``stdout``), written to a
-    temporary name and renamed, so a failed export leaves nothing half-written."""
+    new file beside it and renamed, so a failed export leaves nothing half-written; ``out`` may
+    replace a file, never a symbolic link (refused), and may not lie inside the store it exports
+    (it would replace the store's own database)."""
     from lagrseq.llm.store import RecordStore, export_jsonl
+    from lagrseq.paths import check_output, write_output
 
+    if out != "-":
+        path = Path(out)
+        try:
+            store_real, out_real = Path(store_path).resolve(), path.resolve()
+        except (OSError, RuntimeError):  # a symlink loop: compared as written (the open reports the loop)
+            store_real, out_real = Path(os.path.abspath(store_path)), Path(os.path.abspath(path))
+        if out_real == store_real or store_real in out_real.parents:
+            raise UsageError(
+                f"--out {out} lies inside the store {store_path} that it exports: the export would replace "
+                "the store's own files; give a path outside the store directory"
+            )
+        check_output(path, "--out", replace=True)
     with RecordStore(store_path, create=False) as store:
         if out == "-":
             report = export_jsonl(store, stdout)
         else:
-            path = Path(out)
-            partial = path.with_name(path.name + ".partial")
-            try:
-                with partial.open("w", encoding="utf-8") as handle:
-                    report = export_jsonl(store, handle)
-                os.replace(partial, path)
-            except OSError as exc:
-                with contextlib.suppress(OSError):
-                    partial.unlink()
-                raise UsageError(f"cannot write {path}: {exc.strerror or exc}") from None
-            except BaseException:  # a damaged store: no half-written export is left behind
-                with contextlib.suppress(OSError):
-                    partial.unlink()
-                raise
+            report = write_output(Path(out), lambda handle: export_jsonl(store, handle), "--out", replace=True)
     return f"{report.lines} answers under {report.keys} keys written to {out}"
 
 
