@@ -213,7 +213,7 @@ def _say(line: str) -> None:
     """A line on stdout, above any progress bar (never glued onto the bar's line)."""
     from lagrseq.progress import say
 
-    say(line)
+    say(_shown(line))
 
 
 def _bar(total: float, unit: str, desc: str | None, quiet: bool) -> Any:
@@ -781,7 +781,7 @@ def _cache_import(args: argparse.Namespace) -> int:
         args.file, args.store, args.format, args.task, args.preset, args.config, args.overrides,
         args.model, args.temperature, args.max_tokens, args.base_url, warn=_warn("cache import"),
     )
-    print(report)
+    print(_shown(report))
     return 0
 
 
@@ -790,15 +790,15 @@ def _cache_export(args: argparse.Namespace) -> int:
 
     lines = recording.export_answers(args.store, args.out, sys.stdout)
     if args.out != "-":
-        print(lines)
+        print(_shown(lines))
     return 0
 
 
 def _cache_list(args: argparse.Namespace) -> int:
     from lagrseq.running import recording
 
-    for line in recording.list_answers(args.store):
-        print(line)
+    for line in recording.list_answers(args.store):  # model names, endpoints, prompts: outside text
+        print(_shown(line))
     return 0
 
 
@@ -871,7 +871,7 @@ def _cache_parse(args: argparse.Namespace) -> int:
     if not rows:
         raise LagrseqError(f"{args.source} holds no {args.task} answers")
     for line in recording.census_lines(rows):
-        print(line)
+        print(_shown(line))
     return 0
 
 
@@ -881,7 +881,7 @@ def cmd_recover(args: argparse.Namespace) -> int:
     outcomes = recover_all(args.files, args.out)  # one bad file does not stop the others
     for outcome in outcomes:
         if outcome.ok:
-            print(outcome.message)
+            print(_shown(outcome.message))
         else:
             print(f"lagrseq recover: error: {_shown(outcome.message)}", file=sys.stderr)
     return 0 if all(outcome.ok for outcome in outcomes) else 2
@@ -926,7 +926,7 @@ def cmd_frontier(args: argparse.Namespace) -> int:
         print(table.title)
         for row in table.rows:
             print(f"  {row[0]:<32} queries {row[4]:<22} steps to first solve {row[7]:<22} vs always: {row[10]}; vs matched random: {row[12]}; credited: {row[13]}")
-    print(f"{len(made.written)} files in {out} ({time.perf_counter() - started:.1f} s)")
+    print(_shown(f"{len(made.written)} files in {out} ({time.perf_counter() - started:.1f} s)"))
     return 0
 
 
@@ -991,7 +991,7 @@ def _print_report(report: Any, elapsed: float | None = None, not_run_said: bool 
     for warning in report.warnings:
         print(f"warning: {_shown(warning)}", file=sys.stderr)
     took = f" in {elapsed:.1f} s" if elapsed is not None else ""
-    print(f"{len(made)} of {len(report.items)} suite items made from {report.logs.files} logs{took}: {report.out / 'index.html'}")
+    print(_shown(f"{len(made)} of {len(report.items)} suite items made from {report.logs.files} logs{took}: {report.out / 'index.html'}"))
 
 
 def _price_function(price_table: str | None) -> Any:
@@ -1014,7 +1014,7 @@ def cmd_audit(args: argparse.Namespace) -> int:
         for stem, table in ((f"audit-{audit.task}", audit.table), (f"audit-{audit.task}-interactions", audit.interaction_table)):
             if table is not None:
                 print(to_markdown(table))
-                print(f"written: {args.out / 'reports' / stem}.md, .csv, .png")
+                print(_shown(f"written: {args.out / 'reports' / stem}.md, .csv, .png"))
     return 0
 
 
