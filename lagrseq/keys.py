@@ -32,7 +32,7 @@ secret and is easily mistaken for ordinary words, which should not be blanked ou
 
 The scan is linear in the text: every window is packed into one 64-bit integer (8 characters of
 8 bits: the key is printable ASCII and anything else maps to a code no key has) and looked up among
-the key's windows with numpy, so a 4 MiB body takes tens of milliseconds whatever it holds (the
+the key's windows with numpy, so a 4 MiB body takes at most a few hundred milliseconds whatever it holds (the
 invisible characters are found with one Unicode lookup per distinct non-ASCII character).
 """
 
