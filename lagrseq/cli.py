@@ -29,8 +29,8 @@ run in a clone never touches a tracked file."""
 class _Parser(argparse.ArgumentParser):
     """argparse with one-line errors (the usage block is what --help is for)."""
 
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+    def error(self, message: str) -> NoReturn:  # the value refused may be the key, or hold a newline
+        self.exit(2, f"{self.prog}: error: {_shown(message)} (see {self.prog} --help)\n")
 
 
 # ------------------------------------------------------------------------------------------

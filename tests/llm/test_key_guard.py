@@ -242,3 +242,12 @@ def test_the_log_blanks_a_guarded_key_in_its_metadata_and_records(tmp_path: Path
     assert len(seen) >= 4 and all(leaks(t, BARE_KEY) == [] for t in seen), seen
     assert sum(MARK in t for t in seen) >= 4
     assert leaks(data.decode("latin-1"), BARE_KEY) == []
+
+
+def test_a_usage_error_repeating_a_value_that_is_the_key_blanks_it(tmp_path: Path) -> None:
+    """Swapped arguments caught by argparse itself (an invalid choice, a number expected)."""
+    for argv in (["record", "cube-stacking", "--model", "m", "--store", str(tmp_path / "s"), "--server", BARE_KEY],
+                 ["run", "cube-stacking", "--trials", BARE_KEY, "--out", str(tmp_path / "runs")]):
+        done = _command(BARE_KEY, *argv)
+        assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+        assert MARK in done.stderr and leaks(done.stdout + done.stderr, BARE_KEY) == [], done.stderr
