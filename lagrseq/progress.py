@@ -32,6 +32,11 @@ def bar(total: float, unit: str = "it", desc: str | None = None, quiet: bool = F
     from tqdm import tqdm
 
     sized = _columns() > 0
+    if desc is not None:  # a model name or a path from outside: no key, no control characters
+        from lagrseq.keys import scrub
+        from lagrseq.text import printable
+
+        desc = printable(scrub(desc))
     return tqdm(
         total=total, unit=unit, desc=desc, disable=quiet, file=sys.stderr,
         dynamic_ncols=sized, ncols=None if sized else FALLBACK_COLUMNS, nrows=None if sized else FALLBACK_ROWS,

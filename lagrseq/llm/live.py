@@ -570,6 +570,11 @@ class LiveProvider:
     def _request(self, query: Query, n: int) -> list[Answer]:
         if self._closed:
             raise ProviderError("the live provider is closed")
+        if self._redactor.holds(query.model) or keys.holds_key(query.model):  # before anything is paid for
+            raise ConfigError(
+                "the model name (not shown) holds the API key or 8 or more characters of it: it would be written "
+                "into every store key and log; give the model's name (--model, live:MODEL)"
+            )
         body = self.body(query, n)
         attempts = self.settings.max_retries + 1
         last = ""

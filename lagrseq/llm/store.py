@@ -608,6 +608,7 @@ class RecordStore:
             if checked:
                 if key_of_request(request) != key:
                     raise StoreError(f"key {key[:12]} is not the hash of its request; refusing to store it")
+                self._check_no_key(key, request)
             else:
                 self._check_new(key, request, task, samples)
         with _translated(self.directory, f"write {len(groups)} keys"):
@@ -618,9 +619,19 @@ class RecordStore:
     def _check_new(self, key: str, request: dict[str, Any], task: str | None, samples: Sequence[Sample]) -> None:
         if key_of_request(request) != key:
             raise StoreError(f"key {key[:12]} is not the hash of its request; refusing to store it")
+        self._check_no_key(key, request)
         found = problems({"request": request, "task": task, "samples": [s.to_json() for s in samples]}, ENTRY_SCHEMA, limit=3)
         if found:
             raise StoreError(f"refusing to store key {key[:12]} in {self.directory}: {'; '.join(found)}")
+
+    def _check_no_key(self, key: str, request: dict[str, Any]) -> None:
+        """A StoreError when a request holds a guarded API key (a key passed as --model): the
+        request is stored as it is (its hash is the key), so it is refused, never blanked."""
+        if keys.active() and keys.holds_key(json.dumps(request, ensure_ascii=False)):
+            raise StoreError(
+                f"refusing to store key {key[:12]} in {self.directory}: its request holds the API key or 8 or more "
+                "characters of it (in the model name?); give the model's name, and keep the key in its environment variable"
+            )
 
     def _add_locked(
         self, cache: diskcache.Cache, key: str, request: dict[str, Any], task: str | None, samples: Sequence[Sample]

@@ -251,3 +251,22 @@ def test_a_usage_error_repeating_a_value_that_is_the_key_blanks_it(tmp_path: Pat
         done = _command(BARE_KEY, *argv)
         assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
         assert MARK in done.stderr and leaks(done.stdout + done.stderr, BARE_KEY) == [], done.stderr
+
+
+def test_a_model_name_holding_the_key_is_refused_before_it_is_sent_or_stored(server: FakeOpenAI, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from lagrseq.llm.store import RecordStore, key_of_request
+    from tests.llm.test_redaction import query
+
+    monkeypatch.setenv(KEY_ENV, KEY)
+    with LiveProvider(fast_settings(server.url), rng=np.random.default_rng(0)) as live, pytest.raises(LagrseqError, match="model name") as caught:
+        live.complete(query(model=KEY[3:]))
+    assert leaks(str(caught.value)) == [] and server.requests == []
+    status = cli.main(["record", "cube-stacking", "--model", KEY.upper(), "--temperature", "0", "--samples", "1",
+                       "--store", str(tmp_path / "store"), "--base-url", server.url, "--api-key-env", KEY_ENV, "--quiet"])
+    assert status == 2 and server.requests == []
+    # a store refuses a request holding a guarded key, whoever writes it (an import of a hostile JSONL)
+    keys.watch(KEY_ENV)
+    with RecordStore(tmp_path / "store2") as store, pytest.raises(LagrseqError, match="holds the API key"):
+        request = {"key_version": 1, "endpoint": "127.0.0.1", "model": f"m-{KEY[-12:]}", "messages": [], "temperature": 0.0}
+        store.add_many({key_of_request(request): (request, None, [])}, checked=True)
+    assert {p: leaks(t) for p, t in written(tmp_path) if leaks(t)} == {}
