@@ -199,10 +199,9 @@ def _provider_options(args: argparse.Namespace, elsewhere: tuple[str, ...] = ())
 def _shown(text: object) -> str:
     """Outside text for one line of the terminal: every guarded key blanked (:func:`lagrseq.keys.scrub`),
     control and format characters escaped (:func:`lagrseq.text.printable`)."""
-    from lagrseq.keys import scrub
-    from lagrseq.text import printable
+    from lagrseq.text import shown
 
-    return printable(scrub(str(text)))
+    return shown(text)
 
 
 def _warn(command: str) -> Callable[[str], None]:
@@ -808,7 +807,7 @@ def cmd_serve_llm(args: argparse.Namespace) -> int:
     def say(line: str) -> None:
         print(f"lagrseq serve-llm: {_shown(line)}", file=sys.stderr, flush=True)
 
-    serve_llm(args.model, args.port, args.n_ctx, args.threads, args.log, lambda line: print(line, flush=True), say)
+    serve_llm(args.model, args.port, args.n_ctx, args.threads, args.log, lambda line: print(_shown(line), flush=True), say)
     return 0  # pragma: no cover - serve_llm returns only by an exception
 
 

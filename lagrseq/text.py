@@ -59,3 +59,11 @@ def safe_streams() -> None:
         if reconfigure is not None:
             with contextlib.suppress(Exception):  # a replaced stream that takes no such option
                 reconfigure(errors="backslashreplace")
+
+
+def shown(text: object) -> str:
+    """Outside text for one line of a terminal or a message: every guarded API key blanked
+    (:func:`lagrseq.keys.scrub`), then :func:`printable`."""
+    from lagrseq.keys import scrub
+
+    return printable(scrub(str(text)))

@@ -27,6 +27,7 @@ from lagrseq.registry import ProviderKind
 from lagrseq.running.wiring import make_live, make_task
 from lagrseq.tasks import cube
 from lagrseq.tasks.base import Task
+from lagrseq.text import shown
 
 STATE_TOPICS = ("/query", "/transition")
 
@@ -64,7 +65,7 @@ def record_patterns(
         raise UsageError(f"{config.task.name} has no default set of prompts; give runs with --from-runs")
     if topic not in STATE_TOPICS:
         raise UsageError(f"--states-from {topic!r}; expected /query or /transition")
-    warn = warn or (lambda message: print(f"warning: {message}", file=sys.stderr))
+    warn = warn or (lambda message: print(f"warning: {shown(message)}", file=sys.stderr))
     wanted = json.loads(json.dumps(asdict(config.task)))
     patterns: list[Any] = []
     seen: set[str] = set()
@@ -160,7 +161,7 @@ def record(
         return _record(queries, store_path, samples, mode, options, bar, endpoint, concurrency)
     from lagrseq.llm.local import LocalServer, Supervisor
 
-    say = bar.write if bar is not None else (lambda message: print(message, file=sys.stderr))
+    say = (lambda message: bar.write(shown(message))) if bar is not None else (lambda message: print(shown(message), file=sys.stderr))
     settings = local_settings(spec.argument, options)
     with LocalServer(settings, on_line=lambda line: say(f"  {line}")) as server:
         supervisor = Supervisor(server, lambda line: say(f"  {line}"))  # a dying server: restarted once, then one line
@@ -231,7 +232,7 @@ def _record(
             return RecordingReport(len(queries), held(store), samples, store_path)
     # The retry jitter's generator: seeded per process, so concurrent recorders back off apart.
     jitter = np.random.default_rng([os.getpid()])
-    say = bar.write if bar is not None else (lambda message: print(message, file=sys.stderr))
+    say = (lambda message: bar.write(shown(message))) if bar is not None else (lambda message: print(shown(message), file=sys.stderr))
     environ: dict[str, str] | None = {} if local_model is not None else None  # a local server: no key
     live = make_live(options, jitter, budgeted=True, on_retry=on_retry or (lambda message: say(f"  {message}")), environ=environ, local_model=local_model)
     budget = live.budget

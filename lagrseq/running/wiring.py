@@ -249,7 +249,9 @@ def pays(spec: str, options: Any = None) -> bool:
 
 def _say(message: str) -> None:
     """Retries and notes of a live provider during a run go to stderr (redacted at the source)."""
-    print(f"lagrseq: {message.strip()}", file=sys.stderr)
+    from lagrseq.text import shown
+
+    print(f"lagrseq: {shown(message.strip())}", file=sys.stderr)
 
 
 def check_provider(spec: str, config: ExperimentConfig, options: Any = None) -> None:
