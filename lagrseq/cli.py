@@ -33,8 +33,8 @@ run in a clone never touches a tracked file."""
 class _Parser(argparse.ArgumentParser):
     """argparse with one-line errors (the usage block is what --help is for)."""
 
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+    def error(self, message: str) -> NoReturn:  # the value refused may be the key, or hold a newline
+        self.exit(2, f"{self.prog}: error: {_shown(message)} (see {self.prog} --help)\n")
 
 
 # ------------------------------------------------------------------------------------------
@@ -200,15 +200,23 @@ def _provider_options(args: argparse.Namespace, elsewhere: tuple[str, ...] = ())
     return provider_options(args.provider, {name: getattr(args, name, None) for name in option_flags()}, elsewhere)
 
 
+def _shown(text: object) -> str:
+    """Outside text for one line of the terminal: every guarded key blanked (:func:`lagrseq.keys.scrub`),
+    control and format characters escaped (:func:`lagrseq.text.printable`)."""
+    from lagrseq.text import shown
+
+    return shown(text)
+
+
 def _warn(command: str) -> Callable[[str], None]:
-    return lambda message: print(f"lagrseq {command}: warning: {message}", file=sys.stderr)
+    return lambda message: print(f"lagrseq {command}: warning: {_shown(message)}", file=sys.stderr)
 
 
 def _say(line: str) -> None:
     """A line on stdout, above any progress bar (never glued onto the bar's line)."""
     from lagrseq.progress import say
 
-    say(line)
+    say(_shown(line))
 
 
 def _say_error(line: str) -> None:
@@ -739,7 +747,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                 config, args.trials, args.seed, args.provider, directory, args.jobs, bar, options,
                 pool=pool, say=_say, retries=args.retries, render_dir=args.render,
                 # a failed trial is named at once above the bar; --quiet: only in the closing line
-                warn=None if args.quiet else (lambda line: bar.write(f"lagrseq run: warning: {line}", file=sys.stderr)),
+                warn=None if args.quiet else (lambda line: bar.write(f"lagrseq run: warning: {_shown(line)}", file=sys.stderr)),
             )
     print(runner.summary(results, directory, args.provider))
     return 0
@@ -789,7 +797,7 @@ def _cache_import(args: argparse.Namespace) -> int:
         args.file, args.store, args.format, args.task, args.preset, args.config, args.overrides,
         args.model, args.temperature, args.max_tokens, args.base_url, warn=_warn("cache import"),
     )
-    print(report)
+    print(_shown(report))
     return 0
 
 
@@ -798,15 +806,15 @@ def _cache_export(args: argparse.Namespace) -> int:
 
     lines = recording.export_answers(args.store, args.out, sys.stdout)
     if args.out != "-":
-        print(lines)
+        print(_shown(lines))
     return 0
 
 
 def _cache_list(args: argparse.Namespace) -> int:
     from lagrseq.running import recording
 
-    for line in recording.list_answers(args.store):
-        print(line)
+    for line in recording.list_answers(args.store):  # model names, endpoints, prompts: outside text
+        print(_shown(line))
     return 0
 
 
@@ -814,9 +822,9 @@ def cmd_serve_llm(args: argparse.Namespace) -> int:
     from lagrseq.running.wiring import serve_llm
 
     def say(line: str) -> None:
-        print(f"lagrseq serve-llm: {line}", file=sys.stderr, flush=True)
+        print(f"lagrseq serve-llm: {_shown(line)}", file=sys.stderr, flush=True)
 
-    serve_llm(args.model, args.port, args.n_ctx, args.threads, args.log, lambda line: print(line, flush=True), say)
+    serve_llm(args.model, args.port, args.n_ctx, args.threads, args.log, lambda line: print(_shown(line), flush=True), say)
     return 0  # pragma: no cover - serve_llm returns only by an exception
 
 
@@ -824,8 +832,8 @@ def cmd_models(args: argparse.Namespace) -> int:
     from lagrseq.running.wiring import model_listing
 
     lines, problems = model_listing(args.paths, hash_files=not args.no_hash, as_json=args.json)
-    if lines:
-        print("\n".join(lines).rstrip("\n"))
+    if lines:  # paths and GGUF metadata are outside text: one line each, escaped
+        print("\n".join(_shown(line) for line in lines).rstrip("\n"))
     if problems:  # the paths the user gave that are not GGUF files: one line, status 2
         raise UsageError("; ".join(problems[:3]) + "; give GGUF model files or directories")
     if not lines:
@@ -879,7 +887,7 @@ def _cache_parse(args: argparse.Namespace) -> int:
     if not rows:
         raise LagrseqError(f"{args.source} holds no {args.task} answers")
     for line in recording.census_lines(rows):
-        print(line)
+        print(_shown(line))
     return 0
 
 
@@ -889,9 +897,9 @@ def cmd_recover(args: argparse.Namespace) -> int:
     outcomes = recover_all(args.files, args.out)  # one bad file does not stop the others
     for outcome in outcomes:
         if outcome.ok:
-            print(outcome.message)
+            print(_shown(outcome.message))
         else:
-            print(f"lagrseq recover: error: {outcome.message}", file=sys.stderr)
+            print(f"lagrseq recover: error: {_shown(outcome.message)}", file=sys.stderr)
     return 0 if all(outcome.ok for outcome in outcomes) else 2
 
 
@@ -929,13 +937,13 @@ def cmd_frontier(args: argparse.Namespace) -> int:
     )
     made = report(roots, out, price, args.miss_threshold)
     for warning in made.warnings:
-        print(f"lagrseq frontier: warning: {warning}", file=sys.stderr)
+        print(f"lagrseq frontier: warning: {_shown(warning)}", file=sys.stderr)
     width = max((len(row[0]) for table in made.tables for row in table.rows), default=0)  # the longest label
     for table in made.tables:
         print(table.title)
         for row in table.rows:
             print(f"  {row[0]:<{width}} queries {row[4]:<22} steps to first solve {row[7]:<22} vs always: {row[10]}; vs matched random: {row[12]}; credited: {row[13]}")
-    print(f"{len(made.written)} files in {out} ({time.perf_counter() - started:.1f} s)")
+    print(_shown(f"{len(made.written)} files in {out} ({time.perf_counter() - started:.1f} s)"))
     return 0
 
 
@@ -1018,12 +1026,12 @@ def _print_report(
     for warning in report.warnings:
         if said is not None and said(warning):
             continue
-        line = f"warning: {' '.join(warning.split())}"
+        line = f"warning: {' '.join(_shown(warning).split())}"
         if width is not None and len(line) > width:
             line = line[: width - 1] + "…"
         print(line, file=sys.stderr)
     took = f" in {elapsed:.1f} s" if elapsed is not None else ""
-    print(f"{len(made)} of {len(report.items)} suite items made from {report.logs.files} logs{took}: {report.out / 'index.html'}")
+    print(_shown(f"{len(made)} of {len(report.items)} suite items made from {report.logs.files} logs{took}: {report.out / 'index.html'}"))
 
 
 def _price_function(price_table: str | None) -> Any:
@@ -1046,7 +1054,7 @@ def cmd_audit(args: argparse.Namespace) -> int:
         for stem, table in ((f"audit-{audit.task}", audit.table), (f"audit-{audit.task}-interactions", audit.interaction_table)):
             if table is not None:
                 print(to_markdown(table))
-                print(f"written: {args.out / 'reports' / stem}.md, .csv, .png")
+                print(_shown(f"written: {args.out / 'reports' / stem}.md, .csv, .png"))
     return 0
 
 
@@ -1113,6 +1121,10 @@ def _main(argv: Sequence[str] | None) -> int:
     words = sys.argv[1:] if argv is None else list(argv)
     # a command named first (the only place argparse takes it): build that command's parser alone
     parser = build_parser(words[0] if words and words[0] in _ADDERS else None)
+    if argv is None:  # the program itself: a name its encoding cannot write is escaped, never a traceback
+        from lagrseq.text import safe_streams
+
+        safe_streams()
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()
@@ -1144,7 +1156,7 @@ def _dispatch(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
     try:
         return COMMANDS[args.command](args)
     except LagrseqError as exc:
-        print(f"lagrseq {args.command}: error: {exc}", file=sys.stderr)
+        print(f"lagrseq {args.command}: error: {_shown(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as stop:
         from lagrseq.running.runner import exit_on_next_interrupt
@@ -1165,9 +1177,9 @@ def _dispatch(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 1
     except OSError as exc:  # the last resort: a full disk, a path that vanished, a read-only file system
-        where = f" ({exc.filename})" if exc.filename else ""
+        where = f" ({os.fsdecode(exc.filename) if isinstance(exc.filename, (str, bytes)) else exc.filename})" if exc.filename else ""
         reason = exc.strerror or str(exc) or type(exc).__name__
-        print(f"lagrseq {args.command}: error: {reason}{where}; nothing finished is lost", file=sys.stderr)
+        print(f"lagrseq {args.command}: error: {_shown(reason + where)}; nothing finished is lost", file=sys.stderr)
         return 2
 
 

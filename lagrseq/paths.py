@@ -14,23 +14,31 @@ hand it endless bytes. :func:`open_input` opens a file without blocking and chec
 :func:`walk_files` lists a directory tree without ever following a symlink loop: every real
 directory is entered once.
 
+Output files (``cache export --out``, ``screen --answers``): :func:`write_output` writes a new
+file beside the target (``O_CREAT | O_EXCL | O_NOFOLLOW``: never through a planted link) and moves
+it into place; a target that is a symbolic link is refused (one line), and so, where it may not be
+replaced, is an existing file (linked into place: an existing name, a link included, is never
+overwritten). MCAP logs do the same in :mod:`lagrseq.logs.sink`.
+
 Every failure is a :class:`~lagrseq.errors.LagrseqError` (one line, exit status 2); callers pass
 the subclass their layer uses (LogError, StoreError, ConfigError).
 """
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import stat
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
-from typing import BinaryIO, Literal
+from typing import BinaryIO, Literal, TextIO, TypeVar
 
 from lagrseq.errors import LagrseqError, UsageError
 
 Expect = Literal["file", "directory", "any"]
+T = TypeVar("T")
 
 
 def source_checkout() -> Path:
@@ -158,3 +166,75 @@ def walk_files(root: str | os.PathLike[str], match: Callable[[str], bool]) -> li
             elif match(entry.name):
                 found.append(Path(entry.path))
     return sorted(found)
+
+
+def refuse_link(path: str | os.PathLike[str], flag: str, error: type[LagrseqError] = UsageError) -> None:
+    """One line when ``path`` is a symbolic link: an output is never written through one (a link
+    planted in a shared folder would put it over someone's file)."""
+    if os.path.islink(path):
+        raise error(f"{flag} {os.fspath(path)} is a symbolic link; lagrseq never writes through a link: remove the link or give another path")
+
+
+def write_output(
+    path: str | os.PathLike[str], write: Callable[[TextIO], T], flag: str, replace: bool, error: type[LagrseqError] = UsageError,
+) -> T:
+    """Write a UTF-8 text file at ``path`` with ``write(handle)`` and return what it returns. The
+    text goes to a new file beside ``path`` (created with ``O_EXCL | O_NOFOLLOW``) that is moved
+    into place only when complete, so a failure leaves nothing half-written. ``replace``: an
+    existing regular file is replaced; else an existing name of any kind is refused, checked
+    before writing and again atomically when the file is put in place (a hard link, which
+    never overwrites). A symbolic link at ``path`` is refused either way."""
+    target = Path(path)
+    check_output(target, flag, replace, error)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        descriptor, scratch = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name[:64]}.", suffix=".partial")
+    except OSError as exc:
+        raise error(f"cannot write {flag} {target}: {exc.strerror or exc}") from None
+    try:
+        os.fchmod(descriptor, 0o644)
+        with os.fdopen(descriptor, "w", encoding="utf-8") as handle:
+            result = write(handle)
+        if replace:
+            refuse_link(target, flag, error)  # planted while writing
+            os.replace(scratch, target)  # replaces the name; never writes through a link
+        else:
+            _link_new(Path(scratch), target, flag, error)
+        return result
+    except OSError as exc:
+        raise error(f"cannot write {flag} {target}: {exc.strerror or exc}") from None
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(scratch)
+
+
+def check_output(target: Path, flag: str, replace: bool, error: type[LagrseqError] = UsageError) -> None:
+    """The checks of :func:`write_output` made before anything is asked or written (a command that
+    pays for its answers refuses before it pays)."""
+    refuse_link(target, flag, error)
+    try:
+        mode = os.lstat(target).st_mode
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        raise error(f"cannot write {flag} {target}: {exc.strerror or exc}") from None
+    if not stat.S_ISREG(mode):
+        raise error(f"{flag} {target} is {kind_of(mode)}; give the path of a file to write")
+    if not replace:
+        raise error(f"{flag} {target} exists; lagrseq never writes over it: give a new path or move the file away")
+
+
+def _link_new(scratch: Path, target: Path, flag: str, error: type[LagrseqError]) -> None:
+    """Put ``scratch`` in place at ``target`` only if no name is there (a hard link fails on any
+    existing name, a symbolic link included); where hard links are not supported, a rename
+    after a check (a small window)."""
+    try:
+        os.link(scratch, target, follow_symlinks=False)
+        return
+    except FileExistsError:
+        raise error(f"{flag} {target} exists; lagrseq never writes over it: give a new path or move the file away") from None
+    except OSError as exc:
+        if exc.errno not in (errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EXDEV, errno.EMLINK):
+            raise
+    check_output(target, flag, False, error)
+    os.rename(scratch, target)

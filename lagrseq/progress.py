@@ -32,6 +32,11 @@ def bar(total: float, unit: str = "it", desc: str | None = None, quiet: bool = F
     from tqdm import tqdm
 
     sized = _columns() > 0
+    if desc is not None:  # a model name or a path from outside: no key, no control characters
+        from lagrseq.keys import scrub
+        from lagrseq.text import printable
+
+        desc = printable(scrub(desc))
     return tqdm(
         total=total, unit=unit, desc=desc, disable=quiet, file=sys.stderr,
         dynamic_ncols=sized, ncols=None if sized else FALLBACK_COLUMNS, nrows=None if sized else FALLBACK_ROWS,
@@ -40,7 +45,10 @@ def bar(total: float, unit: str = "it", desc: str | None = None, quiet: bool = F
 
 def say(line: str, stderr: bool = False) -> None:
     """Print ``line`` to stdout (``stderr``: to stderr) on a line of its own, above any progress
-    bar on screen."""
+    bar on screen (every guarded API key blanked out of it: :func:`lagrseq.keys.scrub`)."""
+    from lagrseq.keys import scrub
+
+    line = scrub(line)
     stream = sys.stderr if stderr else sys.stdout
     if "tqdm" not in sys.modules:  # no bar was ever made: a plain line (what tqdm.write prints then)
         print(line, file=stream, flush=True)

@@ -39,12 +39,12 @@ import os
 import sys
 import threading
 import typing
-import unicodedata
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Generic, TypeVar
 
+from lagrseq.text import printable  # re-exported: the one escaping of outside text
 from lagrseq.errors import UsageError
 
 BUILTIN = "lagrseq"
@@ -530,25 +530,6 @@ NOTICES_ENV = "LAGRSEQ_PLUGIN_NOTICES_PID"
 other processes of the command (pool workers, which inherit it) skip plugins silently. Unset:
 every process prints its own."""
 
-_ESCAPED = frozenset(("Cc", "Cf", "Cs", "Co", "Cn", "Zl", "Zp"))
-
-
-def printable(text: str) -> str:
-    """``text`` with control and format characters (newlines, ANSI escapes, bidi overrides,
-    zero-width characters, line separators) written as Python escapes (``\\n``, ``\\x1b``,
-    ``\\u202e``), so a plugin's text can neither forge a line nor drive the terminal; ordinary
-    text of any script is kept."""
-    if text.isprintable() and text.isascii():
-        return text
-    out = []
-    for char in text:
-        if unicodedata.category(char) in _ESCAPED:
-            code = ord(char)
-            named = {"\n": "\\n", "\r": "\\r", "\t": "\\t"}.get(char)
-            out.append(named or (f"\\x{code:02x}" if code <= 0xFF else f"\\u{code:04x}" if code <= 0xFFFF else f"\\U{code:08x}"))
-        else:
-            out.append(char)
-    return "".join(out)
 
 
 def _text(value: Any) -> str:

@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 from hypothesis import settings
 
+from lagrseq import keys
 from lagrseq.llm.authors_cache import read_pairs
 
 # CI explores the same examples on every run (a red CI is then reproducible), and keeps no
@@ -37,3 +38,12 @@ def cube_cache_8() -> list:
 @pytest.fixture
 def cube_cache_11() -> list:
     return load_authors_cache("cube_stacking_cache0.pkl")
+
+
+@pytest.fixture(autouse=True)
+def fresh_key_guard(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The process-wide key guard (:mod:`lagrseq.keys`) forgets, after each test, the variables
+    and secrets the test made it watch (a provider's --api-key-env, a robot token): a command
+    is one process, the tests share one, and a test's secret must not blank another's output."""
+    monkeypatch.setattr(keys, "_watched", dict(keys._watched))
+    monkeypatch.setattr(keys, "_remembered", dict(keys._remembered))

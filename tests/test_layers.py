@@ -42,7 +42,7 @@ ANALYSIS_FORBIDS = ("lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.lo
 data and the frontier protocol's helpers live below it, in the base layer)."""
 
 LAYERS: dict[str, tuple[str, ...]] = {
-    # base: config, errors, seeding, paths, tomlfile, registry, builtins (stdlib + numpy; the
+    # base: config, errors, seeding, paths, tomlfile, registry, builtins, keys, text (stdlib + numpy; the
     # built-in parts are registered by lazy reference); anyone may import them
     "lagrseq": (*PARTS, *LOOP, *HEAVY, "mcap", "pandas", "matplotlib"),
     # parts: each knows its own interface, none the loop or anything above it
@@ -102,6 +102,8 @@ ANYONE = (
     "lagrseq.tomlfile",
     "lagrseq.registry",
     "lagrseq.builtins",
+    "lagrseq.keys",
+    "lagrseq.text",
     # data and definitions that analysis and running (or study) both read, so below both
     "lagrseq.suite",
     "lagrseq.frontier_protocol",

@@ -41,7 +41,7 @@ Every failure is one :class:`~lagrseq.errors.ProviderError` line saying what hap
 do. The API key is read from the environment (``OPENAI_API_KEY`` or the variable named by
 ``--api-key-env``), must be printable ASCII (HTTP headers carry nothing else), is kept in a
 :class:`Secret` that never prints, sent only in the ``Authorization`` header, and redacted, whole
-or in recognisable part (:mod:`lagrseq.llm.redaction`), from every string the server sends back
+or in recognisable part (:mod:`lagrseq.keys`), from every string the server sends back
 before it reaches an answer, a store, an exception or a callback.
 """
 
@@ -65,14 +65,15 @@ import httpcore
 import httpx
 import numpy as np
 
-from lagrseq import __version__
+from lagrseq import __version__, keys
 from lagrseq.errors import ConfigError, ProviderError
+from lagrseq.keys import Redactor, clip, redact_key_like
 from lagrseq.llm.base import Answer, Query, Usage
 from lagrseq.llm.pricing import PriceTable, prompt_token_bound
 from lagrseq.llm.records import MAX_ANSWER_CHARS
-from lagrseq.llm.redaction import Redactor, clip, redact_key_like
 from lagrseq.llm.servers import DEFAULT_BASE_URL, SERVER_KINDS, base_url_problem
 from lagrseq.llm.store import endpoint_of
+from lagrseq.text import printable
 
 CLIPPED = "lagrseq-clipped"
 """``finish_reason`` of an answer cut to MAX_ANSWER_CHARS (the same limit as the task parsers')."""
@@ -115,7 +116,7 @@ class LiveSettings:
                 f"unknown server kind {self.server!r}; expected one of {', '.join(SERVER_KINDS)}"
             )
         _check_key_env(self.api_key_env)
-        problem = base_url_problem(self.base_url)
+        problem = base_url_problem(self.base_url, self.api_key_env)
         if problem is not None:
             raise ConfigError(problem)
         for name in ("connect_timeout_s", "read_timeout_s", "request_deadline_s"):
@@ -186,7 +187,7 @@ class Secret:
 
 def redact(text: str, secret: Secret | None) -> str:
     """``text`` with the key, its recognisable fragments and anything that looks like an API key
-    blanked out (for messages; answers go through :class:`~lagrseq.llm.redaction.Redactor` only)."""
+    blanked out (for messages; answers go through :class:`~lagrseq.keys.Redactor` only)."""
     if secret and secret.reveal():
         text = Redactor(secret.reveal()).text(text)
     return redact_key_like(text)
@@ -400,7 +401,7 @@ class _Decoder:
     more than the room left under the size cap, so a compressed bomb costs no more memory than the
     cap. Any other encoding is refused (lagrseq asks for gzip or deflate only)."""
 
-    def __init__(self, encoding: str, url: str) -> None:
+    def __init__(self, encoding: str, url: str, redactor: Redactor | None = None) -> None:
         self.url = url
         name = encoding.strip().lower()
         self._raw_fallback = False
@@ -413,7 +414,7 @@ class _Decoder:
             self._raw_fallback = True  # "deflate" is zlib-wrapped by the standard, raw by some servers
         else:
             raise ProviderError(
-                f"{url}: the response is encoded as {clip(name, 40)!r}, which lagrseq did not ask for "
+                f"{url}: the response is encoded as {_shown_header(name, redactor)!r}, which lagrseq did not ask for "
                 "(it accepts gzip and deflate); check --base-url and any proxy in between"
             )
 
@@ -473,7 +474,7 @@ class LiveProvider:
         self.kind = SERVER_KINDS[self.settings.server]
         self.endpoint = endpoint_of(self.settings.base_url)
         if self.settings.base_url.split("://", 1)[0].lower() not in ("http", "https") or any(ord(ch) <= 32 for ch in self.settings.base_url):
-            raise ConfigError(f"--base-url {self.settings.base_url!r}: expected an http:// or https:// URL, e.g. https://api.openai.com/v1")
+            raise ConfigError("--base-url (not shown): expected an http:// or https:// URL without spaces or control characters, e.g. https://api.openai.com/v1")
         self.url = self.settings.base_url.rstrip("/") + "/chat/completions"
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self.prices = prices if prices is not None else PriceTable()
@@ -569,6 +570,11 @@ class LiveProvider:
     def _request(self, query: Query, n: int) -> list[Answer]:
         if self._closed:
             raise ProviderError("the live provider is closed")
+        if self._redactor.holds(query.model) or keys.holds_key(query.model):  # before anything is paid for
+            raise ConfigError(
+                "the model name (not shown) holds the API key or 8 or more characters of it: it would be written "
+                "into every store key and log; give the model's name (--model, live:MODEL)"
+            )
         body = self.body(query, n)
         attempts = self.settings.max_retries + 1
         last = ""
@@ -666,7 +672,7 @@ class LiveProvider:
         declared = response.headers.get("content-length", "").strip()
         if declared.isdigit() and len(declared) < 30 and int(declared) > limit:
             raise self._too_large(f"it declares {int(declared)} bytes")
-        decoder = _Decoder(response.headers.get("content-encoding", ""), self.url)
+        decoder = _Decoder(response.headers.get("content-encoding", ""), self.url, self._redactor)
         chunks: list[bytes] = []
         size = 0
         for raw in response.iter_raw():
@@ -802,6 +808,14 @@ class LiveProvider:
             return
         self._warned.add(kind)
         self.on_warning(f"{self.url}: {message} (said once per run)")
+
+
+def _shown_header(value: str, redactor: Redactor | None) -> str:
+    """A header value a server sent, for a message: the key and its fragments blanked (this
+    provider's and every guarded one) before it is cut to 40 characters, escaped."""
+    if redactor is not None:
+        value = redactor.text(value)
+    return printable(clip(keys.scrub(value), 40))
 
 
 _SURROGATE = re.compile("[\ud800-\udfff]")

@@ -81,7 +81,7 @@ class LiveOptions:
     limits: Limits = field(default_factory=Limits)
 
     def __post_init__(self) -> None:
-        problem = base_url_problem(self.base_url)
+        problem = base_url_problem(self.base_url, self.api_key_env if isinstance(self.api_key_env, str) else None)
         if problem is not None:
             raise UsageError(problem)
 

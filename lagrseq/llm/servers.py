@@ -32,11 +32,22 @@ def key_like(text: str) -> bool:
     return False
 
 
-def base_url_problem(base_url: str) -> str | None:
-    """Why ``base_url`` may not be used (it carries credentials: ``user:password@``, a query
-    string, a fragment, or a key-like segment in its host or path (:func:`key_like`), which would
-    be printed in messages and written into every trial's metadata), or None. The message never
-    repeats the URL."""
+def base_url_problem(base_url: str, key_env: str | None = None) -> str | None:
+    """Why ``base_url`` may not be used (it holds a guarded API key or a fragment of it of 8
+    characters or more, :func:`lagrseq.keys.holds_key`, ``key_env`` being guarded too; it carries
+    credentials: ``user:password@``, a query string, a fragment, or a key-like segment in its host
+    or path (:func:`key_like`), which would be printed in messages and written into every trial's
+    metadata), or None. The message never repeats the URL."""
+    from lagrseq import keys
+
+    if key_env is not None:
+        keys.watch(key_env)
+    if keys.holds_key(base_url):
+        return (
+            "--base-url holds the API key, or 8 or more characters of it (the URL is not shown; were "
+            "--base-url and the key swapped?): give the API root, e.g. https://api.openai.com/v1, and "
+            "keep the key in its environment variable (--api-key-env)"
+        )
     try:
         parts = urlsplit(base_url if "://" in base_url else f"https://{base_url}")
         userinfo = parts.username is not None or parts.password is not None

@@ -62,6 +62,7 @@ import diskcache
 import numpy as np
 from diskcache.core import MODE_BINARY, MODE_PICKLE, MODE_RAW
 
+from lagrseq import keys
 from lagrseq.errors import StoreError
 from lagrseq.llm.base import Answer, Query, RecordedAs, Usage
 from lagrseq.llm.records import (
@@ -103,15 +104,15 @@ def endpoint_of(base_url: str) -> str:
         raise StoreError(problem)
     try:
         parts = urlsplit(base_url if "://" in base_url else f"https://{base_url}")
-    except ValueError as exc:  # e.g. an unclosed '[' of an IPv6 host
-        raise StoreError(f"base URL {base_url!r} is not a URL ({exc}); expected e.g. https://api.openai.com/v1") from None
+    except ValueError:  # e.g. an unclosed '[' of an IPv6 host
+        raise StoreError("the base URL (not shown) is not a URL (an unclosed [ of an IPv6 host, or characters no host name holds); expected e.g. https://api.openai.com/v1") from None
     host = (parts.hostname or "").lower()
     if not host:
-        raise StoreError(f"base URL {base_url!r} has no host; expected e.g. https://api.openai.com/v1")
+        raise StoreError("the base URL (not shown) has no host; expected e.g. https://api.openai.com/v1")
     try:
         port = parts.port
     except ValueError:
-        raise StoreError(f"base URL {base_url!r} has a bad port") from None
+        raise StoreError("the base URL (not shown) has a bad port: expected a number from 0 to 65535, e.g. http://127.0.0.1:8000/v1") from None
     if port is not None and port != _DEFAULT_PORTS.get(parts.scheme):
         return f"{host}:{port}"
     return host
@@ -521,6 +522,12 @@ class RecordStore:
         self._closed = False
         if self.directory.exists() and not self.directory.is_dir():
             raise StoreError(f"store path {self.directory} is {kind_of(self.directory.stat().st_mode)}; expected a directory")
+        for name in ("cache.db", "cache.db-wal", "cache.db-shm", "cache.db-journal"):
+            if os.path.islink(self.directory / name):  # SQLite would write through it, into someone's file
+                raise StoreError(
+                    f"store {self.directory}: {name} is a symbolic link; lagrseq never opens a store's database through a "
+                    "link: remove the link or give another store directory"
+                )
         if not (self.directory / "cache.db").is_file() and (
             not create or readonly or (self.directory / "cache.db").exists()
         ):
@@ -643,6 +650,7 @@ class RecordStore:
             if checked:
                 if key_of_request(request) != key:
                     raise StoreError(f"key {key[:12]} is not the hash of its request; refusing to store it")
+                self._check_no_key(key, request)
             else:
                 self._check_new(key, request, task, samples)
         with _translated(self.directory, f"write {len(groups)} keys"):
@@ -653,9 +661,19 @@ class RecordStore:
     def _check_new(self, key: str, request: dict[str, Any], task: str | None, samples: Sequence[Sample]) -> None:
         if key_of_request(request) != key:
             raise StoreError(f"key {key[:12]} is not the hash of its request; refusing to store it")
+        self._check_no_key(key, request)
         found = problems({"request": request, "task": task, "samples": [s.to_json() for s in samples]}, ENTRY_SCHEMA, limit=3)
         if found:
             raise StoreError(f"refusing to store key {key[:12]} in {self.directory}: {'; '.join(found)}")
+
+    def _check_no_key(self, key: str, request: dict[str, Any]) -> None:
+        """A StoreError when a request holds a guarded API key (a key passed as --model): the
+        request is stored as it is (its hash is the key), so it is refused, never blanked."""
+        if keys.active() and keys.holds_key(json.dumps(request, ensure_ascii=False)):
+            raise StoreError(
+                f"refusing to store key {key[:12]} in {self.directory}: its request holds the API key or 8 or more "
+                "characters of it (in the model name?); give the model's name, and keep the key in its environment variable"
+            )
 
     def _add_locked(
         self, cache: diskcache.Cache, key: str, request: dict[str, Any], task: str | None, samples: Sequence[Sample]
@@ -668,10 +686,11 @@ class RecordStore:
             self._entry(key, value)  # a damaged row is named, never extended
         have = {s["id"] for s in value["samples"]}
         added = []
+        guarded = keys.active()  # an answer that echoes a guarded key is stored without it
         for sample in samples:
             if sample.id not in have:
                 have.add(sample.id)
-                added.append(sample.to_json())
+                added.append(keys.scrub_value(sample.to_json()) if guarded else sample.to_json())
         if added:
             value["samples"] = list(value["samples"]) + added
             if value.get("task") is None:

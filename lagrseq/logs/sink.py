@@ -34,9 +34,11 @@ idempotent and records whether the trial completed.
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import math
 import os
+import stat
 
 try:
     import fcntl
@@ -46,7 +48,11 @@ from operator import attrgetter
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import msgspec
+
 from lagrseq.errors import LogError
+from lagrseq.keys import active as keys_active
+from lagrseq.keys import scrub_value
 from lagrseq.logs.events import (
     EPISODE_TOPIC,
     NO_QUERY_TOPIC,
@@ -123,13 +129,49 @@ _QUERY_FLOATS = ("evaluation", "query_reward", "temperature", "cost_usd", "laten
 _EPISODE_FLOATS = ("return_", "epsilon")
 
 
+_NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)
+
+
+def _scrubbed(event: Any) -> Any:
+    """A query event with the guarded API keys blanked out of its text fields."""
+    changes = {name: scrub_value(value) for name in _QUERY_TEXT if (value := getattr(event, name, None)) is not None}
+    changes = {name: value for name, value in changes.items() if value != getattr(event, name)}
+    return msgspec.structs.replace(event, **changes) if changes else event
+
+
+_QUERY_TEXT = ("answer", "parse_error", "provider", "model", "record_key", "finish_reason", "system_fingerprint", "solution")
+
+
+def _refuse_link(path: Path) -> None:
+    """A LogError when ``path`` is a symbolic link (planted in a shared output folder: writing
+    through it, or renaming onto it, would put the log over someone's file)."""
+    if os.path.islink(path):
+        raise LogError(
+            f"{path} is a symbolic link; lagrseq never writes a log through a link: remove the link "
+            "or give another --out"
+        )
+
+
 def _open_exclusive(partial: Path) -> Any:
     """``partial`` opened for writing from scratch, locked against a second lagrseq process that
     would write the same trial (two identical runs at once): that one is refused, and the file
     the first is writing is never truncated under it. A ``.partial`` left by a crash is not
-    locked, so a rerun writes it anew."""
-    descriptor = os.open(partial, os.O_RDWR | os.O_CREAT, 0o644)
+    locked, so a rerun writes it anew. Opened with ``O_NOFOLLOW``: a symbolic link planted under
+    the name is refused (one line), never written through; so is anything but a regular file,
+    and a file with other hard links (a link planted to someone's file)."""
     try:
+        descriptor = os.open(partial, os.O_RDWR | os.O_CREAT | _NOFOLLOW | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_NONBLOCK", 0), 0o644)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP or os.path.islink(partial):
+            _refuse_link(partial)
+        raise
+    try:
+        info = os.fstat(descriptor)
+        if not stat.S_ISREG(info.st_mode) or info.st_nlink > 1:
+            what = "has other hard links" if stat.S_ISREG(info.st_mode) else "is not a regular file"
+            raise LogError(f"{partial} {what}; lagrseq writes a log only into a file of its own: remove it or give another --out")
+        if hasattr(os, "set_blocking"):
+            os.set_blocking(descriptor, True)
         if fcntl is not None:
             fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
         os.ftruncate(descriptor, 0)
@@ -168,6 +210,7 @@ class McapSink:
         self._columnar = log_format == "3"
         self.partial = self.path.with_name(self.path.name + PARTIAL_SUFFIX)
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        _refuse_link(self.path)
         self._stream = _open_exclusive(self.partial)
         self._writer = LeanWriter(self._stream, library="lagrseq", profile=PROFILE)
         self._channels: dict[str, int] = {}
@@ -189,7 +232,9 @@ class McapSink:
         # A task's own record types (None: it has none, and only lagrseq's types are taken)
         self._task_transition = None if task_fields is None or task_fields.transition is Transition else task_fields.transition
         self._task_episode = None if task_fields is None or task_fields.episode is EpisodeEvent else task_fields.episode
-        self._writer.add_metadata(RUN_METADATA, {**metadata, "log_format": log_format})
+        # the metadata holds the config (a base URL, a model name: text a user gave) and every
+        # query the answer a server sent: the guarded API keys are blanked out of both
+        self._writer.add_metadata(RUN_METADATA, scrub_value({**metadata, "log_format": log_format}))
         # Format 3: the current episode's transitions and decisions not to query, held until
         # its end, when each becomes one columnar record.
         self._steps: list[Transition] = []
@@ -230,6 +275,8 @@ class McapSink:
                 for value in (e.evaluation, e.query_reward, e.temperature, e.cost_usd, e.latency_s):  # type: ignore[union-attr]
                     if value is not None and not -_HUGE < value < _HUGE:
                         _finite(event, _QUERY_FLOATS)
+                if keys_active():
+                    event = _scrubbed(event)  # type: ignore[arg-type]
                 self._pending.append((self._query_channel, event.global_step, encode(event)))  # type: ignore[union-attr]
                 return
             if kind is EpisodeEvent or kind is ArmEpisodeEvent or kind is self._task_episode:
@@ -293,9 +340,12 @@ class McapSink:
             raise LogError(f"record is not JSON-serialisable ({exc}): an episode's Transition or QueryEvent") from None
 
     def write_record(self, topic: str, record: dict[str, Any], log_time: int) -> None:
-        """Add one JSON object to ``topic`` as it is (tools and tests that write their own)."""
+        """Add one JSON object to ``topic`` as it is (tools and tests that write their own), the
+        guarded API keys blanked out of its strings."""
         if topic not in self._channels:
             raise LogError(f"topic {topic!r} is not registered in {self.path.name}")
+        if keys_active() and topic not in (TRANSITION_TOPIC, TRANSITIONS_TOPIC):
+            record = scrub_value(record)
         if topic in (TRANSITIONS_TOPIC, NO_QUERY_TOPIC):  # count what the readers will expand
             column = record.get("global_step")
             self._expanded[TRANSITION_TOPIC if topic == TRANSITIONS_TOPIC else QUERY_TOPIC] += len(column) if isinstance(column, list) else 0
@@ -353,12 +403,13 @@ class McapSink:
             if self._columnar:
                 self._writer.add_metadata(RECORDS_METADATA, self.records())
             self._writer.add_metadata(
-                STATUS_METADATA, {"status": status, "error": error, "messages": str(self.messages)}
+                STATUS_METADATA, scrub_value({"status": status, "error": error, "messages": str(self.messages)})
             )
             self._writer.finish()
         finally:
             self._stream.close()
-        os.replace(self.partial, self.path)
+        _refuse_link(self.path)  # planted while the trial ran: the log stays NAME.partial
+        os.replace(self.partial, self.path)  # rename replaces a name, never writes through a link
         return self.path
 
     def abandon(self) -> None:

@@ -33,12 +33,15 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from lagrseq import keys
 from lagrseq.paths import input_path
 from lagrseq.robot import OUTCOMES, JointState, PlacementResult, Robot, RobotError
+from lagrseq.text import printable
 
 MAX_MESSAGE_BYTES = 16 * 1024 * 1024
 """Largest answer a client accepts (a 1920 x 1440 PNG fits)."""
@@ -103,6 +106,7 @@ def read_token(path: str | os.PathLike[str], flag: str = "--token-file") -> str:
             f"{flag} {file}: expected one line of at least {MIN_TOKEN_CHARS} printable ASCII characters without spaces; "
             "make one with: python -c 'import secrets; print(secrets.token_urlsafe(32))' > FILE"
         )
+    keys.remember(token)  # blanked out of every line printed and every log written, as an API key is
     return token
 
 
@@ -337,12 +341,58 @@ def security_for(
         )
     if not 1 <= max_objects <= 10_000:
         raise RobotError(f"--max-objects {max_objects}; expected 1 to 10000")
+    cert_pem = _read_pem(tls_cert, "--tls-cert") if tls_cert is not None else None
+    key_pem = _read_pem(tls_key, "--tls-key") if tls_key is not None else None
+    if cert_pem is not None and key_pem is not None:
+        check_tls_pair(cert_pem, key_pem, str(tls_cert), str(tls_key))
     return ServiceSecurity(
         token=read_token(token_file) if token_file is not None else None,
-        tls_cert=_read_pem(tls_cert, "--tls-cert") if tls_cert is not None else None,
-        tls_key=_read_pem(tls_key, "--tls-key") if tls_key is not None else None,
+        tls_cert=cert_pem,
+        tls_key=key_pem,
         max_objects=max_objects,
     )
+
+
+def check_tls_pair(cert_pem: bytes, key_pem: bytes, cert_name: str, key_name: str) -> None:
+    """One clear line, before any server starts (gRPC would print its own log lines and fail
+    vaguely), unless ``cert_pem`` holds whole PEM certificates and ``key_pem`` the unencrypted
+    PEM private key that goes with the first: both are loaded by the ``ssl`` module (OpenSSL,
+    what gRPC uses too), from private temporary copies of the bytes that were read."""
+    import ssl
+    import tempfile
+
+    shown_cert, shown_key = printable(cert_name), printable(key_name)
+    for pem, flag, shown, what in ((cert_pem, "--tls-cert", shown_cert, "certificate"), (key_pem, "--tls-key", shown_key, "private key")):
+        begins, ends = pem.count(b"-----BEGIN "), pem.count(b"-----END ")
+        if begins != ends:
+            raise RobotError(f"{flag} {shown} is not a PEM {what}: cut short ({begins} -----BEGIN lines, {ends} -----END lines); give the whole file")
+    with tempfile.TemporaryDirectory(prefix="lagrseq-tls-check-") as folder:
+        cert_copy, key_copy = Path(folder) / "cert.pem", Path(folder) / "key.pem"
+        for path, data in ((cert_copy, cert_pem), (key_copy, key_pem)):
+            descriptor = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+            with os.fdopen(descriptor, "wb") as handle:
+                handle.write(data)
+        context = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+        try:
+            context.load_verify_locations(cafile=str(cert_copy))
+        except (ssl.SSLError, ValueError) as exc:
+            raise RobotError(f"--tls-cert {shown_cert} is not a PEM certificate: {_ssl_reason(exc)}; give the certificate (chain) file, e.g. made by openssl req -x509") from None
+        try:
+            context.load_cert_chain(certfile=str(cert_copy), keyfile=str(key_copy), password=lambda: b"")
+        except (ssl.SSLError, ValueError) as exc:
+            raise RobotError(
+                f"--tls-key {shown_key} is not an unencrypted PEM private key of the certificate in --tls-cert {shown_cert}: "
+                f"{_ssl_reason(exc)}; give the key made with the certificate (openssl ... -nodes)"
+            ) from None
+
+
+def _ssl_reason(exc: BaseException) -> str:
+    """An ``ssl`` error in a few words, on one line (OpenSSL's "PEM lib" says only that the file
+    could not be read)."""
+    reason = getattr(exc, "reason", None)
+    if reason is None or reason == "PEM_LIB" or "PEM lib" in str(exc):
+        return "OpenSSL cannot read it (damaged, cut short, encrypted with a passphrase, or another kind of PEM)"
+    return printable(" ".join(str(reason).lower().replace("_", " ").split()))
 
 
 def _stderr_log(line: str) -> None:

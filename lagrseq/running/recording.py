@@ -27,6 +27,7 @@ from lagrseq.registry import ProviderKind
 from lagrseq.running.wiring import make_live, make_task
 from lagrseq.tasks import cube
 from lagrseq.tasks.base import Task
+from lagrseq.text import shown
 
 STATE_TOPICS = ("/query", "/transition")
 
@@ -64,7 +65,7 @@ def record_patterns(
         raise UsageError(f"{config.task.name} has no default set of prompts; give runs with --from-runs")
     if topic not in STATE_TOPICS:
         raise UsageError(f"--states-from {topic!r}; expected /query or /transition")
-    warn = warn or (lambda message: print(f"warning: {message}", file=sys.stderr))
+    warn = warn or (lambda message: print(f"warning: {shown(message)}", file=sys.stderr))
     wanted = json.loads(json.dumps(asdict(config.task)))
     patterns: list[Any] = []
     seen: set[str] = set()
@@ -160,7 +161,7 @@ def record(
         return _record(queries, store_path, samples, mode, options, bar, endpoint, concurrency)
     from lagrseq.llm.local import LocalServer, Supervisor
 
-    say = bar.write if bar is not None else (lambda message: print(message, file=sys.stderr))
+    say = (lambda message: bar.write(shown(message))) if bar is not None else (lambda message: print(shown(message), file=sys.stderr))
     settings = local_settings(spec.argument, options)
     with LocalServer(settings, on_line=lambda line: say(f"  {line}")) as server:
         supervisor = Supervisor(server, lambda line: say(f"  {line}"))  # a dying server: restarted once, then one line
@@ -231,7 +232,7 @@ def _record(
             return RecordingReport(len(queries), held(store), samples, store_path)
     # The retry jitter's generator: seeded per process, so concurrent recorders back off apart.
     jitter = np.random.default_rng([os.getpid()])
-    say = bar.write if bar is not None else (lambda message: print(message, file=sys.stderr))
+    say = (lambda message: bar.write(shown(message))) if bar is not None else (lambda message: print(shown(message), file=sys.stderr))
     environ: dict[str, str] | None = {} if local_model is not None else None  # a local server: no key
     live = make_live(options, jitter, budgeted=True, on_retry=on_retry or (lambda message: say(f"  {message}")), environ=environ, local_model=local_model)
     budget = live.budget
@@ -354,27 +355,29 @@ def import_answers(
 
 def export_answers(store_path: Path, out: str, stdout: Any) -> str:
     """``lagrseq cache export``: the store as JSONL into ``out`` (``-``: ``stdout``), written to a
-    temporary name and renamed, so a failed export leaves nothing half-written."""
+    new file beside it and renamed, so a failed export leaves nothing half-written; ``out`` may
+    replace a file, never a symbolic link (refused), and may not lie inside the store it exports
+    (it would replace the store's own database)."""
     from lagrseq.llm.store import RecordStore, export_jsonl
+    from lagrseq.paths import check_output, write_output
 
+    if out != "-":
+        path = Path(out)
+        try:
+            store_real, out_real = Path(store_path).resolve(), path.resolve()
+        except (OSError, RuntimeError):  # a symlink loop: compared as written (the open reports the loop)
+            store_real, out_real = Path(os.path.abspath(store_path)), Path(os.path.abspath(path))
+        if out_real == store_real or store_real in out_real.parents:
+            raise UsageError(
+                f"--out {out} lies inside the store {store_path} that it exports: the export would replace "
+                "the store's own files; give a path outside the store directory"
+            )
+        check_output(path, "--out", replace=True)
     with RecordStore(store_path, create=False) as store:
         if out == "-":
             report = export_jsonl(store, stdout)
         else:
-            path = Path(out)
-            partial = path.with_name(path.name + ".partial")
-            try:
-                with partial.open("w", encoding="utf-8") as handle:
-                    report = export_jsonl(store, handle)
-                os.replace(partial, path)
-            except OSError as exc:
-                with contextlib.suppress(OSError):
-                    partial.unlink()
-                raise UsageError(f"cannot write {path}: {exc.strerror or exc}") from None
-            except BaseException:  # a damaged store: no half-written export is left behind
-                with contextlib.suppress(OSError):
-                    partial.unlink()
-                raise
+            report = write_output(Path(out), lambda handle: export_jsonl(store, handle), "--out", replace=True)
     return f"{report.lines} answers under {report.keys} keys written to {out}"
 
 

@@ -271,7 +271,9 @@ def pays(spec: str, options: Any = None) -> bool:
 
 def _say(message: str) -> None:
     """Retries and notes of a live provider during a run go to stderr (redacted at the source)."""
-    print(f"lagrseq: {message.strip()}", file=sys.stderr)
+    from lagrseq.text import shown
+
+    print(f"lagrseq: {shown(message.strip())}", file=sys.stderr)
 
 
 def check_provider(spec: str, config: ExperimentConfig, options: Any = None) -> None:
@@ -426,7 +428,8 @@ def model_listing(paths: list[Path], hash_files: bool, as_json: bool) -> tuple[l
     models = find_models(paths, hash_files=hash_files)
     given_bad = [model for model in models if model.problem and model.found_by == "path"]
     found = [model for model in models if model not in given_bad]
-    lines = [json.dumps(model.row(), ensure_ascii=False) for model in found] if as_json else model_lines(found)
+    # JSON with ASCII escapes: a file name that is not UTF-8 (lone surrogates) stays valid JSON
+    lines = [json.dumps(model.row()) for model in found] if as_json else model_lines(found)
     return lines, [f"{model.path}: {model.problem}" for model in given_bad]
 
 

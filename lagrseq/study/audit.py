@@ -25,6 +25,7 @@ from lagrseq.config import ExperimentConfig
 from lagrseq.errors import ConfigError, UsageError
 from lagrseq.logs.reader import is_complete
 from lagrseq.running import runner, wiring
+from lagrseq.text import shown
 
 
 @dataclass(frozen=True)
@@ -137,7 +138,7 @@ def run_audit(
     with progress_bar(len(runs) * trials, "trial", quiet=quiet) as bar:
         sweep = [runner.SweepRun(r.config, trials, seed, r.provider, r.path, progress=runner.TrialCount(bar, r.config)) for r in runs]
         runner.run_sweep(sweep, jobs)  # every run's trials in one pool: no worker waits on a run's last trial
-    return write_audit([runs_dir], reports, formats, task, warn=lambda line: print(f"lagrseq audit: warning: {line}", file=sys.stderr))
+    return write_audit([runs_dir], reports, formats, task, warn=lambda line: print(f"lagrseq audit: warning: {shown(line)}", file=sys.stderr))
 
 
 def write_audit(

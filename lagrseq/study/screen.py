@@ -16,12 +16,10 @@ tasks: every cell), what an answer must be for LaGR's threshold of 1.0 on these 
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import io
 import json
 import math
-import os
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -447,7 +445,8 @@ def record_screen(
 ) -> str:
     """Ask ``provider`` the screen's prompts (topping up ``store``, or a temporary one), then write
     exactly those prompts' answers to ``answers`` as recorded-answer JSONL (written to a temporary
-    name and renamed: a failure leaves no half file). A local model's answers name its file by
+    name and renamed: a failure leaves no half file). An existing ``answers`` is refused before
+    anything is asked, never truncated nor appended to; a symbolic link there too. A local model's answers name its file by
     GGUF header and sha256 in their provenance. Returns the line to print."""
     import shutil
     import tempfile
@@ -467,8 +466,9 @@ def record_screen(
         if model.header is None:
             raise UsageError(f"local model {settings.model}: {model.problem}")
     answers = Path(answers)
-    if answers.exists() and not answers.is_file():
-        raise UsageError(f"--answers {answers}: not a regular file; give a .jsonl path to write")
+    from lagrseq.paths import check_output, write_output
+
+    check_output(answers, "--answers", replace=False)  # before anything is asked (or paid for)
     scratch = None if store is not None else Path(tempfile.mkdtemp(prefix="lagrseq-screen-store-"))
     store_path = store if store is not None else scratch / "store"  # type: ignore[operator]
     try:
@@ -484,15 +484,9 @@ def record_screen(
             lines = [line for line in jsonl_lines(opened) if json.loads(line)["key"] in wanted]
         if model is not None:
             lines = list(stamped_lines(lines, model))
-        partial = answers.with_name(answers.name + ".partial")
-        try:
-            answers.parent.mkdir(parents=True, exist_ok=True)
-            partial.write_text("".join(line + "\n" for line in lines), encoding="utf-8")
-            os.replace(partial, answers)
-        except OSError as exc:
-            with contextlib.suppress(OSError):
-                partial.unlink()
-            raise UsageError(f"cannot write {answers}: {exc.strerror or exc}") from None
+        # an existing file is never overwritten nor appended to (its answers would be screened
+        # with these): refused before asking, and again when the file is put in place
+        write_output(answers, lambda handle: handle.write("".join(line + "\n" for line in lines)), "--answers", replace=False)
     finally:
         if scratch is not None:
             shutil.rmtree(scratch, ignore_errors=True)

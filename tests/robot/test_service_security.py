@@ -190,6 +190,47 @@ def test_the_command_line_refuses_0000_without_token_and_tls(tmp_path: Path) -> 
         assert TOKEN not in done.stderr + done.stdout
 
 
+def test_a_damaged_tls_cert_or_key_is_one_clear_line_before_grpc_starts(tmp_path: Path, tls_pair: tuple[Path, Path]) -> None:
+    """Issue 37: a truncated --tls-cert or --tls-key printed three gRPC log lines and a vague "in
+    use ... or a bad TLS certificate/key"; now the files are checked (OpenSSL through ``ssl``)
+    before any server starts."""
+    cert, key = tls_pair
+    lines = cert.read_text().splitlines()
+    cut_cert = tmp_path / "cut-cert.pem"
+    cut_cert.write_text("\n".join(lines[:3]) + "\n")  # BEGIN and two lines: the end is missing
+    body_cut = tmp_path / "body-cut.pem"
+    body_cut.write_text("\n".join([lines[0], lines[1], lines[-1]]) + "\n")  # BEGIN ... END, most of the body gone
+    key_lines = key.read_text().splitlines()
+    cut_key = tmp_path / "cut-key.pem"
+    cut_key.write_text("\n".join(key_lines[:2]) + "\n")
+    other = tmp_path / "other"
+    other.mkdir()
+    subprocess.run(
+        ["openssl", "req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes",
+         "-keyout", str(other / "key.pem"), "-out", str(other / "cert.pem"), "-days", "1", "-subj", "/CN=other"],
+        check=True, capture_output=True, timeout=60,
+    )
+    for path in (cut_key, other / "key.pem"):
+        path.chmod(0o600)
+    cases = {
+        (cut_cert, key): f"--tls-cert {cut_cert} is not a PEM certificate: cut short",
+        (body_cut, key): f"--tls-cert {body_cut} is not a PEM certificate: OpenSSL cannot read it",
+        (key, key): f"--tls-cert {key} is not a PEM certificate",
+        (cert, cut_key): f"--tls-key {cut_key} is not a PEM private key: cut short",
+        (cert, other / "key.pem"): f"--tls-key {other / 'key.pem'} is not an unencrypted PEM private key of the certificate",
+        (cert, cert): f"--tls-key {cert} is not an unencrypted PEM private key",
+    }
+    for (cert_file, key_file), expected in cases.items():
+        done = subprocess.run(
+            [sys.executable, "-m", "lagrseq", "robot", "serve", "--sim", "--port", "0", "--tls-cert", str(cert_file), "--tls-key", str(key_file)],
+            capture_output=True, text=True, timeout=60, cwd=ROOT,
+        )
+        errors = [line for line in done.stderr.splitlines() if not line.startswith("pybullet build time")]
+        assert done.returncode == 2 and len(errors) == 1, (cert_file.name, key_file.name, done.stderr)
+        assert expected in errors[0], errors[0]
+        assert "in use" not in errors[0]
+
+
 def test_the_table_is_bounded_until_clear() -> None:
     robot = TableRobot()
     server, port, lines = serve(robot, ServiceSecurity(max_objects=3))

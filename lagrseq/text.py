@@ -1,0 +1,69 @@
+"""Text from outside (file names, model paths, plugin descriptions, host names, server replies)
+made safe to print: :func:`printable` escapes what could forge a line or drive the terminal, and
+:func:`safe_streams` makes stdout and stderr escape what their encoding cannot write.
+
+A file name is bytes on POSIX: a name that is not UTF-8 comes into Python with lone surrogates
+(``os.fsdecode``), which no encoder writes, and a name may hold a newline (a forged extra line of
+output) or an ANSI escape (colours, a cleared screen, a rewritten line). Every print of such text
+goes through :func:`printable`, which keeps ordinary text (any script, emoji) exactly and writes
+the rest as Python-style escapes: ``\\n``, ``\\t``, ``\\x1b``, ``\\u202e`` (bidi overrides and
+other format characters), and a byte of a non-UTF-8 name as ``\\xff``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+import unicodedata
+
+_NAMED = {"\n": "\\n", "\r": "\\r", "\t": "\\t", "\\": "\\\\"}
+_ESCAPED_CATEGORIES = frozenset(("Cc", "Cf", "Cs", "Co", "Cn", "Zl", "Zp"))
+
+
+def _escape(char: str) -> str:
+    named = _NAMED.get(char)
+    if named is not None:
+        return named
+    code = ord(char)
+    if 0xDC80 <= code <= 0xDCFF:  # a byte of a non-UTF-8 file name (os.fsdecode's surrogateescape)
+        return f"\\x{code - 0xDC00:02x}"
+    if code <= 0xFF:
+        return f"\\x{code:02x}"
+    return f"\\u{code:04x}" if code <= 0xFFFF else f"\\U{code:08x}"
+
+
+def printable(text: str) -> str:
+    """``text`` on one line with nothing that acts on a terminal: control characters (newlines,
+    ANSI escapes), format characters (bidi overrides, zero-width ones), line and paragraph
+    separators, lone surrogates (the bytes of a non-UTF-8 file name), private-use and unassigned
+    code points are written as escapes; a backslash is doubled only where the text is changed
+    (so an ordinary Windows path prints as it is)."""
+    if text.isascii() and text.isprintable():
+        return text
+    if text.isprintable() and not any(0xD800 <= ord(c) <= 0xDFFF for c in text):
+        return text  # isprintable is False for Cc, Cf, Zl, Zp, Zs other than space, Cs, Co, Cn
+    pieces = []
+    for char in text:
+        if char == "\\" or unicodedata.category(char) in _ESCAPED_CATEGORIES:
+            pieces.append(_escape(char))
+        else:
+            pieces.append(char)
+    return "".join(pieces)
+
+
+def safe_streams() -> None:
+    """Make ``sys.stdout`` and ``sys.stderr`` write what their encoding cannot as escapes
+    (``PYTHONIOENCODING=ascii``, a C locale) instead of raising UnicodeEncodeError."""
+    for stream in (sys.stdout, sys.stderr):
+        reconfigure = getattr(stream, "reconfigure", None)
+        if reconfigure is not None:
+            with contextlib.suppress(Exception):  # a replaced stream that takes no such option
+                reconfigure(errors="backslashreplace")
+
+
+def shown(text: object) -> str:
+    """Outside text for one line of a terminal or a message: every guarded API key blanked
+    (:func:`lagrseq.keys.scrub`), then :func:`printable`."""
+    from lagrseq.keys import scrub
+
+    return printable(scrub(str(text)))
