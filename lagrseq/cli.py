@@ -1083,7 +1083,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _dispatch(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
+    from lagrseq.agents.numerics import numerics
+
     try:
+        numerics()  # LAGRSEQ_NUMERICS checked before anything runs (a bad value: one line, exit 2)
         return COMMANDS[args.command](args)
     except LagrseqError as exc:
         print(f"lagrseq {args.command}: error: {exc}", file=sys.stderr)

@@ -37,3 +37,11 @@ def cube_cache_8() -> list:
 @pytest.fixture
 def cube_cache_11() -> list:
     return load_authors_cache("cube_stacking_cache0.pkl")
+
+
+@pytest.fixture(autouse=True)
+def _native_numerics(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every test starts with the machine's own numerics (LAGRSEQ_NUMERICS unset), whatever the
+    shell that started pytest set: the golden-log and determinism tests are native by definition;
+    a test that wants ``perturbed`` sets it itself."""
+    monkeypatch.delenv("LAGRSEQ_NUMERICS", raising=False)
