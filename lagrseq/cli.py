@@ -1,7 +1,8 @@
 """The ``lagrseq`` command line. Exit status: 0 success, 2 bad usage or bad input (one line on
 stderr), 3 ``reproduce`` finished but some items failed (their runs failed; every other item is
-reported, one summary line on stderr), 130 interrupted by Ctrl-C (SIGINT), 143 stopped by SIGTERM
-(a batch scheduler, ``kill``: the same clean stop as Ctrl-C, logs kept), 1 an unexpected failure.
+reported, one summary line on stderr), 4 a verdict flips between the two reports ``lagrseq
+compare`` read, 130 interrupted by Ctrl-C (SIGINT), 143 stopped by SIGTERM (a batch scheduler,
+``kill``: the same clean stop as Ctrl-C, logs kept), 1 an unexpected failure.
 
 The parsers are declared once per option group (parent parsers) and take their choices from the
 code's own constants; each ``cmd_*`` handler parses, calls one function and prints.
@@ -493,6 +494,38 @@ def _add_replay(sub: Any) -> None:
     p.add_argument("--jobs", type=_N["jobs"], default=None, help="processes that read the logs (default: the number of cores, at most 8; a few logs are read in one process); where there are several, one more draws the figures; the report is the same for any number")
 
 
+COMPARE_FLIPPED = 4
+"""``lagrseq compare``'s exit status when a verdict differs between the two reports (0: every
+verdict agrees; 2: bad usage or a folder that is not a report; 1 stays an unexpected failure)."""
+
+
+def _add_compare(sub: Any) -> None:
+    p = sub.add_parser(
+        "compare",
+        help="compare two reports by their verdicts (another machine's run against the reference)",
+        description=(
+            "Read two report folders (what lagrseq replay --out and reproduce write: OUT/reports, "
+            "or OUT itself) and print, per scoreboard row and per frontier point, both values with "
+            "their 95% intervals and n, whether the intervals overlap and whether the verdicts "
+            "agree. Rows in one report only are listed as such. Bytes agree only on one machine; "
+            "across machines the verdicts must (docs/reproduce.md). Exit status: 0 every verdict "
+            f"agrees, {COMPARE_FLIPPED} a verdict flips, 2 bad usage or a folder that is not a report."
+        ),
+        epilog=(
+            "examples:\n"
+            "  lagrseq compare lagrseq-out/reports docs/reference-report\n"
+            "  LAGRSEQ_NUMERICS=perturbed lagrseq reproduce --quick --out other && lagrseq compare other docs/reference-report --differences\n"
+            "  lagrseq compare report-a report-b --csv compare.csv --markdown compare.md"
+        ),
+        formatter_class=_RAW,
+    )
+    p.add_argument("report_a", type=Path, metavar="REPORT_A", help="a report folder (or an output folder holding reports/)")
+    p.add_argument("report_b", type=Path, metavar="REPORT_B", help="the report to compare it with (e.g. docs/reference-report)")
+    p.add_argument("--differences", action="store_true", help="print only the rows whose verdicts flip or that one report lacks (the summary counts every row)")
+    p.add_argument("--csv", type=Path, default=None, metavar="FILE", help="also write the comparison as CSV to FILE (every row)")
+    p.add_argument("--markdown", type=Path, default=None, metavar="FILE", help="also write the comparison as a Markdown table to FILE (every row)")
+
+
 def _add_reproduce(sub: Any) -> None:
     p = sub.add_parser(
         "reproduce",
@@ -687,7 +720,7 @@ _ADDERS: dict[str, Callable[[Any], None]] = {
     "run": _add_run, "config": _add_config, "record": _add_record, "cache": _add_cache,
     "reproduce": _add_reproduce, "replay": _add_replay, "recover": _add_recover, "robot": _add_robot,
     "frontier": _add_frontier, "audit": _add_audit, "serve-llm": _add_serve_llm, "plugins": _add_plugins,
-    "models": _add_models, "screen": _add_screen, "info": _add_info,
+    "models": _add_models, "screen": _add_screen, "compare": _add_compare, "info": _add_info,
 }
 """Each command's parser, in the order ``lagrseq --help`` lists them."""
 
@@ -919,6 +952,24 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_compare(args: argparse.Namespace) -> int:
+    from lagrseq.analysis import compare
+
+    for flag, path in (("--csv", args.csv), ("--markdown", args.markdown)):
+        if path is not None and (path.is_dir() or not path.parent.is_dir()):
+            raise UsageError(f"{flag} {path} is not a file in an existing folder; give a file path whose folder exists")
+    comparison = compare.compare(compare.read_report(args.report_a), compare.read_report(args.report_b))
+    sys.stdout.write(compare.to_text(comparison, differences_only=args.differences))
+    for path, text in ((args.csv, compare.to_csv(comparison)), (args.markdown, compare.to_markdown(comparison))):
+        if path is not None:
+            path.write_text(text, encoding="utf-8", newline="\n")
+            print(f"wrote {path}")
+    if comparison.flips:
+        print(f"lagrseq compare: {comparison.flips} verdict(s) flip between the reports (exit status {COMPARE_FLIPPED})", file=sys.stderr)
+        return COMPARE_FLIPPED
+    return 0
+
+
 def cmd_frontier(args: argparse.Namespace) -> int:
     import time
 
@@ -1089,6 +1140,7 @@ COMMANDS = {
     "serve-llm": cmd_serve_llm,
     "models": cmd_models,
     "screen": cmd_screen,
+    "compare": cmd_compare,
 }
 INTERRUPTED = {
     "run": "finished trial logs are kept, unfinished ones left as .partial (lagrseq recover); run the same command to go on",
@@ -1153,7 +1205,10 @@ def _main(argv: Sequence[str] | None) -> int:
 
 
 def _dispatch(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
+    from lagrseq.agents.numerics import numerics
+
     try:
+        numerics()  # LAGRSEQ_NUMERICS checked before anything runs (a bad value: one line, exit 2)
         return COMMANDS[args.command](args)
     except LagrseqError as exc:
         print(f"lagrseq {args.command}: error: {_shown(exc)}", file=sys.stderr)

@@ -71,6 +71,14 @@ def torch_device() -> str:
     return f"torch {torch.__version__}: {seen}; lagrseq uses the cpu unless primary.device says \"cuda\" or \"auto\""
 
 
+def numerics_line() -> str:
+    """The DQN's numerics (``LAGRSEQ_NUMERICS``, :mod:`lagrseq.agents.numerics`)."""
+    from lagrseq.agents.numerics import PERTURBED, VARIABLE, numerics
+
+    what = "another CPU simulated: initial weights one ulp up, minibatches summed in reverse order" if numerics() == PERTURBED else "this machine's own"
+    return f"{numerics()} ({VARIABLE}; {what}; docs/reproduce.md)"
+
+
 def lines(cwd: Path | None = None, device: Callable[[], str] = torch_device) -> list[str]:
     """The report, line by line."""
     cwd = Path.cwd() if cwd is None else cwd
@@ -86,6 +94,7 @@ def lines(cwd: Path | None = None, device: Callable[[], str] = torch_device) -> 
         state = "installed" if all(installed(p) for p in packages) else "not installed"
         out.append(f"extra {extra}: {state} ({', '.join(versions)})")
     out.append(f"torch device: {device()}")
+    out.append(f"numerics: {numerics_line()}")
     for command, default, inside in OUTPUTS:
         out.append(f"output of {command}: {cwd / default}{inside}; --out moves it")
     return out

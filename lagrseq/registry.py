@@ -44,8 +44,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Generic, TypeVar
 
-from lagrseq.text import printable  # re-exported: the one escaping of outside text
 from lagrseq.errors import UsageError
+from lagrseq.text import printable  # re-exported: the one escaping of outside text
 
 BUILTIN = "lagrseq"
 """The source of the built-in parts (``lagrseq plugins``)."""

@@ -47,3 +47,11 @@ def fresh_key_guard(monkeypatch: pytest.MonkeyPatch) -> None:
     is one process, the tests share one, and a test's secret must not blank another's output."""
     monkeypatch.setattr(keys, "_watched", dict(keys._watched))
     monkeypatch.setattr(keys, "_remembered", dict(keys._remembered))
+
+
+@pytest.fixture(autouse=True)
+def _native_numerics(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every test starts with the machine's own numerics (LAGRSEQ_NUMERICS unset), whatever the
+    shell that started pytest set: the golden-log and determinism tests are native by definition;
+    a test that wants ``perturbed`` sets it itself."""
+    monkeypatch.delenv("LAGRSEQ_NUMERICS", raising=False)

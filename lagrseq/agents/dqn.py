@@ -17,6 +17,8 @@ with the paper's hyperparameter table):
 
 Weights start as Keras' defaults do in the released code (Glorot-uniform, zero biases), drawn from
 a torch generator seeded once per agent from the trial seed; Adam uses Keras' epsilon (1e-7).
+Under ``LAGRSEQ_NUMERICS=perturbed`` (:mod:`lagrseq.agents.numerics`: another CPU, simulated)
+the initial parameters are one ulp higher and each minibatch's rows are summed in reverse order.
 
 Seed-batched: every agent's network is a member of a :class:`NetworkGroup`, which stacks the
 networks of one shape; in a lockstep run (:mod:`lagrseq.agents.lockstep`) the trials' agents share
@@ -32,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from lagrseq.agents import lockstep
+from lagrseq.agents import lockstep, numerics
 from lagrseq.agents.replay import Batch, Draw, ReplayBuffer
 from lagrseq.errors import UsageError
 
@@ -81,6 +83,7 @@ def mlp(torch: Any, sizes: Sequence[int], generator: Any) -> Any:
         linear = torch.nn.Linear(fan_in, fan_out)
         torch.nn.init.xavier_uniform_(linear.weight, generator=generator)
         torch.nn.init.zeros_(linear.bias)
+        numerics.perturb(torch, [linear.weight, linear.bias])  # LAGRSEQ_NUMERICS=perturbed: one ulp up
         layers.append(linear)
         if i < len(sizes) - 2:
             layers.append(torch.nn.ReLU())
@@ -555,6 +558,7 @@ class DQN:
         self.member = self.group.join(generator)
         self.group.threads = threads
         self.buffer = ReplayBuffer(buffer_size, observation_size)
+        self._perturbed = numerics.numerics() == numerics.PERTURBED
         # Normalisation to [0, 1] with the observation space's bounds (None: raw observations).
         self._low: np.ndarray | None = None
         self._scale: np.ndarray | None = None
@@ -615,4 +619,6 @@ class DQN:
         if len(self.buffer) < self.batch_size:
             return None
         draw = self.buffer.draw(self.batch_size, rng)
+        if self._perturbed:  # another machine, simulated: the same minibatch, summed in the other order
+            draw = Draw(self.buffer, numerics.reorder(draw.index))
         return lockstep.request(self.group.train, (self.member, draw))  # type: ignore[no-any-return]

@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from lagrseq import __version__
+from lagrseq.agents.numerics import NATIVE, numerics
 from lagrseq.config import ExperimentConfig
 from lagrseq.errors import (
     BudgetExceeded,
@@ -68,9 +69,13 @@ def run_metadata(
 ) -> dict[str, str]:
     """The ``lagrseq.run`` metadata record: everything replay needs to know about the trial.
     ``notes``: more entries under names of their own (``frontier_tuning``: how ``lagrseq frontier
-    --tune`` chose the run's knobs); none by default, so ordinary logs are unchanged."""
+    --tune`` chose the run's knobs); none by default, so ordinary logs are unchanged.
+    ``numerics``: ``perturbed`` in a trial that trains a network under ``LAGRSEQ_NUMERICS=perturbed``
+    (:mod:`lagrseq.agents.numerics`); absent under native numerics, so native logs keep their bytes."""
+    machine = trial_numerics(config)
     return {
         **(notes or {}),
+        **({"numerics": machine} if machine != NATIVE else {}),
         "provider_options": logged_options(provider_options if provider_options is not None else default_options(provider_spec)),
         "config": config.to_json(),
         "task": config.task.name,
@@ -83,6 +88,20 @@ def run_metadata(
         "python": platform.python_version(),
         "numpy": np.__version__,
     }
+
+
+def trains_network(config: ExperimentConfig) -> bool:
+    """Whether a trial of ``config`` trains a network (the grid tasks' DQN, the neural SEQ agent):
+    only those depend on the machine's floating point."""
+    from lagrseq.config import DQNConfig, NeuralSecondaryConfig
+
+    return isinstance(config.primary, DQNConfig) or isinstance(config.secondary, NeuralSecondaryConfig)
+
+
+def trial_numerics(config: ExperimentConfig) -> str:
+    """The numerics a trial of ``config`` runs with here: ``LAGRSEQ_NUMERICS``'s setting for a trial
+    that trains a network, ``native`` for one that does not (the setting changes nothing there)."""
+    return numerics() if trains_network(config) else NATIVE
 
 
 def run_one(
@@ -235,6 +254,13 @@ def check_resumable(
     for key, value in (("seed", str(seed)), ("provider", provider_spec), ("trial", str(trial))):
         if info.run.get(key) != value:
             differences.append(f"{key}: {json.dumps(info.run.get(key))} -> {json.dumps(value)}")
+    # the numerics are the machine's, not the configuration's (no field, no digest): a log made
+    # under other numerics stands for another machine's trial, not for this one's
+    made_under, wanted_now = info.run.get("numerics", NATIVE), trial_numerics(config)
+    if made_under != wanted_now:
+        differences.append(
+            f"numerics: {json.dumps(made_under)} -> {json.dumps(wanted_now)} (set LAGRSEQ_NUMERICS={made_under} to resume it)"
+        )
     if differences:
         shown = "; ".join(differences[:3]) + (f"; and {len(differences) - 3} more" if len(differences) > 3 else "")
         kept = " (unfinished: a rerun would overwrite it; lagrseq recover keeps its flushed episodes)" if unfinished else ""
@@ -268,10 +294,8 @@ def lockstep_helps(config: ExperimentConfig) -> bool:
     (the grid tasks' DQN, the neural SEQ agent), which then learn in batched calls; and the
     ``greenlet`` package lockstep runs on is installed (else one after the other: the same logs)."""
     from lagrseq.agents import lockstep
-    from lagrseq.config import DQNConfig, NeuralSecondaryConfig
 
-    trains = isinstance(config.primary, DQNConfig) or isinstance(config.secondary, NeuralSecondaryConfig)
-    return trains and lockstep.available()
+    return trains_network(config) and lockstep.available()
 
 
 def run_in_lockstep(trials: list[Callable[[], TrialResult]]) -> list[TrialResult | BaseException]:
