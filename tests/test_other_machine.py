@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from lagrseq.running.suite import load_suite
+from lagrseq.suite import load_suite
 
 REPO = Path(__file__).resolve().parents[1]
 REFERENCE = REPO / "docs" / "reference-report"
@@ -39,7 +39,6 @@ def test_the_suite_has_recorded_store_items_and_one_of_them_trains_a_network() -
 
 
 @pytest.mark.torch
-@pytest.mark.xfail(strict=False, reason="needs per-run on_miss (issue 38 item 1)")
 def test_recorded_store_items_finish_with_a_report_under_perturbed_numerics(tmp_path: Path) -> None:
     pytest.importorskip("torch")
     from lagrseq.logs.reader import read_info
@@ -64,5 +63,5 @@ def test_recorded_store_items_finish_with_a_report_under_perturbed_numerics(tmp_
     if (REFERENCE / "tables").is_dir():  # the comparison runs on this report (its verdicts: the note's)
         compared = subprocess.run([sys.executable, "-m", "lagrseq", "compare", str(reports), str(REFERENCE)],
                                   cwd=REPO, capture_output=True, text=True, timeout=120)
-        assert compared.returncode in (0, 3), compared.stderr
+        assert compared.returncode in (0, 4), compared.stderr  # 4: a verdict flips (the note lists them)
         assert " agree, " in compared.stdout.splitlines()[-1]
