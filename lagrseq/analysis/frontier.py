@@ -63,7 +63,7 @@ from lagrseq.analysis.tables import Table, interval, number, to_csv, to_markdown
 from lagrseq.errors import LogError
 from lagrseq.frontier_protocol import TUNING_NOTE, matched_probability, wants_match
 from lagrseq.logs.reader import read_info
-from lagrseq.registry import kind_of, paid_sources, stored_sources
+from lagrseq.registry import kind_of, paid_sources
 
 Price = Callable[[str, int, int], float | None]
 MISS_THRESHOLD = 0.1

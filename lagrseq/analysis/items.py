@@ -25,7 +25,7 @@ from lagrseq.analysis.loading import ACCURACY_METHOD, Run
 from lagrseq.analysis.misses import Misses, count_misses
 from lagrseq.analysis.tables import Table, interval, number, plus_minus
 from lagrseq.errors import ConfigError
-from lagrseq.registry import kind_of, stored_sources
+from lagrseq.registry import kind_of
 from lagrseq.suite import Item, RunSpec, is_authors_provider, matches
 
 Price = Callable[[str, int, int], float | None]
@@ -713,8 +713,6 @@ def inference_min_n() -> int:
 def _slug(provider: str) -> str:
     """A file-name part for a provider spec: ``mock-authors-t0``; a recorded store by its folder
     or file name alone (``recorded-authors-answers``), so names do not depend on where it is."""
-    from lagrseq.registry import kind_of
-
     kind, _, argument = provider.partition(":")
     found = kind_of(provider)
     text = f"{kind}-{PurePath(argument).name}" if found is not None and found.replays else provider
