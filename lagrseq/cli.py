@@ -934,7 +934,10 @@ def cmd_frontier(args: argparse.Namespace) -> int:
     for table in made.tables:
         print(table.title)
         for row in table.rows:
-            print(f"  {row[0]:<{width}} queries {row[4]:<22} steps to first solve {row[7]:<22} vs always: {row[10]}; vs matched random: {row[12]}; credited: {row[13]}")
+            print(
+                f"  {row[0]:<{width}} queries {row[4]:<22} steps to first solve {row[7]:<22} vs always: {row[10]}; "
+                f"tail: {row[11]}; vs matched random: {row[13]}; credited: {row[14]}"
+            )
     print(f"{len(made.written)} files in {out} ({time.perf_counter() - started:.1f} s)")
     return 0
 

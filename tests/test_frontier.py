@@ -59,7 +59,7 @@ def test_frontier_runs_policies_and_replay_rebuilds_the_same_table(tmp_path: Pat
     assert {p.suffix for p in report.iterdir()} == {".csv", ".md", ".png"}
     # every point ran seed 0, trials 0 and 1: the logs pair them with always (common random numbers)
     judged = table[~table["policy"].isin(["always"])]
-    assert set(judged["vs_always_test"]) == {"paired t"}
+    assert set(judged["vs_always_test"]) == {"paired bootstrap-t (log ratio)"}
     # resume: nothing runs again; and the report from the logs alone is byte-identical
     assert cli.main(args) == 0
     again = tmp_path / "again"
