@@ -64,6 +64,7 @@ def _number_types() -> dict[str, Callable[[str], Any]]:
         "episodes": cfg.number_type("episodes", integer=True, ge=0, le=10**7),
         "steps": cfg.number_type("steps", integer=True, ge=-1, le=10**9),
         "objects": cfg.number_type("objects", integer=True, ge=1, le=10_000),
+        "count0": cfg.number_type("count", integer=True, ge=0, le=100_000),
     }
 
 
@@ -349,6 +350,8 @@ def _add_frontier(sub: Any) -> None:
     p.add_argument("--tune", action="store_true", help="choose each policy's knob (thompson, seq: query_cost; random: ask_probability) on tuning seeds by the fewest queries among settings non-inferior to always on steps to the first solve, record the choice in the logs' metadata, then evaluate it on the evaluation seed beside the variants as given")
     p.add_argument("--tune-seed", type=_SEED, default=None, help="run seed of the tuning trials (default: --seed + 1000003; never the evaluation seed)")
     p.add_argument("--tune-trials", type=_COUNT, default=5, help="tuning trials per candidate (default 5)")
+    p.add_argument("--stop-at-first-solve", action="store_true", help='stop every trial of the protocol (tuning, evaluation, matched random) at its first solved episode (run.stop_at = "first_solve"): steps to the first solve, the primary outcome, are known then; queries are counted to the first solve and the table says so')
+    p.add_argument("--full-horizon-trials", type=_N["count0"], default=0, metavar="K", help="with --stop-at-first-solve: also run every variant K trials at full length on the same seed (trials 0 to K-1), a panel of its own that measures the full-horizon query count on fewer pairs (default 0: none)")
     p.set_defaults(preset=None)  # cube stacking: paper (the upstream cube pays for wrong cubes); the rest: upstream
 
 
@@ -926,6 +929,7 @@ def cmd_frontier(args: argparse.Namespace) -> int:
         args.trials, args.seed, args.preset, args.config, args.overrides, args.jobs,
         progress=lambda desc, total, unit: _bar(total, unit, desc, args.quiet),
         say=_say, scopes=args.scopes, matched_random=args.matched_random, tune=frontier.tuning(args.tune, args.seed, args.tune_seed, args.tune_trials),
+        stop_at_first_solve=args.stop_at_first_solve, full_horizon_trials=args.full_horizon_trials,
     )
     made = report(roots, out, price, args.miss_threshold)
     for warning in made.warnings:
