@@ -88,7 +88,9 @@ def query_pairs(policy: np.ndarray, always: np.ndarray, target: float = 0.2, alp
 
 
 def _n(value: int) -> str:
-    return "never" if value < 0 else str(value)
+    if value < 0:
+        return "never"
+    return f"{value} (the minimum)" if value == paired.MIN_PAIRS else str(value)
 
 
 def rows(name: str, policy: np.ndarray, always: np.ndarray, random: np.ndarray | None = None,
