@@ -30,7 +30,7 @@ against ``always`` on steps to the first solve by two estimands of :mod:`lagrseq
 Each bootstrap draws from a generator seeded by the two runs and the outcome
 (:func:`_generator`), so a replay of the same logs gives the same bounds to the bit. Where the logs
 do not pair the points (another seed, a trial missing in either), there is no verdict: both
-estimands are per pair, and the table says ``no verdict: pairs missing``. Each learning policy's
+estimands are per pair, and the table says ``inconclusive (pairs missing: ..., no verdict)``. Each learning policy's
 point is also compared with ``random`` asking at the point's own mean query rate (queries /
 decisions, from its logs; the random run is found by its ``ask_probability``,
 :func:`lagrseq.frontier_protocol.matched_probability`): it *beats* it when the upper bound of the
