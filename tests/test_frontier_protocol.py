@@ -326,3 +326,18 @@ def test_scopes_auto_runs_both_regimes_on_the_grids_only(tmp_path: Path, capsys:
             parse_scopes(bad, "cube-stacking")
     assert cli.main(["frontier", "cube-stacking", "--scopes", "forever", "--out", str(tmp_path)]) == 2
     assert "--scopes 'forever'" in capsys.readouterr().err
+
+
+def test_the_tail_needs_the_pairs_the_docs_state() -> None:
+    """docs/frontier.md: with no late pair the tail's exact bound falls below 20% from 14 pairs on,
+    with one from 22, with two from 30 (so 10 pairs never give a non-inferior tail)."""
+    from lagrseq.analysis import paired
+
+    def first(late: int) -> int:
+        for n in range(paired.MIN_PAIRS, 100):
+            policy = np.r_[np.full(late, 200.0), np.full(n - late, 100.0)]
+            if paired.tail(policy, np.full(n, 100.0)).verdict == paired.NON_INFERIOR:
+                return n
+        return -1
+
+    assert [first(0), first(1), first(2)] == [14, 22, 30]
