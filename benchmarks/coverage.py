@@ -2,7 +2,7 @@
 
     PYTHONPATH=. python benchmarks/coverage.py                    # n = 2, 3, 5, 10; 4000 experiments each
     PYTHONPATH=. python benchmarks/coverage.py --n 2,5 --experiments 20000
-    PYTHONPATH=. python benchmarks/coverage.py --paired --n 3,10,20   # the frontier's paired bound
+    PYTHONPATH=. python benchmarks/coverage.py --paired --experiments 2000   # the frontier's paired bounds, n = 10, 30, 60
 
 For each n (trials per arm), draws ``--experiments`` simulated experiments and prints how often each
 nominal 95% interval covers the true value. The kinds (:mod:`lagrseq.analysis.inference`), each
@@ -25,21 +25,26 @@ where the scoreboard and the tables use it:
 A figure to print, not a test: the test suite holds the t interval to >= 93% at n = 5 and the
 log-scale interval to >= 92% at n = 5 and 10 (tests/analysis/test_inference.py).
 
-``--paired`` prints instead the one-sided coverage of the frontier's paired non-inferiority bound
-(:func:`inference.paired_noninferiority`, nominal 95%): how often the bound on a policy's slowdown
-against always lies above the true mean slowdown, at each n, for per-pair differences that are
-normal and for differences shaped like the measured ones (steps to the first solve: most pairs
-differ by exactly 0, a few by tens of steps, so the differences are zero-inflated and right-skewed).
+``--paired`` prints instead (at n = 10, 30, 60 unless ``--n`` says) the one-sided coverage of the
+frontier's paired bounds (nominal 95%): the studentized bootstrap upper bound of the mean per-pair
+log ratio (:func:`lagrseq.analysis.paired.studentized_bounds`, what the frontier's verdicts use),
+beside the old paired t bound of the mean difference in steps
+(:func:`inference.paired_noninferiority`) and the exact Clopper-Pearson upper bound of the share
+of pairs more than 10% late (:func:`lagrseq.analysis.paired.tail`), on normal log ratios and on two
+zero-inflated, right-skewed generators fitted to the measured differences (:data:`SHAPES`: most
+pairs solve at the very same step, 1-2 in 10 are hundreds or thousands of steps late). A sample
+without spread gives the bootstrap no bound, counted as a miss.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
-from lagrseq.analysis import inference, stats
+from lagrseq.analysis import inference, paired, stats
 
 KINDS = ("t", "log t, normal", "log t, skewed", "reduction", "Welch vs paper", "(90%, TOST)", "slope", "bootstrap (before)")
 SKEW_SIGMA = math.sqrt(math.log(1 + 0.5**2))
@@ -80,21 +85,94 @@ def coverage(n: int, experiments: int, seed: int) -> dict[str, float]:
     return {k: v / experiments for k, v in hits.items()}
 
 
-def paired_coverage(n: int, experiments: int, seed: int) -> tuple[float, float]:
-    """One-sided coverage of the paired bound on the slowdown (lower is better: the bound is an
-    upper bound of mean(policy - always)): normal differences (mean 2, sd 5) and zero-inflated ones
-    (70% exactly 0, else exponential with mean 10: true mean 3). Each pair also shares a trial
-    effect (sd 50) that the paired test must cancel."""
-    rng = np.random.default_rng(seed + 7 * n)
-    hits = [0, 0]
-    for _ in range(experiments):
-        trial = rng.normal(40.0, 50.0, n)
-        normal = rng.normal(2.0, 5.0, n)
-        skewed = np.where(rng.random(n) < 0.7, 0.0, rng.exponential(10.0, n))
-        for k, (d, true) in enumerate(((normal, 2.0), (skewed, 3.0))):
-            result = inference.paired_noninferiority(trial + d, trial, 1.0, higher_is_better=False)
-            hits[k] += -result.bound >= true  # the bound on the slowdown lies above the truth
-    return hits[0] / experiments, hits[1] / experiments
+@dataclass(frozen=True)
+class Shape:
+    """A generator of paired times to the first solve (policy, always), fitted to what the
+    frontier measured (issue 35; docs/frontier.md, seed 1, thompson at query cost 0.5 against
+    always, 10 pairs): always's time is log-normal; a pair is *late* with probability ``late``
+    (1-2 late trials in 10 were measured: 0.15), then the policy needs ``late_steps`` more
+    (log-normal, fitted to the two measured late differences); otherwise it is as fast as always
+    with probability ``zero`` (the measured share of exact ties among the other pairs) or a few
+    steps later (geometric, the measured mean of those small differences). Times are capped at
+    the trial's length (a trial that never solved counts at it)."""
+
+    name: str
+    always_median: float
+    always_log_sd: float
+    late: float
+    late_log_mean: float
+    late_log_sd: float
+    zero: float
+    small_mean: float
+    cap: float
+
+    def draw(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
+        always = np.minimum(np.round(self.always_median * np.exp(rng.normal(0.0, self.always_log_sd, n))), self.cap)
+        always = np.maximum(always, 1.0)
+        u = rng.random(n)
+        extra = np.where(rng.random(n) < self.zero, 0.0, rng.geometric(1.0 / (1.0 + self.small_mean), n) - 1.0)
+        late = u < self.late
+        extra[late] = np.round(np.exp(rng.normal(self.late_log_mean, self.late_log_sd, int(late.sum()))))
+        return np.minimum(always + extra, self.cap), always
+
+
+SHAPES = (
+    # arrangement: always 43, 195, 241, 39, 145, 74, 36, 164, 165, 67 steps (geometric mean 94,
+    # log sd 0.72); thompson's differences 1, 0, 238, 46, 4, 12, 0, 1, 22, 2: late 238 and 46
+    # (log mean 4.65, log sd 1.16), 2 ties among the other 8, their mean 7 steps; 5001-step trials
+    Shape("arrangement-like", 94.0, 0.72, 0.15, 4.65, 1.16, 2 / 8, 7.0, 5001.0),
+    # image: 6,494 and 6,465 steps late against always's ~97 (log sd as the arrangement's, the
+    # image's per-trial times are not on the page), differences 3, 1, 1, 0, 4, 1, 5, 2 otherwise:
+    # 1 tie in 8, mean 2.4 steps; 10001-step trials
+    Shape("image-like", 97.0, 0.72, 0.15, 8.77, 0.05, 1 / 8, 2.4, 10001.0),
+)
+
+
+def _truth(shape: Shape, seed: int, draws: int = 2_000_000) -> tuple[float, float, float]:
+    """The generator's mean log ratio, mean difference in steps and late share (the 10%-late
+    tail), by ``draws`` simulated pairs."""
+    policy, always = shape.draw(np.random.default_rng(seed), draws)
+    return (
+        float(np.mean(np.log(policy) - np.log(always))), float(np.mean(policy - always)),
+        float(np.mean(policy > (1.0 + paired.LATE) * always)),
+    )
+
+
+def paired_coverage(n: int, experiments: int, seed: int, resamples: int) -> list[tuple[str, float, float, float]]:
+    """One-sided coverage (nominal 95%) at ``n`` pairs, per generator: (name, the studentized
+    bootstrap upper bound of the mean log ratio, the old paired t upper bound of the mean
+    difference in steps, the exact Clopper-Pearson upper bound of the late share). A bound
+    *covers* when it lies at or above the generator's true value. Normal differences: log ratios
+    normal with mean 0.02 and sd 0.1 on always's arrangement-like times (then the t bound runs on
+    the same log ratios, and the tail has no truth)."""
+    from scipy.stats import binomtest
+
+    rows = []
+    for k, shape in enumerate((None, *SHAPES)):
+        rng = np.random.default_rng(seed + 7 * n + 1000 * k)
+        boot = np.random.default_rng(seed + 13 * n + 1000 * k)
+        if shape is None:
+            name, truth = "normal log ratios", (0.02, 0.02, math.nan)
+        else:
+            name, truth = shape.name, _truth(shape, seed + k)
+        hits = [0, 0, 0]
+        for _ in range(experiments):
+            if shape is None:
+                d = rng.normal(0.02, 0.1, n)
+                old = inference.paired_noninferiority(d, np.zeros(n), 1.0, higher_is_better=False)  # on the same log ratios
+            else:
+                policy, always = shape.draw(rng, n)
+                d = np.log(policy) - np.log(always)
+                old = inference.paired_noninferiority(policy, always, 1.0, higher_is_better=False)  # on the steps
+            found = paired.studentized_bounds(d, boot, resamples=resamples)
+            hits[0] += bool(found.upper >= truth[0])  # no bound (NaN, no spread) covers nothing
+            hits[1] += bool(-old.bound >= truth[1])
+            if shape is not None:
+                late = int(np.sum(policy > (1.0 + paired.LATE) * always))
+                upper = binomtest(late, n).proportion_ci(confidence_level=0.90, method="exact").high
+                hits[2] += upper >= truth[2]
+        rows.append((name, hits[0] / experiments, hits[1] / experiments, hits[2] / experiments if shape is not None else math.nan))
+    return rows
 
 
 def _sizes(spec: str, why: str) -> list[int]:
@@ -108,17 +186,28 @@ def _sizes(spec: str, why: str) -> list[int]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--n", default="2,3,5,10", help="trial counts, comma-separated (default 2,3,5,10)")
+    parser.add_argument("--n", default=None, help="trial counts, comma-separated (default 2,3,5,10; with --paired 10,30,60)")
     parser.add_argument("--experiments", type=int, default=4000, help="simulated experiments per n (default 4000)")
     parser.add_argument("--seed", type=int, default=20231, help="generator seed (default 20231)")
-    parser.add_argument("--paired", action="store_true", help="the frontier's paired one-sided bound instead")
+    parser.add_argument("--paired", action="store_true", help="the frontier's paired one-sided bounds instead")
+    parser.add_argument("--resamples", type=int, default=paired.RESAMPLES, help=f"--paired: bootstrap resamples per bound (default {paired.RESAMPLES}, as the frontier)")
     args = parser.parse_args()
+    args.n_given = args.n is not None
+    args.n = args.n or "2,3,5,10"
     if args.paired:
-        print(f"one-sided nominal 95% paired bound on the slowdown, {args.experiments} simulated experiments per n")
-        print(f"{'n':>4}  {'normal differences':>18}  {'zero-inflated, skewed':>21}")
-        for n in _sizes(args.n, "a bound needs at least 2 pairs"):
-            normal, skewed = paired_coverage(n, args.experiments, args.seed)
-            print(f"{n:>4}  {normal:>18.1%}  {skewed:>21.1%}")
+        sizes = _sizes(args.n if args.n_given else "10,30,60", "a bound needs at least 2 pairs")
+        print(
+            f"one-sided nominal 95% upper bounds, {args.experiments} simulated experiments per n and generator "
+            f"({args.resamples} bootstrap resamples); a bound covers when it lies at or above the truth"
+        )
+        for k, shape in enumerate(SHAPES):
+            log_ratio, steps, late = _truth(shape, args.seed + k + 1)
+            print(f"  {shape.name}: true mean log ratio {log_ratio:.4f}, mean difference {steps:.1f} steps, late share {late:.3f}")
+        print(f"{'n':>4}  {'generator':<18}  {'bootstrap-t, log ratio':>22}  {'old paired t, steps':>19}  {'Clopper-Pearson, tail':>21}")
+        for n in sizes:
+            for name, new, old, tail in paired_coverage(n, args.experiments, args.seed, args.resamples):
+                shown_tail = "" if math.isnan(tail) else f"{tail:.1%}"
+                print(f"{n:>4}  {name:<18}  {new:>22.1%}  {old:>19.1%}  {shown_tail:>21}")
         return
     print(f"coverage of nominal 95% intervals (90% where marked), {args.experiments} simulated experiments per n")
     widths = [max(len(k), 6) for k in KINDS]

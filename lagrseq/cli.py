@@ -65,6 +65,7 @@ def _number_types() -> dict[str, Callable[[str], Any]]:
         "episodes": cfg.number_type("episodes", integer=True, ge=0, le=10**7),
         "steps": cfg.number_type("steps", integer=True, ge=-1, le=10**9),
         "objects": cfg.number_type("objects", integer=True, ge=1, le=10_000),
+        "count0": cfg.number_type("count", integer=True, ge=0, le=100_000),
     }
 
 
@@ -322,12 +323,15 @@ def _add_frontier(sub: Any) -> None:
             "lagr, the others = --method lagr-seq with secondary.policy. --replay DIR rebuilds the "
             "report from the logs under DIR alone (no trial runs). With recorded:STORE nothing is "
             "ever sent unless --on-miss live is given. The protocol (docs/frontier.md): the primary "
-            "outcome is steps to the first solved episode (and episodes solved per trial); each point "
-            "gets a one-sided non-inferiority verdict against always (a paired t test: trial i of "
-            "every policy runs the same seeds; Welch where a trial is missing; margin 10% of always's "
-            "mean, alpha 0.05, at least 10 trials), random runs at each learning policy's matched "
-            "query rate, and a point is credited only when it is non-inferior and beats that random "
-            "run; the grid tasks run both regimes (--scopes); store misses are refused (--on-miss "
+            "outcome is steps to the first solved episode (and episodes solved per trial); trial i of "
+            "every policy runs the same seeds, and each point gets two one-sided non-inferiority "
+            "verdicts against always on those pairs (alpha 0.05, at least 10 pairs, none where the "
+            "logs do not pair): the mean per-pair log ratio (studentized bootstrap bound below "
+            "log 1.1, a 10% margin, a trial that never solved counted at the step cap) and the share "
+            "of pairs more than 10% later (exact bound below 20%); random runs at each learning "
+            "policy's matched query rate, and a point is credited only when it is non-inferior on "
+            "both and beats that random run; --stop-at-first-solve ends every trial at its first "
+            "solved episode (queries then counted to it); the grid tasks run both regimes (--scopes); store misses are refused (--on-miss "
             "refuse, the default with recorded:STORE). Cube stacking runs on the paper preset unless "
             "--preset is given (the upstream environment pays for wrong cubes)."
         ),
@@ -358,6 +362,8 @@ def _add_frontier(sub: Any) -> None:
     p.add_argument("--tune", action="store_true", help="choose each policy's knob (thompson, seq: query_cost; random: ask_probability) on tuning seeds by the fewest queries among settings non-inferior to always on steps to the first solve, record the choice in the logs' metadata, then evaluate it on the evaluation seed beside the variants as given")
     p.add_argument("--tune-seed", type=_SEED, default=None, help="run seed of the tuning trials (default: --seed + 1000003; never the evaluation seed)")
     p.add_argument("--tune-trials", type=_COUNT, default=5, help="tuning trials per candidate (default 5)")
+    p.add_argument("--stop-at-first-solve", action="store_true", help='stop every trial of the protocol (tuning, evaluation, matched random) at its first solved episode (run.stop_at = "first_solve"): steps to the first solve, the primary outcome, are known then; queries are counted to the first solve and the table says so')
+    p.add_argument("--full-horizon-trials", type=_N["count0"], default=0, metavar="K", help="with --stop-at-first-solve: also run every variant K trials at full length on the same seed (trials 0 to K-1), a panel of its own that measures the full-horizon query count on fewer pairs (default 0: none)")
     p.set_defaults(preset=None)  # cube stacking: paper (the upstream cube pays for wrong cubes); the rest: upstream
 
 
@@ -985,6 +991,7 @@ def cmd_frontier(args: argparse.Namespace) -> int:
         args.trials, args.seed, args.preset, args.config, args.overrides, args.jobs,
         progress=lambda desc, total, unit: _bar(total, unit, desc, args.quiet),
         say=_say, scopes=args.scopes, matched_random=args.matched_random, tune=frontier.tuning(args.tune, args.seed, args.tune_seed, args.tune_trials),
+        stop_at_first_solve=args.stop_at_first_solve, full_horizon_trials=args.full_horizon_trials,
     )
     made = report(roots, out, price, args.miss_threshold)
     for warning in made.warnings:
@@ -993,7 +1000,10 @@ def cmd_frontier(args: argparse.Namespace) -> int:
     for table in made.tables:
         print(table.title)
         for row in table.rows:
-            print(f"  {row[0]:<{width}} queries {row[4]:<22} steps to first solve {row[7]:<22} vs always: {row[10]}; vs matched random: {row[12]}; credited: {row[13]}")
+            print(
+                f"  {row[0]:<{width}} queries {row[4]:<22} steps to first solve {row[7]:<22} vs always: {row[10]}; "
+                f"tail: {row[11]}; vs matched random: {row[13]}; credited: {row[14]}"
+            )
     print(_shown(f"{len(made.written)} files in {out} ({time.perf_counter() - started:.1f} s)"))
     return 0
 

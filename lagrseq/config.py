@@ -821,6 +821,12 @@ class RunConfig(_Section):
     """Episodes per trial, 0 for no limit (then max_steps ends the trial). Cube code: 100."""
     max_steps: int = ranged(0, ge=0, le=10**9)
     """Global environment-step budget per trial, 0 for none. Grid code: 10001 (image), 5001."""
+    stop_at: Literal["", "first_solve"] = ""
+    """Where a trial may stop before its length: "" (default: never, the paper's and the released
+    code's trials run their whole length); ``first_solve``: at the end of the first solved episode
+    (the frontier's primary outcome, steps to the first solve, is then known, and the trial costs
+    no more than it needs; its queries are then counted to the first solve, and reports say so).
+    Not part of a configuration's digest while "" (run directories made before it keep their names)."""
 
     def _check(self) -> None:
         if not (self.episodes or self.max_steps):
@@ -904,9 +910,13 @@ POLICY_DEFAULTS: dict[str, Any] = {
 
 def config_digest(data: dict[str, Any]) -> str:
     """Short sha256 of a configuration as JSON data (``ExperimentConfig.to_json`` read back):
-    the asking-policy fields count only when they differ from their defaults, so a configuration
-    made before they existed keeps its digest (run directories, replay's bootstrap seeds)."""
+    the asking-policy fields and ``run.stop_at`` count only when they differ from their defaults,
+    so a configuration made before they existed keeps its digest (run directories, replay's
+    bootstrap seeds)."""
     data = {k: dict(v) if isinstance(v, dict) else v for k, v in data.items()}
+    run = data.get("run")
+    if isinstance(run, dict) and run.get("stop_at", "") == "":
+        run.pop("stop_at", None)  # never stopping early is what every configuration before it did
     secondary = data.get("secondary")
     if isinstance(secondary, dict):
         for name, default in POLICY_DEFAULTS.items():

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -115,3 +116,26 @@ def test_max_steps_bounds_the_trial(tmp_path: Path) -> None:
     result = run_one(small("baseline", "upstream", "run.max_steps=120"), 0, 0, "mock", tmp_path / "t.mcap")
     assert result.steps == 120
     assert [e["length"] for e in read_topic(result.path, "/episode")] == [50, 50, 20]
+
+
+def test_stop_at_first_solve_ends_the_trial_with_its_first_solved_episode(tmp_path: Path) -> None:
+    """``run.stop_at = "first_solve"``: the trial is the full trial's events up to the end of its
+    first solved episode, to the record (the same streams, only cut), and the default never stops
+    early (the configuration's digest without the field is the one it always had)."""
+    full = small("lagr", "paper")
+    stopped = small("lagr", "paper", 'run.stop_at="first_solve"')
+    before = json.loads(full.to_json())  # a configuration written before the field existed
+    del before["run"]["stop_at"]
+    assert full.run.stop_at == "" and cfg.config_digest(before) == full.digest()
+    assert stopped.digest() != full.digest()
+    a = run_one(full, 0, 3, "mock", tmp_path / "full.mcap")
+    b = run_one(stopped, 0, 3, "mock", tmp_path / "stopped.mcap")
+    episodes = read_topic(b.path, "/episode")
+    assert [e["solved"] for e in episodes] == [False] * (len(episodes) - 1) + [True]
+    assert b.episodes == len(episodes) < a.episodes == 30
+    first = next(e for e in read_topic(a.path, "/episode") if e["solved"])
+    assert b.steps == first["global_step"] and b.queries == sum(int(e["queries"]) for e in episodes)
+    cut = [(topic, message) for topic, message in events(a.path) if int(message.get("episode", 0)) < len(episodes)]
+    assert events(b.path) == cut
+    with pytest.raises(cfg.ConfigError, match="stop_at"):
+        small("lagr", "paper", 'run.stop_at="never"')

@@ -59,7 +59,7 @@ def test_frontier_runs_policies_and_replay_rebuilds_the_same_table(tmp_path: Pat
     assert {p.suffix for p in report.iterdir()} == {".csv", ".md", ".png"}
     # every point ran seed 0, trials 0 and 1: the logs pair them with always (common random numbers)
     judged = table[~table["policy"].isin(["always"])]
-    assert set(judged["vs_always_test"]) == {"paired t"}
+    assert set(judged["vs_always_test"]) == {"paired bootstrap-t (log ratio)"}
     # resume: nothing runs again; and the report from the logs alone is byte-identical
     assert cli.main(args) == 0
     again = tmp_path / "again"
@@ -72,3 +72,41 @@ def test_frontier_refuses_a_task_less_run_and_the_oracle_on_live(tmp_path: Path,
     assert cli.main(["frontier", "--out", str(tmp_path)]) == 2
     assert cli.main(["frontier", "cube-stacking", "--provider", "live", "--policies", "oracle", "--out", str(tmp_path)]) == 2
     assert "oracle" in capsys.readouterr().err
+
+
+def test_trials_stopped_at_the_first_solve_and_the_full_horizon_group(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--stop-at-first-solve``: every trial ends with its first solved episode and the panel's
+    query column says it counts to the first solve; ``--full-horizon-trials K`` adds the variants
+    at full length on K trials, a panel (and files) of its own."""
+    from lagrseq.logs.reader import read_info, read_topic
+
+    out = tmp_path / "fr"
+    args = [
+        "frontier", "cube-stacking", "--provider", "mock:authors-t0", "--policies", "always,seq", "--trials", "2",
+        "--set", "run.episodes=8", "--out", str(out), "--quiet", "--no-matched-random", "--stop-at-first-solve",
+        "--full-horizon-trials", "1",
+    ]
+    assert cli.main(args) == 0
+    printed = capsys.readouterr().out
+    stopped = full = shorter = 0
+    for log in sorted(out.rglob("*.mcap")):
+        episodes = read_topic(log, "/episode")
+        if read_info(log).config["run"]["stop_at"] == "first_solve":
+            stopped += 1
+            assert not any(e["solved"] for e in episodes[:-1])  # it ran no episode past its first solve
+            assert episodes[-1]["solved"] or len(episodes) == 8
+            shorter += len(episodes) < 8
+        else:
+            full += 1
+            assert len(episodes) == 8
+    assert (stopped, full) == (4, 2)  # 2 variants x 2 trials stopped, 2 variants x 1 trial at full length
+    assert shorter  # guided by the mock's answers, trials solve before their 8th episode
+    report = out / "frontier"
+    (short,) = report.glob("*first-solve.csv")
+    (whole,) = set(report.glob("*.csv")) - {short}
+    assert "trials stopped at the first solve" in short.with_suffix(".md").read_text().splitlines()[0]
+    assert "queries to the first solve / trial [95% CI]" in short.with_suffix(".md").read_text()
+    assert pd.read_csv(whole)["trials"].tolist() == [1, 1] and pd.read_csv(short)["trials"].tolist() == [2, 2]
+    assert "trials stopped at the first solve" in printed
+    assert cli.main(["frontier", "cube-stacking", "--full-horizon-trials", "2", "--out", str(tmp_path / "x")]) == 2
+    assert "--stop-at-first-solve" in capsys.readouterr().err

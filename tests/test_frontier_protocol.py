@@ -4,6 +4,7 @@ against always, the tuning split on held-out seeds."""
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 
 import numpy as np
@@ -116,25 +117,42 @@ def test_matched_probability_is_the_runs_query_rate() -> None:
         matched_probability(0, 0)
 
 
-def test_noninferiority_and_credit_on_hand_made_points() -> None:
-    always = _point("always", [100.0, 104, 96, 102, 98, 101, 99, 103, 97, 100])  # mean 100: margin 10 steps
-    same = _point("thompson", [101.0, 99, 103, 97, 100, 102, 98, 100, 101, 99], queries=20, decisions=100)  # rate 0.2
-    slow = _point("seq", [150.0, 155, 145, 152, 148, 151, 149, 153, 147, 150], queries=50, decisions=100)  # rate 0.5
-    few = _point("thompson", [100.0, 101, 99, 100, 100], queries=20, decisions=100)  # 5 trials: never a verdict
-    random_02 = _point("random", [160.0, 150, 170, 155, 165, 158, 162, 168, 152, 160], p=0.2)  # slower than thompson
-    random_05 = _point("random", [100.0, 101, 99, 100, 102, 98, 100, 101, 99, 100], p=0.5)  # faster than seq
+def _around(base: list[float], ratios: list[float]) -> list[float]:
+    """Each of ``base``'s times scaled by the next of ``ratios`` (cycled): a policy's per-pair times."""
+    return [b * ratios[i % len(ratios)] for i, b in enumerate(base)]
+
+
+ALWAYS_20 = [100.0, 104, 96, 102, 98, 101, 99, 103, 97, 100, 250, 40, 180, 75, 120, 60, 310, 90, 140, 55]
+"""Always's steps to the first solve in 20 hand-made trials: the trials differ far more between
+one another than any margin (the environment's draws), as the measured ones do."""
+
+
+def test_noninferiority_tail_and_credit_on_hand_made_points() -> None:
+    always = _point("always", ALWAYS_20)
+    same = _point("thompson", _around(ALWAYS_20, [1.01, 0.98, 1.03, 0.99, 1.0]), queries=20, decisions=100)  # rate 0.2
+    slow = _point("seq", _around(ALWAYS_20, [1.5, 1.45, 1.55]), queries=50, decisions=100)  # rate 0.5
+    few = _point("thompson", ALWAYS_20[:5], queries=20, decisions=100)  # 5 pairs: never a verdict
+    random_02 = _point("random", _around(ALWAYS_20, [1.6, 1.5, 1.7]), p=0.2)  # slower than thompson
+    random_05 = _point("random", _around(ALWAYS_20, [1.0, 1.02, 0.99]), p=0.5)  # faster than seq
     mocked = _point("thompson", list(same.steps_to_solve), queries=20, on_miss="mock")
     oracle = _point("oracle", list(same.steps_to_solve), queries=5)
     points = [always, same, slow, few, random_02, random_05, mocked, oracle]
     verdicts = judge(points)
-    assert verdicts[id(same)].against_always is not None
-    assert verdicts[id(same)].against_always.verdict == "non-inferior"
+    found = verdicts[id(same)].against_always
+    assert found is not None and found.verdict == "non-inferior" and found.n == 20
+    longest = max(float(p.steps_to_solve.max()) for p in points)
+    assert found.upper < math.log(1.1) and found.cap == longest  # the panel's horizon: its longest trial here
     assert verdicts[id(slow)].against_always.verdict == "inferior"  # type: ignore[union-attr]
     assert verdicts[id(few)].against_always.verdict == "inconclusive"  # type: ignore[union-attr]
+    # the tail: none of the 20 pairs is more than 10% late, the exact bound 13.9% < 20%
+    tail = verdicts[id(same)].tail
+    assert tail is not None and tail.verdict == "non-inferior" and tail.late_pairs == 0
+    assert tail.upper == pytest.approx(1 - 0.05 ** (1 / 20), rel=1e-6)
+    assert verdicts[id(slow)].tail.verdict == "inferior"  # type: ignore[union-attr]
     # each learning policy meets random at its own rate (queries / decisions)
     assert verdicts[id(same)].matched is random_02 and verdicts[id(slow)].matched is random_05
     assert verdicts[id(same)].beats_random and not verdicts[id(slow)].beats_random
-    # credit: non-inferior to always and better than random at the matched rate
+    # credit: non-inferior on the mean log ratio and on the tail, and better than random at the matched rate
     assert verdicts[id(same)].credited and not verdicts[id(slow)].credited and not verdicts[id(few)].credited
     # the oracle peeks: a bound, never credited; points on mock fallback answers get no verdict
     assert not verdicts[id(oracle)].credited and verdicts[id(oracle)].matched is None
@@ -142,52 +160,90 @@ def test_noninferiority_and_credit_on_hand_made_points() -> None:
     assert verdicts[id(random_02)].matched is None  # random is not matched with itself
     eager = _point("thompson", list(same.steps_to_solve), queries=100, decisions=100)  # asks at every decision
     assert judge([always, eager])[id(eager)].matched is always  # random at rate 1 is always
-    # the same verdicts in the table, with the margin named
+    # the same verdicts in the table, with the margins and the horizon named
     summarise(points)
     shown = table(points)
     data = shown.data
-    assert "margin 10" in " ".join(shown.columns)
+    assert f"mean log ratio (margin 10%, horizon {longest:.0f} steps)" in " ".join(shown.columns)
+    assert "pairs > 10% later (exact bound, tail margin 20%)" in " ".join(shown.columns)
     assert list(data["vs_always"]) == [
         "reference", "non-inferior", "inferior", "inconclusive", "inferior", "non-inferior",
         "no verdict: misses answered by the mock", "non-inferior",
     ]
+    assert list(data["vs_always_tail"])[1:3] == ["non-inferior", "inferior"]
     assert list(data["credited"]) == [False, True, False, False, False, False, False, False]
     # the second primary outcome gets its own verdict (every hand-made trial solved one episode)
     assert list(data["vs_always_episodes_solved"])[1:4] == ["non-inferior", "non-inferior", "inconclusive"]
     assert shown.rows[-1][0] == "oracle (peeks at the answer)" and shown.rows[-1][1] == "bound"
-    assert data["noninferiority_margin"].iloc[0] == pytest.approx(10.0)
+    assert data["noninferiority_margin"].iloc[0] == pytest.approx(math.log(1.1))
+    row = shown.rows[1]
+    assert row[shown.columns.index(next(c for c in shown.columns if c.startswith("vs always: pairs")))] == (
+        "non-inferior (0 of 20 pairs late, bound 13.9% vs 20%)"
+    )
+    assert row[shown.columns.index("vs matched random (mean log ratio < 0)")].startswith("beats (ratio 0.")
 
 
-def test_paired_where_the_logs_pair_the_trials_welch_where_pairs_are_missing() -> None:
-    """Trials that differ far more between one another than the margin (the environment's draws)
-    but little within a pair: the paired test sees the within-pair differences; a point whose
-    trials do not match always's (another seed, a trial missing) falls back to Welch, and the table
-    names the test of every verdict."""
-    base = [26.0, 161, 16, 12, 32, 33, 89, 9, 22, 10]  # mean 41: margin 4.1 steps; sd 48
+def test_no_verdict_from_zero_spread_and_the_tail_is_its_own_verdict() -> None:
+    """A policy as fast as always in every pair has no spread to bound: no verdict (the paired t
+    bound printed a certain one). A policy 11% late in 12 of 30 pairs passes the mean log ratio
+    (its mean is 4%) but fails the tail: not credited, though it beats random."""
+    base = ALWAYS_20 + ALWAYS_20[:10]
     always = _point("always", base)
-    close = _point("thompson", [b + d for b, d in zip(base, [0, 2, 0, 1, 0, 1, 0, 0, 0, 3], strict=True)], queries=20)
+    twin = _point("thompson", base, queries=20)
+    late = _point("thompson", [b * (1.11 if i % 5 in (0, 2) else 1.0) for i, b in enumerate(base)], queries=20)
+    random_02 = _point("random", _around(base, [1.6, 1.5, 1.7]), p=0.2)
+    verdicts = judge([always, twin, late, random_02])
+    none = verdicts[id(twin)].against_always
+    assert none is not None and none.verdict == "inconclusive" and "no spread" in none.reason
+    on_mean, on_tail = verdicts[id(late)].against_always, verdicts[id(late)].tail
+    assert on_mean is not None and on_mean.verdict == "non-inferior"
+    assert on_tail is not None and on_tail.late_pairs == 12 and on_tail.verdict == "inferior"
+    assert verdicts[id(late)].beats_random and not verdicts[id(late)].credited
+
+
+def test_the_bounds_are_the_same_on_every_replay() -> None:
+    """Each comparison's bootstrap is seeded by the two runs and the outcome: judged twice, in
+    another order of points, the same bounds to the bit."""
+    always = _point("always", ALWAYS_20)
+    policy = _point("thompson", _around(ALWAYS_20, [1.0, 1.0, 1.3, 1.0, 0.97]), queries=20)
+    first = judge([always, policy])[id(policy)].against_always
+    again = judge([policy, always])[id(policy)].against_always
+    assert first is not None and again is not None and (first.lower, first.upper) == (again.lower, again.upper)
+
+
+def test_paired_where_the_logs_pair_the_trials_no_verdict_where_pairs_are_missing() -> None:
+    """Trials that differ far more between one another than the margin (the environment's draws)
+    but little within a pair: the paired log ratios see the within-pair differences; a point whose
+    trials do not match always's (another seed, a trial missing) gets no verdict (both estimands
+    are per pair), and the table names the test of every verdict."""
+    base = [260.0, 1610, 160, 120, 320, 330, 890, 90, 220, 100, 410, 75, 530, 140, 980, 66, 300, 210, 450, 180]
+    always = _point("always", base)
+    close = _point("thompson", [b + d for b, d in zip(base, [0, 2, 0, 1, 0, 1, 0, 0, 0, 3] * 2, strict=True)], queries=20)
     points = [always, close]
     verdict = judge(points)[id(close)].against_always
-    assert verdict is not None and verdict.test == "paired t" and verdict.verdict == "non-inferior"
-    # the same numbers under another run seed: no pairs, Welch, and the spread swamps the margin
+    assert verdict is not None and verdict.n == 20 and verdict.verdict == "non-inferior"
+    # the same numbers under another run seed: no pairs, no verdict
     other = _point("thompson", list(close.steps_to_solve), queries=20)
     other.run = Run(dataclasses.replace(other.run.key, seed=5), other.run.config, (), other.run.trials, pd.DataFrame(), pd.DataFrame(), 0)
-    welch = judge([always, other])[id(other)].against_always
-    assert welch is not None and welch.test == "Welch" and welch.verdict == "inconclusive"
+    missing = judge([always, other])[id(other)]
+    assert missing.against_always is not None and missing.against_always.verdict == "inconclusive"
+    assert missing.against_always.reason.startswith("pairs missing: seed 5 against 0")
+    assert missing.tail is not None and missing.tail.verdict == "inconclusive" and missing.tail.n == 0
     # pairs line up by trial index, not by position: shuffled trials give the same verdict
-    order = [3, 1, 0, 2, 9, 8, 7, 6, 5, 4]
+    order = [3, 1, 0, 2, 9, 8, 7, 6, 5, 4, *range(10, 20)]
     shuffled = _point("thompson", [close.steps_to_solve[i] for i in order], queries=20)
     shuffled.run = Run(shuffled.run.key, shuffled.run.config, (), tuple(order), pd.DataFrame(), pd.DataFrame(), 0)
     again = judge([always, shuffled])[id(shuffled)].against_always
-    assert again is not None and again.test == "paired t" and again.difference == pytest.approx(verdict.difference)
+    assert again is not None and again.log_ratio == pytest.approx(verdict.log_ratio) and again.upper == verdict.upper
     summarise(points)
     shown = table(points)
-    assert shown.rows[1][shown.columns.index("vs always on steps to first solve (margin 4)")] == (
-        "non-inferior (paired t, n = 10 pairs)"
-    )
-    assert list(shown.data["vs_always_test"]) == ["", "paired t"]
+    cell = shown.rows[1][10]
+    assert cell.startswith("non-inferior (ratio 1") and cell.endswith("< 1.1, n = 20 pairs)")
+    assert list(shown.data["vs_always_test"]) == ["", "paired bootstrap-t (log ratio)"]
     summarise([always, other])
-    assert "Welch: pairs missing, n = 10/10" in table([always, other]).rows[1][10]
+    unpaired = table([always, other])
+    assert unpaired.rows[1][10] == "inconclusive (pairs missing: seed 5 against 0, no verdict)"
+    assert list(unpaired.data["vs_always_test"]) == ["", "no pairs"]
 
 
 # -- the tuning split and the matched-rate runs, end to end -------------------------------------------
@@ -270,3 +326,18 @@ def test_scopes_auto_runs_both_regimes_on_the_grids_only(tmp_path: Path, capsys:
             parse_scopes(bad, "cube-stacking")
     assert cli.main(["frontier", "cube-stacking", "--scopes", "forever", "--out", str(tmp_path)]) == 2
     assert "--scopes 'forever'" in capsys.readouterr().err
+
+
+def test_the_tail_needs_the_pairs_the_docs_state() -> None:
+    """docs/frontier.md: with no late pair the tail's exact bound falls below 20% from 14 pairs on,
+    with one from 22, with two from 30 (so 10 pairs never give a non-inferior tail)."""
+    from lagrseq.analysis import paired
+
+    def first(late: int) -> int:
+        for n in range(paired.MIN_PAIRS, 100):
+            policy = np.r_[np.full(late, 200.0), np.full(n - late, 100.0)]
+            if paired.tail(policy, np.full(n, 100.0)).verdict == paired.NON_INFERIOR:
+                return n
+        return -1
+
+    assert [first(0), first(1), first(2)] == [14, 22, 30]

@@ -219,7 +219,7 @@ def test_a_frontier_item_draws_one_panel_per_provider_with_never_in_each(reprodu
     randoms = {r["knobs"] for r in main if r["policy"] == "random"}
     for learner in (main[2], main[5]):  # each met random at its own rate, paired by seed and trial
         assert learner["matched_random"].removeprefix("random (").removesuffix(")") in randoms
-        assert learner["vs_matched_random_test"] == "paired t" and learner["vs_always_test"] == "paired t"
+        assert learner["vs_matched_random_test"] == learner["vs_always_test"] == "paired bootstrap-t (log ratio)"
         # its query rate, rounded as matched_probability does, is the random run's probability
         rate = float(learner["query_rate"])
         assert f"p {float(f'{rate:.2g}'):g}" in randoms

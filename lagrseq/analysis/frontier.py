@@ -11,27 +11,40 @@ with intervals, the interquartile mean of the return with a stratified bootstrap
 the probability that a trial of the policy returns more than one of ``always``. The paper's SEQ
 (``seq`` with no knob changed) and LaGR (``always``) rows are marked.
 
-The protocol (issue 20). Primary outcomes: steps to the end of the first solved episode (lower
-is better; a trial that solves none counts its full length) and episodes solved per trial; the
-return is secondary. Each asking point is compared with ``always`` on steps to the first solve by
-a one-sided non-inferiority test at level 0.05 with a margin of 10% of always's mean
-(:data:`MARGIN`), needing at least 10 trials per arm: ``non-inferior / inferior / inconclusive``
-(the same test on episodes solved per trial, higher is better, is shown beside it but does not
-enter the credit). The points of a panel run the same (seed, trial) pairs, so trial ``i`` of every
-policy saw the same environment draws (common random numbers): where the logs show both points ran
-the same seed and the same trials (:func:`paired_order`), the test is a paired t test on the
-per-trial differences (:func:`lagrseq.analysis.inference.paired_noninferiority`); where pairs are
-missing, Welch's test of two independent arms (:func:`lagrseq.analysis.inference.noninferiority`),
-and the table names the test used. Each learning policy's point is also compared with
-``random`` asking at the point's own mean query rate (queries / decisions, from its logs; the
-random run is found by its ``ask_probability``, :func:`lagrseq.frontier_protocol.matched_probability`):
-it beats it when the same one-sided test at level 0.05 (margin 0) says its mean steps to the first
-solve are lower. Every verdict is at level 0.05 on its own; the CSV adds Holm-adjusted p-values
-over the panel's points for a family-wise reading. A point is *credited* only when it is non-inferior to always and beats random at the
-matched rate; the oracle (it peeks at the answer before deciding) is shown as the bound and never
-credited, and points whose run answered store misses with the rule-based mock
-(``--on-miss mock``) get no verdict. Runs are grouped into panels by task, preset, provider,
-seed and ``lagr.solution_scope`` (answer kept for one episode or for the trial).
+The protocol (issues 20 and 35). Primary outcomes: steps to the end of the first solved episode
+(lower is better; a trial that solves none counts its full length) and episodes solved per trial;
+the return is secondary. The points of a panel run the same (seed, trial) pairs, so trial ``i`` of
+every policy saw the same environment draws (common random numbers); where the logs show two
+points ran the same seed and the same trials (:func:`paired_order`) each asking point is judged
+against ``always`` on steps to the first solve by two estimands of :mod:`lagrseq.analysis.paired`:
+
+* the **mean per-pair log ratio** ``mean(log(policy_i / always_i))`` with a one-sided studentized
+  bootstrap bound (:func:`lagrseq.analysis.paired.slowdown`; relative margin 10%, :data:`MARGIN`,
+  so the bound must lie below ``log(1.1)``; the trials' step cap is the restricted-mean horizon,
+  :func:`horizon`, and a trial that never solved counts at its length; at least 10 pairs; no
+  verdict from differences without spread), and
+* the **tail share**: the share of pairs in which the policy is more than 10% later than always,
+  with an exact Clopper-Pearson upper bound, non-inferior when it lies below a tail margin of 20%
+  (:func:`lagrseq.analysis.paired.tail`).
+
+Each bootstrap draws from a generator seeded by the two runs and the outcome
+(:func:`_generator`), so a replay of the same logs gives the same bounds to the bit. Where the logs
+do not pair the points (another seed, a trial missing in either), there is no verdict: both
+estimands are per pair, and the table says ``inconclusive (pairs missing: ..., no verdict)``. Each learning policy's
+point is also compared with ``random`` asking at the point's own mean query rate (queries /
+decisions, from its logs; the random run is found by its ``ask_probability``,
+:func:`lagrseq.frontier_protocol.matched_probability`): it *beats* it when the upper bound of the
+mean log ratio against that run lies below 0 (margin 0). A point is *credited* only when it is
+non-inferior to always on the mean log ratio **and** on the tail share **and** beats random at the
+matched rate (an intersection-union test: each at level 0.05, so the credit is at level 0.05);
+the oracle (it peeks at the answer before deciding) is shown as the bound and never credited, and
+points whose run answered store misses with the rule-based mock (``--on-miss mock``) get no
+verdict. Episodes solved per trial get the paired t test of
+:func:`lagrseq.analysis.inference.paired_noninferiority` (margin 10% of always's mean), shown
+beside the verdicts but not entering the credit. Runs are grouped into panels by task, preset,
+provider, seed, ``lagr.solution_scope`` (answer kept for one episode or for the trial) and
+``run.stop_at`` (trials stopped at their first solve make their own panel, whose query column
+counts the queries to the first solve).
 
 Dollars: a query's logged ``cost_usd`` when it has one; else its logged token usage priced by
 ``price``; else (answers imported from the authors' caches carry no usage) the median token
@@ -54,7 +67,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import FixedLocator, FuncFormatter, NullLocator
 
-from lagrseq.analysis import inference, stats
+from lagrseq.analysis import inference, paired, stats
 from lagrseq.analysis import provenance as prov
 from lagrseq.analysis.figures import COLORS, STYLE
 from lagrseq.analysis.loading import Run, load
@@ -72,11 +85,19 @@ PAPER_ROWS = {"seq": "SEQ (paper)", "always": "LaGR (paper)"}
 ORACLE_LABEL = "oracle (peeks at the answer)"
 """The oracle decides after looking at the answer: a bound on queries, not a policy."""
 MARGIN = 0.10
-"""Non-inferiority margin: 10% of always's mean steps to the first solved episode. A policy that
+"""Non-inferiority margin on the mean per-pair log ratio of steps to the first solved episode:
+``log(1.1)``, a policy at most 10% later than always on the geometric mean. A policy that
 reaches its first solve at most 10% later than asking at every trigger has kept what guidance is
 for (the paper's claim is sample efficiency), and 10% is the relative margin the reproduction's
-other verdicts use (:data:`lagrseq.analysis.inference.RELATIVE_MARGIN`)."""
+other verdicts use (:data:`lagrseq.analysis.inference.RELATIVE_MARGIN`). The same 10% margin
+on episodes solved per trial is 10% of always's mean."""
+LATE = paired.LATE
+"""The tail estimand: a pair is late when the policy's first solve is more than 10% later."""
+TAIL_MARGIN = paired.TAIL_MARGIN
+"""The tail verdict's margin: the late share's exact upper bound must lie below 20%."""
 ALPHA = inference.ALPHA
+STOP_TEXT = {"first_solve": "trials stopped at the first solve"}
+"""``run.stop_at`` as a panel's title says it (the default, "", says nothing)."""
 
 DPI = 150
 _DEFAULTS = {"query_cost": 0.0, "budget": 0, "ask_probability": 0.5, "thompson_prior": [1.0, 1.0], "min_progress": 0}
@@ -179,8 +200,25 @@ class Point:
         return float(self.fallback.sum()) / total if total else 0.0
 
 
-def _panel_key(run: Run) -> tuple[str, str, str, int, str]:
-    return (run.key.task, run.key.preset, run.key.provider, run.key.seed, scope_of(run.config))
+def _panel_key(run: Run) -> tuple[str, str, str, int, str, str]:
+    return (run.key.task, run.key.preset, run.key.provider, run.key.seed, scope_of(run.config), stop_of(run.config))
+
+
+def stop_of(config: dict[str, Any]) -> str:
+    """Where a trial stops early (``run.stop_at``): "" (never: the full horizon), ``first_solve``."""
+    return str(config.get("run", {}).get("stop_at", "") or "")
+
+
+def horizon(*points: Point) -> float:
+    """The step cap of ``points``' trials, the horizon of the restricted mean: ``run.max_steps``
+    where the configuration sets one, and never less than the longest trial logged (a trial that
+    never solved counts at its length; an episode-limited trial's cap is its longest)."""
+    cap = 0.0
+    for p in points:
+        cap = max(cap, float(p.run.config.get("run", {}).get("max_steps", 0) or 0))
+        if len(p.steps_to_solve):
+            cap = max(cap, float(np.nanmax(p.steps_to_solve)))
+    return cap if cap > 0 else math.inf
 
 
 def scope_of(config: dict[str, Any]) -> str:
@@ -355,25 +393,43 @@ def summarise(points: Sequence[Point]) -> None:
 
 @dataclass(frozen=True)
 class Verdict:
-    """A point judged by the protocol (see the module): against always, and against random at its
-    matched query rate, both on steps to the first solved episode."""
+    """A point judged by the protocol (see the module): against always on the mean log ratio and
+    on the tail share, and against random at its matched query rate, all on steps to the first
+    solved episode."""
 
-    against_always: inference.NonInferiority | None
-    """None: no verdict (the point is always itself, or its misses were answered by the mock)."""
+    against_always: paired.SlowdownVerdict | None
+    """The mean per-pair log ratio against always (None: no verdict, the point is always itself
+    or its misses were answered by the mock)."""
+    tail: paired.TailVerdict | None
+    """The share of pairs more than 10% later than always, with its exact bounds."""
     solved_against_always: inference.NonInferiority | None
-    """The same test on episodes solved per trial (higher is better; shown, not used for credit)."""
+    """The paired t test on episodes solved per trial (higher is better; shown, not used for credit)."""
     matched: Point | None
     """The random run at this point's query rate (None: not wanted, or not run)."""
-    against_random: inference.NonInferiority | None
-    """Margin 0: ``non-inferior`` here means the point's mean is lower (it beats random)."""
+    against_random: paired.SlowdownVerdict | None
+    """Margin 0: ``non-inferior`` here means the mean log ratio's upper bound lies below 0 (the
+    point beats random)."""
     credited: bool
     note: str
 
     @property
     def always_text(self) -> str:
-        if self.against_always is None:
+        v = self.against_always
+        if v is None:
             return self.note or "n/a"
-        return f"{self.against_always.verdict} ({_n_text(self.against_always)})"
+        return f"{v.verdict} ({_slowdown_text(v)})"
+
+    @property
+    def tail_text(self) -> str:
+        v = self.tail
+        if v is None:
+            return self.note or "n/a"
+        if not v.n:
+            return f"{v.verdict} ({v.reason})"
+        return (
+            f"{v.verdict} ({v.late_pairs} of {v.n} pairs late, bound {100 * v.upper:.1f}% vs {100 * v.margin:.0f}%"
+            + (f"; {v.reason}" if v.n < paired.MIN_PAIRS else "") + ")"
+        )
 
     @property
     def solved_text(self) -> str:
@@ -383,7 +439,7 @@ class Verdict:
 
     @property
     def beats_random(self) -> bool:
-        return self.against_random is not None and self.against_random.verdict == inference.NON_INFERIOR
+        return self.against_random is not None and self.against_random.verdict == paired.NON_INFERIOR
 
     @property
     def random_text(self) -> str:
@@ -391,8 +447,29 @@ class Verdict:
             return "n/a"
         v = self.against_random
         assert v is not None
-        said = "beats" if self.beats_random else ("n < 10" if min(v.n_treatment, v.n_control) < inference.MIN_N_NONINFERIORITY else "does not beat")
-        return f"{said} ({'paired t' if v.test == 'paired t' else 'Welch: pairs missing'}, p = {number(v.p, 3)})"
+        if self.beats_random:
+            said = "beats"
+        elif v.n < paired.MIN_PAIRS or v.reason.startswith(PAIRS_MISSING):
+            said = "no verdict"
+        else:
+            said = "does not beat"
+        return f"{said} ({_slowdown_text(v)})"
+
+
+PAIRS_MISSING = "pairs missing"
+"""The reason of a comparison whose logs do not pair the trials (no verdict)."""
+
+
+def _slowdown_text(v: paired.SlowdownVerdict) -> str:
+    """``ratio 1.02, bound 1.07 < 1.10, n = 30 pairs``: the geometric-mean time ratio, its
+    one-sided 95% upper bound and the margin on the ratio scale; or why there is no bound."""
+    if v.reason.startswith(PAIRS_MISSING) or not math.isfinite(v.upper):
+        return v.reason + (f", n = {v.n} pairs" if v.n and not v.reason.startswith(PAIRS_MISSING) else "")
+    limit = math.exp(v.margin)
+    bound = math.exp(v.upper)
+    relation = "<" if bound < limit else ">="
+    text = f"ratio {v.ratio:.3g}, bound {bound:.3g} {relation} {limit:.3g}, n = {v.n} pairs"
+    return text if v.n >= paired.MIN_PAIRS else f"{text}; n < {paired.MIN_PAIRS}"
 
 
 def paired_order(a: Point, b: Point) -> tuple[np.ndarray, np.ndarray] | None:
@@ -409,8 +486,10 @@ def paired_order(a: Point, b: Point) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 def compare(p: Point, q: Point, outcome: str, margin: float, higher_is_better: bool = True) -> inference.NonInferiority:
-    """``p`` against ``q`` on ``outcome`` (a per-trial array of :class:`Point`): the paired test
-    where the logs pair them (:func:`paired_order`), else Welch's."""
+    """``p`` against ``q`` on ``outcome`` (a per-trial array of :class:`Point`) by the t tests of
+    :mod:`lagrseq.analysis.inference`: the paired test where the logs pair them
+    (:func:`paired_order`), else Welch's. The frontier uses it for episodes solved per trial
+    only (shown, not credited); steps to the first solve go through :func:`slowdown`."""
     x, y = getattr(p, outcome), getattr(q, outcome)
     order = paired_order(p, q)
     if order is not None:
@@ -418,41 +497,72 @@ def compare(p: Point, q: Point, outcome: str, margin: float, higher_is_better: b
     return inference.noninferiority(x, y, margin, higher_is_better=higher_is_better, alpha=ALPHA)
 
 
-def _n_text(v: inference.NonInferiority) -> str:
-    if v.test == "paired t":
-        return f"paired t, n = {v.n_treatment} pairs"
-    return f"Welch: pairs missing, n = {v.n_treatment}/{v.n_control}"
+def _generator(p: Point, q: Point, outcome: str) -> np.random.Generator:
+    """The bootstrap generator of ``p`` against ``q`` on ``outcome``: seeded by both runs' keys
+    and the outcome alone, so a replay of the same logs draws the same resamples."""
+    return stats.generator(f"frontier/{p.run.key.name}/vs/{q.run.key.name}/{outcome}")
+
+
+def _missing(p: Point, q: Point) -> str:
+    if p.run.key.seed != q.run.key.seed:
+        return f"{PAIRS_MISSING}: seed {p.run.key.seed} against {q.run.key.seed}, no verdict"
+    return f"{PAIRS_MISSING}: trials {len(p.steps_to_solve)} against {len(q.steps_to_solve)} do not match, no verdict"
+
+
+def slowdown(p: Point, q: Point, margin: float = MARGIN, cap: float | None = None) -> paired.SlowdownVerdict:
+    """``p`` against ``q`` on steps to the first solve: the mean per-pair log ratio with its
+    studentized bootstrap bounds (:func:`lagrseq.analysis.paired.slowdown`, relative ``margin``,
+    ``cap`` as the restricted-mean horizon; None: the two points' :func:`horizon`). No pairs in
+    the logs: an inconclusive verdict whose reason starts with :data:`PAIRS_MISSING`."""
+    cap = horizon(p, q) if cap is None else cap
+    order = paired_order(p, q)
+    if order is None:
+        return paired.SlowdownVerdict(
+            paired.INCONCLUSIVE, math.nan, math.nan, math.nan, math.log1p(margin), 0, cap, _missing(p, q)
+        )
+    x, y = p.steps_to_solve[order[0]], q.steps_to_solve[order[1]]
+    return paired.slowdown(x, y, _generator(p, q, "steps_to_solve"), relative_margin=margin, cap=cap, alpha=ALPHA)
+
+
+def tail(p: Point, q: Point) -> paired.TailVerdict:
+    """The share of pairs in which ``p`` reaches its first solve more than :data:`LATE` later
+    than ``q``, with exact bounds and a verdict against :data:`TAIL_MARGIN`."""
+    order = paired_order(p, q)
+    if order is None:
+        return paired.TailVerdict(paired.INCONCLUSIVE, 0, 0, math.nan, math.nan, LATE, TAIL_MARGIN, _missing(p, q))
+    return paired.tail(p.steps_to_solve[order[0]], q.steps_to_solve[order[1]], LATE, TAIL_MARGIN, ALPHA)
 
 
 def judge(points: Sequence[Point]) -> dict[int, Verdict]:
-    """id(point) -> its verdict (see the module: margin, tests, credit)."""
+    """id(point) -> its verdict (see the module: estimands, margins, credit)."""
     reference = next((p for p in points if p.policy == "always" and not p.knobs), None)
     randoms: dict[float, Point] = {}
     for p in points:
         if p.policy == "random" and not p.fallback_labelled:
             randoms.setdefault(float(p.run.config.get("secondary", {}).get("ask_probability", 0.5)), p)
+    cap = horizon(*points)  # the panel's step cap: one restricted-mean horizon for all its comparisons
     out: dict[int, Verdict] = {}
     for p in points:
         if p.fallback_labelled:
-            out[id(p)] = Verdict(None, None, None, None, False, "no verdict: misses answered by the mock")
+            out[id(p)] = Verdict(None, None, None, None, None, False, "no verdict: misses answered by the mock")
             continue
         if reference is None or p is reference:
-            out[id(p)] = Verdict(None, None, None, None, False, "reference" if p is reference else "no always run")
+            out[id(p)] = Verdict(None, None, None, None, None, False, "reference" if p is reference else "no always run")
             continue
-        margin = MARGIN * float(np.mean(reference.steps_to_solve))
-        versus = compare(p, reference, "steps_to_solve", margin, higher_is_better=False)
+        versus = slowdown(p, reference, cap=cap)
+        late = tail(p, reference)
         solved = compare(p, reference, "episodes_solved", MARGIN * float(np.mean(reference.episodes_solved)))
         matched = against = None
         if wants_match(p.policy, p.knobs) and not math.isnan(p.rate) and p.rate > 0:
             rate = matched_probability(float(p.queries.sum()), p.decisions)
             matched = reference if rate >= 1.0 else randoms.get(rate)  # random at rate 1 is always
             if matched is not None:
-                against = compare(p, matched, "steps_to_solve", 0.0, higher_is_better=False)
+                against = slowdown(p, matched, margin=0.0, cap=cap)
         credited = (
-            p.policy != "oracle" and versus.verdict == inference.NON_INFERIOR
-            and against is not None and against.verdict == inference.NON_INFERIOR
+            p.policy != "oracle" and versus.verdict == paired.NON_INFERIOR and late.verdict == paired.NON_INFERIOR
+            and against is not None and against.verdict == paired.NON_INFERIOR
         )
-        out[id(p)] = Verdict(versus, solved, matched, against, credited, "")
+        out[id(p)] = Verdict(versus, late, solved, matched, against, credited, "")
     return out
 
 
@@ -462,12 +572,16 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
     first point's)."""
     reference = next((p for p in points if p.policy == "always" and not p.knobs), None)
     verdicts = judge(points)
-    margin = MARGIN * float(np.mean(reference.steps_to_solve)) if reference is not None else math.nan
+    cap = horizon(*points) if points else math.nan
+    stopped = bool(points) and any(stop_of(p.run.config) == "first_solve" for p in points)
+    queries_name = "queries to the first solve / trial [95% CI]" if stopped else "queries / trial [95% CI]"
     columns = (
-        "policy", "paper", "knobs chosen", "trials", "queries / trial [95% CI]", "query rate", "USD / trial [95% CI]",
+        "policy", "paper", "knobs chosen", "trials", queries_name, "query rate", "USD / trial [95% CI]",
         "steps to first solve [95% CI]", "episodes solved / trial [95% CI]", "solved trials",
-        f"vs always on steps to first solve (margin {number(margin, 0)})", "random at the matched rate: steps to first solve",
-        "vs matched random", "credited", "vs always on episodes solved (margin 10%)", "return / trial [95% CI]", "return IQM [95% CI]", "P(return > always) [95% CI]",
+        f"vs always on steps to first solve: mean log ratio (margin 10%, horizon {number(cap, 0)} steps)",
+        f"vs always: pairs > {100 * LATE:.0f}% later (exact bound, tail margin {100 * TAIL_MARGIN:.0f}%)",
+        "random at the matched rate: steps to first solve",
+        "vs matched random (mean log ratio < 0)", "credited", "vs always on episodes solved (margin 10%)", "return / trial [95% CI]", "return IQM [95% CI]", "P(return > always) [95% CI]",
         "store misses (refused, or answered by a fallback)", "trials decided outside the store", "queries vs always",
     )
     rows: list[tuple[str, ...]] = []
@@ -504,6 +618,7 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
             f"{number(e[0], 1)} {interval(e[1], e[2], 1)}",
             f"{int(p.solved.sum())}/{len(p.solved)}",
             verdict.always_text,
+            verdict.tail_text,
             shown_random,
             verdict.random_text,
             "yes" if verdict.credited else "no",
@@ -516,6 +631,7 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
             "n/a" if math.isnan(ratio) else f"{100 * ratio:+.0f}%",
         ))
         vs = verdict.against_always
+        vt = verdict.tail
         vr = verdict.against_random
         data.append({
             "policy": p.policy, "knobs": p.knobs, "paper": paper, "knobs_chosen": chosen,
@@ -523,17 +639,28 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
             "trials": len(p.returns),
             "query_rate": p.rate,
             "episodes_solved_mean": e[0], "episodes_solved_low": e[1], "episodes_solved_high": e[2],
-            "noninferiority_margin": margin,
+            "stop_at": stop_of(p.run.config),
+            "noninferiority_margin": math.log1p(MARGIN),
+            "horizon_steps": vs.cap if vs is not None else cap,
             "vs_always": vs.verdict if vs is not None else verdict.note,
-            "vs_always_difference": vs.difference if vs is not None else math.nan,
-            "vs_always_bound": vs.bound if vs is not None else math.nan,
-            "vs_always_p": vs.p if vs is not None else math.nan,
-            "vs_always_test": vs.test if vs is not None else "",
+            "vs_always_reason": vs.reason if vs is not None else "",
+            "vs_always_pairs": vs.n if vs is not None else 0,
+            "vs_always_log_ratio": vs.log_ratio if vs is not None else math.nan,
+            "vs_always_lower": vs.lower if vs is not None else math.nan,
+            "vs_always_bound": vs.upper if vs is not None else math.nan,
+            "vs_always_test": _test_name(vs),
+            "tail_late_share_above": LATE,
+            "tail_margin": TAIL_MARGIN,
+            "vs_always_tail": vt.verdict if vt is not None else verdict.note,
+            "tail_late_pairs": vt.late_pairs if vt is not None else 0,
+            "tail_pairs": vt.n if vt is not None else 0,
+            "tail_bound": vt.upper if vt is not None else math.nan,
             "matched_random": matched.label if matched is not None else "",
             "matched_random_steps_mean": matched.summary["steps_to_solve"][0] if matched is not None else math.nan,
             "vs_matched_random": vr.verdict if vr is not None else "",
-            "vs_matched_random_p": vr.p if vr is not None else math.nan,
-            "vs_matched_random_test": vr.test if vr is not None else "",
+            "vs_matched_random_log_ratio": vr.log_ratio if vr is not None else math.nan,
+            "vs_matched_random_bound": vr.upper if vr is not None else math.nan,
+            "vs_matched_random_test": _test_name(vr),
             "beats_matched_random": verdict.beats_random,
             "credited": verdict.credited,
             "vs_always_episodes_solved": verdict.solved_text,
@@ -548,10 +675,6 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
             "miss_share": p.miss_share, "miss_flagged": flagged, "queries_vs_always": ratio,
             "run": p.run.key.name,
         })
-    for column in ("vs_always_p", "vs_matched_random_p"):  # Holm over the panel's judged points
-        adjusted = inference.holm([float(row[column]) for row in data])
-        for row, value in zip(data, adjusted, strict=True):
-            row[column + "_holm"] = float(value)
     first = points[0].run.key if points else None
     shown = provider if provider is not None else (first.provider if first else "")
     title = "Frontier"
@@ -562,10 +685,19 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
         asking = next((p for p in points if p.run.key.method != "baseline"), points[0])
         scope = SCOPE_TEXT.get(scope_of(asking.run.config), scope_of(asking.run.config))
         role = " (tuning seeds)" if any(p.tuning.get("role") == "tuning" for p in points) else ""
-        title = f"Query-efficiency frontier: {first.task} ({first.preset}, {shown}, seed {first.seed}{role}; {scope})"
+        stop = STOP_TEXT.get(stop_of(asking.run.config), "")
+        title = f"Query-efficiency frontier: {first.task} ({first.preset}, {shown}, seed {first.seed}{role}; {scope}{'; ' + stop if stop else ''})"
         if points[0].run.config.get("env", {}).get("wrong_cube_reward") == "pre-revert":
             title += " [confound: the upstream environment rewards wrong cubes, which pays policies that guide fewer episodes]"
     return Table(title, columns, tuple(rows), pd.DataFrame(data))
+
+
+def _test_name(v: paired.SlowdownVerdict | None) -> str:
+    """The CSV's name of a comparison's test: the paired studentized bootstrap of the log ratio,
+    or no test where the logs do not pair the trials."""
+    if v is None:
+        return ""
+    return "no pairs" if v.reason.startswith(PAIRS_MISSING) else "paired bootstrap-t (log ratio)"
 
 
 def _chosen(p: Point) -> str:
@@ -678,7 +810,10 @@ def draw(points: Sequence[Point], title: str, miss_threshold: float = MISS_THRES
     if any(" †" in label for label in handles):
         marks.append(f"† hollow: > {100 * miss_threshold:.0f}% of answers from the fallback")
     if any(label.endswith("(credited, ringed)") for label in handles):
-        marks.append("ringed: credited (non-inferior to always on steps to the first solve, beats random at its query rate)")
+        marks.append(
+            "ringed: credited (non-inferior to always on steps to the first solve, on the mean log ratio and on the share of pairs"
+            f" > {100 * LATE:.0f}% later, and beats random at its query rate)"
+        )
     figure.legend(
         list(handles.values()), list(handles), loc="outside lower center", ncols=min(3, max(1, len(handles))),
         fontsize=8, title="; ".join(marks), title_fontsize=8,
@@ -791,8 +926,8 @@ class FrontierReport:
 def report(
     roots: Sequence[str | Path], out: Path, price: Price | None = None, miss_threshold: float = MISS_THRESHOLD
 ) -> FrontierReport:
-    """Read every trial log under ``roots`` and write, per (task, preset, provider, seed): the
-    frontier PNG, the performance-profile PNG, and the table as Markdown and CSV."""
+    """Read every trial log under ``roots`` and write, per (task, preset, provider, seed, regime,
+    ``run.stop_at``): the frontier PNG, the performance-profile PNG, and the table as Markdown and CSV."""
     import matplotlib
 
     logs = load(roots)
@@ -800,7 +935,7 @@ def report(
     if not runs:  # one line, as replay: every log left out is named in it
         detail = f" ({'; '.join(logs.warnings)})" if logs.warnings else ""
         raise LogError(f"no complete lagrseq trial logs under {', '.join(map(str, roots))}{detail}")
-    panels: dict[tuple[str, str, str, int, str], list[Run]] = {}
+    panels: dict[tuple[str, str, str, int, str, str], list[Run]] = {}
     for run in runs:
         panels.setdefault(_panel_key(run), []).append(run)
     out.mkdir(parents=True, exist_ok=True)
@@ -809,8 +944,9 @@ def report(
     with matplotlib.rc_context(STYLE):  # type: ignore[arg-type]
         for key, group in sorted(panels.items()):
             points = points_of(group, price)
-            task, preset, provider, seed, scope = key
-            stem = "-".join([task, preset, _slug(provider), f"seed{seed}", scope])
+            task, preset, provider, seed, scope, stop = key
+            # a panel of trials stopped early is named by it; the full-horizon panel keeps its name
+            stem = "-".join([task, preset, _slug(provider), f"seed{seed}", scope, *([stop.replace("_", "-")] if stop else [])])
             shown = table(points, miss_threshold)
             tables.append(shown)
             for suffix, text in ((".md", to_markdown(shown)), (".csv", to_csv(shown.data))):

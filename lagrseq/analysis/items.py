@@ -687,11 +687,14 @@ def build_frontier(item: Item, matched: Sequence[Match], price: Price | None = N
         "One point per asking policy: mean LLM queries (and US dollars: logged cost, else logged or estimated "
         "tokens at the price table) per trial against steps to the first solved episode (the primary outcome) "
         "and the return, 95% percentile-bootstrap intervals on both axes. The table adds episodes solved per trial, "
-        "a one-sided non-inferiority verdict against always on steps to the first solve (margin 10% of "
-        "always's mean, alpha 0.05; a paired t test where the logs show the same seed and trials, else Welch; "
-        "fewer than 10 trials: inconclusive), random at each learning policy's matched query rate (run by "
-        "lagrseq reproduce after the policies, on the same seed and trials) and whether the policy beats it, "
-        "credit (both), trials whose first accepted answer came "
+        "two one-sided non-inferiority verdicts against always on steps to the first solve, on the pairs of "
+        "trials the logs show ran the same seed and trial (no verdict where they do not pair): the mean per-pair "
+        "log ratio (studentized bootstrap bound below log 1.1, a 10% margin; a trial that never solved counts at "
+        "the step cap, the restricted-mean horizon) and the share of pairs more than 10% later (exact "
+        "Clopper-Pearson bound below 20%), alpha 0.05, fewer than 10 pairs: inconclusive; random at each "
+        "learning policy's matched query rate (run by lagrseq reproduce after the policies, on the same seed and "
+        "trials) and whether the policy beats it (the log ratio's bound below 0), credit (all three), trials "
+        "whose first accepted answer came "
         "from outside the store, the interquartile mean of the return and the probability of improvement over "
         "always (lagrseq frontier --replay draws the same from these logs)."
     )
@@ -704,10 +707,10 @@ def build_frontier(item: Item, matched: Sequence[Match], price: Price | None = N
 
 
 def inference_min_n() -> int:
-    """Trials per arm below which every frontier verdict is inconclusive."""
-    from lagrseq.analysis.inference import MIN_N_NONINFERIORITY
+    """Pairs below which every frontier verdict is inconclusive."""
+    from lagrseq.analysis.paired import MIN_PAIRS
 
-    return MIN_N_NONINFERIORITY
+    return MIN_PAIRS
 
 
 def _slug(provider: str) -> str:

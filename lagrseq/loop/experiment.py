@@ -128,7 +128,9 @@ class _Episode:
 
 
 def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] | None = None) -> TrialResult:
-    """Run one trial (Algorithm 1). ``on_episode(length)`` is called after every episode."""
+    """Run one trial (Algorithm 1). ``on_episode(length)`` is called after every episode. The
+    trial ends after ``run.episodes`` episodes or ``run.max_steps`` steps, or, with
+    ``run.stop_at = "first_solve"``, after its first solved episode."""
     started = time.perf_counter()
     config, task, env, sink = parts.config, parts.task, parts.env, parts.sink
     asks = config.method != "baseline"
@@ -152,6 +154,7 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
     lagr, guidance_rng, primary_rng, trial = config.lagr, parts.guidance_rng, parts.primary_rng, parts.trial
     learn_guided = lagr.update_primary_while_guided
     max_steps = config.run.max_steps
+    stop_at_solve = config.run.stop_at == "first_solve"  # the trial ends with its first solved episode
     with sink, parts.provider:
         for number in itertools.count():
             if _out_of_budget(config, number, global_step):
@@ -228,6 +231,8 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
                     sources[source] = sources.get(source, 0) + count
             if on_episode is not None:
                 on_episode(episode.steps)
+            if stop_at_solve and episode.solved:
+                break
     env.close()
     return TrialResult(
         path, parts.trial, episodes, global_step, queries, total_return, time.perf_counter() - started,

@@ -451,10 +451,17 @@ def runs_or_replay(
     matched_random: bool = True,
     tune: Tuning | None = None,
     say: Callable[[str], None] = print,
+    stop_at_first_solve: bool = False,
+    full_horizon_trials: int = 0,
 ) -> tuple[Path, list[Path]]:
     """``lagrseq frontier``'s runs: with ``replay``, the logs under it (no trial runs); else every
     variant run on ``task`` under ``out`` by the protocol (:func:`run_protocol`) and indexed.
-    Returns the report's folder and the run directories it reads."""
+    ``stop_at_first_solve``: the protocol's trials (tuning, evaluation, matched random) stop at
+    their first solved episode (``run.stop_at = "first_solve"``: steps to the first solve are
+    known then, and queries are counted to it); ``full_horizon_trials`` K > 0: then the variants
+    also run K trials at full length on the same seed (trials 0 to K-1), a second group whose
+    panel measures the full-horizon query count. Returns the report's folder and the run
+    directories it reads."""
     from lagrseq.paths import writable_directory
 
     if replay is not None:
@@ -465,14 +472,35 @@ def runs_or_replay(
         return writable_directory(out), [replay]
     if task is None:
         raise UsageError("frontier needs a TASK (or --replay DIR)")
+    if full_horizon_trials and not stop_at_first_solve:
+        raise UsageError(
+            f"--full-horizon-trials {full_horizon_trials} measures full-length trials beside trials stopped at the "
+            "first solve; give --stop-at-first-solve with it (without it every trial runs its full length)"
+        )
     chosen_scopes = parse_scopes(scopes, task)
-    check_variants(task, variants, provider, options, preset, config_file, overrides, chosen_scopes)
+    stopped = [*overrides, f'run.stop_at="{FIRST_SOLVE}"'] if stop_at_first_solve else list(overrides)
+    check_variants(task, variants, provider, options, preset, config_file, stopped, chosen_scopes)
+    if full_horizon_trials:
+        check_variants(task, variants, provider, options, preset, config_file, overrides, chosen_scopes)
     made = run_protocol(  # out is made once every configuration is checked
-        task, list(variants), provider, options, out, trials, seed, preset, config_file, list(overrides), jobs,
+        task, list(variants), provider, options, out, trials, seed, preset, config_file, stopped, jobs,
         progress=progress, say=say, scopes=chosen_scopes, matched_random=matched_random, tune=tune,
     )
-    write_index(out, made.variants, made.directories, made.chosen)
-    return out / "frontier", list(made.directories)
+    ran, directories = list(made.variants), list(made.directories)
+    if full_horizon_trials:  # the second group: the variants at full length, on fewer pairs
+        say(f"full-horizon query counts: {len(variants)} variants x {full_horizon_trials} trials at full length")
+        full = run_protocol(
+            task, list(variants), provider, options, out, full_horizon_trials, seed, preset, config_file, list(overrides),
+            jobs, progress=progress, say=say, scopes=chosen_scopes, matched_random=False, tune=None,
+        )
+        ran += full.variants
+        directories += full.directories
+    write_index(out, ran, directories, made.chosen)
+    return out / "frontier", directories
+
+
+FIRST_SOLVE = "first_solve"
+"""``run.stop_at``'s value for trials that stop at their first solved episode."""
 
 
 def check_variants(
