@@ -821,6 +821,13 @@ class RunConfig(_Section):
     """Episodes per trial, 0 for no limit (then max_steps ends the trial). Cube code: 100."""
     max_steps: int = ranged(0, ge=0, le=10**9)
     """Global environment-step budget per trial, 0 for none. Grid code: 10001 (image), 5001."""
+    stop_at: Literal["budget", "first_accepted"] = "budget"
+    """When a trial ends: ``budget`` (the episodes or steps above; the paper's runs) or
+    ``first_accepted``: at the end of the step in which the first LLM answer is accepted (the
+    episode is cut there and the trial ends; the episodes/steps budget still applies if no answer
+    is accepted). Table 3 counts queries until the first accepted answer (the released code asks no
+    more once one is held), so its runs stop there. Left out of a log's configuration at its
+    default, so runs made before it existed keep their digest and bytes."""
 
     def _check(self) -> None:
         if not (self.episodes or self.max_steps):
@@ -872,6 +879,9 @@ class ExperimentConfig:
         """A JSON-ready dict of every field; ``secondary.knobs`` (a plugin policy's own knobs) as a
         table, and only when one is set (so the built-ins' configurations read as they always did)."""
         data = dataclasses.asdict(self)
+        run = data.get("run")
+        if isinstance(run, dict) and run.get("stop_at") == "budget":
+            del run["stop_at"]  # the default: a configuration made before the field reads the same
         secondary = data.get("secondary")
         if isinstance(secondary, dict):
             knobs = secondary.pop("knobs", ())

@@ -22,11 +22,11 @@ from lagrseq import config as cfg
 from lagrseq.analysis import figures, stats
 from lagrseq.analysis import provenance as prov
 from lagrseq.analysis.loading import ACCURACY_METHOD, Run
-from lagrseq.analysis.misses import Misses, count_misses
+from lagrseq.analysis.misses import Misses, count_misses, decided_by_fallback
 from lagrseq.analysis.tables import Table, interval, number, plus_minus
 from lagrseq.errors import ConfigError
-from lagrseq.registry import kind_of, stored_sources
-from lagrseq.suite import Item, RunSpec, is_authors_provider, matches
+from lagrseq.registry import kind_of
+from lagrseq.suite import Item, RunSpec, is_authors_provider, matches, miss_variant
 
 Price = Callable[[str, int, int], float | None]
 """(model, prompt tokens, completion tokens) -> US dollars or None (unpriced)."""
@@ -130,6 +130,7 @@ def match(
             and run.key.method == method
             and run.key.preset == spec.preset
             and (wanted is None or run.key.provider == wanted)
+            and (spec.kind != "trial" or run.key.variant == miss_variant(run.key.provider, spec.on_miss))
             and matches(run.config, resolved)
         ]
         if not candidates:
@@ -202,14 +203,7 @@ def fallback_decided(run: Run) -> tuple[int, int]:
     trials): in those trials the fallback, not the recorded model, decided when the agent first
     got a usable suggestion. A trial with no accepted answer counts as not decided by it."""
     trials = len(run.trials)
-    if run.queries.empty:
-        return 0, trials
-    asked = run.queries[run.queries["queried"].fillna(False).astype(bool) & run.queries["accepted"].fillna(False).astype(bool)]
-    decided = 0
-    for _, group in asked.groupby("trial", sort=True):
-        first = group.sort_values(["global_step", "step"], kind="stable").iloc[0]
-        decided += str(first["source"] or "") not in stored_sources()
-    return decided, trials
+    return decided_by_fallback(run.queries, trials), trials
 
 
 def made_by(run: Run) -> str:

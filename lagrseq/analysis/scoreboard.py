@@ -26,11 +26,11 @@ import pandas as pd
 
 from lagrseq.analysis import audit, inference, stats
 from lagrseq.analysis import provenance as prov
-from lagrseq.analysis.items import ItemFailure, Match
+from lagrseq.analysis.items import ItemFailure, Match, fallback_decided
 from lagrseq.analysis.loading import Run
 from lagrseq.analysis.tables import Table
 from lagrseq.registry import kind_of
-from lagrseq.suite import PAPER_MODEL_ROWS, RECORDED_NAME, Item, is_authors_provider
+from lagrseq.suite import MISS_ROWS, PAPER_MODEL_ROWS, RECORDED_NAME, Item, is_authors_provider, miss_row
 
 _NUMBER = re.compile(r"[-+]?\d+(?:\.\d+)?")
 _PLUS_MINUS = re.compile(r"(?:±|\+-|\+/-)\s*(\d+(?:\.\d+)?)")
@@ -63,7 +63,7 @@ def source_name(provider: str) -> str:
 def _fits(m: Match, row: str) -> bool:
     """Whether a matched run stands for the paper's ``row``: the same row, its recorded-GPT
     variant, or (a row per model, Table 3) a run of that model."""
-    if m.row == row or m.row == f"{row} ({RECORDED_NAME})":
+    if m.row == row or m.row == f"{row} ({RECORDED_NAME})" or any(m.row == miss_row(row, x) for x in MISS_ROWS):
         return True
     if m.spec.row is not None and "{provider}" in m.spec.row and m.run is not None:
         model = m.run.config.get("llm", {}).get("model", "")
@@ -135,6 +135,14 @@ def build(
             verdict, reason = judged.verdict, judged.reason
             if made.kind == prov.FITTED:
                 verdict, reason = inference.FITTED, made.why
+            elif m.run is not None and m.misses is not None and m.misses.answered_by_fallback:
+                decided, trials = fallback_decided(m.run)
+                if decided and verdict in (inference.REPRODUCED, inference.DIFFERS):
+                    verdict = inference.INCONCLUSIVE
+                    reason = (
+                        f"no verdict: the {m.misses.answered_by} fallback, not the recorded answers, gave the first "
+                        f"accepted answer in {decided} of {trials} trials"
+                    )
         row = {
             "item": item.id,
             "title": item.title.split(":")[0],
@@ -190,7 +198,8 @@ def build(
                     if m.spec.column == column and _fits(m, row):
                         assert m.run is not None
                         values = _queries(m.run)
-                        add(item, f"{named(row)}, {column}: queries per run", str(paper), m, prov.of_run(m.run),
+                        shown = m.row if m.row is not None and m.row.startswith(f"{row} (misses") else row
+                        add(item, f"{named(shown)}, {column}: queries per run", str(paper), m, prov.of_run(m.run),
                             inference.t_interval(values, 1 - 2 * alpha), inference.t_interval(values, 1 - alpha), 1,
                             quantity=audit.QUERY_COLUMNS.get(column))
             # the query reduction SEQ brings, where the paper gives both columns of a row
@@ -210,7 +219,8 @@ def build(
                             continue
                         seq, lagr = _queries(ms.run), _queries(ml.run)
                         made = prov.combined([prov.of_run(ms.run), prov.of_run(ml.run)])
-                        add(item, f"{named(key)}: query reduction with SEQ (%)", paper, ms, made,
+                        shown = ms.row if ms.row is not None and ms.row.startswith(f"{key} (misses") else key
+                        add(item, f"{named(shown)}: query reduction with SEQ (%)", paper, ms, made,
                             _reduction(seq, lagr, 1 - 2 * alpha), _reduction(seq, lagr, 1 - alpha), 1, spread=0.0)
         elif item.render == "ratio-table":
             numerator = str(item.options.get("numerator", ""))

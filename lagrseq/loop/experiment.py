@@ -152,6 +152,8 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
     lagr, guidance_rng, primary_rng, trial = config.lagr, parts.guidance_rng, parts.primary_rng, parts.trial
     learn_guided = lagr.update_primary_while_guided
     max_steps = config.run.max_steps
+    stop_at_first = config.run.stop_at == "first_accepted"  # the trial ends with the step of its first acceptance
+    accepted_any = False
     with sink, parts.provider:
         for number in itertools.count():
             if _out_of_budget(config, number, global_step):
@@ -206,6 +208,8 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
                     global_step += 1
                     if terminated or truncated or (max_steps and global_step >= max_steps):
                         break
+                    if stop_at_first and episode.accepted:
+                        break
             finally:
                 if held:  # the episode's transitions (also those of an episode stopped by an error)
                     steps = held[:]
@@ -228,6 +232,9 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
                     sources[source] = sources.get(source, 0) + count
             if on_episode is not None:
                 on_episode(episode.steps)
+            accepted_any = accepted_any or episode.accepted > 0
+            if stop_at_first and accepted_any:
+                break
     env.close()
     return TrialResult(
         path, parts.trial, episodes, global_step, queries, total_return, time.perf_counter() - started,
