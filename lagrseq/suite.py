@@ -492,10 +492,12 @@ def matches(stored: Mapping[str, Any], resolved: Mapping[str, Any]) -> bool:
         if section not in stored:
             continue
         other = stored[section]
-        if section == "run" and isinstance(values, Mapping) and isinstance(other, Mapping):
-            # run.stop_at is left out of a configuration at its default (ExperimentConfig.to_dict)
-            if values.get("stop_at", STOP_AT_DEFAULT) != other.get("stop_at", STOP_AT_DEFAULT):
-                return False
+        # run.stop_at is left out of a configuration at its default (ExperimentConfig.to_dict)
+        if (
+            section == "run" and isinstance(values, Mapping) and isinstance(other, Mapping)
+            and values.get("stop_at", STOP_AT_DEFAULT) != other.get("stop_at", STOP_AT_DEFAULT)
+        ):
+            return False
         if isinstance(values, Mapping) and isinstance(other, Mapping):
             for name, value in values.items():
                 if section == "run" and name in ("episodes", "max_steps"):

@@ -21,8 +21,8 @@ from lagrseq.llm.calibrated import CALIBRATED_SOURCE, draw
 from lagrseq.llm.store import RecordStore, Sample, endpoint_of, query_key
 from lagrseq.loop.lagr import consult, query_for
 from lagrseq.running import runner, wiring
-from lagrseq.suite import MISS_ROWS, load_suite, miss_row
 from lagrseq.study import reproduce
+from lagrseq.suite import MISS_ROWS, load_suite, miss_row
 from tests.conftest import AUTHORS_CACHES
 
 IMAGE = cfg.load("image-completion", "lagr", "upstream")

@@ -15,8 +15,8 @@ from lagrseq.analysis.loading import load
 from lagrseq.analysis.replay import replay
 from lagrseq.errors import ConfigError
 from lagrseq.running import wiring
-from lagrseq.suite import load_suite
 from lagrseq.study import reproduce
+from lagrseq.suite import load_suite
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOLLM2 = "recorded_llm/smollm2-135m-cube-t0.jsonl"

@@ -25,7 +25,6 @@ from lagrseq.analysis.loading import ACCURACY_METHOD, Run
 from lagrseq.analysis.misses import Misses, count_misses, decided_by_fallback
 from lagrseq.analysis.tables import Table, interval, number, plus_minus
 from lagrseq.errors import ConfigError
-from lagrseq.registry import kind_of
 from lagrseq.suite import Item, RunSpec, is_authors_provider, matches, miss_variant
 
 Price = Callable[[str, int, int], float | None]

@@ -30,7 +30,14 @@ from lagrseq.analysis.items import ItemFailure, Match, fallback_decided
 from lagrseq.analysis.loading import Run
 from lagrseq.analysis.tables import Table
 from lagrseq.registry import kind_of
-from lagrseq.suite import MISS_ROWS, PAPER_MODEL_ROWS, RECORDED_NAME, Item, is_authors_provider, miss_row
+from lagrseq.suite import (
+    MISS_ROWS,
+    PAPER_MODEL_ROWS,
+    RECORDED_NAME,
+    Item,
+    is_authors_provider,
+    miss_row,
+)
 
 _NUMBER = re.compile(r"[-+]?\d+(?:\.\d+)?")
 _PLUS_MINUS = re.compile(r"(?:±|\+-|\+/-)\s*(\d+(?:\.\d+)?)")

@@ -26,10 +26,10 @@ import hashlib
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
-from lagrseq.llm.base import Answer, Query, Usage
+from lagrseq.llm.base import Answer, Query, Source, Usage
 from lagrseq.llm.store import Entry, query_key
 
-CALIBRATED_SOURCE = "calibrated"
+CALIBRATED_SOURCE: Source = "calibrated"
 """The ``source`` of a calibrated miss answer in a ``/query`` record."""
 
 

@@ -349,7 +349,7 @@ def grid_miss_calibration(config: ExperimentConfig) -> Any:
 
     def accepted(text: str) -> bool:
         parsed: Parsed = task.parse(text)
-        return bool(parsed.ok and task.evaluate(parsed.solution) >= threshold)
+        return bool(parsed.ok and parsed.solution is not None and task.evaluate(parsed.solution) >= threshold)
 
     return MissCalibration(
         task=config.task.name,
