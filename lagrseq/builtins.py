@@ -79,6 +79,7 @@ def grid_task(name: str, task: type, env: type, prefix: str, **own: Any) -> Task
         "guide": lazy(f"{WIRING}:steering_guide"),
         "missing_dependency": lazy(f"{WIRING}:torch_dependency"),
         "solution_scopes": ("episode", "trial"),
+        "miss_calibration": lazy(f"{WIRING}:grid_miss_calibration"),
     }
     return TaskSpec(
         name=name,

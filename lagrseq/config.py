@@ -821,12 +821,16 @@ class RunConfig(_Section):
     """Episodes per trial, 0 for no limit (then max_steps ends the trial). Cube code: 100."""
     max_steps: int = ranged(0, ge=0, le=10**9)
     """Global environment-step budget per trial, 0 for none. Grid code: 10001 (image), 5001."""
-    stop_at: Literal["", "first_solve"] = ""
+    stop_at: Literal["", "first_solve", "first_accepted"] = ""
     """Where a trial may stop before its length: "" (default: never, the paper's and the released
     code's trials run their whole length); ``first_solve``: at the end of the first solved episode
     (the frontier's primary outcome, steps to the first solve, is then known, and the trial costs
-    no more than it needs; its queries are then counted to the first solve, and reports say so).
-    Not part of a configuration's digest while "" (run directories made before it keep their names)."""
+    no more than it needs; its queries are then counted to the first solve, and reports say so);
+    ``first_accepted``: at the end of the step in which the first LLM answer is accepted (Table 3
+    counts queries until the first accepted answer: the released code asks no more once one is
+    held; the episodes/steps budget still applies if none is accepted). Left out of a log's
+    configuration and of the digest at its default, so runs made before it keep their bytes and
+    directory names."""
 
     def _check(self) -> None:
         if not (self.episodes or self.max_steps):
@@ -878,6 +882,9 @@ class ExperimentConfig:
         """A JSON-ready dict of every field; ``secondary.knobs`` (a plugin policy's own knobs) as a
         table, and only when one is set (so the built-ins' configurations read as they always did)."""
         data = dataclasses.asdict(self)
+        run = data.get("run")
+        if isinstance(run, dict) and run.get("stop_at") == "":
+            del run["stop_at"]  # the default: a configuration made before the field reads the same
         secondary = data.get("secondary")
         if isinstance(secondary, dict):
             knobs = secondary.pop("knobs", ())

@@ -120,6 +120,10 @@ class TaskSpec:
     estimated_tokens: Callable[[dict[str, Any]], tuple[float, float] | None] | None = None
     """A logged configuration (JSON data) -> (prompt, answer) tokens of one query, estimated
     (the frontier's cost of answers that logged no usage)."""
+    miss_calibration: Callable[[Any], Any] | None = None
+    """config -> the ``lagrseq.llm.calibrated.MissCalibration`` of ``--on-miss calibrated``: the
+    kind of a prompt (bins whose acceptance rates are fitted to a store's answers), whether an
+    answer is accepted, a right and a wrong answer (None: the task refuses ``calibrated``)."""
     renders: bool = False
     """``--render DIR`` draws its episodes (``make_env`` gets the folder)."""
     calibration_steps: int | None = None
@@ -731,12 +735,18 @@ def _load_plugins(registry: Registry[Any]) -> None:
         registry._entries.update(staged._entries)
 
 
-ON_MISS = ("error", "mock", "live", "refuse")
+ON_MISS = ("error", "mock", "live", "refuse", "calibrated")
 """What answers a query a recorded store lacks (``--on-miss``, a suite run's ``on_miss``): stop
-with an error, the rule-based mock, the live server (recorded), or a refusal (source ``miss``,
-never accepted). Here, below both the command line and the suite file, which both check it."""
+with an error, the rule-based mock, the live server (recorded), a refusal (source ``miss``,
+never accepted), or a draw fixed per prompt at the acceptance rate the store's own answers show
+for prompts of its kind (source ``calibrated``, ``lagrseq.llm.calibrated``; tasks with a
+``miss_calibration`` only). Here, below both the command line and the suite file, which both
+check it."""
 REFUSED_SOURCE = "miss"
 """The ``source`` of a refused miss (``on_miss = refuse``) in a ``/query`` record."""
+CALIBRATED_MISS = "calibrated"
+"""The ``on_miss`` value, and the ``source`` of its answers, whose rates are fitted to the store's
+answers (numbers made with it are ``fitted``: ``lagrseq.analysis.provenance``)."""
 
 
 def kind_of(spec: str) -> ProviderKind | None:

@@ -30,7 +30,7 @@ from typing import Any
 
 from lagrseq import config as cfg
 from lagrseq.errors import ConfigError
-from lagrseq.registry import ON_MISS, kind_of
+from lagrseq.registry import CALIBRATED_MISS, ON_MISS, kind_of
 from lagrseq.tomlfile import shown as _shown_path
 
 RENDERERS = ("returns", "query-bars", "query-table", "ratio-table", "accuracy", "config-table", "frontier")
@@ -55,7 +55,8 @@ _INHERITED = _RUN_KEYS - {"label", "row", "column"}
 _OPTIONS = ("x", "band", "window", "ylabel", "numerator", "denominator", "reference", "row_header")
 _CHOICES = {"x": ("episode", "global_step"), "band": ("std", "se")}
 _TEXT_KEYS = ("title", "caption", "note", "label", "provider", "ylabel", "numerator", "denominator", "row_header")
-_ITEM_KEYS = {"id", "title", "caption", "render", "runs", "note", "recorded", *_OPTIONS} | _INHERITED
+_RECORDED_KEYS = ("recorded_on_miss", "recorded_trials")
+_ITEM_KEYS = {"id", "title", "caption", "render", "runs", "note", "recorded", *_RECORDED_KEYS, *_OPTIONS} | _INHERITED
 
 
 @dataclass(frozen=True)
@@ -145,6 +146,12 @@ class Item:
     recorded: bool = False
     """Whether the authors' recorded GPT answers cover this item (``reproduce --authors-caches``
     adds a recorded-GPT line or row to it; see :func:`with_recorded`)."""
+    recorded_on_miss: tuple[str, ...] = ()
+    """What answers the authors' store misses in the recorded-GPT rows: one row per value (a
+    sensitivity band: ``refuse``, ``calibrated``, ``mock``); empty: one row, misses answered by the
+    mock."""
+    recorded_trials: int | None = None
+    """Trials of the recorded-GPT runs in the full suite (None: the run's own)."""
 
 
 @dataclass(frozen=True)
@@ -285,6 +292,28 @@ def _on_miss(where: str, merged: Mapping[str, Any], own: bool) -> str | None:
     return str(value)
 
 
+def _recorded_keys(where: str, raw: Mapping[str, Any], recorded: bool) -> dict[str, Any]:
+    """An item's ``recorded_on_miss`` and ``recorded_trials``, checked (only on a ``recorded =
+    true`` item)."""
+    given = [key for key in _RECORDED_KEYS if key in raw]
+    if given and not recorded:
+        raise ConfigError(f"{where}: {given[0]} applies to recorded = true items only: remove it or set recorded = true")
+    out: dict[str, Any] = {}
+    values = raw.get("recorded_on_miss", [])
+    if not isinstance(values, list) or not all(isinstance(v, str) for v in values) or len(set(values)) != len(values):
+        raise ConfigError(f"{where}: recorded_on_miss = {cfg.show_value(values)}; expected a list of distinct on_miss values")
+    for value in values:
+        if value not in ON_MISS or value in ("error", "live"):
+            raise ConfigError(
+                f"{where}: recorded_on_miss holds {cfg.show_value(value)}; expected refuse, calibrated or mock "
+                "(a row on the authors' answers never stops at a miss nor pays for one)"
+            )
+    out["recorded_on_miss"] = tuple(values)
+    if "recorded_trials" in raw:
+        out["recorded_trials"] = _int(where, "recorded_trials", raw["recorded_trials"], _INT_RANGES["trials"])
+    return out
+
+
 def load_suite(path: str | Path | None = None) -> Suite:
     """Read and check a suite file (default: the packaged ``paper_suite.toml``; the format:
     docs/suites.md)."""
@@ -333,6 +362,7 @@ def load_suite(path: str | Path | None = None) -> Suite:
                 note=str(raw.get("note", "")),
                 options=options,
                 recorded=recorded,
+                **_recorded_keys(f"suite item {item_id!r}", raw, recorded),
             )
         )
     return Suite(seed=seed, provider=str(provider), items=tuple(items))
@@ -462,6 +492,12 @@ def matches(stored: Mapping[str, Any], resolved: Mapping[str, Any]) -> bool:
         if section not in stored:
             continue
         other = stored[section]
+        # run.stop_at is left out of a configuration at its default (ExperimentConfig.to_dict)
+        if (
+            section == "run" and isinstance(values, Mapping) and isinstance(other, Mapping)
+            and values.get("stop_at", STOP_AT_DEFAULT) != other.get("stop_at", STOP_AT_DEFAULT)
+        ):
+            return False
         if isinstance(values, Mapping) and isinstance(other, Mapping):
             for name, value in values.items():
                 if section == "run" and name in ("episodes", "max_steps"):
@@ -476,6 +512,8 @@ def matches(stored: Mapping[str, Any], resolved: Mapping[str, Any]) -> bool:
 # ------------------------------------------------------------------------------------------
 # The authors' recorded GPT answers (``lagrseq reproduce --authors-caches DIR``)
 # ------------------------------------------------------------------------------------------
+STOP_AT_DEFAULT = ""
+"""``run.stop_at`` where a configuration leaves it out (its default)."""
 AUTHORS_STORE_NAME = "authors-answers"
 """The store under ``--out`` that ``reproduce --authors-caches`` imports the authors' caches into;
 replay recognises runs on the authors' answers by a ``recorded:`` provider ending in this name."""
@@ -506,6 +544,52 @@ def _recorded_label(text: str) -> str:
     return f"{text}, {RECORDED_NAME}"
 
 
+MISS_ROWS = {
+    "refuse": "misses refused",
+    "calibrated": "misses: calibrated draw, fitted",
+    "mock": "misses: rule-based mock",
+}
+"""How a recorded-GPT row names what answered the store's misses (``Item.recorded_on_miss``)."""
+MISS_VARIANT = "on-miss-"
+"""The beginning of the variant (run directory suffix, ``RunKey.variant``) of a run on the
+authors' answers whose misses are not answered by the mock (:func:`miss_variant`)."""
+
+
+def miss_variant(provider: str, on_miss: str | None) -> str:
+    """``on-miss-refuse`` / ``on-miss-calibrated`` for a trial run on the authors' answers whose
+    misses are refused or drawn, and ``on-miss-calibrated`` on any store (its run directory and
+    replay's run key carry it, so the three rows of one item never share logs, and a fitted run
+    is known as one from its key); empty for the mock (the authors' runs' rule before
+    ``recorded_on_miss`` existed: their logs keep their names) and every other run."""
+    kind = kind_of(provider)
+    if on_miss == CALIBRATED_MISS and kind is not None and kind.replays:
+        return f"{MISS_VARIANT}{on_miss}"  # fitted, on any store: never mixed with the store's other runs
+    if not is_authors_provider(provider) or on_miss in (None, "", "mock"):
+        return ""
+    return f"{MISS_VARIANT}{on_miss}"
+
+
+def miss_row(row: str, on_miss: str) -> str:
+    """The row of a recorded-GPT run whose misses ``on_miss`` answers: ``GPT4 (misses refused)``."""
+    return f"{row} ({MISS_ROWS.get(on_miss, 'misses: ' + on_miss)})"
+
+
+def _miss_variants(item: Item, copy: RunSpec) -> list[RunSpec]:
+    """A recorded-GPT copy of a run, once per ``item.recorded_on_miss`` (one row each), with the
+    item's ``recorded_trials``; unchanged without them."""
+    changes: dict[str, Any] = {}
+    if item.recorded_trials is not None:
+        changes["trials"] = item.recorded_trials
+    if not item.recorded_on_miss:
+        return [replace(copy, **changes)]
+    out = []
+    for on_miss in item.recorded_on_miss:
+        row = None if copy.row is None else miss_row(copy.row, on_miss)
+        label = f"{copy.label} ({MISS_ROWS.get(on_miss, on_miss)})"
+        out.append(replace(copy, **changes, on_miss=on_miss, row=row, label=label))
+    return out
+
+
 def with_recorded(suite: Suite, provider: str, covers: set[tuple[str, int]]) -> Suite:
     """``suite`` with a recorded-GPT line or row added to every item marked ``recorded``.
 
@@ -532,7 +616,7 @@ def with_recorded(suite: Suite, provider: str, covers: set[tuple[str, int]]) -> 
             if resolved.llm.temperature == 0 and covered_by(resolved) in covers:
                 eligible.append(spec)
         added: list[RunSpec] = []
-        seen: set[tuple[str | None, str | None, str]] = set()
+        seen: set[tuple[str | None, str | None, str, str | None]] = set()
         rows = {spec.row for spec in eligible if spec.row is not None}
         for spec in item.runs:
             if spec.row is not None and spec.row in rows:
@@ -540,19 +624,24 @@ def with_recorded(suite: Suite, provider: str, covers: set[tuple[str, int]]) -> 
                 if "{provider}" in spec.row:  # a row per model (Table 3): the paper's row of that model
                     model = spec.resolve().llm.model
                     row = spec.row.replace("{provider}", PAPER_MODEL_ROWS.get(model, RECORDED_NAME))
-                copy = replace(
-                    spec,
-                    label=_recorded_label(spec.label),
-                    row=row,
-                    provider=provider if spec in eligible else spec.provider,
-                )
+                copies = [
+                    replace(
+                        spec,
+                        label=_recorded_label(spec.label),
+                        row=row,
+                        provider=provider if spec in eligible else spec.provider,
+                    )
+                ]
             elif spec in eligible and spec.row is None:
-                copy = replace(spec, label=_recorded_label(spec.label), provider=provider)
+                copies = [replace(spec, label=_recorded_label(spec.label), provider=provider)]
             else:
                 continue
-            key = (copy.row, copy.column, json.dumps(copy.resolved_dict(), sort_keys=True))
-            if key not in seen:
-                seen.add(key)
-                added.append(copy)
+            if spec in eligible:
+                copies = [variant for copy in copies for variant in _miss_variants(item, copy)]
+            for copy in copies:
+                key = (copy.row, copy.column, json.dumps(copy.resolved_dict(), sort_keys=True), copy.on_miss)
+                if key not in seen:
+                    seen.add(key)
+                    added.append(copy)
         items.append(replace(item, runs=(*item.runs, *added)) if added else item)
     return Suite(suite.seed, suite.provider, tuple(items))

@@ -18,7 +18,8 @@ if os.environ.get("CI"):
     settings.load_profile("ci")
 
 
-SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+SHARED = Path(os.environ.get("LAGRSEQ_SHARED") or Path(__file__).resolve().parents[1].parent / "shared")
+"""The shared/ folder beside the repository (``LAGRSEQ_SHARED`` names another, e.g. from a worktree)."""
 AUTHORS_CACHES = SHARED / "data" / "authors_caches"
 
 

@@ -82,9 +82,15 @@ def test_every_marked_item_gets_a_recorded_line_where_the_caches_cover_it() -> N
     assert all(added[i] for i in marked) and not any(added[i.id] for i in suite.items if not i.recorded)
     # Fig. 4: one tau = 0 line (the default run and the authors-t0 profile run are the same query)
     assert [r.label for r in added["fig4"]] == ["authors' GPT answers, τ=0"]
-    # Table 2: the tau = 0 row only; Table 3: the paper's GPT4 row
+    # Table 2: the tau = 0 row only; Table 3: the paper's GPT4 row three ways (what answered the
+    # store's misses), 30 trials each, stopping at the first accepted answer
     assert {r.row for r in added["table2"]} == {"0 (authors' GPT answers)"}
-    assert {r.row for r in added["table3"]} == {"GPT4"}
+    assert {(r.row, r.on_miss) for r in added["table3"]} == {
+        ("GPT4 (misses refused)", "refuse"), ("GPT4 (misses: calibrated draw, fitted)", "calibrated"),
+        ("GPT4 (misses: rule-based mock)", "mock"),
+    }
+    assert {r.trials for r in added["table3"]} == {30} and len(added["table3"]) == 6
+    assert all("run.stop_at=first_accepted" in r.overrides for r in added["table3"])
     # the stack-size table: rows of 8 and 11 cubes (no cache for 5), each with its Q-learning run
     rows = next(i for i in covered.items if i.id == "appendix-stack-size").runs
     recorded_rows = {r.row for r in rows if r.row and "authors" in r.row}

@@ -5,6 +5,7 @@ clone finding the recorded answers it needs (issue 38, items 1 and 5)."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -45,8 +46,10 @@ def test_every_recorded_store_run_of_the_packaged_suite_declares_on_miss_and_the
     plan = reproduce.plan(suite, quick=True, provider=None, runs_dir=tmp_path, seed=0)
     assert all(run.options is None for run in plan.runs if not wiring.provider_kind(run.provider).replays)
     authors = f"recorded:{tmp_path / 'authors-answers'}"
-    spec = next(spec for _, spec in recorded)
+    spec = next(spec for item in suite.items for spec in item.runs if spec.on_miss is None)
     assert reproduce.run_options(spec, authors).on_miss == "mock"
+    # a recorded-GPT row that says what answers the misses (Table 3's three rows) is run so
+    assert reproduce.run_options(replace(spec, on_miss="calibrated"), authors).on_miss == "calibrated"
 
 
 def test_two_items_sharing_a_run_must_agree_on_what_a_miss_does(tmp_path: Path) -> None:

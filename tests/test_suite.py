@@ -136,8 +136,8 @@ def test_on_miss_is_a_run_key_an_item_passes_to_its_store_runs(tmp_path: Path) -
 @pytest.mark.parametrize(
     ("edit", "message"),
     [
-        (('on_miss = "mock"', 'on_miss = "ignore"'), "run 2: on_miss = 'ignore'; expected one of error, mock, live, refuse$"),
-        (('on_miss = "mock"', "on_miss = 1"), "on_miss = 1; expected one of error, mock, live, refuse$"),
+        (('on_miss = "mock"', 'on_miss = "ignore"'), "run 2: on_miss = 'ignore'; expected one of error, mock, live, refuse, calibrated$"),
+        (('on_miss = "mock"', "on_miss = 1"), "on_miss = 1; expected one of error, mock, live, refuse, calibrated$"),
         (('on_miss = "refuse"', 'on_miss = "later"'), "run 1: on_miss = 'later'; expected one of"),
         (
             ('method = "lagr"\nprovider = "mock"', 'method = "lagr"\nprovider = "mock"\non_miss = "refuse"'),

@@ -76,7 +76,7 @@ from lagrseq.analysis.tables import Table, interval, number, to_csv, to_markdown
 from lagrseq.errors import LogError
 from lagrseq.frontier_protocol import TUNING_NOTE, matched_probability, wants_match
 from lagrseq.logs.reader import read_info
-from lagrseq.registry import kind_of, paid_sources
+from lagrseq.registry import CALIBRATED_MISS, kind_of, paid_sources
 
 Price = Callable[[str, int, int], float | None]
 MISS_THRESHOLD = 0.1
@@ -191,8 +191,9 @@ class Point:
 
     @property
     def fallback_labelled(self) -> bool:
-        """Its store misses were answered by the rule-based mock: no verdict."""
-        return self.on_miss == "mock"
+        """Its store misses were answered by the rule-based mock or a calibrated draw (fitted to
+        the store's answers): no verdict."""
+        return self.on_miss in ("mock", CALIBRATED_MISS)
 
     @property
     def miss_share(self) -> float:
@@ -544,7 +545,7 @@ def judge(points: Sequence[Point]) -> dict[int, Verdict]:
     out: dict[int, Verdict] = {}
     for p in points:
         if p.fallback_labelled:
-            out[id(p)] = Verdict(None, None, None, None, None, False, "no verdict: misses answered by the mock")
+            out[id(p)] = Verdict(None, None, None, None, None, False, "no verdict: misses answered by the mock" if p.on_miss == "mock" else "no verdict: misses answered by a calibrated draw (fitted)")
             continue
         if reference is None or p is reference:
             out[id(p)] = Verdict(None, None, None, None, None, False, "reference" if p is reference else "no always run")
@@ -607,7 +608,7 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
             f"{interval(*matched.summary['steps_to_solve'][1:], 0)}" if matched is not None else "n/a"
         )
         rows.append((
-            p.label + (" *" if flagged else "") + (" (fallback: mock)" if p.fallback_labelled else ""),
+            p.label + (" *" if flagged else "") + (f" (fallback: {p.on_miss})" if p.fallback_labelled else ""),
             paper,
             chosen,
             str(len(p.returns)),

@@ -26,7 +26,7 @@ from lagrseq.analysis.misses import Misses, count_misses
 from lagrseq.analysis.tables import Table, interval, number, plus_minus
 from lagrseq.errors import ConfigError
 from lagrseq.registry import kind_of
-from lagrseq.suite import Item, RunSpec, is_authors_provider, matches
+from lagrseq.suite import MISS_ROWS, Item, RunSpec, is_authors_provider, matches, miss_variant
 
 Price = Callable[[str, int, int], float | None]
 """(model, prompt tokens, completion tokens) -> US dollars or None (unpriced)."""
@@ -130,6 +130,7 @@ def match(
             and run.key.method == method
             and run.key.preset == spec.preset
             and (wanted is None or run.key.provider == wanted)
+            and (spec.kind != "trial" or run.key.variant == miss_variant(run.key.provider, spec.on_miss))
             and matches(run.config, resolved)
         ]
         if not candidates:
@@ -443,6 +444,23 @@ def build_query_table(item: Item, matched: Sequence[Match]) -> Built:
         pd.DataFrame(data),
     )
     method = "LLM queries per run (trial), mean ± standard error over trials (n per cell), next to the paper's values, each row with what made it (provenance); the CSV adds the standard deviation and a 95% t interval of the mean on the log scale (it never reaches below 0). On recorded answers, each cell shows its misses (answers the store lacked: k of n, refused or answered by a fallback that can be right) and, for such a fallback, the trials whose first accepted answer came from it."
+    stopped = [run for _, run in _present(matched) if (run.config.get("run") or {}).get("stop_at") == "first_accepted"]
+    if stopped:
+        kept = all((run.config.get("lagr") or {}).get("solution_scope") == "trial" for run in stopped)
+        method += (
+            f" {len(stopped)} of its runs end each trial with the step of its first accepted answer (run.stop_at = "
+            "first_accepted): " + (
+                "an accepted answer is kept for the trial (lagr.solution_scope = trial) and nothing is asked after it, "
+                "so their queries per run are those of the whole trial."
+                if kept else "their queries per run are the queries until the first accepted answer."
+            )
+        )
+    if any(m.row.endswith(f"({MISS_ROWS['calibrated']})") for m in matched):
+        method += (
+            " Rows on the authors' answers are made three ways, by what answered a prompt the store lacks: a refusal "
+            "(never accepted), a calibrated draw (accepted at the rate the authors' answers show for prompts with as "
+            "many cells shown, fixed per prompt: fitted), or the rule-based mock: a sensitivity band."
+        )
     return Built(None, None, [(item.id, table)], method)
 
 

@@ -35,6 +35,7 @@ from lagrseq.logs.reader import ReadStats, full_path, read_rows, recover_command
 from lagrseq.logs.schemas import ACCURACY_METHOD
 from lagrseq.logs.sink import PARTIAL_SUFFIX
 from lagrseq.paths import expand_user, input_path, walk_files
+from lagrseq.suite import miss_variant
 
 EPISODE_COLUMNS = (
     "trial",
@@ -264,7 +265,7 @@ def _read_trial(path: Path, root: Path, stats: ReadStats) -> _Trial:
         provider=run.get("provider", ""),
         seed=int(run.get("seed", 0)),
         digest=digest,
-        variant=f"samples-{samples}" if samples else "",
+        variant=f"samples-{samples}" if samples else miss_variant(run.get("provider", ""), logged_on_miss(run.get("provider_options"))),
     )
     return _Trial(
         key=key,
@@ -280,6 +281,16 @@ def _read_trial(path: Path, root: Path, stats: ReadStats) -> _Trial:
         samples=samples,
         task_fields=own,
     )
+
+
+def logged_on_miss(text: Any) -> str:
+    """The ``on_miss`` a trial's ``provider_options`` metadata (JSON) names, empty if none."""
+    try:
+        options = json.loads(text) if isinstance(text, str) and text else {}
+    except (ValueError, RecursionError):
+        return ""
+    value = options.get("on_miss") if isinstance(options, dict) else None
+    return value if isinstance(value, str) else ""
 
 
 def _frame(rows: list[tuple[Any, ...]], columns: Sequence[str]) -> pd.DataFrame:

@@ -99,3 +99,18 @@ def count_misses(provider: str, queries: pd.DataFrame) -> Misses | None:
     outside = sources[missed(sources)]
     by_source = tuple(sorted((str(source), int(n)) for source, n in outside.value_counts().items()))
     return Misses(len(sent), by_source)
+
+
+def decided_by_fallback(queries: pd.DataFrame, trials: int) -> int:
+    """Of a run's ``trials``, those whose first accepted answer came from outside the store (a
+    fallback that can be right: the mock, a calibrated draw, a live model), from its ``/query``
+    records; a trial with no accepted answer, or whose first came from the store, counts as not
+    decided by it."""
+    if queries.empty:
+        return 0
+    asked = queries[queries["queried"].fillna(False).astype(bool) & queries["accepted"].fillna(False).astype(bool)]
+    decided = 0
+    for _, group in asked.groupby("trial", sort=True):
+        first = group.sort_values(["global_step", "step"], kind="stable").iloc[0]
+        decided += str(first["source"] or "") not in stored_sources()
+    return min(decided, trials)

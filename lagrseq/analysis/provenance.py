@@ -10,7 +10,7 @@ a reader can tell a replay of real answers from a simulation, and a simulation f
   authors' GPT runs, e.g. SmolLM2-135M-Instruct in ``recorded_llm/``.
 * ``fitted``: a mock profile whose parameters were chosen to match the paper or calibrated on the
   answers it is compared with: every ``mock:authors-*`` profile, and at tau > 0 its temperature
-  model. A fitted number is never called reproduced (:data:`lagrseq.analysis.inference.FITTED`).
+  model; and a run on a store whose misses a calibrated draw answered (``--on-miss calibrated``). A fitted number is never called reproduced (:data:`lagrseq.analysis.inference.FITTED`).
 * ``rule-based mock``: the target-blind extrapolator (``mock``, ``mock:ideal``) or a profile fixed
   by definition (``mock:oracle``, ``mock:refuse``), with nothing tuned to a paper number.
 * ``no LLM``: a run that never asks (the Q-learning baseline), whatever provider its log names.
@@ -26,7 +26,8 @@ from dataclasses import dataclass
 from pathlib import PurePath
 from typing import Any
 
-from lagrseq.registry import kind_of
+from lagrseq.registry import CALIBRATED_MISS, kind_of
+from lagrseq.suite import MISS_VARIANT
 
 AUTHORS = "authors' answers"
 OPEN_MODEL = "open model"
@@ -55,11 +56,12 @@ class Provenance:
         return self.kind
 
 
-def provenance(provider: str, config: Mapping[str, Any], method: str | None = None) -> Provenance:
+def provenance(provider: str, config: Mapping[str, Any], method: str | None = None, on_miss: str = "") -> Provenance:
     """The provenance class of a run logged with ``provider`` (its spec, ``kind[:argument]``) and
     ``config`` (its resolved configuration as the log stores it); ``method`` defaults to the
-    config's own. Anything the log does not say is treated as what it says least about
-    (``unknown``)."""
+    config's own; ``on_miss``: what answered its store's misses (its logged provider options):
+    ``calibrated`` makes a run on a store ``fitted``. Anything the log does not say is treated as
+    what it says least about (``unknown``)."""
     method = str(config.get("method", "")) if method is None else method
     llm = config.get("llm", {})
     llm = llm if isinstance(llm, Mapping) else {}
@@ -86,6 +88,12 @@ def provenance(provider: str, config: Mapping[str, Any], method: str | None = No
         name = argument or "the rule-based extrapolator"
         return Provenance(RULE_BASED, f"mock {name}: nothing in it was tuned to a paper number")
     if spec.replays:
+        if on_miss == CALIBRATED_MISS:
+            return Provenance(
+                FITTED,
+                "the store's misses were answered by a draw at acceptance rates fitted to the store's own answers "
+                "(--on-miss calibrated)",
+            )
         if PurePath(argument.rstrip("/")).name == AUTHORS_STORE_NAME:
             return Provenance(AUTHORS, "the paper authors' recorded GPT answers (misses answered by a fallback, counted)")
         where = PurePath(argument.rstrip("/")).name or argument
@@ -95,7 +103,9 @@ def provenance(provider: str, config: Mapping[str, Any], method: str | None = No
 
 def of_run(run: Any) -> Provenance:
     """:func:`provenance` of a loaded run (:class:`lagrseq.analysis.loading.Run`)."""
-    return provenance(run.key.provider, run.config, run.key.method)
+    variant = str(getattr(run.key, "variant", "") or "")
+    on_miss = variant[len(MISS_VARIANT):] if variant.startswith(MISS_VARIANT) else ""
+    return provenance(run.key.provider, run.config, run.key.method, on_miss)
 
 
 def combined(parts: list[Provenance]) -> Provenance:

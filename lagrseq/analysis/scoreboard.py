@@ -43,7 +43,14 @@ from lagrseq.analysis.items import ItemFailure, Match
 from lagrseq.analysis.loading import Run
 from lagrseq.analysis.tables import Table
 from lagrseq.registry import kind_of
-from lagrseq.suite import PAPER_MODEL_ROWS, RECORDED_NAME, Item, is_authors_provider
+from lagrseq.suite import (
+    MISS_ROWS,
+    PAPER_MODEL_ROWS,
+    RECORDED_NAME,
+    Item,
+    is_authors_provider,
+    miss_row,
+)
 
 _NUMBER = re.compile(r"[-+]?\d+(?:\.\d+)?")
 _PLUS_MINUS = re.compile(r"(?:±|\+-|\+/-)\s*(\d+(?:\.\d+)?)")
@@ -76,7 +83,7 @@ def source_name(provider: str) -> str:
 def _fits(m: Match, row: str) -> bool:
     """Whether a matched run stands for the paper's ``row``: the same row, its recorded-GPT
     variant, or (a row per model, Table 3) a run of that model."""
-    if m.row == row or m.row == f"{row} ({RECORDED_NAME})":
+    if m.row == row or m.row == f"{row} ({RECORDED_NAME})" or any(m.row == miss_row(row, x) for x in MISS_ROWS):
         return True
     if m.spec.row is not None and "{provider}" in m.spec.row and m.run is not None:
         model = m.run.config.get("llm", {}).get("model", "")
@@ -359,7 +366,13 @@ def _query_rows(item: Item, reference: Mapping[str, Any], present: Sequence[Matc
         """A row by its header ("τ = 0", not a bare "0" that reads as a count)."""
         return f"{header} = {row}" if header else row
 
-    counts: dict[tuple[str, str, str], tuple[Match, _Part]] = {}  # (row, column, provider)
+    def shown(m: Match, row: str) -> str:
+        """The row as the table names it: the paper's row, or one of its variants by what answered
+        the store's misses (Table 3 on the authors' answers: "GPT4 (misses refused)", ...)."""
+        return m.row if m.row is not None and m.row.startswith(f"{row} (misses") else row
+
+    # (row, column, source): the source is the provider and, for a row's miss variants, the variant
+    counts: dict[tuple[str, str, str], tuple[Match, _Part]] = {}
     for key, paper in reference.items():
         if "|" not in key:
             continue
@@ -368,8 +381,8 @@ def _query_rows(item: Item, reference: Mapping[str, Any], present: Sequence[Matc
             if m.spec.column == column and _fits(m, row):
                 assert m.run is not None
                 part = _count_part(m.run)
-                counts[(row, column, m.provider)] = (m, part)
-                add(item, f"{named(row)}, {column}: queries per run", str(paper), m, part, key, 1,
+                counts[(row, column, f"{m.provider}#{shown(m, row)}")] = (m, part)
+                add(item, f"{named(shown(m, row))}, {column}: queries per run", str(paper), m, part, key, 1,
                     paper_estimate(item.id, str(paper)), quantity=audit.QUERY_COLUMNS.get(column))
     columns = sorted({k.split("|", 1)[1] for k in reference if "|" in k})
     if len(columns) != 2:
@@ -399,7 +412,7 @@ def _query_rows(item: Item, reference: Mapping[str, Any], present: Sequence[Matc
             ratio = inference.ratio_estimate(seq_part.estimate, lagr_part.estimate)
             part = _part([ms.run, ml.run], _reduction(ratio), _reduction_interval(ratio, 0.95))
             reductions[(key, provider)] = (ms, part)
-            add(item, f"{named(key)}: query reduction with SEQ (%)", paper, ms, part, f"{key}|{margins.REDUCTION}", 1, paper_est)
+            add(item, f"{named(shown(ms, key))}: query reduction with SEQ (%)", paper, ms, part, f"{key}|{margins.REDUCTION}", 1, paper_est)
     # trends over the rows (Table 2: over τ), where the margin table names them
     try:
         xs = {key: float(key) for key in keys}

@@ -14,9 +14,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol, runtime_checkable
 
-Source = Literal["live", "recorded", "mock", "miss"]
+Source = Literal["live", "recorded", "mock", "miss", "calibrated"]
 """Where an answer came from; ``miss``: a recorded store lacked the query and ``--on-miss refuse``
-answered it with a refusal (empty text, never accepted)."""
+answered it with a refusal (empty text, never accepted); ``calibrated``: ``--on-miss calibrated``
+answered it with a draw at the store's own acceptance rate (``lagrseq.llm.calibrated``)."""
 RecordedAs = Literal["text", "array", "list"]
 
 

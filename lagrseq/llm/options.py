@@ -95,9 +95,11 @@ class RecordedOptions:
         "--on-miss", "recorded:STORE only, a query the store has no answer for: error = stop with a message naming the nearest "
         "recorded keys (run's default); mock = answer it with the rule-based mock (not stored; frontier: its points are labelled "
         "and get no verdict); live = ask the live server and record the answer into STORE; refuse = answer it with a refusal "
-        "(source miss: it costs a query and is never accepted; frontier's default, so no policy gains from answers nobody recorded)",
+        "(source miss: it costs a query and is never accepted; frontier's default, so no policy gains from answers nobody recorded); "
+        "calibrated = answer it with a draw fixed per prompt, right at the rate the store's own answers show for prompts of its "
+        "kind (grid tasks: cells shown), else wrong (source calibrated; numbers made with it are fitted)",
         choices=ON_MISS))
-    """What answers a query the store lacks (error | mock | live | refuse)."""
+    """What answers a query the store lacks (error | mock | live | refuse | calibrated)."""
     live: LiveOptions = field(default_factory=LiveOptions)
     """The store's endpoint (``base_url``) and, with ``on_miss = live``, the server asked."""
 

@@ -67,7 +67,7 @@ QUERY = _object(
         "completion_tokens": _nullable(_INT),
         "cost_usd": _nullable(_NUM),
         "latency_s": _nullable(_NUM),
-        "source": _nullable({"enum": ["live", "recorded", "mock", "miss"], "description": "miss: the recorded store lacked the query and a refusal answered it (--on-miss refuse)"}),
+        "source": _nullable({"enum": ["live", "recorded", "mock", "miss", "calibrated"], "description": "miss: the recorded store lacked the query and a refusal answered it (--on-miss refuse); calibrated: a draw at the store's own acceptance rate answered it (--on-miss calibrated)"}),
         "record_key": _nullable({"type": "string", "description": "recorded store key of the query"}),
         "sample_index": _nullable({**_INT, "description": "which recorded sample of the key was served"}),
         "finish_reason": _nullable({"type": "string", "description": "why the model stopped (stop, length, ...)"}),

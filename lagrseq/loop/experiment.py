@@ -130,7 +130,8 @@ class _Episode:
 def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] | None = None) -> TrialResult:
     """Run one trial (Algorithm 1). ``on_episode(length)`` is called after every episode. The
     trial ends after ``run.episodes`` episodes or ``run.max_steps`` steps, or, with
-    ``run.stop_at = "first_solve"``, after its first solved episode."""
+    ``run.stop_at = "first_solve"``, after its first solved episode, or with ``"first_accepted"``,
+    with the step of its first accepted answer."""
     started = time.perf_counter()
     config, task, env, sink = parts.config, parts.task, parts.env, parts.sink
     asks = config.method != "baseline"
@@ -155,6 +156,8 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
     learn_guided = lagr.update_primary_while_guided
     max_steps = config.run.max_steps
     stop_at_solve = config.run.stop_at == "first_solve"  # the trial ends with its first solved episode
+    stop_at_first = config.run.stop_at == "first_accepted"  # the trial ends with the step of its first acceptance
+    accepted_any = False
     with sink, parts.provider:
         for number in itertools.count():
             if _out_of_budget(config, number, global_step):
@@ -209,6 +212,8 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
                     global_step += 1
                     if terminated or truncated or (max_steps and global_step >= max_steps):
                         break
+                    if stop_at_first and episode.accepted:
+                        break
             finally:
                 if held:  # the episode's transitions (also those of an episode stopped by an error)
                     steps = held[:]
@@ -231,7 +236,8 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
                     sources[source] = sources.get(source, 0) + count
             if on_episode is not None:
                 on_episode(episode.steps)
-            if stop_at_solve and episode.solved:
+            accepted_any = accepted_any or episode.accepted > 0
+            if (stop_at_solve and episode.solved) or (stop_at_first and accepted_any):
                 break
     env.close()
     return TrialResult(

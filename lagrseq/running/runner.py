@@ -179,11 +179,15 @@ def check_name(name: str) -> str:
     return name
 
 
-def run_directory(out: Path, config: ExperimentConfig, provider_spec: str, seed: int, name: str | None = None) -> Path:
+def run_directory(
+    out: Path, config: ExperimentConfig, provider_spec: str, seed: int, name: str | None = None, variant: str = ""
+) -> Path:
     """``OUT/<task>/<method>/<name>``; the default name tells preset, provider, seed and a digest
-    of the whole configuration, so runs that differ in any field never share a directory."""
+    of the whole configuration, so runs that differ in any field never share a directory, then
+    ``-VARIANT`` where given (runs on the authors' answers whose misses are refused or drawn:
+    ``lagrseq.suite.miss_variant``)."""
     if name is None:
-        name = f"{config.preset}-{provider_slug(provider_spec)}-seed{seed}-{config.digest()}"
+        name = f"{config.preset}-{provider_slug(provider_spec)}-seed{seed}-{config.digest()}" + (f"-{variant}" if variant else "")
     return out / config.task.name / config.method / check_name(name)
 
 

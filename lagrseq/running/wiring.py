@@ -54,6 +54,7 @@ from lagrseq.loop.experiment import Guide, Guided, TrialParts
 from lagrseq.loop.policies import Always, AskingPolicy, make_policy
 from lagrseq.paths import expand_user, input_path, source_checkout
 from lagrseq.registry import (
+    CALIBRATED_MISS,
     POLICIES,
     PROVIDERS,
     TASKS,
@@ -242,25 +243,123 @@ def make_recorded(provider: ProviderSpec, config: ExperimentConfig, rng: np.rand
         if asks_live:
             raise UsageError("--on-miss live records into a store directory; a JSONL export is read only (import it with lagrseq cache import)")
         seed = int(rng.integers(2**63))
-        return JsonlRecordedProvider(recorded_file(provider.argument), endpoint, seed, _miss_fallback(config, rng, options))
+        replay = JsonlRecordedProvider(recorded_file(provider.argument), endpoint, seed)
+        try:
+            replay.fallback = _miss_fallback(config, rng, options, replay.store, replay.endpoint, seed)
+        except BaseException:
+            replay.close()
+            raise
+        return replay
     store = RecordStore(provider.argument, create=asks_live)
     run_seed = int(rng.integers(2**63))
     if asks_live:
         # A miss is asked live and recorded (one sample), so the next run finds it.
         return RecordingProvider(store, make_live(options.live, rng, budgeted=True, on_retry=_say), endpoint, "new", 1, run_seed)
-    return RecordedProvider(store, endpoint, run_seed, _miss_fallback(config, rng, options))
+    try:
+        fallback = _miss_fallback(config, rng, options, store, endpoint, run_seed)
+    except BaseException:
+        store.close()
+        raise
+    return RecordedProvider(store, endpoint, run_seed, fallback)
 
 
-def _miss_fallback(config: ExperimentConfig, rng: np.random.Generator, options: RecordedOptions) -> Provider | None:
+def _miss_fallback(
+    config: ExperimentConfig, rng: np.random.Generator, options: RecordedOptions, store: Any, endpoint: str, run_seed: int
+) -> Provider | None:
     """What answers a query a recorded store lacks: the rule-based mock (``mock``), a refusal
-    that is never accepted (``refuse``), or nothing (``error``: the miss stops the run)."""
+    that is never accepted (``refuse``), a draw at the store's own acceptance rate for prompts of
+    its kind, fixed per prompt and run seed (``calibrated``), or nothing (``error``: the miss stops
+    the run)."""
     from lagrseq.llm.recorded import RefusingProvider
 
     if options.on_miss == "mock":
         return MockProvider(extrapolator(config), rng, name="mock")
     if options.on_miss == "refuse":
         return RefusingProvider()
+    if options.on_miss == CALIBRATED_MISS:
+        from lagrseq.llm.calibrated import CalibratedMissProvider
+
+        calibration = miss_calibration(config)
+        return CalibratedMissProvider(fitted_rates(store, calibration), calibration, endpoint, run_seed)
     return None
+
+
+def miss_calibration(config: ExperimentConfig) -> Any:
+    """The task's :class:`~lagrseq.llm.calibrated.MissCalibration`; UsageError (one line) for a
+    task that has none."""
+    spec = TASKS.get(config.task.name)
+    if spec.miss_calibration is None:
+        able = ", ".join(t.name for t in TASKS.specs() if t.miss_calibration is not None) or "none"
+        raise UsageError(
+            f"--on-miss calibrated needs a task whose prompts have kinds to fit acceptance rates on ({able}); "
+            f"{config.task.name} has none: use --on-miss refuse or mock"
+        )
+    return spec.miss_calibration(config)
+
+
+_FITS: dict[tuple[str, str, int, str], Any] = {}
+"""Fitted rates per (store, task, store size, calibration), once per process (a store's answers
+are read and judged once, not once per trial)."""
+
+
+def fitted_rates(store: Any, calibration: Any) -> Any:
+    """The acceptance rates per kind of ``store``'s answers of the calibration's task
+    (:func:`lagrseq.llm.calibrated.fit`); UsageError (one line) when the store holds none."""
+    from lagrseq.llm.calibrated import fit
+
+    key = (str(getattr(store, "directory", id(store))), calibration.task, len(store), calibration.about)
+    found = _FITS.get(key)
+    if found is None:
+        found = fit(store.entries(), calibration)
+        if found.answers == 0:
+            raise UsageError(
+                f"--on-miss calibrated: store {getattr(store, 'directory', store)} holds no answers of task "
+                f"{calibration.task} to fit acceptance rates on; use --on-miss refuse or mock, or record answers first"
+            )
+        _FITS[key] = found
+    return found
+
+
+def grid_miss_calibration(config: ExperimentConfig) -> Any:
+    """A grid task's calibrated miss answer: the kind of a prompt is the number of cells its
+    partial pattern shows, in the bins of :data:`lagrseq.tasks.grid_profiles.SHOWN_BINS`; the
+    right answer is the target, a wrong one as :func:`lagrseq.tasks.grid_profiles.wrong_answer`."""
+    from lagrseq.llm.calibrated import MissCalibration
+    from lagrseq.tasks import grid, shapes
+    from lagrseq.tasks.base import Parsed
+
+    task = make_task(config)
+    if not isinstance(task, grid.GridTask):
+        raise UsageError(f"--on-miss calibrated: task {config.task.name} is not a grid task")
+    edges = grid_profiles.SHOWN_BINS.get(config.task.name)
+    if edges is None:
+        raise UsageError(f"--on-miss calibrated: task {config.task.name} has no bins of cells shown (grid_profiles.SHOWN_BINS)")
+    labels = grid_profiles.shown_labels(edges)
+    threshold = config.lagr.threshold
+    library = shapes.library(task.rows, task.cols)
+
+    def partial_of(prompt: str) -> np.ndarray:
+        try:
+            partial = grid.partial_grid(prompt)
+        except (ValueError, IndexError) as exc:
+            raise ValueError(f"no {task.rows}x{task.cols} partial grid in the prompt: {exc}") from None
+        if partial.shape != task.target.shape:
+            raise ValueError(f"the prompt's grid is {partial.shape}, the task's {task.target.shape}")
+        return partial
+
+    def accepted(text: str) -> bool:
+        parsed: Parsed = task.parse(text)
+        return bool(parsed.ok and parsed.solution is not None and task.evaluate(parsed.solution) >= threshold)
+
+    return MissCalibration(
+        task=config.task.name,
+        kinds=labels,
+        kind=lambda prompt: labels[grid_profiles.shown_bin(partial_of(prompt), edges)],
+        accepted=accepted,
+        right=lambda prompt: grid.format_comma(task.target),
+        wrong=lambda prompt: grid.format_comma(grid_profiles.wrong_answer(task, partial_of(prompt), threshold, library)),
+        about=f"cells shown in the partial pattern, bins {', '.join(labels)}",
+    )
 
 
 def pays(spec: str, options: Any = None) -> bool:

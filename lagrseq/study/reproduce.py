@@ -35,7 +35,7 @@ from lagrseq.loop.experiment import TrialResult
 from lagrseq.registry import EXECUTORS, PROVIDERS, TASKS
 from lagrseq.running import runner, wiring
 from lagrseq.study import probe
-from lagrseq.suite import RunSpec, Suite, is_authors_provider
+from lagrseq.suite import RunSpec, Suite, is_authors_provider, miss_variant
 
 CALIBRATION_STEPS = 1000
 """Environment steps timed per distinct experiment to estimate the suite's duration (one trial
@@ -345,11 +345,12 @@ def plan(suite: Suite, quick: bool, provider: str | None, runs_dir: Path, seed: 
             made += 1
             trials, _, _ = spec.length(quick)
             samples = spec.samples if not quick else spec.quick_samples
+            options = run_options(spec, spec_provider)
             if spec.kind == "accuracy":
                 path = probe.probe_path(runs_dir, config, spec_provider, seed, samples)
             else:
-                path = runner.run_directory(runs_dir, config, spec_provider, seed)
-            options = run_options(spec, spec_provider)
+                variant = miss_variant(spec_provider, getattr(options, "on_miss", None))
+                path = runner.run_directory(runs_dir, config, spec_provider, seed, variant=variant)
             run = planned.get(path)
             if run is None:
                 run = planned[path] = PlannedRun(
@@ -378,11 +379,12 @@ def plan(suite: Suite, quick: bool, provider: str | None, runs_dir: Path, seed: 
 
 def run_options(spec: RunSpec, provider: str) -> Any:
     """The provider options of a suite run on ``provider``: runs on the authors' answers answer
-    store misses with the mock (counted beside each number, no verdict where it decided); a run
-    whose suite entry declares ``on_miss`` answers them as it says; else None (the kind's defaults:
-    a miss stops the run)."""
+    store misses as their ``on_miss`` says (an item's ``recorded_on_miss`` rows), by default with
+    the mock (counted beside each number, no verdict where it decided); a run whose suite entry
+    declares ``on_miss`` answers them as it says; else None (the kind's defaults: a miss stops the
+    run)."""
     if is_authors_provider(provider):
-        return wiring.provider_options(provider, {"on_miss": "mock"})
+        return wiring.provider_options(provider, {"on_miss": spec.on_miss or "mock"})
     if spec.on_miss is not None and wiring.provider_kind(provider).replays:
         return wiring.provider_options(provider, {"on_miss": spec.on_miss})
     return None
@@ -437,7 +439,7 @@ def plan_matched_random(the_plan: Plan, items: set[str], runs_dir: Path) -> Plan
         if probability >= 1.0:
             continue
         config = frontier.matched_random_config(run.config, probability)
-        path = runner.run_directory(runs_dir, config, run.provider, run.seed)
+        path = runner.run_directory(runs_dir, config, run.provider, run.seed, variant=miss_variant(run.provider, getattr(run.options, "on_miss", None)))
         if path in existing:
             continue
         match = planned.get(path)

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:  # imported where used: the profiles' names and help alone need neither
-    from lagrseq.tasks import grid
+    from lagrseq.tasks import grid, shapes
 
 BIN_EDGES = (0.25, 0.5, 0.75)
 """Upper edges of the fraction-of-target-shown bins (the last bin runs to 1)."""
@@ -153,10 +153,50 @@ def profile_extrapolator(
         p = chosen.probability(task.name, fraction, wrong)
         if p >= 1.0 or (p > 0.0 and draw(partial, temperature, rng) < p):
             return grid.format_comma(task.target)
-        for index in grid.hypotheses(partial):
-            shape = library.grid(int(index))
-            if task.evaluate(shape) < threshold:
-                return grid.format_comma(shape)
-        return grid.format_comma(_diagonal(partial))
+        return grid.format_comma(wrong_answer(task, partial, threshold, library))
 
     return answer
+
+
+def wrong_answer(task: grid.GridTask, partial: np.ndarray, threshold: float, library: shapes.Library | None = None) -> np.ndarray:
+    """A completion of ``partial`` that is not accepted, as GPT-4's wrong answers were (module
+    docstring): the first shape of the extrapolator's library that holds the partial pattern and
+    evaluates below ``threshold``, else a diagonal line (below it unless the target is one)."""
+    from lagrseq.tasks import grid, shapes
+
+    library = library or shapes.library(task.rows, task.cols)
+    for index in grid.hypotheses(partial):
+        shape = library.grid(int(index))
+        if task.evaluate(shape) < threshold:
+            return shape
+    diagonal = _diagonal(partial)
+    if task.evaluate(diagonal) < threshold:
+        return diagonal
+    return np.zeros_like(task.target)  # an empty grid: nothing of the target drawn
+
+
+SHOWN_BINS: dict[str, tuple[int, ...]] = {
+    "image-completion": (2, 5, 8, 11),
+    "object-arrangement": (1, 2, 3, 4),
+    "arm-arrangement": (1, 2, 3, 4),  # the arrangement's 5 x 5 table, placed by the arm
+}
+"""Upper edges of the bins of cells shown in a partial pattern, per task: the kinds of the
+calibrated miss answer (``--on-miss calibrated``, ``lagrseq.llm.calibrated``). Chosen on the
+authors' GPT-4 caches (accepted / answers by pixels shown, image: 0/48 at 0-2 pixels, 21/212 at
+3-5, 19/235 at 6-8, 20/218 at 9-11, 13/67 at 12 or more; arrangement: 0/11 at 0-1 cells, 1/28 at
+2, 7/40 at 3, 16/36 at 4, 17/27 at 5 or more): the image's first bin is where GPT-4 was never
+right, the rest are about as large as each other. The arm's table takes the arrangement's bins."""
+
+
+def shown_labels(edges: Sequence[int]) -> tuple[str, ...]:
+    """The bins' labels: ``0-2 shown``, ``3-5 shown``, ..., ``12+ shown``."""
+    labels, low = [], 0
+    for edge in edges:
+        labels.append(f"{low}-{edge} shown" if edge > low else f"{edge} shown")
+        low = edge + 1
+    return (*labels, f"{low}+ shown")
+
+
+def shown_bin(partial: np.ndarray, edges: Sequence[int]) -> int:
+    """The bin of a partial pattern by its cells shown (on)."""
+    return int(np.searchsorted(np.asarray(edges), int(np.count_nonzero(partial)), side="left"))
