@@ -91,7 +91,7 @@ def test_trials_stopped_at_the_first_solve_and_the_full_horizon_group(tmp_path: 
     stopped = full = shorter = 0
     for log in sorted(out.rglob("*.mcap")):
         episodes = read_topic(log, "/episode")
-        if read_info(log).config["run"]["stop_at"] == "first_solve":
+        if read_info(log).config["run"].get("stop_at", "") == "first_solve":
             stopped += 1
             assert not any(e["solved"] for e in episodes[:-1])  # it ran no episode past its first solve
             assert episodes[-1]["solved"] or len(episodes) == 8

@@ -381,7 +381,8 @@ def _query_rows(item: Item, reference: Mapping[str, Any], present: Sequence[Matc
             if m.spec.column == column and _fits(m, row):
                 assert m.run is not None
                 part = _count_part(m.run)
-                counts[(row, column, f"{m.provider}#{shown(m, row)}")] = (m, part)
+                variant = shown(m, row)[len(row):]  # "" or " (misses refused)": the same on every row
+                counts[(row, column, m.provider + variant)] = (m, part)
                 add(item, f"{named(shown(m, row))}, {column}: queries per run", str(paper), m, part, key, 1,
                     paper_estimate(item.id, str(paper)), quantity=audit.QUERY_COLUMNS.get(column))
     columns = sorted({k.split("|", 1)[1] for k in reference if "|" in k})
