@@ -203,22 +203,29 @@ def test_the_live_screen_asks_the_local_server_and_stamps_the_model(tmp_path: Pa
     prefix asked twice for 16 answers, written as JSONL whose provenance names the file's sha256."""
     model = tmp_path / "tiny-model.gguf"
     model.write_bytes(b"GGUF\x03\x00\x00\x00" + bytes(56))
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(FAKE), str(ROOT)]), "MPLBACKEND": "Agg"}
+    bodies = tmp_path / "bodies.jsonl"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(FAKE), str(ROOT)]), "MPLBACKEND": "Agg", "FAKE_LLAMA_BODIES": str(bodies)}
     answers = tmp_path / "a.jsonl"
     done = lagrseq(
         "screen", "cube-stacking", "--provider", f"local:{model}", "--prompts", "16", "--threads", "1",
-        "--answers", str(answers), "--out", str(tmp_path / "out"), "--quiet", env=env,
+        "--temperature", "0.5", "--answers", str(answers), "--out", str(tmp_path / "out"), "--quiet", env=env,
     )
     assert done.returncode == 0, done.stderr
     records = [json.loads(line) for line in answers.read_text().splitlines()]
     assert len(records) == 16 and {r["request"]["model"] for r in records} == {"tiny-model"}
+    # llama.cpp's samplers pinned to OpenAI's meaning of temperature: the server received them on
+    # every request, and every answer's key records them
+    pinned = {"temperature": 0.5, "top_p": 1.0, "top_k": 0, "min_p": 0.0, "repeat_penalty": 1.0}
+    received = [json.loads(line) for line in bodies.read_text().splitlines()]
+    assert len(received) == 16 and all(r == pinned for r in received), received[:2]
+    assert all({name: r["request"][name] for name in pinned} == pinned for r in records)
     digest = screen.model_of_provenance(records[0]["sample"]["provenance"])[0]
     import hashlib
 
     assert digest == hashlib.sha256(model.read_bytes()).hexdigest()
     table = (tmp_path / "out" / "screen-cube-stacking.md").read_text()
-    # the stand-in always answers a..h: at tau = 0 a prompt's second, identical answer counts once
-    assert "0/8 = 0%" in table and "wrong 8" in table
+    # the stand-in always answers a..h (wrong); at tau > 0 each of the 16 is a draw of its own
+    assert "0/16 = 0%" in table and "wrong 16" in table
 
 
 def test_the_report_sections_come_from_recorded_answers(tmp_path: Path) -> None:

@@ -453,7 +453,7 @@ def record_screen(
     import tempfile
 
     from lagrseq.llm.store import RecordStore, jsonl_lines, query_key
-    from lagrseq.running.recording import _local_endpoint, record
+    from lagrseq.running.recording import _local_endpoint, record, served_queries
     from lagrseq.running.wiring import local_settings, parse_provider, provider_kind
 
     queries, samples = screen_queries(config, prompts, runs, warn)
@@ -479,7 +479,8 @@ def record_screen(
         from lagrseq.llm.store import endpoint_of
 
         endpoint = _local_endpoint() if kind.local_server else endpoint_of(options.base_url)
-        wanted = {query_key(q, endpoint)[0] for q in queries}
+        sent = served_queries(queries, kind.local_server or getattr(options, "server", None) == "llama.cpp")
+        wanted = {query_key(q, endpoint)[0] for q in sent}
         with RecordStore(store_path, create=False) as opened:
             lines = [line for line in jsonl_lines(opened) if json.loads(line)["key"] in wanted]
         if model is not None:
