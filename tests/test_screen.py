@@ -444,3 +444,20 @@ def test_a_relabelled_screen_asks_the_local_server_and_reads_back_as_a_sample(tm
     again = lagrseq("screen", "cube-stacking", "--from", str(answers), "--out", str(tmp_path / "again"))
     assert again.returncode == 0, again.stderr
     assert (tmp_path / "again" / "screen-cube-stacking.md").read_text() == table
+
+
+def test_a_screen_of_another_arrangement_target_is_judged_by_that_target(tmp_path: Path) -> None:
+    """A grid prompt does not name its target: the report reads a file tagged ``target-plus`` with
+    the plus target (its right answer is the plus, not the default diamond)."""
+    config = record_config("object-arrangement", "upstream", None, ["task.target=plus"], "tiny-1b", 0.0)
+    task = make_task(config)
+    queries, _ = screen.screen_queries(config, 2, prompt_set="sampled")
+    plus = "[" + ",\n".join("[" + ",".join(str(int(v)) for v in row) + "]" for row in task.target) + "]"
+    diamond = make_task(record_config("object-arrangement", "upstream", None, [], "tiny-1b", 0.0)).target
+    wrong = "[" + ",\n".join("[" + ",".join(str(int(v)) for v in row) + "]" for row in diamond) + "]"
+    (tmp_path / "recorded_llm").mkdir()
+    lines = [_record(request_of(queries[0], "local"), "object-arrangement", plus, 1), _record(request_of(queries[1], "local"), "object-arrangement", wrong, 2)]
+    (tmp_path / "recorded_llm" / "screen-target-plus-tiny-t0.jsonl").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    sections, _ = screen.report_sections(tmp_path)
+    (row,) = sections[0][1].rows
+    assert row[1] == "tiny-1b (plus target)" and row[5].startswith("1/2 = 50% [")

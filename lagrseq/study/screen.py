@@ -22,6 +22,7 @@ import io
 import json
 import math
 import os
+import re
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -306,6 +307,10 @@ def read_answers(path: Path, config: ExperimentConfig) -> list[ScreenedAnswer]:
 
     configured = make_task(config)
     answers: list[ScreenedAnswer] = []
+    # a grid prompt does not name its target: the configured one judges it, and is named when it
+    # is not the task's default
+    target = getattr(config.task, "target", None)
+    other_target = f"{target} target" if target is not None and target != getattr(type(config.task)(), "target", None) else ""
     with tempfile.TemporaryDirectory(prefix="lagrseq-screen-") as scratch:
         import_jsonl_file(path, Path(scratch) / "store", path.name)
         with RecordStore(Path(scratch) / "store", create=False) as store:
@@ -313,6 +318,8 @@ def read_answers(path: Path, config: ExperimentConfig) -> list[ScreenedAnswer]:
                 if entry.task != config.task.name:
                     continue
                 task, prompt_set = task_of_entry(configured, entry.prompt)
+                if task is not None and not prompt_set and other_target:
+                    prompt_set = other_target
                 where = None if task is None else bin_of_prompt(task, entry.prompt)
                 if task is None or where is None:
                     raise UsageError(f"{path}: a {config.task.name} answer whose prompt shows no pattern of this task (key {entry.key[:12]}); screen only answers to the task's own prompts")
@@ -949,6 +956,28 @@ def _with_predictions(fig: Any, screens: Sequence[Screen], model: Any) -> Any:
     return fig
 
 
+def _target_tag() -> re.Pattern[str]:
+    from typing import get_args
+
+    from lagrseq.config import GridTarget
+
+    names = sorted(get_args(GridTarget), key=len, reverse=True)
+    return re.compile(r"(?:^|-)target-(" + "|".join(re.escape(n) for n in names) + r")-")
+
+
+TARGET_TAG = _target_tag()
+"""How a screen file of another arrangement target names it: ``screen-target-plus-MODEL-t0.jsonl``
+(read with ``task.target=plus``; a file without the tag is read with the task's default target)."""
+
+
+def _by_target(files: Sequence[Path]) -> dict[str | None, list[Path]]:
+    groups: dict[str | None, list[Path]] = {}
+    for path in files:
+        found = TARGET_TAG.search(path.name)
+        groups.setdefault(found.group(1) if found else None, []).append(path)
+    return groups
+
+
 def report_sections(root: Path | None = None) -> tuple[list[tuple[str, Any, Any]], str]:
     """The sections of the report's "open models" item, as (stem, table, figure or None), and a
     line saying what they were made of (or why there are none). The files are read under
@@ -972,7 +1001,10 @@ def report_sections(root: Path | None = None) -> tuple[list[tuple[str, Any, Any]
     if not files:
         return [], f"open models: not made: no {SCREEN_FILES} {where}: run lagrseq reproduce from a clone of the repository, or copy its recorded_llm/ folder here"
     configs = [record_config(task, "upstream", None, []) for task in SCREEN_TASKS]
-    screens = screens_from(files, configs)
+    screens = []
+    for target, group in sorted(_by_target(files).items(), key=lambda item: item[0] or ""):
+        # a grid prompt does not name its target: files of another one say it in their name
+        screens += screens_from(group, configs if target is None else [record_config(SCREEN_TASKS[1], "upstream", None, [f"task.target={target}"])])
     data = pd.read_csv(io.StringIO(csv_text(screens)))
     sections: list[tuple[str, Any, Any]] = [
         (
