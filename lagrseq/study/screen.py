@@ -290,8 +290,12 @@ class ScreenedAnswer:
     prompt: str = ""
     """The record key of the prompt it answers (answers cluster by prompt)."""
     prompt_set: str = ""
-    """Which kind of prompts (:func:`prompt_set_of`): "" for the prefixes of the configured cube
+    """Which kind of prompts (:func:`task_of_entry`): "" for the prefixes of the configured cube
     target or a grid task's states; otherwise e.g. ``relabelled 8-cube sets``."""
+    pinned: bool = False
+    """The request pinned llama.cpp's samplers (its key holds ``top_k``, ``min_p``,
+    ``repeat_penalty``): answers of another distribution than those recorded with its defaults,
+    so never pooled with them."""
 
 
 def read_answers(path: Path, config: ExperimentConfig) -> list[ScreenedAnswer]:
@@ -345,6 +349,7 @@ def read_answers(path: Path, config: ExperimentConfig) -> list[ScreenedAnswer]:
                             counted=any(sample is c for c in counted),
                             prompt=entry.key,
                             prompt_set=prompt_set,
+                            pinned=any(name in entry.request for name in ("top_k", "min_p", "repeat_penalty")),
                         )
                     )
     return answers
@@ -393,6 +398,8 @@ class Screen:
     size: int
     prompt_set: str = ""
     """:attr:`ScreenedAnswer.prompt_set` of every answer in it."""
+    pinned: bool = False
+    """:attr:`ScreenedAnswer.pinned` of every answer in it."""
     cells: dict[int, tuple[int, int]] = field(default_factory=dict)
     """bin -> (answers, correct)."""
     prompts: dict[str, tuple[int, int]] = field(default_factory=dict)
@@ -439,16 +446,22 @@ class Screen:
         (there are no other prompts of it to sample), so its accuracy gets no sampling interval."""
         return self.task == "cube-stacking" and not self.prompt_set.startswith("relabelled")
 
+    @property
+    def kind(self) -> str:
+        """The prompt set and, when pinned, the samplers: what tells two screens of one model and
+        temperature apart ("" for the default prompts with the server's own samplers)."""
+        return ", ".join(part for part in (self.prompt_set, "samplers pinned" if self.pinned else "") if part)
+
     def label(self) -> str:
         base = f"{self.model} τ={self.temperature:g}"
-        return f"{base} ({self.prompt_set})" if self.prompt_set else base
+        return f"{base} ({self.kind})" if self.kind else base
 
 
 def screens_of(task: str, answers: Iterable[ScreenedAnswer]) -> list[Screen]:
     """The answers grouped by model and temperature, in order of model then temperature."""
-    screens: dict[tuple[str, float, str], Screen] = {}
+    screens: dict[tuple[str, float, str, bool], Screen] = {}
     for a in answers:
-        s = screens.setdefault((a.model, a.temperature, a.prompt_set), Screen(task, a.model, a.temperature, a.size, a.prompt_set))
+        s = screens.setdefault((a.model, a.temperature, a.prompt_set, a.pinned), Screen(task, a.model, a.temperature, a.size, a.prompt_set, a.pinned))
         if a.counted:
             n, k = s.cells.get(a.bin, (0, 0))
             s.cells[a.bin] = (n + 1, k + (a.kind == "correct"))
@@ -544,7 +557,7 @@ def accuracy_over_prompts(s: Screen, resamples: int = RESAMPLES) -> Accuracy:
     if np.all(right == 0) or np.all(right == sizes):
         low, high = _exact(int(np.count_nonzero(right)), m)
         return Accuracy(k, n, m, low, high, "exact over prompts")
-    rng = generator(f"open-models/{s.task}/{s.model}/{s.temperature:g}/{s.prompt_set}")
+    rng = generator(f"open-models/{s.task}/{s.model}/{s.temperature:g}/{s.kind}")
     picks = rng.integers(m, size=(resamples, m))
     rates = right[picks].sum(axis=1) / sizes[picks].sum(axis=1)
     low, high = (float(v) for v in np.percentile(rates, [2.5, 97.5]))
@@ -565,7 +578,7 @@ def fisher_rows(screens: Sequence[Screen]) -> list[tuple[str, ...]]:
     rows: list[tuple[str, ...]] = []
     groups: dict[tuple[str, str, float], list[Screen]] = {}
     for s in screens:
-        groups.setdefault((s.task, s.prompt_set, s.temperature), []).append(s)
+        groups.setdefault((s.task, s.kind, s.temperature), []).append(s)
     for (task, prompt_set, tau), group in sorted(groups.items()):
         if len(group) < 2:
             continue
@@ -644,7 +657,7 @@ def temperature_tests(screens: Sequence[Screen], model: Any, resamples: int = RE
     tests: list[TemperatureTest] = []
     by_model: dict[str, dict[float, Screen]] = {}
     for s in screens:
-        by_model.setdefault(s.model, {})[s.temperature] = s
+        by_model.setdefault(f"{s.model} ({s.kind})" if s.kind else s.model, {})[s.temperature] = s
     for name, temps in sorted(by_model.items()):
         base = temps.get(0.0)
         if base is None:
@@ -703,7 +716,7 @@ def overall_rows(screens: Sequence[Screen]) -> list[tuple[str, ...]]:
     for s in screens:
         spa, tps = s.seconds_per_answer(), s.tokens_per_second()
         rows.append((
-            s.task, s.model + (f" ({s.prompt_set})" if s.prompt_set else ""), f"{s.temperature:g}", s.facts or "-", s.sha256[:12] if s.sha256 else "-",
+            s.task, s.model + (f" ({s.kind})" if s.kind else ""), f"{s.temperature:g}", s.facts or "-", s.sha256[:12] if s.sha256 else "-",
             accuracy_over_prompts(s).text(), accuracy_over_prompts(unshown_part(s)).text(), _kinds_text(s.kinds),
             "-" if spa is None else f"{spa:.1f}", "-" if tps is None else f"{tps:.1f}", str(s.cut),
             "-" if s.longest is None else str(s.longest),
@@ -743,7 +756,7 @@ def csv_text(screens: Sequence[Screen]) -> str:
         per_bin: dict[int, int] = {}
         for b in s.prompt_bins.values():
             per_bin[b] = per_bin.get(b, 0) + 1
-        head = [s.task, s.model, f"{s.temperature:g}", s.prompt_set, s.sha256 or "", s.facts or ""]
+        head = [s.task, s.model, f"{s.temperature:g}", s.kind, s.sha256 or "", s.facts or ""]
         for b in sorted(s.cells):
             n, k = s.cells[b]
             low, high = wilson(k, n)
@@ -910,7 +923,7 @@ def temperature_rows(screens: Sequence[Screen], model: Any, tests: Sequence[Temp
     rows: list[tuple[str, str, str, str, str, str]] = []
     by_model: dict[str, dict[float, Screen]] = {}
     for s in screens:
-        by_model.setdefault(s.model, {})[s.temperature] = s
+        by_model.setdefault(f"{s.model} ({s.kind})" if s.kind else s.model, {})[s.temperature] = s
     for name, temps in sorted(by_model.items()):
         base = temps.get(0.0)
         if base is None:
