@@ -510,10 +510,11 @@ class Accuracy:
     high: float | None
     method: str
     """``complete count`` (nested prefixes of one target: no interval), ``cluster bootstrap``
-    (prompts resampled, percentile), ``cluster bootstrap, widened to exact`` (one answer per
-    prompt: the Clopper-Pearson interval over prompts where it is wider, as it is with few right
-    answers, where a percentile bootstrap under-covers), or ``exact over prompts`` (every prompt
-    all right or all wrong: the bootstrap has nothing to resample)."""
+    (prompts resampled, percentile), ``cluster bootstrap, widened to exact`` (the exact interval
+    where it is wider, as it is with few right answers, where a percentile bootstrap under-covers:
+    Clopper-Pearson with one answer per prompt, else at the clustered sample's effective size,
+    :func:`_korn_graubard`), or ``exact over prompts`` (every prompt all right or all wrong: the
+    bootstrap has nothing to resample)."""
 
     def text(self) -> str:
         if not self.answers:
@@ -562,11 +563,28 @@ def accuracy_over_prompts(s: Screen, resamples: int = RESAMPLES) -> Accuracy:
     rates = right[picks].sum(axis=1) / sizes[picks].sum(axis=1)
     low, high = (float(v) for v in np.percentile(rates, [2.5, 97.5]))
     method = "cluster bootstrap"
-    if np.all(sizes == 1):
-        exact_low, exact_high = _exact(k, n)
-        if exact_low < low or exact_high > high:
-            low, high, method = min(low, exact_low), max(high, exact_high), "cluster bootstrap, widened to exact"
+    exact_low, exact_high = _exact(k, n) if np.all(sizes == 1) else _korn_graubard(right, sizes)
+    if exact_low < low or exact_high > high:
+        low, high, method = min(low, exact_low), max(high, exact_high), "cluster bootstrap, widened to exact"
     return Accuracy(k, n, m, low, high, method)
+
+
+def _korn_graubard(right: np.ndarray, sizes: np.ndarray) -> tuple[float, float]:
+    """The Clopper-Pearson interval at the clustered sample's effective size (Korn and Graubard,
+    1998): n_eff = r(1 - r) / var(r), var(r) the ratio estimator's between-prompt variance, at most
+    the answers; x_eff = r n_eff; Beta quantiles (``scipy.stats.beta``) for the fractional counts.
+    Where a percentile bootstrap of few clustered right answers under-covers, this holds
+    (benchmarks/open_models_coverage.py)."""
+    from scipy.stats import beta
+
+    m, total = len(right), float(sizes.sum())
+    r = float(right.sum()) / total
+    variance = m / (m - 1) * float(np.sum((right - r * sizes) ** 2)) / total**2 if m > 1 else 0.0
+    n_eff = min(total, r * (1 - r) / variance) if variance > 0 else total
+    x = r * n_eff
+    low = 0.0 if x <= 0 else float(beta.ppf(0.025, x, n_eff - x + 1))
+    high = 1.0 if x >= n_eff else float(beta.ppf(0.975, x + 1, n_eff - x))
+    return low, high
 
 
 def fisher_rows(screens: Sequence[Screen]) -> list[tuple[str, ...]]:
