@@ -389,6 +389,11 @@ def test_fisher_compares_the_best_model_with_each_other() -> None:
     (row,) = screen.fisher_rows([a, b])
     assert row[3:7] == ("good", "3/8", "bad", "0/11")
     assert float(row[7]) == pytest.approx(fisher_exact([[3, 5], [0, 11]]).pvalue, abs=5e-4)
+    assert row[8] == "(no prompt shows the target)"
+    # with the whole target shown in some prompts, the comparison without them beside
+    a.cells, b.cells = {1: (7, 2), 8: (1, 1)}, {1: (9, 0), 8: (2, 0)}
+    (row,) = screen.fisher_rows([a, b])
+    assert row[8] == f"2/7 against 0/9: {fisher_exact([[2, 5], [0, 9]]).pvalue:.3f}" == "2/7 against 0/9: 0.175"
 
 
 class _Drop:

@@ -606,11 +606,18 @@ def fisher_rows(screens: Sequence[Screen]) -> list[tuple[str, ...]]:
                 continue
             table = [[best.correct, best.n - best.correct], [other.correct, other.n - other.correct]]
             p = float(fisher_exact(table).pvalue)
-            rows.append((task, prompt_set or "-", f"{tau:g}", best.model, f"{best.correct}/{best.n}", other.model, f"{other.correct}/{other.n}", f"{p:.3f}"))
+            row = [task, prompt_set or "-", f"{tau:g}", best.model, f"{best.correct}/{best.n}", other.model, f"{other.correct}/{other.n}", f"{p:.3f}"]
+            # the same without the prompts that show the whole target (answered by repeating it)
+            (bn, bk), (on, ok) = best.unshown(), other.unshown()
+            if (bn, on) != (best.n, other.n) and bn and on:
+                row += [f"{bk}/{bn} against {ok}/{on}: {float(fisher_exact([[bk, bn - bk], [ok, on - ok]]).pvalue):.3f}"]
+            else:
+                row += ["(no prompt shows the target)"]
+            rows.append(tuple(row))
     return rows
 
 
-FISHER_COLUMNS = ("task", "prompt set", "τ", "model right most often", "right", "against", "right", "Fisher exact p (two-sided)")
+FISHER_COLUMNS = ("task", "prompt set", "τ", "model right most often", "right", "against", "right", "Fisher exact p (two-sided)", "target not in prompt: right, p")
 
 
 @dataclass(frozen=True)
@@ -1062,7 +1069,7 @@ def report_sections(root: Path | None = None) -> tuple[list[tuple[str, Any, Any]
                     "Open models compared: the model right most often against each other, Fisher's exact test on counted answers (per task, prompt set and τ)",
                     FISHER_COLUMNS,
                     tuple(compared),
-                    pd.DataFrame(compared, columns=["task", "prompt_set", "tau", "best", "best_right", "other", "other_right", "fisher_p"]),
+                    pd.DataFrame(compared, columns=["task", "prompt_set", "tau", "best", "best_right", "other", "other_right", "fisher_p", "unshown"]),
                 ),
                 None,
             )
