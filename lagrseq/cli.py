@@ -648,7 +648,7 @@ def _add_screen(sub: Any) -> None:
     p.add_argument(
         "--prompt-set", choices=("prefixes", "relabelled", "runs", "sampled"), default=None,
         help="which prompts: prefixes (cube default: every prefix of the target, nested: a complete count of one sequence), "
-        "relabelled (cube: N distinct relabelled cube sets, one prompt each, 1 to N-1 cubes shown: a sample of prompts), "
+        "relabelled (cube: N distinct relabelled cube sets, one prompt each, 1 to S-1 of the S cubes shown: a sample of prompts), "
         "runs (grid default: N states met in --from-runs), sampled (grid: N distinct partial states of the target, no runs needed)",
     )
     p.add_argument("--seed", type=_SEED, default=0, metavar="S", help="seeds the relabellings and sampled states (default 0)")
