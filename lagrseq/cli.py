@@ -682,6 +682,7 @@ def _add_screen(sub: Any) -> None:
             "examples:\n"
             "  lagrseq screen cube-stacking --provider local:qwen2.5-coder-0.5b-instruct-q4_k_m --threads 1 --prompts 40 --answers cube.jsonl --out screen/\n"
             "  lagrseq screen object-arrangement --provider local --from-runs runs/object-arrangement --prompts 48 --answers arr.jsonl --out screen/\n"
+            "  lagrseq screen cube-stacking --provider local:qwen2.5-coder-1.5b-instruct-q4_k_m --threads 1 --prompt-set relabelled --prompts 56 --answers relabelled.jsonl --out screen/\n"
             "  lagrseq screen cube-stacking --from recorded_llm/screen-*.jsonl --out screen/"
         ),
         formatter_class=_RAW,
@@ -690,7 +691,14 @@ def _add_screen(sub: Any) -> None:
     _provider_argument(p, "local", "the model asked (not with --from)", records=True)
     p.add_argument("--prompts", type=_N["prompts"], default=40, metavar="N", help="answers to ask for (default 40)")
     p.add_argument("--temperature", type=_TEMPERATURE, default=0.0, metavar="T", help="sampling temperature, 0 to 2 (default 0)")
-    p.add_argument("--from-runs", nargs="+", default=None, metavar="RUN", help="grid tasks: MCAP logs or directories whose /query states are screened")
+    p.add_argument("--from-runs", nargs="+", default=None, metavar="RUN", help="grid tasks: MCAP logs or directories whose /query states are screened (--prompt-set runs)")
+    p.add_argument(
+        "--prompt-set", choices=("prefixes", "relabelled", "runs", "sampled"), default=None,
+        help="which prompts: prefixes (cube default: every prefix of the target, nested: a complete count of one sequence), "
+        "relabelled (cube: N distinct relabelled cube sets, one prompt each, 1 to S-1 of the S cubes shown: a sample of prompts), "
+        "runs (grid default: N states met in --from-runs), sampled (grid: N distinct partial states of the target, no runs needed)",
+    )
+    p.add_argument("--seed", type=_SEED, default=0, metavar="S", help="seeds the relabellings and sampled states (default 0)")
     p.add_argument("--store", type=Path, default=None, metavar="STORE", help="keep the answers in this store too (topped up: an interrupted screen resumes); default: a temporary one")
     p.add_argument("--answers", type=Path, default=None, metavar="FILE.jsonl", help="where the screen's answers are written (default OUT/screen-TASK-MODEL-tT.jsonl)")
     p.add_argument("--from", dest="from_files", nargs="+", type=Path, default=None, metavar="FILE.jsonl", help="ask nothing: screen the answers in these recorded-answer JSONL files")
@@ -882,7 +890,7 @@ def cmd_models(args: argparse.Namespace) -> int:
 
 def _refuse_asking_flags(args: argparse.Namespace) -> None:
     """``screen --from`` reads answers: the flags of a screen that asks a model are refused."""
-    asked = [flag for flag, given in (("--from-runs", args.from_runs), ("--store", args.store), ("--answers", args.answers)) if given]
+    asked = [flag for flag, given in (("--from-runs", args.from_runs), ("--store", args.store), ("--answers", args.answers), ("--prompt-set", args.prompt_set)) if given]
     if asked:
         raise UsageError(f"--from screens answers recorded before; {', '.join(asked)} belong to a screen that asks a model: leave them out")
 
@@ -903,7 +911,7 @@ def cmd_screen(args: argparse.Namespace) -> int:
         desc = f"screen {args.task} {config.llm.model} t={config.llm.temperature:g}"
         line = screen.record_screen(
             config, args.provider, args.prompts, args.from_runs or (), args.store, answers, _provider_options(args),
-            lambda total: _bar(total, "prompt", desc, args.quiet), _warn("screen"),
+            lambda total: _bar(total, "prompt", desc, args.quiet), _warn("screen"), args.prompt_set, args.seed,
         )
         _say(line)
         files = [answers]

@@ -130,7 +130,8 @@ def test_the_table_and_picture_come_from_a_hand_made_file(tmp_path: Path) -> Non
     done = lagrseq("screen", "cube-stacking", "--from", str(answers), "--out", str(out))
     assert done.returncode == 0, done.stderr
     table = (out / "screen-cube-stacking.md").read_text()
-    assert "| cube-stacking | tiny-1b | 0 | Tiny 1B, 1B, Q4_K_M, qwen2 | abababababab | 2/5 = 40% [12, 77] | 2/4 = 50% [15, 85] |" in table
+    # the prompts are prefixes of one target: a complete count of that sequence, no interval
+    assert "| cube-stacking | tiny-1b | 0 | Tiny 1B, 1B, Q4_K_M, qwen2 | abababababab | 2/5 = 40% (3 prefixes of one target: a count over one sequence, not a sample of prompts; no interval) | 2/4 = 50% (2 prefixes" in table
     assert "correct 2, wrong 1, partial 1, prose 1" in table
     assert "| 2.0 | 10.0 | 1 | 320 |" in table  # s/answer, tokens/s, cut at max_tokens, longest
     assert "| 4/8 cubes | 2/3 = 67% [21, 94] |" in table and "| 1/8 cubes | 0/1 = 0% [0, 79] |" in table
@@ -203,22 +204,29 @@ def test_the_live_screen_asks_the_local_server_and_stamps_the_model(tmp_path: Pa
     prefix asked twice for 16 answers, written as JSONL whose provenance names the file's sha256."""
     model = tmp_path / "tiny-model.gguf"
     model.write_bytes(b"GGUF\x03\x00\x00\x00" + bytes(56))
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(FAKE), str(ROOT)]), "MPLBACKEND": "Agg"}
+    bodies = tmp_path / "bodies.jsonl"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(FAKE), str(ROOT)]), "MPLBACKEND": "Agg", "FAKE_LLAMA_BODIES": str(bodies)}
     answers = tmp_path / "a.jsonl"
     done = lagrseq(
         "screen", "cube-stacking", "--provider", f"local:{model}", "--prompts", "16", "--threads", "1",
-        "--answers", str(answers), "--out", str(tmp_path / "out"), "--quiet", env=env,
+        "--temperature", "0.5", "--answers", str(answers), "--out", str(tmp_path / "out"), "--quiet", env=env,
     )
     assert done.returncode == 0, done.stderr
     records = [json.loads(line) for line in answers.read_text().splitlines()]
     assert len(records) == 16 and {r["request"]["model"] for r in records} == {"tiny-model"}
+    # llama.cpp's samplers pinned to OpenAI's meaning of temperature: the server received them on
+    # every request, and every answer's key records them
+    pinned = {"temperature": 0.5, "top_p": 1.0, "top_k": 0, "min_p": 0.0, "repeat_penalty": 1.0}
+    received = [json.loads(line) for line in bodies.read_text().splitlines()]
+    assert len(received) == 16 and all(r == pinned for r in received), received[:2]
+    assert all({name: r["request"][name] for name in pinned} == pinned for r in records)
     digest = screen.model_of_provenance(records[0]["sample"]["provenance"])[0]
     import hashlib
 
     assert digest == hashlib.sha256(model.read_bytes()).hexdigest()
     table = (tmp_path / "out" / "screen-cube-stacking.md").read_text()
-    # the stand-in always answers a..h: at tau = 0 a prompt's second, identical answer counts once
-    assert "0/8 = 0%" in table and "wrong 8" in table
+    # the stand-in always answers a..h (wrong); at tau > 0 each of the 16 is a draw of its own
+    assert "0/16 = 0%" in table and "wrong 16" in table
 
 
 def test_the_report_sections_come_from_recorded_answers(tmp_path: Path) -> None:
@@ -280,3 +288,186 @@ def test_replay_writes_the_sections_into_the_report(tmp_path: Path) -> None:
     assert "| cube-stacking | screen-tiny τ=0 | 4/8 cubes | 2/3 = 67% [21, 94] |" in index
     assert (report.out / "figures" / "open-models.png").is_file() and (report.out / "tables" / "open-models.csv").is_file()
     assert 'src="figures/open-models.png"' in (report.out / "index.html").read_text()
+
+
+# ------------------------------------------------------------------------------------------
+# Issue 34: prompt sets that are samples, intervals clustered by prompt, exact comparisons, the
+# temperature model's likelihood-ratio test
+# ------------------------------------------------------------------------------------------
+def test_relabelled_cube_sets_are_distinct_prompts_no_two_of_one_target() -> None:
+    from lagrseq.tasks import cube
+
+    config = record_config("cube-stacking", "upstream", None, [], "m", 0.0)
+    queries, samples = screen.screen_queries(config, 56, prompt_set="relabelled", seed=3)
+    assert samples == 1 and len({q.prompt for q in queries}) == 56
+    tasks = [cube.task_of_prompt(q.prompt) for q in queries]
+    assert len({t.target for t in tasks}) == 56 and all(t.relabel is not None for t in tasks)
+    shown = [len(cube.partial_stack(q.prompt)) for q in queries]
+    assert sorted(set(shown)) == list(range(1, 8)) and all(shown.count(b) == 8 for b in range(1, 8))
+    # each prompt shows a prefix of its own target, under its own letters, and only that target is right
+    for q, t, b in zip(queries, tasks, shown):
+        assert cube.partial_stack(q.prompt) == [cube.LETTERS[i] for i in t.target[:b]]
+        assert t.is_complete(t.parse(cube.format_stack(t.target)).solution)  # type: ignore[arg-type]
+    # seeded: the same seed gives the same prompts, another seed others
+    again, _ = screen.screen_queries(config, 56, prompt_set="relabelled", seed=3)
+    other, _ = screen.screen_queries(config, 56, prompt_set="relabelled", seed=4)
+    assert [q.prompt for q in again] == [q.prompt for q in queries] != [q.prompt for q in other]
+    # the 11-cube target
+    eleven = record_config("cube-stacking", "upstream", None, ["task.stack_size=11"], "m", 0.0)
+    big, _ = screen.screen_queries(eleven, 55, prompt_set="relabelled")
+    assert {cube.task_of_prompt(q.prompt).stack_size for q in big} == {11} and len({q.prompt for q in big}) == 55
+
+
+def test_sampled_arrangement_states_are_distinct_partial_targets() -> None:
+    config = record_config("object-arrangement", "upstream", None, ["task.target=plus"], "m", 0.0)
+    task = make_task(config)
+    queries, samples = screen.screen_queries(config, 60, prompt_set="sampled")
+    assert samples == 1 and len({q.prompt for q in queries}) == 60
+    bins = [screen.bin_of_prompt(task, q.prompt) for q in queries]
+    on = int(np.count_nonzero(task.target))
+    assert set(bins) == set(range(on)) and max(bins) < on  # every fill short of the whole target
+
+
+@pytest.mark.parametrize(
+    ("task", "sets", "fragment"),
+    [
+        ("object-arrangement", ["--prompt-set", "relabelled"], "object-arrangement screens take runs, sampled"),
+        ("cube-stacking", ["--prompt-set", "relabelled", "--prompts", "200", "--set", "task.stack_size=5"], "5 cubes have only 119 relabellings"),
+        ("cube-stacking", ["--prompt-set", "runs"], "--prompt-set runs needs --from-runs"),
+    ],
+)
+def test_a_prompt_set_that_cannot_be_made_is_one_line_and_exit_2(tmp_path: Path, task: str, sets: list[str], fragment: str) -> None:
+    model = tmp_path / "tiny-model.gguf"
+    model.write_bytes(b"GGUF\x03\x00\x00\x00" + bytes(56))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(FAKE), str(ROOT)]), "MPLBACKEND": "Agg"}
+    done = lagrseq("screen", task, "--provider", f"local:{model}", *sets, "--out", str(tmp_path / "out"), "--quiet", env=env)
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1 and fragment in done.stderr, done.stderr
+
+
+def _screen_of(cells: list[tuple[int, int]], prompt_set: str = "relabelled 8-cube sets", task: str = "cube-stacking") -> screen.Screen:
+    s = screen.Screen(task, "m", 0.0, 8, prompt_set)
+    for i, (n, k) in enumerate(cells):
+        s.prompts[f"p{i}"] = (n, k)
+        s.prompt_bins[f"p{i}"] = 1 + i % 7
+    return s
+
+
+def test_the_interval_resamples_prompts_not_answers() -> None:
+    # 20 prompts of 10 answers each, half of them always right, half never: 100/200 answers right.
+    # Resampling answers would give about +-7 points; the prompts are the sample: about +-22
+    clustered = screen.accuracy_over_prompts(_screen_of([(10, 10)] * 10 + [(10, 0)] * 10))
+    assert clustered.method.startswith("cluster bootstrap") and clustered.low is not None and clustered.high is not None
+    assert clustered.high - clustered.low > 0.3
+    # the exact interval at the clustered sample's effective size (20 prompts' worth, not 200
+    # answers' worth) is about as wide: here every prompt is as informative as one answer
+    from scipy.stats import binomtest
+
+    effective = binomtest(10, 20).proportion_ci(0.95, method="exact")
+    assert clustered.low <= effective.low + 0.03 and clustered.high >= effective.high - 0.03
+    assert (clustered.correct, clustered.answers, clustered.prompts) == (100, 200, 20)
+    # seeded: the same screen gives the same interval
+    assert screen.accuracy_over_prompts(_screen_of([(10, 10)] * 10 + [(10, 0)] * 10)) == clustered
+    # one answer per prompt and few right: at least the exact interval (the percentile bootstrap under-covers)
+    few = screen.accuracy_over_prompts(_screen_of([(1, 1)] + [(1, 0)] * 47))
+    exact = binomtest(1, 48).proportion_ci(0.95, method="exact")
+    assert few.low is not None and few.high is not None and few.low <= exact.low and few.high >= exact.high
+    # nothing right anywhere: exact over prompts
+    none = screen.accuracy_over_prompts(_screen_of([(1, 0)] * 48))
+    assert none.method == "exact over prompts" and none.low == 0.0 and none.high is not None and abs(none.high - binomtest(0, 48).proportion_ci(method="exact").high) < 1e-12
+    # nested prefixes of one target: a count, no interval
+    nested = screen.accuracy_over_prompts(_screen_of([(1, 1), (1, 0), (1, 0)], prompt_set=""))
+    assert nested.low is None and "prefixes of one target" in nested.text() and "not a sample" in nested.text()
+
+
+def test_fisher_compares_the_best_model_with_each_other() -> None:
+    from scipy.stats import fisher_exact
+
+    a, b = _screen_of([]), _screen_of([])
+    a.model, b.model = "good", "bad"
+    a.cells, b.cells = {1: (8, 3)}, {1: (11, 0)}
+    (row,) = screen.fisher_rows([a, b])
+    assert row[3:7] == ("good", "3/8", "bad", "0/11")
+    assert float(row[7]) == pytest.approx(fisher_exact([[3, 5], [0, 11]]).pvalue, abs=5e-4)
+    assert row[8] == "(no prompt shows the target)"
+    # with the whole target shown in some prompts, the comparison without them beside
+    a.cells, b.cells = {1: (7, 2), 8: (1, 1)}, {1: (9, 0), 8: (2, 0)}
+    (row,) = screen.fisher_rows([a, b])
+    assert row[8] == f"2/7 against 0/9: {fisher_exact([[2, 5], [0, 9]]).pvalue:.3f}" == "2/7 against 0/9: 0.175"
+
+
+class _Drop:
+    """A temperature model: P(right | tau) = P(right | 0) x (1 - tau / 2)."""
+
+    def factor(self, fraction: float, temperature: float) -> float:
+        return 1 - temperature / 2
+
+
+def _tau_screens(base: dict[int, tuple[int, int]], hot: dict[int, tuple[int, int]]) -> list[screen.Screen]:
+    zero = screen.Screen("cube-stacking", "m", 0.0, 8, cells=dict(base))
+    one = screen.Screen("cube-stacking", "m", 1.0, 8, cells=dict(hot))
+    return [zero, one]
+
+
+def test_the_temperature_model_is_falsified_where_it_predicts_zero_and_answers_are_right() -> None:
+    (test,) = screen.temperature_tests(_tau_screens({1: (1, 0), 4: (1, 1)}, {1: (10, 1), 4: (10, 5)}), _Drop(), resamples=2000)
+    assert test.impossible and "1/8 cubes: predicted 0%, 1/10 right" in test.impossible[0]
+    assert test.verdict().startswith("falsified") and test.possible_prefixes == 1
+    # where the data are what the model predicts (50% at 4 of 8 shown), the test does not reject
+    (fine,) = screen.temperature_tests(_tau_screens({1: (1, 0), 4: (1, 1)}, {1: (10, 0), 4: (10, 5)}), _Drop(), resamples=2000)
+    assert not fine.impossible and fine.statistic == pytest.approx(0.0) and fine.verdict() == "not rejected at 5%"
+    # far from it (0/10 where 50% is predicted), it does
+    (far,) = screen.temperature_tests(_tau_screens({4: (1, 1)}, {4: (10, 0)}), _Drop(), resamples=2000)
+    assert far.p_bootstrap < 0.01 and far.verdict() == "rejected at 5% (parametric bootstrap)"
+
+
+def test_the_committed_temperature_answers_falsify_the_model() -> None:
+    """Qwen2.5-Coder-1.5B's real tau > 0 answers: right at prefixes where the model predicts 0
+    (1/10 at 3 and 6 of 8 shown at tau = 0.5; 3/10 and 1/10 at 6 and 7 at tau = 1)."""
+    from lagrseq.tasks.cube import AUTHORS_T0
+
+    config = record_config("cube-stacking", "upstream", None, [])
+    files = sorted((ROOT / "recorded_llm").glob("qwen2.5-coder-1.5b-cube-t*.jsonl"))
+    tests = screen.temperature_tests(screen.screens_from(files, [config]), AUTHORS_T0.temperature, resamples=2000)
+    assert [t.temperature for t in tests] == [0.5, 1.0]
+    assert all(t.verdict().startswith("falsified") for t in tests)
+    assert any("3/10 right" in line for line in tests[1].impossible)
+
+
+def test_a_relabelled_screen_asks_the_local_server_and_reads_back_as_a_sample(tmp_path: Path) -> None:
+    """A relabelled screen end to end against the stand-in server (it always answers a..h, which
+    is no relabelled target): 14 distinct prompts, one answer each, an exact interval over them."""
+    model = tmp_path / "tiny-model.gguf"
+    model.write_bytes(b"GGUF\x03\x00\x00\x00" + bytes(56))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(FAKE), str(ROOT)]), "MPLBACKEND": "Agg"}
+    answers = tmp_path / "a.jsonl"
+    done = lagrseq(
+        "screen", "cube-stacking", "--provider", f"local:{model}", "--prompts", "14", "--threads", "1",
+        "--prompt-set", "relabelled", "--answers", str(answers), "--out", str(tmp_path / "out"), "--quiet", env=env,
+    )
+    assert done.returncode == 0, done.stderr
+    assert len({json.loads(line)["key"] for line in answers.read_text().splitlines()}) == 14
+    table = (tmp_path / "out" / "screen-cube-stacking.md").read_text()
+    # answers with llama.cpp's samplers pinned are labelled so, never pooled with answers of its defaults
+    assert "tiny-model (relabelled 8-cube sets, samplers pinned)" in table and "0/14 = 0% [0, 23] (exact over prompts, 14 prompts)" in table
+    # read back with --from: the same table, the prompts' targets read from the prompts themselves
+    again = lagrseq("screen", "cube-stacking", "--from", str(answers), "--out", str(tmp_path / "again"))
+    assert again.returncode == 0, again.stderr
+    assert (tmp_path / "again" / "screen-cube-stacking.md").read_text() == table
+
+
+def test_a_screen_of_another_arrangement_target_is_judged_by_that_target(tmp_path: Path) -> None:
+    """A grid prompt does not name its target: the report reads a file tagged ``target-plus`` with
+    the plus target (its right answer is the plus, not the default diamond)."""
+    config = record_config("object-arrangement", "upstream", None, ["task.target=plus"], "tiny-1b", 0.0)
+    task = make_task(config)
+    queries, _ = screen.screen_queries(config, 2, prompt_set="sampled")
+    plus = "[" + ",\n".join("[" + ",".join(str(int(v)) for v in row) + "]" for row in task.target) + "]"
+    diamond = make_task(record_config("object-arrangement", "upstream", None, [], "tiny-1b", 0.0)).target
+    wrong = "[" + ",\n".join("[" + ",".join(str(int(v)) for v in row) + "]" for row in diamond) + "]"
+    (tmp_path / "recorded_llm").mkdir()
+    lines = [_record(request_of(queries[0], "local"), "object-arrangement", plus, 1), _record(request_of(queries[1], "local"), "object-arrangement", wrong, 2)]
+    (tmp_path / "recorded_llm" / "screen-target-plus-tiny-t0.jsonl").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    sections, _ = screen.report_sections(tmp_path)
+    (row,) = sections[0][1].rows
+    assert row[1] == "tiny-1b (plus target)" and row[5].startswith("1/2 = 50% [")

@@ -579,7 +579,7 @@ def build_accuracy(item: Item, matched: Sequence[Match]) -> Built:
             )
         )
     axes = figures.accuracy(lines, title=item.title)
-    method = "For each prefix of the target (1/N to N/N of the sequence), the percentage of the provider's answers that parse to exactly the target."
+    method = "For each prefix of the target (1/N to N/N of the sequence), the percentage of the provider's answers that parse to exactly the target. A recorded store's answers are drawn without replacement (each prefix's recorded answers once each before any repeats), so a line of as many samples as the store holds shows the recorded counts."
     return Built(axes, pd.concat(frames, ignore_index=True), [], method)
 
 

@@ -11,7 +11,8 @@ API's ``n``, or a wrapper around one) also implement :class:`MultiSampleProvider
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections.abc import Iterable
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal, Protocol, runtime_checkable
 
 Source = Literal["live", "recorded", "mock", "miss", "calibrated"]
@@ -43,6 +44,14 @@ class Query:
     """Stop sequences sent to the server (None: the API default, no stop sequence)."""
     seed: int | None = None
     """The API's best-effort ``seed`` (None: not sent). Not the run seed."""
+    top_k: int | None = None
+    """llama.cpp's top-k cut (0: off). None: not sent and not in the key (OpenAI has no top-k);
+    a query served by llama.cpp is pinned to 0 (:func:`with_samplers`)."""
+    min_p: float | None = None
+    """llama.cpp's min-p cut (0: off). None: not sent and not in the key; pinned to 0 for llama.cpp."""
+    repeat_penalty: float | None = None
+    """llama.cpp's repetition penalty (1: off). None: not sent and not in the key; pinned to 1 for
+    llama.cpp."""
 
     @property
     def prompt(self) -> str:
@@ -138,6 +147,34 @@ def sample(provider: Provider, query: Query, n: int) -> list[Answer]:
     if isinstance(provider, MultiSampleProvider):
         return provider.complete_n(query, n)
     return [provider.complete(query) for _ in range(n)]
+
+
+SAMPLER_FIELDS = ("top_k", "min_p", "repeat_penalty")
+"""The sampler settings beyond OpenAI's that a query may carry (sent and keyed only when set)."""
+
+
+def with_samplers(query: Query, samplers: Iterable[tuple[str, float]]) -> Query:
+    """``query`` with every sampler of ``samplers`` (name, value) it does not set already: how a
+    server kind pins its own defaults (llama.cpp: ``top_k`` 40, ``min_p`` 0.05, ``repeat_penalty``
+    1.1) to OpenAI's meaning of temperature (:data:`lagrseq.llm.servers.LLAMA_CPP_SAMPLERS`)."""
+    missing = {name: value for name, value in samplers if getattr(query, name) is None}
+    if not missing:
+        return query
+    changes: dict[str, Any] = {name: (int(value) if name == "top_k" else float(value)) for name, value in missing.items()}
+    return replace(query, **changes)
+
+
+def samplers_of(query: Query) -> dict[str, float]:
+    """The sampler settings ``query`` carries beyond OpenAI's (name -> value; empty: none)."""
+    return {name: getattr(query, name) for name in SAMPLER_FIELDS if getattr(query, name) is not None}
+
+
+def pinned(provider: Any, query: Query) -> Query:
+    """``query`` as ``provider`` sends it: with the sampler settings its server kind pins (a
+    provider without ``pin``, such as the mock or a recorded store, sends it as it is). Whoever
+    keys a query for a provider keys this one, so the key says what the server was asked."""
+    pin = getattr(provider, "pin", None)
+    return query if pin is None else pin(query)  # type: ignore[no-any-return]
 
 
 def user_query(task: str, prompt: str, model: str, temperature: float, max_tokens: int) -> Query:

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from lagrseq.errors import BudgetExceeded
-from lagrseq.llm.base import Answer, Provider, Query, sample, samples_per_request
+from lagrseq.llm.base import Answer, Provider, Query, pinned, sample, samples_per_request
 from lagrseq.llm.pricing import PriceTable
 
 
@@ -113,6 +113,9 @@ class BudgetedProvider:
     @property
     def max_samples_per_request(self) -> int:
         return samples_per_request(self.inner)
+
+    def pin(self, query: Query) -> Query:
+        return pinned(self.inner, query)
 
     def complete(self, query: Query) -> Answer:
         return self.complete_n(query, 1)[0]

@@ -36,7 +36,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from lagrseq.errors import BudgetExceeded
-from lagrseq.llm.base import Answer, Provider, Query, sample, samples_per_request
+from lagrseq.llm.base import Answer, Provider, Query, pinned, sample, samples_per_request
 from lagrseq.llm.budget import Budget
 from lagrseq.llm.pricing import PriceTable
 from lagrseq.llm.recorded import RecordingProvider, RecordReport
@@ -95,6 +95,7 @@ def record_concurrently(
         raise ValueError(f"concurrency must be at least 1, got {concurrency}")
     inner: Provider = recorder.inner
     per_request = samples_per_request(inner)
+    queries = [pinned(inner, query) for query in queries]  # keyed as sent (llama.cpp's samplers)
     keys = [query_key(query, recorder.endpoint)[0] for query in queries]
     left = [0] * len(queries)
     """Per query: its requests not yet stored (set when its key is claimed)."""

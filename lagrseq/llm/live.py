@@ -68,7 +68,7 @@ import numpy as np
 from lagrseq import __version__, keys
 from lagrseq.errors import ConfigError, ProviderError
 from lagrseq.keys import Redactor, clip, redact_key_like
-from lagrseq.llm.base import Answer, Query, Usage
+from lagrseq.llm.base import Answer, Query, Usage, samplers_of, with_samplers
 from lagrseq.llm.pricing import PriceTable, prompt_token_bound
 from lagrseq.llm.records import MAX_ANSWER_CHARS
 from lagrseq.llm.servers import DEFAULT_BASE_URL, SERVER_KINDS, base_url_problem
@@ -521,11 +521,17 @@ class LiveProvider:
     def complete_n(self, query: Query, n: int) -> list[Answer]:
         """``n`` samples of ``query``: ``n`` per request where the server honours it, more
         requests where it returns fewer."""
+        query = self.pin(query)
         answers: list[Answer] = []
         while len(answers) < n:
             ask = min(n - len(answers), self.kind.max_samples_per_request)
             answers.extend(self._request(query, ask))
         return answers[:n]
+
+    def pin(self, query: Query) -> Query:
+        """``query`` with the samplers this server kind pins (llama.cpp: ``top_k`` 0, ``min_p`` 0,
+        ``repeat_penalty`` 1, so that ``temperature`` means OpenAI's; others: unchanged)."""
+        return with_samplers(query, self.kind.samplers)
 
     def close(self) -> None:
         if not self._closed:
@@ -554,6 +560,7 @@ class LiveProvider:
             body["stop"] = list(query.stop)
         if query.seed is not None:
             body["seed"] = query.seed
+        body.update(samplers_of(query))  # llama.cpp's, when pinned (never sent to OpenAI)
         return body
 
     def _headers(self) -> dict[str, str]:

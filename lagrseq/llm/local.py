@@ -506,6 +506,12 @@ class LocalProvider:
     def budget(self) -> Any:
         return getattr(self.inner, "budget", None)
 
+    def pin(self, query: Any) -> Any:
+        """``query`` with llama.cpp's samplers pinned (:data:`lagrseq.llm.servers.LLAMA_CPP_SAMPLERS`)."""
+        from lagrseq.llm.base import pinned
+
+        return pinned(self.inner, query)
+
     def complete(self, query: Any) -> Any:
         return self.inner.complete(query)
 

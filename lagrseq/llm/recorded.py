@@ -30,8 +30,17 @@ from pathlib import Path
 from typing import Literal
 
 from lagrseq.errors import RecordMiss
-from lagrseq.llm.base import Answer, Provider, Query, sample, samples_per_request
-from lagrseq.llm.servers import RECORD_MODES
+from lagrseq.llm.base import (
+    Answer,
+    Provider,
+    Query,
+    pinned,
+    sample,
+    samplers_of,
+    samples_per_request,
+    with_samplers,
+)
+from lagrseq.llm.servers import LLAMA_CPP_SAMPLERS, RECORD_MODES
 from lagrseq.llm.store import (
     Entry,
     JsonlStore,
@@ -89,15 +98,30 @@ class RecordedProvider:
 
     def complete(self, query: Query) -> Answer:
         key, request = query_key(query, self.endpoint)
-        if key not in self._entries:
-            self._entries[key] = self.store.entry(key)
-        entry = self._entries[key]
+        entry = self._entry(key)
+        if (entry is None or not entry.samples) and not samplers_of(query):
+            # answers recorded from llama.cpp carry its samplers pinned to OpenAI's meaning of
+            # temperature: they answer the same request as one that names no samplers
+            alternative = query_key(with_samplers(query, LLAMA_CPP_SAMPLERS), self.endpoint)[0]
+            found = self._entry(alternative)
+            if found is not None and found.samples:
+                key, entry = alternative, found
         if entry is not None and entry.samples:
             index = self.chooser.choose(key, len(entry.samples))
             return entry.samples[index].answer(key, index)
         if self.fallback is not None:
             return self.fallback.complete(query)
         raise RecordMiss(miss_message(self.store, key, request, query.task))
+
+    def draw_without_replacement(self) -> None:
+        """Give each key's recorded samples once each before any is repeated (Fig. 4's probe:
+        :class:`~lagrseq.llm.store.SampleChooser`)."""
+        self.chooser.without_replacement = True
+
+    def _entry(self, key: str) -> Entry | None:
+        if key not in self._entries:
+            self._entries[key] = self.store.entry(key)
+        return self._entries[key]
 
     def close(self) -> None:
         if self.fallback is not None:
@@ -159,6 +183,15 @@ class RecordingProvider:
         if self._may_record:
             store.writer()  # a store that cannot be written fails now, before any answer is bought
 
+    def key(self, query: Query) -> tuple[str, dict[str, object]]:
+        """``(key, request)`` of ``query`` as the inner provider sends it (with the samplers its
+        server pins: :func:`lagrseq.llm.base.pinned`)."""
+        return query_key(pinned(self.inner, query), self.endpoint)
+
+    def draw_without_replacement(self) -> None:
+        """As :meth:`RecordedProvider.draw_without_replacement`."""
+        self.chooser.without_replacement = True
+
     def wanted(self, entry: Entry | None) -> int:
         """How many new answers this mode asks for, given what the key holds."""
         if not self._may_record:
@@ -179,6 +212,7 @@ class RecordingProvider:
     def _top_up(
         self, query: Query, on_answers: Callable[[list[Answer]], None] | None = None, wait_s: float = CLAIM_WAIT_S
     ) -> list[tuple[Sample, Answer]] | None:
+        query = pinned(self.inner, query)
         key, request = query_key(query, self.endpoint)
         if self.wanted(self.store.entry(key)) <= 0:
             return []
@@ -203,7 +237,7 @@ class RecordingProvider:
 
     def complete(self, query: Query) -> Answer:
         fresh = dict((s.id, a) for s, a in self._top_up(query) or ())
-        key, request = query_key(query, self.endpoint)
+        key, request = self.key(query)
         if self.mode == "all" and fresh:
             return next(iter(fresh.values()))  # vcrpy's "all": the answer of a real request, every time
         entry = self.store.entry(key)
@@ -269,7 +303,7 @@ def record_queries(
                 later.append(query)
                 continue
             answers += len(fetched)
-            key, _ = query_key(query, recorder.endpoint)
+            key, _ = recorder.key(query)
             entry = recorder.store.entry(key)
             done += int(entry is not None and len(entry.samples) >= recorder.samples)
             if on_query is not None:

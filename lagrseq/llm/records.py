@@ -65,7 +65,7 @@ _TOKENS = {
 
 REQUEST_SCHEMA: dict[str, Any] = {
     "type": "object",
-    "x-expected": "an object with key_version, endpoint, model, messages, temperature, top_p, max_tokens, stop and seed",
+    "x-expected": "an object with key_version, endpoint, model, messages, temperature, top_p, max_tokens, stop and seed (and optionally top_k, min_p, repeat_penalty)",
     "required": ["key_version", "endpoint", "model", "messages", "temperature", "top_p", "max_tokens", "stop", "seed"],
     "additionalProperties": False,
     "properties": {
@@ -104,6 +104,10 @@ REQUEST_SCHEMA: dict[str, Any] = {
             "maximum": 2**63 - 1,
             "x-expected": "a 64-bit integer or null",
         },
+        # llama.cpp's samplers (optional: present only in keys of requests that pinned them)
+        "top_k": {"type": "integer", "minimum": 0, "maximum": 1_000_000, "x-expected": "an integer from 0 (off) to 1000000"},
+        "min_p": {"type": "number", "minimum": 0, "maximum": 1, "x-expected": "a number from 0 (off) to 1"},
+        "repeat_penalty": {"type": "number", "minimum": 0, "maximum": 10, "x-expected": "a number from 0 to 10 (1: off)"},
     },
 }
 
@@ -361,6 +365,11 @@ def normalise_request(request: dict[str, Any]) -> dict[str, Any]:
     out["key_version"] = int(out["key_version"])
     out["temperature"] = float(out["temperature"])
     out["top_p"] = float(out["top_p"])
+    for name in ("min_p", "repeat_penalty"):
+        if out.get(name) is not None:
+            out[name] = float(out[name])
+    if out.get("top_k") is not None:
+        out["top_k"] = int(out["top_k"])
     for name in ("max_tokens", "seed"):
         if out.get(name) is not None:
             out[name] = int(out[name])

@@ -79,13 +79,22 @@ class ServerKind:
     """How many samples one request may ask for with ``n`` (1: the server ignores ``n``, so
     lagrseq sends one request per sample)."""
     description: str
+    samplers: tuple[tuple[str, float], ...] = ()
+    """Sampler settings sent with every request and kept in its record key, so that the server's
+    own defaults cannot change what ``temperature`` means (:func:`lagrseq.llm.base.with_samplers`)."""
+
+
+LLAMA_CPP_SAMPLERS: tuple[tuple[str, float], ...] = (("top_k", 0), ("min_p", 0.0), ("repeat_penalty", 1.0))
+"""OpenAI's meaning of temperature on llama.cpp's server: its defaults (llama-cpp-python's server:
+``top_k`` 40, ``min_p`` 0.05, ``repeat_penalty`` 1.1) cut and reweight the distribution that
+``temperature`` scales; pinned off, with ``top_p`` 1, tau samples the model's own softmax(logits / tau)."""
 
 
 SERVER_KINDS: dict[str, ServerKind] = {
     "openai": ServerKind("openai", 128, "OpenAI's API: honours n (up to 128)"),
     "vllm": ServerKind("vllm", 128, "vLLM's OpenAI-compatible server: honours n"),
     "ollama": ServerKind("ollama", 1, "Ollama's /v1 endpoint: no n, one request per sample"),
-    "llama.cpp": ServerKind("llama.cpp", 1, "llama.cpp's server: no n, one request per sample"),
+    "llama.cpp": ServerKind("llama.cpp", 1, "llama.cpp's server: no n, one request per sample; top_k 0, min_p 0, repeat_penalty 1 sent (OpenAI's sampling)", LLAMA_CPP_SAMPLERS),
 }
 
 RECORD_MODES: tuple[str, ...] = ("once", "new", "none", "all")

@@ -7,7 +7,10 @@ Key (DESIGN section 4). A query's key is the sha256 of the key-sorted, compact J
      "seed": int | null}
 
 with the API's defaults written in (``top_p`` 1.0, ``stop`` null, ``seed`` null are spelled out,
-numbers are normalised so that 0 and 0.0 give one key). Left out, because they do not change what
+numbers are normalised so that 0 and 0.0 give one key). A query that pins llama.cpp's samplers
+(``top_k``, ``min_p``, ``repeat_penalty``: every query served by llama.cpp, see
+:data:`lagrseq.llm.servers.LLAMA_CPP_SAMPLERS`) adds them to the JSON; a query without them keeps
+the key it always had, so every store recorded before they existed is still found. Left out, because they do not change what
 one sample is: ``n``, ``stream``, ``user`` and the API key. ``endpoint`` is the server's host
 (``host:port`` when the port is not the scheme's default), so answers of a local vLLM server never
 answer for OpenAI's. The task is kept beside the key, not in it (the server never sees it).
@@ -64,7 +67,7 @@ from diskcache.core import MODE_BINARY, MODE_PICKLE, MODE_RAW
 
 from lagrseq import keys
 from lagrseq.errors import StoreError
-from lagrseq.llm.base import Answer, Query, RecordedAs, Usage
+from lagrseq.llm.base import Answer, Query, RecordedAs, Usage, samplers_of
 from lagrseq.llm.records import (
     ENTRY_SCHEMA,
     JSONL_FORMAT,
@@ -130,6 +133,9 @@ def request_of(query: Query, endpoint: str) -> dict[str, Any]:
         "max_tokens": None if query.max_tokens is None else int(query.max_tokens),
         "stop": list(query.stop) if query.stop else None,
         "seed": None if query.seed is None else int(query.seed),
+        # llama.cpp's samplers, only when the query pins them: every key recorded before they
+        # existed (and every OpenAI key) stays what it was
+        **samplers_of(query),
     }
 
 
@@ -154,16 +160,32 @@ def pick_index(run_seed: int, key: str, occurrence: int, count: int) -> int:
     return int(np.random.Generator(np.random.PCG64(sequence)).integers(count))
 
 
-class SampleChooser:
-    """Counts the occurrences of each key in one run and picks samples with :func:`pick_index`."""
+def draw_order(run_seed: int, key: str, count: int) -> list[int]:
+    """The order in which a run that draws without replacement receives a key's ``count``
+    samples: a permutation seeded by (run seed, key) alone."""
+    sequence = np.random.SeedSequence([int(run_seed) & (2**64 - 1), int(key, 16), count, 1])
+    return [int(i) for i in np.random.Generator(np.random.PCG64(sequence)).permutation(count)]
 
-    def __init__(self, run_seed: int) -> None:
+
+class SampleChooser:
+    """Counts the occurrences of each key in one run and picks samples with :func:`pick_index`
+    (with replacement: what a trial does, whose queries of a key are draws of the model). With
+    ``without_replacement`` (Fig. 4's probe, which asks every prefix a fixed number of times to
+    measure how often the model is right), the first ``count`` occurrences of a key receive its
+    ``count`` samples each once, in :func:`draw_order`; only occurrences beyond them draw with
+    replacement. So a probe of 10 per prefix over a store of 10 per prefix shows the recorded
+    counts exactly."""
+
+    def __init__(self, run_seed: int, without_replacement: bool = False) -> None:
         self.run_seed = int(run_seed)
+        self.without_replacement = without_replacement
         self.occurrences: dict[str, int] = {}
 
     def choose(self, key: str, count: int) -> int:
         occurrence = self.occurrences.get(key, 0)
         self.occurrences[key] = occurrence + 1
+        if self.without_replacement and occurrence < count:
+            return draw_order(self.run_seed, key, count)[occurrence]
         return pick_index(self.run_seed, key, occurrence, count)
 
 
@@ -770,7 +792,7 @@ def nearest_entries(
             continue
         differences = [
             f"{name} {entry.request.get(name)!r} instead of {request.get(name)!r}"
-            for name in ("endpoint", "model", "temperature", "top_p", "max_tokens", "stop", "seed")
+            for name in ("endpoint", "model", "temperature", "top_p", "max_tokens", "stop", "seed", "top_k", "min_p", "repeat_penalty")
             if entry.request.get(name) != request.get(name)
         ]
         same_messages = entry.request.get("messages") == request.get("messages")

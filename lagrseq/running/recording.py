@@ -20,7 +20,7 @@ import numpy as np
 
 from lagrseq.config import ExperimentConfig
 from lagrseq.errors import BudgetExceeded, LogError, UsageError
-from lagrseq.llm.base import Query
+from lagrseq.llm.base import Query, samplers_of
 from lagrseq.logs.reader import find_logs, read_info, read_topic
 from lagrseq.loop.lagr import query_for
 from lagrseq.registry import ProviderKind
@@ -156,6 +156,7 @@ def record(
 
     spec = parse_provider(provider)
     kind = _recording_kind(provider)
+    queries = served_queries(queries, kind.local_server or getattr(options, "server", None) == "llama.cpp")
     if not kind.local_server or mode == "none":
         endpoint = _local_endpoint() if kind.local_server else endpoint_of(options.base_url)
         return _record(queries, store_path, samples, mode, options, bar, endpoint, concurrency)
@@ -169,6 +170,15 @@ def record(
             return _record(queries, store_path, samples, mode, local_live(options, server.base_url), bar, _local_endpoint(), concurrency, settings.model_name, supervisor.on_retry)
         finally:
             supervisor.close()
+
+
+def served_queries(queries: Sequence[Query], llama_cpp: bool) -> list[Query]:
+    """``queries`` as they are sent and keyed: served by llama.cpp (``llama_cpp``), with its
+    samplers pinned to OpenAI's meaning of temperature (:data:`lagrseq.llm.servers.LLAMA_CPP_SAMPLERS`)."""
+    from lagrseq.llm.base import with_samplers
+    from lagrseq.llm.servers import LLAMA_CPP_SAMPLERS
+
+    return [with_samplers(q, LLAMA_CPP_SAMPLERS) for q in queries] if llama_cpp else list(queries)
 
 
 def check_record(store_path: Path, mode: str, options: Any, provider: str = "live") -> None:
@@ -226,6 +236,19 @@ def _record(
     def held(store: RecordStore) -> int:
         entries = [store.entry(query_key(q, endpoint)[0]) for q in queries]
         return sum(1 for e in entries if e is not None and len(e.samples) >= samples)
+
+    # a store recorded before llama.cpp's samplers were pinned holds them under the plain key: a
+    # check that asks nobody (mode none) counts those too
+    if mode == "none" and any(samplers_of(q) for q in queries):
+        plain = [replace(q, top_k=None, min_p=None, repeat_penalty=None) for q in queries]
+        with RecordStore(store_path, create=False) as store:
+            if held(store) < len(queries):
+                both = sum(
+                    1
+                    for q, p in zip(queries, plain)
+                    if any(e is not None and len(e.samples) >= samples for e in (store.entry(query_key(q, endpoint)[0]), store.entry(query_key(p, endpoint)[0])))
+                )
+                return RecordingReport(len(queries), both, samples, store_path)
 
     if mode == "none":  # ask nobody (no key needed): report what the store lacks
         with RecordStore(store_path, create=False) as store:

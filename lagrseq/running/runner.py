@@ -59,6 +59,19 @@ if TYPE_CHECKING:
     from lagrseq.logs.reader import LogInfo
 
 
+def _pinned_samplers(provider_spec: str, provider_options: Any) -> str | None:
+    """The sampler settings a llama.cpp server is sent beside temperature and top_p (``--provider
+    local``, or a live provider with ``--server llama.cpp``), as JSON; None for any other."""
+    import json
+
+    from lagrseq.llm.servers import LLAMA_CPP_SAMPLERS
+
+    kind = provider_spec.partition(":")[0]
+    if kind == "local" or (kind == "live" and getattr(provider_options, "server", None) == "llama.cpp"):
+        return json.dumps(dict(LLAMA_CPP_SAMPLERS), sort_keys=True)
+    return None
+
+
 def run_metadata(
     config: ExperimentConfig,
     trial: int,
@@ -71,11 +84,14 @@ def run_metadata(
     ``notes``: more entries under names of their own (``frontier_tuning``: how ``lagrseq frontier
     --tune`` chose the run's knobs); none by default, so ordinary logs are unchanged.
     ``numerics``: ``perturbed`` in a trial that trains a network under ``LAGRSEQ_NUMERICS=perturbed``
-    (:mod:`lagrseq.agents.numerics`); absent under native numerics, so native logs keep their bytes."""
+    (:mod:`lagrseq.agents.numerics`); absent under native numerics, so native logs keep their bytes.
+    ``llm_samplers``: the samplers a llama.cpp-served run pins (top_k, min_p, repeat_penalty)."""
     machine = trial_numerics(config)
+    samplers = _pinned_samplers(provider_spec, provider_options)
     return {
         **(notes or {}),
         **({"numerics": machine} if machine != NATIVE else {}),
+        **({"llm_samplers": samplers} if samplers else {}),
         "provider_options": logged_options(provider_options if provider_options is not None else default_options(provider_spec)),
         "config": config.to_json(),
         "task": config.task.name,

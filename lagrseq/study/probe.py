@@ -46,6 +46,13 @@ def run_accuracy_probe(
     provider = make_provider(provider_spec, config, seeding.generator(seed, 0, Stream.LLM), provider_options)
     metadata = {**run_metadata(config, 0, seed, provider_spec, provider_options), "method": ACCURACY_METHOD}
     metadata["samples"] = str(samples)
+    # A recorded store's answers are drawn without replacement (each recorded answer once per
+    # prefix before any repeats): the probe measures the accuracy of what was recorded, and
+    # resampling 10 recorded answers with replacement would show, say, 3/10 where 5/10 are right.
+    draw = getattr(provider, "draw_without_replacement", None)
+    if draw is not None:
+        draw()
+        metadata["recorded_draws"] = "without replacement up to the samples each prompt holds"
     # a chunk per prefix (chunk_bytes=0): a crash keeps every finished prefix, live answers included
     sink: Sink = McapSink(path, metadata, chunk_bytes=0) if log else NullSink()
     target = task.target

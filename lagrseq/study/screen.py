@@ -20,6 +20,7 @@ import csv
 import io
 import json
 import math
+import re
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -105,10 +106,30 @@ def spread(patterns: Sequence[Any], bins: Sequence[int], n: int) -> list[Any]:
     return chosen
 
 
-def screen_queries(config: ExperimentConfig, prompts: int, runs: Sequence[str | Path] = (), warn: Callable[[str], None] | None = None) -> tuple[list[Any], int]:
-    """(queries, answers per query) of a screen of ``prompts`` answers. Cube stacking: every
-    prefix of the target, each asked ceil(N / prefixes) times. Grid tasks: N distinct states of
-    the runs' ``/query`` records, spread over fill fractions, each asked once."""
+PROMPT_SETS = ("prefixes", "relabelled", "runs", "sampled")
+"""``lagrseq screen --prompt-set``: ``prefixes`` (cube stacking, the default: every prefix of the
+target, nested, so the screen is a complete count over one sequence, not a sample of prompts);
+``relabelled`` (cube stacking: N distinct relabelled cube sets, one prompt each, no two sharing a
+target); ``runs`` (grid tasks, the default: N distinct states met in ``--from-runs``); ``sampled``
+(grid tasks: N distinct partial states of the target, drawn without runs)."""
+PROMPT_SEED = 34
+"""Seeds the relabellings and sampled states together with ``--seed`` (issue 34's prompt sets)."""
+
+
+def screen_queries(
+    config: ExperimentConfig,
+    prompts: int,
+    runs: Sequence[str | Path] = (),
+    warn: Callable[[str], None] | None = None,
+    prompt_set: str | None = None,
+    seed: int = 0,
+) -> tuple[list[Any], int]:
+    """(queries, answers per query) of a screen of ``prompts`` answers (:data:`PROMPT_SETS`).
+    Cube stacking: every prefix of the target, each asked ceil(N / prefixes) times; or N
+    relabelled cube sets (:func:`relabelled_patterns`), each asked once. Grid tasks: N distinct
+    states of the runs' ``/query`` records, or N sampled partial states of the target
+    (:func:`sampled_states`), spread over fill fractions, each asked once."""
+    from lagrseq.loop.lagr import query_for
     from lagrseq.running.recording import queries_for, record_patterns
     from lagrseq.running.wiring import make_task
     from lagrseq.tasks import cube
@@ -116,12 +137,81 @@ def screen_queries(config: ExperimentConfig, prompts: int, runs: Sequence[str | 
     if not 1 <= prompts <= MAX_PROMPTS:
         raise UsageError(f"--prompts {prompts}: expected 1 to {MAX_PROMPTS}")
     task = make_task(config)
-    if isinstance(task, cube.CubeStacking) and not runs:
-        prefixes = list(task.prefixes())
+    is_cube = isinstance(task, cube.CubeStacking)
+    chosen_set = prompt_set or ("prefixes" if is_cube and not runs else "runs")
+    allowed = ("prefixes", "relabelled", "runs") if is_cube else ("runs", "sampled")
+    if chosen_set not in allowed:
+        raise UsageError(f"--prompt-set {chosen_set}: {config.task.name} screens take {', '.join(allowed)}")
+    if (chosen_set == "runs") != bool(runs):
+        raise UsageError(
+            "--prompt-set runs needs --from-runs RUNS (the runs whose states are screened)" if not runs
+            else f"--from-runs belongs to --prompt-set runs, not {chosen_set}: leave it out"
+        )
+    if chosen_set == "prefixes":
+        prefixes = list(task.prefixes())  # type: ignore[attr-defined]
         return queries_for(config, prefixes), max(1, math.ceil(prompts / len(prefixes)))
+    if chosen_set == "relabelled":
+        pairs = relabelled_patterns(int(task.stack_size), prompts, seed)  # type: ignore[attr-defined]
+        return [query_for(t, config.llm, pattern) for t, pattern in pairs], 1
+    if chosen_set == "sampled":
+        return queries_for(config, sampled_states(task, prompts, seed)), 1
     patterns = record_patterns(config, runs, "/query", warn)
     chosen = spread(patterns, [bin_of(task, p) for p in patterns], prompts)
     return queries_for(config, chosen), 1
+
+
+def relabelled_patterns(stack_size: int, prompts: int, seed: int = 0) -> list[tuple[Any, tuple[int, ...]]]:
+    """``prompts`` (task, shown stack) pairs for a screen that is a sample of prompts: each a
+    distinct relabelling of the ``stack_size`` cubes (the same cubes and rule under other
+    letters: :attr:`lagrseq.tasks.cube.CubeStacking.relabel`; never the released letters), showing
+    a prefix of 1 to N - 1 cubes of its own target in turn, so no two prompts are prefixes of one
+    target and none shows the whole answer. Seeded by ``seed``."""
+    from lagrseq.tasks import cube
+
+    most = math.factorial(stack_size) - 1
+    if prompts > most:
+        raise UsageError(f"--prompts {prompts}: {stack_size} cubes have only {most} relabellings; ask for at most {most}")
+    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([PROMPT_SEED, int(seed), stack_size])))
+    identity = tuple(range(stack_size))
+    seen: set[tuple[int, ...]] = {identity}
+    pairs: list[tuple[Any, tuple[int, ...]]] = []
+    while len(pairs) < prompts:
+        relabel = tuple(int(i) for i in rng.permutation(stack_size))
+        if relabel in seen:
+            continue
+        seen.add(relabel)
+        task = cube.CubeStacking(stack_size, relabel=relabel)
+        shown = 1 + len(pairs) % (stack_size - 1)
+        pairs.append((task, task.target[:shown]))
+    return pairs
+
+
+MAX_SAMPLED_CELLS = 16
+"""A target with more cells on than this is not sampled (its subsets are enumerated)."""
+
+
+def sampled_states(task: Any, prompts: int, seed: int = 0) -> list[Any]:
+    """``prompts`` distinct partial states of a grid task's target, drawn without runs: every
+    subset of the target's cells short of the whole, in a seeded order, spread over how many of
+    its cells are shown (:func:`spread`). The target's own values fill the cells shown; nothing
+    else is on the grid."""
+    target = np.asarray(task.target)
+    on = [tuple(int(v) for v in cell) for cell in np.argwhere(target != 0)]
+    if len(on) > MAX_SAMPLED_CELLS:
+        raise UsageError(f"the target has {len(on)} cells on; --prompt-set sampled takes targets of at most {MAX_SAMPLED_CELLS}")
+    subsets = [mask for mask in range(2 ** len(on) - 1)]  # every subset but the whole target
+    if prompts > len(subsets):
+        raise UsageError(f"--prompts {prompts}: the target has only {len(subsets)} partial states; ask for at most {len(subsets)}")
+    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([PROMPT_SEED, int(seed), len(on)])))
+    order = [subsets[i] for i in rng.permutation(len(subsets))]
+    states = []
+    for mask in order:
+        state = np.zeros_like(target)
+        for bit, (r, c) in enumerate(on):
+            if mask >> bit & 1:
+                state[r, c] = target[r, c]
+        states.append(state)
+    return spread(states, [bin_of(task, state) for state in states], prompts)
 
 
 # ------------------------------------------------------------------------------------------
@@ -195,6 +285,15 @@ class ScreenedAnswer:
     """It counts towards accuracy and answer kinds (False: at temperature 0, a repeat of an
     identical answer to the same prompt: greedy decoding gives the same answer again, not a new
     observation). Speed counts every answer."""
+    prompt: str = ""
+    """The record key of the prompt it answers (answers cluster by prompt)."""
+    prompt_set: str = ""
+    """Which kind of prompts (:func:`task_of_entry`): "" for the prefixes of the configured cube
+    target or a grid task's states; otherwise e.g. ``relabelled 8-cube sets``."""
+    pinned: bool = False
+    """The request pinned llama.cpp's samplers (its key holds ``top_k``, ``min_p``,
+    ``repeat_penalty``): answers of another distribution than those recorded with its defaults,
+    so never pooled with them."""
 
 
 def read_answers(path: Path, config: ExperimentConfig) -> list[ScreenedAnswer]:
@@ -208,18 +307,25 @@ def read_answers(path: Path, config: ExperimentConfig) -> list[ScreenedAnswer]:
     from lagrseq.running.recording import classify
     from lagrseq.running.wiring import make_task
 
-    task = make_task(config)
-    size = bin_size(task)
+    configured = make_task(config)
     answers: list[ScreenedAnswer] = []
+    # a grid prompt does not name its target: the configured one judges it, and is named when it
+    # is not the task's default
+    target = getattr(config.task, "target", None)
+    other_target = f"{target} target" if target is not None and target != getattr(type(config.task)(), "target", None) else ""
     with tempfile.TemporaryDirectory(prefix="lagrseq-screen-") as scratch:
         import_jsonl_file(path, Path(scratch) / "store", path.name)
         with RecordStore(Path(scratch) / "store", create=False) as store:
             for entry in store.entries():
                 if entry.task != config.task.name:
                     continue
-                where = bin_of_prompt(task, entry.prompt)
-                if where is None:
+                task, prompt_set = task_of_entry(configured, entry.prompt)
+                if task is not None and not prompt_set and other_target:
+                    prompt_set = other_target
+                where = None if task is None else bin_of_prompt(task, entry.prompt)
+                if task is None or where is None:
                     raise UsageError(f"{path}: a {config.task.name} answer whose prompt shows no pattern of this task (key {entry.key[:12]}); screen only answers to the task's own prompts")
+                size = bin_size(task)
                 counted = _independent(entry)
                 for sample in entry.samples:
                     kind, _ = classify(task, sample.text)
@@ -239,9 +345,30 @@ def read_answers(path: Path, config: ExperimentConfig) -> list[ScreenedAnswer]:
                             sha256=digest,
                             facts=facts,
                             counted=any(sample is c for c in counted),
+                            prompt=entry.key,
+                            prompt_set=prompt_set,
+                            pinned=any(name in entry.request for name in ("top_k", "min_p", "repeat_penalty")),
                         )
                     )
     return answers
+
+
+def task_of_entry(configured: Any, prompt: str) -> tuple[Any, str]:
+    """(task, prompt set) of a recorded prompt: a cube prompt is judged by the cube set it
+    describes (:func:`lagrseq.tasks.cube.task_of_prompt`: the 11-cube target, a relabelled set),
+    a grid prompt by the configured task (its prompt does not name the target). (None, "") for a
+    cube prompt that describes no known cube set."""
+    from lagrseq.tasks import cube
+
+    if not isinstance(configured, cube.CubeStacking):
+        return configured, ""
+    try:
+        task = cube.task_of_prompt(prompt)
+    except ValueError:
+        return None, ""
+    if task.relabel is not None:
+        return task, f"relabelled {task.stack_size}-cube sets"
+    return task, "" if task.stack_size == configured.stack_size else f"{task.stack_size}-cube target's prefixes"
 
 
 def _independent(entry: Any) -> list[Any]:
@@ -267,8 +394,16 @@ class Screen:
     model: str
     temperature: float
     size: int
+    prompt_set: str = ""
+    """:attr:`ScreenedAnswer.prompt_set` of every answer in it."""
+    pinned: bool = False
+    """:attr:`ScreenedAnswer.pinned` of every answer in it."""
     cells: dict[int, tuple[int, int]] = field(default_factory=dict)
     """bin -> (answers, correct)."""
+    prompts: dict[str, tuple[int, int]] = field(default_factory=dict)
+    """prompt (record key) -> (answers, correct): the clusters an interval resamples."""
+    prompt_bins: dict[str, int] = field(default_factory=dict)
+    """prompt (record key) -> its bin."""
     kinds: dict[str, int] = field(default_factory=dict)
     sha256: str | None = None
     facts: str | None = None
@@ -303,18 +438,34 @@ class Screen:
             return None
         return float(sum(t for t, _ in timed) / sum(s for _, s in timed))
 
+    @property
+    def nested(self) -> bool:
+        """Every prompt is a prefix of one cube target: the screen counts one sequence completely
+        (there are no other prompts of it to sample), so its accuracy gets no sampling interval."""
+        return self.task == "cube-stacking" and not self.prompt_set.startswith("relabelled")
+
+    @property
+    def kind(self) -> str:
+        """The prompt set and, when pinned, the samplers: what tells two screens of one model and
+        temperature apart ("" for the default prompts with the server's own samplers)."""
+        return ", ".join(part for part in (self.prompt_set, "samplers pinned" if self.pinned else "") if part)
+
     def label(self) -> str:
-        return f"{self.model} τ={self.temperature:g}"
+        base = f"{self.model} τ={self.temperature:g}"
+        return f"{base} ({self.kind})" if self.kind else base
 
 
 def screens_of(task: str, answers: Iterable[ScreenedAnswer]) -> list[Screen]:
     """The answers grouped by model and temperature, in order of model then temperature."""
-    screens: dict[tuple[str, float], Screen] = {}
+    screens: dict[tuple[str, float, str, bool], Screen] = {}
     for a in answers:
-        s = screens.setdefault((a.model, a.temperature), Screen(task, a.model, a.temperature, a.size))
+        s = screens.setdefault((a.model, a.temperature, a.prompt_set, a.pinned), Screen(task, a.model, a.temperature, a.size, a.prompt_set, a.pinned))
         if a.counted:
             n, k = s.cells.get(a.bin, (0, 0))
             s.cells[a.bin] = (n + 1, k + (a.kind == "correct"))
+            n, k = s.prompts.get(a.prompt, (0, 0))
+            s.prompts[a.prompt] = (n + 1, k + (a.kind == "correct"))
+            s.prompt_bins[a.prompt] = a.bin
             s.kinds[a.kind] = s.kinds.get(a.kind, 0) + 1
         s.sha256 = s.sha256 or a.sha256
         s.facts = s.facts or a.facts
@@ -338,6 +489,240 @@ def _percent(k: int, n: int) -> str:
     return f"{k}/{n} = {100 * k / n:.0f}% [{100 * low:.0f}, {100 * high:.0f}]" if n else "-"
 
 
+# ------------------------------------------------------------------------------------------
+# Evidence sized right (issue 34): intervals clustered by prompt, exact comparisons, the
+# temperature model's likelihood-ratio test
+# ------------------------------------------------------------------------------------------
+RESAMPLES = 10_000
+"""Resamples of a cluster bootstrap and of the temperature model's parametric bootstrap."""
+
+
+@dataclass(frozen=True)
+class Accuracy:
+    """A screen's right answers over its prompts, with the interval its prompts allow."""
+
+    correct: int
+    answers: int
+    prompts: int
+    low: float | None
+    high: float | None
+    method: str
+    """``complete count`` (nested prefixes of one target: no interval), ``cluster bootstrap``
+    (prompts resampled, percentile), ``cluster bootstrap, widened to exact`` (the exact interval
+    where it is wider, as it is with few right answers, where a percentile bootstrap under-covers:
+    Clopper-Pearson with one answer per prompt, else at the clustered sample's effective size,
+    :func:`_korn_graubard`), or ``exact over prompts`` (every prompt all right or all wrong: the
+    bootstrap has nothing to resample)."""
+
+    def text(self) -> str:
+        if not self.answers:
+            return "-"
+        rate = f"{self.correct}/{self.answers} = {100 * self.correct / self.answers:.0f}%"
+        if self.low is None or self.high is None:
+            return f"{rate} ({self.prompts} prefixes of one target: a count over one sequence, not a sample of prompts; no interval)"
+        return f"{rate} [{100 * self.low:.0f}, {100 * self.high:.0f}] ({self.method}, {self.prompts} prompts)"
+
+
+def _exact(successes: int, n: int) -> tuple[float, float]:
+    from scipy.stats import binomtest
+
+    ci = binomtest(successes, n).proportion_ci(0.95, method="exact")
+    return float(ci.low), float(ci.high)
+
+
+def unshown_part(s: Screen) -> Screen:
+    """``s`` without the prompts that show the whole target (a cube prompt with the complete
+    stack can be answered by repeating it)."""
+    from dataclasses import replace
+
+    keep = {key: cell for key, cell in s.prompts.items() if s.prompt_bins.get(key, 0) < s.size}
+    return replace(s, cells={b: c for b, c in s.cells.items() if b < s.size}, prompts=keep, prompt_bins={key: s.prompt_bins[key] for key in keep})
+
+
+def accuracy_over_prompts(s: Screen, resamples: int = RESAMPLES) -> Accuracy:
+    """Right answers of ``s`` with an interval clustered by prompt: the prompts are resampled,
+    not the answers (the answers to one prompt share it), with the generator
+    :func:`lagrseq.analysis.stats.generator` keyed by task, model, temperature and prompt set.
+    A screen of nested prefixes of one target (:attr:`Screen.nested`) is a complete count of
+    that one sequence and gets no interval."""
+    from lagrseq.analysis.stats import generator
+
+    table = np.array(list(s.prompts.values()), dtype=np.int64).reshape(-1, 2)
+    m = len(table)
+    n, k = (int(v) for v in table.sum(axis=0)) if m else (0, 0)
+    if s.nested or m == 0:
+        return Accuracy(k, n, m, None, None, "complete count")
+    sizes, right = table[:, 0], table[:, 1]
+    if np.all(right == 0) or np.all(right == sizes):
+        low, high = _exact(int(np.count_nonzero(right)), m)
+        return Accuracy(k, n, m, low, high, "exact over prompts")
+    rng = generator(f"open-models/{s.task}/{s.model}/{s.temperature:g}/{s.kind}")
+    picks = rng.integers(m, size=(resamples, m))
+    rates = right[picks].sum(axis=1) / sizes[picks].sum(axis=1)
+    low, high = (float(v) for v in np.percentile(rates, [2.5, 97.5]))
+    method = "cluster bootstrap"
+    exact_low, exact_high = _exact(k, n) if np.all(sizes == 1) else _korn_graubard(right, sizes)
+    if exact_low < low or exact_high > high:
+        low, high, method = min(low, exact_low), max(high, exact_high), "cluster bootstrap, widened to exact"
+    return Accuracy(k, n, m, low, high, method)
+
+
+def _korn_graubard(right: np.ndarray, sizes: np.ndarray) -> tuple[float, float]:
+    """The Clopper-Pearson interval at the clustered sample's effective size (Korn and Graubard,
+    1998): n_eff = r(1 - r) / var(r), var(r) the ratio estimator's between-prompt variance, at most
+    the answers; x_eff = r n_eff; Beta quantiles (``scipy.stats.beta``) for the fractional counts.
+    Where a percentile bootstrap of few clustered right answers under-covers, this holds
+    (benchmarks/open_models_coverage.py)."""
+    from scipy.stats import beta
+
+    m, total = len(right), float(sizes.sum())
+    r = float(right.sum()) / total
+    variance = m / (m - 1) * float(np.sum((right - r * sizes) ** 2)) / total**2 if m > 1 else 0.0
+    n_eff = min(total, r * (1 - r) / variance) if variance > 0 else total
+    x = r * n_eff
+    low = 0.0 if x <= 0 else float(beta.ppf(0.025, x, n_eff - x + 1))
+    high = 1.0 if x >= n_eff else float(beta.ppf(0.975, x + 1, n_eff - x))
+    return low, high
+
+
+def fisher_rows(screens: Sequence[Screen]) -> list[tuple[str, ...]]:
+    """Per task, prompt set and temperature, the model right most often against each other model:
+    right/answers of each and Fisher's exact two-sided p (``scipy.stats.fisher_exact``) on the
+    counted answers (at tau = 0 a repeated identical answer counts once, so mostly one per prompt)."""
+    from scipy.stats import fisher_exact
+
+    rows: list[tuple[str, ...]] = []
+    groups: dict[tuple[str, str, float], list[Screen]] = {}
+    for s in screens:
+        groups.setdefault((s.task, s.kind, s.temperature), []).append(s)
+    for (task, prompt_set, tau), group in sorted(groups.items()):
+        if len(group) < 2:
+            continue
+        best = max(group, key=lambda g: (g.correct / g.n if g.n else 0.0, g.correct))
+        for other in group:
+            if other is best:
+                continue
+            table = [[best.correct, best.n - best.correct], [other.correct, other.n - other.correct]]
+            p = float(fisher_exact(table).pvalue)
+            row = [task, prompt_set or "-", f"{tau:g}", best.model, f"{best.correct}/{best.n}", other.model, f"{other.correct}/{other.n}", f"{p:.3f}"]
+            # the same without the prompts that show the whole target (answered by repeating it)
+            (bn, bk), (on, ok) = best.unshown(), other.unshown()
+            if (bn, on) != (best.n, other.n) and bn and on:
+                row += [f"{bk}/{bn} against {ok}/{on}: {float(fisher_exact([[bk, bn - bk], [ok, on - ok]]).pvalue):.3f}"]
+            else:
+                row += ["(no prompt shows the target)"]
+            rows.append(tuple(row))
+    return rows
+
+
+FISHER_COLUMNS = ("task", "prompt set", "τ", "model right most often", "right", "against", "right", "Fisher exact p (two-sided)", "target not in prompt: right, p")
+
+
+@dataclass(frozen=True)
+class TemperatureTest:
+    """The temperature model's predictions per prefix against real answers at one temperature."""
+
+    model: str
+    temperature: float
+    prefixes: int
+    answers: int
+    statistic: float
+    """The likelihood-ratio statistic G = 2 sum over prefixes of k log(k / n p) + (n - k) log((n - k) / n (1 - p)):
+    the model (nothing fitted) against one free P(right) per prefix (the answers cluster by prefix)."""
+    p_chi2: float
+    """P(chi-square with ``prefixes`` degrees of freedom >= G)."""
+    p_bootstrap: float
+    """Parametric bootstrap: (1 + #{G* >= G}) / (1 + resamples), answers drawn from the model."""
+    impossible: tuple[str, ...]
+    """Prefixes where the model gives right answers probability 0 (or wrong ones 0) and the real
+    answers hold some: the model is falsified there, whatever the rest."""
+    possible_prefixes: int = 0
+    """The prefixes left when those are set aside."""
+    p_possible: float | None = None
+    """The parametric-bootstrap p of the same test on those prefixes alone (None: none left or
+    none set aside): how the model does where it is not falsified outright."""
+    resamples: int = RESAMPLES
+
+    def verdict(self) -> str:
+        if self.impossible:
+            rest = ""
+            if self.p_possible is not None:
+                rest = f"; on the other {self.possible_prefixes} prefixes p = {_p_text(self.p_possible, self.resamples)} ({'rejected' if self.p_possible < 0.05 else 'not rejected'} at 5%)"
+            return "falsified: it predicts exactly 0 where real answers are right (" + "; ".join(self.impossible) + ")" + rest
+        if self.p_bootstrap < 0.05:
+            return "rejected at 5% (parametric bootstrap)"
+        return "not rejected at 5%"
+
+
+def _p_text(p: float, resamples: int) -> str:
+    """A bootstrap p: at its floor 1 / (resamples + 1) it is a bound, not a value."""
+    return f"< {2 / (resamples + 1):.1g}" if p <= 1 / (resamples + 1) + 1e-12 else f"{p:.2g}"
+
+
+def _g_statistic(k: np.ndarray, n: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """G over the last axis; infinite where p gives an observed outcome probability 0."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        right = np.where(k > 0, k * np.log(k / (n * p)), 0.0)
+        wrong = np.where(n - k > 0, (n - k) * np.log((n - k) / (n * (1 - p))), 0.0)
+    return 2.0 * np.sum(right + wrong, axis=-1)
+
+
+def temperature_tests(screens: Sequence[Screen], model: Any, resamples: int = RESAMPLES) -> list[TemperatureTest]:
+    """The temperature model ``model`` tested at every temperature above 0 of every model that
+    has tau = 0 answers: its P(right | prefix, tau) = P(right | prefix, 0) x factor, with P(right |
+    prefix, 0) the same model's tau = 0 accuracy there (nothing fitted to the tau > 0 answers),
+    against the real answers by a likelihood-ratio test per prefix (chi-square and parametric
+    bootstrap p; seeded with :func:`lagrseq.analysis.stats.generator`)."""
+    from scipy.stats import chi2
+
+    from lagrseq.analysis.stats import generator
+
+    tests: list[TemperatureTest] = []
+    by_model: dict[str, dict[float, Screen]] = {}
+    for s in screens:
+        by_model.setdefault(f"{s.model} ({s.kind})" if s.kind else s.model, {})[s.temperature] = s
+    for name, temps in sorted(by_model.items()):
+        base = temps.get(0.0)
+        if base is None:
+            continue
+        for tau in sorted(t for t in temps if t > 0):
+            s = temps[tau]
+            bins = [b for b in sorted(s.cells) if b in base.cells]
+            if not bins:
+                continue
+            n = np.array([s.cells[b][0] for b in bins], dtype=float)
+            k = np.array([s.cells[b][1] for b in bins], dtype=float)
+            p = np.array([base.cells[b][1] / base.cells[b][0] * model.factor(b / s.size, tau) for b in bins])
+            impossible = tuple(
+                f"{bin_label(s.task, b, s.size)}: predicted {100 * pb:.0f}%, {int(kb)}/{int(nb)} right"
+                for b, pb, kb, nb in zip(bins, p, k, n)
+                if (pb <= 0 and kb > 0) or (pb >= 1 and kb < nb)
+            )
+            g = float(_g_statistic(k, n, p))
+            p_chi2 = float(chi2.sf(g, len(bins))) if math.isfinite(g) else 0.0
+            rng = generator(f"open-models-temperature/{name}/{tau:g}")
+            simulated = rng.binomial(n.astype(np.int64), np.clip(p, 0.0, 1.0), size=(resamples, len(bins))).astype(float)
+            g_star = _g_statistic(simulated, n, p)
+            p_boot = float((1 + np.count_nonzero(g_star >= g)) / (1 + resamples))
+            possible = np.array([not ((pb <= 0 and kb > 0) or (pb >= 1 and kb < nb)) for pb, kb, nb in zip(p, k, n)])
+            p_rest = None
+            if impossible and possible.any():
+                g_rest = float(_g_statistic(k[possible], n[possible], p[possible]))
+                p_rest = float((1 + np.count_nonzero(_g_statistic(simulated[:, possible], n[possible], p[possible]) >= g_rest)) / (1 + resamples))
+            tests.append(TemperatureTest(name, tau, len(bins), int(n.sum()), g, p_chi2, p_boot, impossible, int(possible.sum()), p_rest, resamples))
+    return tests
+
+
+TEST_COLUMNS = ("model", "τ", "prefixes", "answers", "G (likelihood ratio)", "df", "p (chi-square)", "p (parametric bootstrap)", "result")
+
+
+def temperature_test_rows(tests: Sequence[TemperatureTest]) -> list[tuple[str, ...]]:
+    return [
+        (t.model, f"{t.temperature:g}", str(t.prefixes), str(t.answers), "∞" if not math.isfinite(t.statistic) else f"{t.statistic:.1f}", str(t.prefixes), "0 (G infinite)" if not math.isfinite(t.statistic) else f"{t.p_chi2:.2g}", _p_text(t.p_bootstrap, t.resamples), t.verdict())
+        for t in tests
+    ]
+
+
 def _kinds_text(kinds: dict[str, int]) -> str:
     from lagrseq.running.recording import REFUSALS
 
@@ -345,7 +730,7 @@ def _kinds_text(kinds: dict[str, int]) -> str:
     return ", ".join(f"{name} {kinds[name]}" for name in order if kinds.get(name))
 
 
-OVERALL_COLUMNS = ("task", "model", "τ", "model file (GGUF)", "sha256", "right (95% CI)", "right, target not in prompt", "answer kinds", "s/answer", "answer tokens/s", "cut at max_tokens", "longest prompt+answer")
+OVERALL_COLUMNS = ("task", "model", "τ", "model file (GGUF)", "sha256", "right (95% interval over prompts)", "right, target not in prompt", "answer kinds", "s/answer", "answer tokens/s", "cut at max_tokens", "longest prompt+answer")
 
 
 def overall_rows(screens: Sequence[Screen]) -> list[tuple[str, ...]]:
@@ -353,10 +738,9 @@ def overall_rows(screens: Sequence[Screen]) -> list[tuple[str, ...]]:
     rows: list[tuple[str, ...]] = []
     for s in screens:
         spa, tps = s.seconds_per_answer(), s.tokens_per_second()
-        n_unshown, k_unshown = s.unshown()
         rows.append((
-            s.task, s.model, f"{s.temperature:g}", s.facts or "-", s.sha256[:12] if s.sha256 else "-",
-            _percent(s.correct, s.n), _percent(k_unshown, n_unshown), _kinds_text(s.kinds),
+            s.task, s.model + (f" ({s.kind})" if s.kind else ""), f"{s.temperature:g}", s.facts or "-", s.sha256[:12] if s.sha256 else "-",
+            accuracy_over_prompts(s).text(), accuracy_over_prompts(unshown_part(s)).text(), _kinds_text(s.kinds),
             "-" if spa is None else f"{spa:.1f}", "-" if tps is None else f"{tps:.1f}", str(s.cut),
             "-" if s.longest is None else str(s.longest),
         ))
@@ -381,20 +765,28 @@ def markdown(screens: Sequence[Screen]) -> list[str]:
     return lines
 
 
-CSV_FIELDS = ("task", "model", "temperature", "sha256", "model_file", "shown", "size", "fraction", "answers", "correct", "accuracy", "wilson_low", "wilson_high")
+CSV_FIELDS = ("task", "model", "temperature", "prompt_set", "sha256", "model_file", "shown", "size", "fraction", "prompts", "answers", "correct", "accuracy", "interval", "low", "high")
 
 
 def csv_text(screens: Sequence[Screen]) -> str:
-    """One CSV row per model, temperature and bin (``shown`` = bin; ``all`` for the whole screen)."""
+    """One CSV row per model, temperature, prompt set and bin (``shown`` = bin: a Wilson 95%
+    interval over its counted answers), and one for the whole screen (``shown`` = ``all``: the
+    interval over prompts of :func:`accuracy_over_prompts`, none for nested prefixes)."""
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(CSV_FIELDS)
     for s in screens:
-        rows = [(str(b), b / s.size, *s.cells[b]) for b in sorted(s.cells)] + [("all", "", s.n, s.correct)]
-        for shown, fraction, n, k in rows:
-            low, high = wilson(int(k), int(n))
-            fraction_text = f"{fraction:.4f}" if fraction != "" else ""
-            writer.writerow([s.task, s.model, f"{s.temperature:g}", s.sha256 or "", s.facts or "", shown, s.size, fraction_text, n, k, f"{k / n:.4f}" if n else "", f"{low:.4f}", f"{high:.4f}"])
+        per_bin: dict[int, int] = {}
+        for b in s.prompt_bins.values():
+            per_bin[b] = per_bin.get(b, 0) + 1
+        head = [s.task, s.model, f"{s.temperature:g}", s.kind, s.sha256 or "", s.facts or ""]
+        for b in sorted(s.cells):
+            n, k = s.cells[b]
+            low, high = wilson(k, n)
+            writer.writerow([*head, str(b), s.size, f"{b / s.size:.4f}", per_bin.get(b, 0), n, k, f"{k / n:.4f}" if n else "", "wilson", f"{low:.4f}", f"{high:.4f}"])
+        total = accuracy_over_prompts(s)
+        bounds = ["", ""] if total.low is None or total.high is None else [f"{total.low:.4f}", f"{total.high:.4f}"]
+        writer.writerow([*head, "all", s.size, "", total.prompts, total.answers, total.correct, f"{total.correct / total.answers:.4f}" if total.answers else "", total.method, *bounds])
     return out.getvalue()
 
 
@@ -442,6 +834,8 @@ def record_screen(
     options: Any,
     bar_for: Callable[[int], Any],
     warn: Callable[[str], None] | None = None,
+    prompt_set: str | None = None,
+    seed: int = 0,
 ) -> str:
     """Ask ``provider`` the screen's prompts (topping up ``store``, or a temporary one), then write
     exactly those prompts' answers to ``answers`` as recorded-answer JSONL (written to a temporary
@@ -452,10 +846,10 @@ def record_screen(
     import tempfile
 
     from lagrseq.llm.store import RecordStore, jsonl_lines, query_key
-    from lagrseq.running.recording import _local_endpoint, record
+    from lagrseq.running.recording import _local_endpoint, record, served_queries
     from lagrseq.running.wiring import local_settings, parse_provider, provider_kind
 
-    queries, samples = screen_queries(config, prompts, runs, warn)
+    queries, samples = screen_queries(config, prompts, runs, warn, prompt_set, seed)
     kind = provider_kind(provider)
     model = None
     if kind.local_server:
@@ -479,7 +873,8 @@ def record_screen(
         from lagrseq.llm.store import endpoint_of
 
         endpoint = _local_endpoint() if kind.local_server else endpoint_of(options.base_url)
-        wanted = {query_key(q, endpoint)[0] for q in queries}
+        sent = served_queries(queries, kind.local_server or getattr(options, "server", None) == "llama.cpp")
+        wanted = {query_key(q, endpoint)[0] for q in sent}
         with RecordStore(store_path, create=False) as opened:
             lines = [line for line in jsonl_lines(opened) if json.loads(line)["key"] in wanted]
         if model is not None:
@@ -536,15 +931,18 @@ TEMPERATURE_FILES = "recorded_llm/qwen2.5-coder-1.5b-cube-t*.jsonl"
 SCREEN_TASKS = ("cube-stacking", "object-arrangement")
 
 
-def temperature_rows(screens: Sequence[Screen], model: Any) -> list[tuple[str, str, str, str, str, str]]:
-    """The temperature model ``model`` (:class:`lagrseq.tasks.cube.TemperatureModel`) tested on
+def temperature_rows(screens: Sequence[Screen], model: Any, tests: Sequence[TemperatureTest] = ()) -> list[tuple[str, str, str, str, str, str]]:
+    """The temperature model ``model`` (:class:`lagrseq.tasks.cube.TemperatureModel`) against
     real answers: for each temperature above 0 and prefix length, the accuracy it predicts from
-    the same model's tau = 0 answers against the accuracy measured (with its Wilson interval), and
-    whether the prediction lies inside the interval. Nothing is fitted to the tau > 0 answers."""
+    the same model's tau = 0 answers against the accuracy measured (with its Wilson interval over
+    that prefix's answers, independent draws at tau > 0), and whether the prediction lies inside.
+    The row over all prefixes gives the count and the verdict of :func:`temperature_tests`
+    (``tests``), not an interval over answers that cluster by prefix. Nothing is fitted to the
+    tau > 0 answers."""
     rows: list[tuple[str, str, str, str, str, str]] = []
     by_model: dict[str, dict[float, Screen]] = {}
     for s in screens:
-        by_model.setdefault(s.model, {})[s.temperature] = s
+        by_model.setdefault(f"{s.model} ({s.kind})" if s.kind else s.model, {})[s.temperature] = s
     for name, temps in sorted(by_model.items()):
         base = temps.get(0.0)
         if base is None:
@@ -563,9 +961,11 @@ def temperature_rows(screens: Sequence[Screen], model: Any) -> list[tuple[str, s
                 measured_n, measured_k = measured_n + n, measured_k + k
                 rows.append((name, f"{tau:g}", bin_label(s.task, b, s.size), f"{100 * predicted:.0f}%", _percent(k, n), "yes" if low <= predicted <= high else "no"))
             if measured_n:
+                # the answers cluster by prefix: no interval over all of them as if independent;
+                # the model is judged by the likelihood-ratio test per prefix instead
                 predicted_mean = predicted_all / measured_n
-                low, high = wilson(measured_k, measured_n)
-                rows.append((name, f"{tau:g}", "all prefixes", f"{100 * predicted_mean:.0f}%", _percent(measured_k, measured_n), "yes" if low <= predicted_mean <= high else "no"))
+                test = next((t for t in tests if t.model == name and t.temperature == tau), None)
+                rows.append((name, f"{tau:g}", "all prefixes", f"{100 * predicted_mean:.0f}%", f"{measured_k}/{measured_n} = {100 * measured_k / measured_n:.0f}% (clustered by prefix: see the test)", "-" if test is None else test.verdict()))
     return rows
 
 
@@ -586,6 +986,28 @@ def _with_predictions(fig: Any, screens: Sequence[Screen], model: Any) -> Any:
         ax.plot([b / s.size for b in bins], predicted, color=COLORS[i % len(COLORS)], linestyle="--", linewidth=1.0, label=f"τ={s.temperature:g} predicted by the temperature model")
     ax.legend(fontsize="small", loc="center left", framealpha=0.9)
     return fig
+
+
+def _target_tag() -> re.Pattern[str]:
+    from typing import get_args
+
+    from lagrseq.config import GridTarget
+
+    names = sorted(get_args(GridTarget), key=len, reverse=True)
+    return re.compile(r"(?:^|-)target-(" + "|".join(re.escape(n) for n in names) + r")-")
+
+
+TARGET_TAG = _target_tag()
+"""How a screen file of another arrangement target names it: ``screen-target-plus-MODEL-t0.jsonl``
+(read with ``task.target=plus``; a file without the tag is read with the task's default target)."""
+
+
+def _by_target(files: Sequence[Path]) -> dict[str | None, list[Path]]:
+    groups: dict[str | None, list[Path]] = {}
+    for path in files:
+        found = TARGET_TAG.search(path.name)
+        groups.setdefault(found.group(1) if found else None, []).append(path)
+    return groups
 
 
 def report_sections(root: Path | None = None) -> tuple[list[tuple[str, Any, Any]], str]:
@@ -611,7 +1033,10 @@ def report_sections(root: Path | None = None) -> tuple[list[tuple[str, Any, Any]
     if not files:
         return [], f"open models: not made: no {SCREEN_FILES} {where}: run lagrseq reproduce from a clone of the repository, or copy its recorded_llm/ folder here"
     configs = [record_config(task, "upstream", None, []) for task in SCREEN_TASKS]
-    screens = screens_from(files, configs)
+    screens = []
+    for target, group in sorted(_by_target(files).items(), key=lambda item: item[0] or ""):
+        # a grid prompt does not name its target: files of another one say it in their name
+        screens += screens_from(group, configs if target is None else [record_config(SCREEN_TASKS[1], "upstream", None, [f"task.target={target}"])])
     data = pd.read_csv(io.StringIO(csv_text(screens)))
     sections: list[tuple[str, Any, Any]] = [
         (
@@ -628,18 +1053,46 @@ def report_sections(root: Path | None = None) -> tuple[list[tuple[str, Any, Any]
     cells: list[tuple[str, ...]] = []
     for s in screens:
         cells += [(s.task, s.label(), bin_label(s.task, b, s.size), _percent(s.cells[b][1], s.cells[b][0])) for b in sorted(s.cells)]
-    sections.append(("open-models-cells", Table("Open models: right answers per prefix length / fill fraction (Wilson 95% interval)", ("task", "model", "shown", "right"), tuple(cells), data), None))
+    sections.append(("open-models-cells", Table("Open models: right answers per prefix length / fill fraction (Wilson 95% interval over the cell's counted answers)", ("task", "model", "shown", "right"), tuple(cells), data), None))
+    compared = fisher_rows(screens)
+    if compared:
+        sections.append(
+            (
+                "open-models-compare",
+                Table(
+                    "Open models compared: the model right most often against each other, Fisher's exact test on counted answers (per task, prompt set and τ)",
+                    FISHER_COLUMNS,
+                    tuple(compared),
+                    pd.DataFrame(compared, columns=["task", "prompt_set", "tau", "best", "best_right", "other", "other_right", "fisher_p", "unshown"]),
+                ),
+                None,
+            )
+        )
     temperature_files = sorted(root.glob(TEMPERATURE_FILES))
     if temperature_files and AUTHORS_T0.temperature is not None:
         real = screens_from(temperature_files, configs[:1])
-        rows = temperature_rows(real, AUTHORS_T0.temperature)
+        tests = temperature_tests(real, AUTHORS_T0.temperature)
+        test_table = temperature_test_rows(tests)
+        sections.append(
+            (
+                "open-models-temperature-test",
+                Table(
+                    f"Open models: the temperature model's likelihood-ratio test per prefix (nothing fitted; parametric bootstrap of {RESAMPLES} draws from the model)",
+                    TEST_COLUMNS,
+                    tuple(test_table),
+                    pd.DataFrame(test_table, columns=["model", "tau", "prefixes", "answers", "G", "df", "p_chi2", "p_bootstrap", "result"]),
+                ),
+                None,
+            )
+        )
+        rows = temperature_rows(real, AUTHORS_T0.temperature, tests)
         frame = pd.DataFrame(rows, columns=["model", "tau", "shown", "predicted", "measured", "inside"])
         sections.append(
             (
                 "open-models-temperature",
                 Table(
                     "Open models: the mock's temperature model (P(right | τ) = P(right | 0) × (1 - τ·drop)) tested on real τ > 0 answers, not refitted",
-                    ("model", "τ", "shown", "predicted from τ = 0", "measured (95% CI)", "prediction inside CI"),
+                    ("model", "τ", "shown", "predicted from τ = 0", "measured (Wilson 95% CI over the prefix's answers)", "prediction inside CI (all prefixes: the test)"),
                     tuple(rows),
                     frame,
                 ),

@@ -82,20 +82,32 @@ class CubeStacking:
 
     stack_size: int = 8
     name: str = "cube-stacking"
+    relabel: tuple[int, ...] | None = None
+    """A relabelled cube set (``lagrseq screen --prompt-set relabelled``): the table's cube i is
+    called ``LETTERS[relabel[i]]``; the same cubes (colour, edge length) and the same rule
+    (decreasing edge length), so the target is the same stack under other letters and the
+    prompt lists the cubes in the order of their new letters. None: the released letters."""
 
     def __post_init__(self) -> None:
         if self.stack_size not in CUBE_SETS:
             raise ValueError(
                 f"stack_size {self.stack_size} unknown; expected one of {sorted(CUBE_SETS)}"
             )
+        if self.relabel is not None and sorted(self.relabel) != list(range(self.stack_size)):
+            raise ValueError(f"relabel {self.relabel} is not a permutation of the {self.stack_size} cubes")
 
     @property
     def cubes(self) -> tuple[Cube, ...]:
-        return CUBE_SETS[self.stack_size][0]
+        cubes = CUBE_SETS[self.stack_size][0]
+        if self.relabel is None:
+            return cubes
+        by_letter = sorted(range(self.stack_size), key=lambda i: self.relabel[i])  # type: ignore[index]
+        return tuple(Cube(LETTERS[j], cubes[i].colour, cubes[i].edge_cm) for j, i in enumerate(by_letter))
 
     @property
     def target(self) -> tuple[int, ...]:
-        return CUBE_SETS[self.stack_size][1]
+        target = CUBE_SETS[self.stack_size][1]
+        return target if self.relabel is None else tuple(self.relabel[i] for i in target)
 
     @property
     def n_actions(self) -> int:
@@ -492,6 +504,29 @@ def partial_stack(prompt: str) -> list[str]:
     if match is None:
         raise ValueError("prompt does not look like a cube-stacking prompt")
     return re.findall(r"'(\w)'", match.group(1))
+
+
+_DESCRIBED = re.compile(r"- (\w+) cube of edge length (\d+)cm \(represented by '(\w)'\)")
+
+
+def task_of_prompt(prompt: str) -> CubeStacking:
+    """The cube task a prompt was written for, read from the cubes it describes: the stack size,
+    and the relabelling when the letters are not the released ones (a prompt of ``lagrseq screen
+    --prompt-set relabelled``). Raises ``ValueError`` when the described cubes are no known set."""
+    described = _DESCRIBED.findall(prompt)
+    size = len(described)
+    if size not in CUBE_SETS:
+        raise ValueError(f"the prompt describes {size} cubes; expected one of {sorted(CUBE_SETS)}")
+    original = {(c.colour, c.edge_cm): i for i, c in enumerate(CUBE_SETS[size][0])}
+    relabel = [-1] * size
+    for colour, edge, letter in described:
+        i = original.get((colour, int(edge)))
+        j = LETTERS.find(letter)
+        if i is None or not 0 <= j < size or relabel[i] != -1:
+            raise ValueError(f"the prompt's cubes are not the {size}-cube set ({colour} {edge} cm as {letter!r})")
+        relabel[i] = j
+    plain = tuple(relabel) == tuple(range(size))
+    return CubeStacking(size, relabel=None if plain else tuple(relabel))
 
 
 def profile_extrapolator(task: CubeStacking, profile: str) -> Callable[[str, float, np.random.Generator], str]:

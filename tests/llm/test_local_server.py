@@ -9,6 +9,7 @@ endpoints, same failures; the real one needs the local-llm extra and is tested i
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import re
 import signal
@@ -178,6 +179,11 @@ def test_a_run_with_the_local_provider_logs_live_queries_and_leaves_nothing(fake
     queries = [q for p in find_logs([tmp_path / "runs"]) for q in read_topic(p, "/query") if q.get("queried")]
     assert queries and all(q["source"] == "live" and q["model"] == "tiny-model" for q in queries)
     assert all(q["prompt_tokens"] > 0 and q["completion_tokens"] > 0 and q["latency_s"] > 0 for q in queries)
+    # the run says which samplers llama.cpp was sent (OpenAI's meaning of temperature)
+    from lagrseq.logs.reader import read_info
+
+    (log,) = find_logs([tmp_path / "runs"])
+    assert json.loads(read_info(log).run["llm_samplers"]) == {"min_p": 0.0, "repeat_penalty": 1.0, "top_k": 0}
 
 
 def lagrseq(*args: str, cwd: Path) -> subprocess.Popen[str]:
@@ -292,7 +298,11 @@ def test_record_with_the_local_server_keys_answers_under_local(fake: Path, tmp_p
         entries = list(opened.entries())
     assert len(entries) == 8 and {e.request["endpoint"] for e in entries} == {"local"}
     assert {e.request["model"] for e in entries} == {"tiny-model"}
+    assert all({name: e.request[name] for name in ("top_k", "min_p", "repeat_penalty")} == {"top_k": 0, "min_p": 0.0, "repeat_penalty": 1.0} for e in entries)
     assert all(len(e.samples) == 2 and all(s.origin == "live" for s in e.samples) for e in entries)
+    # lagrseq record --mode none asks nobody and finds every pinned key
+    assert cli.main(["record", "cube-stacking", "--provider", f"local:{fake}", "--temperature", "1", "--samples", "2",
+                     "--mode", "none", "--store", str(store), "--quiet"]) == 0
     config = cfg.load("cube-stacking", "lagr", "upstream", None, ["run.episodes=3", "llm.model=tiny-model", "llm.temperature=1.0"])
     options = wiring.provider_options(f"recorded:{store}", {"base_url": "local"})
     assert runner.run_one(config, 0, 0, f"recorded:{store}", tmp_path / "a.mcap", log=False, provider_options=options).queries > 0

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import time
@@ -50,6 +51,13 @@ def main() -> None:
         def do_POST(self) -> None:
             body = json.loads(self.rfile.read(int(self.headers.get("Content-Length", "0"))))
             prompt = body["messages"][-1]["content"]
+            # what a request asked of the sampler, kept where a test can read it (the real server's
+            # defaults, top_k 40, min_p 0.05 and repeat_penalty 1.1, apply to what is not sent)
+            bodies = os.environ.get("FAKE_LLAMA_BODIES")
+            if bodies:
+                sampling = {name: body.get(name) for name in ("temperature", "top_p", "top_k", "min_p", "repeat_penalty")}
+                with open(bodies, "a", encoding="utf-8") as out:
+                    out.write(json.dumps(sampling) + "\n")
             time.sleep(0.05)
             self.reply({
                 "id": "chatcmpl-fake", "object": "chat.completion", "created": int(time.time()), "model": alias,
