@@ -5,8 +5,10 @@ Each run found under the given directories is one point: its policy comes from t
 stored in its logs (``baseline`` is ``never``, ``lagr`` is ``always``, ``lagr-seq`` is
 ``secondary.policy`` with its knobs). Per trial: total return, steps to the end of the first
 solved episode (the trial's length when none was solved), queries, dollars, and answers that a
-fallback gave because the recorded store missed them. Points carry 95% bootstrap intervals on
-both axes; the variants of one policy (a swept knob) are joined into a curve. Tables give means
+fallback gave because the recorded store missed them. Points carry the tables' 95% Student-t
+intervals of the mean on both axes, on the log scale for the quantities that cannot be negative
+(queries, dollars, steps, episodes solved: an interval that never reaches below 0; the return on
+its own scale); the variants of one policy (a swept knob) are joined into a curve. Tables give means
 with intervals, the interquartile mean of the return with a stratified bootstrap interval, and
 the probability that a trial of the policy returns more than one of ``always``. The paper's SEQ
 (``seq`` with no knob changed) and LaGR (``always``) rows are marked.
@@ -379,17 +381,26 @@ def points_of(runs: Sequence[Run], price: Price | None) -> list[Point]:
     return points
 
 
+NON_NEGATIVE = ("steps_to_solve", "queries", "dollars", "episodes_solved")
+"""The point quantities that cannot be negative: their intervals are taken on the log scale."""
+
+
 def summarise(points: Sequence[Point]) -> None:
-    """Means with 95% bootstrap intervals (seeded per quantity and label)."""
+    """Means with the tables' 95% Student-t intervals (issue 34: the percentile bootstrap
+    under-covers at these n, ``benchmarks/coverage.py``), on the log scale for
+    :data:`NON_NEGATIVE` quantities (:func:`lagrseq.analysis.stats.summarize_t`), so an interval
+    never reaches below 0; values without spread have the value itself as both bounds."""
     for p in points:
         for name in ("returns", "steps_to_solve", "queries", "dollars", "episodes_solved"):
-            values = getattr(p, name)
-            key = f"frontier/{p.run.key.task}/{p.label}/{name}"
-            mean = float(np.mean(values)) if len(values) else math.nan
-            low, high = stats.bootstrap_ci(values, stats.generator(key)) if not np.isnan(values).any() else (math.nan, math.nan)
+            values = np.asarray(getattr(p, name), dtype=float)
+            if not len(values) or np.isnan(values).any():
+                p.summary[name] = (float(np.mean(values)) if len(values) else math.nan, math.nan, math.nan)
+                continue
+            found = stats.summarize_t(values, positive=name in NON_NEGATIVE)
+            low, high = found.ci_low, found.ci_high
             if len(values) >= 2 and np.all(values == values[0]):
                 low = high = float(values[0])
-            p.summary[name] = (mean, low, high)
+            p.summary[name] = (found.mean, low, high)
 
 
 @dataclass(frozen=True)
@@ -751,7 +762,7 @@ def _markers(points: Sequence[Point]) -> dict[int, str]:
 
 def draw(points: Sequence[Point], title: str, miss_threshold: float = MISS_THRESHOLD, figure: Any = None) -> Figure:
     """2 x 2: return and steps to the first solved episode against queries and dollars per
-    trial; 95% bootstrap intervals on both axes; a policy's variants joined as a curve, one colour
+    trial; the tables' 95% t intervals on both axes (log scale for the non-negative quantities); a policy's variants joined as a curve, one colour
     per policy and one marker per variant, named in a legend below the panels (labels beside
     the points overlapped where policies cluster); hollow markers: more than ``miss_threshold``
     of the answers came from a fallback. ``figure``: draw into this (sub)figure instead of a new
@@ -819,7 +830,10 @@ def draw(points: Sequence[Point], title: str, miss_threshold: float = MISS_THRES
         list(handles.values()), list(handles), loc="outside lower center", ncols=min(3, max(1, len(handles))),
         fontsize=8, title="; ".join(marks), title_fontsize=8,
     )
-    figure.suptitle(textwrap.fill(title, 120) + "\nbars: 95% bootstrap CI of the mean over trials")
+    figure.suptitle(
+        textwrap.fill(title, 120)
+        + "\nbars: the table's 95% t interval of the mean over trials (log scale for queries, dollars and steps)"
+    )
     return figure
 
 

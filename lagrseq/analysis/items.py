@@ -704,7 +704,7 @@ def build_frontier(item: Item, matched: Sequence[Match], price: Price | None = N
     method = (
         "One point per asking policy: mean LLM queries (and US dollars: logged cost, else logged or estimated "
         "tokens at the price table) per trial against steps to the first solved episode (the primary outcome) "
-        "and the return, 95% percentile-bootstrap intervals on both axes. The table adds episodes solved per trial, "
+        "and the return, 95% Student-t intervals of the mean on both axes (on the log scale for queries, dollars and steps, which cannot be negative). The table adds episodes solved per trial, "
         "two one-sided non-inferiority verdicts against always on steps to the first solve, on the pairs of "
         "trials the logs show ran the same seed and trial (no verdict where they do not pair): the mean per-pair "
         "log ratio (studentized bootstrap bound below log 1.1, a 10% margin; a trial that never solved counts at "
