@@ -545,6 +545,11 @@ class TabularSecondaryConfig(_Section):
     thompson_prior: tuple[float, ...] = ranged((1.0, 1.0), gt=0, le=1e6)
     """policy = "thompson": Beta(a, b) prior on an answer being accepted at an unseen context (the
     Gaussian posterior of the logistic reward starts at mean a / (a + b), variance 1 / (a + b))."""
+    stall_steps: int = ranged(64, ge=1, le=1_000_000)
+    """policy = "advance": decisions without the pattern's progress rising above its best of the
+    episode and without a query, after which it asks (as it does at every new best), unless
+    this very pattern was already answered wrongly. In decisions, so it never needs the task;
+    1000000: in effect never. Not in the paper."""
     knobs: tuple[tuple[str, Any], ...] = ()
     """The knobs a registered policy declares of its own (a plugin's), as (name, value) pairs,
     written ``[secondary] NAME = VALUE`` (``--set secondary.NAME=VALUE``); read with
@@ -749,6 +754,11 @@ class NeuralSecondaryConfig(_Section):
     thompson_prior: tuple[float, ...] = ranged((1.0, 1.0), gt=0, le=1e6)
     """policy = "thompson": Beta(a, b) prior on an answer being accepted at an unseen context (the
     Gaussian posterior of the logistic reward starts at mean a / (a + b), variance 1 / (a + b))."""
+    stall_steps: int = ranged(64, ge=1, le=1_000_000)
+    """policy = "advance": decisions without the pattern's progress rising above its best of the
+    episode and without a query, after which it asks (as it does at every new best), unless
+    this very pattern was already answered wrongly. In decisions, so it never needs the task;
+    1000000: in effect never. Not in the paper."""
     knobs: tuple[tuple[str, Any], ...] = ()
     """The knobs a registered policy declares of its own (a plugin's), as (name, value) pairs,
     written ``[secondary] NAME = VALUE`` (``--set secondary.NAME=VALUE``); read with
@@ -898,6 +908,7 @@ POLICY_DEFAULTS: dict[str, Any] = {
     "budget_scope": "trial",
     "thompson_prior": (1.0, 1.0),
     "min_progress": 0,
+    "stall_steps": 64,
 }
 """The asking-policy fields of ``[secondary]`` and their defaults (see ``digest``)."""
 
