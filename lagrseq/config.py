@@ -527,7 +527,9 @@ class TabularSecondaryConfig(_Section):
     logistic one; the context is the pattern's progress and how often this very pattern was
     already answered wrongly, so it generalises across states) or oracle (asks only when the
     answer would be accepted: it looks at the provider's answer first, uncounted; a lower bound
-    on queries, refused with live answers). Paper: seq."""
+    on queries, refused with live answers) or advance (asks where the pattern's progress reaches a
+    new best of the episode or has stalled for stall_steps decisions, never again on a pattern
+    whose answer was rejected). Paper: seq."""
     ask_probability: float = ranged(0.5, ge=0, le=1)
     """policy = "random": probability of asking when triggered."""
     query_cost: float = ranged(0.0, ge=0, le=1e6)
@@ -736,7 +738,9 @@ class NeuralSecondaryConfig(_Section):
     logistic one; the context is the pattern's progress and how often this very pattern was
     already answered wrongly, so it generalises across states) or oracle (asks only when the
     answer would be accepted: it looks at the provider's answer first, uncounted; a lower bound
-    on queries, refused with live answers). Paper: seq."""
+    on queries, refused with live answers) or advance (asks where the pattern's progress reaches a
+    new best of the episode or has stalled for stall_steps decisions, never again on a pattern
+    whose answer was rejected). Paper: seq."""
     ask_probability: float = ranged(0.5, ge=0, le=1)
     """policy = "random": probability of asking when triggered."""
     query_cost: float = ranged(0.0, ge=0, le=1e6)
