@@ -189,6 +189,10 @@ QUERY_REWARD = Knob("query_reward", "binary", choices=("binary", "logistic"), he
 LEARNING_RATE = Knob("learning_rate", 0.1, ge=0, le=1, help="the SEQ bandit's step size")
 ASK_PROBABILITY = Knob("ask_probability", 0.5, ge=0, le=1, candidates=("0.05", "0.1", "0.25", "0.5"), help="probability of asking when triggered")
 THOMPSON_PRIOR = Knob("thompson_prior", (1.0, 1.0), help="Beta(a, b) prior on an answer being accepted")
+STALL_STEPS = Knob(
+    "stall_steps", 64, ge=1, le=1_000_000, candidates=("16", "64", "256", "1000000"),
+    help="decisions without a new best progress of the episode and without a query, after which it asks (1000000: in effect never)",
+)
 SHARED = GATES[:3]
 
 POLICIES.register(PolicySpec("never", lazy(f"{POLICY}:make_never"), GATES, method="baseline", order=0, description="never ask (the baseline's behaviour)"))
@@ -197,6 +201,7 @@ POLICIES.register(PolicySpec("seq", lazy(f"{POLICY}:make_seq"), (*SHARED, cost("
 POLICIES.register(PolicySpec("random", lazy(f"{POLICY}:make_random"), (*GATES, ASK_PROBABILITY), order=3, comparator=True, description="ask with probability ask_probability"))
 POLICIES.register(PolicySpec("thompson", lazy(f"{POLICY}:make_thompson"), (*SHARED, cost("0", "0.25", "0.5", "1"), THOMPSON_PRIOR, QUERY_REWARD), order=4, description="Thompson sampling over a posterior per context"))
 POLICIES.register(PolicySpec("oracle", lazy(f"{POLICY}:make_oracle"), GATES, order=5, peeks=True, description="ask only when the answer would be accepted (a lower bound)"))
+POLICIES.register(PolicySpec("advance", lazy(f"{POLICY}:make_advance"), (*GATES, STALL_STEPS), order=6, description="ask where the progress reaches a new best of the episode or has stalled for stall_steps decisions, never again on a rejected pattern"))
 
 EXECUTORS.register(ExecutorSpec("local", lazy("lagrseq.running.executors:make_local"), runner_pool=True, description="a process pool on this machine (--jobs)"))
 EXECUTORS.register(ExecutorSpec("dask", lazy("lagrseq.running.executors:make_dask"), takes_scheduler=True, workers=("Dask worker", "Dask workers"), description="a Dask cluster: a LocalCluster, or --scheduler tcp://HOST:PORT (the dask extra)"))

@@ -527,7 +527,9 @@ class TabularSecondaryConfig(_Section):
     logistic one; the context is the pattern's progress and how often this very pattern was
     already answered wrongly, so it generalises across states) or oracle (asks only when the
     answer would be accepted: it looks at the provider's answer first, uncounted; a lower bound
-    on queries, refused with live answers). Paper: seq."""
+    on queries, refused with live answers) or advance (asks where the pattern's progress reaches a
+    new best of the episode or has stalled for stall_steps decisions, never again on a pattern
+    whose answer was rejected). Paper: seq."""
     ask_probability: float = ranged(0.5, ge=0, le=1)
     """policy = "random": probability of asking when triggered."""
     query_cost: float = ranged(0.0, ge=0, le=1e6)
@@ -545,6 +547,11 @@ class TabularSecondaryConfig(_Section):
     thompson_prior: tuple[float, ...] = ranged((1.0, 1.0), gt=0, le=1e6)
     """policy = "thompson": Beta(a, b) prior on an answer being accepted at an unseen context (the
     Gaussian posterior of the logistic reward starts at mean a / (a + b), variance 1 / (a + b))."""
+    stall_steps: int = ranged(64, ge=1, le=1_000_000)
+    """policy = "advance": decisions without the pattern's progress rising above its best of the
+    episode and without a query, after which it asks (as it does at every new best), unless
+    this very pattern was already answered wrongly. In decisions, so it never needs the task;
+    1000000: in effect never. Not in the paper."""
     knobs: tuple[tuple[str, Any], ...] = ()
     """The knobs a registered policy declares of its own (a plugin's), as (name, value) pairs,
     written ``[secondary] NAME = VALUE`` (``--set secondary.NAME=VALUE``); read with
@@ -731,7 +738,9 @@ class NeuralSecondaryConfig(_Section):
     logistic one; the context is the pattern's progress and how often this very pattern was
     already answered wrongly, so it generalises across states) or oracle (asks only when the
     answer would be accepted: it looks at the provider's answer first, uncounted; a lower bound
-    on queries, refused with live answers). Paper: seq."""
+    on queries, refused with live answers) or advance (asks where the pattern's progress reaches a
+    new best of the episode or has stalled for stall_steps decisions, never again on a pattern
+    whose answer was rejected). Paper: seq."""
     ask_probability: float = ranged(0.5, ge=0, le=1)
     """policy = "random": probability of asking when triggered."""
     query_cost: float = ranged(0.0, ge=0, le=1e6)
@@ -749,6 +758,11 @@ class NeuralSecondaryConfig(_Section):
     thompson_prior: tuple[float, ...] = ranged((1.0, 1.0), gt=0, le=1e6)
     """policy = "thompson": Beta(a, b) prior on an answer being accepted at an unseen context (the
     Gaussian posterior of the logistic reward starts at mean a / (a + b), variance 1 / (a + b))."""
+    stall_steps: int = ranged(64, ge=1, le=1_000_000)
+    """policy = "advance": decisions without the pattern's progress rising above its best of the
+    episode and without a query, after which it asks (as it does at every new best), unless
+    this very pattern was already answered wrongly. In decisions, so it never needs the task;
+    1000000: in effect never. Not in the paper."""
     knobs: tuple[tuple[str, Any], ...] = ()
     """The knobs a registered policy declares of its own (a plugin's), as (name, value) pairs,
     written ``[secondary] NAME = VALUE`` (``--set secondary.NAME=VALUE``); read with
@@ -911,6 +925,7 @@ POLICY_DEFAULTS: dict[str, Any] = {
     "budget_scope": "trial",
     "thompson_prior": (1.0, 1.0),
     "min_progress": 0,
+    "stall_steps": 64,
 }
 """The asking-policy fields of ``[secondary]`` and their defaults (see ``digest``)."""
 

@@ -241,7 +241,7 @@ def test_the_builtin_policies_knobs_are_their_secondary_fields() -> None:
     from lagrseq.study.frontier import TUNE_GRID
 
     assert TUNE_GRID == {"seq": ("query_cost", ("0", "0.25", "0.5")), "random": ("ask_probability", ("0.05", "0.1", "0.25", "0.5")),
-                         "thompson": ("query_cost", ("0", "0.25", "0.5", "1"))}
+                         "thompson": ("query_cost", ("0", "0.25", "0.5", "1")), "advance": ("stall_steps", ("16", "64", "256", "1000000"))}
 
 
 def test_the_builtin_providers_log_their_options_as_before() -> None:

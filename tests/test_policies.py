@@ -16,6 +16,7 @@ from lagrseq import config as cfg
 from lagrseq.errors import UsageError
 from lagrseq.logs.reader import iter_messages, read_info, read_topic
 from lagrseq.loop.policies import (
+    AdvancePolicy,
     Always,
     AskContext,
     Budget,
@@ -210,6 +211,86 @@ def test_config_refuses_a_bad_prior_and_the_oracle_on_live_answers() -> None:
     config = cfg.load("cube-stacking", "lagr-seq", "upstream", None, ['secondary.policy="oracle"'])
     with pytest.raises(UsageError, match="oracle"):
         check_provider("live", config, provider_options("live", {}))
+
+
+def _at(pattern=(4, 5), progress=2, episode=0) -> AskContext:
+    return AskContext(pattern, progress, episode, 0, 0, 0.0, np.random.default_rng(0), 0, 0, None)
+
+
+def test_advance_asks_at_each_new_best_progress_of_the_episode() -> None:
+    policy = AdvancePolicy(stall_steps=1000)
+    # the episode's first decision is a new best; then only rises above the best ask
+    progress = [0, 1, 1, 0, 2, 2, 3, 1, 3]
+    assert [policy.decide(_at(pattern=(i,), progress=p)) for i, p in enumerate(progress)] == [1, 1, 0, 0, 1, 0, 1, 0, 0]
+    # a new episode starts its own best, whatever the last one reached
+    assert [policy.decide(_at(pattern=(20 + i,), progress=p, episode=1)) for i, p in enumerate([1, 1, 2])] == [1, 0, 1]
+    assert policy.stalled == 0
+
+
+def test_advance_asks_after_stall_steps_decisions_without_a_new_best_or_a_query() -> None:
+    policy = AdvancePolicy(stall_steps=3)
+    got = [policy.decide(_at(pattern=(i,), progress=2)) for i in range(8)]
+    # 0: new best (asks); 1, 2, 3: no new best, the third of them asks; 4-6 again; 7 waits
+    assert got == [1, 0, 0, 1, 0, 0, 1, 0] and policy.stalled == 2
+
+
+def test_advance_never_asks_a_rejected_pattern_again() -> None:
+    policy = AdvancePolicy(stall_steps=1)
+    first = _at(pattern=(7,), progress=1)
+    assert policy.decide(first) == 1
+    first.accepted = False
+    policy.update(first, 1, -1.0)
+    # the same pattern in a new episode is a new best, but its answer is known to be wrong
+    assert policy.decide(_at(pattern=(7,), progress=1, episode=1)) == 0
+    # nor is it asked when stalled; the next new pattern is (the stall count kept running)
+    assert policy.decide(_at(pattern=(7,), progress=1, episode=1)) == 0
+    assert policy.decide(_at(pattern=(8,), progress=1, episode=1)) == 1
+    # an accepted answer is no rejection: its pattern is asked again at the next new best
+    accepted = _at(pattern=(9,), progress=0, episode=2)
+    assert policy.decide(accepted) == 1
+    accepted.accepted = True
+    policy.update(accepted, 1, 1.0)
+    assert policy.decide(_at(pattern=(9,), progress=0, episode=3)) == 1
+    assert policy.rejected == {(7,)}
+
+
+def test_advance_is_registered_with_validated_knobs_and_built_from_the_section() -> None:
+    from lagrseq.registry import POLICIES, knob_names, tuned_knob
+
+    spec = POLICIES.get("advance")
+    assert spec.order > max(POLICIES.get(n).order for n in ("never", "always", "seq", "random", "thompson", "oracle"))
+    knob = tuned_knob(spec)
+    assert knob is not None and knob.name == "stall_steps" and knob.candidates and knob.help
+    assert {"min_progress", "budget", "budget_scope", "query_cost"} <= set(knob_names(spec))
+    for bad in ("0", "1000001", "2.5"):
+        with pytest.raises(cfg.ConfigError, match="stall_steps"):
+            cfg.load("object-arrangement", "lagr-seq", "upstream", None, ['secondary.policy="advance"', f"secondary.stall_steps={bad}"])
+    section = cfg.load(
+        "object-arrangement", "lagr-seq", "upstream", None,
+        ['secondary.policy="advance"', "secondary.stall_steps=5", "secondary.budget=9"],
+    ).secondary
+    policy = make_policy(section, lambda: pytest.fail("seq's agent is built only for policy seq"))
+    assert isinstance(policy, Budget) and isinstance(policy.inner, AdvancePolicy) and policy.inner.stall_steps == 5
+    # at its default the field leaves every digest alone
+    base = cfg.load("object-arrangement", "lagr-seq", "upstream", None, [])
+    assert base.digest() == cfg.load("object-arrangement", "lagr-seq", "upstream", None, ["secondary.stall_steps=64"]).digest()
+    with pytest.raises(ValueError, match="stall_steps"):
+        AdvancePolicy(0)
+
+
+def test_advance_runs_are_deterministic_and_get_every_answer_always_gets(tmp_path: Path) -> None:
+    sets = ['secondary.policy="advance"', "secondary.stall_steps=1000000"]
+    one = _run(tmp_path, "advance-a", sets)
+    two = _run(tmp_path, "advance-b", sets)
+    assert one == two
+    asked = [q for q in one if q["queried"]]
+    always = [q for q in _run(tmp_path, "always", [], method="lagr") if q["queried"]]
+    assert 0 < len(asked) < len(always)
+    # on the cube every answer always had accepted came where the stack rose to a new best of its
+    # episode, so advance asks those very questions and follows always's path step for step
+    assert [(q["global_step"], q["answer"]) for q in asked if q["accepted"]] == [
+        (q["global_step"], q["answer"]) for q in always if q["accepted"]
+    ]
 
 
 # ------------------------------------------------------------------------------------------

@@ -56,6 +56,7 @@ token), marked as estimated. No usage anywhere: NaN.
 
 from __future__ import annotations
 
+import functools
 import math
 import textwrap
 from collections.abc import Callable, Sequence
@@ -102,7 +103,7 @@ STOP_TEXT = {"first_solve": "trials stopped at the first solve"}
 """``run.stop_at`` as a panel's title says it (the default, "", says nothing)."""
 
 DPI = 150
-_DEFAULTS = {"query_cost": 0.0, "budget": 0, "ask_probability": 0.5, "thompson_prior": [1.0, 1.0], "min_progress": 0}
+_DEFAULTS = {"query_cost": 0.0, "budget": 0, "ask_probability": 0.5, "thompson_prior": [1.0, 1.0], "min_progress": 0, "stall_steps": 64}
 
 
 def _knob_text(name: str, value: Any) -> str:
@@ -125,6 +126,10 @@ def policy_of(config: dict[str, Any]) -> tuple[str, str]:
     knobs = []
     if name == "random":
         knobs.append(f"p {section.get('ask_probability', 0.5):g}")
+    if name == "seq":
+        knobs.append(_learning_text(config))
+    if name == "advance":
+        knobs.append(f"stall {section.get('stall_steps', 64)}")
     if name == "thompson" and list(section.get("thompson_prior", [1.0, 1.0])) != [1.0, 1.0]:
         a, b = section["thompson_prior"]
         knobs.append(f"prior {a:g},{b:g}")
@@ -136,7 +141,43 @@ def policy_of(config: dict[str, Any]) -> tuple[str, str]:
         knobs.append(f"gate {section['min_progress']}")
     own = section.get("knobs") or {}  # a plugin policy's own knobs, where set
     knobs += [_knob_text(k, v) for k, v in sorted(own.items())]
-    return name, " ".join(knobs)
+    return name, " ".join(k for k in knobs if k)
+
+
+EPSILON_FIELDS = ("epsilon_schedule", "epsilon_start", "epsilon_min", "epsilon_decay", "epsilon_unit")
+"""The SEQ bandit's exploration schedule: a seq point whose schedule is not its preset's says so."""
+
+
+@functools.lru_cache(maxsize=32)
+def _preset_epsilon(task: str, preset: str) -> tuple[Any, ...] | None:
+    from lagrseq import config as cfg
+
+    try:
+        section = cfg.load(task, "lagr-seq", preset).secondary
+    except Exception:  # a task or preset this installation does not know: nothing to compare with
+        return None
+    return tuple(getattr(section, f) for f in EPSILON_FIELDS)
+
+
+def _learning_text(config: dict[str, Any]) -> str:
+    """``epsilon exponential 0.998/step`` for a seq run whose exploration schedule differs from
+    its preset's (the learning SEQ on the grids, whose upstream SEQ never decays: issue 35); ""
+    where it is the preset's own (so the paper's rows keep their names)."""
+    section = config.get("secondary", {})
+    task = (config.get("task") or {}).get("name")
+    preset = config.get("preset")
+    if not isinstance(task, str) or not isinstance(preset, str):
+        return ""
+    own = _preset_epsilon(task, preset)
+    given = tuple(section.get(f) for f in EPSILON_FIELDS)
+    if own is None or given == own or None in given:
+        return ""
+    schedule, start, minimum, decay, unit = given
+    if schedule == "constant":
+        return f"epsilon {start:g}"
+    if schedule == "exponential":
+        return f"epsilon exponential {decay:g}/{unit}, min {minimum:g}"
+    return f"epsilon {schedule}, min {minimum:g}"
 
 
 def _knob_value(config: dict[str, Any]) -> float:
@@ -146,7 +187,7 @@ def _knob_value(config: dict[str, Any]) -> float:
     return (
         float(section.get("query_cost", 0.0)) + float(section.get("budget", 0)) * 1e-6
         + float(section.get("ask_probability", 0.5)) * 1e-9 + float(section.get("min_progress", 0)) * 1e-3
-        + sum(own) * 1e-12  # a plugin policy's own knobs, last
+        + float(section.get("stall_steps", 64)) * 1e-13 + sum(own) * 1e-12  # a plugin policy's own knobs, last
     )
 
 
@@ -578,6 +619,39 @@ def judge(points: Sequence[Point]) -> dict[int, Verdict]:
     return out
 
 
+EQUIVALENCE_COLUMN = "vs matched random: equivalence (geometric-mean ratio of steps to first solve, margin 10% either way)"
+
+
+def equivalence_to_random(p: Point, verdict: Verdict) -> paired.EquivalenceVerdict | None:
+    """The point against random at its matched rate on steps to the first solve, by two one-sided
+    tests on the mean per-pair log ratio (:func:`lagrseq.analysis.paired.equivalence`, margin
+    log(1.1) either way, studentized bootstrap bounds at level 0.05 each), with superiority
+    (``faster``) beside it: "no better than random at its rate" measured either way (issue 35).
+    None where there is no matched run or the two do not pair."""
+    matched = verdict.matched
+    if matched is None:
+        return None
+    order = paired_order(p, matched)
+    if order is None:
+        return None
+    cap = float(p.run.config.get("run", {}).get("max_steps") or 0) or math.inf
+    return paired.equivalence(
+        p.steps_to_solve[order[0]], matched.steps_to_solve[order[1]],
+        stats.generator(f"frontier/{p.label}/equivalence"), MARGIN, cap,
+    )
+
+
+def equivalence_text(e: paired.EquivalenceVerdict | None) -> str:
+    """``equivalent (ratio 1.01, 90% [0.97, 1.05], n = 10 pairs)``; ``; faster`` where it beats."""
+    if e is None:
+        return "n/a"
+    if math.isnan(e.lower):
+        return f"{e.verdict} ({e.reason})"
+    low, high = (math.exp(v) if math.isfinite(v) else (0.0 if v < 0 else math.inf) for v in (e.lower, e.upper))
+    faster = "; faster" if e.faster else ""
+    return f"{e.verdict}{faster} (ratio {e.ratio:.2f}, 90% [{low:.2f}, {high:.2f}], n = {e.n} pairs)"
+
+
 def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provider: str | None = None) -> Table:
     """The frontier table: one row per policy variant (paper rows marked, the oracle as the
     bound), with the protocol's verdicts. ``provider``: the one named in the title (default: the
@@ -595,6 +669,7 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
         "random at the matched rate: steps to first solve",
         "vs matched random (mean log ratio < 0)", "credited", "vs always on episodes solved (margin 10%)", "return / trial [95% CI]", "return IQM [95% CI]", "P(return > always) [95% CI]",
         "store misses (refused, or answered by a fallback)", "trials decided outside the store", "queries vs always",
+        EQUIVALENCE_COLUMN,
     )
     rows: list[tuple[str, ...]] = []
     data: list[dict[str, Any]] = []
@@ -614,6 +689,7 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
         paper = "bound" if p.policy == "oracle" else (PAPER_ROWS.get(p.policy, "") if not p.knobs else "")
         chosen = _chosen(p)
         matched = verdict.matched
+        same = equivalence_to_random(p, verdict)
         shown_random = (
             f"{matched.label}: {number(matched.summary['steps_to_solve'][0], 0)} "
             f"{interval(*matched.summary['steps_to_solve'][1:], 0)}" if matched is not None else "n/a"
@@ -641,6 +717,7 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
             _misses_cell(p),
             f"{int(p.outside.sum())}/{len(p.outside)}",
             "n/a" if math.isnan(ratio) else f"{100 * ratio:+.0f}%",
+            equivalence_text(same),
         ))
         vs = verdict.against_always
         vt = verdict.tail
@@ -674,6 +751,11 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
             "vs_matched_random_bound": vr.upper if vr is not None else math.nan,
             "vs_matched_random_test": _test_name(vr),
             "beats_matched_random": verdict.beats_random,
+            "vs_matched_random_equivalence": same.verdict if same is not None else "",
+            "vs_matched_random_faster": same.faster if same is not None else False,
+            "vs_matched_random_log_ratio": same.log_ratio if same is not None else math.nan,
+            "vs_matched_random_log_ratio_lower": same.lower if same is not None else math.nan,
+            "vs_matched_random_log_ratio_upper": same.upper if same is not None else math.nan,
             "credited": verdict.credited,
             "vs_always_episodes_solved": verdict.solved_text,
             "outside_store_trials": int(p.outside.sum()),

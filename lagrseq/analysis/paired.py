@@ -150,6 +150,73 @@ def slowdown(
     return SlowdownVerdict(INCONCLUSIVE, found.estimate, found.lower, found.upper, margin, n, cap, "the bounds straddle the margin")
 
 
+EQUIVALENT = "equivalent"
+DIFFERENT = "not equivalent"
+
+
+@dataclass(frozen=True)
+class EquivalenceVerdict:
+    """Two arms' times (a policy against random at its query rate) on the mean log ratio, by two
+    one-sided tests (TOST): ``equivalent`` when both one-sided (1 - alpha) bounds lie inside
+    ``(-margin, +margin)``; ``not equivalent`` when one bound lies wholly outside it; else
+    ``inconclusive``. Beside it, superiority: ``faster`` when the upper bound lies below 0."""
+
+    verdict: str
+    faster: bool
+    """The policy is faster: the one-sided (1 - alpha) upper bound of the mean log ratio is below 0."""
+    log_ratio: float
+    lower: float
+    upper: float
+    margin: float
+    """The equivalence margin on the log scale (log(1.1) for 10%): symmetric, +-margin."""
+    n: int
+    cap: float
+    reason: str
+
+    @property
+    def ratio(self) -> float:
+        return math.exp(self.log_ratio) if math.isfinite(self.log_ratio) else math.nan
+
+
+def equivalence(
+    policy: Sequence[float] | np.ndarray,
+    other: Sequence[float] | np.ndarray,
+    rng: np.random.Generator,
+    relative_margin: float = 0.10,
+    cap: float = math.inf,
+    alpha: float = ALPHA,
+    min_pairs: int = MIN_PAIRS,
+) -> EquivalenceVerdict:
+    """Whether ``policy``'s times equal ``other``'s within ``relative_margin`` (both ways, on the
+    log scale: ``|mean(log(policy_i / other_i))| < log(1 + relative_margin)``), paired by index,
+    with the studentized bootstrap bounds of :func:`slowdown` at level ``alpha`` each (so the
+    TOST has level ``alpha``). Turns "no better than random at its rate" into a measured
+    statement either way. Times are clipped to ``[1, cap]`` as in :func:`slowdown`; below
+    ``min_pairs`` pairs, or without spread, the verdict is ``inconclusive`` and ``faster`` is
+    False (all-equal differences give no bound: they are not taken as proof of equality)."""
+    a = np.asarray(policy, dtype=float).ravel()
+    b = np.asarray(other, dtype=float).ravel()
+    if a.size != b.size:
+        raise ValueError(f"paired arms must have the same length, got {a.size} and {b.size}")
+    if not (math.isfinite(relative_margin) and relative_margin > 0):
+        raise ValueError(f"the equivalence margin must be finite and > 0, got {relative_margin}")
+    keep = np.isfinite(a) & np.isfinite(b)
+    d = np.log(np.clip(a[keep], 1.0, cap)) - np.log(np.clip(b[keep], 1.0, cap))
+    margin = math.log1p(relative_margin)
+    found = studentized_bounds(d, rng, alpha)
+    n = found.n
+    if found.reason:
+        return EquivalenceVerdict(INCONCLUSIVE, False, found.estimate, math.nan, math.nan, margin, n, cap, found.reason)
+    if n < min_pairs:
+        return EquivalenceVerdict(INCONCLUSIVE, False, found.estimate, found.lower, found.upper, margin, n, cap, f"n = {n} < {min_pairs} pairs")
+    faster = found.upper < 0.0
+    if -margin < found.lower and found.upper < margin:
+        return EquivalenceVerdict(EQUIVALENT, faster, found.estimate, found.lower, found.upper, margin, n, cap, "both bounds inside the margin")
+    if found.lower > margin or found.upper < -margin:
+        return EquivalenceVerdict(DIFFERENT, faster, found.estimate, found.lower, found.upper, margin, n, cap, "a bound wholly outside the margin")
+    return EquivalenceVerdict(INCONCLUSIVE, faster, found.estimate, found.lower, found.upper, margin, n, cap, "a bound crosses the margin")
+
+
 @dataclass(frozen=True)
 class TailVerdict:
     """The share of pairs in which the policy is more than ``late`` later than always."""

@@ -14,6 +14,8 @@ Policies (config field ``secondary.policy`` with ``--method lagr-seq``):
 - ``seq``: the paper's tabular or neural bandit (:class:`SeqPolicy` wraps it unchanged);
 - ``thompson``: a posterior per context (:class:`ThompsonPolicy`);
 - ``oracle``: ask only when the answer would be accepted (a lower bound on queries);
+- ``advance``: ask where the primary agent's progress reaches a new best of the episode, or
+  has stalled for ``stall_steps`` decisions, never twice on a rejected pattern (:class:`AdvancePolicy`);
 - any of them behind :class:`Budget` (``secondary.budget`` > 0): at most N queries per trial or
   per episode;
 - any of them behind :class:`ProgressGate` (``secondary.min_progress`` > 0): never ask before the
@@ -238,6 +240,67 @@ class ThompsonPolicy:
             self.rejected[exact] = self.rejected.get(exact, 0) + 1
 
 
+class AdvancePolicy:
+    """Ask where the primary agent advances, and where it has stalled (issue 35, item 5).
+
+    Built from the failure mode of ``thompson`` with a query cost: it reaches its first solve as
+    early as always in most trials, but in 1-2 trials in 10 it skips the very decisions at which
+    always's answer was accepted (its posterior at that progress had fallen after rejections),
+    and the first solve comes hundreds or thousands of steps later. Where are those decisions?
+    In always's logs of the tuning seed (object arrangement, seed 1000004, 5 trials, answers
+    refused where the store misses them), every one of the 350 accepted answers came at a
+    decision where the pattern's progress rose above its best of the episode so far, on a
+    pattern not already answered and rejected; such decisions were 5.3% of always's. So this
+    policy asks:
+
+    - at every decision where the progress (stack height, cells on) rises above its best of
+      this episode (the episode's first decision included): the primary agent advanced;
+    - once ``stall_steps`` decisions have passed without a new best and without a query: it
+      stalled (the issue's rule; a new best, a query or a new episode restarts the count);
+    - never on a pattern already answered and rejected (at temperature 0 the same question gets
+      the same answer; a refused store miss is a rejection too).
+
+    Nothing here knows the task or the target: progress is what the agent sees of its own
+    pattern, the count is in decisions. It draws nothing from the secondary stream."""
+
+    def __init__(self, stall_steps: int) -> None:
+        if stall_steps < 1:
+            raise ValueError(f"stall_steps must be >= 1, got {stall_steps}")
+        self.stall_steps = stall_steps
+        self.episode: int | None = None
+        self.best = -1
+        """The highest progress seen at a decision in this episode (-1: none yet)."""
+        self.waited = 0
+        """Decisions since the last new best, the last query or the episode's start."""
+        self.rejected: set[Hashable] = set()
+        """Patterns whose answer was rejected (never asked again)."""
+        self.stalled = 0
+        """Queries asked because the agent stalled (not at a new best)."""
+
+    def decide(self, context: AskContext) -> int:
+        progress = int(context.progress)
+        if context.episode != self.episode:
+            self.episode, self.best, self.waited = context.episode, -1, 0
+        advanced = progress > self.best
+        if advanced:
+            self.best, self.waited = progress, 0
+        else:
+            self.waited += 1
+        if pattern_key(context.pattern) in self.rejected:
+            return 0
+        if advanced:
+            return 1
+        if self.waited >= self.stall_steps:
+            self.waited = 0
+            self.stalled += 1
+            return 1
+        return 0
+
+    def update(self, context: AskContext, asked: int, query_reward: float) -> None:
+        if asked and not context.accepted:
+            self.rejected.add(pattern_key(context.pattern))
+
+
 class Budget:
     """At most ``limit`` queries per trial or per episode, whatever ``inner`` decides. Once spent,
     the inner policy is not consulted (nor updated) and the decision is 0."""
@@ -313,6 +376,10 @@ def make_thompson(section: Any, seq_agent: Callable[[], SecondaryAgent]) -> Aski
 
 def make_oracle(section: Any, seq_agent: Callable[[], SecondaryAgent]) -> AskingPolicy:
     return Oracle()
+
+
+def make_advance(section: Any, seq_agent: Callable[[], SecondaryAgent]) -> AskingPolicy:
+    return AdvancePolicy(int(section.knob("stall_steps")))
 
 
 def make_policy(section: Any, seq_agent: Callable[[], SecondaryAgent]) -> AskingPolicy:
