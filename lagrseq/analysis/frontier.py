@@ -753,7 +753,6 @@ def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provi
             "beats_matched_random": verdict.beats_random,
             "vs_matched_random_equivalence": same.verdict if same is not None else "",
             "vs_matched_random_faster": same.faster if same is not None else False,
-            "vs_matched_random_log_ratio": same.log_ratio if same is not None else math.nan,
             "vs_matched_random_log_ratio_lower": same.lower if same is not None else math.nan,
             "vs_matched_random_log_ratio_upper": same.upper if same is not None else math.nan,
             "credited": verdict.credited,
