@@ -1241,7 +1241,7 @@ def _audit_time(seconds: float | None, jobs: int, executor: str) -> str:
         return "not estimated here"
     if seconds == 0:
         return "its logs are already complete"
-    return f"about {duration(seconds)} on this machine with {jobs} {EXECUTORS.get(executor).workers[jobs > 1]} (estimated before the runs)"
+    return f"about {duration(seconds)} on this machine with {jobs} {EXECUTORS.get(executor).workers[jobs > 1]}, estimated before the runs"
 
 
 def on_request_line(command: str, seconds: float | None, jobs: int, executor: str) -> str:
