@@ -482,7 +482,7 @@ def _add_replay(sub: Any) -> None:
     p.add_argument("runs", nargs="+", type=Path, metavar="RUNS", help="MCAP files or directories searched for *.mcap")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     _provider_argument(p, None, "use only runs of this provider for the suite's default-provider runs (none given: any, preferring mock)")
-    p.add_argument("--jobs", type=_N["jobs"], default=None, help="processes that read the logs (default: the number of cores, at most 8; a few logs are read in one process); where there are several, one more draws the figures; the report is the same for any number")
+    p.add_argument("--jobs", type=_N["jobs"], default=None, help="processes that read the logs (default: the number of cores, at most 8, but one on a machine of 1 or 2 cores, where workers cost more than they save; a few logs are read in one process); where there are several, one more draws the figures; the report is the same for any number")
 
 
 def _add_reproduce(sub: Any) -> None:

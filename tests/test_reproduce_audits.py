@@ -103,3 +103,18 @@ def test_the_whole_suite_times_an_audit_it_leaves_to_a_request_and_the_report_sa
     audit, ran, command, seconds = section[1].split(",")
     assert (audit, ran) == ("cube-stacking", "False") and "--items audit-cube-stacking" in command and float(seconds) > 0
     assert "not run: on request (not in the default suite)" in (out / "reports" / "index.md").read_text(encoding="utf-8")
+
+
+@pytest.mark.parametrize(("cpus", "jobs", "reading", "replaying"), [(2, 2, 1, 1), (2, 8, 1, 1), (4, 2, 4, 1), (4, 4, 4, 4), (16, 8, 8, 8)])
+def test_replay_reads_in_one_process_where_fewer_than_three_can_run(
+    monkeypatch: pytest.MonkeyPatch, cpus: int, jobs: int, reading: int, replaying: int
+) -> None:
+    """On 2 cores, worker processes cost replay more than they save (benchmarks/bench_replay_jobs.py):
+    `lagrseq replay`'s default and `reproduce`'s replay read the logs in one process there."""
+    import os
+
+    from lagrseq.analysis import loading
+
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(cpus)))
+    assert loading.default_jobs() == reading
+    assert reproduce.replay_jobs(jobs) == replaying

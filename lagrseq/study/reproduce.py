@@ -516,6 +516,16 @@ REPLAY_SECONDS_FIXED = 1.5
 """Replay's start: importing pandas and matplotlib, starting its worker processes, the index."""
 
 
+def replay_jobs(jobs: int) -> int:
+    """The processes ``reproduce``'s replay reads the logs with: its ``jobs``, but one where fewer
+    than :data:`lagrseq.analysis.loading.WORKERS_MIN_CPUS` of them can run at once (``jobs`` or
+    this machine's CPUs): on 2 cores, workers cost replay 1.38x the CPU time and 1.24x the wall
+    time on the quick suite's logs (docs/performance.md, "Issue 35")."""
+    from lagrseq.analysis.loading import WORKERS_MIN_CPUS, usable_cpus
+
+    return 1 if min(jobs, usable_cpus()) < WORKERS_MIN_CPUS else jobs
+
+
 @dataclass
 class Estimate:
     """Expected wall seconds of each phase of ``reproduce``, from timed stretches on this machine."""
@@ -640,7 +650,7 @@ def estimate_phases(
         per_unit, steps_per_episode, start = calibrated(probe_run)
         out.audit_per_trial[task] = (start + _trial_steps(audit_config, steps_per_episode) * per_unit) / max(1, jobs)
     logs += audit_logs
-    if jobs <= 1:
+    if replay_jobs(jobs) <= 1:
         reading, per_item = REPLAY_SECONDS_PER_LOG_ONE_PROCESS * logs, REPLAY_SECONDS_PER_ITEM + REPLAY_DRAW_SECONDS_PER_ITEM
     else:
         reading, per_item = REPLAY_SECONDS_PER_LOG * logs / min(jobs, 8), REPLAY_SECONDS_PER_ITEM
@@ -1139,7 +1149,7 @@ def reproduce(
             unavailable=the_plan.unavailable,
             produced_by="lagrseq reproduce" + (" --quick" if quick else ""),
             price=price,
-            jobs=jobs,
+            jobs=replay_jobs(jobs),
             sections=sections,
             failed=failed,
             problems=problems,
