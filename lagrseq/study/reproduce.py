@@ -1059,7 +1059,7 @@ def reproduce(
             pool=pool,
         )
         guess.audit = sum(guess.audit_per_trial.get(task, 0.0) * audit_pending[task] for task, _, _ in audits)
-        requested_seconds = {
+        on_request_seconds = {
             task: guess.audit_per_trial[task] * audit_pending[task] if task in guess.audit_per_trial else (0.0 if not audit_pending[task] else None)
             for task, _, _ in on_request
         }
@@ -1081,7 +1081,7 @@ def reproduce(
             f"replay {duration(guess.replay)}; "
             f"timed on this machine; LLM latency of live providers not included)"
         )
-        for task, seconds in requested_seconds.items():
+        for task, seconds in on_request_seconds.items():
             say(f"{task} audit: not in the suite; {on_request_line(rerun([audit_item(task)]), seconds, jobs, executor)}")
         bar.unit = "s"  # the unit and format first: reset redraws the bar
         bar.bar_format = "{desc}{percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} estimated s [{elapsed}<{remaining}, {rate_fmt}]"
@@ -1137,7 +1137,7 @@ def reproduce(
             say(line)
         if audits or on_request:
             sections.append(audit_section(
-                [task for task, _, _ in audits], requested_seconds, jobs, executor, functools.partial(rerun, relative=True),
+                [task for task, _, _ in audits], on_request_seconds, jobs, executor, functools.partial(rerun, relative=True),
             ))
         failed, problems = item_failures(failures, functools.partial(rerun, relative=True))
         report = replay(
