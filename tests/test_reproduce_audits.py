@@ -53,7 +53,10 @@ def test_the_audit_section_says_how_to_run_an_audit_not_run_and_about_how_long(t
     rows = {row[0]: row for row in table.rows}
     assert rows["cube-stacking"][1] == "run here: tables audit-cube-stacking below"
     image = rows["image-completion"]
-    assert image[1] == "not run: on request (not in the default suite)"
+    assert image[1] == (
+        "not run: on request (not in the default suite); a table audit-image-completion below, if any, "
+        "holds only the one-field switches the suite's own runs make"
+    )
     assert image[2] == "`lagrseq reproduce --items audit-image-completion` (or `lagrseq audit image-completion`)"
     assert image[3] == "about 20.6 min on this machine with 2 processes, estimated before the runs"
     assert rows["object-arrangement"][3] == "not estimated here"

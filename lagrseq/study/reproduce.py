@@ -1280,7 +1280,8 @@ def audit_section(
             seconds = on_request[task]
             status = (
                 f"run on request earlier into this folder: tables {audit_item(task)} below" if seconds == 0
-                else "not run: on request (not in the default suite)"
+                else f"not run: on request (not in the default suite); a table {audit_item(task)} below, if any, "
+                "holds only the one-field switches the suite's own runs make"
             )
             took = _audit_time(seconds, jobs, executor)
         else:
