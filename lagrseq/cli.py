@@ -497,7 +497,7 @@ def _add_replay(sub: Any) -> None:
     p.add_argument("runs", nargs="+", type=Path, metavar="RUNS", help="MCAP files or directories searched for *.mcap")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     _provider_argument(p, None, "use only runs of this provider for the suite's default-provider runs (none given: any, preferring mock)")
-    p.add_argument("--jobs", type=_N["jobs"], default=None, help="processes that read the logs (default: the number of cores, at most 8; a few logs are read in one process); where there are several, one more draws the figures; the report is the same for any number")
+    p.add_argument("--jobs", type=_N["jobs"], default=None, help="processes that read the logs (default: the number of cores, at most 8, but one on a machine of 1 or 2 cores, where workers cost more than they save; a few logs are read in one process); where there are several, one more draws the figures; the report is the same for any number")
 
 
 COMPARE_FLIPPED = 4
@@ -545,7 +545,9 @@ def _add_reproduce(sub: Any) -> None:
             "available here are not run, with one line saying why. A run whose trials fail does not stop "
             "the others: it gets one short line on stderr, its whole error goes to OUT/reproduce-errors.log, "
             "and the items it feeds are marked FAILED on the report's index and scoreboard with the "
-            "command that reruns them alone.\n\n"
+            "command that reruns them alone. The whole suite runs the cube-stacking audit; the grid tasks' "
+            "audits run on request (--items audit-image-completion, audit-object-arrangement; the report's "
+            "audit section says how long each takes here).\n\n"
             f"exit status: 0 every item made or set aside; {ITEMS_FAILED} finished, but some items failed "
             "(one summary line on stderr); 2 bad usage or input; 130 interrupted (Ctrl-C)"
         ),
@@ -555,7 +557,8 @@ def _add_reproduce(sub: Any) -> None:
             "  lagrseq reproduce --out results --jobs 8\n"
             "  lagrseq reproduce --executor dask --scheduler tcp://head:8786 --out /shared/results\n"
             "  lagrseq reproduce --provider recorded:store-tau0/ --items fig6a   # a store made by lagrseq cache import\n"
-            "  lagrseq reproduce --quick --authors-caches ../LaGRSEQ   # add the authors' recorded GPT answers"
+            "  lagrseq reproduce --quick --authors-caches ../LaGRSEQ   # add the authors' recorded GPT answers\n"
+            "  lagrseq reproduce --items audit-object-arrangement      # one paper-vs-code audit alone"
         ),
         formatter_class=_RAW,
     )
@@ -564,7 +567,7 @@ def _add_reproduce(sub: Any) -> None:
     _provider_argument(p, None, "provider of the suite's default-provider runs (none given: the suite's, mock)")
     p.add_argument("--jobs", type=_N["jobs"], default=os.cpu_count() or 1, help="trials run in parallel (default: the number of cores)")
     p.add_argument("--seed", type=_SEED, default=None, help="run seed (default: the suite's, 0)")
-    p.add_argument("--items", default=None, metavar="ID,ID", help="only these suite items (default: all)")
+    p.add_argument("--items", default=None, metavar="ID,ID", help="only these suite items (default: all); audit-TASK: that task's paper-vs-code audit")
     p.add_argument(
         "--authors-caches", type=Path, default=None, metavar="DIR",
         help="a clone of GKthom/LaGRSEQ or a folder of its cache pickles (any names; identified by content): "

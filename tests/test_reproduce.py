@@ -600,3 +600,28 @@ def test_a_store_that_cannot_answer_the_timing_is_timed_with_the_mock(tmp_path: 
     per_step, steps_per_episode, _ = reproduce._calibrate(run, group=1)
     assert per_step > 0 and steps_per_episode > 0
     assert asked[0] == run.provider and asked[-1] == "mock"
+
+
+def test_one_timing_per_configuration_family(tmp_path: Path) -> None:
+    """Runs that differ only in the length of a step-budget trial (a grid run of 1,000 or 2,000
+    steps) share one timing, and so do accuracy probes of one task (timed with the mock); runs
+    whose asking policy differs do not (0.4 to 1.4 ms a step on the quick suite's grids)."""
+    from dataclasses import replace
+
+    from lagrseq.study import reproduce
+    from lagrseq.suite import load_suite
+
+    plan = reproduce.plan(load_suite(), quick=True, provider=None, runs_dir=tmp_path, seed=0)
+    grid = next(run for run in plan.runs if run.kind == "trial" and run.config.run.episodes == 0)
+    shorter = replace(grid, config=replace(grid.config, run=replace(grid.config.run, max_steps=grid.config.run.max_steps // 2)))
+    assert reproduce._calibration_key(shorter) == reproduce._calibration_key(grid)
+    other_policy = replace(grid, config=cfg.load(grid.config.task.name, "lagr-seq", "upstream", None, ['secondary.policy="oracle"']))
+    assert reproduce._calibration_key(other_policy) != reproduce._calibration_key(
+        replace(grid, config=cfg.load(grid.config.task.name, "lagr-seq", "upstream"))
+    )
+    cube = next(run for run in plan.runs if run.kind == "trial" and run.config.run.episodes > 0)
+    fewer = replace(cube, config=replace(cube.config, run=replace(cube.config.run, episodes=cube.config.run.episodes // 2)))
+    assert reproduce._calibration_key(fewer) != reproduce._calibration_key(cube)  # its episodes are timed whole
+    probes = [run for run in plan.runs if run.kind == "accuracy"]
+    assert len(probes) > 1 and len({reproduce._calibration_key(run) for run in probes}) == 1
+    assert reproduce.calibration_keys(plan, jobs=2) < len(plan.runs)

@@ -230,13 +230,13 @@ def test_a_failed_audit_run_is_reported_and_the_audit_goes_on(tmp_path: Path, mo
     reproduce.run_suite_audit("cube-stacking", runs_dir, True, 1, 0, True, lambda line: None, failures=failures)
     assert [(f.audit, f.items, f.path) for f in failures] == [("cube-stacking", (), victim.path)]
     assert all(runner.trial_path(r.path, 0).is_file() for r in planned[1:])  # the others ran
-    # the report names it (and is written): the whole suite's command reruns the audits
+    # the report names it (and is written), with the command that reruns that audit alone
     rerun = functools.partial(
         reproduce.rerun_command, quick=True, suite_path=None, provider=None, out=tmp_path / "out", seed=None, authors_caches=None,
     )
     failed, problems = reproduce.item_failures(failures, rerun)
     assert failed == {} and list(problems) == ["cube-stacking audit"]
-    assert problems["cube-stacking audit"].rerun == f"lagrseq reproduce --quick --out {tmp_path / 'out'}"
+    assert problems["cube-stacking audit"].rerun == f"lagrseq reproduce --quick --items audit-cube-stacking --out {tmp_path / 'out'}"
     suite_file = tmp_path / "suite.toml"
     suite_file.write_text(SUITE.split("[[items]]")[0] + "[[items]]" + SUITE.split("[[items]]")[1], encoding="utf-8")
     (tmp_path / "no-runs").mkdir()  # the failure alone (the audit's tables: test_audit.py)

@@ -260,9 +260,8 @@ class NetworkGroup:
         if self.threads and threading.get_ident() not in self._threads_set:
             torch.set_num_threads(self.threads)
             self._threads_set.add(threading.get_ident())
-        if len(requests) == 1:
-            member, batch = requests[0]
-            return [self._train_one(member, batch.batch() if isinstance(batch, Draw) else batch)]
+        # one request (a trial training alone) takes the same path: no autograd, 1.37x faster
+        # than autograd on single matrices, the same numbers (docs/performance.md, "Issue 35")
         members = [member for member, _ in requests]
         index = None if members == self._everyone else torch.tensor(members, dtype=torch.int64, device=device)
 
@@ -381,40 +380,6 @@ class NetworkGroup:
             if i > 0:
                 grad = aten.threshold_backward(_bmm(torch, grad, weights[i]), inputs[i], 0)  # relu's backward
         return losses, weight_grads, bias_grads
-
-    def _train_one(self, member: int, batch: Batch) -> float:
-        """:meth:`train` for one member: the same step with its own slices (``linear`` on
-        matrices, as ``nn.Linear`` computes; the numbers of a batch of one, a little faster)."""
-        torch, device = self._torch, self.device
-        functional = torch.nn.functional
-        parameters, steps, exp_avgs, exp_avg_sqs = self._state(member)
-
-        def forward(tensors: list[Any], x: Any) -> Any:
-            for i in range(self.layers):
-                x = functional.linear(x, tensors[i], tensors[self.layers + i])
-                if i < self.layers - 1:
-                    x = torch.relu(x)
-            return x
-
-        observations = torch.from_numpy(batch.observations).to(device)
-        actions = torch.from_numpy(batch.actions).to(device)
-        rewards = torch.from_numpy(batch.rewards).to(device)
-        with torch.no_grad():
-            if self.discount == 0.0:
-                targets = rewards
-            else:
-                bootstrap = self._target_state(member) if self.target_update_interval > 0 else parameters
-                following = forward(bootstrap, torch.from_numpy(batch.next_observations).to(device))
-                alive = 1.0 - torch.from_numpy(batch.terminals).to(device)
-                targets = rewards + self.discount * alive * following.max(dim=1).values
-        leaves = [t.detach().requires_grad_() for t in parameters]
-        predicted = forward(leaves, observations).gather(1, actions[:, None]).squeeze(1)
-        loss = functional.mse_loss(predicted, targets)
-        grads = list(torch.autograd.grad(loss, leaves))
-        fused_adam_step(torch, parameters, grads, exp_avgs, exp_avg_sqs, steps, self.learning_rate, KERAS_EPSILON,
-                        counters=[self._steps[member]])
-        self._count(member)
-        return float(loss.detach())
 
     def _count(self, member: int) -> None:
         """One more update of ``member``; its target copy is refreshed every interval."""

@@ -349,13 +349,27 @@ PARALLEL_MIN_LOGS = 24
 pandas) costs more than reading a few logs."""
 
 
-def default_jobs() -> int:
-    """Processes that read logs when none is asked for: the CPUs this process may use, at most 8."""
+WORKERS_MIN_CPUS = 3
+"""Fewer CPUs than this (for this process) and the logs are read in this process by default:
+on 2 cores, ``--jobs 2`` cost 1.38x the CPU time of ``--jobs 1`` and 1.24x its wall time on the
+quick suite's 732 logs, 1.74x and 1.64x on 102 logs (paired, ``benchmarks/bench_replay_jobs.py``;
+docs/performance.md, "Issue 35"): the workers' imports and the pickling cost more than the
+reading they share."""
+
+
+def usable_cpus() -> int:
+    """The CPUs this process may use."""
     try:
-        cpus = len(os.sched_getaffinity(0))
+        return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # pragma: no cover - not on Linux
-        cpus = os.cpu_count() or 1
-    return max(1, min(cpus, 8))
+        return os.cpu_count() or 1
+
+
+def default_jobs() -> int:
+    """Processes that read logs when none is asked for: the CPUs this process may use, at most 8;
+    one (this process) with fewer than :data:`WORKERS_MIN_CPUS`."""
+    cpus = usable_cpus()
+    return 1 if cpus < WORKERS_MIN_CPUS else min(cpus, 8)
 
 
 def parallel(logs: int, jobs: int) -> bool:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import json
 import os
 import re
 import shlex
@@ -218,7 +219,7 @@ def item_failures(failures: Sequence[RunFailure], rerun: Callable[[list[str]], s
     """The suite items the failed runs feed (item id -> :class:`~lagrseq.analysis.items.ItemFailure`,
     in the order first failed) and the audits that failed ("TASK audit" -> the same), each with
     the first failed run's reason, every distinct advice and ``rerun([item id])``, the command that
-    reruns it alone (an audit: the whole suite's command, which runs the audits)."""
+    reruns it alone (an audit: ``--items audit-TASK``, :func:`audit_item`)."""
     from lagrseq.analysis.items import ItemFailure
 
     by_item: dict[str, list[RunFailure]] = {}
@@ -233,10 +234,9 @@ def item_failures(failures: Sequence[RunFailure], rerun: Callable[[list[str]], s
         advice = "; ".join(dict.fromkeys(f.advice for f in runs))
         return ItemFailure(runs[0].reason(), advice, command, len(runs), tuple(str(f.path) for f in runs))
 
-    whole = rerun([])
     return (
         {item: made(runs, rerun([item])) for item, runs in by_item.items()},
-        {audit: made(runs, whole) for audit, runs in by_audit.items()},
+        {audit: made(runs, rerun([audit_item(runs[0].audit)])) for audit, runs in by_audit.items()},
     )
 
 
@@ -486,10 +486,20 @@ def _timed_provider(run: PlannedRun) -> tuple[str, Any]:
 
 
 def _calibration_key(run: PlannedRun) -> tuple[str, ...]:
-    """What makes two runs' steps cost alike: the whole configuration (an asking policy, a
-    solution scope or a reward changes how often a trial asks and trains) and the provider timed."""
+    """What makes two runs' steps cost alike (their configuration family, timed once): the whole
+    configuration (an asking policy, a solution scope or a reward changes how often a trial asks
+    and trains: at the same length, the quick suite's grid policies cost 0.4 to 1.4 ms a step)
+    and the provider timed, but not the length of a trial with a step budget (a grid trial: its
+    steps are timed, not its end) and, for an accuracy probe, only its task (timed with the
+    mock: the model and temperature it asks do not change its cost). Issue 35: the quick suite
+    timed 81 configurations for 77 runs."""
     provider, options = _timed_provider(run)
-    return (run.kind, run.config.task.name, run.config.to_json(), provider, repr(options))
+    if run.kind == "accuracy":
+        return (run.kind, run.config.task.name, provider, repr(options))
+    described = run.config.to_dict()
+    if run.config.run.episodes == 0:
+        described["run"] = {**described["run"], "max_steps": "any"}
+    return (run.kind, run.config.task.name, json.dumps(described, sort_keys=True), provider, repr(options))
 
 
 REPLAY_SECONDS_PER_LOG = 0.013
@@ -506,6 +516,16 @@ REPLAY_DRAW_SECONDS_PER_ITEM = 0.1
 """With one process (``jobs`` 1), drawing an item's figure too, seconds."""
 REPLAY_SECONDS_FIXED = 1.5
 """Replay's start: importing pandas and matplotlib, starting its worker processes, the index."""
+
+
+def replay_jobs(jobs: int) -> int:
+    """The processes ``reproduce``'s replay reads the logs with: its ``jobs``, but one where fewer
+    than :data:`lagrseq.analysis.loading.WORKERS_MIN_CPUS` of them can run at once (``jobs`` or
+    this machine's CPUs): on 2 cores, workers cost replay 1.38x the CPU time and 1.24x the wall
+    time on the quick suite's logs (docs/performance.md, "Issue 35")."""
+    from lagrseq.analysis.loading import WORKERS_MIN_CPUS, usable_cpus
+
+    return 1 if min(jobs, usable_cpus()) < WORKERS_MIN_CPUS else jobs
 
 
 @dataclass
@@ -632,7 +652,7 @@ def estimate_phases(
         per_unit, steps_per_episode, start = calibrated(probe_run)
         out.audit_per_trial[task] = (start + _trial_steps(audit_config, steps_per_episode) * per_unit) / max(1, jobs)
     logs += audit_logs
-    if jobs <= 1:
+    if replay_jobs(jobs) <= 1:
         reading, per_item = REPLAY_SECONDS_PER_LOG_ONE_PROCESS * logs, REPLAY_SECONDS_PER_ITEM + REPLAY_DRAW_SECONDS_PER_ITEM
     else:
         reading, per_item = REPLAY_SECONDS_PER_LOG * logs / min(jobs, 8), REPLAY_SECONDS_PER_ITEM
@@ -972,9 +992,12 @@ def reproduce(
     from lagrseq.suite import load_suite
 
     suite = load_suite(suite_path)
+    whole = suite_path is None and items is None  # the packaged suite, every item: its audits too
+    requested: list[str] = []  # the audits named in --items (audit-TASK)
     if items is not None:
         if not items:
             raise UsageError("--items is empty; give suite item ids, e.g. --items fig6a,table2 (or leave --items out for all)")
+        items, requested = split_items(suite, items)
         suite = suite.select(items)
     asked_seed = seed
     seed = suite.seed if seed is None else seed
@@ -994,6 +1017,10 @@ def reproduce(
         planned_suite = with_authors_answers(suite, authors_caches, out, say)
     the_plan = plan(planned_suite, quick, provider, runs_dir, seed)
     check_providers(the_plan, provider)
+    rerun = functools.partial(
+        rerun_command, quick=quick, suite_path=suite_path, provider=provider, out=out, seed=asked_seed,
+        authors_caches=authors_caches,
+    )
     # a resumed suite: the matched-rate random runs of policies already complete join this phase
     # (and its estimate); the others run once their policies' logs exist (below)
     matched_items = frontier_items(planned_suite)
@@ -1012,10 +1039,12 @@ def reproduce(
     to_match = matched_sources(Plan(own, {}, {}), matched_items)
     match_trials = sum(run.trials for run in to_match)
     match_complete = sum(run.trials - run.pending() for run in matched_now)
-    audits = suite_audits(runs_dir, quick, seed) if suite_path is None and not items else []  # the whole suite
+    audits = suite_audits(runs_dir, quick, seed, None if whole else requested)
+    # the whole suite: the audits it leaves to a request are timed too, for the report's line
+    on_request = suite_audits(runs_dir, quick, seed, [t for t, a in SUITE_AUDITS.items() if not a.in_suite]) if whole else []
     audit_pending = {
         task: sum(not is_complete(runner.trial_path(r.path, t)) for r in runs for t in range(trials))
-        for task, runs, trials in audits
+        for task, runs, trials in [*audits, *on_request]
     }
     # One display for every phase: calibration (experiments timed), then estimated seconds of
     # runs, audits and replay, with rate and ETA.
@@ -1026,11 +1055,16 @@ def reproduce(
     ) as bar:
         pool = stack.enter_context(runner.make_executor(executor, jobs, scheduler, say)) if needs_pool(executor, jobs, scheduler) else None
         guess = estimate_phases(
-            the_plan, jobs, [(task, runs[0].config, trials) for task, runs, trials in audits if runs and audit_pending[task]],
+            the_plan, jobs,
+            [(task, runs[0].config, trials) for task, runs, trials in [*audits, *on_request] if runs and audit_pending[task]],
             len(suite.items), on_calibrated=lambda: bar.update(1), audit_logs=sum(len(runs) * n for _, runs, n in audits),
             pool=pool,
         )
-        guess.audit = sum(guess.audit_per_trial.get(task, 0.0) * pending_trials for task, pending_trials in audit_pending.items())
+        guess.audit = sum(guess.audit_per_trial.get(task, 0.0) * audit_pending[task] for task, _, _ in audits)
+        on_request_seconds = {
+            task: guess.audit_per_trial[task] * audit_pending[task] if task in guess.audit_per_trial else (0.0 if not audit_pending[task] else None)
+            for task, _, _ in on_request
+        }
         # the frontier's matched-rate random runs of policies still to run: each about as long as
         # its policy's run
         guess.runs += sum(guess.per_run.get(run.path, 0.0) for run in matched_sources(the_plan, matched_items))
@@ -1049,6 +1083,8 @@ def reproduce(
             f"replay {duration(guess.replay)}; "
             f"timed on this machine; LLM latency of live providers not included)"
         )
+        for task, seconds in on_request_seconds.items():
+            say(f"{task} audit: not in the suite; {on_request_line(rerun([audit_item(task)]), seconds, jobs, executor)}")
         bar.unit = "s"  # the unit and format first: reset redraws the bar
         bar.bar_format = "{desc}{percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} estimated s [{elapsed}<{remaining}, {rate_fmt}]"
         bar.set_description("runs", refresh=False)
@@ -1090,21 +1126,21 @@ def reproduce(
                 failures=failures,
             )
             tell()
-        rerun = functools.partial(
-            rerun_command, quick=quick, suite_path=suite_path, provider=provider, out=out, seed=asked_seed,
-            authors_caches=authors_caches,
-        )
         write_errors_log(out, failures, {key: f.rerun for found in item_failures(failures, rerun) for key, f in found.items()})
         if pool is not None:  # the replay's own workers start now: these go first
             stack.pop_all().close()
         say(f"runs done in {duration(time.perf_counter() - started)}: {runs_dir}")
         bar.set_description("replay")
         sections: list[Any] = []
-        if suite_path is None and not items:  # the whole suite: the open models' screens, from recorded answers
+        if whole:  # the whole suite: the open models' screens, from recorded answers
             from lagrseq.study.screen import report_sections
 
             sections, line = report_sections()
             say(line)
+        if audits or on_request:
+            sections.append(audit_section(
+                [task for task, _, _ in audits], on_request_seconds, jobs, executor, functools.partial(rerun, relative=True),
+            ))
         failed, problems = item_failures(failures, functools.partial(rerun, relative=True))
         report = replay(
             [runs_dir],
@@ -1115,7 +1151,7 @@ def reproduce(
             unavailable=the_plan.unavailable,
             produced_by="lagrseq reproduce" + (" --quick" if quick else ""),
             price=price,
-            jobs=jobs,
+            jobs=replay_jobs(jobs),
             sections=sections,
             failed=failed,
             problems=problems,
@@ -1166,16 +1202,98 @@ class SuiteAudit:
     full: tuple[int, int, int]
     quick_presets: tuple[str, ...] = ("upstream", "paper")
     """The directions the quick audit switches fields in (the full audit: both)."""
+    in_suite: bool = True
+    """Whether ``reproduce`` runs it with the whole suite (full and ``--quick``); else it runs on
+    request only, as the suite item :func:`audit_item` (``--items audit-TASK``) or with
+    ``lagrseq audit TASK``, and the report's audit section says how and about how long."""
 
 
 SUITE_AUDITS = {
     "cube-stacking": SuiteAudit("mock:authors-t0", (3, 100, -1), (10, 100, -1)),
-    "image-completion": SuiteAudit("mock:authors-gpt4", (2, 0, 200), (10, 0, -1), ("upstream",)),
-    "object-arrangement": SuiteAudit("mock", (2, 0, 200), (10, 0, -1), ("upstream",)),
+    "image-completion": SuiteAudit("mock:authors-gpt4", (2, 0, 200), (10, 0, -1), ("upstream",), in_suite=False),
+    "object-arrangement": SuiteAudit("mock", (2, 0, 200), (10, 0, -1), ("upstream",), in_suite=False),
 }
-"""The audits ``reproduce`` runs with the whole suite; the grid tasks' quick audits are reduced
-(2 trials of 200 steps, the upstream preset's fields switched to the paper's values only:
-indicative, labelled so on their tables)."""
+"""The paper-vs-code audits of the packaged suite, each also a suite item of its own
+(:func:`audit_item`). The whole suite runs the cube audit; the grid audits run on request (issue
+35: at full length they were two thirds of the full suite's 35 minutes; the quick suite's reduced
+ones go with them, so that ``--quick`` previews what the full suite runs). The grid tasks' quick
+audits are reduced (2 trials of 200 steps, the upstream preset's fields switched to the paper's
+values only: indicative, labelled so on their tables)."""
+
+AUDIT_ITEM_PREFIX = "audit-"
+
+
+def audit_item(task: str) -> str:
+    """The ``--items`` id that runs ``task``'s audit alone (``audit-TASK``: the stem of its tables)."""
+    return f"{AUDIT_ITEM_PREFIX}{task}"
+
+
+def audit_items() -> dict[str, str]:
+    """``--items`` id -> task, for every audit of :data:`SUITE_AUDITS` whose task is here."""
+    return {audit_item(task): task for task in SUITE_AUDITS if task in cfg.tasks()}
+
+
+def split_items(suite: Suite, items: Sequence[str]) -> tuple[list[str], list[str]]:
+    """``--items`` as (the suite's items, the audits' tasks): an id of the suite is its item, an
+    ``audit-TASK`` id (:func:`audit_items`) is that audit; anything else is one line naming the
+    ids there are."""
+    known = {item.id for item in suite.items}
+    audits = audit_items()
+    unknown = [i for i in items if i not in known and i not in audits]
+    if unknown:
+        raise ConfigError(
+            f"unknown suite item {unknown[0]!r}; items are: {', '.join(sorted(known))}; "
+            f"audits (run on request): {', '.join(sorted(audits))}"
+        )
+    return [i for i in items if i in known], [audits[i] for i in items if i not in known]
+
+
+def _audit_time(seconds: float | None, jobs: int, executor: str) -> str:
+    if seconds is None:
+        return "not estimated here"
+    if seconds == 0:
+        return "its logs are already complete"
+    return f"about {duration(seconds)} on this machine with {jobs} {EXECUTORS.get(executor).workers[jobs > 1]}, estimated before the runs"
+
+
+def on_request_line(command: str, seconds: float | None, jobs: int, executor: str) -> str:
+    """How to run an audit the suite leaves to a request, and about how long it takes here."""
+    return f"run it with `{command}` ({_audit_time(seconds, jobs, executor)})"
+
+
+def audit_section(
+    ran: Sequence[str], on_request: Mapping[str, float | None], jobs: int, executor: str,
+    rerun: Callable[[list[str]], str],
+) -> tuple[str, Any, None]:
+    """The report's audit section (stem ``audits``, no figure): one row per audit, run in this
+    ``reproduce`` (its tables follow) or left to a request (``on_request``: task -> estimated
+    wall seconds here, None where not timed), with the command that runs it alone
+    (``rerun([audit-TASK])``) and about how long it takes."""
+    import pandas as pd
+
+    from lagrseq.analysis.tables import Table
+
+    columns = ("audit", "in this report", "how to run it alone", "about how long")
+    rows: list[tuple[str, ...]] = []
+    records: list[dict[str, Any]] = []
+    for task in [*ran, *on_request]:
+        command = rerun([audit_item(task)])
+        if task in on_request:
+            seconds = on_request[task]
+            status = (
+                f"run on request earlier into this folder: tables {audit_item(task)} below" if seconds == 0
+                else f"not run: on request (not in the default suite); a table {audit_item(task)} below, if any, "
+                "holds only the one-field switches the suite's own runs make"
+            )
+            took = _audit_time(seconds, jobs, executor)
+        else:
+            seconds = None
+            status = f"run here: tables {audit_item(task)} below"
+            took = "part of this run"
+        rows.append((task, status, f"`{command}` (or `lagrseq audit {task}`)", took))
+        records.append({"audit": task, "run": task not in on_request, "command": command, "estimated_seconds": seconds})
+    title = "Audits of paper vs code (what each deviation does): which this report holds, and how to run the others"
+    return "audits", Table(title, columns, tuple(rows), pd.DataFrame(records, columns=["audit", "run", "command", "estimated_seconds"])), None
 
 
 def _audit_plan(task: str, runs_dir: Path, quick: bool, seed: int, say: Callable[[str], None]) -> tuple[list[Any], int]:
@@ -1187,10 +1305,14 @@ def _audit_plan(task: str, runs_dir: Path, quick: bool, seed: int, say: Callable
     return runs, trials
 
 
-def suite_audits(runs_dir: Path, quick: bool, seed: int) -> list[tuple[str, list[Any], int]]:
-    """(task, planned audit runs, trials per run) of every suite audit whose task is here."""
-    tasks = [task for task in SUITE_AUDITS if task in cfg.tasks()]
-    return [(task, *_audit_plan(task, runs_dir, quick, seed, lambda line: None)) for task in tasks]
+def suite_audits(
+    runs_dir: Path, quick: bool, seed: int, tasks: Sequence[str] | None = None
+) -> list[tuple[str, list[Any], int]]:
+    """(task, planned audit runs, trials per run) of the audits of ``tasks`` (default: those the
+    whole suite runs, :attr:`SuiteAudit.in_suite`) whose task is here."""
+    chosen = [task for task, audit in SUITE_AUDITS.items() if audit.in_suite] if tasks is None else tasks
+    here = cfg.tasks()
+    return [(task, *_audit_plan(task, runs_dir, quick, seed, lambda line: None)) for task in chosen if task in here]
 
 
 def run_suite_audit(
