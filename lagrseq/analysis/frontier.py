@@ -430,7 +430,8 @@ def summarise(points: Sequence[Point]) -> None:
     """Means with the tables' 95% Student-t intervals (issue 34: the percentile bootstrap
     under-covers at these n, ``benchmarks/coverage.py``), on the log scale for
     :data:`NON_NEGATIVE` quantities (:func:`lagrseq.analysis.stats.summarize_t`), so an interval
-    never reaches below 0; values without spread have the value itself as both bounds."""
+    never reaches below 0, and steps to the first solve never above the trials' step budget
+    (``run.max_steps``, where one is set); values without spread have the value itself as both bounds."""
     for p in points:
         for name in ("returns", "steps_to_solve", "queries", "dollars", "episodes_solved"):
             values = np.asarray(getattr(p, name), dtype=float)
@@ -439,6 +440,9 @@ def summarise(points: Sequence[Point]) -> None:
                 continue
             found = stats.summarize_t(values, positive=name in NON_NEGATIVE)
             low, high = found.ci_low, found.ci_high
+            cap = float(p.run.config.get("run", {}).get("max_steps", 0) or 0)
+            if name == "steps_to_solve" and cap > 0 and math.isfinite(high):
+                high = min(high, cap)  # no trial solves past its step budget: the interval stays in range
             if len(values) >= 2 and np.all(values == values[0]):
                 low = high = float(values[0])
             p.summary[name] = (found.mean, low, high)
