@@ -113,6 +113,18 @@ class SlowdownVerdict:
         return math.exp(self.log_ratio) if math.isfinite(self.log_ratio) else math.nan
 
 
+def log_ratios(policy: Sequence[float] | np.ndarray, other: Sequence[float] | np.ndarray, cap: float = math.inf) -> np.ndarray:
+    """The per-pair log ratios ``log(policy_i / other_i)`` of two paired arms of times, each clipped
+    to ``[1, cap]`` (a trial that never solved is at its cap); a pair with a non-finite value in
+    either arm is dropped whole."""
+    a = np.asarray(policy, dtype=float).ravel()
+    b = np.asarray(other, dtype=float).ravel()
+    if a.size != b.size:
+        raise ValueError(f"paired arms must have the same length, got {a.size} and {b.size}")
+    keep = np.isfinite(a) & np.isfinite(b)
+    return np.log(np.clip(a[keep], 1.0, cap)) - np.log(np.clip(b[keep], 1.0, cap))
+
+
 def slowdown(
     policy: Sequence[float] | np.ndarray,
     always: Sequence[float] | np.ndarray,
@@ -127,17 +139,10 @@ def slowdown(
     lies below ``log(1 + relative_margin)``; ``inferior``: the lower bound lies above it; else
     ``inconclusive`` (also below ``min_pairs`` pairs and with no spread). Times are clipped to
     ``[1, cap]`` (a trial that never solved is at its cap: the restricted mean up to that horizon)."""
-    a = np.asarray(policy, dtype=float).ravel()
-    b = np.asarray(always, dtype=float).ravel()
-    if a.size != b.size:
-        raise ValueError(f"paired arms must have the same length, got {a.size} and {b.size}")
     if not (math.isfinite(relative_margin) and relative_margin >= 0):
         raise ValueError(f"the margin must be finite and >= 0, got {relative_margin}")
-    keep = np.isfinite(a) & np.isfinite(b)
-    a, b = np.clip(a[keep], 1.0, cap), np.clip(b[keep], 1.0, cap)
-    d = np.log(a) - np.log(b)
     margin = math.log1p(relative_margin)
-    found = studentized_bounds(d, rng, alpha)
+    found = studentized_bounds(log_ratios(policy, always, cap), rng, alpha)
     n = found.n
     if found.reason:
         return SlowdownVerdict(INCONCLUSIVE, found.estimate, math.nan, math.nan, margin, n, cap, found.reason)
@@ -194,16 +199,10 @@ def equivalence(
     statement either way. Times are clipped to ``[1, cap]`` as in :func:`slowdown`; below
     ``min_pairs`` pairs, or without spread, the verdict is ``inconclusive`` and ``faster`` is
     False (all-equal differences give no bound: they are not taken as proof of equality)."""
-    a = np.asarray(policy, dtype=float).ravel()
-    b = np.asarray(other, dtype=float).ravel()
-    if a.size != b.size:
-        raise ValueError(f"paired arms must have the same length, got {a.size} and {b.size}")
     if not (math.isfinite(relative_margin) and relative_margin > 0):
         raise ValueError(f"the equivalence margin must be finite and > 0, got {relative_margin}")
-    keep = np.isfinite(a) & np.isfinite(b)
-    d = np.log(np.clip(a[keep], 1.0, cap)) - np.log(np.clip(b[keep], 1.0, cap))
     margin = math.log1p(relative_margin)
-    found = studentized_bounds(d, rng, alpha)
+    found = studentized_bounds(log_ratios(policy, other, cap), rng, alpha)
     n = found.n
     if found.reason:
         return EquivalenceVerdict(INCONCLUSIVE, False, found.estimate, math.nan, math.nan, margin, n, cap, found.reason)
