@@ -667,6 +667,14 @@ def _g_statistic(k: np.ndarray, n: np.ndarray, p: np.ndarray) -> np.ndarray:
     return 2.0 * np.sum(right + wrong, axis=-1)
 
 
+def _by_model_and_temperature(screens: Sequence[Screen]) -> list[tuple[str, dict[float, Screen]]]:
+    """(model name, with its kind of prompts where it has one; temperature -> screen), by name."""
+    by_model: dict[str, dict[float, Screen]] = {}
+    for s in screens:
+        by_model.setdefault(f"{s.model} ({s.kind})" if s.kind else s.model, {})[s.temperature] = s
+    return sorted(by_model.items())
+
+
 def temperature_tests(screens: Sequence[Screen], model: Any, resamples: int = RESAMPLES) -> list[TemperatureTest]:
     """The temperature model ``model`` tested at every temperature above 0 of every model that
     has tau = 0 answers: its P(right | prefix, tau) = P(right | prefix, 0) x factor, with P(right |
@@ -678,10 +686,7 @@ def temperature_tests(screens: Sequence[Screen], model: Any, resamples: int = RE
     from lagrseq.analysis.stats import generator
 
     tests: list[TemperatureTest] = []
-    by_model: dict[str, dict[float, Screen]] = {}
-    for s in screens:
-        by_model.setdefault(f"{s.model} ({s.kind})" if s.kind else s.model, {})[s.temperature] = s
-    for name, temps in sorted(by_model.items()):
+    for name, temps in _by_model_and_temperature(screens):
         base = temps.get(0.0)
         if base is None:
             continue
@@ -940,10 +945,7 @@ def temperature_rows(screens: Sequence[Screen], model: Any, tests: Sequence[Temp
     (``tests``), not an interval over answers that cluster by prefix. Nothing is fitted to the
     tau > 0 answers."""
     rows: list[tuple[str, str, str, str, str, str]] = []
-    by_model: dict[str, dict[float, Screen]] = {}
-    for s in screens:
-        by_model.setdefault(f"{s.model} ({s.kind})" if s.kind else s.model, {})[s.temperature] = s
-    for name, temps in sorted(by_model.items()):
+    for name, temps in _by_model_and_temperature(screens):
         base = temps.get(0.0)
         if base is None:
             continue
