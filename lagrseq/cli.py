@@ -972,15 +972,19 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def cmd_compare(args: argparse.Namespace) -> int:
     from lagrseq.analysis import compare
 
+    from lagrseq.paths import check_output, write_output
+
     for flag, path in (("--csv", args.csv), ("--markdown", args.markdown)):
         if path is not None and (path.is_dir() or not path.parent.is_dir()):
             raise UsageError(f"{flag} {path} is not a file in an existing folder; give a file path whose folder exists")
+        if path is not None:  # never through a link (docs/security.md), checked before any report is read
+            check_output(path, flag, replace=True)
     comparison = compare.compare(compare.read_report(args.report_a), compare.read_report(args.report_b))
     sys.stdout.write(compare.to_text(comparison, differences_only=args.differences))
-    for path, text in ((args.csv, compare.to_csv(comparison)), (args.markdown, compare.to_markdown(comparison))):
+    for flag, path, text in (("--csv", args.csv, compare.to_csv(comparison)), ("--markdown", args.markdown, compare.to_markdown(comparison))):
         if path is not None:
-            path.write_text(text, encoding="utf-8", newline="\n")
-            print(f"wrote {path}")
+            write_output(path, lambda handle, text=text: handle.write(text), flag, replace=True)
+            print(f"wrote {_shown(path)}")
     if comparison.flips:
         print(f"lagrseq compare: {comparison.flips} verdict(s) flip between the reports (exit status {COMPARE_FLIPPED})", file=sys.stderr)
         return COMPARE_FLIPPED

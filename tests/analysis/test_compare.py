@@ -184,3 +184,17 @@ def test_hostile_input_is_one_line_and_status_2(kind: str, cube_report: Path, tm
 def test_an_output_file_in_a_missing_folder_is_refused_before_reading(cube_report: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     status, _, err = run(capsys, cube_report, cube_report, "--markdown", tmp_path / "no" / "such" / "c.md")
     assert status == 2 and "--markdown" in err and len(err.strip().splitlines()) == 1
+
+
+def test_compare_never_writes_its_tables_through_a_link(cube_report: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # issue 37's rule for every output: a link planted where --csv points is refused, the file it
+    # points at untouched
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep me")
+    link = tmp_path / "c.csv"
+    link.symlink_to(victim)
+    status, _, err = run(capsys, cube_report, cube_report, "--csv", link)
+    assert status == 2 and err.count("\n") == 1 and "symbolic link" in err
+    assert victim.read_text() == "keep me" and link.is_symlink()
+    status, _, _ = run(capsys, cube_report, cube_report, "--csv", tmp_path / "ok.csv")
+    assert status == 0 and (tmp_path / "ok.csv").read_text(encoding="utf-8").startswith("table,")
