@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import os
 import signal
 import sys
@@ -969,9 +970,12 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return 0
 
 
+def _write_text(text: str, handle: Any) -> int:
+    return int(handle.write(text))
+
+
 def cmd_compare(args: argparse.Namespace) -> int:
     from lagrseq.analysis import compare
-
     from lagrseq.paths import check_output, write_output
 
     for flag, path in (("--csv", args.csv), ("--markdown", args.markdown)):
@@ -983,7 +987,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     sys.stdout.write(compare.to_text(comparison, differences_only=args.differences))
     for flag, path, text in (("--csv", args.csv, compare.to_csv(comparison)), ("--markdown", args.markdown, compare.to_markdown(comparison))):
         if path is not None:
-            write_output(path, lambda handle, text=text: handle.write(text), flag, replace=True)
+            write_output(path, functools.partial(_write_text, text), flag, replace=True)
             print(f"wrote {_shown(path)}")
     if comparison.flips:
         print(f"lagrseq compare: {comparison.flips} verdict(s) flip between the reports (exit status {COMPARE_FLIPPED})", file=sys.stderr)
