@@ -187,6 +187,7 @@ def test_the_authors_image_answers_fit_the_bins_the_issue_names(authors_out: Pat
 
 
 def test_table3_has_three_rows_on_the_authors_answers(authors_out: Path) -> None:
+    pytest.importorskip("torch")  # Table 3 is image completion, a DQN task: planned only where torch is installed
     suite = reproduce.with_authors_answers(load_suite().select(["table3"]), AUTHORS_CACHES, authors_out, say=lambda line: None)
     runs_dir = authors_out / "runs"
     full = reproduce.plan(suite, quick=False, provider=None, runs_dir=runs_dir, seed=0)
