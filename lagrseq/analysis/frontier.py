@@ -21,7 +21,9 @@ points ran the same seed and the same trials (:func:`paired_order`) each asking 
 against ``always`` on steps to the first solve by two estimands of :mod:`lagrseq.analysis.paired`:
 
 * the **mean per-pair log ratio** ``mean(log(policy_i / always_i))`` with a one-sided studentized
-  bootstrap bound (:func:`lagrseq.analysis.paired.slowdown`; relative margin 10%, :data:`MARGIN`,
+  bootstrap bound at the calibrated nominal 97.5% (:data:`lagrseq.analysis.paired.BOUND_ALPHA`:
+  it covers at least 93% at 30 pairs on the skewed generators of ``benchmarks/coverage.py
+  --paired``) (:func:`lagrseq.analysis.paired.slowdown`; relative margin 10%, :data:`MARGIN`,
   so the bound must lie below ``log(1.1)``; the trials' step cap is the restricted-mean horizon,
   :func:`horizon`, and a trial that never solved counts at its length; at least 10 pairs; no
   verdict from differences without spread), and
@@ -519,7 +521,8 @@ PAIRS_MISSING = "pairs missing"
 
 def _slowdown_text(v: paired.SlowdownVerdict) -> str:
     """``ratio 1.02, bound 1.07 < 1.10, n = 30 pairs``: the geometric-mean time ratio, its
-    one-sided 95% upper bound and the margin on the ratio scale; or why there is no bound."""
+    one-sided upper bound (at the calibrated nominal 97.5%, :data:`lagrseq.analysis.paired.BOUND_ALPHA`)
+    and the margin on the ratio scale; or why there is no bound."""
     if v.reason.startswith(PAIRS_MISSING) or not math.isfinite(v.upper):
         return v.reason + (f", n = {v.n} pairs" if v.n and not v.reason.startswith(PAIRS_MISSING) else "")
     limit = math.exp(v.margin)
@@ -578,7 +581,7 @@ def slowdown(p: Point, q: Point, margin: float = MARGIN, cap: float | None = Non
             paired.INCONCLUSIVE, math.nan, math.nan, math.nan, math.log1p(margin), 0, cap, _missing(p, q)
         )
     x, y = p.steps_to_solve[order[0]], q.steps_to_solve[order[1]]
-    return paired.slowdown(x, y, _generator(p, q, "steps_to_solve"), relative_margin=margin, cap=cap, alpha=ALPHA)
+    return paired.slowdown(x, y, _generator(p, q, "steps_to_solve"), relative_margin=margin, cap=cap, alpha=paired.BOUND_ALPHA)
 
 
 def tail(p: Point, q: Point) -> paired.TailVerdict:
@@ -646,14 +649,16 @@ def equivalence_to_random(p: Point, verdict: Verdict) -> paired.EquivalenceVerdi
 
 
 def equivalence_text(e: paired.EquivalenceVerdict | None) -> str:
-    """``equivalent (ratio 1.01, 90% [0.97, 1.05], n = 10 pairs)``; ``; faster`` where it beats."""
+    """``equivalent (ratio 1.01, 95% [0.97, 1.05], n = 10 pairs)``; ``; faster`` where it beats: the
+    two one-sided bounds of the TOST, each at the calibrated level, as one (1 - 2 alpha) interval."""
     if e is None:
         return "n/a"
     if math.isnan(e.lower):
         return f"{e.verdict} ({e.reason})"
     low, high = (math.exp(v) if math.isfinite(v) else (0.0 if v < 0 else math.inf) for v in (e.lower, e.upper))
     faster = "; faster" if e.faster else ""
-    return f"{e.verdict}{faster} (ratio {e.ratio:.2f}, 90% [{low:.2f}, {high:.2f}], n = {e.n} pairs)"
+    level = 1.0 - 2.0 * e.alpha  # the TOST's two one-sided bounds at alpha each: a (1 - 2 alpha) interval
+    return f"{e.verdict}{faster} (ratio {e.ratio:.2f}, {level:.0%} [{low:.2f}, {high:.2f}], n = {e.n} pairs)"
 
 
 def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provider: str | None = None) -> Table:
