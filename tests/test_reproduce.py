@@ -692,3 +692,70 @@ def test_only_the_stopped_runs_are_matched_with_random_and_their_random_stops_to
     assert len(quick.runs) == len(copies) and not any(run.full_horizon for run in quick.runs)
     assert quick.set_aside == {} and quick.not_run == {}
     assert all(run.config.run.stop_at == "first_solve" and run.trials == 3 for run in quick.runs)
+
+
+STOPPED_SUITE = """
+[suite]
+provider = "mock"
+
+[[items]]
+id = "stops"
+title = "A frontier whose trials stop at the first solve"
+render = "frontier"
+task = "cube-stacking"
+preset = "paper"
+trials = 3
+quick_trials = 2
+episodes = 12
+quick_episodes = 8
+stop_at = "first_solve"
+full_horizon_trials = 2
+quick_full_horizon_trials = 0
+
+[[items.runs]]
+label = "never"
+method = "baseline"
+
+[[items.runs]]
+label = "always"
+method = "lagr"
+
+[[items.runs]]
+label = "thompson"
+method = "lagr-seq"
+set = ["secondary.policy=\\"thompson\\""]
+"""
+
+
+def test_a_suite_of_stopped_trials_runs_and_replays_with_its_full_length_copies(tmp_path: Path) -> None:
+    """Issue 35 item 6, end to end on short cube trials: --quick runs the stopped runs and their
+    matched random (stopped too) and no full-length copies, and its report does not name the
+    copies missing; the full suite adds the copies (their own panel, never matched with random)."""
+    from lagrseq.logs.reader import read_info
+    from lagrseq.study import reproduce
+
+    def logged(out: Path) -> list[tuple[dict, int]]:  # type: ignore[type-arg]
+        """(configuration, trial logs) of every run directory under out/runs."""
+        folders = sorted({log.parent for log in (out / "runs").rglob("trial-*.mcap")})
+        return [(read_info(runner.trial_path(f, 0)).config, len(list(f.glob("trial-*.mcap")))) for f in folders]
+
+    path = tmp_path / "suite.toml"
+    path.write_text(STOPPED_SUITE)
+    quick, _ = reproduce.reproduce(path, None, True, None, tmp_path / "quick", 1, None, ["png"], quiet=True, say=lambda _: None)
+    (item,) = quick.items
+    assert item.status == "made" and item.missing() == []
+    assert [m.spec.label for m in item.matched] == ["never", "always", "thompson"]
+    runs = logged(tmp_path / "quick")
+    assert len(runs) == 4 and all(c["run"].get("stop_at") == "first_solve" for c, _ in runs)  # 3 runs and thompson's random
+    assert sum(c.get("secondary", {}).get("policy") == "random" for c, _ in runs) == 1
+    full, _ = reproduce.reproduce(path, None, False, None, tmp_path / "full", 1, None, ["png"], quiet=True, say=lambda _: None)
+    (item,) = full.items
+    assert item.status == "made" and len(item.matched) == 6
+    assert sorted(path.name for path in (tmp_path / "full" / "reports" / "tables").glob("stops*.md")) == [
+        "stops-mock-full-horizon.md", "stops.md"  # the stopped panel first, then the full-length copies'
+    ]
+    runs = logged(tmp_path / "full")
+    stopped = [(c, n) for c, n in runs if c["run"].get("stop_at") == "first_solve"]
+    copies = [(c, n) for c, n in runs if "stop_at" not in c["run"]]
+    assert sorted(n for _, n in stopped) == [3, 3, 3, 3]  # never, always, thompson and thompson's random
+    assert sorted(n for _, n in copies) == [2, 2, 2] and not any(c["secondary"].get("policy") == "random" for c, _ in copies)

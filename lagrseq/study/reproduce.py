@@ -4,8 +4,8 @@
    and Table 2 share runs); items whose task or provider this lagrseq lacks are set aside with a
    one-line reason.
 2. Estimate: time a short stretch of every distinct configuration on this machine (logged to a
-   scratch file, with the run's own provider where that asks no model) and report the expected
-   wall time before starting.
+   scratch file, with the run's own provider where that asks no model; a run whose trials stop
+   early, ``run.stop_at``, one trial to its stop) and report the expected wall time before starting.
 3. Run: trials in parallel on local processes or Dask workers through
    :func:`lagrseq.running.runner.run_trials`; trials whose log is complete are skipped, so a rerun resumes.
    Then the frontier items' second phase (:func:`plan_matched_random`): ``random`` at each
@@ -54,9 +54,10 @@ timing is short; the sums over the quick suite's 16 image-completion and 16 obje
 runs came within 7% of their CPU time (docs/performance.md, "Seventh round")."""
 
 STOP_CALIBRATION_STEPS = 2000
-"""The step budget of the one trial timed for a run whose trials stop at their first solved
-episode (``run.stop_at = "first_solve"``; the run's own ``max_steps`` where lower): the trial runs
-to its first solve, and the steps it took are the run's expected trial length (:class:`Timing`)."""
+"""The step budget of the one trial timed for a run whose trials stop early (``run.stop_at``: at
+their first solved episode, ``first_solve``, or first accepted answer, ``first_accepted``; the
+run's own ``max_steps`` where lower): the trial runs, with the run's stop, to that point, and the
+steps it took are the run's expected trial length (:class:`Timing`)."""
 
 
 class Timing(NamedTuple):
@@ -68,9 +69,9 @@ class Timing(NamedTuple):
     start: float
     """Seconds of a trial's start (building it) apart from its steps."""
     trial_steps: float = 0.0
-    """A run whose trials stop at the first solve: the steps its timed trial took to its first
-    solve (its length where it solved within :data:`STOP_CALIBRATION_STEPS`, else the run's whole
-    step budget). This is one trial's draw: the run's trials reach their first solve at other
+    """A run whose trials stop early (``run.stop_at``): the steps its timed trial took to its stop
+    (its length where it stopped within :data:`STOP_CALIBRATION_STEPS`, else the run's whole step
+    budget). This is one trial's draw: the run's trials reach their first solve at other
     steps (a late trial is many times longer), so the estimate of such a run is as good as that
     draw. 0: the trial runs its budget (:func:`_trial_steps`)."""
 
@@ -601,8 +602,8 @@ def lockstep_groups(the_plan: Plan, jobs: int) -> dict[Path, int]:
     with single-trial timings). Runs not in the mapping are timed one trial alone, and so are the
     runs of a task whose steps are slow (its ``calibration_steps``: the simulated arm, whose
     networks are a small part of a step; timing 3 arm trials together took 16 s instead of 5), and
-    runs whose trials stop at their first solve (one trial is timed to its first solve, whose length
-    is the estimate's: :data:`STOP_CALIBRATION_STEPS`)."""
+    runs whose trials stop early (``run.stop_at``: one trial is timed to its stop, whose length is
+    the estimate's: :data:`STOP_CALIBRATION_STEPS`)."""
     runs = [
         run for run in the_plan.runs
         if run.kind == "trial" and run.pending() and not TASKS.get(run.config.task.name).calibration_steps
@@ -757,8 +758,8 @@ def _calibrate_all(
 
 def _trial_steps(config: ExperimentConfig, timing: Timing) -> float:
     """A trial's expected steps: its step budget (a grid trial), its episodes at the timed steps per
-    episode (a cube trial), or, where it stops at its first solve, the steps the timed trial took
-    (:attr:`Timing.trial_steps`), never more than its budget."""
+    episode (a cube trial), or, where it stops early (``run.stop_at``), the steps the timed trial
+    took (:attr:`Timing.trial_steps`), never more than its budget."""
     episodes, max_steps = config.run.episodes, config.run.max_steps
     if config.run.stop_at and timing.trial_steps > 0:
         return min(timing.trial_steps, float(max_steps)) if max_steps else timing.trial_steps
@@ -787,9 +788,9 @@ def _calibrate(run: PlannedRun, group: int = 1) -> Timing:
     cost) and the provider of :func:`_timed_provider`, after an untimed warm-up (:data:`WARMUP_STEPS`):
     a cold process pays imports and first calls once, a trial's worker pays them once for many
     trials. ``group`` > 1: that many trials timed in
-    lockstep, as the run will step them (seconds per step of one trial). A run whose trials stop at
-    their first solve (``run.stop_at``) is timed one trial, with its stop, to its first solve or
-    :data:`STOP_CALIBRATION_STEPS` steps (:attr:`Timing.trial_steps`). A timing that fails
+    lockstep, as the run will step them (seconds per step of one trial). A run whose trials stop
+    early (``run.stop_at``: the first solve, the first accepted answer) is timed one trial, with its
+    stop, to that point or :data:`STOP_CALIBRATION_STEPS` steps (:attr:`Timing.trial_steps`). A timing that fails
     with the run's provider (a store without the answers the run will miss on: the run says so
     itself) is taken again with the mock."""
     provider, options = _timed_provider(run)
@@ -849,7 +850,7 @@ def _timed(run: PlannedRun, group: int, provider: str, options: Any) -> Timing:
     taken = sum(result.steps for result in results)
     steps = max(taken, 1)
     trial_steps = 0.0
-    if stops:  # stopped before the budget: it solved; else it may run the whole of its own
+    if stops:  # stopped before the budget: it reached its stop; else it may run the whole of its own
         budget = config.run.max_steps
         trial_steps = float(taken) if taken < budget else float(run.config.run.max_steps or taken)
     return Timing(
