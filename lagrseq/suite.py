@@ -56,7 +56,14 @@ _OPTIONS = ("x", "band", "window", "ylabel", "numerator", "denominator", "refere
 _CHOICES = {"x": ("episode", "global_step"), "band": ("std", "se")}
 _TEXT_KEYS = ("title", "caption", "note", "label", "provider", "ylabel", "numerator", "denominator", "row_header")
 _RECORDED_KEYS = ("recorded_on_miss", "recorded_trials")
-_ITEM_KEYS = {"id", "title", "caption", "render", "runs", "note", "recorded", *_RECORDED_KEYS, *_OPTIONS} | _INHERITED
+_HORIZON_KEYS = ("full_horizon_trials", "quick_full_horizon_trials")
+_HORIZON_RANGE = cfg.Range(ge=0, le=100_000)
+_ITEM_KEYS = {"id", "title", "caption", "render", "runs", "note", "recorded", "stop_at", *_HORIZON_KEYS, *_RECORDED_KEYS, *_OPTIONS}
+_ITEM_KEYS |= _INHERITED
+FIRST_SOLVE = "first_solve"
+"""An item's ``stop_at``: its runs' trials end with their first solved episode (``run.stop_at``)."""
+FULL_HORIZON = ", full horizon"
+"""The label suffix of a stopped item's full-length copies (:func:`_stopped_runs`)."""
 
 
 @dataclass(frozen=True)
@@ -91,6 +98,11 @@ class RunSpec:
     quick_samples: int = 20
     row: str | None = None
     column: str | None = None
+    full_horizon: bool = False
+    """A full-length copy of a run of an item whose runs stop at the first solve (the item's
+    ``full_horizon_trials``): it measures the full-horizon query count on fewer pairs, is never
+    compared with random at its query rate, and is not run where its trials are 0 (``--quick``
+    with ``quick_full_horizon_trials = 0``)."""
 
     def provider_spec(self, default: str) -> str:
         return self.provider if self.provider is not None else default
@@ -314,6 +326,51 @@ def _recorded_keys(where: str, raw: Mapping[str, Any], recorded: bool) -> dict[s
     return out
 
 
+def _stopped_runs(where: str, raw: Mapping[str, Any], render: str, runs: tuple[RunSpec, ...]) -> tuple[RunSpec, ...]:
+    """An item's runs under its ``stop_at`` and ``full_horizon_trials`` keys (frontier items
+    only): with ``stop_at = "first_solve"`` every run gets ``run.stop_at="first_solve"`` (its
+    trials end with their first solved episode: steps to the first solve, the frontier's primary
+    outcome, are known then), and with ``full_horizon_trials = K`` > 0 the runs are followed by
+    one copy each at full length (no stop), labelled ``..., full horizon``, of K trials (``--quick``:
+    ``quick_full_horizon_trials``, default K; 0: no copy), as ``lagrseq frontier
+    --stop-at-first-solve --full-horizon-trials K`` runs them."""
+    given = [key for key in ("stop_at", *_HORIZON_KEYS) if key in raw]
+    if not given:
+        return runs
+    if render != "frontier":
+        raise ConfigError(f"{where}: {given[0]} applies to render = \"frontier\" items only: remove it")
+    stop = raw.get("stop_at")
+    if stop is None:
+        raise ConfigError(
+            f"{where}: {given[0]} measures full-length trials beside trials stopped at the first solve; "
+            'add stop_at = "first_solve" or remove it'
+        )
+    if stop != FIRST_SOLVE:
+        raise ConfigError(f'{where}: stop_at = {cfg.show_value(stop)}; expected "{FIRST_SOLVE}"')
+    for spec in runs:
+        for text in spec.overrides:
+            if cfg.parse_override(text)[:2] == ("run", "stop_at"):
+                raise ConfigError(f"{where}: run {spec.label!r} sets run.stop_at and the item sets stop_at; give it once, on the item")
+    full = _int(where, "full_horizon_trials", raw.get("full_horizon_trials", 0), _HORIZON_RANGE)
+    quick = _int(where, "quick_full_horizon_trials", raw.get("quick_full_horizon_trials", full), _HORIZON_RANGE)
+    if full == 0 and quick > 0:
+        raise ConfigError(
+            f"{where}: quick_full_horizon_trials = {quick} with full_horizon_trials = 0; "
+            "the full suite would have no full-length copies: set full_horizon_trials too, or remove it"
+        )
+    stopped = tuple(replace(spec, overrides=(*spec.overrides, f'run.stop_at="{FIRST_SOLVE}"')) for spec in runs)
+    if full == 0:
+        return stopped
+    copies = tuple(
+        replace(
+            spec, label=f"{spec.label}{FULL_HORIZON}", trials=full, quick_trials=quick, full_horizon=True,
+            row=None if spec.row is None else f"{spec.row}{FULL_HORIZON}",
+        )
+        for spec in runs
+    )
+    return (*stopped, *copies)
+
+
 def load_suite(path: str | Path | None = None) -> Suite:
     """Read and check a suite file (default: the packaged ``paper_suite.toml``; the format:
     docs/suites.md)."""
@@ -348,6 +405,7 @@ def load_suite(path: str | Path | None = None) -> Suite:
         runs = tuple(_run(item_id, i, raw, r) for i, r in enumerate(listed))
         if not runs:
             raise ConfigError(f"suite item {item_id!r} lists no runs")
+        runs = _stopped_runs(f"suite item {item_id!r}", raw, render, runs)
         options = _options(f"suite item {item_id!r}", raw)
         recorded = raw.get("recorded", False)
         if not isinstance(recorded, bool):
@@ -578,7 +636,7 @@ def _miss_variants(item: Item, copy: RunSpec) -> list[RunSpec]:
     """A recorded-GPT copy of a run, once per ``item.recorded_on_miss`` (one row each), with the
     item's ``recorded_trials``; unchanged without them."""
     changes: dict[str, Any] = {}
-    if item.recorded_trials is not None:
+    if item.recorded_trials is not None and not copy.full_horizon:  # a full-length copy keeps its K trials
         changes["trials"] = item.recorded_trials
     if not item.recorded_on_miss:
         return [replace(copy, **changes)]

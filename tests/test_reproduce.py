@@ -510,7 +510,7 @@ def test_runs_that_train_networks_are_timed_in_their_lockstep_groups(tmp_path: P
     monkeypatch.setattr(runner, "run_one", counting)
     monkeypatch.setattr(reproduce, "_WARM", set())
     grid.config = replace(grid.config, run=replace(grid.config.run, episodes=0, max_steps=120))
-    per_step, _, start = reproduce._calibrate(grid, group=3)
+    per_step, _, start, _ = reproduce._calibrate(grid, group=3)
     assert per_step > 0 and start > 0
     # the warm-up, then three trials in lockstep, each of the lockstep length
     assert sorted(timed) == [(0, 40), (0, 60), (1, 60), (2, 60)]
@@ -525,7 +525,7 @@ def test_runs_that_train_networks_are_timed_in_their_lockstep_groups(tmp_path: P
     timed.clear()
     # a cube trial is timed whole (its first episodes are its longest), after its own warm-up
     monkeypatch.setattr(reproduce, "EPISODES_CALIBRATION_STEPS", 6000)
-    per_step, steps_per_episode, start = reproduce._calibrate(cube, group=1)
+    per_step, steps_per_episode, start, _ = reproduce._calibrate(cube, group=1)
     assert timed == [(0, 40), (0, reproduce.EPISODES_CALIBRATION_STEPS)]
     whole = real(cube.config, 0, cube.seed, "mock", tmp_path / "whole.mcap")
     assert whole.steps < reproduce.EPISODES_CALIBRATION_STEPS and steps_per_episode == whole.steps / whole.episodes
@@ -597,7 +597,7 @@ def test_a_store_that_cannot_answer_the_timing_is_timed_with_the_mock(tmp_path: 
 
     monkeypatch.setattr(runner, "run_one", counting)
     monkeypatch.setattr(reproduce, "EPISODES_CALIBRATION_STEPS", 200)
-    per_step, steps_per_episode, _ = reproduce._calibrate(run, group=1)
+    per_step, steps_per_episode, _, _ = reproduce._calibrate(run, group=1)
     assert per_step > 0 and steps_per_episode > 0
     assert asked[0] == run.provider and asked[-1] == "mock"
 
@@ -626,3 +626,136 @@ def test_one_timing_per_configuration_family(tmp_path: Path) -> None:
     probes = [run for run in plan.runs if run.kind == "accuracy"]
     assert len(probes) > 1 and len({reproduce._calibration_key(run) for run in probes}) == 1
     assert reproduce.calibration_keys(plan, jobs=2) < len(plan.runs)
+
+
+def test_a_run_stopped_at_the_first_solve_is_timed_to_its_first_solve(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 35 item 6: a frontier run whose trials stop at their first solved episode is timed
+    one trial, with its stop, to its first solve (or STOP_CALIBRATION_STEPS), alone (never in a
+    lockstep group), and estimated at the steps that trial took, not at its step budget; its
+    full-length copy (full_horizon_trials) is timed apart and estimated at its budget."""
+    from lagrseq.study import reproduce
+    from lagrseq.suite import load_suite
+
+    pytest.importorskip("torch")
+    plan = reproduce.plan(load_suite().select(["frontier-arrangement"]), quick=False, provider=None, runs_dir=tmp_path, seed=0)
+    always = [run for run in plan.runs if run.config.method == "lagr" and run.config.lagr.solution_scope == "trial"]
+    stopped = next(run for run in always if run.config.run.stop_at == "first_solve")
+    full = next(run for run in always if not run.config.run.stop_at)
+    assert (stopped.trials, full.trials, full.full_horizon, stopped.full_horizon) == (30, 5, ["frontier-arrangement"], [])
+    assert reproduce._calibration_key(stopped) != reproduce._calibration_key(full)
+    assert stopped.path not in reproduce.lockstep_groups(plan, jobs=2)
+    timed: list[tuple[int, int, str]] = []
+    real = runner.run_one
+
+    def counting(*args, **kwargs):  # type: ignore[no-untyped-def]
+        result = real(*args, **kwargs)
+        timed.append((args[0].run.max_steps, result.steps, args[0].run.stop_at))
+        return result
+
+    monkeypatch.setattr(runner, "run_one", counting)
+    monkeypatch.setattr(reproduce, "_WARM", {("object-arrangement", "lagr")})
+    timing = reproduce._calibrate(stopped, group=3)
+    assert timed == [(reproduce.STOP_CALIBRATION_STEPS, timed[0][1], "first_solve")]  # one trial, stopped
+    took = timed[0][1]
+    assert 0 < took < reproduce.STOP_CALIBRATION_STEPS and timing.trial_steps == took
+    assert reproduce._trial_steps(stopped.config, timing) == took < stopped.config.run.max_steps
+    # the full-length copy runs, and is estimated at, its whole budget
+    whole = real(full.config, 0, full.seed, full.provider, tmp_path / "whole.mcap", provider_options=full.options)
+    assert whole.steps == full.config.run.max_steps
+    assert reproduce._trial_steps(full.config, reproduce._calibrate(full, group=1)) == full.config.run.max_steps
+    # a trial that does not solve within the timed budget is estimated at its whole budget
+    monkeypatch.setattr(reproduce, "STOP_CALIBRATION_STEPS", max(1, took - 1))
+    timed.clear()
+    late = reproduce._calibrate(stopped, group=1)
+    assert timed == [(took - 1, took - 1, "first_solve")]
+    assert late.trial_steps == stopped.config.run.max_steps == reproduce._trial_steps(stopped.config, late)
+
+
+def test_only_the_stopped_runs_are_matched_with_random_and_their_random_stops_too(tmp_path: Path) -> None:
+    """Issue 35 items 2 and 6: in a frontier item with stop_at and full_horizon_trials, the
+    learning policies' stopped runs are compared with random at their matched rate (a random run
+    that keeps run.stop_at), their full-length copies are not (as lagrseq frontier's full group);
+    --quick with quick_full_horizon_trials = 0 plans no copies."""
+    from lagrseq.study import frontier, reproduce
+    from lagrseq.suite import load_suite
+
+    pytest.importorskip("torch")
+    suite = load_suite().select(["frontier-arrangement"])
+    full = reproduce.plan(suite, quick=False, provider=None, runs_dir=tmp_path, seed=0)
+    sources = reproduce.matched_sources(full, {"frontier-arrangement"})
+    copies = [run for run in full.runs if run.full_horizon]
+    assert len(copies) == len(full.runs) // 2 == len(suite.items[0].runs) // 2 and all(run.trials == 5 for run in copies)
+    assert sources and all(run.config.run.stop_at == "first_solve" and run.trials == 30 for run in sources)
+    assert not {run.path for run in sources} & {run.path for run in copies}
+    assert frontier.matched_random_config(sources[0].config, 0.25).run.stop_at == "first_solve"
+    quick = reproduce.plan(suite, quick=True, provider=None, runs_dir=tmp_path, seed=0)
+    assert len(quick.runs) == len(copies) and not any(run.full_horizon for run in quick.runs)
+    assert quick.set_aside == {} and quick.not_run == {}
+    assert all(run.config.run.stop_at == "first_solve" and run.trials == 3 for run in quick.runs)
+
+
+STOPPED_SUITE = """
+[suite]
+provider = "mock"
+
+[[items]]
+id = "stops"
+title = "A frontier whose trials stop at the first solve"
+render = "frontier"
+task = "cube-stacking"
+preset = "paper"
+trials = 3
+quick_trials = 2
+episodes = 12
+quick_episodes = 8
+stop_at = "first_solve"
+full_horizon_trials = 2
+quick_full_horizon_trials = 0
+
+[[items.runs]]
+label = "never"
+method = "baseline"
+
+[[items.runs]]
+label = "always"
+method = "lagr"
+
+[[items.runs]]
+label = "thompson"
+method = "lagr-seq"
+set = ["secondary.policy=\\"thompson\\""]
+"""
+
+
+def test_a_suite_of_stopped_trials_runs_and_replays_with_its_full_length_copies(tmp_path: Path) -> None:
+    """Issue 35 item 6, end to end on short cube trials: --quick runs the stopped runs and their
+    matched random (stopped too) and no full-length copies, and its report does not name the
+    copies missing; the full suite adds the copies (their own panel, never matched with random)."""
+    from lagrseq.logs.reader import read_info
+    from lagrseq.study import reproduce
+
+    def logged(out: Path) -> list[tuple[dict, int]]:  # type: ignore[type-arg]
+        """(configuration, trial logs) of every run directory under out/runs."""
+        folders = sorted({log.parent for log in (out / "runs").rglob("trial-*.mcap")})
+        return [(read_info(runner.trial_path(f, 0)).config, len(list(f.glob("trial-*.mcap")))) for f in folders]
+
+    path = tmp_path / "suite.toml"
+    path.write_text(STOPPED_SUITE)
+    quick, _ = reproduce.reproduce(path, None, True, None, tmp_path / "quick", 1, None, ["png"], quiet=True, say=lambda _: None)
+    (item,) = quick.items
+    assert item.status == "made" and item.missing() == []
+    assert [m.spec.label for m in item.matched] == ["never", "always", "thompson"]
+    runs = logged(tmp_path / "quick")
+    assert len(runs) == 4 and all(c["run"].get("stop_at") == "first_solve" for c, _ in runs)  # 3 runs and thompson's random
+    assert sum(c.get("secondary", {}).get("policy") == "random" for c, _ in runs) == 1
+    full, _ = reproduce.reproduce(path, None, False, None, tmp_path / "full", 1, None, ["png"], quiet=True, say=lambda _: None)
+    (item,) = full.items
+    assert item.status == "made" and len(item.matched) == 6
+    assert sorted(path.name for path in (tmp_path / "full" / "reports" / "tables").glob("stops*.md")) == [
+        "stops-mock-full-horizon.md", "stops.md"  # the stopped panel first, then the full-length copies'
+    ]
+    runs = logged(tmp_path / "full")
+    stopped = [(c, n) for c, n in runs if c["run"].get("stop_at") == "first_solve"]
+    copies = [(c, n) for c, n in runs if "stop_at" not in c["run"]]
+    assert sorted(n for _, n in stopped) == [3, 3, 3, 3]  # never, always, thompson and thompson's random
+    assert sorted(n for _, n in copies) == [2, 2, 2] and not any(c["secondary"].get("policy") == "random" for c, _ in copies)

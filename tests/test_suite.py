@@ -231,3 +231,77 @@ def test_the_suite_format_page_names_every_key_and_renderer() -> None:
     page = (Path(__file__).resolve().parents[1] / "docs" / "suites.md").read_text(encoding="utf-8")
     names = {*suite._ITEM_KEYS, *suite._RUN_KEYS, *suite._OPTIONS, *suite.RENDERERS, *suite.KINDS, "seed", "provider"}
     assert sorted(n for n in names if f"`{n}`" not in page and f'"{n}"' not in page) == []
+
+
+STOP_SUITE = """
+[suite]
+provider = "mock"
+
+[[items]]
+id = "f"
+title = "F"
+render = "frontier"
+task = "cube-stacking"
+preset = "paper"
+trials = 30
+quick_trials = 3
+stop_at = "first_solve"
+full_horizon_trials = 5
+quick_full_horizon_trials = 1
+
+[[items.runs]]
+label = "never"
+method = "baseline"
+
+[[items.runs]]
+label = "thompson"
+method = "lagr-seq"
+set = ["secondary.policy=\\"thompson\\""]
+"""
+
+
+def test_a_frontier_item_stops_its_trials_and_copies_its_runs_at_full_length(tmp_path: Path) -> None:
+    """Issue 35 item 6: stop_at adds run.stop_at="first_solve" to every run of the item; with
+    full_horizon_trials the runs are followed by one full-length copy each (K trials; quick: its
+    own K, 0 none); a log matches the stopped run or the copy, never both."""
+    never, thompson, never_full, thompson_full = load_suite(_write(tmp_path, STOP_SUITE)).items[0].runs
+    assert thompson.overrides == ('secondary.policy="thompson"', 'run.stop_at="first_solve"')
+    assert thompson_full.overrides == ('secondary.policy="thompson"',)
+    assert [run.label for run in (never_full, thompson_full)] == ["never, full horizon", "thompson, full horizon"]
+    assert [(run.trials, run.quick_trials, run.full_horizon) for run in (never, thompson, never_full, thompson_full)] == [
+        (30, 3, False), (30, 3, False), (5, 1, True), (5, 1, True)
+    ]
+    stopped, full = thompson.resolved_dict(), thompson_full.resolved_dict()
+    assert stopped["run"]["stop_at"] == "first_solve" and "stop_at" not in full["run"]  # left out at its default
+    assert matches(stopped, stopped) and matches(full, full) and not matches(full, stopped) and not matches(stopped, full)
+    default_quick = STOP_SUITE.replace("quick_full_horizon_trials = 1\n", "")
+    assert load_suite(_write(tmp_path, default_quick)).items[0].runs[-1].quick_trials == 5  # the full K
+    no_quick = STOP_SUITE.replace("quick_full_horizon_trials = 1", "quick_full_horizon_trials = 0")
+    assert [run.length(True)[0] for run in load_suite(_write(tmp_path, no_quick)).items[0].runs] == [3, 3, 0, 0]
+    stop_only = STOP_SUITE.replace("full_horizon_trials = 5\nquick_full_horizon_trials = 1\n", "")
+    assert [run.label for run in load_suite(_write(tmp_path, stop_only)).items[0].runs] == ["never", "thompson"]
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (('render = "frontier"', 'render = "query-table"'), "stop_at applies to render = \"frontier\" items only: remove it$"),
+        (('stop_at = "first_solve"', 'stop_at = "first_accepted"'), "stop_at = 'first_accepted'; expected \"first_solve\"$"),
+        (('stop_at = "first_solve"', "stop_at = true"), "stop_at = True; expected \"first_solve\"$"),
+        (('stop_at = "first_solve"\n', ""), "full_horizon_trials measures full-length trials beside trials stopped at the first solve; add stop_at"),
+        (("full_horizon_trials = 5", "full_horizon_trials = -1"), "full_horizon_trials = -1; expected an integer in \\[0, 100000\\]$"),
+        (("full_horizon_trials = 5", 'full_horizon_trials = "5"'), "full_horizon_trials = '5'; expected an integer in \\[0, 100000\\]$"),
+        (("full_horizon_trials = 5", "full_horizon_trials = 100001"), "expected an integer in \\[0, 100000\\]$"),
+        (("quick_full_horizon_trials = 1", "quick_full_horizon_trials = 1.5"), "quick_full_horizon_trials = 1.5; expected an integer"),
+        (("quick_full_horizon_trials = 1", "quick_full_horizon_trials = false"), "quick_full_horizon_trials = False; expected an integer"),
+        (("full_horizon_trials = 5", "full_horizon_trials = 0"), "quick_full_horizon_trials = 1 with full_horizon_trials = 0"),
+        (('method = "baseline"', 'method = "baseline"\nset = ["run.stop_at=\\"first_solve\\""]'), "run 'never' sets run.stop_at and the item sets stop_at"),
+        (('label = "never"', 'label = "never"\nstop_at = "first_solve"'), "run 1: unknown key 'stop_at'"),
+    ],
+)
+def test_a_bad_stop_at_or_full_horizon_gives_one_line(tmp_path: Path, edit: tuple[str, str], message: str) -> None:
+    text = STOP_SUITE.replace(*edit, 1)
+    assert text != STOP_SUITE
+    with pytest.raises(ConfigError, match=message) as info:
+        load_suite(_write(tmp_path, text))
+    assert "\n" not in str(info.value) and str(info.value).startswith("suite item 'f'")

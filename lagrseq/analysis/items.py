@@ -154,7 +154,33 @@ def match(
         note = "; ".join(part for part in (short, note) if part)
         label = spec.display_label(best.key.provider) + (f" [{note}]" if note else "")
         out.append(Match(spec, label, best, "", best.key.provider, note, run_misses(best)))
-    return out
+    return _without_quick_copies(out)
+
+
+def _without_quick_copies(matched: list[Match]) -> list[Match]:
+    """``matched`` less the full-length copies (``full_horizon_trials``) that ``--quick`` does not
+    run (``quick_full_horizon_trials = 0``) when every stopped run found is at the quick length
+    alone (logs of the quick suite): not missing there. Logs of the full suite without them still
+    name them missing."""
+    unrun = [m for m in matched if m.spec.full_horizon and m.run is None and m.spec.quick_trials == 0]
+    found = [m for m in matched if not m.spec.full_horizon and m.run is not None]
+    if not unrun or not found or not all(_quick_length_only(m.spec, m.run.config) for m in found if m.run is not None):
+        return matched
+    return [m for m in matched if not any(m is u for u in unrun)]
+
+
+def _quick_length_only(spec: RunSpec, config: dict[str, Any]) -> bool:
+    """Whether a logged run has the item's ``--quick`` length and not its full one."""
+    logged = config.get("run", {})
+    try:
+        quick, full = spec.resolved_dict(True).get("run", {}), spec.resolved_dict(False).get("run", {})
+    except ConfigError:
+        return False
+
+    def same(lengths: dict[str, Any]) -> bool:
+        return all(logged.get(name) == lengths.get(name) for name in ("episodes", "max_steps"))
+
+    return same(quick) and not same(full)
 
 
 def shorter_than_asked(spec: RunSpec, full: dict[str, Any], run: Run) -> str:
@@ -678,27 +704,32 @@ def build_frontier(item: Item, matched: Sequence[Match], price: Price | None = N
 
     present = _present(matched)
     never = [run for _, run in present if run.key.method == "baseline"]
-    panels: dict[tuple[str, str], list[Run]] = {}
+    # one panel per provider, regime and run.stop_at (an item whose trials stop at the first solve
+    # has a panel of those and one of its full-length copies, each with its own never)
+    panels: dict[tuple[str, str, str], list[Run]] = {}
     for _, run in present:
         if run.key.method != "baseline":
-            panels.setdefault((run.key.provider, frontier.scope_of(run.config)), []).append(run)
+            panels.setdefault((run.key.provider, frontier.scope_of(run.config), frontier.stop_of(run.config)), []).append(run)
     for members in panels.values():
         members += matched_randoms(members, runs)
     if not panels:
-        panels[(never[0].key.provider, frontier.scope_of(never[0].config))] = []
+        panels[(never[0].key.provider, frontier.scope_of(never[0].config), frontier.stop_of(never[0].config))] = []
     figure = Figure(figsize=(11.5, 9.2 * len(panels)), layout="constrained")
     made: Any = figure.subfigures(len(panels), 1) if len(panels) > 1 else None
     targets: list[Any] = [figure] if made is None else list(made)
     tables: list[tuple[str, Table]] = []
     frames = []
-    scoped = len({scope for _, scope in panels}) > 1  # name the regime only where there are several
+    scoped = len({scope for _, scope, _ in panels}) > 1  # name the regime only where there are several
+    stopping = len({stop for _, _, stop in panels}) > 1
     counts: list[int] = []
-    for n, (target, ((provider, scope), members)) in enumerate(zip(targets, panels.items(), strict=True)):
-        points = frontier.points_of([*never, *members], price)
+    for n, (target, ((provider, scope, stop), members)) in enumerate(zip(targets, panels.items(), strict=True)):
+        points = frontier.points_of([*(run for run in never if frontier.stop_of(run.config) == stop), *members], price)
         counts += [len(p.returns) for p in points]
         shown = frontier.table(points, provider=provider)
         frontier.draw(points, shown.title, figure=target)
         name = item.id if n == 0 else f"{item.id}-{_slug(provider)}" + (f"-{scope}" if scoped else "")
+        if n and stopping:  # a stopped panel and its full-length copies' panel: named apart
+            name += f"-{stop.replace('_', '-')}" if stop else "-full-horizon"
         tables.append((name, shown))
         frames.append(shown.data.assign(provider=provider))
     method = (
@@ -716,6 +747,13 @@ def build_frontier(item: Item, matched: Sequence[Match], price: Price | None = N
         "from outside the store, the interquartile mean of the return and the probability of improvement over "
         "always (lagrseq frontier --replay draws the same from these logs)."
     )
+    if stopping:
+        method += (
+            " Trials of the panels titled 'trials stopped at the first solve' end with their first solved episode "
+            "(queries counted to it; the matched random runs stop there too): their verdicts on steps to the first "
+            "solve are the item's. The full-horizon panels hold the same policies' full-length trials on fewer pairs "
+            "(queries and return over the whole trial; verdicts below 10 pairs inconclusive)."
+        )
     if counts and max(counts) < inference_min_n():
         method += (
             f" Every verdict on this page is inconclusive: at most {max(counts)} trials per point, fewer than the "

@@ -4,8 +4,8 @@
    and Table 2 share runs); items whose task or provider this lagrseq lacks are set aside with a
    one-line reason.
 2. Estimate: time a short stretch of every distinct configuration on this machine (logged to a
-   scratch file, with the run's own provider where that asks no model) and report the expected
-   wall time before starting.
+   scratch file, with the run's own provider where that asks no model; a run whose trials stop
+   early, ``run.stop_at``, one trial to its stop) and report the expected wall time before starting.
 3. Run: trials in parallel on local processes or Dask workers through
    :func:`lagrseq.running.runner.run_trials`; trials whose log is complete are skipped, so a rerun resumes.
    Then the frontier items' second phase (:func:`plan_matched_random`): ``random`` at each
@@ -26,7 +26,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from lagrseq import config as cfg
 from lagrseq.config import ExperimentConfig
@@ -53,6 +53,28 @@ timed (an asking policy or the provider changes how often a trial asks and is gu
 timing is short; the sums over the quick suite's 16 image-completion and 16 object-arrangement
 runs came within 7% of their CPU time (docs/performance.md, "Seventh round")."""
 
+STOP_CALIBRATION_STEPS = 2000
+"""The step budget of the one trial timed for a run whose trials stop early (``run.stop_at``: at
+their first solved episode, ``first_solve``, or first accepted answer, ``first_accepted``; the
+run's own ``max_steps`` where lower): the trial runs, with the run's stop, to that point, and the
+steps it took are the run's expected trial length (:class:`Timing`)."""
+
+
+class Timing(NamedTuple):
+    """What :func:`_calibrate` measured of one experiment."""
+
+    per_step: float
+    """Seconds per step of one trial (a probe: per sample)."""
+    steps_per_episode: float
+    start: float
+    """Seconds of a trial's start (building it) apart from its steps."""
+    trial_steps: float = 0.0
+    """A run whose trials stop early (``run.stop_at``): the steps its timed trial took to its stop
+    (its length where it stopped within :data:`STOP_CALIBRATION_STEPS`, else the run's whole step
+    budget). This is one trial's draw: the run's trials reach their first solve at other
+    steps (a late trial is many times longer), so the estimate of such a run is as good as that
+    draw. 0: the trial runs its budget (:func:`_trial_steps`)."""
+
 
 @dataclass
 class PlannedRun:
@@ -72,6 +94,9 @@ class PlannedRun:
     go to the mock)."""
     source: Path | None = None
     """A frontier's matched-rate random run: the run whose query rate it matches."""
+    full_horizon: list[str] = field(default_factory=list)
+    """The items in which this run is a full-length copy (``full_horizon_trials``) of a run whose
+    trials stop at the first solve: not compared with random at its query rate there."""
 
     def pending(self) -> int:
         """Trials (or probe files) whose log is not complete yet."""
@@ -332,7 +357,8 @@ def plan(suite: Suite, quick: bool, provider: str | None, runs_dir: Path, seed: 
         reasons: list[str] = []
         files: list[str] = []
         made = 0
-        for spec in item.runs:
+        asked = [spec for spec in item.runs if spec.length(quick)[0] > 0]  # quick_full_horizon_trials = 0: no copy
+        for spec in asked:
             spec_provider = spec.provider_spec(default)
             config, reason = _resolve(spec, quick, spec_provider, unavailable)
             if config is None:
@@ -365,7 +391,9 @@ def plan(suite: Suite, quick: bool, provider: str | None, runs_dir: Path, seed: 
             run.trials = max(run.trials, trials)
             if item.id not in run.items:
                 run.items.append(item.id)
-        missed = len(item.runs) - made
+            if spec.full_horizon and item.id not in run.full_horizon:
+                run.full_horizon.append(item.id)
+        missed = len(asked) - made
         if files:  # one reason for all the files an item needs and this machine lacks
             reasons.append(
                 f"recorded answers not found here or in a lagrseq source checkout: {', '.join(files)} ({wiring.MISSING_RECORDED_FIX})"
@@ -373,7 +401,7 @@ def plan(suite: Suite, quick: bool, provider: str | None, runs_dir: Path, seed: 
         if made == 0:
             not_run[item.id] = "; ".join(sorted(set(reasons)))
         elif missed:
-            set_aside[item.id] = f"{missed} of {len(item.runs)} runs not run: " + "; ".join(sorted(set(reasons)))
+            set_aside[item.id] = f"{missed} of {len(asked)} runs not run: " + "; ".join(sorted(set(reasons)))
     return Plan(list(planned.values()), not_run, unavailable, set_aside)
 
 
@@ -402,12 +430,17 @@ def frontier_items(suite: Suite) -> set[str]:
 def matched_sources(the_plan: Plan, items: set[str]) -> list[PlannedRun]:
     """The planned runs of the frontier ``items`` that the protocol compares with ``random`` at
     their own query rate (:func:`lagrseq.frontier_protocol.wants_match`): learning policies, not on
-    the authors' answers with mock fallbacks (those points get no verdict)."""
+    the authors' answers with mock fallbacks (those points get no verdict), and not an item's
+    full-length copies of runs stopped at the first solve (``full_horizon_trials``: as
+    ``lagrseq frontier --full-horizon-trials``, whose full group has no matched random); the
+    stopped runs' matched random stops at the first solve too (it keeps ``run.stop_at``:
+    :func:`lagrseq.study.frontier.matched_random_config`)."""
     from lagrseq.frontier_protocol import wants_match
 
     out = []
     for run in the_plan.runs:
-        if run.kind != "trial" or run.config.method != "lagr-seq" or not items & set(run.items):
+        compared = items & (set(run.items) - set(run.full_horizon))
+        if run.kind != "trial" or run.config.method != "lagr-seq" or not compared:
             continue
         if run.options is not None and run.options.on_miss == "mock":
             continue
@@ -448,7 +481,9 @@ def plan_matched_random(the_plan: Plan, items: set[str], runs_dir: Path) -> Plan
                 "trial", config, run.provider, run.seed, run.trials, 0, path, options=run.options, source=run.path
             )
         match.trials = max(match.trials, run.trials)
-        match.items += [item for item in run.items if item in items and item not in match.items]
+        match.items += [
+            item for item in run.items if item in items and item not in run.full_horizon and item not in match.items
+        ]
     return Plan(list(planned.values()), {}, {})
 
 
@@ -566,10 +601,13 @@ def lockstep_groups(the_plan: Plan, jobs: int) -> dict[Path, int]:
     trial timed alone overstates their cost (the full suite's estimate was 16.0 min for 11.9 min
     with single-trial timings). Runs not in the mapping are timed one trial alone, and so are the
     runs of a task whose steps are slow (its ``calibration_steps``: the simulated arm, whose
-    networks are a small part of a step; timing 3 arm trials together took 16 s instead of 5)."""
+    networks are a small part of a step; timing 3 arm trials together took 16 s instead of 5), and
+    runs whose trials stop early (``run.stop_at``: one trial is timed to its stop, whose length is
+    the estimate's: :data:`STOP_CALIBRATION_STEPS`)."""
     runs = [
         run for run in the_plan.runs
         if run.kind == "trial" and run.pending() and not TASKS.get(run.config.task.name).calibration_steps
+        and not run.config.run.stop_at
     ]
     groups = runner.lockstep_groups([(run.config, list(range(run.pending()))) for run in runs], max(1, jobs))
     sizes: dict[Path, int] = {}
@@ -584,7 +622,7 @@ def lockstep_groups(the_plan: Plan, jobs: int) -> dict[Path, int]:
 def _group_of_one_run(run: PlannedRun, jobs: int) -> int:
     """The largest lockstep group of ``run``'s trials alone (an audit's run, which shares its
     groups with the audit's other runs), at most :data:`LOCKSTEP_CALIBRATION_GROUP`."""
-    if TASKS.get(run.config.task.name).calibration_steps:
+    if TASKS.get(run.config.task.name).calibration_steps or run.config.run.stop_at:
         return 1
     groups = runner.lockstep_groups([(run.config, list(range(run.trials)))], max(1, jobs))
     return min(max(len(group) for group in groups), LOCKSTEP_CALIBRATION_GROUP) if groups else 1
@@ -622,7 +660,7 @@ def estimate_phases(
         todo.setdefault(key, (run, group))
     cache = _calibrate_all(todo, pool, on_calibrated)
 
-    def calibrated(run: PlannedRun) -> tuple[float, float, float]:
+    def calibrated(run: PlannedRun) -> Timing:
         return cache[key_of(run)[0]]
 
     serial = work = longest = 0.0
@@ -633,12 +671,13 @@ def estimate_phases(
         logs += run.trials if run.kind == "trial" else 1
         if pending == 0:
             continue
-        per_unit, steps_per_episode, start = calibrated(run)
+        timing = calibrated(run)
+        per_unit, start = timing.per_step, timing.start
         if run.kind == "accuracy":
             serial += per_unit * run.samples
             works[run.path] = per_unit * run.samples
             continue
-        trial_seconds = start + _trial_steps(run.config, steps_per_episode) * per_unit
+        trial_seconds = start + _trial_steps(run.config, timing) * per_unit
         works[run.path] = pending * trial_seconds
         work += works[run.path]
         longest = max(longest, trial_seconds)
@@ -649,8 +688,8 @@ def estimate_phases(
             share = works[run.path] if run.kind == "accuracy" else works[run.path] / work * parallel if work else 0.0
             out.per_run[run.path] = share
     for task, audit_config, _, probe_run in probes:
-        per_unit, steps_per_episode, start = calibrated(probe_run)
-        out.audit_per_trial[task] = (start + _trial_steps(audit_config, steps_per_episode) * per_unit) / max(1, jobs)
+        timing = calibrated(probe_run)
+        out.audit_per_trial[task] = (timing.start + _trial_steps(audit_config, timing) * timing.per_step) / max(1, jobs)
     logs += audit_logs
     if replay_jobs(jobs) <= 1:
         reading, per_item = REPLAY_SECONDS_PER_LOG_ONE_PROCESS * logs, REPLAY_SECONDS_PER_ITEM + REPLAY_DRAW_SECONDS_PER_ITEM
@@ -675,7 +714,7 @@ class CalibrationJob:
     answers for those trials only)."""
 
 
-def calibration_job(job: CalibrationJob) -> tuple[float, float, float]:
+def calibration_job(job: CalibrationJob) -> Timing:
     """:func:`_calibrate` as a task of a process pool (a module-level function: spawned workers
     import it)."""
     run = PlannedRun(job.kind, cfg.from_dict(job.config), job.provider, job.seed, job.trials, 1, Path("calibration"), options=job.options)
@@ -684,7 +723,7 @@ def calibration_job(job: CalibrationJob) -> tuple[float, float, float]:
 
 def _calibrate_all(
     todo: dict[tuple[str, ...], tuple[PlannedRun, int]], pool: Any, on_calibrated: Callable[[], None] | None
-) -> dict[tuple[str, ...], tuple[float, float, float]]:
+) -> dict[tuple[str, ...], Timing]:
     """Each experiment of ``todo`` (key -> a run and its lockstep group) timed: in the workers of a
     local process ``pool`` (:class:`lagrseq.running.executors.LocalExecutor`), else here, one
     after the other; ``on_calibrated`` is told of each as it ends."""
@@ -692,7 +731,7 @@ def _calibrate_all(
 
     from lagrseq.running.executors import LocalExecutor
 
-    timed: dict[tuple[str, ...], tuple[float, float, float]] = {}
+    timed: dict[tuple[str, ...], Timing] = {}
     if not isinstance(pool, LocalExecutor) or len(todo) <= 1:
         for key, (run, group) in todo.items():
             timed[key] = _calibrate(run, group)
@@ -717,8 +756,14 @@ def _calibrate_all(
     return timed
 
 
-def _trial_steps(config: ExperimentConfig, steps_per_episode: float) -> float:
+def _trial_steps(config: ExperimentConfig, timing: Timing) -> float:
+    """A trial's expected steps: its step budget (a grid trial), its episodes at the timed steps per
+    episode (a cube trial), or, where it stops early (``run.stop_at``), the steps the timed trial
+    took (:attr:`Timing.trial_steps`), never more than its budget."""
     episodes, max_steps = config.run.episodes, config.run.max_steps
+    if config.run.stop_at and timing.trial_steps > 0:
+        return min(timing.trial_steps, float(max_steps)) if max_steps else timing.trial_steps
+    steps_per_episode = timing.steps_per_episode
     if episodes == 0:  # no episode limit: the step budget alone ends a trial (grid tasks)
         return float(max_steps)
     steps = episodes * steps_per_episode
@@ -737,13 +782,15 @@ pybullet), first allocations, caches. Later calibrations of that task and method
 _WARM: set[tuple[str, str]] = set()
 
 
-def _calibrate(run: PlannedRun, group: int = 1) -> tuple[float, float, float]:
+def _calibrate(run: PlannedRun, group: int = 1) -> Timing:
     """(seconds per step, steps per episode, seconds of a trial's start) or, for a probe,
     (seconds per sample, 0, 0), timed with logging to a scratch file (the log is part of the
     cost) and the provider of :func:`_timed_provider`, after an untimed warm-up (:data:`WARMUP_STEPS`):
     a cold process pays imports and first calls once, a trial's worker pays them once for many
     trials. ``group`` > 1: that many trials timed in
-    lockstep, as the run will step them (seconds per step of one trial). A timing that fails
+    lockstep, as the run will step them (seconds per step of one trial). A run whose trials stop
+    early (``run.stop_at``: the first solve, the first accepted answer) is timed one trial, with its
+    stop, to that point or :data:`STOP_CALIBRATION_STEPS` steps (:attr:`Timing.trial_steps`). A timing that fails
     with the run's provider (a store without the answers the run will miss on: the run says so
     itself) is taken again with the mock."""
     provider, options = _timed_provider(run)
@@ -755,20 +802,23 @@ def _calibrate(run: PlannedRun, group: int = 1) -> tuple[float, float, float]:
         return _timed(run, group, "mock", None)
 
 
-def _timed(run: PlannedRun, group: int, provider: str, options: Any) -> tuple[float, float, float]:
+def _timed(run: PlannedRun, group: int, provider: str, options: Any) -> Timing:
     with tempfile.TemporaryDirectory(prefix="lagrseq-calibration-") as scratch:
         path = Path(scratch) / "calibration.mcap"
         if run.kind == "accuracy":
             started = time.perf_counter()
             probe.run_accuracy_probe(run.config, 1, run.seed, provider, path)
-            return time.perf_counter() - started, 0.0, 0.0
+            return Timing(time.perf_counter() - started, 0.0, 0.0)
+        stops = bool(run.config.run.stop_at)
+        group = 1 if stops else group
         slow = TASKS.get(run.config.task.name).calibration_steps
         if (run.config.task.name, run.config.method) not in _WARM:
             warm = replace(run.config, run=replace(run.config.run, max_steps=5 if slow else WARMUP_STEPS))
             runner.run_one(warm, 0, run.seed, provider, Path(scratch) / "warm-up.mcap", provider_options=options)
             _WARM.add((run.config.task.name, run.config.method))
         steps = slow or (
-            LOCKSTEP_CALIBRATION_STEPS if group > 1 else EPISODES_CALIBRATION_STEPS if run.config.run.episodes else CALIBRATION_STEPS
+            STOP_CALIBRATION_STEPS if stops
+            else LOCKSTEP_CALIBRATION_STEPS if group > 1 else EPISODES_CALIBRATION_STEPS if run.config.run.episodes else CALIBRATION_STEPS
         )
         if run.config.run.max_steps:  # never more steps than a trial has: its own length is timed whole
             steps = min(steps, run.config.run.max_steps)
@@ -797,8 +847,15 @@ def _timed(run: PlannedRun, group: int, provider: str, options: Any) -> tuple[fl
     # the trials' starts (lockstep: each is built before the first batched step, one after the
     # other) apart from their steps: a cube trial's start is a large part of a short trial
     start = max(ready) - started if ready else 0.0
-    steps = max(sum(result.steps for result in results), 1)
-    return (seconds - start) / steps, steps / max(sum(result.episodes for result in results), 1), start / len(results)
+    taken = sum(result.steps for result in results)
+    steps = max(taken, 1)
+    trial_steps = 0.0
+    if stops:  # stopped before the budget: it reached its stop; else it may run the whole of its own
+        budget = config.run.max_steps
+        trial_steps = float(taken) if taken < budget else float(run.config.run.max_steps or taken)
+    return Timing(
+        (seconds - start) / steps, steps / max(sum(result.episodes for result in results), 1), start / len(results), trial_steps
+    )
 
 
 class _Scaled:
