@@ -15,6 +15,17 @@ include start-up):
 
 Each figure is the median wall and CPU time of ``--repeat`` runs (n given). Target: 300 MB in
 well under 10 s (before the fix: about 2 s a MB, so 10 minutes).
+
+Then floods of small valid records (``--flood-mb`` megabytes, default 50) after the golden log's
+data up to a flushed chunk, each judged by ``lagrseq recover`` (its flushed episodes kept):
+
+4. message index records (15 bytes each) after a chunk: refused at the 65th after it;
+5. statistics records: refused at the second;
+6. metadata records (17 bytes each): walked up to the record cap (``MAX_SCAN_RECORDS``);
+7. empty chunks (49 bytes) each followed by a message index: the worst the bounds allow, each
+   chunk opened, up to the record cap.
+
+Before the bounds, a flood was walked to its end at about 0.23 s a MB (50 MB: about 12 s).
 """
 
 from __future__ import annotations
@@ -57,10 +68,24 @@ def _timed(args: list[str]) -> tuple[float, float, int, str]:
     return wall, cpu, done.returncode, lines[-1] if lines else ""
 
 
+_INDEX = struct.pack("<BQHI", 0x07, 6, 1, 0)
+_STATISTICS = struct.pack("<BQ", 0x0B, 46) + bytes(46)
+_METADATA = struct.pack("<BQII", 0x0C, 8, 0, 0)
+_EMPTY_CHUNK = struct.pack("<BQQQQIIQ", 0x06, 40, 0, 0, 0, 0, 0, 0)
+_FLUSHED = 12635  # the golden log up to a chunk and its message indexes
+
+
+def _flood(path: Path, start: bytes, unit: bytes, size: int) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(start + unit * max(size // len(unit), 1))
+    return path
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--mb", type=int, default=300, help="the file's size in megabytes (10^6 bytes)")
     parser.add_argument("--repeat", type=int, default=3, help="runs per case (the median is printed)")
+    parser.add_argument("--flood-mb", type=int, default=50, help="the size of each flood of small records, in megabytes")
     args = parser.parse_args()
     data = GOLDEN.read_bytes()
     header_end = 8 + 9 + struct.unpack_from("<Q", data, 9)[0]
@@ -78,6 +103,22 @@ def main() -> None:
               f"each a fresh `python -m lagrseq` (start-up included)")
         for name, command in cases.items():
             runs = [_timed(command(i)) for i in range(args.repeat)]
+            wall = statistics.median(r[0] for r in runs)
+            cpu = statistics.median(r[1] for r in runs)
+            print(f"  {name:<32} wall {wall:6.2f} s (range {min(r[0] for r in runs):.2f}-{max(r[0] for r in runs):.2f}), "
+                  f"CPU {cpu:6.2f} s, exit {runs[-1][2]}")
+            print(f"    {runs[-1][3][:300]}")
+        floods = {
+            "message indexes after a chunk": _INDEX,
+            "statistics records": _STATISTICS,
+            "metadata records": _METADATA,
+            "empty chunks, each indexed": _EMPTY_CHUNK + _INDEX,
+        }
+        print(f"{args.flood_mb} MB floods of small valid records after the golden log's first flushed episodes; "
+              f"`lagrseq recover`, median of n = {args.repeat} runs each")
+        for name, unit in floods.items():
+            flood = _flood(root / "flood" / f"{len(unit)}-{unit[0]}" / "trial-000.mcap.partial", data[:_FLUSHED], unit, args.flood_mb * 1_000_000)
+            runs = [_timed(["recover", str(flood), "--out", str(flood.parent / f"out-{i}.mcap")]) for i in range(args.repeat)]
             wall = statistics.median(r[0] for r in runs)
             cpu = statistics.median(r[1] for r in runs)
             print(f"  {name:<32} wall {wall:6.2f} s (range {min(r[0] for r in runs):.2f}-{max(r[0] for r in runs):.2f}), "

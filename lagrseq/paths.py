@@ -14,11 +14,12 @@ hand it endless bytes. :func:`open_input` opens a file without blocking and chec
 :func:`walk_files` lists a directory tree without ever following a symlink loop: every real
 directory is entered once.
 
-Output files (``cache export --out``, ``screen --answers``): :func:`write_output` writes a new
+Output files (``cache export --out``, ``screen --answers``, ``recover``'s logs): :func:`write_output` writes a new
 file beside the target (``O_CREAT | O_EXCL | O_NOFOLLOW``: never through a planted link) and moves
 it into place; a target that is a symbolic link is refused (one line), and so, where it may not be
 replaced, is an existing file (linked into place: an existing name, a link included, is never
-overwritten). MCAP logs do the same in :mod:`lagrseq.logs.sink`.
+overwritten). MCAP logs do the same in :mod:`lagrseq.logs.sink`, and ``recover`` with
+:func:`refuse_link`, :func:`open_new` and :func:`place_new` (its own temporary file and backup).
 
 Every failure is a :class:`~lagrseq.errors.LagrseqError` (one line, exit status 2); callers pass
 the subclass their layer uses (LogError, StoreError, ConfigError).
@@ -222,6 +223,24 @@ def check_output(target: Path, flag: str, replace: bool, error: type[LagrseqErro
         raise error(f"{flag} {target} is {kind_of(mode)}; give the path of a file to write")
     if not replace:
         raise error(f"{flag} {target} exists; lagrseq never writes over it: give a new path or move the file away")
+
+
+NEW_FILE_FLAGS = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+"""Flags that create a new file and nothing else: any name already there, a symbolic link
+included, fails (``FileExistsError``) instead of being opened or followed."""
+
+
+def open_new(path: str | os.PathLike[str], mode: int = 0o644) -> int:
+    """A descriptor of a new file at ``path`` (:data:`NEW_FILE_FLAGS`); ``OSError`` as ``os.open``
+    raises it (``FileExistsError`` when any name is there)."""
+    return os.open(path, NEW_FILE_FLAGS, mode)
+
+
+def place_new(scratch: Path, target: Path, flag: str, error: type[LagrseqError] = UsageError) -> None:
+    """Give the finished file ``scratch`` the name ``target`` only if no name is there (a link
+    planted meanwhile included): one line otherwise. ``scratch`` keeps its name too (where hard
+    links work): the caller removes it."""
+    _link_new(scratch, target, flag, error)
 
 
 def _link_new(scratch: Path, target: Path, flag: str, error: type[LagrseqError]) -> None:

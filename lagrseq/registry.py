@@ -45,6 +45,7 @@ from pathlib import Path
 from typing import Any, Generic, TypeVar
 
 from lagrseq.errors import UsageError
+from lagrseq.lifetime import ProcessWindow
 from lagrseq.text import printable  # re-exported: the one escaping of outside text
 
 BUILTIN = "lagrseq"
@@ -679,11 +680,14 @@ def _stage(registry: Registry[Any], ep: Any, source: str) -> Registry[Any]:
     return staged
 
 
-def _guarded(registry: Registry[Any], ep: Any, source: str, timeout_s: float) -> Registry[Any] | str:
+def _guarded(registry: Registry[Any], ep: Any, source: str, timeout_s: float, left: list[int]) -> Registry[Any] | str:
     """:func:`_stage` in a daemon thread waited for at most ``timeout_s``: the staged registry,
     or one line saying why the plugin is skipped. Anything the plugin raises is caught in its
     thread (``SystemExit``, ``KeyboardInterrupt``...); a Ctrl-C of the user arrives in this
-    thread, which only waits, and stops the command as usual."""
+    thread, which only waits, and stops the command as usual. The load runs inside a
+    :class:`~lagrseq.lifetime.ProcessWindow`: processes the plugin started and left running (a
+    child, a double-forked daemon) are killed when the load ends or is abandoned, and their
+    number is appended to ``left``."""
     result: list[Any] = []
 
     def load() -> None:
@@ -695,8 +699,12 @@ def _guarded(registry: Registry[Any], ep: Any, source: str, timeout_s: float) ->
     loader = threading.Thread(target=load, name=f"lagrseq-plugin-{ep.name}"[:60], daemon=True)
     _LOADERS.add(loader)
     threading.Thread.start = _daemon_start  # type: ignore[method-assign]  # stays: see _daemon_start
-    loader.start()
-    loader.join(timeout_s)
+    window = ProcessWindow().open()
+    try:
+        loader.start()
+        loader.join(timeout_s)
+    finally:  # also when the loader is abandoned: what it started so far is stopped
+        left.append(window.close())
     if loader.is_alive():
         _HUNG_MODULES.add(str(getattr(ep, "module", "") or ep.value.partition(":")[0]))
         return (  # the loader stays in _LOADERS: threads its import starts later are daemons too
@@ -705,6 +713,16 @@ def _guarded(registry: Registry[Any], ep: Any, source: str, timeout_s: float) ->
         )
     _LOADERS.discard(loader)
     return result[0] if result else "its loading ended without a result"
+
+
+def _left_behind(count: int) -> str:
+    """The end of a plugin's line when its loading left processes running ('' when none)."""
+    if count == 0:
+        return ""
+    return (
+        f"it left {count} process{'' if count == 1 else 'es'} running when it loaded; "
+        f"{'it was' if count == 1 else 'they were'} stopped (SIGKILL): a plugin should start processes only when its parts are used"
+    )
 
 
 def _load_plugins(registry: Registry[Any]) -> None:
@@ -728,11 +746,15 @@ def _load_plugins(registry: Registry[Any]) -> None:
         if module in _HUNG_MODULES:
             _skip(registry, ep.name, source, f"its module {printable(module)} did not finish importing for another entry point")
             continue
-        staged = _guarded(registry, ep, source, timeout_s)
+        left: list[int] = []
+        staged = _guarded(registry, ep, source, timeout_s, left)
+        stopped = _left_behind(sum(left))
         if isinstance(staged, str):
-            _skip(registry, ep.name, source, staged)
+            _skip(registry, ep.name, source, staged + (f"; {stopped}" if stopped else ""))
             continue
         registry._entries.update(staged._entries)
+        if stopped and _notices():
+            _say(f"plugin {printable(repr(ep.name))} ({printable(source)}, group {registry.group}) loaded, but {stopped}")
 
 
 ON_MISS = ("error", "mock", "live", "refuse", "calibrated")

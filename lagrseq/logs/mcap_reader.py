@@ -15,7 +15,11 @@ makes it read garbage. A log is a file from outside, so this module reads it def
 - a walk through records stops at the first byte that cannot start one: opcode 0x00 is no MCAP
   record (zeros are what a crash or a preallocating copy leaves), a chunk holds only schemas,
   channels and messages, and at most :data:`MAX_UNKNOWN_RECORDS` records of kinds this reader does
-  not know are skipped. A run of zeros is measured with ``bytes`` operations in C (at memory or
+  not know are skipped. Small valid records are bounded too: message indexes only after their
+  chunk and at most :data:`MAX_MESSAGE_INDEXES_PER_CHUNK` of them, one statistics record, no more
+  chunk (metadata, attachment) indexes than chunks (metadata, attachments), at most
+  :data:`MAX_DEFINITIONS` metadata, schema, channel or attachment records of each kind, and at
+  most :data:`MAX_SCAN_RECORDS` records outside chunks in all. A run of zeros is measured with ``bytes`` operations in C (at memory or
   disk speed, never record by record, and at most :data:`MAX_ZERO_SCAN` bytes of it), so a log
   padded with hundreds of megabytes of zeros is judged in well under a second
   (``benchmarks/bench_scan.py``).
@@ -74,6 +78,19 @@ MAX_UNKNOWN_RECORDS = 1024
 """Records of a kind this reader does not know (private opcodes 0x80-0xff, kinds of later MCAP
 versions) skipped in one walk; lagrseq writes none, so more is damage, not data (a flood of
 9-byte unknown records would otherwise be walked one Python step each)."""
+MAX_MESSAGE_INDEXES_PER_CHUNK = 64
+"""Message index records after one chunk: the writer puts one per channel with messages in the
+chunk right after it, and a lagrseq log has about ten channels. More, or one that follows no
+chunk, is damage (a flood of 15-byte index records would otherwise be walked one Python step each)."""
+MAX_DEFINITIONS = 1024
+"""Metadata, schema, channel and attachment records, of each kind, outside chunks: a lagrseq log
+writes three metadata records, about ten schemas and channels (twice: in the data section and
+again in the summary) and no attachment. More is a flood (recover would keep every one)."""
+MAX_SCAN_RECORDS = 1 << 20
+"""Records walked outside chunks in one scan (1,048,576: about 4 s of Python steps). A lagrseq log
+holds about seven per episode (its chunks, their message and chunk indexes), so this is over
+100,000 episodes; more is a flood of small valid records, judged as damage where the walk
+stands (what came before it is kept)."""
 MAX_ZERO_SCAN = 1 << 30
 """The most bytes of a run of zeros measured to say how far it goes (1 GiB, about half a second);
 a longer run is reported as "at least" that much."""
@@ -350,6 +367,76 @@ def _decompress(compression: str, data: bytes, size: int, offset: int) -> bytes:
         more = "more than" if len(out) > size else f"{len(out)} bytes, not"
         raise Damage(offset, f"chunk decompresses to {more} the {size} bytes it says it holds")
     return out
+
+
+class _Counts:
+    """The bounds of :meth:`McapFile.scan` on records outside chunks, checked before a record is
+    parsed: a flood of small valid records (message indexes, chunk indexes, statistics, summary
+    offsets: 15 to 60 bytes each, about 3.5 microseconds of Python each) is refused at the first
+    record no lagrseq log holds in such numbers or in such a place, and any walk stops after
+    :data:`MAX_SCAN_RECORDS` records."""
+
+    def __init__(self) -> None:
+        self.records = 0
+        self.by_opcode: dict[int, int] = {}
+        self.previous = 0
+        self.run = 0  # message indexes since the last chunk
+
+    def check(self, opcode: int, offset: int) -> None:
+        self.records += 1
+        if self.records > MAX_SCAN_RECORDS:
+            raise Damage(
+                offset,
+                f"more than {MAX_SCAN_RECORDS} records outside chunks (a lagrseq log holds about 7 an episode); "
+                "a flood of small records: not a lagrseq log, or damaged",
+            )
+        seen = self.by_opcode.get(opcode, 0) + 1
+        self.by_opcode[opcode] = seen
+        if opcode == Opcode.MESSAGE_INDEX:
+            self.run = 1 if self.previous == Opcode.CHUNK else self.run + 1 if self.previous == Opcode.MESSAGE_INDEX else 0
+            if self.run == 0:
+                raise Damage(offset, f"a message index record after a {opcode_name(self.previous)} record, not after its chunk; damaged")
+            if self.run > MAX_MESSAGE_INDEXES_PER_CHUNK:
+                raise Damage(
+                    offset,
+                    f"more than {MAX_MESSAGE_INDEXES_PER_CHUNK} message index records after one chunk "
+                    "(one per channel; a lagrseq log has about ten); a flood of small records: damaged",
+                )
+        else:
+            limit = self._limit(opcode)
+            if limit is not None and seen > limit:
+                raise Damage(
+                    offset,
+                    f"{opcode_name(opcode)} record number {seen}, more than the file can hold ({limit}: "
+                    f"{self._why(opcode)}); a flood of small records: damaged",
+                )
+        self.previous = opcode
+
+    def _limit(self, opcode: int) -> int | None:
+        if opcode == Opcode.STATISTICS:
+            return 1
+        if opcode == Opcode.CHUNK_INDEX:
+            return self.by_opcode.get(Opcode.CHUNK, 0)
+        if opcode == Opcode.METADATA_INDEX:
+            return self.by_opcode.get(Opcode.METADATA, 0)
+        if opcode == Opcode.ATTACHMENT_INDEX:
+            return self.by_opcode.get(Opcode.ATTACHMENT, 0)
+        if opcode == Opcode.SUMMARY_OFFSET:
+            return 256
+        if opcode in (Opcode.METADATA, Opcode.SCHEMA, Opcode.CHANNEL, Opcode.ATTACHMENT):
+            return MAX_DEFINITIONS
+        return None
+
+    @staticmethod
+    def _why(opcode: int) -> str:
+        why: dict[int, str] = {
+            Opcode.STATISTICS: "one per file",
+            Opcode.CHUNK_INDEX: "one per chunk before it",
+            Opcode.METADATA_INDEX: "one per metadata record before it",
+            Opcode.ATTACHMENT_INDEX: "one per attachment before it",
+            Opcode.SUMMARY_OFFSET: "one per record kind",
+        }
+        return why.get(opcode, "a lagrseq log writes a handful")
 
 
 class McapFile:
@@ -675,10 +762,12 @@ class McapFile:
         self.header()
         offset = len(MAGIC)
         unknown = 0
+        counts = _Counts()
         while True:
             opcode, body, end = self.record_at(offset)
             if opcode == 0:  # no record: zeros (measured in C, never walked 9 bytes at a time)
                 raise Damage(offset, _zeros_found(self.zero_run(offset), self.size - offset, "the end of the file"))
+            counts.check(opcode, offset)
             record = parse(opcode, body, offset)
             if record is None:
                 unknown += 1

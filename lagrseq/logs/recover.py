@@ -49,7 +49,7 @@ from lagrseq.errors import LogError, UsageError
 from lagrseq.logs.columns import columnar_rows
 from lagrseq.logs.mcap_reader import Damage, McapFile
 from lagrseq.logs.sink import PARTIAL_SUFFIX, PROFILE, RECORDS_METADATA, STATUS_METADATA
-from lagrseq.paths import expand_user, input_path
+from lagrseq.paths import expand_user, input_path, open_new, place_new, refuse_link
 
 # Topics written as the episode runs (transitions, picture views): kept only up to the last flush.
 _STEP_TOPICS = ("/transition", "/transitions")
@@ -283,6 +283,8 @@ def recover(path: str | Path, out: str | Path | None = None) -> Recovered:
     source = input_path(source, "log", "file", LogError)  # a FIFO or device would block the reader
     target = _target(source, out)
     in_place = target.absolute() == source.absolute()
+    flag = "--out" if out is not None else "the recovered log"
+    refuse_link(target, flag, LogError)  # never written through a link (one planted in a shared folder)
     if not in_place and target.exists():
         if out is None:
             advice = "pass --out FILE or --out DIRECTORY to write the recovered log elsewhere"
@@ -296,6 +298,8 @@ def recover(path: str | Path, out: str | Path | None = None) -> Recovered:
         error = _Intact if exc.intact else LogError
         raise error(f"{source}: {exc.detail}; {exc.advice}") from None
     backup = source.with_name(source.name + BACKUP_SUFFIX) if in_place else None
+    if backup is not None:
+        refuse_link(backup, "the copy of the original", LogError)
     if backup is not None and backup.exists():
         raise LogError(
             f"{backup} exists already (a copy kept by an earlier recovery); move it away, or "
@@ -309,7 +313,7 @@ def recover(path: str | Path, out: str | Path | None = None) -> Recovered:
     dropped = max(plan.size - plan.good_end, 0) + sum(
         len(m.data) for messages in plan.chunks[kept:] for m in messages
     )
-    _commit(source, target, data, backup, elsewhere=out is None)
+    _commit(source, target, data, backup, elsewhere=out is None, flag=flag)
     return Recovered(source, target, episodes, count, dropped, backup, plan.complete)
 
 
@@ -352,7 +356,13 @@ def recover_all(paths: list[Path] | tuple[Path, ...], out: str | Path | None = N
 
 
 def _write_all(path: Path, data: bytes) -> None:
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    """Write ``data`` to a new file ``path``, never through a link: a leftover regular file of a
+    recovery that crashed is removed first, and the file is created with ``O_EXCL |
+    O_NOFOLLOW`` (a name planted meanwhile fails; a link is not followed)."""
+    with contextlib.suppress(FileNotFoundError):
+        if not os.path.islink(path):
+            os.unlink(path)  # only the name goes: a file with other links keeps its data
+    fd = open_new(path)
     try:
         view = memoryview(data)
         while view:
@@ -365,18 +375,31 @@ def _write_all(path: Path, data: bytes) -> None:
         os.close(fd)
 
 
-def _commit(source: Path, target: Path, data: bytes, backup: Path | None, elsewhere: bool = True) -> None:
+def _commit(
+    source: Path, target: Path, data: bytes, backup: Path | None, elsewhere: bool = True, flag: str = "--out",
+) -> None:
     """Write ``data`` to ``target`` through a temporary file; on any OS error, remove the
     temporary file, put the source back where it was, and raise one LogError line (which
-    suggests --out only where ``elsewhere``: none was given)."""
+    suggests --out only where ``elsewhere``: none was given). Nothing is written through a
+    symbolic link: the temporary file is created new (``O_EXCL | O_NOFOLLOW``; a link planted
+    at its name is refused), and a new ``target`` is put in place only where no name is."""
     tmp = target.with_name(target.name + TEMP_SUFFIX)
+    refuse_link(tmp, "the temporary file", LogError)
     moved = False
     try:
         _write_all(tmp, data)
         if backup is not None:
-            os.replace(source, backup)
+            os.replace(source, backup)  # renames the name: never writes through a link
             moved = True
-        os.replace(tmp, target)
+            os.replace(tmp, target)
+        else:
+            place_new(tmp, target, flag, LogError)  # a name planted since the check: refused
+            with contextlib.suppress(FileNotFoundError):
+                tmp.unlink()
+    except LogError:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        raise
     except OSError as exc:
         with contextlib.suppress(OSError):
             tmp.unlink(missing_ok=True)

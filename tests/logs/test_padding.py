@@ -21,7 +21,7 @@ from lagrseq.logs.mcap_reader import Damage, McapFile
 from lagrseq.logs.reader import full_path, read_info, read_topics
 from lagrseq.logs.recover import recover
 from lagrseq.running.recording import record_patterns
-from tests.logs.test_damage import DATA
+from tests.logs.test_damage import DATA, GOLDEN
 from tests.logs.test_damage_commands import CONFIG
 
 PADDING = 20_000_000
@@ -118,3 +118,67 @@ def test_a_chunk_holding_what_no_chunk_holds_is_damage(tmp_path: Path, inside: b
             with pytest.raises(Damage) as found:
                 read(chunk, 123)
             assert found.value.offset == 123 and said in found.value.what
+
+
+_FLUSHED = 12635  # the golden log's data up to a chunk and its two message indexes (episodes flushed)
+_INDEX = struct.pack("<BQHI", 0x07, 6, 1, 0)  # a valid message index record: channel 1, no entries (15 bytes)
+_STATISTICS = struct.pack("<BQ", 0x0B, 46) + bytes(46)  # a valid statistics record, all counts 0
+_METADATA = struct.pack("<BQII", 0x0C, 8, 0, 0)  # a valid metadata record: no name, no entries
+_EMPTY_CHUNK = struct.pack("<BQQQQIIQ", 0x06, 40, 0, 0, 0, 0, 0, 0)  # a valid chunk holding nothing
+
+
+@pytest.mark.parametrize(
+    ("flood", "first_refused", "said"),
+    [
+        # two message indexes follow the chunk already: the 63rd added is the 65th after it
+        (_INDEX * 10_000, _FLUSHED + 62 * len(_INDEX), "more than 64 message index records after one chunk"),
+        (_METADATA + _INDEX * 10_000, _FLUSHED + len(_METADATA), "a message index record after a metadata record, not after its chunk"),
+        (_STATISTICS * 10_000, _FLUSHED + len(_STATISTICS), "statistics record number 2, more than the file can hold (1: one per file)"),
+        # the golden start holds one metadata record
+        (_METADATA * 10_000, _FLUSHED + 1023 * len(_METADATA), "metadata record number 1025, more than the file can hold (1024"),
+    ],
+    ids=["message-indexes-after-a-chunk", "message-indexes-after-no-chunk", "statistics", "metadata"],
+)
+def test_a_flood_of_small_valid_records_is_refused_at_the_first_one_too_many(
+    tmp_path: Path, flood: bytes, first_refused: int, said: str
+) -> None:
+    """Records a lagrseq log never holds in such numbers or places stop the walk at once (10,000
+    are written; the walk stops within the first 64, or 1,024 metadata records): ``recover`` keeps the episodes flushed
+    before them and says how many, in one line."""
+    log = tmp_path / "trial-000.mcap.partial"
+    log.write_bytes(DATA[:_FLUSHED] + flood)
+    walked = 0
+    with McapFile(log) as opened, pytest.raises(Damage) as found:
+        for offset, _end, _record in opened.scan():
+            walked += 1
+            assert offset < first_refused
+    assert found.value.offset == first_refused and said in found.value.what, found.value.what
+    assert walked < 1100
+    result = recover(log)
+    assert result.episodes == len(read_topics(result.path, ["/episode"])["/episode"]) > 0
+    assert f"{result.episodes} episodes, {result.messages} messages kept" in result.summary()
+
+
+def test_a_scan_stops_after_its_record_cap(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Any walk outside chunks stops after MAX_SCAN_RECORDS records (here lowered to 40; the
+    golden start holds 23 up to its last flush, then 1,000 empty chunks, each with a message
+    index, follow: the kinds a log holds in numbers)."""
+    monkeypatch.setattr(mcap_reader, "MAX_SCAN_RECORDS", 40)
+    log = tmp_path / "trial-000.mcap.partial"
+    log.write_bytes(DATA[:_FLUSHED] + (_EMPTY_CHUNK + _INDEX) * 1000)
+    offsets = []
+    with McapFile(log) as opened, pytest.raises(Damage) as found:
+        offsets.extend(offset for offset, _end, _record in opened.scan())
+    before = sum(1 for offset in offsets if offset < _FLUSHED)
+    assert before == 23 and len(offsets) == 40
+    assert "more than 40 records outside chunks" in found.value.what
+    assert found.value.offset == _FLUSHED + (40 - before) // 2 * len(_EMPTY_CHUNK + _INDEX) + len(_EMPTY_CHUNK)
+    assert recover(log).episodes > 0
+
+
+def test_the_golden_log_has_what_the_bounds_allow() -> None:
+    """The bounds hold for a real log: at most 2 message indexes after a chunk, 1 statistics
+    record, as many chunk indexes as chunks."""
+    with McapFile(GOLDEN) as opened:
+        kinds = [type(record).__name__ for _, _, record in opened.scan()]
+    assert kinds.count("Statistics") == 1 and kinds.count("ChunkIndex") == kinds.count("Chunk") == 8

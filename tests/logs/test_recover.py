@@ -347,3 +347,36 @@ def test_a_partial_file_still_being_written_is_refused(tmp_path: Path) -> None:
         assert sorted(p.name for p in tmp_path.iterdir()) == ["trial-000.mcap.partial"]
     finally:
         sink.abandon()
+
+
+def test_recover_never_writes_through_a_planted_link(tmp_path: Path) -> None:
+    """A symbolic link planted at the output, at the default output or at the temporary file
+    ``NAME.mcap.recovering`` (a shared folder) is refused in one line with exit status 2: the
+    file it points to is unchanged, and a dangling link's target is not created (issue 37)."""
+    data = GOLDEN.read_bytes()[:13000]
+    victim = tmp_path / "victim.txt"
+    victim.write_text("someone's file\n")
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    partial = logs / "trial-000.mcap.partial"
+    partial.write_bytes(data)
+    cases = {
+        "--out, a link to a file": (["--out", str(tmp_path / "out.mcap")], tmp_path / "out.mcap", victim),
+        "--out, a dangling link": (["--out", str(tmp_path / "new.mcap")], tmp_path / "new.mcap", tmp_path / "made.txt"),
+        "the default output": ([], logs / "trial-000.mcap", victim),
+        "the temporary file": ([], logs / "trial-000.mcap.recovering", victim),
+    }
+    for case, (args, link, points_to) in cases.items():
+        link.symlink_to(points_to)
+        done = _cli("recover", str(partial), *args)
+        lines = done.stderr.strip().splitlines()
+        assert done.returncode == 2 and len(lines) == 1, (case, done.stderr, done.stdout)
+        assert "is a symbolic link; lagrseq never writes through a link" in lines[0], (case, lines)
+        assert victim.read_text() == "someone's file\n", case
+        assert not (tmp_path / "made.txt").exists(), case
+        assert link.is_symlink() and partial.read_bytes() == data, case
+        link.unlink()
+    assert sorted(p.name for p in logs.iterdir()) == ["trial-000.mcap.partial"]
+    done = _cli("recover", str(partial))  # with the links gone it recovers
+    assert done.returncode == 0, done.stderr
+    assert read_info(logs / "trial-000.mcap").status["status"] == "recovered"
