@@ -81,7 +81,7 @@ def test_every_marked_item_gets_a_recorded_line_where_the_caches_cover_it() -> N
     # stopped at the first solve and as a full-length copy of 5 trials (the item's full_horizon_trials)
     image = added["frontier-image"]
     assert {r.method for r in image} == {"lagr", "lagr-seq"} and len(image) == 28
-    assert sorted((r.full_horizon, r.trials) for r in image) == [(False, 30)] * 14 + [(True, 5)] * 14
+    assert sorted((r.full_horizon, r.trials) for r in image) == [(False, 30)] * 14 + [(True, 10)] * 14
     assert all(added[i] for i in marked) and not any(added[i.id] for i in suite.items if not i.recorded)
     # Fig. 4: one tau = 0 line (the default run and the authors-t0 profile run are the same query)
     assert [r.label for r in added["fig4"]] == ["authors' GPT answers, τ=0"]

@@ -641,7 +641,7 @@ def test_a_run_stopped_at_the_first_solve_is_timed_to_its_first_solve(tmp_path: 
     always = [run for run in plan.runs if run.config.method == "lagr" and run.config.lagr.solution_scope == "trial"]
     stopped = next(run for run in always if run.config.run.stop_at == "first_solve")
     full = next(run for run in always if not run.config.run.stop_at)
-    assert (stopped.trials, full.trials, full.full_horizon, stopped.full_horizon) == (30, 5, ["frontier-arrangement"], [])
+    assert (stopped.trials, full.trials, full.full_horizon, stopped.full_horizon) == (30, 10, ["frontier-arrangement"], [])
     assert reproduce._calibration_key(stopped) != reproduce._calibration_key(full)
     assert stopped.path not in reproduce.lockstep_groups(plan, jobs=2)
     timed: list[tuple[int, int, str]] = []
@@ -684,7 +684,7 @@ def test_only_the_stopped_runs_are_matched_with_random_and_their_random_stops_to
     full = reproduce.plan(suite, quick=False, provider=None, runs_dir=tmp_path, seed=0)
     sources = reproduce.matched_sources(full, {"frontier-arrangement"})
     copies = [run for run in full.runs if run.full_horizon]
-    assert len(copies) == len(full.runs) // 2 == len(suite.items[0].runs) // 2 and all(run.trials == 5 for run in copies)
+    assert len(copies) == len(full.runs) // 2 == len(suite.items[0].runs) // 2 and all(run.trials == 10 for run in copies)
     assert sources and all(run.config.run.stop_at == "first_solve" and run.trials == 30 for run in sources)
     assert not {run.path for run in sources} & {run.path for run in copies}
     assert frontier.matched_random_config(sources[0].config, 0.25).run.stop_at == "first_solve"
