@@ -101,13 +101,13 @@ def rows(name: str, policy: np.ndarray, always: np.ndarray, random: np.ndarray |
     late = float(np.mean(policy > (1 + paired.LATE) * always))
     cells = [
         name, str(len(d)), f"{d.mean():+.3f} (sd {d.std(ddof=1):.3f})",
-        _n(paired.pairs_for_power(d, 0.0, margin, POWER)),
-        _n(paired.pairs_for_power(-d, -float(d.mean()), -margin, POWER)) if d.mean() > margin else "n/a (mean below margin)",
+        _n(paired.pairs_for_power(d, 0.0, margin, POWER, alpha=paired.BOUND_ALPHA)),
+        _n(paired.pairs_for_power(-d, -float(d.mean()), -margin, POWER, alpha=paired.BOUND_ALPHA)) if d.mean() > margin else "n/a (mean below margin)",
         f"{late:.2f}", _n(tail_pairs(late)), _n(tail_pairs(0.0)), _n(tail_pairs(late, upper=False)),
     ]
     if random is not None:
         r = np.log(policy) - np.log(random)
-        cells.append(f"{r.mean():+.3f}: {_n(paired.pairs_for_power(r, float(r.mean()), 0.0, POWER))}")
+        cells.append(f"{r.mean():+.3f}: {_n(paired.pairs_for_power(r, float(r.mean()), 0.0, POWER, alpha=paired.BOUND_ALPHA))}")
     else:
         cells.append("n/a")
     cells.append(_n(query_pairs(*queries)) if queries is not None else "n/a")
@@ -168,7 +168,7 @@ def main() -> None:
     parser.add_argument("--logs", type=Path, nargs="*", default=None, help="frontier run directories (default: the differences docs/frontier.md lists)")
     args = parser.parse_args()
     table = from_logs(args.logs) if args.logs else from_docs()
-    print(f"pairs for {POWER:.0%} power, one-sided alpha {paired.ALPHA}, margin {paired.LATE:.0%} on the mean log ratio, tail margin {paired.TAIL_MARGIN:.0%}")
+    print(f"pairs for {POWER:.0%} power, one-sided alpha {paired.BOUND_ALPHA} on the mean (calibrated), {paired.ALPHA} on the tail, margin {paired.LATE:.0%} on the mean log ratio, tail margin {paired.TAIL_MARGIN:.0%}")
     print("| " + " | ".join(HEADER) + " |")
     print("| " + " | ".join("---" for _ in HEADER) + " |")
     for row in table:
