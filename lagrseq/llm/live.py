@@ -61,7 +61,6 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-import httpcore
 import httpx
 import numpy as np
 
@@ -263,26 +262,44 @@ class SharedBackoff:
 
 
 class _Watchdog:
-    """Shuts the connection of ``response`` down at ``deadline`` (a perf_counter time), so that a
-    read blocked on a server that stalls or trickles ends then, whatever the read timeout. Without
-    a socket to shut (a mock transport), the reader's own deadline checks remain."""
+    """Shuts a request's connection down at ``deadline`` (a perf_counter time), so that nothing
+    the server does (stalling, or sending its status line, headers or body a byte at a time, each
+    within the read timeout) outlasts the deadline.
 
-    def __init__(self, response: httpx.Response, deadline: float) -> None:
+    The socket is learnt through httpx's public ``trace`` request extension the moment the
+    connection opens (and again after TLS wraps it), before a byte is sent; the client keeps no
+    idle connections, so every request opens one and is watched from its first byte. Without a
+    socket to shut (a mock transport), the reader's own deadline checks remain."""
+
+    def __init__(self, deadline: float) -> None:
+        self.deadline = deadline
         self.fired = False
         self._lock = threading.Lock()
         self._done = False
         self._sock: socket.socket | None = None
         self._timer: threading.Timer | None = None
-        stream = response.extensions.get("network_stream")
+
+    def trace(self, event: str, info: Mapping[str, Any]) -> None:
+        """The ``trace`` extension's callback: watch each connection the request opens."""
+        if event.endswith((".connect_tcp.complete", ".connect_unix_socket.complete", ".start_tls.complete")):
+            self.watch(info.get("return_value"))
+
+    def watch(self, stream: Any) -> None:
+        """Shut ``stream``'s socket at the deadline (a stream without one is left alone)."""
         try:
             sock = stream.get_extra_info("socket") if stream is not None else None
         except Exception:  # an unusual transport: no socket to shut
             sock = None
-        if isinstance(sock, socket.socket):
-            self._sock = sock
-            self._timer = threading.Timer(max(deadline - time.perf_counter(), 0.0), self._fire)
-            self._timer.daemon = True
-            self._timer.start()
+        if not isinstance(sock, socket.socket):
+            return
+        with self._lock:
+            if self._done:
+                return
+            self._sock = sock  # after TLS, the wrapping socket (the plain one is detached)
+            if self._timer is None:
+                self._timer = threading.Timer(max(self.deadline - time.perf_counter(), 0.0), self._fire)
+                self._timer.daemon = True
+                self._timer.start()
 
     def _fire(self) -> None:
         with self._lock:
@@ -300,83 +317,10 @@ class _Watchdog:
             self._timer.cancel()
 
 
-_DEADLINE = threading.local()
-"""``at``: the perf_counter time by which the request this thread is making must be over."""
-
-
-def _left(timeout: float | None, error: type[Exception]) -> float | None:
-    """``timeout`` cut to the time left before this thread's request deadline; ``error`` once it
-    has passed (so no connect, write or read, however the server drips its bytes, outlasts it)."""
-    deadline = getattr(_DEADLINE, "at", None)
-    if deadline is None:
-        return timeout
-    left = deadline - time.perf_counter()
-    if left <= 0:
-        raise error("the request deadline has passed")
-    return left if timeout is None else min(timeout, left)
-
-
-class _DeadlineStream(httpcore.NetworkStream):
-    """A connection whose every read and write waits no longer than the request deadline allows:
-    a server that sends its status line and headers a byte at a time (each within the read
-    timeout, before the response and its watchdog exist) is cut off at the deadline too."""
-
-    def __init__(self, inner: httpcore.NetworkStream) -> None:
-        self._inner = inner
-
-    def read(self, max_bytes: int, timeout: float | None = None) -> bytes:
-        return self._inner.read(max_bytes, _left(timeout, httpcore.ReadTimeout))
-
-    def write(self, buffer: bytes, timeout: float | None = None) -> None:
-        self._inner.write(buffer, _left(timeout, httpcore.WriteTimeout))
-
-    def close(self) -> None:
-        self._inner.close()
-
-    def start_tls(
-        self, ssl_context: Any, server_hostname: str | None = None, timeout: float | None = None
-    ) -> httpcore.NetworkStream:
-        return _DeadlineStream(self._inner.start_tls(ssl_context, server_hostname, _left(timeout, httpcore.ConnectTimeout)))
-
-    def get_extra_info(self, info: str) -> Any:
-        return self._inner.get_extra_info(info)
-
-
-class _DeadlineBackend(httpcore.NetworkBackend):
-    """httpcore's network backend with every connection a :class:`_DeadlineStream`."""
-
-    def __init__(self, inner: httpcore.NetworkBackend) -> None:
-        self._inner = inner
-
-    def connect_tcp(
-        self, host: str, port: int, timeout: float | None = None, local_address: str | None = None, socket_options: Any = None
-    ) -> httpcore.NetworkStream:
-        stream = self._inner.connect_tcp(host, port, _left(timeout, httpcore.ConnectTimeout), local_address, socket_options)
-        return _DeadlineStream(stream)
-
-    def connect_unix_socket(self, path: str, timeout: float | None = None, socket_options: Any = None) -> httpcore.NetworkStream:
-        return _DeadlineStream(self._inner.connect_unix_socket(path, _left(timeout, httpcore.ConnectTimeout), socket_options))
-
-    def sleep(self, seconds: float) -> None:
-        self._inner.sleep(seconds)
-
-
-def _bound_by_deadline(client: httpx.Client) -> bool:
-    """Put :class:`_DeadlineBackend` under every connection pool of ``client`` (the default
-    transport and any proxy's); False where a transport has no httpcore pool (a mock transport,
-    one passed in by an embedding program), which keeps the watchdog and the reader's checks."""
-    transports = [client._transport, *client._mounts.values()]
-    bound = True
-    for transport in transports:
-        pool = getattr(transport, "_pool", None)
-        backend = getattr(pool, "_network_backend", None)
-        if isinstance(backend, _DeadlineBackend):
-            continue
-        if isinstance(backend, httpcore.NetworkBackend):
-            pool._network_backend = _DeadlineBackend(backend)  # type: ignore[union-attr]
-        else:
-            bound = False
-    return bound
+_LIMITS = httpx.Limits(max_keepalive_connections=0)
+"""No idle connections: every request opens its own, so its watchdog sees it open (a reused
+connection would give the trace nothing to report). A new connection per chat completion costs a
+handshake, small beside the completion itself."""
 
 
 def status_of(url: str, seconds: float) -> int | None:
@@ -384,16 +328,15 @@ def status_of(url: str, seconds: float) -> int | None:
     (connecting, sending, and every byte of the status line and headers); the body is not read.
     None when no status came in time or the connection failed. For readiness probes (the local
     llama.cpp server's ``/v1/models``), where a foreign server on the port might drip for ever."""
-    with httpx.Client(timeout=seconds, follow_redirects=False) as client:
-        _bound_by_deadline(client)
-        _DEADLINE.at = time.perf_counter() + seconds
+    watchdog = _Watchdog(time.perf_counter() + seconds)
+    with httpx.Client(timeout=seconds, follow_redirects=False, limits=_LIMITS) as client:
         try:
-            with client.stream("GET", url) as response:
+            with client.stream("GET", url, extensions={"trace": watchdog.trace}) as response:
                 return response.status_code
         except httpx.HTTPError:
             return None
         finally:
-            _DEADLINE.at = None
+            watchdog.cancel()
 
 
 class _Decoder:
@@ -499,9 +442,10 @@ class LiveProvider:
             write=min(s.connect_timeout_s, s.request_deadline_s),
             pool=min(s.connect_timeout_s, s.request_deadline_s),
         )
-        self._client = httpx.Client(timeout=self._timeout, transport=transport, follow_redirects=False)
-        self.deadline_bound = _bound_by_deadline(self._client)
-        """Every connect, write and read of a request ends by its deadline (module docstring)."""
+        self._client = httpx.Client(timeout=self._timeout, transport=transport, follow_redirects=False, limits=_LIMITS)
+        self.deadline_bound = transport is None
+        """Every request's connection is watched from its first byte (httpx's own transports
+        report their connections to the ``trace`` extension; one passed in may not)."""
         self._closed = False
 
     @property
@@ -627,11 +571,11 @@ class LiveProvider:
         s = self.settings
         started = time.perf_counter()
         deadline = started + s.request_deadline_s
-        watchdog: _Watchdog | None = None
-        _DEADLINE.at = deadline
+        watchdog = _Watchdog(deadline)
+        extensions = {"trace": watchdog.trace}
         try:
-            with self._client.stream("POST", self.url, json=body, headers=self._headers()) as response:
-                watchdog = _Watchdog(response, deadline)
+            with self._client.stream("POST", self.url, json=body, headers=self._headers(), extensions=extensions) as response:
+                watchdog.watch(response.extensions.get("network_stream"))  # a transport that traced nothing
                 try:
                     data = self._read(response, deadline, watchdog)
                 except _Retry:
@@ -647,13 +591,16 @@ class LiveProvider:
                 finally:
                     watchdog.cancel()
         except httpx.TimeoutException as exc:
-            if time.perf_counter() - started >= s.request_deadline_s * 0.999:
+            watchdog.cancel()
+            if watchdog.fired or time.perf_counter() - started >= s.request_deadline_s * 0.999:
                 raise self._overrun() from None
             phase = {"ConnectTimeout": "connect", "ReadTimeout": "read", "WriteTimeout": "write", "PoolTimeout": "pool"}
             which = phase.get(type(exc).__name__, "")
             limit = self._timeout.read if which == "read" else self._timeout.connect
             raise _Retry(f"no response within the {limit:g} s {which} timeout".replace("  ", " ")) from None
         except (httpx.NetworkError, httpx.RemoteProtocolError) as exc:
+            if watchdog.fired:  # the deadline shut the connection before the response began
+                raise self._overrun() from None
             raise _Retry(f"connection failed ({type(exc).__name__}: {self._redactor.diagnostic(str(exc))})") from None
         except httpx.HTTPError as exc:  # bad URL, unsupported scheme, proxy trouble: not transient
             raise ProviderError(
@@ -661,7 +608,7 @@ class LiveProvider:
                 "check --base-url"
             ) from None
         finally:
-            _DEADLINE.at = None
+            watchdog.cancel()
         latency = time.perf_counter() - started
         if response.status_code != 200:
             self._refuse(response.status_code, response.headers, data, query)

@@ -1,4 +1,4 @@
-"""More servers that misbehave on 127.0.0.1 (issue 8, defect 8), beyond ``test_limits.py``: status
+"""More servers that misbehave on 127.0.0.1, beyond ``test_limits.py``: status
 line and headers dripped a byte at a time, lying lengths, endless or huge headers, a chunked body
 that never ends, redirect loops, bodies that are not chat completions (HTML, server-sent events,
 JSON of the wrong types, nesting past the recursion limit, lone surrogates), and the local
@@ -12,7 +12,6 @@ client must hang up long before the server is through (no wall-clock assertions)
 from __future__ import annotations
 
 import json
-import os
 import socket
 import stat
 import sys
@@ -70,28 +69,25 @@ def test_a_status_line_and_headers_dripped_byte_by_byte_end_at_the_deadline() ->
         assert raw.sent < DRIP_BYTES // 2
 
 
-def test_the_deadline_also_bounds_a_reused_connection() -> None:
-    """The second request on a kept-alive connection is bounded too (no new connect happens)."""
+def test_every_request_opens_a_watched_connection_of_its_own() -> None:
+    """No connection is kept idle, so a second request connects anew and is watched from its
+    first byte like the first (a reused connection would open nothing to watch)."""
     good = json.dumps({"choices": [{"message": {"content": "['e']"}}]}).encode()
     drip = Drip(b"HTTP/1.1 200 OK\r\nX-Slow: " + b"a" * DRIP_BYTES)
     connections = []
 
     def behave(conn: socket.socket, stop: threading.Event, raw: RawServer) -> None:
         connections.append(conn)
-        conn.sendall(headers(length=len(good)) + good)
-        data = b""
-        while b"\r\n\r\n" not in data:  # the next request on the same connection
-            chunk = conn.recv(65536)
-            if not chunk:
-                return
-            data += chunk
-        drip(conn, stop, raw)
+        if len(connections) == 1:
+            conn.sendall(headers(length=len(good)) + good)
+        else:
+            drip(conn, stop, raw)
 
     with serve(behave) as raw, live(raw.url, request_deadline_s=1.0, read_timeout_s=5.0) as provider:
         assert provider.complete(query()).text == "['e']"
         with pytest.raises(ProviderError, match="1 s request deadline"):
             provider.complete(query())
-        assert len(connections) == 1 and drip.hung_up.wait(5.0) and not drip.finished.is_set()
+        assert len(connections) == 2 and drip.hung_up.wait(5.0) and not drip.finished.is_set()
 
 
 def endless(piece: bytes, head: bytes) -> Any:
@@ -263,9 +259,17 @@ def test_the_local_servers_readiness_probe_ends_against_a_dripping_server(tmp_pa
 
 
 def test_no_proxy_from_the_environment_escapes_the_deadline(monkeypatch: pytest.MonkeyPatch) -> None:
-    """A proxy's connection pool gets the deadline too (the proxy itself is never contacted here)."""
-    monkeypatch.setenv("HTTP_PROXY", "http://127.0.0.1:9")
-    monkeypatch.setenv("NO_PROXY", "")
-    with live("http://127.0.0.1:9/v1") as provider:
-        assert provider.deadline_bound
-    assert os.environ["HTTP_PROXY"] == "http://127.0.0.1:9"
+    """A proxy taken from the environment that drips its answer is cut off at the deadline too
+    (the proxy runs on 127.0.0.1; the URL behind it is never contacted)."""
+    drip = Drip(b"HTTP/1.1 200 OK\r\nX-Slow: " + b"a" * DRIP_BYTES)
+    with serve(drip) as proxy:
+        monkeypatch.setenv("HTTP_PROXY", proxy.url.removesuffix("/v1"))
+        monkeypatch.setenv("NO_PROXY", "")
+        with live("http://127.0.0.1:9/v1", request_deadline_s=1.0, read_timeout_s=5.0) as provider:
+            assert provider.deadline_bound
+            with pytest.raises(ProviderError, match="1 s request deadline"):
+                provider.complete(query())
+        assert drip.hung_up.wait(5.0) and not drip.finished.is_set()
+        assert proxy.sent < DRIP_BYTES // 2
+
+
