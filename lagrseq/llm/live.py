@@ -19,10 +19,10 @@ Failures, as the OpenAI client libraries treat them:
 Limits, so that no server can hang a run or fill its memory (:class:`LiveSettings`):
 
 - ``request_deadline_s`` (300 s): the most one request may take, from sending it to the last byte
-  of the response. Once the response has begun, a watchdog shuts its connection down at the
-  deadline, so even a server that sends a byte a second for ever is cut off on time; before that,
-  connecting, sending and waiting for the headers are each limited to the smaller of their timeout
-  and the deadline. An overrun counts as a timeout: retried, within ``max_retries``.
+  of the response. From the moment its connection opens, a watchdog shuts that connection down
+  at the deadline, so even a server that sends its headers or body a byte a second for ever is cut
+  off on time; connecting is limited to the smaller of its timeout and the deadline. An overrun
+  counts as a timeout: retried, within ``max_retries``.
 - ``read_timeout_s`` (120 s): the longest wait for the next bytes of a response (a timeout,
   retried).
 - ``max_response_bytes`` (4 MiB, some thousand times a chat completion): the largest body read,
