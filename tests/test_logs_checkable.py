@@ -93,8 +93,8 @@ def _rewrite(source: Path, target: Path, change: dict[str, object], drop: str | 
                 record.pop(drop or "", None)
                 data, changed = json.dumps(record).encode(), True
             writer.add_message(channels[channel.id], message.log_time, data, message.publish_time)
-        for record in reader.iter_metadata():
-            writer.add_metadata(record.name, dict(record.metadata))
+        for kept in reader.iter_metadata():
+            writer.add_metadata(kept.name, dict(kept.metadata))
         writer.finish()
 
 

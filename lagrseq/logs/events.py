@@ -1,9 +1,11 @@
 """The events of a trial, as frozen records: one type per MCAP topic.
 
-Each record's fields are the topic's contract (``logs/schemas.py``), in the order they appear in
-the JSON. Only :class:`EpisodeEvent` departs in spelling: ``return`` is a Python keyword, so the
-attribute is ``return_`` and the JSON field stays ``return``. Field names are a public contract:
-add fields at the end, rename none.
+Each record's fields are the topic's contract, in the order they appear in the JSON, declared
+here once: name, type and description (``Annotated[..., about(...)]``), from which
+``logs/schemas.py`` generates the topics' JSON schemas; ``docs/logs.md`` describes each (a test
+compares the two). Only :class:`EpisodeEvent` departs in spelling: ``return`` is a Python
+keyword, so the attribute is ``return_`` and the JSON field stays ``return``. Field names are a
+public contract: add fields at the end, rename none.
 
 The records are ``msgspec.Struct`` classes: made and encoded to JSON in C (about 1 microsecond a
 transition, against 6 to 7 for a NamedTuple and a memoised hand encoder; ``benchmarks/bench_cube.py``
@@ -73,7 +75,7 @@ class Transition(msgspec.Struct, frozen=True, gc=False, omit_defaults=True):
     state: Annotated[Any, about("the partial pattern before the action (a list, nested for grids)", **_ARRAY)]
     action: Annotated[int, about("the action taken (the primary agent's, or pi_LLM's when guided)")]
     reward: Annotated[float, about("the reward the environment returned for the action")]
-    terminated: Annotated[bool, about("the environment ended the episode on this step (the target reached)")]
+    terminated: Annotated[bool, about("the environment ended the episode on this step")]
     truncated: Annotated[bool, about("the environment cut the episode off on this step (its own step limit)")]
     guided: Annotated[bool, about("the action came from the LLM's solution (pi_LLM)")]
     placement: Annotated[Any, about(
