@@ -140,6 +140,10 @@ class QueryEvent(msgspec.Struct, frozen=True, gc=False, omit_defaults=True):
     finish_reason: Annotated[str | None, about("why the model stopped (stop, length, ...)")] = None
     system_fingerprint: Annotated[str | None, about("the server's backend fingerprint")] = None
     prompt: Annotated[str | None, about("the user message's text: the exact prompt the query asked (log format 4)")] = None
+    cached_tokens: Annotated[int | None, about(
+        "of prompt_tokens, those the server served from its prompt cache (priced at the cached rate); "
+        "null as prompt_tokens (log format 4)"
+    )] = None
     outcome: Annotated[Outcome | None, about(
         "how the query was decided: sent (to a live server), replayed (a recorded sample), mock, "
         "mock_fallback, refused_miss, calibrated_draw (log format 4; readers derive it for older logs)"

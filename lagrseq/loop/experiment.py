@@ -312,6 +312,7 @@ def query_event(event: QueryEvent, result: Consultation, provider: str, temperat
         temperature=temperature,
         prompt_tokens=None if answer.usage is None else answer.usage.prompt_tokens,
         completion_tokens=None if answer.usage is None else answer.usage.completion_tokens,
+        cached_tokens=None if answer.usage is None else answer.usage.cached_tokens,
         cost_usd=answer.cost_usd,
         latency_s=answer.latency_s,
         source=answer.source,

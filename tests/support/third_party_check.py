@@ -17,6 +17,11 @@ import sys
 from collections import Counter, defaultdict
 from typing import Any
 
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10: the backport lagrseq depends on there
+    import tomli as tomllib
+
 
 class _NoLagrseq(importlib.abc.MetaPathFinder):
     def find_spec(self, name: str, path: Any = None, target: Any = None) -> None:
@@ -90,13 +95,38 @@ def record_key(request: dict[str, Any]) -> str:
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
-def check_query(q: dict[str, Any], threshold: float, store: dict[tuple[str, int], dict[str, Any]], check: Check) -> str | None:
+def price_of(prices: dict[str, dict[str, Any]], *models: str | None) -> dict[str, Any] | None:
+    """docs/logs.md: a model's prices, looked up exactly, then by its longest listed prefix + '-'."""
+    for model in models:
+        if not model:
+            continue
+        if model in prices:
+            return prices[model]
+        family = [name for name in prices if model.startswith(name + "-")]
+        if family:
+            return prices[max(family, key=len)]
+    return None
+
+
+def cost(q: dict[str, Any], price: dict[str, Any]) -> float:
+    cached = q["cached_tokens"] or 0
+    cached_rate = price.get("cached_input_usd_per_mtok", price["input_usd_per_mtok"])
+    return (
+        (q["prompt_tokens"] - cached) * price["input_usd_per_mtok"]
+        + cached * cached_rate
+        + q["completion_tokens"] * price["output_usd_per_mtok"]
+    ) / 1_000_000
+
+
+def check_query(q: dict[str, Any], run: dict[str, Any], store: dict[tuple[str, int], dict[str, Any]], check: Check) -> str | None:
     where = f"/query trial {q.get('trial')} step {q.get('global_step')}"
     if not check.fields(q, DECISION_NEEDS, where) or q["decision"] != 1:
         return None
     if not check.fields(q, QUERY_NEEDS, where):
         return None
-    q = {"parse_error": None, "record_key": None, "sample_index": None, "prompt_tokens": None, "completion_tokens": None, **q}
+    q = {"parse_error": None, "record_key": None, "sample_index": None, "prompt_tokens": None, "completion_tokens": None,
+         "cached_tokens": None, **q}
+    threshold = float(run["config"]["lagr"]["threshold"])
     check.that(hashlib.sha256(q["prompt"].encode("utf-8")).hexdigest() == q["prompt_sha256"], f"{where}: prompt_sha256")
     parsed = q["parse_error"] is None
     check.that(q["accepted"] == (parsed and q["evaluation"] >= threshold), f"{where}: accepted")
@@ -105,6 +135,11 @@ def check_query(q: dict[str, Any], threshold: float, store: dict[tuple[str, int]
     check.that(outcome == wanted, f"{where}: outcome {outcome} for source {source}")
     if outcome != "sent":
         check.that(q["cost_usd"] == 0, f"{where}: a {outcome} query cost {q['cost_usd']}")
+    else:
+        price = price_of(run["prices"], q["model"], run["config"]["llm"]["model"])
+        if check.that(price is not None, f"{where}: no price for {q['model']} in the price table given"):
+            assert price is not None
+            check.that(abs(q["cost_usd"] - cost(q, price)) <= 1e-12, f"{where}: cost_usd {q['cost_usd']} != {cost(q, price)}")
     if outcome in NO_TOKENS:
         check.that(q["prompt_tokens"] is None and q["completion_tokens"] is None, f"{where}: tokens of a {outcome}")
     if outcome == "refused_miss":
@@ -157,10 +192,16 @@ def check_log(path: str, store: dict[tuple[str, int], dict[str, Any]], check: Ch
     run = metadata.get("lagrseq.run", {})
     check.that(run.get("log_format") == "4", f"{path}: log_format {run.get('log_format')}")
     config = json.loads(run["config"])
-    threshold, max_steps = float(config["lagr"]["threshold"]), int(config["run"]["max_steps"] or 0)
+    max_steps = int(config["run"]["max_steps"] or 0)
+    table = json.loads(run["provider_options"]).get("price_table")
+    prices: dict[str, dict[str, Any]] = {}
+    if table:  # the price table in force (lagrseq's built-in one is not read here)
+        with open(table, "rb") as handle:
+            prices = tomllib.load(handle).get("models", {})
     queries = topics["/query"]
     decisions = queries + [{**d, "decision": 0, "queried": False} for d in expand(topics["/no_query"])]
-    outcomes = Counter(o for q in queries if (o := check_query(q, threshold, store, check)) is not None)
+    known = {"config": config, "prices": prices}
+    outcomes = Counter(o for q in queries if (o := check_query(q, known, store, check)) is not None)
     steps = expand(topics["/transitions"])
     check_episodes(topics["/episode"], steps, decisions, max_steps, check)
     records = metadata.get("lagrseq.records", {})
