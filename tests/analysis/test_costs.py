@@ -61,7 +61,7 @@ RUNS = [
 ]
 
 
-def test_costs_per_run_count_sources_tokens_and_usd() -> None:
+def test_costs_per_run_count_outcomes_tokens_and_usd() -> None:
     table = costs.by_run(RUNS)
     data = table.data
     first = data.iloc[0]
@@ -149,3 +149,12 @@ def test_decided_queries_need_no_usage_to_be_priced() -> None:
     table = costs.by_run([run], lambda model, prompt, completion: 1e-3 * (prompt + completion))
     cells = dict(zip(table.columns, table.rows[0], strict=True))
     assert (cells["tokens"], cells["USD spent"], cells["USD at current prices"]) == ("110", "0.0000", "0.1100")
+
+
+def test_an_old_log_without_outcomes_counts_its_queries_by_derived_outcome() -> None:
+    golden = Path(__file__).resolve().parents[2] / "fixtures" / "golden"
+    (run,) = loading.load([golden]).runs
+    assert "outcome" not in run.queries or run.queries["outcome"].isna().all()  # written before log format 4
+    row = costs.run_costs([run]).iloc[0]
+    assert row.queries > 0 and row.mock == row.queries
+    assert sum(int(row[name]) for name in ("sent", "replayed", "mock_fallback", "refused_miss", "calibrated_draw")) == 0
