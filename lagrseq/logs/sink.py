@@ -98,7 +98,7 @@ LOG_FORMAT = "4"
 transitions and its decisions not to query are one columnar record each (``/transitions``,
 ``/no_query``); 2: one record per transition and per decision, ``/query`` records leave out the
 fields at their default (:class:`~lagrseq.logs.events.QueryEvent`); 1 (no ``log_format``): every
-field written. Readers take all three and give the same records."""
+field written. Readers take all four and give the same records."""
 LOG_FORMATS = ("2", "3", "4")
 """The formats the sink writes (``McapSink(log_format=...)``)."""
 
