@@ -171,7 +171,7 @@ FIELD_TYPES = ("integer", "number", "boolean", "string")
 """The JSON types of a task's own logged fields (:attr:`TaskSpec.episode_fields`,
 :attr:`TaskSpec.step_fields`)."""
 LOGGED_EPISODE_FIELDS = frozenset(
-    {"trial", "episode", "return", "return_", "length", "queries", "accepted", "epsilon", "solved", "guided_steps", "global_step", "placements", "failed_placements"}
+    {"trial", "episode", "return", "return_", "length", "queries", "accepted", "epsilon", "solved", "guided_steps", "global_step", "cut_by_step_budget", "placements", "failed_placements"}
 )
 """The ``/episode`` fields lagrseq writes itself (``lagrseq.logs.events.EpisodeEvent`` and the
 arm's record; a test keeps the two equal): a task's own fields take other names."""

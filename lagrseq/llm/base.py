@@ -12,7 +12,7 @@ API's ``n``, or a wrapper around one) also implement :class:`MultiSampleProvider
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any, Literal, Protocol, runtime_checkable
 
 Source = Literal["live", "recorded", "mock", "miss", "calibrated"]
@@ -78,14 +78,17 @@ class Answer:
     """What came back.
 
     ``cost_usd`` is what this answer cost now: the priced usage of a live answer, 0 for a recorded
-    or mock one, None when the model has no price in the price table. ``model`` is the model the
+    or mock one (and for an answer decided without a request), None when the model has no price
+    in the price table. ``model`` is the model the
     server says it used (e.g. ``gpt-3.5-turbo-0125`` for ``gpt-3.5-turbo``).
     """
 
     text: str
     source: Source
     model: str
-    usage: Usage = field(default_factory=Usage)
+    usage: Usage | None = None
+    """Token counts; None when unknown (the authors' caches recorded none) or when nothing was
+    sent (a refused miss, a calibrated draw): logged as null, never as 0."""
     finish_reason: str | None = "stop"
     latency_s: float = 0.0
     cost_usd: float | None = 0.0

@@ -26,7 +26,7 @@ import hashlib
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
-from lagrseq.llm.base import Answer, Query, Source, Usage
+from lagrseq.llm.base import Answer, Query, Source
 from lagrseq.llm.store import Entry, query_key
 
 CALIBRATED_SOURCE: Source = "calibrated"
@@ -149,7 +149,7 @@ class CalibratedMissProvider:
     def complete(self, query: Query) -> Answer:
         text = self.calibration.right(query.prompt) if self.accepts(query) else self.calibration.wrong(query.prompt)
         return Answer(
-            text=text, source=CALIBRATED_SOURCE, model=query.model, usage=Usage(), finish_reason=self.REASON,
+            text=text, source=CALIBRATED_SOURCE, model=query.model, usage=None, finish_reason=self.REASON,
             cost_usd=0.0,
         )
 

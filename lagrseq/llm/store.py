@@ -253,7 +253,7 @@ class Sample:
             text=self.text,
             source="recorded",
             model=self.model or "",
-            usage=self.usage or Usage(),
+            usage=self.usage,
             finish_reason=self.finish_reason,
             latency_s=0.0,
             cost_usd=0.0,

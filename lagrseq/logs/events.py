@@ -1,9 +1,11 @@
 """The events of a trial, as frozen records: one type per MCAP topic.
 
-Each record's fields are the topic's contract (``logs/schemas.py``), in the order they appear in
-the JSON. Only :class:`EpisodeEvent` departs in spelling: ``return`` is a Python keyword, so the
-attribute is ``return_`` and the JSON field stays ``return``. Field names are a public contract:
-add fields at the end, rename none.
+Each record's fields are the topic's contract, in the order they appear in the JSON, declared
+here once: name, type and description (``Annotated[..., about(...)]``), from which
+``logs/schemas.py`` generates the topics' JSON schemas; ``docs/logs.md`` describes each (a test
+compares the two). Only :class:`EpisodeEvent` departs in spelling: ``return`` is a Python
+keyword, so the attribute is ``return_`` and the JSON field stays ``return``. Field names are a
+public contract: add fields at the end, rename none.
 
 The records are ``msgspec.Struct`` classes: made and encoded to JSON in C (about 1 microsecond a
 transition, against 6 to 7 for a NamedTuple and a memoised hand encoder; ``benchmarks/bench_cube.py``
@@ -16,7 +18,7 @@ from __future__ import annotations
 import functools
 from itertools import groupby
 from operator import attrgetter, itemgetter
-from typing import Any, NamedTuple, Protocol
+from typing import Annotated, Any, Literal, NamedTuple, Protocol
 
 import msgspec
 import numpy as np
@@ -31,99 +33,157 @@ NO_QUERY_TOPIC = "/no_query"
 as ``/query`` records)."""
 
 
+def about(description: str, **json_schema: Any) -> msgspec.Meta:
+    """A field's description (and, for a field typed ``Any``, its JSON type) for the topic's JSON
+    schema, which :mod:`lagrseq.logs.schemas` generates from these records."""
+    return msgspec.Meta(description=description, extra_json_schema=json_schema or None)
+
+
+_ARRAY = {"type": "array"}
+_NULLABLE_ARRAY = {"anyOf": [{"type": "array"}, {"type": "null"}]}
+
+Source = Literal["live", "recorded", "mock", "miss", "calibrated"]
+"""Where an answer came from (``lagrseq.llm.base.Source``)."""
+Outcome = Literal["sent", "replayed", "mock", "mock_fallback", "refused_miss", "calibrated_draw"]
+"""How a query was decided: ``sent`` to a live server (tokens and money spent), ``replayed`` from
+a recorded store's sample, answered by the ``mock`` provider (the run's provider), or, for a query
+a recorded store lacked, by the mock (``mock_fallback``), by a refusal (``refused_miss``) or by a
+draw at the store's acceptance rate (``calibrated_draw``). Only ``sent`` reached a model."""
+OUTCOMES: tuple[str, ...] = Outcome.__args__  # type: ignore[attr-defined]
+
+
+def query_outcome(provider: str | None, source: str | None) -> str | None:
+    """The ``outcome`` of a query answered from ``source`` for a run on ``provider`` (None: no
+    query, or a source lagrseq does not know). Logs before format 4 have no ``outcome`` field;
+    their readers derive it with this function."""
+    if source == "mock":
+        return "mock_fallback" if isinstance(provider, str) and provider.startswith("recorded") else "mock"
+    return _OUTCOME_OF.get(source) if isinstance(source, str) else None
+
+
+_OUTCOME_OF = {"live": "sent", "recorded": "replayed", "miss": "refused_miss", "calibrated": "calibrated_draw"}
+
+
 class Transition(msgspec.Struct, frozen=True, gc=False, omit_defaults=True):
     """One environment step of the primary agent (``/transition``). Fields with a default are
     written only when set (``placement``: arm tasks), so other tasks' records are unchanged."""
 
-    trial: int
-    episode: int
-    step: int
-    """Step within the episode, from 0."""
-    global_step: int
-    """Step within the trial, from 0; also the log time."""
-    state: Any
-    """The partial pattern before the action (JSON-ready: a tuple or a nested list of ints)."""
-    action: int
-    reward: float
-    terminated: bool
-    truncated: bool
-    guided: bool
-    """The action came from the LLM's solution (pi_LLM)."""
-    placement: Any = None
-    """Arm tasks: what the robot did on this step (``lagrseq.robot.PlacementResult`` as a dict),
-    None when nothing was placed."""
+    trial: Annotated[int, about("trial index within the run, from 0")]
+    episode: Annotated[int, about("episode index within the trial, from 0")]
+    step: Annotated[int, about("step within the episode, from 0")]
+    global_step: Annotated[int, about("step within the trial, from 0 (also the log time)")]
+    state: Annotated[Any, about("the partial pattern before the action (a list, nested for grids)", **_ARRAY)]
+    action: Annotated[int, about("the action taken (the primary agent's, or pi_LLM's when guided)")]
+    reward: Annotated[float, about("the reward the environment returned for the action")]
+    terminated: Annotated[bool, about("the environment ended the episode on this step")]
+    truncated: Annotated[bool, about("the environment cut the episode off on this step (its own step limit)")]
+    guided: Annotated[bool, about("the action came from the LLM's solution (pi_LLM)")]
+    placement: Annotated[Any, about(
+        "arm tasks: the robot's placement on this step (row, col, outcome, ok, offset_mm, ...); "
+        "left out on steps that placed nothing", anyOf=[{"type": "object"}, {"type": "null"}]
+    )] = None
 
 
 class QueryEvent(msgspec.Struct, frozen=True, gc=False, omit_defaults=True):
-    """One decision of the secondary agent and, when one was sent, the query (``/query``).
+    """One decision of the secondary agent and, when it asked, the query (``/query``).
 
     Fields at their default are not written (log format 2): a decision not to ask is its first
-    six fields, not 21 nulls more; the readers put the defaults back
+    six fields; the readers put the defaults back
     (:func:`lagrseq.logs.reader.fill_query_defaults`), so old and new logs read alike."""
 
-    trial: int
-    episode: int
-    step: int
-    global_step: int
-    state: Any
-    decision: int
-    """1 = query, 0 = do not query."""
-    queried: bool = False
-    """A query was actually sent to a provider."""
-    prompt_sha256: str | None = None
-    answer: str | None = None
-    solution: Any = None
-    parse_error: str | None = None
-    evaluation: float | None = None
-    accepted: bool | None = None
-    query_reward: float = 0.0
-    provider: str | None = None
-    model: str | None = None
-    temperature: float | None = None
-    prompt_tokens: int | None = None
-    completion_tokens: int | None = None
-    cost_usd: float | None = None
-    latency_s: float | None = None
-    source: str | None = None
-    record_key: str | None = None
-    sample_index: int | None = None
-    finish_reason: str | None = None
-    system_fingerprint: str | None = None
+    trial: Annotated[int, about("trial index within the run, from 0")]
+    episode: Annotated[int, about("episode index within the trial, from 0")]
+    step: Annotated[int, about("step within the episode at which the decision was taken")]
+    global_step: Annotated[int, about("step within the trial (also the log time)")]
+    state: Annotated[Any, about("the partial pattern shown (or not) to the LLM", **_ARRAY)]
+    decision: Annotated[int, about("1 = query, 0 = do not query")]
+    queried: Annotated[bool, about(
+        "the decision asked and the query was decided (an answer of any outcome, a refused miss "
+        "and a calibrated draw included); whether a model was reached is outcome"
+    )] = False
+    prompt_sha256: Annotated[str | None, about(
+        "SHA-256 (lowercase hex) of prompt, the user message's text encoded as UTF-8"
+    )] = None
+    answer: Annotated[str | None, about("the answer's text as it came back (empty for a refused miss)")] = None
+    solution: Annotated[Any, about("the parsed answer; null when it could not be parsed", **_NULLABLE_ARRAY)] = None
+    parse_error: Annotated[str | None, about("why the answer could not be parsed (null: parsed)")] = None
+    evaluation: Annotated[float | None, about("E(s_LLM) / E(target) of the parsed answer, 0 if unparseable")] = None
+    accepted: Annotated[bool | None, about(
+        "the answer was accepted: parsed (parse_error null) and evaluation >= the run's lagr.threshold"
+    )] = None
+    query_reward: Annotated[float, about(
+        "the secondary agent's reward for the decision, the query cost subtracted (0 when not asked)"
+    )] = 0.0
+    provider: Annotated[str | None, about("the run's provider (mock, recorded, recorded+live, live, ...)")] = None
+    model: Annotated[str | None, about("the model the answer names (a server's dated model name)")] = None
+    temperature: Annotated[float | None, about("the sampling temperature asked for")] = None
+    prompt_tokens: Annotated[int | None, about(
+        "prompt tokens the server reported (the mock: estimated); null when unknown or nothing was sent"
+    )] = None
+    completion_tokens: Annotated[int | None, about(
+        "completion tokens the server reported (the mock: estimated); null when unknown or nothing was sent"
+    )] = None
+    cost_usd: Annotated[float | None, about(
+        "US dollars this query cost the run (0 for a replayed, mock or decided answer); null when "
+        "the model has no price"
+    )] = None
+    latency_s: Annotated[float | None, about("seconds the provider took to answer")] = None
+    source: Annotated[Source | None, about(
+        "where the answer came from: live, recorded, mock; miss: the recorded store lacked the query "
+        "and a refusal answered it (--on-miss refuse); calibrated: a draw at the store's own "
+        "acceptance rate answered it (--on-miss calibrated)"
+    )] = None
+    record_key: Annotated[str | None, about(
+        "the recorded store's key of the query: SHA-256 of its canonical request (docs/logs.md)"
+    )] = None
+    sample_index: Annotated[int | None, about("which recorded sample of the key was served (from 0)")] = None
+    finish_reason: Annotated[str | None, about("why the model stopped (stop, length, ...)")] = None
+    system_fingerprint: Annotated[str | None, about("the server's backend fingerprint")] = None
+    prompt: Annotated[str | None, about("the user message's text: the exact prompt the query asked (log format 4)")] = None
+    cached_tokens: Annotated[int | None, about(
+        "of prompt_tokens, those the server served from its prompt cache (priced at the cached rate); "
+        "null as prompt_tokens (log format 4)"
+    )] = None
+    outcome: Annotated[Outcome | None, about(
+        "how the query was decided: sent (to a live server), replayed (a recorded sample), mock, "
+        "mock_fallback, refused_miss, calibrated_draw (log format 4; readers derive it for older logs)"
+    )] = None
 
 
 class ProbeQueryEvent(QueryEvent, frozen=True, gc=False):
     """A query of Fig. 4's accuracy probe: a ``/query`` record with the prefix it showed."""
 
-    prefix_length: int = 0
-    fraction: float = 0.0
-    """prefix_length / the target's length."""
+    prefix_length: Annotated[int, about("accuracy probe: elements of the target shown")] = 0
+    fraction: Annotated[float, about("accuracy probe: prefix_length / the target's length")] = 0.0
 
 
 class EpisodeEvent(msgspec.Struct, frozen=True, gc=False):
-    """Summary of one episode (``/episode``)."""
+    """Summary of one episode (``/episode``). ``return`` is a Python keyword, so the attribute
+    is ``return_`` and the JSON field stays ``return``."""
 
-    trial: int
-    episode: int
-    return_: float = msgspec.field(name="return")
-    """The episode's return (JSON field ``return``)."""
-    length: int = 0
-    queries: int = 0
-    accepted: int = 0
-    epsilon: float = 0.0
-    """The primary agent's exploration rate at the episode's last step."""
-    solved: bool = False
-    guided_steps: int = 0
-    global_step: int = 0
-    """Steps of the trial so far, this episode's included."""
+    trial: Annotated[int, about("trial index within the run, from 0")]
+    episode: Annotated[int, about("episode index within the trial, from 0")]
+    return_: Annotated[float, about("the episode's return: the sum of its transitions' rewards")] = msgspec.field(name="return")
+    length: Annotated[int, about("the episode's steps (its transitions)")] = 0
+    queries: Annotated[int, about("queries decided in this episode (its /query records with queried true)")] = 0
+    accepted: Annotated[int, about("accepted answers in this episode")] = 0
+    epsilon: Annotated[float, about("the primary agent's exploration rate at the episode's last step")] = 0.0
+    solved: Annotated[bool, about("the target pattern was reached in the episode")] = False
+    guided_steps: Annotated[int, about("steps whose action came from pi_LLM (transitions with guided true)")] = 0
+    global_step: Annotated[int, about("steps of the trial so far, this episode's included")] = 0
+    cut_by_step_budget: Annotated[bool | None, about(
+        "the trial's step budget (run.max_steps) ended the episode: its last step reached the budget "
+        "with neither terminated nor truncated (log format 4; null in older logs)"
+    )] = False
 
 
 class ArmEpisodeEvent(EpisodeEvent, frozen=True, gc=False):
     """``/episode`` of an arm task: the summary plus the robot's placements."""
 
-    placements: int = 0
-    """Placements the robot executed in this episode."""
-    failed_placements: int = 0
-    """Of those, the ones that failed (unreachable, outside the cell, tipped, not resting)."""
+    placements: Annotated[int, about("arm tasks: placements the robot executed in this episode")] = 0
+    failed_placements: Annotated[int, about(
+        "arm tasks: of those, the ones that failed (unreachable, outside the cell, tipped, not resting)"
+    )] = 0
 
 
 EPISODE_RECORDS: tuple[type[EpisodeEvent], ...] = (ArmEpisodeEvent,)

@@ -91,13 +91,15 @@ RECORDS_METADATA = "lagrseq.records"
 """Log format 3: the records per topic as the readers give them (``/transition``: steps,
 ``/query``: decisions, ``/episode``, pictures), so counts need no message read."""
 PARTIAL_SUFFIX = ".partial"
-LOG_FORMAT = "3"
-"""The log format, written as ``log_format`` in the ``lagrseq.run`` metadata. 3: an episode's
+LOG_FORMAT = "4"
+"""The log format, written as ``log_format`` in the ``lagrseq.run`` metadata. 4: format 3 whose
+``/query`` records carry ``prompt`` and ``outcome`` and ``/episode`` records
+``cut_by_step_budget`` (``docs/logs.md``). 3: an episode's
 transitions and its decisions not to query are one columnar record each (``/transitions``,
 ``/no_query``); 2: one record per transition and per decision, ``/query`` records leave out the
 fields at their default (:class:`~lagrseq.logs.events.QueryEvent`); 1 (no ``log_format``): every
-field written. Readers take all three and give the same records."""
-LOG_FORMATS = ("2", "3")
+field written. Readers take all four and give the same records."""
+LOG_FORMATS = ("2", "3", "4")
 """The formats the sink writes (``McapSink(log_format=...)``)."""
 
 CHUNK_BYTES = 64 * 1024
@@ -207,7 +209,7 @@ class McapSink:
             raise LogError(f"log format {log_format!r} cannot be written; expected one of {', '.join(LOG_FORMATS)}")
         self.path = Path(path)
         self._chunk_bytes = chunk_bytes
-        self._columnar = log_format == "3"
+        self._columnar = log_format != "2"
         self.partial = self.path.with_name(self.path.name + PARTIAL_SUFFIX)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         _refuse_link(self.path)

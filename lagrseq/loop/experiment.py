@@ -24,7 +24,7 @@ import numpy as np
 from lagrseq.agents.schedules import EpsilonSchedule
 from lagrseq.config import ExperimentConfig
 from lagrseq.llm.base import Provider
-from lagrseq.logs.events import QueryEvent, Sink, Transition, View, jsonable
+from lagrseq.logs.events import QueryEvent, Sink, Transition, View, jsonable, query_outcome
 from lagrseq.logs.task_fields import TaskFields, builtin_episode, builtin_step
 from lagrseq.loop.adapters import PrimaryAgent, Step
 from lagrseq.loop.lagr import Consultation, QueryTrigger, consult, follows
@@ -225,6 +225,7 @@ def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] |
                     trial=parts.trial, episode=number, return_=float(episode.total), length=episode.steps,
                     queries=episode.queries, accepted=episode.accepted, epsilon=float(episode.epsilon),
                     solved=bool(episode.solved), guided_steps=episode.guided_steps, global_step=global_step,
+                    cut_by_step_budget=_out_of_steps(config, global_step) and not (terminated or truncated),
                 )
             )
             sink.flush()  # an episode ends: a Ctrl-C keeps every finished episode
@@ -309,8 +310,9 @@ def query_event(event: QueryEvent, result: Consultation, provider: str, temperat
         provider=provider,
         model=answer.model,
         temperature=temperature,
-        prompt_tokens=answer.usage.prompt_tokens,
-        completion_tokens=answer.usage.completion_tokens,
+        prompt_tokens=None if answer.usage is None else answer.usage.prompt_tokens,
+        completion_tokens=None if answer.usage is None else answer.usage.completion_tokens,
+        cached_tokens=None if answer.usage is None else answer.usage.cached_tokens,
         cost_usd=answer.cost_usd,
         latency_s=answer.latency_s,
         source=answer.source,
@@ -318,6 +320,8 @@ def query_event(event: QueryEvent, result: Consultation, provider: str, temperat
         sample_index=answer.sample_index,
         finish_reason=answer.finish_reason,
         system_fingerprint=answer.system_fingerprint,
+        prompt=result.prompt,
+        outcome=query_outcome(provider, answer.source),
     )
 
 

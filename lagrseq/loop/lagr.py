@@ -26,6 +26,8 @@ class Consultation:
     parsed: Parsed
     evaluation: float
     accepted: bool
+    prompt: str = ""
+    """The text of the user message (its UTF-8 bytes hash to ``prompt_sha256``)."""
 
 
 def query_for(task: Task, llm: LLMConfig, pattern: Pattern) -> Query:
@@ -60,6 +62,7 @@ def consult(
         parsed=parsed,
         evaluation=float(evaluation),
         accepted=parsed.ok and evaluation >= threshold,
+        prompt=prompt,
     )
 
 
