@@ -431,6 +431,10 @@ class Entry:
     source: str
     """``lagrseq`` for a built-in, else the plugin's distribution (``name version``)."""
     entry_point: str = ""
+    distribution: str = BUILTIN
+    """The distribution that made the part (``lagrseq`` for a built-in)."""
+    version: str = ""
+    """That distribution's version ("" for a built-in: lagrseq's own, :func:`part_origin`)."""
 
 
 @dataclass(frozen=True)
@@ -456,7 +460,7 @@ class Registry(Generic[_S]):
     _entries: dict[str, Entry] = field(default_factory=dict)
     _loaded: bool = False
 
-    def register(self, spec: _S, source: str = BUILTIN, entry_point: str = "") -> _S:
+    def register(self, spec: _S, source: str = BUILTIN, entry_point: str = "", distribution: str = BUILTIN, version: str = "") -> _S:
         """Add ``spec`` under its name; a name already taken raises ValueError."""
         if not isinstance(spec, self.spec_type):
             raise TypeError(f"a {self.kind} registry takes {self.spec_type.__name__}, not {type(spec).__name__}")
@@ -465,7 +469,7 @@ class Registry(Generic[_S]):
             raise ValueError(f"{self.kind} name {name!r}: expected a printable name without ':' or ','")
         if name in self._entries:
             raise ValueError(f"{self.kind} {name!r} is already registered by {self._entries[name].source}")
-        self._entries[name] = Entry(name, spec, source, entry_point)
+        self._entries[name] = Entry(name, spec, source, entry_point, distribution, version)
         return spec
 
     def _load(self) -> None:
@@ -504,6 +508,23 @@ class Registry(Generic[_S]):
     def __contains__(self, name: object) -> bool:
         self._load()
         return name in self._entries
+
+
+def part_origin(kind: str, name: str) -> tuple[str, str]:
+    """``(distribution, version)`` of the registered part ``name`` of ``kind`` (a registry's key,
+    ``tasks``, or its kind, ``task``): ``("lagrseq", lagrseq's version)`` for a built-in, the
+    plugin's distribution and version otherwise. UsageError (one line) for an unknown kind or
+    part."""
+    registry = REGISTRIES.get(kind) or next((r for r in REGISTRIES.values() if r.kind == kind), None)
+    if registry is None:
+        raise UsageError(f"unknown kind of part {kind!r}; expected one of: {', '.join(REGISTRIES)}")
+    registry.get(name)  # one line naming the choices when unknown
+    entry = registry._entries[name]
+    if entry.distribution == BUILTIN:
+        from lagrseq import __version__
+
+        return BUILTIN, __version__
+    return entry.distribution, entry.version
 
 
 TASKS: Registry[TaskSpec] = Registry("task", GROUPS["tasks"], TaskSpec)
@@ -676,7 +697,12 @@ def _stage(registry: Registry[Any], ep: Any, source: str) -> Registry[Any]:
     specs = list(loaded) if isinstance(loaded, (list, tuple)) else [loaded]
     staged: Registry[Any] = Registry(registry.kind, registry.group, registry.spec_type, dict(registry._entries), True)
     for spec in specs:
-        staged.register(spec, source, f"{ep.name} = {ep.value}")
+        dist = getattr(ep, "dist", None)
+        try:
+            origin = (str(dist.name), str(dist.version)) if dist is not None else ("unknown distribution", "")
+        except Exception:  # noqa: BLE001 - metadata without a name or version
+            origin = ("unknown distribution", "")
+        staged.register(spec, source, f"{ep.name} = {ep.value}", *origin)
     return staged
 
 
