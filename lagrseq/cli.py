@@ -111,14 +111,63 @@ def _provider_flags(per: str) -> argparse.ArgumentParser:
     field of the options dataclass it sets (``lagrseq.registry.flag``); a flag not given is None
     (its field keeps its default). Grouped by the kinds that read them."""
     p = argparse.ArgumentParser(add_help=False)
-    _add_provider_flags(p, per)
+    if not _BARE:
+        _add_provider_flags(p, per)
     return p
+
+
+_BARE: list[bool] = []
+"""Set while :func:`_command_options` builds the commands without provider flags."""
+_FLAG_COMMANDS = ("run", "frontier", "record", "screen")
+"""The commands whose parsers take every provider flag."""
+_TAKEN: dict[str, str] = {}
+"""What :func:`_command_options` found (worked out once)."""
+
+
+def _command_options() -> dict[str, str]:
+    """Every option string and destination of the commands taking provider flags, without those
+    flags, each with its command's name: what a plugin's flag may not take."""
+    if _TAKEN:
+        return _TAKEN
+    taken = _TAKEN
+    _BARE.append(True)
+    try:
+        for command in _FLAG_COMMANDS:
+            sub = argparse.ArgumentParser(add_help=False).add_subparsers()
+            _ADDERS[command](sub)
+            for action in sub.choices[command]._actions:
+                for name in [*action.option_strings, action.dest]:
+                    taken.setdefault(name, command)
+    finally:
+        _BARE.clear()
+    return taken
+
+
+def drop_clashing_plugin_flags() -> None:
+    """Skip (one line) each plugin provider kind whose flag, or the field it sets, is taken by
+    a command's own option (``--trials``): the command keeps working, without that plugin."""
+    from lagrseq import registry
+
+    plugins = [e for e in registry.PROVIDERS.entries() if e.distribution != registry.BUILTIN]
+    flagged = [(e, o) for e in plugins for o in registry.option_fields(registry.options_type(e.spec)) if o.flag is not None]
+    if not flagged:
+        return
+    taken = _command_options()
+    for entry, option in flagged:
+        for name in (option.flag.flag, option.name):  # type: ignore[union-attr]
+            if name in taken and entry.name in registry.PROVIDERS:
+                what = "option" if name.startswith("-") else "destination of an option"
+                registry.drop_plugin(registry.PROVIDERS, entry.name, (
+                    f"its provider {registry.printable(repr(entry.name))}'s flag {registry.printable(option.flag.flag)} "  # type: ignore[union-attr]
+                    f"takes the {what} {registry.printable(name)} of lagrseq {taken[name]}, which the command owns; rename the flag"
+                ))
 
 
 def _add_provider_flags(p: argparse.ArgumentParser, per: str, only: tuple[str, ...] | None = None) -> None:
     """The provider flags (``only``: those setting these fields, with their defaults: serve-llm)."""
     from lagrseq.registry import PROVIDERS, option_fields, option_flags, options_type
 
+    drop_clashing_plugin_flags()
     readers = {kind.usage: {o.name for o in option_fields(options_type(kind))} for kind in PROVIDERS.specs()}
     groups: dict[str, Any] = {}
     for name, option in option_flags().items():
