@@ -158,7 +158,7 @@ def drop_clashing_plugin_flags() -> None:
             if name in taken and entry.name in registry.PROVIDERS:
                 what = "option" if name.startswith("-") else "destination of an option"
                 registry.drop_plugin(registry.PROVIDERS, entry.name, (
-                    f"its provider {registry.printable(repr(entry.name))}'s flag {registry.printable(option.flag.flag)} "  # type: ignore[union-attr]
+                    f"its flag {registry.printable(option.flag.flag)} (provider {registry.printable(repr(entry.name))}) "  # type: ignore[union-attr]
                     f"takes the {what} {registry.printable(name)} of lagrseq {taken[name]}, which the command owns; rename the flag"
                 ))
 
@@ -759,7 +759,7 @@ def _add_screen(sub: Any) -> None:
 
 
 def _add_plugins(sub: Any) -> None:
-    sub.add_parser(
+    p = sub.add_parser(
         "plugins",
         help="list the tasks, providers, asking policies and executors, built-in and from plugins",
         description=(
@@ -769,6 +769,11 @@ def _add_plugins(sub: Any) -> None:
             "one that fails to load is listed as skipped (docs/extending.md)."
         ),
     )
+    p.add_argument("--check", action="store_true", help=(
+        "check every installed plugin instead: each part loads, its names, knobs and flags collide with nothing, "
+        "each task passes Gymnasium's env checker and a short run logs the fields it declares "
+        "(exit 0 when clean, 2 with one line per problem)"
+    ))
 
 
 def _add_info(sub: Any) -> None:
@@ -1188,10 +1193,21 @@ def cmd_audit(args: argparse.Namespace) -> int:
 
 
 def cmd_plugins(args: argparse.Namespace) -> int:
-    from lagrseq.registry import listing
+    from lagrseq import registry
 
-    print("\n".join(listing()))
-    return 0
+    if args.check:  # each problem once, below: the loading's own skip lines are not printed
+        os.environ[registry.NOTICES_ENV] = "0"
+    drop_clashing_plugin_flags()
+    if not args.check:
+        print("\n".join(registry.listing()))
+        return 0
+    from lagrseq.plugin_check import check
+
+    problems = check(print)
+    for problem in problems:
+        print(f"lagrseq plugins --check: {problem}", file=sys.stderr)
+    print(f"{len(problems)} problem{'' if len(problems) == 1 else 's'} found")
+    return 2 if problems else 0
 
 
 def cmd_info(args: argparse.Namespace) -> int:
