@@ -1201,7 +1201,7 @@ def cmd_plugins(args: argparse.Namespace) -> int:
     if not args.check:
         print("\n".join(registry.listing()))
         return 0
-    from lagrseq.plugin_check import check
+    from lagrseq.study.plugin_check import check
 
     problems = check(print)
     for problem in problems:

@@ -853,11 +853,11 @@ def knob_problem(knob: Knob) -> str:
         knob.check(knob.default, "its default")
         for choice in knob.choices:
             knob.check(choice, "a choice")
-        for text in knob.candidates:
-            from lagrseq.config import parse_override
+        for text in knob.candidates:  # read as --set and frontier's POLICY:KNOB=VALUE read them
+            from lagrseq.tomlfile import value_of
 
-            knob.check(parse_override(f"secondary.{knob.name}={text}")[2], f"the candidate {text!r}")
-    except ConfigError as exc:
+            knob.check(value_of(text), f"the candidate {text!r}")
+    except (ConfigError, ValueError) as exc:
         return str(exc)
     return ""
 
