@@ -298,9 +298,11 @@ class Knob:
     """A setting of an asking policy, declared once by its :class:`PolicySpec`: read from
     ``[secondary] NAME = VALUE`` (a config file, a preset, ``--set secondary.NAME=VALUE``) and
     from ``lagrseq frontier --policies POLICY:NAME=VALUE``; ``candidates`` are what
-    ``frontier --tune`` tries. A knob named like a ``[secondary]`` field is that field (the
-    built-ins' knobs: their type, range and default are the field's, and a test keeps the two
-    equal); any other is kept in the section's ``knobs`` (``section.knob(NAME)``). An example:
+    ``frontier --tune`` tries. A built-in policy's knob is the ``[secondary]`` field of its name
+    (its type, range and default are the field's, and a test keeps the two equal); a plugin's
+    knob may not take a field's name, a reserved word or another plugin's knob (the plugin is
+    skipped: :func:`_policy_problems`), and is kept in the section's ``knobs``
+    (``section.knob(NAME)``). An example:
 
     ```python
     Knob("backoff_factor", 0.5, ge=0.0, le=1.0, candidates=("0.25", "0.5", "0.75"),
@@ -311,7 +313,7 @@ class Knob:
 
     name: str
     """``[secondary] NAME``, ``--set secondary.NAME=V``, ``frontier --policies POLICY:NAME=V``
-    (a name like a ``[secondary]`` field is that field)."""
+    (a built-in's: the ``[secondary]`` field of that name)."""
     default: Any
     """Its value when not set; its type (bool, int, float, str) is the knob's (an int is taken
     for a float)."""
@@ -822,7 +824,7 @@ def _policy_problems(specs: list[PolicySpec]) -> str:
                 continue
             if not isinstance(knob, Knob):
                 return f"policy {printable(repr(spec.name))}: a knob is a {type(knob).__name__}; expected a Knob or a [secondary] field's name"
-            where = f"policy {printable(repr(spec.name))}'s knob {printable(repr(knob.name))}"
+            where = f"knob {printable(repr(knob.name))} of policy {printable(repr(spec.name))}"
             if knob.name in RESERVED_KNOBS:
                 return f"{where} is a reserved word of [secondary] (owned by lagrseq); rename the knob"
             if knob.name in shared:
@@ -1085,8 +1087,8 @@ def option_fields(cls: type | None) -> tuple[OptionField, ...]:
 
 
 def option_flags() -> dict[str, OptionField]:
-    """Every provider flag, by the field it sets, from the registered kinds' options (the first
-    declaration of a field name wins)."""
+    """Every provider flag, by the field it sets, from the registered kinds' options (each field
+    name has one declaration: a plugin that redeclares one is skipped, :func:`_flag_problems`)."""
     out: dict[str, OptionField] = {}
     for kind in PROVIDERS.specs():
         for option in option_fields(options_type(kind)):
@@ -1191,7 +1193,8 @@ def own_knobs(spec: PolicySpec) -> tuple[Knob, ...]:
 
 
 def find_knob(name: str) -> Knob | None:
-    """The first registered policy's :class:`Knob` called ``name`` (None: no policy has one)."""
+    """The registered :class:`Knob` called ``name`` (None: no policy has one). A plugin knob's
+    name has one owner; built-ins that share a knob share its ``[secondary]`` field."""
     for spec in POLICIES.specs():
         for knob in own_knobs(spec):
             if knob.name == name:

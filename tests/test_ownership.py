@@ -117,9 +117,9 @@ def test_plugins_that_take_another_owners_name_knob_or_flag_are_skipped_naming_b
     assert done.returncode == 0, done.stderr
     found = skipped(done.stderr)
     assert len(done.stderr.splitlines()) == len(found)
-    assert "policy 'budgetknob''s knob 'budget' is a [secondary] field (owned by lagrseq and the tasks)" in found["budgetknob"]
-    assert "knob 'policy' is a reserved word of [secondary] (owned by lagrseq)" in found["policyknob"]
-    assert "knob 'query_cost' is a [secondary] field" in found["costknob"]
+    assert "knob 'budget' of policy 'budgetknob' is a [secondary] field (owned by lagrseq and the tasks)" in found["budgetknob"]
+    assert "knob 'policy' of policy 'policyknob' is a reserved word of [secondary] (owned by lagrseq)" in found["policyknob"]
+    assert "knob 'query_cost' of policy 'costknob' is a [secondary] field" in found["costknob"]
     assert "a range applies to numbers only" in found["rangedword"]
     assert "its default [1, 2] is a list; expected bool, int, float or str" in found["listknob"]
     assert "its knob 'alpha' is also claimed by alphafloat-plugin 0.1" in found["alphaint"]
