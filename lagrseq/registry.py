@@ -791,7 +791,7 @@ def _refused(registry: Registry[Any], specs: list[Any]) -> str:
             name = getattr(spec, "name", None) if isinstance(spec, registry.spec_type) else None
             if isinstance(name, str) and name in registry._entries:
                 return f"its {registry.kind} {printable(repr(name))} is a built-in (lagrseq's own); built-ins win: rename the plugin's"
-            staged.register(spec)
+            staged.register(spec, "this very plugin")
         if registry is POLICIES:
             return _policy_problems(specs)
         if registry is PROVIDERS:

@@ -45,6 +45,18 @@ def silent():
 
 def budget():
     return PolicySpec("budgeted", lambda section, seq_agent: None, (Knob("budget", 5, le=10),))
+
+
+class Crash:
+    def decide(self, context):
+        raise RuntimeError("cannot decide")
+
+    def update(self, context, asked, query_reward):
+        pass
+
+
+def crash():
+    return PolicySpec("crashy", lambda section, seq_agent: Crash(), ("budget",))
 '''
 
 
@@ -59,7 +71,7 @@ def _site(root: Path, variant: str = "") -> Path:
     source = VARIANTS.replace("class Outside:", "import gymnasium\n\n\nclass OutsideEnv(gymnasium.Wrapper):").replace(
         "    def __init__(self, env):\n        self.env = env\n\n    def __getattr__(self, name):\n        return getattr(self.env, name)\n\n", "")
     distribution(site, "variants-plugin", "0.3", "variantsplug", source,
-                 f"[lagrseq.tasks]\nnumber-sequence = variantsplug:{variant}\n[lagrseq.policies]\nbudgeted = variantsplug:budget\n")
+                 f"[lagrseq.tasks]\nnumber-sequence = variantsplug:{variant}\n[lagrseq.policies]\nbudgeted = variantsplug:budget\ncrashy = variantsplug:crash\n")
     return site
 
 
@@ -81,9 +93,12 @@ def test_the_check_names_each_problem_in_one_line(tmp_path: Path) -> None:
         done = _check(_site(tmp_path / variant, variant), tmp_path)
         assert done.returncode == 2, done.stderr
         lines = done.stderr.splitlines()
-        assert len(lines) == 2 and all(line.startswith("lagrseq plugins --check: ") for line in lines), lines
-        budget, shown[variant] = sorted(lines, key=lambda line: "budgeted" not in line)
+        assert len(lines) == 3 and all(line.startswith("lagrseq plugins --check: ") for line in lines), lines
+        budget = next(line for line in lines if "'budgeted'" in line)
+        crashy = next(line for line in lines if "'crashy'" in line)
+        shown[variant] = next(line for line in lines if "'number-sequence'" in line)
         assert "plugin 'budgeted' (variants-plugin 0.3, group lagrseq.policies)" in budget and "is a [secondary] field" in budget
-        assert "2 problems found" in done.stdout
+        assert "policy 'crashy' (variants-plugin 0.3): a 3-episode run of cube-stacking with it failed: RuntimeError: cannot decide" in crashy
+        assert "3 problems found" in done.stdout
     assert "task 'number-sequence' (variants-plugin 0.3): Gymnasium's env checker: " in shown["outside"] and "observation" in shown["outside"]
     assert "it declares episode_fields 'never_set', but a 3-episode run never logged it" in shown["silent"]

@@ -2,16 +2,20 @@
 
 Each installed plugin part must load, and its names, knobs and flags collide with nothing (the
 registry's ownership rules: a part that breaks one was skipped, and its line is a problem here).
-Each plugin task must then build its environment from its own default preset, pass Gymnasium's
+Each plugin policy must decide a short trial of the built-in cube task. Each plugin task must
+build its environment from its own default preset, pass Gymnasium's
 ``gymnasium.utils.env_checker.check_env`` (an env that is not a ``gymnasium.Env``, as the
 registry allows, is reported as not checkable, with that reason), and run a short trial whose log
-holds every field it declares (``episode_fields``, ``step_fields``) at least once.
+holds every field it declares (``episode_fields``, ``step_fields``) at least once. Provider kinds
+(which may need a server or a key) and executors (a cluster) are loaded and checked for
+ownership only.
 """
 
 from __future__ import annotations
 
 import contextlib
 import io
+import json
 import tempfile
 import warnings
 from collections.abc import Callable
@@ -38,11 +42,33 @@ def check(say: Callable[[str], None]) -> list[str]:
                 continue
             where = f"{one.kind} {registry.printable(repr(entry.name))} ({registry.printable(entry.source)})"
             found = _task_problems(entry.spec, say, where) if kind == "tasks" else []
+            found += _policy_problems(entry.spec) if kind == "policies" else []
             problems += [f"{where}: {problem}" for problem in found]
             if not found:
-                say(f"ok: {where} loads; its names, knobs and flags are its own" + (
-                    "" if kind != "tasks" else "; its env and a short run checked"))
+                say(f"ok: {where} loads; its names, knobs and flags are its own" + CHECKED.get(kind, ""))
     return problems
+
+
+CHECKED = {
+    "tasks": "; its env and a short run checked",
+    "policies": f"; a {CHECK_EPISODES}-episode run on cube-stacking decides with it",
+}
+"""What ``--check`` did with each kind of part besides loading it (provider kinds may need a
+server or a key, executors a cluster: they are loaded and their flags checked only)."""
+
+
+def _policy_problems(spec: registry.PolicySpec) -> list[str]:
+    """A short unlogged trial of the built-in cube task asking with the plugin policy at its
+    knobs' defaults ([] when it runs)."""
+    from lagrseq import config as cfg
+    from lagrseq.running.runner import run_one
+
+    try:
+        config = cfg.load("cube-stacking", "lagr-seq", "upstream", overrides=[f"secondary.policy={json.dumps(spec.name)}", f"run.episodes={CHECK_EPISODES}"])
+        run_one(config, 0, 0, "mock", Path("unused.mcap"), log=False)
+    except Exception as exc:  # noqa: BLE001 - a plugin policy's run: any failure is one line
+        return [f"a {CHECK_EPISODES}-episode run of cube-stacking with it failed: {registry._one_line(exc)}"]
+    return []
 
 
 def _task_problems(spec: registry.TaskSpec, say: Callable[[str], None], where: str) -> list[str]:
