@@ -819,6 +819,8 @@ def _policy_problems(specs: list[PolicySpec]) -> str:
     shared = shared_fields()
     seen: dict[str, str] = {}
     for spec in specs:
+        if not isinstance(spec.knobs, tuple):
+            return f"policy {printable(repr(spec.name))}: its knobs are a {type(spec.knobs).__name__}; expected a tuple of Knob and [secondary] field names"
         for knob in spec.knobs:
             if isinstance(knob, str):
                 continue
