@@ -111,14 +111,63 @@ def _provider_flags(per: str) -> argparse.ArgumentParser:
     field of the options dataclass it sets (``lagrseq.registry.flag``); a flag not given is None
     (its field keeps its default). Grouped by the kinds that read them."""
     p = argparse.ArgumentParser(add_help=False)
-    _add_provider_flags(p, per)
+    if not _BARE:
+        _add_provider_flags(p, per)
     return p
+
+
+_BARE: list[bool] = []
+"""Set while :func:`_command_options` builds the commands without provider flags."""
+_FLAG_COMMANDS = ("run", "frontier", "record", "screen")
+"""The commands whose parsers take every provider flag."""
+_TAKEN: dict[str, str] = {}
+"""What :func:`_command_options` found (worked out once)."""
+
+
+def _command_options() -> dict[str, str]:
+    """Every option string and destination of the commands taking provider flags, without those
+    flags, each with its command's name: what a plugin's flag may not take."""
+    if _TAKEN:
+        return _TAKEN
+    taken = _TAKEN
+    _BARE.append(True)
+    try:
+        for command in _FLAG_COMMANDS:
+            sub = argparse.ArgumentParser(add_help=False).add_subparsers()
+            _ADDERS[command](sub)
+            for action in sub.choices[command]._actions:
+                for name in [*action.option_strings, action.dest]:
+                    taken.setdefault(name, command)
+    finally:
+        _BARE.clear()
+    return taken
+
+
+def drop_clashing_plugin_flags() -> None:
+    """Skip (one line) each plugin provider kind whose flag, or the field it sets, is taken by
+    a command's own option (``--trials``): the command keeps working, without that plugin."""
+    from lagrseq import registry
+
+    plugins = [e for e in registry.PROVIDERS.entries() if e.distribution != registry.BUILTIN]
+    flagged = [(e, o) for e in plugins for o in registry.option_fields(registry.options_type(e.spec)) if o.flag is not None]
+    if not flagged:
+        return
+    taken = _command_options()
+    for entry, option in flagged:
+        for name in (option.flag.flag, option.name):  # type: ignore[union-attr]
+            if name in taken and entry.name in registry.PROVIDERS:
+                what = "option" if name.startswith("-") else "destination of an option"
+                registry.drop_plugin(registry.PROVIDERS, entry.name, (
+                    f"its flag {registry.printable(option.flag.flag)} (provider {registry.printable(repr(entry.name))}) "  # type: ignore[union-attr]
+                    f"takes the {what} {registry.printable(name)} of lagrseq {taken[name]}, which the command owns; rename the flag"
+                ))
 
 
 def _add_provider_flags(p: argparse.ArgumentParser, per: str, only: tuple[str, ...] | None = None) -> None:
     """The provider flags (``only``: those setting these fields, with their defaults: serve-llm)."""
     from lagrseq.registry import PROVIDERS, option_fields, option_flags, options_type
 
+    drop_clashing_plugin_flags()
     readers = {kind.usage: {o.name for o in option_fields(options_type(kind))} for kind in PROVIDERS.specs()}
     groups: dict[str, Any] = {}
     for name, option in option_flags().items():
@@ -710,7 +759,7 @@ def _add_screen(sub: Any) -> None:
 
 
 def _add_plugins(sub: Any) -> None:
-    sub.add_parser(
+    p = sub.add_parser(
         "plugins",
         help="list the tasks, providers, asking policies and executors, built-in and from plugins",
         description=(
@@ -720,6 +769,11 @@ def _add_plugins(sub: Any) -> None:
             "one that fails to load is listed as skipped (docs/extending.md)."
         ),
     )
+    p.add_argument("--check", action="store_true", help=(
+        "check every installed plugin instead: each part loads, its names, knobs and flags collide with nothing, "
+        "each task passes Gymnasium's env checker and a short run logs the fields it declares "
+        "(exit 0 when clean, 2 with one line per problem)"
+    ))
 
 
 def _add_info(sub: Any) -> None:
@@ -1139,10 +1193,21 @@ def cmd_audit(args: argparse.Namespace) -> int:
 
 
 def cmd_plugins(args: argparse.Namespace) -> int:
-    from lagrseq.registry import listing
+    from lagrseq import registry
 
-    print("\n".join(listing()))
-    return 0
+    if args.check:  # each problem once, below: the loading's own skip lines are not printed
+        os.environ[registry.NOTICES_ENV] = "0"
+    drop_clashing_plugin_flags()
+    if not args.check:
+        print("\n".join(registry.listing()))
+        return 0
+    from lagrseq.study.plugin_check import check
+
+    problems = check(print)
+    for problem in problems:
+        print(f"lagrseq plugins --check: {problem}", file=sys.stderr)
+    print(f"{len(problems)} problem{'' if len(problems) == 1 else 's'} found")
+    return 2 if problems else 0
 
 
 def cmd_info(args: argparse.Namespace) -> int:

@@ -1163,11 +1163,16 @@ def load(
     if method not in METHODS:
         raise ConfigError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
     data: dict[str, Any] = read_toml(preset_path(task, preset))
+    given: list[tuple[str, str]] = []  # the [secondary] fields set over the preset, and where
     if config_file is not None:
-        data = _merge(data, read_toml(config_file), _shown_path(config_file))
+        extra = read_toml(config_file)
+        data = _merge(data, extra, _shown_path(config_file))
+        secondary = extra.get("secondary")
+        given += [(name, _shown_path(config_file)) for name in secondary] if isinstance(secondary, dict) else []
     for text in overrides:
         section, name, value = parse_override(text)
         data = _merge(data, {section: {name: value}}, f"--set {show_name(text)}")
+        given += [(name, "--set")] if section == "secondary" else []
     task_section = data.setdefault("task", {})
     if not isinstance(task_section, dict):
         raise ConfigError(f"task = {show_value(task_section)}; expected a [task] table of fields")
@@ -1176,7 +1181,28 @@ def load(
     task_section["name"] = task
     data["method"] = method
     data["preset"] = preset
-    return from_dict(data)
+    resolved = from_dict(data)
+    _check_knob_owners(resolved, given)
+    return resolved
+
+
+def _check_knob_owners(config: ExperimentConfig, given: typing.Sequence[tuple[str, str]]) -> None:
+    """Refuse a policy's knob set (in a config file or by ``--set``) under a policy that does not
+    read it (``stall_steps`` under ``random``: it would be ignored): one line naming the knob,
+    the policies owning it and the policy in use. The preset's own values are not the user's."""
+    from lagrseq.registry import POLICIES, knob_names
+
+    policy = getattr(config.secondary, "policy", None)
+    if policy is None or policy not in POLICIES:
+        return
+    reads = set(knob_names(POLICIES.get(policy)))
+    for name, where in given:
+        owners = [spec.name for spec in POLICIES.specs() if name in knob_names(spec)]
+        if owners and name not in reads:
+            raise ConfigError(
+                f"secondary.{show_name(name)} ({where}) is a knob of policy {', '.join(owners)}, not of "
+                f"secondary.policy = {show_value(policy)}, which would ignore it; leave it out or choose one of those policies"
+            )
 
 
 def policy_help() -> str:

@@ -9,17 +9,18 @@ sequence of specs, or a function of no arguments returning either. A plugin whos
 registration raises is skipped with one stderr line naming it; the others, and every built-in,
 keep working.
 
-Plugins load under a guard (:func:`_load_plugins`): each entry point is imported, called and
-registered in a daemon thread that the loading thread waits for at most
-:data:`PLUGIN_TIMEOUT_ENV` seconds (default :data:`DEFAULT_PLUGIN_TIMEOUT_S`). Whatever a plugin
-raises there, ``SystemExit`` and ``KeyboardInterrupt`` included (and an exception whose ``str``
-raises), skips it with one line; an import that does not finish in time is reported and skipped,
-its thread left behind (a daemon: it never holds the process's exit), and the other entry
-points of its module skipped at once (its import lock is held). Every thread a plugin starts
-while it loads is made a daemon, ``daemon=False`` or not (:func:`_daemon_start`), so none holds
-the exit of the command or of a pool worker. What no in-process guard can stop (``os._exit``, a
-busy loop inside a C extension that keeps the GIL, a forked daemon, threads started later by
-the parts it registered) is listed in docs/security.md. Text from
+Plugins load the Gymnasium way (:func:`_load_plugins`): each entry point is loaded, called and
+registered, nothing process-wide patched for it. A plugin is trusted code (``pip`` already ran
+it): whatever it raises while it loads but ``KeyboardInterrupt`` (``SystemExit`` included) skips
+it with one line, and a load that does not finish within :data:`PLUGIN_TIMEOUT_ENV` seconds
+(default :data:`DEFAULT_PLUGIN_TIMEOUT_S`) is abandoned in its daemon thread and skipped; that
+bound is no sandbox (docs/security.md).
+
+Every name, knob and flag has one owner (docs/extending.md): built-ins win a part's name, and
+two plugins claiming one name are both skipped (whatever the order of their entry points); a
+plugin policy's knob may not name a ``[secondary]`` field, a reserved word or another policy's
+knob; a plugin provider's flag, option or logged name may not be another kind's declaration;
+each such plugin is skipped with one line naming both owners. Text from
 plugins is printed through :func:`printable`. Where several processes load plugins (``--jobs``
 workers), only the process named by :data:`NOTICES_ENV` prints the skip lines (the command line
 sets it to its own pid), so a broken plugin is named once per command.
@@ -45,7 +46,6 @@ from pathlib import Path
 from typing import Any, Generic, TypeVar
 
 from lagrseq.errors import UsageError
-from lagrseq.lifetime import ProcessWindow
 from lagrseq.text import printable  # re-exported: the one escaping of outside text
 
 BUILTIN = "lagrseq"
@@ -298,9 +298,11 @@ class Knob:
     """A setting of an asking policy, declared once by its :class:`PolicySpec`: read from
     ``[secondary] NAME = VALUE`` (a config file, a preset, ``--set secondary.NAME=VALUE``) and
     from ``lagrseq frontier --policies POLICY:NAME=VALUE``; ``candidates`` are what
-    ``frontier --tune`` tries. A knob named like a ``[secondary]`` field is that field (the
-    built-ins' knobs: their type, range and default are the field's, and a test keeps the two
-    equal); any other is kept in the section's ``knobs`` (``section.knob(NAME)``). An example:
+    ``frontier --tune`` tries. A built-in policy's knob is the ``[secondary]`` field of its name
+    (its type, range and default are the field's, and a test keeps the two equal); a plugin's
+    knob may not take a field's name, a reserved word or another plugin's knob (the plugin is
+    skipped: :func:`_policy_problems`), and is kept in the section's ``knobs``
+    (``section.knob(NAME)``). An example:
 
     ```python
     Knob("backoff_factor", 0.5, ge=0.0, le=1.0, candidates=("0.25", "0.5", "0.75"),
@@ -311,7 +313,7 @@ class Knob:
 
     name: str
     """``[secondary] NAME``, ``--set secondary.NAME=V``, ``frontier --policies POLICY:NAME=V``
-    (a name like a ``[secondary]`` field is that field)."""
+    (a built-in's: the ``[secondary]`` field of that name)."""
     default: Any
     """Its value when not set; its type (bool, int, float, str) is the knob's (an int is taken
     for a float)."""
@@ -431,6 +433,10 @@ class Entry:
     source: str
     """``lagrseq`` for a built-in, else the plugin's distribution (``name version``)."""
     entry_point: str = ""
+    distribution: str = BUILTIN
+    """The distribution that made the part (``lagrseq`` for a built-in)."""
+    version: str = ""
+    """That distribution's version ("" for a built-in: lagrseq's own, :func:`part_origin`)."""
 
 
 @dataclass(frozen=True)
@@ -456,7 +462,7 @@ class Registry(Generic[_S]):
     _entries: dict[str, Entry] = field(default_factory=dict)
     _loaded: bool = False
 
-    def register(self, spec: _S, source: str = BUILTIN, entry_point: str = "") -> _S:
+    def register(self, spec: _S, source: str = BUILTIN, entry_point: str = "", distribution: str = BUILTIN, version: str = "") -> _S:
         """Add ``spec`` under its name; a name already taken raises ValueError."""
         if not isinstance(spec, self.spec_type):
             raise TypeError(f"a {self.kind} registry takes {self.spec_type.__name__}, not {type(spec).__name__}")
@@ -465,7 +471,7 @@ class Registry(Generic[_S]):
             raise ValueError(f"{self.kind} name {name!r}: expected a printable name without ':' or ','")
         if name in self._entries:
             raise ValueError(f"{self.kind} {name!r} is already registered by {self._entries[name].source}")
-        self._entries[name] = Entry(name, spec, source, entry_point)
+        self._entries[name] = Entry(name, spec, source, entry_point, distribution, version)
         return spec
 
     def _load(self) -> None:
@@ -504,6 +510,23 @@ class Registry(Generic[_S]):
     def __contains__(self, name: object) -> bool:
         self._load()
         return name in self._entries
+
+
+def part_origin(kind: str, name: str) -> tuple[str, str]:
+    """``(distribution, version)`` of the registered part ``name`` of ``kind`` (a registry's key,
+    ``tasks``, or its kind, ``task``): ``("lagrseq", lagrseq's version)`` for a built-in, the
+    plugin's distribution and version otherwise. UsageError (one line) for an unknown kind or
+    part."""
+    registry = REGISTRIES.get(kind) or next((r for r in REGISTRIES.values() if r.kind == kind), None)
+    if registry is None:
+        raise UsageError(f"unknown kind of part {kind!r}; expected one of: {', '.join(REGISTRIES)}")
+    registry.get(name)  # one line naming the choices when unknown
+    entry = registry._entries[name]
+    if entry.distribution == BUILTIN:
+        from lagrseq import __version__
+
+        return BUILTIN, __version__
+    return entry.distribution, entry.version
 
 
 TASKS: Registry[TaskSpec] = Registry("task", GROUPS["tasks"], TaskSpec)
@@ -642,19 +665,6 @@ def plugin_timeout_s() -> float:
 _HUNG_MODULES: set[str] = set()
 """Modules whose import did not finish in time (their import lock is held by the abandoned
 thread: importing them again would wait for it)."""
-_LOADERS: set[threading.Thread] = set()
-"""The threads loading plugins (also those abandoned: a hung import may start threads later)."""
-_THREAD_START = threading.Thread.start
-
-
-def _daemon_start(self: threading.Thread) -> None:
-    """``Thread.start`` while plugins load: a thread started from a plugin loader is made a
-    daemon first (a non-daemon thread is joined at interpreter exit, so a plugin's
-    ``Thread(daemon=False)`` started at import kept every command, and every pool worker, from
-    ever exiting). Any other thread starts as it asked."""
-    if threading.current_thread() in _LOADERS and not self.daemon:
-        self.daemon = True
-    _THREAD_START(self)
 
 
 def _notices() -> bool:
@@ -668,93 +678,301 @@ def _skip(registry: Registry[Any], name: str, source: str, problem: str) -> None
         _say(f"plugin {printable(repr(name))} ({printable(source)}, group {registry.group}) skipped: {problem}")
 
 
-def _stage(registry: Registry[Any], ep: Any, source: str) -> Registry[Any]:
-    """Import the entry point, call it, and register what it gives in a copy of ``registry``."""
-    loaded = ep.load()
-    if callable(loaded) and not isinstance(loaded, type):
-        loaded = loaded()
-    specs = list(loaded) if isinstance(loaded, (list, tuple)) else [loaded]
-    staged: Registry[Any] = Registry(registry.kind, registry.group, registry.spec_type, dict(registry._entries), True)
-    for spec in specs:
-        staged.register(spec, source, f"{ep.name} = {ep.value}")
-    return staged
+def _origin(ep: Any) -> tuple[str, str]:
+    """(distribution, version) of an entry point's distribution, never raising."""
+    try:
+        dist = getattr(ep, "dist", None)
+        return (str(dist.name), str(dist.version)) if dist is not None else ("unknown distribution", "")
+    except Exception:  # noqa: BLE001 - metadata without a name or version
+        return ("unknown distribution", "")
 
 
-def _guarded(registry: Registry[Any], ep: Any, source: str, timeout_s: float, left: list[int]) -> Registry[Any] | str:
-    """:func:`_stage` in a daemon thread waited for at most ``timeout_s``: the staged registry,
-    or one line saying why the plugin is skipped. Anything the plugin raises is caught in its
-    thread (``SystemExit``, ``KeyboardInterrupt``...); a Ctrl-C of the user arrives in this
-    thread, which only waits, and stops the command as usual. The load runs inside a
-    :class:`~lagrseq.lifetime.ProcessWindow`: processes the plugin started and left running (a
-    child, a double-forked daemon) are killed when the load ends or is abandoned, and their
-    number is appended to ``left``."""
+def _load_one(ep: Any, timeout_s: float) -> list[Any] | str:
+    """The specs an entry point gives (``ep.load()``, called when it is a function), or one
+    line saying why it is skipped. The load runs in a daemon thread that this thread waits for
+    at most ``timeout_s``: one that does not finish is abandoned (a daemon never holds the exit).
+    Nothing process-wide is changed for it, and it is not a sandbox: a plugin is trusted code
+    (docs/security.md). Whatever it raises is one line, except ``KeyboardInterrupt``, which
+    stops the command as Ctrl-C does."""
     result: list[Any] = []
 
     def load() -> None:
         try:
-            result.append(_stage(registry, ep, source))
+            loaded = ep.load()
+            if callable(loaded) and not isinstance(loaded, type):
+                loaded = loaded()
+            result.append(list(loaded) if isinstance(loaded, (list, tuple)) else [loaded])
         except BaseException as exc:  # noqa: BLE001 - whatever a plugin raises, it is only skipped
-            result.append(_one_line(exc))
+            result.append(exc)
 
     loader = threading.Thread(target=load, name=f"lagrseq-plugin-{ep.name}"[:60], daemon=True)
-    _LOADERS.add(loader)
-    threading.Thread.start = _daemon_start  # type: ignore[method-assign]  # stays: see _daemon_start
-    window = ProcessWindow().open()
-    try:
-        loader.start()
-        loader.join(timeout_s)
-    finally:  # also when the loader is abandoned: what it started so far is stopped
-        left.append(window.close())
+    loader.start()
+    loader.join(timeout_s)
     if loader.is_alive():
         _HUNG_MODULES.add(str(getattr(ep, "module", "") or ep.value.partition(":")[0]))
-        return (  # the loader stays in _LOADERS: threads its import starts later are daemons too
+        return (
             f"its loading did not finish within {timeout_s:g} s (an import that loops, sleeps or waits); "
-            f"it is left running in a background thread: fix or uninstall the plugin, or raise {PLUGIN_TIMEOUT_ENV}"
+            f"it is left in a background thread: fix or uninstall the plugin, or raise {PLUGIN_TIMEOUT_ENV}"
         )
-    _LOADERS.discard(loader)
-    return result[0] if result else "its loading ended without a result"
+    if not result:
+        return "its loading ended without a result"
+    if isinstance(result[0], KeyboardInterrupt):
+        raise KeyboardInterrupt
+    return _one_line(result[0]) if isinstance(result[0], BaseException) else result[0]  # type: ignore[no-any-return]
 
 
-def _left_behind(count: int) -> str:
-    """The end of a plugin's line when its loading left processes running ('' when none)."""
-    if count == 0:
-        return ""
-    return (
-        f"it left {count} process{'' if count == 1 else 'es'} running when it loaded; "
-        f"{'it was' if count == 1 else 'they were'} stopped (SIGKILL): a plugin should start processes only when its parts are used"
-    )
+@dataclass
+class _Loaded:
+    """An entry point's specs, loaded and checked against the built-ins (not yet registered)."""
+
+    ep: Any
+    origin: tuple[str, str]
+    specs: list[Any]
+
+    @property
+    def source(self) -> str:
+        return " ".join(part for part in self.origin if part)
 
 
 def _load_plugins(registry: Registry[Any]) -> None:
-    """Add the specs of every entry point of ``registry.group``; one that raises (on import, on
-    the call, or on registration), or does not finish within :func:`plugin_timeout_s`, is
-    skipped with one stderr line naming it."""
+    """Add the specs of every entry point of ``registry.group``, the Gymnasium way: load, call,
+    register. One that raises, does not finish within :func:`plugin_timeout_s`, or takes a name,
+    knob or flag someone else owns (:func:`_refused`, :func:`_contested`) is skipped with one
+    stderr line naming it; which plugins load never depends on the order of entry points."""
     try:
-        found = sorted(_entry_points().select(group=registry.group), key=lambda ep: ep.name)
+        found = sorted(_entry_points().select(group=registry.group), key=lambda ep: (ep.name, str(ep.value)))
     except Exception as exc:  # noqa: BLE001 - broken metadata of some distribution: skip them all, say so
         if _notices():
             _say(f"plugins of {registry.group} skipped: the installed packages' metadata cannot be read ({_one_line(exc)})")
         return
     timeout_s = plugin_timeout_s()
+    loaded: list[_Loaded] = []
     for ep in found:
-        dist = getattr(ep, "dist", None)
-        try:
-            source = f"{dist.name} {dist.version}" if dist is not None else "unknown distribution"
-        except Exception:  # noqa: BLE001 - metadata without a name or version
-            source = "unknown distribution"
+        origin = _origin(ep)
+        source = " ".join(part for part in origin if part)
         module = str(getattr(ep, "module", "") or str(ep.value).partition(":")[0])
         if module in _HUNG_MODULES:
             _skip(registry, ep.name, source, f"its module {printable(module)} did not finish importing for another entry point")
             continue
-        left: list[int] = []
-        staged = _guarded(registry, ep, source, timeout_s, left)
-        stopped = _left_behind(sum(left))
-        if isinstance(staged, str):
-            _skip(registry, ep.name, source, staged + (f"; {stopped}" if stopped else ""))
+        specs = _load_one(ep, timeout_s)
+        problem = specs if isinstance(specs, str) else _refused(registry, specs)
+        if problem:
+            _skip(registry, ep.name, source, problem)
             continue
-        registry._entries.update(staged._entries)
-        if stopped and _notices():
-            _say(f"plugin {printable(repr(ep.name))} ({printable(source)}, group {registry.group}) loaded, but {stopped}")
+        loaded.append(_Loaded(ep, origin, specs))  # type: ignore[arg-type]
+    contested = _contested(registry, loaded)
+    for item in loaded:
+        if id(item) in contested:
+            _skip(registry, item.ep.name, item.source, contested[id(item)])
+            continue
+        for spec in item.specs:
+            registry.register(spec, item.source, f"{item.ep.name} = {item.ep.value}", *item.origin)
+
+
+# ------------------------------------------------------------------------------------------
+# Ownership: one owner per name, knob and flag
+# ------------------------------------------------------------------------------------------
+RESERVED_KNOBS = frozenset({"policy", "knobs"})
+"""Words no plugin knob may take: ``[secondary] policy`` chooses the policy, ``knobs`` holds
+the plugins' knobs in a logged configuration."""
+KNOB_TYPES = (bool, int, float, str)
+"""The types a plugin knob's default may have (its type is the knob's)."""
+
+
+def _refused(registry: Registry[Any], specs: list[Any]) -> str:
+    """Why the specs of one entry point cannot be registered beside the built-ins ("" when
+    they can): a wrong spec type or name, a built-in's name (built-ins win), a policy knob that
+    names a shared field, a reserved word or a knob of another of its policies, a knob whose
+    type, range or candidates do not hold together, a provider flag or option another kind
+    declares."""
+    staged: Registry[Any] = Registry(registry.kind, registry.group, registry.spec_type, dict(registry._entries), True)
+    try:
+        for spec in specs:
+            name = getattr(spec, "name", None) if isinstance(spec, registry.spec_type) else None
+            if isinstance(name, str) and name in registry._entries:
+                return f"its {registry.kind} {printable(repr(name))} is a built-in (lagrseq's own); built-ins win: rename the plugin's"
+            staged.register(spec, "this very plugin")
+        if registry is POLICIES:
+            return _policy_problems(specs)
+        if registry is PROVIDERS:
+            return _flag_problems(specs)
+    except BaseException as exc:  # noqa: BLE001 - a hostile spec (a property that raises, a bad options type)
+        if isinstance(exc, KeyboardInterrupt):
+            raise
+        return _one_line(exc)
+    return ""
+
+
+def shared_fields() -> frozenset[str]:
+    """The ``[secondary]`` fields of every registered task (what ``[secondary] NAME`` already
+    means: a knob of that name would silently become the field)."""
+    names: set[str] = set()
+    for spec in TASKS.specs():
+        section = spec.sections.get("secondary") if isinstance(spec.sections, Mapping) else None
+        if isinstance(section, type) and dataclasses.is_dataclass(section):
+            names.update(f.name for f in dataclasses.fields(section))
+    return frozenset(names)
+
+
+def _policy_problems(specs: list[PolicySpec]) -> str:
+    """The first knob of these plugin policies that is not theirs alone to declare ("": none)."""
+    shared = shared_fields()
+    seen: dict[str, str] = {}
+    for spec in specs:
+        if not isinstance(spec.knobs, tuple):
+            return f"policy {printable(repr(spec.name))}: its knobs are a {type(spec.knobs).__name__}; expected a tuple of Knob and [secondary] field names"
+        for knob in spec.knobs:
+            if isinstance(knob, str):
+                continue
+            if not isinstance(knob, Knob):
+                return f"policy {printable(repr(spec.name))}: a knob is a {type(knob).__name__}; expected a Knob or a [secondary] field's name"
+            where = f"knob {printable(repr(knob.name))} of policy {printable(repr(spec.name))}"
+            if knob.name in RESERVED_KNOBS:
+                return f"{where} is a reserved word of [secondary] (owned by lagrseq); rename the knob"
+            if knob.name in shared:
+                return f"{where} is a [secondary] field (owned by lagrseq and the tasks); rename the knob, or name the field as a string to read it"
+            if knob.name in seen:
+                return f"{where} is also a knob of its policy {printable(repr(seen[knob.name]))}; a knob has one owner: rename one"
+            seen[knob.name] = spec.name
+            problem = knob_problem(knob)
+            if problem:
+                return f"{where}: {problem}"
+    return ""
+
+
+def knob_problem(knob: Knob) -> str:
+    """Why a plugin knob's declaration does not hold together ("" when it does): a name that
+    cannot be written as ``secondary.NAME``, a type lagrseq cannot read, a range on a knob that
+    is not a number, a default, choice or candidate its own check refuses."""
+    if not isinstance(knob.name, str) or not knob.name.isidentifier():
+        return "its name is not an identifier (it is written secondary.NAME)"
+    kind = type(knob.default)
+    if kind not in KNOB_TYPES:
+        return f"its default {_text(repr(knob.default))} is a {kind.__name__}; expected bool, int, float or str"
+    if (knob.ge is not None or knob.le is not None) and kind not in (int, float):
+        return f"it has a range (ge/le) but its default {_text(repr(knob.default))} is a {kind.__name__}; a range applies to numbers only"
+    from lagrseq.errors import ConfigError
+
+    try:
+        knob.check(knob.default, "its default")
+        for choice in knob.choices:
+            knob.check(choice, "a choice")
+        for text in knob.candidates:  # read as --set and frontier's POLICY:KNOB=VALUE read them
+            from lagrseq.tomlfile import value_of
+
+            knob.check(value_of(text), f"the candidate {text!r}")
+    except (ConfigError, ValueError) as exc:
+        return str(exc)
+    return ""
+
+
+@dataclass(frozen=True)
+class _Declared:
+    """One leaf field of a provider kind's options: where it is declared, and what it takes."""
+
+    owner: type
+    field: str
+    flag: str | None
+    logged_as: str | None
+
+    @property
+    def names(self) -> list[tuple[str, str]]:
+        """What this declaration owns: its field's name (the parsed flag's destination), its flag
+        and its logged name."""
+        out = [("option", self.field)]
+        if self.flag is not None:
+            out.append(("flag", self.flag))
+        if self.logged_as is not None:
+            out.append(("logged option", self.logged_as))
+        return out
+
+
+def _declarations(cls: type | None) -> list[_Declared]:
+    """The leaf fields of an options dataclass with the class declaring each."""
+    if cls is None:
+        return []
+    hints = _type_hints(cls)
+    out: list[_Declared] = []
+    for f in dataclasses.fields(cls):
+        hint = hints.get(f.name)
+        if isinstance(hint, type) and dataclasses.is_dataclass(hint):
+            out += _declarations(hint)
+            continue
+        declared = f.metadata.get("flag")
+        logged = f.metadata.get("logged_as", f.name) if f.metadata.get("logged", True) else None
+        out.append(_Declared(cls, f.name, declared.flag if isinstance(declared, Flag) else None, logged))
+    return out
+
+
+def _owned(kinds: list[ProviderKind]) -> dict[tuple[str, str], tuple[_Declared, str]]:
+    """(what, name) -> (its declaration, the kind declaring it), over ``kinds``."""
+    out: dict[tuple[str, str], tuple[_Declared, str]] = {}
+    for kind in kinds:
+        for declared in _declarations(options_type(kind)):
+            for key in declared.names:
+                out.setdefault(key, (declared, kind.name))
+    return out
+
+
+def _flag_problems(kinds: list[ProviderKind]) -> str:
+    """The first option, flag or logged name of these plugin kinds that a built-in kind declares
+    otherwise ("": none). A flag is declared once, on one field: a kind that composes that very
+    dataclass reads it; another declaration of the same flag is never merged with it."""
+    taken = _owned([entry.spec for entry in PROVIDERS._entries.values()])
+    for kind in kinds:
+        for declared in _declarations(options_type(kind)):
+            if declared.flag is not None and (not declared.flag.startswith("--") or not declared.flag[2:].replace("-", "").isalnum()):
+                return f"provider {printable(repr(kind.name))}: its flag {printable(repr(declared.flag))} is not of the form --word-word"
+            for what, name in declared.names:
+                owner = taken.get((what, name))
+                if owner is not None and owner[0] != declared:
+                    return (f"provider {printable(repr(kind.name))}'s {what} {printable(name)} is already declared by "
+                            f"provider {printable(repr(owner[1]))} (lagrseq); flags are never merged: rename it")
+    return ""
+
+
+def _contested(registry: Registry[Any], loaded: list[_Loaded]) -> dict[int, str]:
+    """The plugins (by ``id``) that claim a name, knob or flag another plugin claims too, each
+    with its line: both are refused, whichever loaded first."""
+    claims: dict[tuple[str, str], list[tuple[_Loaded, Any]]] = {}
+    for item in loaded:
+        for spec in item.specs:
+            for key, declared in _claims(registry, spec):
+                claims.setdefault(key, []).append((item, declared))
+    out: dict[int, str] = {}
+    for (what, name), claimants in claims.items():
+        items = {id(item): item for item, _ in claimants}
+        declarations = {id(declared) for _, declared in claimants}
+        if len(items) < 2 or len(declarations) < 2:
+            continue  # one plugin, or one declaration composed into several of its kinds
+        for item in items.values():
+            others = sorted({other.source for other in items.values() if other is not item})
+            out.setdefault(id(item), (
+                f"its {what} {printable(repr(name))} is also claimed by {printable(', '.join(others))}; "
+                f"two plugins claiming one {what} are both skipped: uninstall or rename one"
+            ))
+    return out
+
+
+def _claims(registry: Registry[Any], spec: Any) -> list[tuple[tuple[str, str], Any]]:
+    """What one plugin spec claims: its name, its own knobs (a policy), its options, flags and
+    logged names (a provider kind); each with the object declaring it."""
+    out: list[tuple[tuple[str, str], Any]] = [((registry.kind, spec.name), spec)]
+    if isinstance(spec, PolicySpec):
+        out += [(("knob", knob.name), knob) for knob in own_knobs(spec)]
+    if isinstance(spec, ProviderKind):
+        out += [(key, declared) for declared in _declarations(options_type(spec)) for key in declared.names]
+    return out
+
+
+def drop_plugin(registry: Registry[Any], name: str, problem: str) -> None:
+    """Unregister the plugin part ``name`` after loading (a provider flag that a command's own
+    option takes: found where the command line is built), with its skip line."""
+    entry = registry._entries.get(name)
+    if entry is None or entry.distribution == BUILTIN:
+        return
+    del registry._entries[name]
+    _skip(registry, entry.entry_point.partition(" = ")[0] or name, entry.source, problem)
 
 
 ON_MISS = ("error", "mock", "live", "refuse", "calibrated")
@@ -871,8 +1089,8 @@ def option_fields(cls: type | None) -> tuple[OptionField, ...]:
 
 
 def option_flags() -> dict[str, OptionField]:
-    """Every provider flag, by the field it sets, from the registered kinds' options (the first
-    declaration of a field name wins)."""
+    """Every provider flag, by the field it sets, from the registered kinds' options (each field
+    name has one declaration: a plugin that redeclares one is skipped, :func:`_flag_problems`)."""
     out: dict[str, OptionField] = {}
     for kind in PROVIDERS.specs():
         for option in option_fields(options_type(kind)):
@@ -977,7 +1195,8 @@ def own_knobs(spec: PolicySpec) -> tuple[Knob, ...]:
 
 
 def find_knob(name: str) -> Knob | None:
-    """The first registered policy's :class:`Knob` called ``name`` (None: no policy has one)."""
+    """The registered :class:`Knob` called ``name`` (None: no policy has one). A plugin knob's
+    name has one owner; built-ins that share a knob share its ``[secondary]`` field."""
     for spec in POLICIES.specs():
         for knob in own_knobs(spec):
             if knob.name == name:

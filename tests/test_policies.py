@@ -272,8 +272,8 @@ def test_advance_is_registered_with_validated_knobs_and_built_from_the_section()
     policy = make_policy(section, lambda: pytest.fail("seq's agent is built only for policy seq"))
     assert isinstance(policy, Budget) and isinstance(policy.inner, AdvancePolicy) and policy.inner.stall_steps == 5
     # at its default the field leaves every digest alone
-    base = cfg.load("object-arrangement", "lagr-seq", "upstream", None, [])
-    assert base.digest() == cfg.load("object-arrangement", "lagr-seq", "upstream", None, ["secondary.stall_steps=64"]).digest()
+    base = cfg.load("object-arrangement", "lagr-seq", "upstream", None, ['secondary.policy="advance"'])
+    assert base.digest() == cfg.load("object-arrangement", "lagr-seq", "upstream", None, ['secondary.policy="advance"', "secondary.stall_steps=64"]).digest()
     with pytest.raises(ValueError, match="stall_steps"):
         AdvancePolicy(0)
 

@@ -479,7 +479,8 @@ def runs_or_replay(
         )
     chosen_scopes = parse_scopes(scopes, task)
     stopped = [*overrides, f'run.stop_at="{FIRST_SOLVE}"'] if stop_at_first_solve else list(overrides)
-    check_variants(task, variants, provider, options, preset, config_file, stopped, chosen_scopes)
+    matched = [Variant("random")] if matched_random and any(wants_match(v.policy, v.knobs) for v in variants) else []
+    check_variants(task, [*variants, *matched], provider, options, preset, config_file, stopped, chosen_scopes)
     if full_horizon_trials:
         check_variants(task, variants, provider, options, preset, config_file, overrides, chosen_scopes)
     made = run_protocol(  # out is made once every configuration is checked
