@@ -67,3 +67,50 @@ def shown(text: object) -> str:
     from lagrseq.keys import scrub
 
     return printable(scrub(str(text)))
+
+
+# ---------------------------------------------------------------------------------------------
+# One escaper per medium (every cell of outside text a report writes goes through one of these)
+# ---------------------------------------------------------------------------------------------
+def terminal(text: object, width: int | None = None) -> str:
+    """Outside text for a terminal: :func:`shown` (keys blanked, controls written as escapes),
+    cut to ``width`` characters with an ellipsis when given."""
+    return cut(shown(text), width)
+
+
+def cut(text: str, width: int | None) -> str:
+    """``text`` at most ``width`` characters, a longer one ending in ``…`` (None: as it is)."""
+    if width is None or len(text) <= width:
+        return text
+    return text[: max(width - 1, 0)] + "…"
+
+
+def markdown_cell(text: object) -> str:
+    """Outside text for a Markdown table cell: HTML escaped (``<script>`` is shown, never run),
+    ``|`` escaped (it would end the cell), controls and line breaks written as escapes."""
+    import html
+
+    return html.escape(printable(str(text)), quote=False).replace("|", "\\|")
+
+
+def html_text(text: object) -> str:
+    """Outside text for HTML (an element's text or an attribute's value)."""
+    import html
+
+    return html.escape(str(text), quote=True)
+
+
+_FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")
+
+
+def csv_cell(value: object) -> object:
+    """A CSV cell that a spreadsheet will not run as a formula: text starting with ``=``, ``+``,
+    ``-``, ``@``, a tab or a carriage return gets a leading ``'`` (OWASP's advice), unless it is a
+    plain number (``-0.5``, ``+3``) or a lone ``-``; anything else is returned as it is."""
+    if not isinstance(value, str) or not value.startswith(_FORMULA_STARTS) or value == "-":
+        return value
+    try:
+        float(value)
+    except ValueError:
+        return "'" + value
+    return value

@@ -31,11 +31,11 @@ import matplotlib.axes
 import pandas as pd
 from matplotlib.figure import Figure
 
-from lagrseq import __version__
+from lagrseq import __version__, outputs
 from lagrseq.analysis import audit, costs, figures, items, loading, scoreboard, stats
 from lagrseq.analysis.items import ItemFailure
 from lagrseq.analysis.tables import Table, plus_minus, to_csv, to_html, to_markdown
-from lagrseq.errors import LogError, UsageError
+from lagrseq.errors import LagrseqError, LogError, UsageError
 from lagrseq.suite import (
     AUTHORS_HINT,
     Item,
@@ -149,7 +149,7 @@ class _Painter:
     @staticmethod
     def _write(paths: Sequence[Path], drawn: Sequence[bytes]) -> None:
         for path, data in zip(paths, drawn, strict=True):
-            path.write_bytes(data)
+            outputs.write_bytes(path, data, "--out")
 
 
 def _save_figure(
@@ -166,8 +166,7 @@ def _save_figure(
 
 
 def _write(path: Path, text: str, written: list[Path]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(text, encoding="utf-8", newline="\n")
+    outputs.write_text(path, text, "--out")
     written.append(path)
 
 
@@ -297,6 +296,7 @@ def replay(
     jobs = loading.default_jobs() if jobs is None else jobs
     # the figures' artists are many small objects too (see loading.no_cycle_collection)
     with contextlib.ExitStack() as stack, loading.no_cycle_collection():
+        stack.enter_context(outputs.outputs(out))  # every file of the report inside OUT
         painter = _Painter(None)
 
         def found(count: int) -> None:
@@ -423,9 +423,11 @@ def _make(
 
 
 MANIFEST = ".lagrseq-report"
-"""The files the last replay into a folder wrote, one relative path a line: the next replay
-removes those it does not write again, so a report never keeps figures or tables of items the
-latest run did not make (files replay never wrote are left alone)."""
+"""The files the last replay into a folder wrote, one a line: the SHA-256 of what was written, two
+spaces and the relative path (``sha256sum``'s format). The next replay removes those it does not
+write again, so a report never keeps figures or tables of items the latest run did not make; a
+file is removed only while it still holds the bytes recorded (files replay never wrote, and
+files changed since, are left alone, whatever the manifest lists)."""
 
 _OWN = ("figures", "tables")
 
@@ -433,41 +435,44 @@ _OWN = ("figures", "tables")
 def _drop_stale(out: Path, written: list[Path]) -> None:
     """Remove what an earlier replay into ``out`` wrote and this one did not; write the manifest.
 
-    The earlier replay's files are those its manifest lists; a folder without a manifest (made
-    before there was one) counts every file under ``figures/`` and ``tables/`` whose name starts
-    with a suite item's or a report table's stem as replay's own."""
-    now = {p.relative_to(out).as_posix() for p in written}
-    manifest = out / MANIFEST
-    before: set[str] = set()
-    try:
-        before = {line for line in manifest.read_text(encoding="utf-8").splitlines() if line}
-    except FileNotFoundError:
-        stems = {Path(name).name.split(".")[0] for name in now}
-        for folder in _OWN:
-            for path in sorted((out / folder).glob("*")):
-                if path.is_file() and any(path.name.startswith(stem) for stem in stems | _STALE_STEMS):
-                    before.add(f"{folder}/{path.name}")
-    except (OSError, UnicodeDecodeError):
-        before = set()  # unreadable: remove nothing
-    for name in sorted(before - now):
+    The earlier replay's files are those its manifest lists with the SHA-256 the file still has;
+    a folder without a manifest loses nothing."""
+    now = {p.relative_to(out).as_posix(): outputs.file_digest(p) for p in written}
+    for name, digest in sorted(_manifest(out / MANIFEST).items()):
         path = out / name
-        # only plain files directly under the report's own folders: a hand-edited manifest
-        # cannot make replay delete anything else
+        # only plain files directly under the report's own folders, still as replay wrote them:
+        # a hand-edited manifest cannot make replay delete anything else
         if (
-            ".." not in Path(name).parts
+            name not in now
+            and ".." not in Path(name).parts
             and len(Path(name).parts) <= 2
             and (len(Path(name).parts) == 1 or Path(name).parts[0] in _OWN)
-            and path.is_file()
-            and not path.is_symlink()
+            and outputs.file_digest(path) == digest
         ):
             path.unlink()
-    manifest.write_text("".join(f"{name}\n" for name in sorted(now)), encoding="utf-8", newline="\n")
+    outputs.write_text(out / MANIFEST, "".join(f"{digest}  {name}\n" for name, digest in sorted(now.items()) if digest), "--out")
 
 
-_STALE_STEMS = {"fig", "table", "appendix", "frontier", "audit-", "costs-by-", "runs", "scoreboard", "open-models"}
+def _manifest(path: Path) -> dict[str, str]:
+    """A manifest's entries (relative path -> SHA-256); none when it is missing, unreadable or
+    not a regular file (never read through a link or from a FIFO)."""
+    from lagrseq.paths import open_input
+
+    try:
+        with open_input(path, "manifest") as handle:
+            lines = handle.read(1 << 22).decode("utf-8").splitlines()
+    except (LagrseqError, OSError, UnicodeDecodeError):
+        return {}
+    entries = {}
+    for line in lines:
+        digest, _, name = line.partition("  ")
+        if len(digest) == 64 and all(c in "0123456789abcdef" for c in digest) and name:
+            entries[name] = digest
+    return entries
+
+
 _FIGURED = {"open-models", "open-models-temperature"}
 """Sections of ``replay(sections=...)`` drawn with a figure (the "open models" item)."""
-"""Name beginnings of files replay writes (for a folder made before the manifest existed)."""
 
 
 def _arm_animation(report: ItemReport, out: Path, written: list[Path]) -> None:
