@@ -223,10 +223,10 @@ def _say(line: str) -> None:
 
 
 def _say_error(line: str) -> None:
-    """A line on stderr, above any progress bar."""
+    """A line on stderr, above any progress bar (keys blanked, controls escaped)."""
     from lagrseq.progress import say
 
-    say(line, stderr=True)
+    say(_shown(line), stderr=True)
 
 
 def _bar(total: float, unit: str, desc: str | None, quiet: bool) -> Any:
