@@ -86,18 +86,21 @@ def cut(text: str, width: int | None) -> str:
 
 
 def markdown_cell(text: object) -> str:
-    """Outside text for a Markdown table cell: HTML escaped (``<script>`` is shown, never run),
+    """Outside text for a Markdown table cell: keys blanked (before anything is escaped, so an
+    escaped zero-width space cannot hide one), HTML escaped (``<script>`` is shown, never run),
     ``|`` escaped (it would end the cell), controls and line breaks written as escapes."""
     import html
 
-    return html.escape(printable(str(text)), quote=False).replace("|", "\\|")
+    return html.escape(shown(text), quote=False).replace("|", "\\|")
 
 
 def html_text(text: object) -> str:
-    """Outside text for HTML (an element's text or an attribute's value)."""
+    """Outside text for HTML (an element's text or an attribute's value), keys blanked."""
     import html
 
-    return html.escape(str(text), quote=True)
+    from lagrseq.keys import scrub
+
+    return html.escape(scrub(str(text)), quote=True)
 
 
 _FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")
@@ -106,7 +109,12 @@ _FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")
 def csv_cell(value: object) -> object:
     """A CSV cell that a spreadsheet will not run as a formula: text starting with ``=``, ``+``,
     ``-``, ``@``, a tab or a carriage return gets a leading ``'`` (OWASP's advice), unless it is a
-    plain number (``-0.5``, ``+3``) or a lone ``-``; anything else is returned as it is."""
+    plain number (``-0.5``, ``+3``) or a lone ``-``; keys are blanked; anything that is not text
+    is returned as it is."""
+    if isinstance(value, str):
+        from lagrseq.keys import scrub
+
+        value = scrub(value)
     if not isinstance(value, str) or not value.startswith(_FORMULA_STARTS) or value == "-":
         return value
     try:
