@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import functools
 import os
 import signal
 import sys
@@ -767,10 +766,12 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 # ------------------------------------------------------------------------------------------
 def cmd_config(args: argparse.Namespace) -> int:
     from lagrseq import config as cfg
+    from lagrseq.keys import scrub
+    from lagrseq.text import shown
 
     resolved = cfg.load(args.task, args.method, args.preset, args.config, args.overrides)
-    print(f"# lagrseq {args.task}, method {args.method}, preset {args.preset}")
-    print(_config_toml(resolved))
+    print(shown(f"# lagrseq {args.task}, method {args.method}, preset {args.preset}"))
+    print("\n".join(shown(line) for line in scrub(_config_toml(resolved)).split("\n")))  # a key given as a value is never printed
     return 0
 
 

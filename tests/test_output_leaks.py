@@ -155,3 +155,10 @@ def test_an_error_log_path_that_turns_into_a_folder_during_the_runs_loses_no_rep
         reproduce.write_errors_log(tmp_path, [failure])
     reproduce.write_errors_log(tmp_path, [])  # nothing failed: a folder there is left alone
     assert (tmp_path / reproduce.ERRORS_LOG).is_dir()
+
+
+def test_config_never_prints_a_key_given_as_a_value(tmp_path: Path) -> None:
+    for value in (BODY, BODY.upper(), KEY):
+        done = lagrseq("config", "cube-stacking", "--method", "lagr", "--set", f'llm.model="{value}"', cwd=tmp_path, timeout=120)
+        assert done.returncode == 0, done.stderr
+        assert "[REDACTED]" in done.stdout and not leaks(done.stdout + done.stderr)
