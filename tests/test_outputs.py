@@ -135,3 +135,19 @@ def test_frontier_never_writes_its_table_through_a_link(tmp_path: Path, capsys: 
     err = capsys.readouterr().err
     assert "symbolic link" in err and len(err.strip().splitlines()) == 1
     assert victim.read_text() == "precious"
+
+
+def test_an_episode_gif_is_written_whole_and_never_through_a_link(tmp_path: Path) -> None:
+    import numpy as np
+
+    from lagrseq.robot.render import write_gif
+
+    frames = [np.full((8, 8, 3), shade, dtype=np.uint8) for shade in (0, 128, 255)]
+    gif = write_gif(frames, tmp_path / "episode-0000.gif")
+    assert gif.read_bytes()[:6] == b"GIF89a" and sorted(p.name for p in tmp_path.iterdir()) == ["episode-0000.gif"]
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious")
+    (tmp_path / "episode-0001.gif").symlink_to(victim)
+    with pytest.raises(UsageError, match="--render"):
+        write_gif(frames, tmp_path / "episode-0001.gif")
+    assert victim.read_text() == "precious"
