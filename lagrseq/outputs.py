@@ -22,7 +22,8 @@ A file is written to a new temporary file beside the target (``O_EXCL | O_NOFOLL
 into place with ``os.replace`` (which replaces the name, never what a link points at), so a
 failure leaves the old file whole. Text, and bytes that decode as UTF-8 (SVG, CSV, Markdown), are
 passed through the key guard (:func:`lagrseq.keys.scrub`) first: no output holds a guarded API
-key in any form the guard knows. :func:`file_digest` gives a file's SHA-256, for a manifest that
+key in any form the guard knows, and its control characters (an ANSI escape, a bell) are written
+as escapes (``\\x1b``): printing a report never drives a terminal. :func:`file_digest` gives a file's SHA-256, for a manifest that
 must prove which files a command wrote before it deletes any.
 """
 
@@ -33,6 +34,7 @@ import contextvars
 import hashlib
 import io
 import os
+import re
 import stat
 import tempfile
 from collections.abc import Iterable, Iterator
@@ -146,7 +148,16 @@ def write_text(path: str | os.PathLike[str], text: str, flag: str = "output") ->
     """Write ``text`` (UTF-8, ``\\n`` line ends kept as given) at ``path``: checked, key-guarded, atomic."""
     from lagrseq.keys import scrub
 
-    return _place(Path(path), scrub(text).encode("utf-8", "backslashreplace"), flag)
+    return _place(Path(path), _CONTROLS.sub(_shown_control, scrub(text)).encode("utf-8", "backslashreplace"), flag)
+
+
+_CONTROLS = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\x7f-\x9f]")
+"""Control characters no text file of a report holds (a tab, a newline and a carriage return are
+kept): an ANSI escape would act on the terminal of whoever prints the file."""
+
+
+def _shown_control(match: re.Match[str]) -> str:
+    return f"\\x{ord(match.group()):02x}"
 
 
 TEXT_SUFFIXES = frozenset((".svg", ".csv", ".md", ".html", ".txt", ".log", ".json", ".jsonl", ".toml"))

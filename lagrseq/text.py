@@ -94,6 +94,14 @@ def markdown_cell(text: object) -> str:
     return html.escape(shown(text), quote=False).replace("|", "\\|")
 
 
+def markdown_text(text: object) -> str:
+    """Outside text for a line of Markdown prose (a heading, a list item): keys blanked, HTML
+    escaped, controls written as escapes (a ``|`` outside a table needs nothing)."""
+    import html
+
+    return html.escape(shown(text), quote=False)
+
+
 def html_text(text: object) -> str:
     """Outside text for HTML (an element's text or an attribute's value), keys blanked."""
     import html

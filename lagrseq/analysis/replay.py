@@ -44,6 +44,7 @@ from lagrseq.suite import (
     logged_tasks_suite,
     with_recorded,
 )
+from lagrseq.text import markdown_text
 
 FORMATS = ("png", "svg", "pdf")
 DPI = 150
@@ -692,16 +693,16 @@ def _index_markdown(
     if board is not None:
         lines += [to_markdown(board)]
     if failures:
-        lines += ["## Failed", "", *(f"- {line}" for line in failures), ""]
+        lines += ["## Failed", "", *(f"- {markdown_text(line)}" for line in failures), ""]
     for r in reports:
-        lines += [f"## {r.item.title} ({_shown_status(r)})", ""]
+        lines += [f"## {markdown_text(r.item.title)} ({_shown_status(r)})", ""]
         if r.item.caption:
-            lines += [f"*Paper: {r.item.caption}*", ""]
+            lines += [f"*Paper: {markdown_text(r.item.caption)}*", ""]
         if not r.made:
             lines += [r.not_run_line(), ""]
             continue
         if r.figure:
-            lines += [f"![{r.item.title}]({r.figure})", ""]
+            lines += [f"![{markdown_text(r.item.title)}]({r.figure})", ""]
         if r.animation:
             lines += [f"![{r.animation_note}]({r.animation})", "", r.animation_note, ""]
         for table, _md, _csv in r.tables:
@@ -709,7 +710,7 @@ def _index_markdown(
         how, run_lines = _how(r, produced_by)
         lines += [f"{how} Runs:", "", *(f"- {line}" for line in run_lines), ""]
         if r.item.note:
-            lines += [f"Note: {r.item.note}", ""]
+            lines += [f"Note: {markdown_text(r.item.note)}", ""]
         if _authors_hint(r):
             lines += [_authors_hint(r), ""]
         lines += [f"Missing — {line}  " for line in r.missing()]
@@ -719,5 +720,5 @@ def _index_markdown(
             lines += [f"![{table.title}](figures/{stem}.png)", ""]
         lines += [to_markdown(table)]
     if logs.warnings:
-        lines += ["## Warnings", "", *(f"- {w}" for w in logs.warnings), ""]
+        lines += ["## Warnings", "", *(f"- {markdown_text(w)}" for w in logs.warnings), ""]
     return "\n".join(lines).rstrip("\n") + "\n"
