@@ -1194,7 +1194,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         from lagrseq import registry
 
         os.environ[registry.NOTICES_ENV] = str(os.getpid())
+        sys.excepthook = _key_guarded_traceback  # an unforeseen error's traceback never shows a key
     return _main(argv)
+
+
+def _key_guarded_traceback(kind: type[BaseException], value: BaseException, trace: Any) -> None:
+    """Python's traceback of an error nothing caught, with every guarded key blanked."""
+    import traceback
+
+    from lagrseq.keys import scrub
+
+    sys.stderr.write(scrub("".join(traceback.format_exception(kind, value, trace))))
 
 
 def _main(argv: Sequence[str] | None) -> int:

@@ -162,3 +162,20 @@ def test_config_never_prints_a_key_given_as_a_value(tmp_path: Path) -> None:
         done = lagrseq("config", "cube-stacking", "--method", "lagr", "--set", f'llm.model="{value}"', cwd=tmp_path, timeout=120)
         assert done.returncode == 0, done.stderr
         assert "[REDACTED]" in done.stdout and not leaks(done.stdout + done.stderr)
+
+
+def test_an_unforeseen_errors_traceback_holds_no_key(tmp_path: Path) -> None:
+    program = (
+        "import os, sys\n"
+        "from lagrseq import cli\n"
+        "key = os.environ['OPENAI_API_KEY']\n"
+        "def broken(args):\n"
+        "    raise RuntimeError(f'{key} {key[3:].upper()} {key[-12:]}')\n"
+        "cli.COMMANDS['config'] = broken\n"
+        "sys.argv = ['lagrseq', 'config', 'cube-stacking']\n"
+        "sys.exit(cli.main())\n"
+    )
+    env = {**os.environ, "OPENAI_API_KEY": KEY, "PYTHONPATH": str(ROOT)}
+    done = subprocess.run([sys.executable, "-c", program], capture_output=True, text=True, env=env, cwd=tmp_path, timeout=120)
+    assert done.returncode == 1 and "RuntimeError" in done.stderr and "[REDACTED]" in done.stderr
+    assert not leaks(done.stdout + done.stderr)
