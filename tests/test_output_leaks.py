@@ -128,18 +128,19 @@ def test_no_output_of_a_failed_suite_holds_the_key_or_the_checkouts_path(failed_
         assert str(ROOT) not in text, path
 
 
+@pytest.mark.parametrize("name", ["reproduce-errors.log", "reports/index.html", "reports/index.md"])
 @pytest.mark.parametrize("kind", ["directory", "fifo", "symlink"])
-def test_an_error_log_path_that_is_no_file_is_refused_before_anything_runs(tmp_path: Path, kind: str) -> None:
+def test_a_report_path_that_is_no_file_is_refused_before_anything_runs(tmp_path: Path, kind: str, name: str) -> None:
     from lagrseq.errors import UsageError
     from lagrseq.study import reproduce
     (tmp_path / "suite.toml").write_text(SUITE.replace("broken-cube", "cube-stacking"))
     out = tmp_path / "out"
-    out.mkdir()
-    log = out / reproduce.ERRORS_LOG
+    log = out / name
+    log.parent.mkdir(parents=True)
     victim = tmp_path / "victim.txt"
     victim.write_text("precious")
     {"directory": log.mkdir, "fifo": lambda: os.mkfifo(log), "symlink": lambda: log.symlink_to(victim)}[kind]()
-    with pytest.raises(UsageError, match=reproduce.ERRORS_LOG):
+    with pytest.raises(UsageError, match=name):
         reproduce.reproduce(tmp_path / "suite.toml", None, True, None, out, 1, None, ["png"], quiet=True, say=lambda _: None)
     assert not (out / "runs").exists() and victim.read_text() == "precious"
 

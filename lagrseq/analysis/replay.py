@@ -294,6 +294,8 @@ def replay(
         raise UsageError(f"unknown figure format {bad[0]!r}; expected some of {', '.join(FORMATS)}")
     formats = ["png", *[f for f in FORMATS if f in formats and f != "png"]]
     out = Path(out)
+    for name in ("index.html", "index.md", MANIFEST):  # a link, folder or FIFO there: refused before the logs are read
+        outputs.check(out / name, "--out")
     jobs = loading.default_jobs() if jobs is None else jobs
     # the figures' artists are many small objects too (see loading.no_cycle_collection)
     with contextlib.ExitStack() as stack, loading.no_cycle_collection():

@@ -1084,7 +1084,8 @@ def reproduce(
 
         check_scheduler(scheduler)
     writable_directory(out)
-    outputs.check(out / ERRORS_LOG, "--out")  # a link, folder or FIFO there: refused before anything runs
+    for name in (ERRORS_LOG, "reports/index.html", "reports/index.md"):  # a link, folder or FIFO there: refused before anything runs
+        outputs.check(out / name, "--out")
     runs_dir, reports_dir = writable_directory(out / "runs"), writable_directory(out / "reports", "--out")
     started = time.perf_counter()
     planned_suite = suite
