@@ -18,13 +18,14 @@ The output folder, the inputs and the claims belong to the command: it opens an
 every write inside it is checked against them. A write outside any session is checked for links
 and kinds only.
 
-A file is written to a new temporary file beside the target (``O_EXCL | O_NOFOLLOW``) and moved
-into place with ``os.replace`` (which replaces the name, never what a link points at), so a
-failure leaves the old file whole. Text, and bytes that decode as UTF-8 (SVG, CSV, Markdown), are
-passed through the key guard (:func:`lagrseq.keys.scrub`) first: no output holds a guarded API
-key in any form the guard knows, and its control characters (an ANSI escape, a bell) are written
-as escapes (``\\x1b``): printing a report never drives a terminal. :func:`file_digest` gives a file's SHA-256, for a manifest that
-must prove which files a command wrote before it deletes any.
+A file is written to a new temporary file beside the target (``mkstemp``: created new, never
+through a link) and moved into place with ``os.replace`` (which replaces the name, never what a
+link points at), so a failure leaves the old file whole. Text, and bytes written to a text file
+(:data:`TEXT_SUFFIXES`), pass through the key guard (:func:`lagrseq.keys.scrub`) first: no output
+holds a guarded API key in any form the guard knows. Text files have their control characters (an
+ANSI escape, a bell) written as escapes (``\\x1b``): printing a report never drives a terminal.
+:func:`file_digest` gives a file's SHA-256, for a manifest that must prove which files a command
+wrote before it deletes any.
 """
 
 from __future__ import annotations
@@ -68,19 +69,6 @@ def outputs(root: str | os.PathLike[str] | None = None, inputs: Iterable[str | o
         yield session
     finally:
         _current.reset(token)
-
-
-def current() -> Session | None:
-    """The innermost session (None outside any)."""
-    sessions = _current.get()
-    return sessions[-1] if sessions else None
-
-
-def add_inputs(paths: Iterable[str | os.PathLike[str]]) -> None:
-    """Count ``paths`` as inputs of the current command (nothing outside a session)."""
-    session = current()
-    if session is not None:
-        session.inputs.extend(Path(p) for p in paths)
 
 
 def _real(path: Path) -> str:
