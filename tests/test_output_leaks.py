@@ -42,6 +42,42 @@ def make_env(config, render_dir):
     raise RuntimeError(f"the env cannot start: {key} {body} {body.upper()} {body[-12:]} {spaced}")
 
 
+@dataclass(frozen=True)
+class KeyedTaskConfig(CubeTaskConfig):
+    name: Literal["keyed-cube"] = "keyed-cube"
+
+
+class Keyed:
+    """The cube's env, logging the key (without sk-, zero-width spaced) as its own field."""
+
+    def __init__(self, env):
+        self.env = env
+
+    def __getattr__(self, name):
+        return getattr(self.env, name)
+
+    def step(self, action):
+        observation, reward, terminated, truncated, info = self.env.step(action)
+        body = os.environ["OPENAI_API_KEY"][3:]
+        info = dict(info)
+        info["log_episode"] = {"remark": "\u200b".join(body[i : i + 3] for i in range(0, len(body), 3))}
+        return observation, reward, terminated, truncated, info
+
+
+def keyed_env(config, render_dir):
+    from lagrseq.running.wiring import cube_env
+
+    return Keyed(cube_env(config, render_dir))
+
+
+def keyed():
+    cube = TASKS.get("cube-stacking")
+    return replace(
+        cube, name="keyed-cube", sections={**cube.sections, "task": KeyedTaskConfig}, presets=HERE / "keyed_presets",
+        make_env=keyed_env, episode_fields={"remark": "string"}, description="cube logging a key",
+    )
+
+
 def spec():
     cube = TASKS.get("cube-stacking")
     return replace(
@@ -82,13 +118,15 @@ def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (root / "brokenplug.py").write_text(PLUGIN)
     presets = root / "broken_presets"
     presets.mkdir()
+    (root / "keyed_presets").mkdir()
     for preset in ("upstream", "paper"):
         text = (ROOT / "lagrseq" / "experiments" / "cube-stacking" / f"{preset}.toml").read_text()
         (presets / f"{preset}.toml").write_text(text.replace('name = "cube-stacking"', 'name = "broken-cube"'))
+        (root / "keyed_presets" / f"{preset}.toml").write_text(text.replace('name = "cube-stacking"', 'name = "keyed-cube"'))
     info = root / "broken_plugin-0.1.dist-info"
     info.mkdir()
     (info / "METADATA").write_text("Metadata-Version: 2.1\nName: broken-plugin\nVersion: 0.1\n")
-    (info / "entry_points.txt").write_text("[lagrseq.tasks]\nbroken = brokenplug:spec\n")
+    (info / "entry_points.txt").write_text("[lagrseq.tasks]\nbroken = brokenplug:spec\nkeyed = brokenplug:keyed\n")
     return root
 
 
@@ -180,3 +218,17 @@ def test_an_unforeseen_errors_traceback_holds_no_key(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-c", program], capture_output=True, text=True, env=env, cwd=tmp_path, timeout=120)
     assert done.returncode == 1 and "RuntimeError" in done.stderr and "[REDACTED]" in done.stderr
     assert not leaks(done.stdout + done.stderr)
+
+
+def test_a_task_field_holding_the_key_reaches_no_report_file(site: Path, tmp_path: Path) -> None:
+    ran = lagrseq("run", "keyed-cube", "--method", "baseline", "--trials", "1", "--set", "run.episodes=2", "--quiet",
+                  "--out", "runs", cwd=tmp_path, site=site)
+    assert ran.returncode == 0, ran.stderr
+    done = lagrseq("replay", "runs", "--out", "report", cwd=tmp_path, site=site)
+    assert done.returncode == 0, done.stderr
+    assert not leaks(ran.stdout + ran.stderr + done.stdout + done.stderr)
+    written = [p for p in (tmp_path / "report").rglob("*") if p.is_file() and p.suffix in (".md", ".html", ".csv")]
+    assert any(p.name == "runs.md" for p in written)
+    assert "remark" in (tmp_path / "report" / "tables" / "runs.md").read_text(encoding="utf-8")
+    for path in written:
+        assert not leaks(path.read_text(encoding="utf-8")), path
