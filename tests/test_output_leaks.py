@@ -232,3 +232,11 @@ def test_a_task_field_holding_the_key_reaches_no_report_file(site: Path, tmp_pat
     assert "remark" in (tmp_path / "report" / "tables" / "runs.md").read_text(encoding="utf-8")
     for path in written:
         assert not leaks(path.read_text(encoding="utf-8")), path
+
+
+def test_a_trial_that_raises_in_a_workers_time_estimate_is_one_failed_item(site: Path, tmp_path: Path) -> None:
+    (tmp_path / "suite.toml").write_text(SUITE + SUITE[SUITE.index("[[items]]"):].replace('id = "broken"', 'id = "broken-too"').replace("baseline", "lagr-seq"))
+    done = lagrseq("reproduce", "--quick", "--suite", "suite.toml", "--out", "out", "--jobs", "2", "--quiet", cwd=tmp_path, site=site)
+    assert done.returncode == 3 and "Traceback" not in done.stderr, done.stderr
+    assert "2 of 2 items failed" in done.stderr.splitlines()[-1]
+    assert not leaks(done.stdout + done.stderr + (tmp_path / "out" / "reproduce-errors.log").read_text(encoding="utf-8"))
