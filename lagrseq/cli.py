@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import functools
 import os
 import signal
 import sys
@@ -272,10 +271,10 @@ def _say(line: str) -> None:
 
 
 def _say_error(line: str) -> None:
-    """A line on stderr, above any progress bar."""
+    """A line on stderr, above any progress bar (keys blanked, controls escaped)."""
     from lagrseq.progress import say
 
-    say(line, stderr=True)
+    say(_shown(line), stderr=True)
 
 
 def _bar(total: float, unit: str, desc: str | None, quiet: bool) -> Any:
@@ -821,10 +820,12 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 # ------------------------------------------------------------------------------------------
 def cmd_config(args: argparse.Namespace) -> int:
     from lagrseq import config as cfg
+    from lagrseq.keys import scrub
+    from lagrseq.text import shown
 
     resolved = cfg.load(args.task, args.method, args.preset, args.config, args.overrides)
-    print(f"# lagrseq {args.task}, method {args.method}, preset {args.preset}")
-    print(_config_toml(resolved))
+    print(shown(f"# lagrseq {args.task}, method {args.method}, preset {args.preset}"))
+    print("\n".join(shown(line) for line in scrub(_config_toml(resolved)).split("\n")))  # a key given as a value is never printed
     return 0
 
 
@@ -1024,24 +1025,22 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return 0
 
 
-def _write_text(text: str, handle: Any) -> int:
-    return int(handle.write(text))
-
-
 def cmd_compare(args: argparse.Namespace) -> int:
+    from lagrseq import outputs
     from lagrseq.analysis import compare
-    from lagrseq.paths import check_output, write_output
 
-    for flag, path in (("--csv", args.csv), ("--markdown", args.markdown)):
-        if path is not None and (path.is_dir() or not path.parent.is_dir()):
-            raise UsageError(f"{flag} {path} is not a file in an existing folder; give a file path whose folder exists")
-        if path is not None:  # never through a link (docs/security.md), checked before any report is read
-            check_output(path, flag, replace=True)
-    comparison = compare.compare(compare.read_report(args.report_a), compare.read_report(args.report_b))
-    sys.stdout.write(compare.to_text(comparison, differences_only=args.differences))
-    for flag, path, text in (("--csv", args.csv, compare.to_csv(comparison)), ("--markdown", args.markdown, compare.to_markdown(comparison))):
-        if path is not None:
-            write_output(path, functools.partial(_write_text, text), flag, replace=True)
+    wanted = [(flag, path) for flag, path in (("--csv", args.csv), ("--markdown", args.markdown)) if path is not None]
+    folders = [compare.report_folder(args.report_a), compare.report_folder(args.report_b)]
+    with outputs.outputs(inputs=folders):  # nothing is written into a report it reads
+        for flag, path in wanted:  # every output checked before any report is read (docs/security.md)
+            if not path.parent.is_dir():
+                raise UsageError(f"{flag} {_shown(path)} is not a file in an existing folder; give a file path whose folder exists")
+            outputs.check(path, flag)
+        comparison = compare.compare(compare.read_report(args.report_a), compare.read_report(args.report_b))
+        sys.stdout.write(compare.to_text(comparison, differences_only=args.differences))
+        for flag, path in wanted:
+            text = compare.to_csv(comparison) if flag == "--csv" else compare.to_markdown(comparison)
+            outputs.write_text(path, text, flag)
             print(f"wrote {_shown(path)}")
     if comparison.flips:
         print(f"lagrseq compare: {comparison.flips} verdict(s) flip between the reports (exit status {COMPARE_FLIPPED})", file=sys.stderr)
@@ -1260,7 +1259,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         from lagrseq import registry
 
         os.environ[registry.NOTICES_ENV] = str(os.getpid())
+        sys.excepthook = _key_guarded_traceback  # an unforeseen error's traceback never shows a key
     return _main(argv)
+
+
+def _key_guarded_traceback(kind: type[BaseException], value: BaseException, trace: Any) -> None:
+    """Python's traceback of an error nothing caught, with every guarded key blanked."""
+    import traceback
+
+    from lagrseq.keys import scrub
+
+    sys.stderr.write(scrub("".join(traceback.format_exception(kind, value, trace))))
 
 
 def _main(argv: Sequence[str] | None) -> int:
@@ -1298,6 +1307,15 @@ def _main(argv: Sequence[str] | None) -> int:
                     signal.signal(signal.SIGINT, previous_int)
 
 
+def _exit_on_next_interrupt() -> None:
+    """From now on a Ctrl-C ends the process at once with status 130, a SIGTERM with 143 (as
+    :func:`lagrseq.running.executor_base.exit_on_next_interrupt`; here, so that the way out imports
+    nothing: a second signal during an import would raise a second traceback)."""
+    with contextlib.suppress(ValueError):  # not the main thread: nothing to install
+        signal.signal(signal.SIGINT, lambda *_: os._exit(130))
+        signal.signal(signal.SIGTERM, lambda *_: os._exit(143))
+
+
 def _dispatch(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
     from lagrseq.agents.numerics import numerics
 
@@ -1308,9 +1326,7 @@ def _dispatch(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
         print(f"lagrseq {args.command}: error: {_shown(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as stop:
-        from lagrseq.running.runner import exit_on_next_interrupt
-
-        exit_on_next_interrupt()
+        _exit_on_next_interrupt()
         kept = INTERRUPTED.get(args.command, "nothing finished is lost")
         terminated = isinstance(stop, Terminated)
         status = 143 if terminated else 130

@@ -14,11 +14,10 @@ hand it endless bytes. :func:`open_input` opens a file without blocking and chec
 :func:`walk_files` lists a directory tree without ever following a symlink loop: every real
 directory is entered once.
 
-Output files (``cache export --out``, ``screen --answers``, ``recover``'s logs): :func:`write_output` writes a new
-file beside the target (``O_CREAT | O_EXCL | O_NOFOLLOW``: never through a planted link) and moves
-it into place; a target that is a symbolic link is refused (one line), and so, where it may not be
-replaced, is an existing file (linked into place: an existing name, a link included, is never
-overwritten). MCAP logs do the same in :mod:`lagrseq.logs.sink`, and ``recover`` with
+Output files (``cache export --out``, ``screen --answers``): :func:`write_output` writes through
+the one writer, :mod:`lagrseq.outputs` (a new file beside the target, never through a planted
+link, moved into place); where the target may not be replaced, an existing file is refused too
+(linked into place: an existing name, a link included, is never overwritten). MCAP logs do the same in :mod:`lagrseq.logs.sink`, and ``recover`` with
 :func:`refuse_link`, :func:`open_new` and :func:`place_new` (its own temporary file and backup).
 
 Every failure is a :class:`~lagrseq.errors.LagrseqError` (one line, exit status 2); callers pass
@@ -29,6 +28,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import io
 import os
 import stat
 import tempfile
@@ -179,14 +179,23 @@ def refuse_link(path: str | os.PathLike[str], flag: str, error: type[LagrseqErro
 def write_output(
     path: str | os.PathLike[str], write: Callable[[TextIO], T], flag: str, replace: bool, error: type[LagrseqError] = UsageError,
 ) -> T:
-    """Write a UTF-8 text file at ``path`` with ``write(handle)`` and return what it returns. The
-    text goes to a new file beside ``path`` (created with ``O_EXCL | O_NOFOLLOW``) that is moved
-    into place only when complete, so a failure leaves nothing half-written. ``replace``: an
-    existing regular file is replaced; else an existing name of any kind is refused, checked
-    before writing and again atomically when the file is put in place (a hard link, which
-    never overwrites). A symbolic link at ``path`` is refused either way."""
+    """Write a UTF-8 text file at ``path`` with ``write(handle)`` and return what it returns.
+    ``replace``: an existing regular file is replaced (:func:`lagrseq.outputs.write_text`, the
+    one writer: atomic, never through a link, key-guarded); else an existing name of any kind is
+    refused, checked before writing and again atomically when the file is put in place (a hard
+    link, which never overwrites)."""
+    from lagrseq import outputs
+    from lagrseq.keys import scrub
+
     target = Path(path)
     check_output(target, flag, replace, error)
+    buffer = io.StringIO()
+    result = write(buffer)
+    text = scrub(buffer.getvalue())
+    if replace:
+        outputs.write_text(target, text, flag)
+        return result
+    outputs.check(target, flag)
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         descriptor, scratch = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name[:64]}.", suffix=".partial")
@@ -195,12 +204,8 @@ def write_output(
     try:
         os.fchmod(descriptor, 0o644)
         with os.fdopen(descriptor, "w", encoding="utf-8") as handle:
-            result = write(handle)
-        if replace:
-            refuse_link(target, flag, error)  # planted while writing
-            os.replace(scratch, target)  # replaces the name; never writes through a link
-        else:
-            _link_new(Path(scratch), target, flag, error)
+            handle.write(text)
+        _link_new(Path(scratch), target, flag, error)
         return result
     except OSError as exc:
         raise error(f"cannot write {flag} {target}: {exc.strerror or exc}") from None

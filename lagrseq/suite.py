@@ -231,6 +231,24 @@ def _options(where: str, raw: Mapping[str, Any]) -> dict[str, Any]:
     return options
 
 
+ITEM_ID_LENGTH = 100
+"""The longest suite item id (it names the item's files: ``figures/ID.png``)."""
+
+
+def _check_id(item_id: str) -> None:
+    """An item id names files in the report folder: a path separator, a leading dot (``..``, a
+    hidden file), a control character or an id past :data:`ITEM_ID_LENGTH` is refused."""
+    bad = (
+        "a path separator" if "/" in item_id or "\\" in item_id
+        else "a leading dot" if item_id.startswith(".")
+        else "a control character" if any(ord(c) < 32 or ord(c) == 127 for c in item_id)
+        else f"more than {ITEM_ID_LENGTH} characters" if len(item_id) > ITEM_ID_LENGTH
+        else ""
+    )
+    if bad:
+        raise ConfigError(f"suite item id {cfg.show_value(item_id[:ITEM_ID_LENGTH])} holds {bad}; an id names the item's report files: use letters, digits, '-', '_' and '.'")
+
+
 def _run(item_id: str, index: int, defaults: Mapping[str, Any], data: Mapping[str, Any]) -> RunSpec:
     where = f"suite item {item_id!r}, run {index + 1}"
     _texts(where, data)
@@ -389,6 +407,7 @@ def load_suite(path: str | Path | None = None) -> Suite:
         item_id = raw.get("id")
         if not isinstance(item_id, str) or not item_id:
             raise ConfigError("suite item without an id")
+        _check_id(item_id)
         if item_id in seen:
             raise ConfigError(f"suite item {item_id!r} appears twice")
         seen.add(item_id)

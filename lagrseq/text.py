@@ -67,3 +67,66 @@ def shown(text: object) -> str:
     from lagrseq.keys import scrub
 
     return printable(scrub(str(text)))
+
+
+# ---------------------------------------------------------------------------------------------
+# One escaper per medium (every cell of outside text a report writes goes through one of these)
+# ---------------------------------------------------------------------------------------------
+def terminal(text: object, width: int | None = None) -> str:
+    """Outside text for a terminal: :func:`shown` (keys blanked, controls written as escapes),
+    cut to ``width`` characters with an ellipsis when given."""
+    return cut(shown(text), width)
+
+
+def cut(text: str, width: int | None) -> str:
+    """``text`` at most ``width`` characters, a longer one ending in ``…`` (None: as it is)."""
+    if width is None or len(text) <= width:
+        return text
+    return text[: max(width - 1, 0)] + "…"
+
+
+def markdown_cell(text: object) -> str:
+    """Outside text for a Markdown table cell: keys blanked (before anything is escaped, so an
+    escaped zero-width space cannot hide one), HTML escaped (``<script>`` is shown, never run),
+    ``|`` escaped (it would end the cell), controls and line breaks written as escapes."""
+    import html
+
+    return html.escape(shown(text), quote=False).replace("|", "\\|")
+
+
+def markdown_text(text: object) -> str:
+    """Outside text for a line of Markdown prose (a heading, a list item): keys blanked, HTML
+    escaped, controls written as escapes (a ``|`` outside a table needs nothing)."""
+    import html
+
+    return html.escape(shown(text), quote=False)
+
+
+def html_text(text: object) -> str:
+    """Outside text for HTML (an element's text or an attribute's value), keys blanked."""
+    import html
+
+    from lagrseq.keys import scrub
+
+    return html.escape(scrub(str(text)), quote=True)
+
+
+_FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")
+
+
+def csv_cell(value: object) -> object:
+    """A CSV cell that a spreadsheet will not run as a formula: text starting with ``=``, ``+``,
+    ``-``, ``@``, a tab or a carriage return gets a leading ``'`` (OWASP's advice), unless it is a
+    plain number (``-0.5``, ``+3``) or a lone ``-``; keys are blanked; anything that is not text
+    is returned as it is."""
+    if isinstance(value, str):
+        from lagrseq.keys import scrub
+
+        value = scrub(value)
+    if not isinstance(value, str) or not value.startswith(_FORMULA_STARTS) or value == "-":
+        return value
+    try:
+        float(value)
+    except ValueError:
+        return "'" + value
+    return value

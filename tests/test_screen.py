@@ -471,3 +471,19 @@ def test_a_screen_of_another_arrangement_target_is_judged_by_that_target(tmp_pat
     sections, _ = screen.report_sections(tmp_path)
     (row,) = sections[0][1].rows
     assert row[1] == "tiny-1b (plus target)" and row[5].startswith("1/2 = 50% [")
+
+
+@pytest.mark.parametrize("suffix", [".md", ".csv", ".png"])
+def test_a_link_planted_at_a_screen_output_is_refused_and_nothing_is_written(tmp_path: Path, suffix: str) -> None:
+    from lagrseq.errors import UsageError
+
+    config = record_config("object-arrangement", "upstream", None, [])
+    screens = screen.screens_from([arrangement_file(tmp_path)], [config])
+    out = tmp_path / "out"
+    out.mkdir()
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious")
+    (out / f"s{suffix}").symlink_to(victim)
+    with pytest.raises(UsageError, match="symbolic link"):
+        screen.write_screen(screens, out, "s")
+    assert victim.read_text() == "precious" and sorted(p.name for p in out.iterdir()) == [f"s{suffix}"]

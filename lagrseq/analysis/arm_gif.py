@@ -13,6 +13,7 @@ import base64
 import io
 from pathlib import Path
 
+from lagrseq import outputs
 from lagrseq.logs.reader import read_topic
 
 ARM_TOPIC = "/view/arm"
@@ -50,10 +51,9 @@ def episode_gif(log: str | Path, out: Path) -> str | None:
     for k in shown:
         with Image.open(io.BytesIO(base64.b64decode(frames[k]["data"]))) as image:
             images.append(image.convert("RGB"))
-    out.parent.mkdir(parents=True, exist_ok=True)
-    partial = out.with_name(out.name + ".partial")
-    images[0].save(partial, format="GIF", save_all=True, append_images=images[1:], duration=FRAME_MS, loop=0)
-    partial.replace(out)
+    drawn = io.BytesIO()
+    images[0].save(drawn, format="GIF", save_all=True, append_images=images[1:], duration=FRAME_MS, loop=0)
+    outputs.write_bytes(out, drawn.getvalue(), "--out")
     return f"{what}, {len(images)} frames"
 
 

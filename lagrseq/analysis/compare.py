@@ -32,6 +32,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from lagrseq.errors import UsageError
+from lagrseq.paths import open_input
+from lagrseq.text import csv_cell, cut, markdown_cell, shown
 
 MAX_CSV_BYTES = 16 * 2**20
 """The largest table read (a reference report's largest is about 20 KB)."""
@@ -154,53 +156,63 @@ class Comparison:
 # ------------------------------------------------------------------------------------------
 def report_folder(path: Path) -> Path:
     """The report folder ``path`` names: itself, or ``path/reports`` for the output folder of
-    ``reproduce`` or ``audit``. A missing folder or one that holds no report is refused."""
+    ``reproduce`` or ``audit``. A missing folder, one that holds no report, and one whose
+    ``tables`` is not a folder are refused."""
     if not path.exists():
-        raise UsageError(f"report folder {path} does not exist; give a folder written by lagrseq replay --out or reproduce (OUT/reports)")
+        raise UsageError(f"report folder {shown(path)} does not exist; give a folder written by lagrseq replay --out or reproduce (OUT/reports)")
     if not path.is_dir():
-        raise UsageError(f"{path} is a file, not a report folder; give a folder written by lagrseq replay --out or reproduce (OUT/reports)")
+        raise UsageError(f"{shown(path)} is a file, not a report folder; give a folder written by lagrseq replay --out or reproduce (OUT/reports)")
     for candidate in (path, path / "reports"):
-        marks = [candidate / "index.md", candidate / "scoreboard.md", candidate / "tables" / "scoreboard.csv"]
-        if any(m.is_file() for m in marks) or any((candidate / "tables").glob("frontier-*.csv")):
+        tables = candidate / "tables"
+        if (tables.exists() or tables.is_symlink()) and not tables.is_dir():
+            raise UsageError(f"{shown(tables)} is not a folder; the report is damaged: rewrite it (lagrseq replay RUNS --out DIR)")
+        marks = [candidate / "index.md", candidate / "scoreboard.md", tables / "scoreboard.csv"]
+        if any(m.exists() for m in marks) or any(tables.glob("frontier-*.csv")):
             return candidate
     raise UsageError(
-        f"{path} is not a report folder: found no index.md, scoreboard.md, tables/scoreboard.csv or tables/frontier-*.csv in it or in "
-        f"{path / 'reports'}; give a folder written by lagrseq replay --out or reproduce (OUT/reports)"
+        f"{shown(path)} is not a report folder: found no index.md, scoreboard.md, tables/scoreboard.csv or tables/frontier-*.csv in it or in "
+        f"{shown(path / 'reports')}; give a folder written by lagrseq replay --out or reproduce (OUT/reports)"
     )
+
+
+def _text(path: Path) -> str:
+    """A table's text: a regular file (a FIFO, a device or a link to one is refused, never read),
+    at most :data:`MAX_CSV_BYTES`, UTF-8 with or without a byte-order mark."""
+    with open_input(path, "report table") as handle:
+        data = handle.read(MAX_CSV_BYTES + 1)
+    if len(data) > MAX_CSV_BYTES:
+        raise UsageError(f"{shown(path)} is larger than any report table ({MAX_CSV_BYTES} bytes at most); is it a report's table?")
+    return data.decode("utf-8-sig")
 
 
 def _read_csv(path: Path, required: Sequence[str]) -> list[dict[str, str]]:
     """A table's rows, each a dict of its cells; any defect is one line naming the file."""
     try:
-        size = path.stat().st_size
-        if size > MAX_CSV_BYTES:
-            raise UsageError(f"{path} is {size} bytes, larger than any report table ({MAX_CSV_BYTES} bytes at most); is it a report's table?")
-        with path.open(encoding="utf-8", newline="") as f:
-            reader = csv.DictReader(f, strict=True)
-            header = reader.fieldnames or []
-            missing = [c for c in required if c not in header]
-            if missing:
+        reader = csv.DictReader(io.StringIO(_text(path), newline=""), strict=True)
+        header = reader.fieldnames or []
+        missing = [c for c in required if c not in header]
+        if missing:
+            raise UsageError(
+                f"{shown(path)} is not a report table: its header lacks {', '.join(missing)}; "
+                "rewrite the report with this version of lagrseq (lagrseq replay RUNS --out DIR)"
+            )
+        rows: list[dict[str, str]] = []
+        for row in reader:
+            if None in row or any(v is None for v in row.values()):
                 raise UsageError(
-                    f"{path} is not a report table: its header lacks {', '.join(missing)}; "
-                    "rewrite the report with this version of lagrseq (lagrseq replay RUNS --out DIR)"
+                    f"{shown(path)} line {reader.line_num}: {len(header)} cells expected, found another count; "
+                    "the table is damaged: rewrite the report (lagrseq replay RUNS --out DIR)"
                 )
-            rows: list[dict[str, str]] = []
-            for row in reader:
-                if None in row or any(v is None for v in row.values()):
-                    raise UsageError(
-                        f"{path} line {reader.line_num}: {len(header)} cells expected, found another count; "
-                        "the table is damaged: rewrite the report (lagrseq replay RUNS --out DIR)"
-                    )
-                rows.append(row)
-                if len(rows) > MAX_ROWS:
-                    raise UsageError(f"{path} has more than {MAX_ROWS} rows; is it a report's table?")
-            return rows
+            rows.append(row)
+            if len(rows) > MAX_ROWS:
+                raise UsageError(f"{shown(path)} has more than {MAX_ROWS} rows; is it a report's table?")
+        return rows
     except UnicodeDecodeError as exc:
-        raise UsageError(f"{path} is not UTF-8 text (byte {exc.start}); the table is damaged: rewrite the report") from None
+        raise UsageError(f"{shown(path)} is not UTF-8 text (byte {exc.start}); the table is damaged: rewrite the report") from None
     except csv.Error as exc:
-        raise UsageError(f"{path} is not a readable CSV table ({exc}); the table is damaged: rewrite the report") from None
+        raise UsageError(f"{shown(path)} is not a readable CSV table ({shown(exc)}); the table is damaged: rewrite the report") from None
     except OSError as exc:
-        raise UsageError(f"{path} cannot be read ({exc.strerror or exc}); check the path and its permissions") from None
+        raise UsageError(f"{shown(path)} cannot be read ({exc.strerror or exc}); check the path and its permissions") from None
 
 
 def _number(path: Path, row: dict[str, str], column: str) -> float:
@@ -208,15 +220,21 @@ def _number(path: Path, row: dict[str, str], column: str) -> float:
     if text == "" or text.lower() in ("nan", "n/a"):
         return math.nan
     try:
-        return float(text)
+        value = float(text)
     except ValueError:
-        raise UsageError(f"{path}: column {column} holds {text[:40]!r} where a number was expected; the table is damaged: rewrite the report") from None
+        value = math.nan
+    else:
+        if math.isfinite(value):
+            return value
+    raise UsageError(
+        f"{shown(path)}: column {column} holds {shown(text[:40])!r} where a finite number was expected; the table is damaged: rewrite the report"
+    )
 
 
 def _count(path: Path, row: dict[str, str], column: str) -> int:
     value = _number(path, row, column)
     if math.isnan(value) or value < 0 or value != int(value):
-        raise UsageError(f"{path}: column {column} holds {row[column][:40]!r} where a count was expected; the table is damaged: rewrite the report")
+        raise UsageError(f"{shown(path)}: column {column} holds {shown(row[column][:40])!r} where a count was expected; the table is damaged: rewrite the report")
     return int(value)
 
 
@@ -274,7 +292,7 @@ def read_report(path: Path) -> Report:
     entries: list[Entry] = []
     tables: list[str] = []
     scoreboard = folder / "tables" / "scoreboard.csv"
-    if scoreboard.is_file():
+    if scoreboard.exists() or scoreboard.is_symlink():  # not a file: refused in one line, never read
         entries += _scoreboard(scoreboard)
         tables.append(SCOREBOARD)
     for frontier in sorted((folder / "tables").glob("frontier-*.csv")):
@@ -347,52 +365,61 @@ def _shown(rows: Sequence[Row], differences_only: bool) -> list[Row]:
     return [r for r in rows if not differences_only or r.status != AGREES]
 
 
+CELL_WIDTH = 80
+"""The widest cell of the terminal table: a longer one is cut with an ellipsis (one long title
+must not pad every row)."""
+
+
 def to_text(comparison: Comparison, differences_only: bool = False) -> str:
     """A header naming both reports, one aligned plain-text table per report table (scoreboard,
-    each frontier panel) and a summary line."""
-    shown = _shown(comparison.rows, differences_only)
+    each frontier panel) and a summary line. Every piece of report text is shown, never run
+    (:func:`lagrseq.text.shown`: keys blanked, controls escaped), and cut to :data:`CELL_WIDTH`."""
+    shown_rows = _shown(comparison.rows, differences_only)
     columns = COLUMNS[1:]
     lines = [
-        f"A: {comparison.a.path} ({len(comparison.a.entries)} rows from {', '.join(comparison.a.tables) or 'no table'})",
-        f"B: {comparison.b.path} ({len(comparison.b.entries)} rows from {', '.join(comparison.b.tables) or 'no table'})",
+        f"A: {shown(comparison.a.path)} ({len(comparison.a.entries)} rows from {_names(comparison.a.tables)})",
+        f"B: {shown(comparison.b.path)} ({len(comparison.b.entries)} rows from {_names(comparison.b.tables)})",
     ]
-    for table in dict.fromkeys(r.table for r in shown):
-        cells = [_cells(r)[1:] for r in shown if r.table == table]
+    for table in dict.fromkeys(r.table for r in shown_rows):
+        cells = [tuple(cut(shown(c), CELL_WIDTH) for c in _cells(r)[1:]) for r in shown_rows if r.table == table]
         widths = [max([len(c), *(len(row[i]) for row in cells)]) for i, c in enumerate(columns)]
         lines += [
             "",
-            f"{table}:",
+            f"{cut(shown(table), CELL_WIDTH)}:",
             "  ".join(c.ljust(w) for c, w in zip(columns, widths, strict=True)).rstrip(),
             "  ".join("-" * w for w in widths),
         ]
         lines += ["  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)).rstrip() for row in cells]
-    if differences_only and not shown:
+    if differences_only and not shown_rows:
         lines += ["", "(every row agrees)"]
     lines += ["", comparison.summary()]
     return "\n".join(lines) + "\n"
 
 
-def to_markdown(comparison: Comparison, differences_only: bool = False) -> str:
-    def cell(text: str) -> str:
-        return text.replace("|", "\\|").replace("\n", " ")
+def _names(tables: Sequence[str]) -> str:
+    return cut(shown(", ".join(tables)), 4 * CELL_WIDTH) if tables else "no table"
 
+
+def to_markdown(comparison: Comparison, differences_only: bool = False) -> str:
+    """The comparison as a Markdown table (every cell escaped: :func:`lagrseq.text.markdown_cell`)."""
     lines = [
-        f"### Two reports compared: A = {cell(str(comparison.a.path))}, B = {cell(str(comparison.b.path))}",
+        f"### Two reports compared: A = {markdown_cell(comparison.a.path)}, B = {markdown_cell(comparison.b.path)}",
         "",
         "| " + " | ".join(COLUMNS) + " |",
         "| " + " | ".join("---" for _ in COLUMNS) + " |",
     ]
-    lines += ["| " + " | ".join(cell(c) for c in _cells(r)) + " |" for r in _shown(comparison.rows, differences_only)]
+    lines += ["| " + " | ".join(markdown_cell(c) for c in _cells(r)) + " |" for r in _shown(comparison.rows, differences_only)]
     lines += ["", comparison.summary()]
     return "\n".join(lines) + "\n"
 
 
 def to_csv(comparison: Comparison, differences_only: bool = False) -> str:
-    """One line per row, with the numbers as numbers (empty where missing)."""
-    def numbers(v: Value | None) -> list[str]:
+    """One line per row, with the numbers as numbers (empty where missing); a text cell a
+    spreadsheet would run as a formula is neutralised (:func:`lagrseq.text.csv_cell`)."""
+    def numbers(v: Value | None) -> list[object]:
         if v is None:
             return ["", "", "", "", ""]
-        return [*("" if math.isnan(x) else f"{x:.6g}" for x in (v.mean, v.low, v.high)), str(v.n), v.verdict]
+        return [*("" if math.isnan(x) else f"{x:.6g}" for x in (v.mean, v.low, v.high)), str(v.n), csv_cell(v.verdict)]
 
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
@@ -400,5 +427,5 @@ def to_csv(comparison: Comparison, differences_only: bool = False) -> str:
                      "b_mean", "b_low", "b_high", "b_n", "b_verdict", "intervals_overlap", "status"])
     for r in _shown(comparison.rows, differences_only):
         overlap = "" if r.overlap is None else str(r.overlap).lower()
-        writer.writerow([r.table, r.row, r.quantity, *numbers(r.a), *numbers(r.b), overlap, r.status])
+        writer.writerow([csv_cell(r.table), csv_cell(r.row), r.quantity, *numbers(r.a), *numbers(r.b), overlap, r.status])
     return buffer.getvalue()

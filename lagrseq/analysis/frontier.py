@@ -72,6 +72,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import FixedLocator, FuncFormatter, NullLocator
 
+from lagrseq import outputs
 from lagrseq.analysis import inference, paired, stats
 from lagrseq.analysis import provenance as prov
 from lagrseq.analysis.figures import COLORS, STYLE
@@ -1056,14 +1057,14 @@ def report(
             tables.append(shown)
             for suffix, text in ((".md", to_markdown(shown)), (".csv", to_csv(shown.data))):
                 path = out / f"{stem}{suffix}"
-                path.write_text(text, encoding="utf-8", newline="\n")
+                outputs.write_text(path, text, "--out")
                 written.append(path)
             for suffix, figure in (
                 (".png", draw(points, shown.title, miss_threshold)),
                 ("-profiles.png", draw_profiles(points, f"{task}: performance profiles of the return")),
             ):
                 path = out / f"{stem}{suffix}"
-                figure.savefig(path, format="png", dpi=DPI, metadata={"Software": None})
+                outputs.save_figure(figure, path, "--out", format="png", dpi=DPI, metadata={"Software": None})
                 written.append(path)
     return FrontierReport(written, tables, logs.warnings)
 

@@ -31,11 +31,11 @@ import matplotlib.axes
 import pandas as pd
 from matplotlib.figure import Figure
 
-from lagrseq import __version__
+from lagrseq import __version__, outputs
 from lagrseq.analysis import audit, costs, figures, items, loading, scoreboard, stats
 from lagrseq.analysis.items import ItemFailure
 from lagrseq.analysis.tables import Table, plus_minus, to_csv, to_html, to_markdown
-from lagrseq.errors import LogError, UsageError
+from lagrseq.errors import LagrseqError, LogError, UsageError
 from lagrseq.suite import (
     AUTHORS_HINT,
     Item,
@@ -44,6 +44,7 @@ from lagrseq.suite import (
     logged_tasks_suite,
     with_recorded,
 )
+from lagrseq.text import markdown_text
 
 FORMATS = ("png", "svg", "pdf")
 DPI = 150
@@ -149,7 +150,7 @@ class _Painter:
     @staticmethod
     def _write(paths: Sequence[Path], drawn: Sequence[bytes]) -> None:
         for path, data in zip(paths, drawn, strict=True):
-            path.write_bytes(data)
+            outputs.write_bytes(path, data, "--out")
 
 
 def _save_figure(
@@ -166,8 +167,7 @@ def _save_figure(
 
 
 def _write(path: Path, text: str, written: list[Path]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(text, encoding="utf-8", newline="\n")
+    outputs.write_text(path, text, "--out")
     written.append(path)
 
 
@@ -294,9 +294,12 @@ def replay(
         raise UsageError(f"unknown figure format {bad[0]!r}; expected some of {', '.join(FORMATS)}")
     formats = ["png", *[f for f in FORMATS if f in formats and f != "png"]]
     out = Path(out)
+    for name in ("index.html", "index.md", MANIFEST):  # a link, folder or FIFO there: refused before the logs are read
+        outputs.check(out / name, "--out")
     jobs = loading.default_jobs() if jobs is None else jobs
     # the figures' artists are many small objects too (see loading.no_cycle_collection)
     with contextlib.ExitStack() as stack, loading.no_cycle_collection():
+        stack.enter_context(outputs.outputs(out))  # every file of the report inside OUT
         painter = _Painter(None)
 
         def found(count: int) -> None:
@@ -423,9 +426,11 @@ def _make(
 
 
 MANIFEST = ".lagrseq-report"
-"""The files the last replay into a folder wrote, one relative path a line: the next replay
-removes those it does not write again, so a report never keeps figures or tables of items the
-latest run did not make (files replay never wrote are left alone)."""
+"""The files the last replay into a folder wrote, one a line: the SHA-256 of what was written, two
+spaces and the relative path (``sha256sum``'s format). The next replay removes those it does not
+write again, so a report never keeps figures or tables of items the latest run did not make; a
+file is removed only while it still holds the bytes recorded (files replay never wrote, and
+files changed since, are left alone, whatever the manifest lists)."""
 
 _OWN = ("figures", "tables")
 
@@ -433,41 +438,44 @@ _OWN = ("figures", "tables")
 def _drop_stale(out: Path, written: list[Path]) -> None:
     """Remove what an earlier replay into ``out`` wrote and this one did not; write the manifest.
 
-    The earlier replay's files are those its manifest lists; a folder without a manifest (made
-    before there was one) counts every file under ``figures/`` and ``tables/`` whose name starts
-    with a suite item's or a report table's stem as replay's own."""
-    now = {p.relative_to(out).as_posix() for p in written}
-    manifest = out / MANIFEST
-    before: set[str] = set()
-    try:
-        before = {line for line in manifest.read_text(encoding="utf-8").splitlines() if line}
-    except FileNotFoundError:
-        stems = {Path(name).name.split(".")[0] for name in now}
-        for folder in _OWN:
-            for path in sorted((out / folder).glob("*")):
-                if path.is_file() and any(path.name.startswith(stem) for stem in stems | _STALE_STEMS):
-                    before.add(f"{folder}/{path.name}")
-    except (OSError, UnicodeDecodeError):
-        before = set()  # unreadable: remove nothing
-    for name in sorted(before - now):
+    The earlier replay's files are those its manifest lists with the SHA-256 the file still has;
+    a folder without a manifest loses nothing."""
+    now = {p.relative_to(out).as_posix(): outputs.file_digest(p) for p in written}
+    for name, digest in sorted(_manifest(out / MANIFEST).items()):
         path = out / name
-        # only plain files directly under the report's own folders: a hand-edited manifest
-        # cannot make replay delete anything else
+        # only plain files directly under the report's own folders, still as replay wrote them:
+        # a hand-edited manifest cannot make replay delete anything else
         if (
-            ".." not in Path(name).parts
+            name not in now
+            and ".." not in Path(name).parts
             and len(Path(name).parts) <= 2
             and (len(Path(name).parts) == 1 or Path(name).parts[0] in _OWN)
-            and path.is_file()
-            and not path.is_symlink()
+            and outputs.file_digest(path) == digest
         ):
             path.unlink()
-    manifest.write_text("".join(f"{name}\n" for name in sorted(now)), encoding="utf-8", newline="\n")
+    outputs.write_text(out / MANIFEST, "".join(f"{digest}  {name}\n" for name, digest in sorted(now.items()) if digest), "--out")
 
 
-_STALE_STEMS = {"fig", "table", "appendix", "frontier", "audit-", "costs-by-", "runs", "scoreboard", "open-models"}
+def _manifest(path: Path) -> dict[str, str]:
+    """A manifest's entries (relative path -> SHA-256); none when it is missing, unreadable or
+    not a regular file (never read through a link or from a FIFO)."""
+    from lagrseq.paths import open_input
+
+    try:
+        with open_input(path, "manifest") as handle:
+            lines = handle.read(1 << 22).decode("utf-8").splitlines()
+    except (LagrseqError, OSError, UnicodeDecodeError):
+        return {}
+    entries = {}
+    for line in lines:
+        digest, _, name = line.partition("  ")
+        if len(digest) == 64 and all(c in "0123456789abcdef" for c in digest) and name:
+            entries[name] = digest
+    return entries
+
+
 _FIGURED = {"open-models", "open-models-temperature"}
 """Sections of ``replay(sections=...)`` drawn with a figure (the "open models" item)."""
-"""Name beginnings of files replay writes (for a folder made before the manifest existed)."""
 
 
 def _arm_animation(report: ItemReport, out: Path, written: list[Path]) -> None:
@@ -687,16 +695,16 @@ def _index_markdown(
     if board is not None:
         lines += [to_markdown(board)]
     if failures:
-        lines += ["## Failed", "", *(f"- {line}" for line in failures), ""]
+        lines += ["## Failed", "", *(f"- {markdown_text(line)}" for line in failures), ""]
     for r in reports:
-        lines += [f"## {r.item.title} ({_shown_status(r)})", ""]
+        lines += [f"## {markdown_text(r.item.title)} ({_shown_status(r)})", ""]
         if r.item.caption:
-            lines += [f"*Paper: {r.item.caption}*", ""]
+            lines += [f"*Paper: {markdown_text(r.item.caption)}*", ""]
         if not r.made:
             lines += [r.not_run_line(), ""]
             continue
         if r.figure:
-            lines += [f"![{r.item.title}]({r.figure})", ""]
+            lines += [f"![{markdown_text(r.item.title)}]({r.figure})", ""]
         if r.animation:
             lines += [f"![{r.animation_note}]({r.animation})", "", r.animation_note, ""]
         for table, _md, _csv in r.tables:
@@ -704,7 +712,7 @@ def _index_markdown(
         how, run_lines = _how(r, produced_by)
         lines += [f"{how} Runs:", "", *(f"- {line}" for line in run_lines), ""]
         if r.item.note:
-            lines += [f"Note: {r.item.note}", ""]
+            lines += [f"Note: {markdown_text(r.item.note)}", ""]
         if _authors_hint(r):
             lines += [_authors_hint(r), ""]
         lines += [f"Missing — {line}  " for line in r.missing()]
@@ -714,5 +722,5 @@ def _index_markdown(
             lines += [f"![{table.title}](figures/{stem}.png)", ""]
         lines += [to_markdown(table)]
     if logs.warnings:
-        lines += ["## Warnings", "", *(f"- {w}" for w in logs.warnings), ""]
+        lines += ["## Warnings", "", *(f"- {markdown_text(w)}" for w in logs.warnings), ""]
     return "\n".join(lines).rstrip("\n") + "\n"

@@ -10,6 +10,8 @@ from dataclasses import dataclass
 
 import pandas as pd
 
+from lagrseq.text import csv_cell, markdown_cell
+
 CSV_FLOAT = "%.6g"
 
 
@@ -46,19 +48,26 @@ def interval(low: float, high: float, digits: int = 2) -> str:
 
 
 def _cell(text: str) -> str:
-    return text.replace("|", "\\|").replace("\n", " ")
+    return markdown_cell(text)
 
 
 def to_markdown(table: Table) -> str:
-    """A GitHub-flavoured Markdown table under a heading."""
-    lines = [f"### {table.title}", "", "| " + " | ".join(_cell(c) for c in table.columns) + " |"]
+    """A GitHub-flavoured Markdown table under a heading (every cell escaped:
+    :func:`lagrseq.text.markdown_cell`)."""
+    lines = [f"### {_cell(table.title)}", "", "| " + " | ".join(_cell(c) for c in table.columns) + " |"]
     lines.append("|" + "|".join(" --- " for _ in table.columns) + "|")
     lines += ["| " + " | ".join(_cell(c) for c in row) + " |" for row in table.rows]
     return "\n".join(lines) + "\n"
 
 
 def to_csv(frame: pd.DataFrame) -> str:
-    """CSV with ``\\n`` line ends and floats written with 6 significant digits."""
+    """CSV with ``\\n`` line ends and floats written with 6 significant digits; a text cell a
+    spreadsheet would run as a formula is neutralised (:func:`lagrseq.text.csv_cell`)."""
+    text_columns = [c for c in frame.columns if pd.api.types.is_object_dtype(frame[c]) or pd.api.types.is_string_dtype(frame[c])]
+    if text_columns:
+        frame = frame.copy()
+        for column in text_columns:
+            frame[column] = frame[column].map(csv_cell)
     return frame.to_csv(index=False, float_format=CSV_FLOAT, lineterminator="\n")
 
 

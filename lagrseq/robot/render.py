@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from lagrseq import outputs
+
 GIF_FRAME_MS = 250
 """Time each frame of a GIF is shown."""
 
@@ -33,10 +35,9 @@ def write_gif(frames: list[np.ndarray], path: Path, frame_ms: int = GIF_FRAME_MS
     from PIL import Image
 
     images = [Image.fromarray(np.asarray(f, dtype=np.uint8)) for f in frames]
-    partial = path.with_name(path.name + ".partial")
-    images[0].save(partial, format="GIF", save_all=True, append_images=images[1:], duration=frame_ms, loop=0)
-    partial.replace(path)
-    return path
+    drawn = io.BytesIO()
+    images[0].save(drawn, format="GIF", save_all=True, append_images=images[1:], duration=frame_ms, loop=0)
+    return outputs.write_bytes(path, drawn.getvalue(), "--render")
 
 
 class EpisodeRenderer:
@@ -73,7 +74,7 @@ class EpisodeRenderer:
             return
         folder = self.directory / f"episode-{self.episode:04d}"
         folder.mkdir(exist_ok=True)
-        (folder / f"frame-{len(self.frames):04d}-{moment}.png").write_bytes(png_bytes(rgb))
+        outputs.write_bytes(folder / f"frame-{len(self.frames):04d}-{moment}.png", png_bytes(rgb), "--render")
         self.frames.append(rgb)
 
     def finish(self) -> None:

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from lagrseq import config as cfg
+from lagrseq import outputs
 from lagrseq.config import ExperimentConfig
 from lagrseq.errors import ConfigError, UsageError
 from lagrseq.logs.reader import is_complete
@@ -157,8 +158,8 @@ def write_audit(
     for a in made:
         for stem, table, fig in audit.outputs(a):
             path = reports / stem
-            path.with_suffix(".md").write_text(to_markdown(table), encoding="utf-8")
-            path.with_suffix(".csv").write_text(to_csv(table.data), encoding="utf-8")
+            outputs.write_text(path.with_suffix(".md"), to_markdown(table), "--out")
+            outputs.write_text(path.with_suffix(".csv"), to_csv(table.data), "--out")
             for fmt in formats:
-                fig.savefig(path.with_suffix(f".{fmt}"), format=fmt, dpi=150, metadata={"Software": None} if fmt == "png" else None)
+                outputs.save_figure(fig, path.with_suffix(f".{fmt}"), "--out", format=fmt, dpi=150, metadata={"Software": None} if fmt == "png" else None)
     return made

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from lagrseq import outputs
 from lagrseq.errors import UsageError
 from lagrseq.frontier_protocol import TUNING_NOTE, matched_probability, wants_match
 from lagrseq.registry import POLICIES, TASKS, knob_names, tuned_knob
@@ -536,7 +537,7 @@ def write_index(
     ]
     if chosen:
         entries.append({"tuned": chosen})
-    path.write_text(json.dumps(entries, indent=1) + "\n", encoding="utf-8")
+    outputs.write_text(path, json.dumps(entries, indent=1) + "\n", "--out")
     return path
 
 

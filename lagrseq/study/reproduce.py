@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from lagrseq import config as cfg
+from lagrseq import outputs
 from lagrseq.config import ExperimentConfig
 from lagrseq.errors import ConfigError, LagrseqError, TrialsFailed, UsageError
 from lagrseq.logs.reader import is_complete
@@ -305,8 +306,9 @@ def write_errors_log(out: Path, failures: Sequence[RunFailure], reruns: Mapping[
 
     path = out / ERRORS_LOG
     if not failures:
-        with contextlib.suppress(FileNotFoundError):
-            path.unlink()
+        if os.path.isfile(path) and not os.path.islink(path):  # a folder or FIFO there is not ours
+            with contextlib.suppress(FileNotFoundError):
+                path.unlink()
         return path
     header = [
         f"lagrseq reproduce: {len(failures)} failed run{'s' if len(failures) != 1 else ''} "
@@ -316,8 +318,17 @@ def write_errors_log(out: Path, failures: Sequence[RunFailure], reruns: Mapping[
     text = "\n".join(header) + "\n".join(f.log_text(out) for f in failures)
     if reruns:
         text += "\n".join(["== to rerun each alone", *(f"{key}: {command}" for key, command in reruns.items()), ""])
-    path.write_text(redact_key_like(text), encoding="utf-8", newline="\n")
+    outputs.write_text(path, redact_key_like(without_checkout(text)), "--out")  # every key form blanked there
     return path
+
+
+def without_checkout(text: str) -> str:
+    """``text`` with the folder holding lagrseq (a traceback's file names) written relative to it:
+    a log must not tell where the checkout lies."""
+    from lagrseq.paths import source_checkout
+
+    folder = str(source_checkout())
+    return text.replace(folder + os.sep, "") if len(folder) > 1 else text
 
 
 def failure_summary(failed: Mapping[str, Any], problems: Mapping[str, Any], items_total: int, out: Path) -> str:
@@ -797,9 +808,15 @@ def _calibrate(run: PlannedRun, group: int = 1) -> Timing:
     try:
         return _timed(run, group, provider, options)
     except Exception:  # noqa: BLE001 - an estimate only; the run reports its own errors
-        if provider == "mock":
-            raise
-        return _timed(run, group, "mock", None)
+        if provider != "mock":
+            with contextlib.suppress(Exception):
+                return _timed(run, group, "mock", None)
+        return UNTIMED  # its run fails too, and is reported as one failed item like any other
+
+
+UNTIMED = Timing(0.0, 1.0, 0.0)
+"""The timing of an experiment whose timed stretch raised (a plugin task's env that fails): it
+adds nothing to the estimate, and its run, which fails the same way, is a failed item."""
 
 
 def _timed(run: PlannedRun, group: int, provider: str, options: Any) -> Timing:
@@ -1067,6 +1084,8 @@ def reproduce(
 
         check_scheduler(scheduler)
     writable_directory(out)
+    for name in (ERRORS_LOG, "reports/index.html", "reports/index.md"):  # a link, folder or FIFO there: refused before anything runs
+        outputs.check(out / name, "--out")
     runs_dir, reports_dir = writable_directory(out / "runs"), writable_directory(out / "reports", "--out")
     started = time.perf_counter()
     planned_suite = suite
@@ -1183,7 +1202,10 @@ def reproduce(
                 failures=failures,
             )
             tell()
-        write_errors_log(out, failures, {key: f.rerun for found in item_failures(failures, rerun) for key, f in found.items()})
+        try:
+            write_errors_log(out, failures, {key: f.rerun for found in item_failures(failures, rerun) for key, f in found.items()})
+        except UsageError as exc:  # planted while the runs ran: the report is still made
+            (warn or say)(f"{exc}; the report is made without it")
         if pool is not None:  # the replay's own workers start now: these go first
             stack.pop_all().close()
         say(f"runs done in {duration(time.perf_counter() - started)}: {runs_dir}")

@@ -28,8 +28,10 @@ from typing import Any
 
 import numpy as np
 
+from lagrseq import outputs
 from lagrseq.config import ExperimentConfig
 from lagrseq.errors import UsageError
+from lagrseq.text import csv_cell, markdown_cell
 
 Z95 = 1.959963984540054
 """The normal quantile of a two-sided 95% interval."""
@@ -758,12 +760,12 @@ def markdown(screens: Sequence[Screen]) -> list[str]:
     answer and answer tokens per second of the whole request, prompt included), then accuracy
     per bin (correct/n, percent, interval)."""
     lines = ["| " + " | ".join(OVERALL_COLUMNS) + " |", "|" + "---|" * len(OVERALL_COLUMNS)]
-    lines += ["| " + " | ".join(row) + " |" for row in overall_rows(screens)]
+    lines += ["| " + " | ".join(markdown_cell(c) for c in row) + " |" for row in overall_rows(screens)]
     for task in sorted({s.task for s in screens}):
         group = [s for s in screens if s.task == task]
         bins = sorted({b for s in group for b in s.cells})
         size = group[0].size
-        lines += ["", f"| {task}: shown | " + " | ".join(s.label() for s in group) + " |", "|---|" + "---|" * len(group)]
+        lines += ["", f"| {task}: shown | " + " | ".join(markdown_cell(s.label()) for s in group) + " |", "|---|" + "---|" * len(group)]
         for b in bins:
             cells = " | ".join(_percent(*reversed(s.cells[b])) if b in s.cells else "-" for s in group)
             lines.append(f"| {bin_label(task, b, size)} | {cells} |")
@@ -784,7 +786,7 @@ def csv_text(screens: Sequence[Screen]) -> str:
         per_bin: dict[int, int] = {}
         for b in s.prompt_bins.values():
             per_bin[b] = per_bin.get(b, 0) + 1
-        head = [s.task, s.model, f"{s.temperature:g}", s.kind, s.sha256 or "", s.facts or ""]
+        head = [csv_cell(c) for c in (s.task, s.model, f"{s.temperature:g}", s.kind, s.sha256 or "", s.facts or "")]
         for b in sorted(s.cells):
             n, k = s.cells[b]
             low, high = wilson(k, n)
@@ -916,9 +918,11 @@ def write_screen(screens: Sequence[Screen], out: Path, stem: str) -> list[Path]:
     try:
         out.mkdir(parents=True, exist_ok=True)
         md, table, png = out / f"{stem}.md", out / f"{stem}.csv", out / f"{stem}.png"
-        md.write_text("\n".join(markdown(screens)) + "\n", encoding="utf-8")
-        table.write_text(csv_text(screens), encoding="utf-8")
-        figure(screens).savefig(png, dpi=100, metadata={"Software": None})
+        for path in (md, table, png):  # every output checked before the first is written
+            outputs.check(path, "--out")
+        outputs.write_text(md, "\n".join(markdown(screens)) + "\n", "--out")
+        outputs.write_text(table, csv_text(screens), "--out")
+        outputs.save_figure(figure(screens), png, "--out", dpi=100, metadata={"Software": None})
     except OSError as exc:
         raise UsageError(f"cannot write the screen to {out}: {exc.strerror or exc}") from None
     return [md, table, png]

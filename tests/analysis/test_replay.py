@@ -15,6 +15,7 @@ from matplotlib.figure import Figure
 
 import lagrseq
 from lagrseq.analysis import replay as replay_module
+from lagrseq.analysis.replay import MANIFEST as MANIFEST_NAME
 from lagrseq.analysis.replay import replay
 from lagrseq.errors import UsageError
 
@@ -234,21 +235,27 @@ def test_index_links_only_to_files_that_exist(runs_dir: Path, tmp_path: Path) ->
 
 
 def test_a_report_folder_keeps_no_files_of_items_the_latest_replay_did_not_make(runs_dir: Path, tmp_path: Path) -> None:
+    import hashlib
+
     from lagrseq.analysis.replay import MANIFEST
 
     out = tmp_path / "report"
     first = replay([runs_dir], out)
     made = {p.relative_to(out).as_posix() for p in first.written}
-    assert (out / MANIFEST).read_text().splitlines() == sorted(made)
+    listed = [line.split("  ", 1) for line in (out / MANIFEST).read_text().splitlines()]
+    assert [name for _, name in listed] == sorted(made)
+    assert all(digest == hashlib.sha256((out / name).read_bytes()).hexdigest() for digest, name in listed)
     # an item an earlier run made and this one does not (the arm items without the arm extra),
     # and a file of the user's, which replay never wrote
     stale = ["figures/fig5c-arm.png", "figures/fig5c-arm-arm.gif", "tables/fig6c-arm.md"]
     for name in stale:
         (out / name).write_bytes(b"old")
-    (out / MANIFEST).write_text("\n".join(sorted(made | set(stale))) + "\n../outside.txt\nnotes/mine.txt\n")
-    (tmp_path / "outside.txt").write_text("not replay's")
+    old = hashlib.sha256(b"old").hexdigest()
+    lines = [f"{digest}  {name}" for digest, name in listed] + [f"{old}  {name}" for name in stale]
+    (out / MANIFEST).write_text("\n".join([*lines, f"{old}  ../outside.txt", f"{old}  notes/mine.txt"]) + "\n")
+    (tmp_path / "outside.txt").write_bytes(b"old")
     (out / "notes").mkdir()
-    (out / "notes" / "mine.txt").write_text("mine")
+    (out / "notes" / "mine.txt").write_bytes(b"old")
     (out / "figures" / "my-sketch.png").write_bytes(b"mine")
     again = replay([runs_dir], out)
     assert {p.relative_to(out).as_posix() for p in again.written} == made
@@ -257,16 +264,43 @@ def test_a_report_folder_keeps_no_files_of_items_the_latest_replay_did_not_make(
     assert (out / "figures" / "my-sketch.png").exists()
 
 
-def test_a_report_folder_made_before_the_manifest_loses_its_stale_items_too(runs_dir: Path, tmp_path: Path) -> None:
+def test_a_planted_manifest_entry_never_deletes_a_file_replay_did_not_write(runs_dir: Path, tmp_path: Path) -> None:
     from lagrseq.analysis.replay import MANIFEST
 
     out = tmp_path / "report"
     (out / "figures").mkdir(parents=True)
-    (out / "figures" / "fig5c-arm-arm.gif").write_bytes(b"old")  # a committed reports/ of before
+    (out / "figures" / "fig5c-arm.png").write_bytes(b"the user's own figure")
+    (out / "tables").mkdir()
+    (out / "tables" / "notes.md").write_bytes(b"mine")
+    # listed without a digest, and with the digest of other bytes
+    (out / MANIFEST).write_text("figures/fig5c-arm.png\n" + "0" * 64 + "  tables/notes.md\n")
+    replay([runs_dir], out)
+    assert (out / "figures" / "fig5c-arm.png").read_bytes() == b"the user's own figure"
+    assert (out / "tables" / "notes.md").read_bytes() == b"mine"
+
+
+def test_a_report_folder_without_a_manifest_loses_nothing(runs_dir: Path, tmp_path: Path) -> None:
+    from lagrseq.analysis.replay import MANIFEST
+
+    out = tmp_path / "report"
+    (out / "figures").mkdir(parents=True)
+    (out / "figures" / "fig5c-arm-arm.gif").write_bytes(b"old")
     (out / "figures" / "my-sketch.png").write_bytes(b"mine")
     replay([runs_dir], out)
-    assert not (out / "figures" / "fig5c-arm-arm.gif").exists()
-    assert (out / "figures" / "my-sketch.png").exists() and (out / MANIFEST).is_file()
+    assert (out / "figures" / "fig5c-arm-arm.gif").exists() and (out / "figures" / "my-sketch.png").exists()
+    assert (out / MANIFEST).is_file()
+
+
+@pytest.mark.parametrize("name", ["index.html", "index.md", MANIFEST_NAME])
+def test_replay_never_writes_through_a_link_planted_in_the_report_folder(runs_dir: Path, tmp_path: Path, name: str) -> None:
+    out = tmp_path / "report"
+    out.mkdir()
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious")
+    (out / name).symlink_to(victim)
+    with pytest.raises(UsageError, match="symbolic link"):
+        replay([runs_dir], out)
+    assert victim.read_text() == "precious"
 
 
 def _absolute_paths_in(report: Path, places: list[Path]) -> list[str]:

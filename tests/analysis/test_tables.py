@@ -30,10 +30,23 @@ def test_markdown_and_html_escape_cells() -> None:
     table = Table("T <1>", ("a|b", "c"), (("x|y", "<b>"),), pd.DataFrame())
     md = to_markdown(table)
     assert md.splitlines()[2] == "| a\\|b | c |"
-    assert "| x\\|y | <b> |" in md
+    assert "| x\\|y | &lt;b&gt; |" in md  # HTML in a cell is shown, never run
+    assert md.startswith("### T &lt;1&gt;\n")
     page = to_html(table, [("CSV", "t.csv")])
     assert "&lt;b&gt;" in page and "<caption>T &lt;1&gt;</caption>" in page
     assert '<a href="t.csv">CSV</a>' in page
+
+
+def test_markdown_cells_show_control_characters_and_line_breaks() -> None:
+    table = Table("t", ("a",), (("x\x1b]0;owned\x07\ny",),), pd.DataFrame())
+    row = to_markdown(table).splitlines()[-1]
+    assert "\x1b" not in row and "\x07" not in row and row == "| x\\x1b]0;owned\\x07\\ny |"
+
+
+def test_csv_cells_that_a_spreadsheet_would_run_are_neutralised() -> None:
+    frame = pd.DataFrame({"title": ["=HYPERLINK(\"x\")", "+1+cmd", "@SUM(A1)", "-2+3", "\tx", "-", "-0.5", "ok"], "n": range(8)})
+    cells = [row.split(",")[0] for row in to_csv(frame).splitlines()[1:]]
+    assert cells == ['"\'=HYPERLINK(""x"")"', "'+1+cmd", "'@SUM(A1)", "'-2+3", "'\tx", "-", "-0.5", "ok"]
 
 
 def test_csv_is_stable_text() -> None:
