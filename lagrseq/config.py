@@ -488,34 +488,22 @@ class TabularConfig(_Section):
 
 
 @dataclass(frozen=True)
-class TabularSecondaryConfig(_Section):
-    """[secondary] the SEQ agent as a tabular two-armed bandit over states (cube stacking)."""
+class SecondarySection(_Section):
+    """What every [secondary] section holds, whatever the agent: the query reward, when to ask
+    (the policy), and the policy's knobs. :class:`TabularSecondaryConfig` and
+    :class:`NeuralSecondaryConfig` add the agent's own fields."""
 
     SECTION = "secondary"
 
-    kind: Literal["tabular"] = "tabular"
+    kind: str = ""
     """Agent kind."""
-    learning_rate: float = ranged(0.1, gt=0, le=1)
-    """Step size of the bandit update Q2[s,a] += lr (r2 - Q2[s,a]). Paper and code: 0.1."""
-    epsilon_schedule: EpsilonSchedule = "linear"
-    """Exploration schedule (same choices as the primary). Code: shares the primary's epsilon."""
-    epsilon_start: float = ranged(1.0, ge=0, le=1)
-    """Initial epsilon. Paper and code: 1."""
-    epsilon_min: float = ranged(0.05, ge=0, le=1)
-    """Minimum epsilon. Paper and code: 0.05."""
-    epsilon_decay: float = ranged(0.0, ge=0, le=1e6)
-    """As for the primary agent."""
-    epsilon_unit: Literal["episode", "step"] = "episode"
-    """As for the primary agent."""
-    epsilon_warmup: int = ranged(0, ge=0, le=10**9)
-    """As for the primary agent."""
     query_reward: Literal["binary", "logistic"] = "binary"
     """Reward of a query: binary (reward_correct / reward_wrong) or the paper's appendix logistic
     1 / (1 + exp(-steepness (E/N - midpoint)))."""
     reward_correct: float = ranged(1.0, ge=-1e6, le=1e6)
     """Binary query reward for an accepted answer. Paper and code: +1."""
     reward_wrong: float = ranged(-1.0, ge=-1e6, le=1e6)
-    """Binary query reward for a rejected answer. Cube paper and code: -1 (grids: 0)."""
+    """Binary query reward for a rejected answer. Cube paper and code: -1; grids, paper and code: 0."""
     logistic_steepness: float = ranged(20.0, ge=0, le=500)
     """p1 of the logistic query reward. Paper appendix: 20."""
     logistic_midpoint: float = ranged(0.9, ge=0, le=1)
@@ -564,6 +552,28 @@ class TabularSecondaryConfig(_Section):
     def _check(self) -> None:
         _check_epsilon(self.SECTION, self)
         _check_policy(self.SECTION, self)
+
+
+@dataclass(frozen=True)
+class TabularSecondaryConfig(SecondarySection):
+    """[secondary] the SEQ agent as a tabular two-armed bandit over states (cube stacking)."""
+
+    kind: Literal["tabular"] = "tabular"
+    """Agent kind."""
+    learning_rate: float = ranged(0.1, gt=0, le=1)
+    """Step size of the bandit update Q2[s,a] += lr (r2 - Q2[s,a]). Paper and code: 0.1."""
+    epsilon_schedule: EpsilonSchedule = "linear"
+    """Exploration schedule (same choices as the primary). Code: shares the primary's epsilon."""
+    epsilon_start: float = ranged(1.0, ge=0, le=1)
+    """Initial epsilon. Paper and code: 1."""
+    epsilon_min: float = ranged(0.05, ge=0, le=1)
+    """Minimum epsilon. Paper and code: 0.05."""
+    epsilon_decay: float = ranged(0.0, ge=0, le=1e6)
+    """As for the primary agent."""
+    epsilon_unit: Literal["episode", "step"] = "episode"
+    """As for the primary agent."""
+    epsilon_warmup: int = ranged(0, ge=0, le=10**9)
+    """As for the primary agent."""
 
 
 def _check_policy(section: str, obj: Any) -> None:
@@ -687,14 +697,12 @@ class DQNConfig(_Section):
 
 
 @dataclass(frozen=True)
-class NeuralSecondaryConfig(_Section):
+class NeuralSecondaryConfig(SecondarySection):
     """[secondary] the SEQ agent as a neural two-armed bandit on the grid (needs the dqn extra).
 
     A multilayer perceptron maps the flattened grid to [value of not querying, value of querying];
     each decision is stored with its reward and one Adam step fits Q(s, a) to r (no bootstrapping:
     every decision ends, the paper's MAB setting)."""
-
-    SECTION = "secondary"
 
     kind: Literal["neural"] = "neural"
     """Agent kind."""
@@ -719,63 +727,14 @@ class NeuralSecondaryConfig(_Section):
     """What the schedule counts (environment steps or episodes)."""
     epsilon_warmup: int = ranged(0, ge=0, le=10**9)
     """Steps during which epsilon stays at epsilon_start."""
-    query_reward: Literal["binary", "logistic"] = "binary"
-    """Reward of a query: binary or the paper appendix's logistic on E/N (N = cells)."""
-    reward_correct: float = ranged(1.0, ge=-1e6, le=1e6)
-    """Binary query reward for an accepted answer. Paper and code: 1."""
     reward_wrong: float = ranged(0.0, ge=-1e6, le=1e6)
     """Binary query reward for a rejected answer. Grids, paper and code: 0."""
-    logistic_steepness: float = ranged(20.0, ge=0, le=500)
-    """p1 of the logistic query reward. Paper appendix: 20."""
-    logistic_midpoint: float = ranged(0.9, ge=0, le=1)
-    """p2 of the logistic query reward (on E/N). Paper appendix: 0.9."""
     device: Literal["cpu", "cuda", "auto"] = "cpu"
     """Where the network runs (as for the primary agent)."""
-    policy: str = "seq"
-    """When to ask, with method lagr-seq (lagrseq.loop.policies): seq (the paper's bandit above), never,
-    always, random (ask with probability ask_probability), thompson (a posterior per context:
-    Beta-Bernoulli on acceptance with a binary query reward, Gaussian on the reward with the
-    logistic one; the context is the pattern's progress and how often this very pattern was
-    already answered wrongly, so it generalises across states) or oracle (asks only when the
-    answer would be accepted: it looks at the provider's answer first, uncounted; a lower bound
-    on queries, refused with live answers) or advance (asks where the pattern's progress reaches a
-    new best of the episode or has stalled for stall_steps decisions, never again on a pattern
-    whose answer was rejected). Paper: seq."""
-    ask_probability: float = ranged(0.5, ge=0, le=1)
-    """policy = "random": probability of asking when triggered."""
-    query_cost: float = ranged(0.0, ge=0, le=1e6)
-    """lambda: a per-query cost subtracted from every query reward (When2Ask-style), so learning
-    policies (seq, thompson) ask only where an answer is worth it. Paper: 0."""
-    budget: int = ranged(0, ge=0, le=10**9)
-    """At most this many queries per budget_scope, whatever the policy decides (0: no budget)."""
-    budget_scope: Literal["trial", "episode"] = "trial"
-    """What the budget counts queries over."""
-    min_progress: int = ranged(0, ge=0, le=1_000_000)
-    """Ask only once the pattern has come this far (Task.progress: stack height for the cube,
-    cells on for the grids), whatever the policy decides below it (a progress gate: answers to
-    barely begun patterns are rarely accepted). In progress units, not a fraction of the target,
-    so the gate never needs to know the target. 0: no gate. Paper: 0."""
-    thompson_prior: tuple[float, ...] = ranged((1.0, 1.0), gt=0, le=1e6)
-    """policy = "thompson": Beta(a, b) prior on an answer being accepted at an unseen context (the
-    Gaussian posterior of the logistic reward starts at mean a / (a + b), variance 1 / (a + b))."""
-    stall_steps: int = ranged(64, ge=1, le=1_000_000)
-    """policy = "advance": decisions without the pattern's progress rising above its best of the
-    episode and without a query, after which it asks (as it does at every new best), unless
-    this very pattern was already answered wrongly. In decisions, so it never needs the task;
-    1000000: in effect never. Not in the paper."""
-    knobs: tuple[tuple[str, Any], ...] = ()
-    """The knobs a registered policy declares of its own (a plugin's), as (name, value) pairs,
-    written ``[secondary] NAME = VALUE`` (``--set secondary.NAME=VALUE``); read with
-    ``knob(NAME)``. Empty: every policy knob is a field above (the built-ins)."""
-
-    def knob(self, name: str) -> Any:
-        """The value of the policy knob ``name``: its field, else its set value, else its default."""
-        return _knob(self, name)
 
     def _check(self) -> None:
         _check_network(self.SECTION, self.hidden_sizes, self.batch_size, self.buffer_size)
-        _check_epsilon(self.SECTION, self)
-        _check_policy(self.SECTION, self)
+        super()._check()
 
 
 # --------------------------------------------------------------------------------------------
@@ -1255,21 +1214,24 @@ def knob_lines(section: Any) -> list[KnobLine]:
 
 
 def field_docs(cls: type) -> dict[str, str]:
-    """The attribute docstrings of a config dataclass (for ``lagrseq config``)."""
+    """The attribute docstrings of a config dataclass and the sections it extends (for ``lagrseq
+    config``): a field redeclared by a subclass takes the subclass's docstring."""
     import ast
     import inspect
     import textwrap
 
-    tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
-    body = tree.body[0].body  # type: ignore[attr-defined]
     docs: dict[str, str] = {}
-    for node, after in zip(body, body[1:]):
-        if (
-            isinstance(node, ast.AnnAssign)
-            and isinstance(node.target, ast.Name)
-            and isinstance(after, ast.Expr)
-            and isinstance(after.value, ast.Constant)
-            and isinstance(after.value.value, str)
-        ):
-            docs[node.target.id] = " ".join(after.value.value.split())
+    for klass in reversed(cls.__mro__):
+        if not dataclasses.is_dataclass(klass):
+            continue
+        body = ast.parse(textwrap.dedent(inspect.getsource(klass))).body[0].body  # type: ignore[attr-defined]
+        for node, after in zip(body, body[1:]):
+            if (
+                isinstance(node, ast.AnnAssign)
+                and isinstance(node.target, ast.Name)
+                and isinstance(after, ast.Expr)
+                and isinstance(after.value, ast.Constant)
+                and isinstance(after.value.value, str)
+            ):
+                docs[node.target.id] = " ".join(after.value.value.split())
     return docs
