@@ -787,7 +787,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     )
     unit, per_trial = runner.progress_unit(config)
     with contextlib.ExitStack() as stack:
-        pending = runner.resume_plan(config, args.trials, args.seed, args.provider, directory).todo
+        pending = runner.resume_plan(config, args.trials, args.seed, args.provider, directory, options).todo
         pool = _make_executor(args, start=bool(pending))  # no cluster to start for nothing
         if pool is not None:
             stack.enter_context(pool)

@@ -41,6 +41,8 @@ class TrialJob:
     """Arm tasks: where ``--render`` writes the trial's frames and GIFs (None: nowhere)."""
     notes: dict[str, str] | None = None
     """More entries for the trial's run metadata (``lagrseq frontier --tune``'s choice)."""
+    executor: str = "local"
+    """The registered name of the executor running it (its log names the executor's origin)."""
 
 
 @dataclass(frozen=True)
