@@ -106,7 +106,7 @@ class TrialExecutor:
         return self
 
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
-        if exc_type is KeyboardInterrupt:
+        if exc_type is not None and issubclass(exc_type, KeyboardInterrupt):  # Ctrl-C, SIGTERM
             exit_on_next_interrupt()
             self.interrupt()
         else:
