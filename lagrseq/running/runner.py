@@ -34,7 +34,10 @@ from lagrseq.errors import (
     BudgetExceeded,
     ConfigError,
     LagrseqError,
+    LogError,
     ParseError,
+    ProviderError,
+    RecordError,
     RecordMiss,
     StoreError,
     TrialsFailed,
@@ -474,7 +477,8 @@ def resume_plan(
 
 
 RERUN_ADVICE = "run the same command again to rerun the failed trials"
-"""What to do about a failure that may pass (a server that did not answer, a worker that died)."""
+"""What to do about a failure that may pass (a server that did not answer, a worker that died,
+a full disk)."""
 MISS_ADVICE = (
     "a store miss is deterministic (a rerun misses again): record the prompt (lagrseq record) "
     "or set what a miss does (on_miss, --on-miss mock|refuse)"
@@ -482,19 +486,39 @@ MISS_ADVICE = (
 """What to do about a recorded store's miss (:class:`~lagrseq.errors.RecordMiss`)."""
 BUDGET_ADVICE = "the budget is spent: raise --max-cost-usd or --max-queries, then run the same command again"
 FIX_ADVICE = "a rerun fails the same way: fix what the error names, then run the same command again"
+CODE_ADVICE = (
+    "a trial is deterministic, so a rerun most likely fails the same way: fix the part that raised it "
+    "(lagrseq plugins names where each part comes from), then run the same command again"
+)
+"""What to do about an exception of the trial's own code (a task's, a policy's, a provider's)."""
+TRANSIENT_ERRORS: tuple[type[BaseException], ...] = (OSError, MemoryError, ProviderError, LogError)
+"""Failures that may pass: the network, a server, the disk, memory (a record a task made that
+it does not declare is a :class:`~lagrseq.errors.RecordError`, never transient)."""
+DETERMINISTIC_ERRORS: tuple[type[BaseException], ...] = (ConfigError, UsageError, StoreError, ParseError, RecordError)
 
 
 def rerun_advice(exc: BaseException) -> str:
     """What to do about a trial that raised ``exc``, by its cause: "run again" only where the
-    cause may pass (a network error, a lost worker, anything unforeseen); a store's miss, a spent
-    budget or a bad configuration or store say what to change instead."""
+    cause may pass (a network or disk error, a lost worker); a store's miss, a spent budget, a
+    bad configuration, store or task record, and any other exception of the trial's own code
+    (deterministic: the same seed raises it again) say what to change instead."""
     if isinstance(exc, RecordMiss):
         return MISS_ADVICE
     if isinstance(exc, BudgetExceeded):
         return BUDGET_ADVICE
-    if isinstance(exc, (ConfigError, UsageError, StoreError, ParseError)):
+    if isinstance(exc, DETERMINISTIC_ERRORS):
         return FIX_ADVICE
-    return RERUN_ADVICE
+    if isinstance(exc, TRANSIENT_ERRORS) or _lost_worker(exc):
+        return RERUN_ADVICE
+    return CODE_ADVICE
+
+
+def _lost_worker(exc: BaseException) -> bool:
+    """A worker process that died (a pool's BrokenProcessPool, Dask's KilledWorker or a closed
+    connection to it)."""
+    from concurrent.futures import BrokenExecutor
+
+    return isinstance(exc, BrokenExecutor) or type(exc).__name__ in ("KilledWorker", "CommClosedError")
 
 
 @dataclass(frozen=True)
