@@ -817,6 +817,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     from lagrseq.running import recording
     from lagrseq.running.wiring import model_of
 
+    recording.recording_kind(args.provider)  # a provider it cannot ask is said before anything else
     model = model_of(args.provider, args.model)
     config = recording.record_config(args.task, args.preset, args.config, args.overrides, model, args.temperature)
     if args.states_from != "/query" and not args.from_runs:
