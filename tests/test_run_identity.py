@@ -14,8 +14,9 @@ from pathlib import Path
 from lagrseq import __version__
 from lagrseq import config as cfg
 from lagrseq.llm.options import RecordedOptions
+from lagrseq.logs import origins
 from lagrseq.logs.reader import read_info
-from lagrseq.running import origins, runner
+from lagrseq.running import runner
 from tests.support.plugins import install_noisy_oracle, lagrseq
 
 SMALL = ("--method", "lagr", "--trials", "1", "--set", "run.episodes=3", "--quiet", "--jobs", "1")

@@ -43,10 +43,11 @@ from lagrseq.errors import (
     TrialsFailed,
     UsageError,
 )
+from lagrseq.logs import origins
 from lagrseq.logs.sink import PARTIAL_SUFFIX, McapSink, NullSink, Sink
 from lagrseq.loop.experiment import TrialResult, run_trial
 from lagrseq.registry import find_part, logged_options, replace_part
-from lagrseq.running import executors, origins
+from lagrseq.running import executors
 from lagrseq.running.wiring import (
     default_options,
     parse_provider,
@@ -91,7 +92,7 @@ def run_metadata(
     (:mod:`lagrseq.agents.numerics`); absent under native numerics, so native logs keep their bytes.
     ``llm_samplers``: the samplers a llama.cpp-served run pins (top_k, min_p, repeat_penalty).
     ``parts``: the distribution and version of the trial's task, provider, policy and
-    ``executor`` (:mod:`lagrseq.running.origins`)."""
+    ``executor`` (:mod:`lagrseq.logs.origins`)."""
     machine = trial_numerics(config)
     samplers = _pinned_samplers(provider_spec, provider_options)
     return {
