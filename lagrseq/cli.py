@@ -1112,6 +1112,9 @@ def _print_report(
             line = line[: width - 1] + "…"
         print(line, file=sys.stderr)
     took = f" in {elapsed:.1f} s" if elapsed is not None else ""
+    if not report.items:  # no suite covers the logs (the lines above say why): their runs are still shown
+        print(_shown(f"no suite item covers these {report.logs.files} logs{took}; their runs and parts: {report.out / 'index.html'}"))
+        return
     print(_shown(f"{len(made)} of {len(report.items)} suite items made from {report.logs.files} logs{took}: {report.out / 'index.html'}"))
 
 

@@ -20,7 +20,7 @@ import gc
 import hashlib
 import json
 import os
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,6 +31,7 @@ import pandas as pd
 
 from lagrseq.config import config_digest
 from lagrseq.errors import LogError
+from lagrseq.logs.origins import PARTS_METADATA, read_parts
 from lagrseq.logs.reader import ReadStats, full_path, read_rows, recover_command
 from lagrseq.logs.schemas import ACCURACY_METHOD
 from lagrseq.logs.sink import PARTIAL_SUFFIX
@@ -127,6 +128,10 @@ class Run:
     task_fields: tuple[tuple[str, str], ...] = ()
     """The task's own ``/episode`` fields (name, JSON type), columns of :attr:`episodes` after
     :data:`EPISODE_COLUMNS` (``TaskSpec.episode_fields``, read from the logs' schema)."""
+    parts: Mapping[str, Mapping[str, str]] = field(default_factory=dict)
+    """Which distribution and version made its task, provider, policy and executor, by role
+    (its first trial's ``parts`` metadata, :mod:`lagrseq.logs.origins`; empty for logs made
+    before it was logged)."""
 
     @functools.cached_property
     def episodes_per_trial(self) -> int:
@@ -183,6 +188,7 @@ class _Trial:
     counts: dict[str, int]
     samples: int
     task_fields: tuple[tuple[str, str], ...] = ()
+    parts: dict[str, dict[str, str]] = field(default_factory=dict)
 
 
 def _display(path: Path, root: Path) -> str:
@@ -280,6 +286,7 @@ def _read_trial(path: Path, root: Path, stats: ReadStats) -> _Trial:
         counts=counts,
         samples=samples,
         task_fields=own,
+        parts=read_parts(run.get(PARTS_METADATA)),
     )
 
 
@@ -456,6 +463,7 @@ def load(
                 transitions=sum(t.counts.get("/transition", 0) for t in ordered),
                 samples=ordered[0].samples,
                 task_fields=_task_fields(ordered),
+                parts=ordered[0].parts,
             )
         )
     return Logs(

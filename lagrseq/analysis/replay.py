@@ -259,6 +259,74 @@ def runs_table(runs: Sequence[loading.Run]) -> Table:
     )
 
 
+_ROLE_ORDER = {"task": 0, "provider": 1, "policy": 2, "executor": 3}
+
+
+def parts_table(runs: Sequence[loading.Run]) -> Table:
+    """Which distribution and version made the runs' tasks, providers, policies and executors
+    (each log's ``parts`` metadata): one row per part, with the runs it made; runs whose logs
+    do not name their parts (made before they were logged) counted on a row of their own."""
+    counts: dict[tuple[str, str, str, str], int] = {}
+    unnamed = 0
+    for run in runs:
+        if not run.parts:
+            unnamed += 1
+        for role, part in run.parts.items():
+            key = (role, part.get("name", ""), part.get("distribution", "unknown"), part.get("version", "unknown"))
+            counts[key] = counts.get(key, 0) + 1
+    ordered = sorted(counts.items(), key=lambda kv: (_ROLE_ORDER.get(kv[0][0], 9), *kv[0]))
+    rows = [(role, name or "—", distribution, version, str(n)) for (role, name, distribution, version), n in ordered]
+    if unnamed:
+        rows.append(("(not logged)", "—", "—", "—", str(unnamed)))
+    data = pd.DataFrame(
+        [{"part": r[0], "name": r[1] if r[1] != "—" else "", "distribution": r[2], "version": r[3], "runs": int(r[4])} for r in rows],
+        columns=["part", "name", "distribution", "version", "runs"],
+    )
+    return Table("Parts of these runs: distribution and version", ("part", "name", "distribution", "version", "runs"), tuple(rows), data)
+
+
+def missing_plugin_notes(runs: Sequence[loading.Run]) -> tuple[str, ...]:
+    """One line per logged task that no installed distribution registers: the plugin
+    distribution its logs name (and the command that installs it), so that a report of its
+    logs says why its suite items are not listed."""
+    from lagrseq.registry import TASKS
+
+    made_by: dict[str, set[str]] = {}
+    for run in runs:
+        if TASKS.find(run.key.task) is None:
+            part = run.parts.get("task", {})
+            made_by.setdefault(run.key.task, set()).add(part.get("distribution", ""))
+    lines = []
+    for task, distributions in sorted(made_by.items()):
+        named = sorted(d for d in distributions if d and d != "unknown")
+        if named:
+            lines.append(
+                f"the suite of task {task!r} comes from plugin distribution {' or '.join(named)}, which is not "
+                f"installed: pip install {' '.join(named)}, then replay again to make its items"
+            )
+        else:
+            lines.append(
+                f"task {task!r} is not installed and its logs do not name the plugin distribution that made it: "
+                "install that plugin, then replay again to make its suite's items"
+            )
+    return tuple(lines)
+
+
+def report_title(runs: Sequence[loading.Run], suite: Suite) -> str:
+    """The report's heading: the paper's where its suite or runs are of the paper's tasks, else
+    one naming the logged tasks (a plugin's runs alone are no rebuild of the paper)."""
+    from lagrseq.suite import load_suite, suite_tasks
+
+    paper = suite_tasks(load_suite())
+    if paper & ({run.key.task for run in runs} | suite_tasks(suite)):
+        return PAPER_TITLE
+    tasks = sorted({run.key.task for run in runs}) or ["no task"]
+    return f"lagrseq: runs of {', '.join(tasks)}, rebuilt from MCAP logs"
+
+
+PAPER_TITLE = "LaGR-SEQ: the paper's figures and tables, rebuilt from MCAP logs"
+
+
 def replay(
     roots: Sequence[str | Path],
     out: str | Path,
@@ -316,11 +384,14 @@ def replay(
         notes: tuple[str, ...] = ()
         if suite is None:
             suite, notes = logged_tasks_suite({run.key.task for run in logs.runs})
+        notes += missing_plugin_notes(logs.runs)
         reports, extra, board, written = _make(logs, suite, out, formats, provider, unavailable, price, sections, painter, failed)
         painter.wait()
     shown = dataclasses.replace(logs, warnings=tuple(report_warnings(logs.warnings, roots)))
-    _write(out / "index.html", _index_html(reports, extra, shown, produced_by, board, problems, notes), written)
-    _write(out / "index.md", _index_markdown(reports, extra, shown, produced_by, board, problems, notes), written)
+    title = report_title(logs.runs, suite)
+    shown_board = board if board.rows or title == PAPER_TITLE else None  # no empty scoreboard atop a plugin's report
+    _write(out / "index.html", _index_html(reports, extra, shown, produced_by, shown_board, problems, notes, title), written)
+    _write(out / "index.md", _index_markdown(reports, extra, shown, produced_by, shown_board, problems, notes, title), written)
     _drop_stale(out, written)
     return Report(out, logs, reports, written, {r.item.id: r.failure for r in reports if r.failure is not None}, problems, notes)
 
@@ -394,6 +465,7 @@ def _make(
         ("costs-by-run", costs.by_run(logs.runs, price)),
         ("costs-by-method", costs.by_method(logs.runs, price)),
         ("runs", runs_table(logs.runs)),
+        ("parts", parts_table(logs.runs)),
     ]
     for stem, table, section_figure in sections:
         if section_figure is not None:
@@ -464,7 +536,7 @@ def _drop_stale(out: Path, written: list[Path]) -> None:
     manifest.write_text("".join(f"{name}\n" for name in sorted(now)), encoding="utf-8", newline="\n")
 
 
-_STALE_STEMS = {"fig", "table", "appendix", "frontier", "audit-", "costs-by-", "runs", "scoreboard", "open-models"}
+_STALE_STEMS = {"fig", "table", "appendix", "frontier", "audit-", "costs-by-", "runs", "parts", "scoreboard", "open-models"}
 _FIGURED = {"open-models", "open-models-temperature"}
 """Sections of ``replay(sections=...)`` drawn with a figure (the "open models" item)."""
 """Name beginnings of files replay writes (for a folder made before the manifest existed)."""
@@ -585,16 +657,17 @@ def _index_html(
     board: Table | None = None,
     problems: Mapping[str, ItemFailure] | None = None,
     notes: Sequence[str] = (),
+    title: str = PAPER_TITLE,
 ) -> str:
     e = html.escape
     failures = _failure_lines(reports, problems or {})
     parts = [
         "<!DOCTYPE html>",
         '<html lang="en">',
-        '<head><meta charset="utf-8"><title>lagrseq: LaGR-SEQ results</title>',
+        f"<head><meta charset=\"utf-8\"><title>{'lagrseq: LaGR-SEQ results' if title == PAPER_TITLE else e(title)}</title>",
         f"<style>{_CSS}</style></head>",
         "<body>",
-        "<h1>LaGR-SEQ: the paper's figures and tables, rebuilt from MCAP logs</h1>",
+        f"<h1>{e(title)}</h1>",
         f"<p>{e(_summary_line(logs))}; lagrseq {e(__version__)}. Every number below was "
         f"computed offline from these logs by <code>{e(produced_by)}</code>.</p>",
         *(f'<p class="missing">{e(note)}</p>' for note in notes),
@@ -606,7 +679,7 @@ def _index_html(
     for r in reports:
         status = f'<span class="status{" failed" if r.status == FAILED else ""}">{e(_shown_status(r))}</span>'
         parts.append(f'<li><a href="#{e(r.item.id)}">{e(r.item.title)}</a> {status}</li>')
-    parts += ['<li><a href="#costs">LLM costs</a></li>', '<li><a href="#runs">Runs</a></li>']
+    parts += ['<li><a href="#costs">LLM costs</a></li>', '<li><a href="#runs">Runs</a></li>', '<li><a href="#parts">Parts</a></li>']
     if logs.warnings:
         parts.append('<li><a href="#warnings">Warnings</a></li>')
     parts.append("</ul>")
@@ -675,10 +748,11 @@ def _index_markdown(
     board: Table | None = None,
     problems: Mapping[str, ItemFailure] | None = None,
     notes: Sequence[str] = (),
+    title: str = PAPER_TITLE,
 ) -> str:
     failures = _failure_lines(reports, problems or {})
     lines = [
-        "# LaGR-SEQ: the paper's figures and tables, rebuilt from MCAP logs",
+        f"# {title}",
         "",
         f"{_summary_line(logs)}; lagrseq {__version__}. Made offline from these logs by `{produced_by}`.",
         "",

@@ -39,9 +39,11 @@ def provider():
 
 
 def install(root: Path, name: str, version: str, module: str, source: str, entry_points: str) -> None:
-    """Install a throw-away distribution under ``root``: its module and its dist-info (an
-    earlier version of the same distribution is removed)."""
-    (root / f"{module}.py").write_text(source)
+    """Install a throw-away distribution under ``root``: its module (none where ``module`` is
+    empty: its code is elsewhere on the path) and its dist-info (an earlier version of the same
+    distribution is removed)."""
+    if module:
+        (root / f"{module}.py").write_text(source)
     stem = name.replace("-", "_")
     for old in root.glob(f"{stem}-*.dist-info"):
         for file in old.iterdir():
