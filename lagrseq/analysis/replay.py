@@ -179,35 +179,51 @@ _TASK_FIELD_HEADINGS = {
 }
 
 
-def _task_field_cells(run: loading.Run, name: str, kind: str) -> tuple[str, dict[str, float | int | str]]:
-    """One task's own ``/episode`` field of one run, for the runs table: a number or boolean as
-    its mean per episode, averaged over the trials (mean ± s.e., n = the trials that logged it;
-    a boolean's mean is the share of episodes where it was true); a string as its most frequent
+_STEP_FIELD_HEADINGS = {
+    "integer": "{name} per step (mean ± s.e. over trials)",
+    "number": "{name} per step (mean ± s.e. over trials)",
+    "boolean": "{name} (share of steps, mean ± s.e. over trials)",
+    "string": "{name} (most common, of steps)",
+}
+
+
+def _task_field_cells(
+    run: loading.Run, name: str, kind: str, frame: pd.DataFrame | None = None, unit: str = "episode",
+) -> tuple[str, dict[str, float | int | str]]:
+    """One task's own ``/episode`` field of one run (or, with ``frame`` its steps and ``unit``
+    ``step``, a ``/transition`` field), for the runs table: a number or boolean as its mean per
+    episode (step), averaged over the trials (mean ± s.e., n = the trials that logged it; a
+    boolean's mean is the share of episodes where it was true); a string as its most frequent
     value with the episodes that had it. Markdown cell, CSV columns."""
-    logged = run.episodes[["trial", name]].dropna() if name in run.episodes else pd.DataFrame(columns=["trial", name])
+    frame = run.episodes if frame is None else frame
+    logged = frame[["trial", name]].dropna() if name in frame else pd.DataFrame(columns=["trial", name])
     if kind == "string":
         counts = logged[name].astype(str).value_counts(sort=False)
         if counts.empty:
             return "—", {f"{name}_most_common": "", f"{name}_most_common_episodes": 0, f"{name}_episodes": 0}
         top = min(counts.items(), key=lambda kv: (-kv[1], kv[0]))  # ties: the first in sort order
-        return f"{top[0]} ({top[1]} of {len(logged)} episodes)", {
-            f"{name}_most_common": top[0], f"{name}_most_common_episodes": int(top[1]), f"{name}_episodes": len(logged),
+        return f"{top[0]} ({top[1]} of {len(logged)} {unit}s)", {
+            f"{name}_most_common": top[0], f"{name}_most_common_{unit}s": int(top[1]), f"{name}_{unit}s": len(logged),
         }
     per_trial = logged.astype({name: float}).groupby("trial")[name].mean() if not logged.empty else pd.Series(dtype=float)
     mean, _, se = stats.mean_std_se(list(per_trial.values))
     cell = "—" if per_trial.empty else f"{plus_minus(mean, se, 2)} (n = {len(per_trial)})"
-    return cell, {f"{name}_per_episode_mean": mean, f"{name}_per_episode_se": se, f"{name}_trials": len(per_trial)}
+    return cell, {f"{name}_per_{unit}_mean": mean, f"{name}_per_{unit}_se": se, f"{name}_trials": len(per_trial)}
 
 
 def runs_table(runs: Sequence[loading.Run]) -> Table:
     """Every run found: trials, length, queries and return per trial; then the tasks' own
-    ``/episode`` fields (``TaskSpec.episode_fields``) where some run logged them."""
+    ``/episode`` fields (``TaskSpec.episode_fields``) and ``/transition`` fields
+    (``TaskSpec.step_fields``) where some run logged them."""
     rows = []
     data = []
     own: dict[str, str] = {}
+    own_steps: dict[str, str] = {}
     for run in runs:
         for name, kind in run.task_fields:
             own.setdefault(name, kind)
+        for name, kind in run.step_fields:
+            own_steps.setdefault(name, kind)
     for run in runs:
         if run.key.kind == "accuracy":
             length = f"{run.samples} answers per prefix"
@@ -224,6 +240,11 @@ def runs_table(runs: Sequence[loading.Run]) -> Table:
         columns: dict[str, float | int | str] = {}
         for name, kind in own.items():
             cell, values = _task_field_cells(run, name, kind) if run.key.kind != "accuracy" else ("—", {})
+            cells.append(cell)
+            columns.update(values)
+        for name, kind in own_steps.items():
+            steps = run.steps if run.steps is not None else pd.DataFrame(columns=["trial"])
+            cell, values = _task_field_cells(run, name, kind, steps, "step")
             cells.append(cell)
             columns.update(values)
         rows.append(
@@ -253,6 +274,7 @@ def runs_table(runs: Sequence[loading.Run]) -> Table:
             "queries per trial (mean ± s.e.)",
             "return per trial (mean ± s.e.)",
             *(_TASK_FIELD_HEADINGS[kind].format(name=name) for name, kind in own.items()),
+            *(_STEP_FIELD_HEADINGS[kind].format(name=name) for name, kind in own_steps.items()),
         ),
         tuple(rows),
         pd.DataFrame(data),
