@@ -22,8 +22,9 @@ from tests.support.plugins import install_noisy_oracle, lagrseq
 SMALL = ("--method", "lagr", "--trials", "1", "--set", "run.episodes=3", "--quiet", "--jobs", "1")
 
 
-def _oracle_run(site: Path, out: Path, p: str) -> tuple[int, str]:
-    done = lagrseq(site, "run", "cube-stacking", "--provider", "noisy-oracle", "--oracle-p", p, *SMALL, "--out", str(out), cwd=out.parent)
+def _oracle_run(site: Path, out: Path, p: str, *extra: str, env: dict[str, str] | None = None) -> tuple[int, str]:
+    done = lagrseq(site, "run", "cube-stacking", "--provider", "noisy-oracle", "--oracle-p", p, *extra, *SMALL, "--out", str(out),
+                   cwd=out.parent, env=env)
     return done.returncode, done.stderr
 
 
@@ -85,3 +86,21 @@ def test_on_miss_is_part_of_the_identity_and_a_budget_is_not(tmp_path: Path) -> 
     ]
     runner.check_resumable(path, config, 0, "mock", 0)  # the same identity
     assert origins.read_parts(read_info(path).run["parts"])["task"]["distribution"] == "lagrseq"
+
+
+def test_a_refused_resume_never_prints_the_key(tmp_path: Path) -> None:
+    """A plugin option holding the API key (without its ``sk-``) differs: the line names the
+    option, the key is blanked in it (and in the log)."""
+    site = tmp_path / "site"
+    site.mkdir()
+    install_noisy_oracle(site)
+    secret = "Zq8Xw4Lm2Pv7Rt9Ks3Hd"
+    env = {"OPENAI_API_KEY": f"sk-{secret}"}
+    out = tmp_path / "runs"
+    assert _oracle_run(site, out, "1", "--oracle-label", f"label-{secret}", env=env)[0] == 0
+    code, err = _oracle_run(site, out, "1", "--oracle-label", "plain", env=env)
+    assert code == 2 and "provider_options.oracle_label:" in err and '-> "plain"' in err, err
+    assert secret[:8] not in err and secret[-8:] not in err
+    (log,) = out.rglob("trial-000.mcap")
+    logged = read_info(log).run["provider_options"]
+    assert "oracle_label" in logged and secret[:8] not in logged

@@ -19,6 +19,7 @@ from lagrseq.registry import ProviderKind, flag
 @dataclass(frozen=True)
 class NoisyOptions:
     oracle_p: float = field(default=1.0, metadata=flag("--oracle-p", "share of answers the ideal mock gives; the others are empty (default {default})", metavar="P", type=float))
+    oracle_label: str = field(default="noisy", metadata=flag("--oracle-label", "the model name its answers carry (default {default})", metavar="TEXT"))
 
 
 def make(spec, config, rng, options):
@@ -30,7 +31,7 @@ def make(spec, config, rng, options):
     def answer(prompt, temperature, generator):
         return ideal(prompt, temperature, generator) if generator.random() < options.oracle_p else ""
 
-    return MockProvider(answer, rng, name=f"noisy-oracle/{options.oracle_p:g}")
+    return MockProvider(answer, rng, name=f"{options.oracle_label}/{options.oracle_p:g}")
 
 
 def provider():
