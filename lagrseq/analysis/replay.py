@@ -194,13 +194,13 @@ def _task_field_cells(
     ``step``, a ``/transition`` field), for the runs table: a number or boolean as its mean per
     episode (step), averaged over the trials (mean ± s.e., n = the trials that logged it; a
     boolean's mean is the share of episodes where it was true); a string as its most frequent
-    value with the episodes that had it. Markdown cell, CSV columns."""
+    value with the episodes (steps) that had it. Markdown cell, CSV columns."""
     frame = run.episodes if frame is None else frame
     logged = frame[["trial", name]].dropna() if name in frame else pd.DataFrame(columns=["trial", name])
     if kind == "string":
         counts = logged[name].astype(str).value_counts(sort=False)
         if counts.empty:
-            return "—", {f"{name}_most_common": "", f"{name}_most_common_episodes": 0, f"{name}_episodes": 0}
+            return "—", {f"{name}_most_common": "", f"{name}_most_common_{unit}s": 0, f"{name}_{unit}s": 0}
         top = min(counts.items(), key=lambda kv: (-kv[1], kv[0]))  # ties: the first in sort order
         return f"{top[0]} ({top[1]} of {len(logged)} {unit}s)", {
             f"{name}_most_common": top[0], f"{name}_most_common_{unit}s": int(top[1]), f"{name}_{unit}s": len(logged),
