@@ -66,3 +66,26 @@ def test_replay_without_the_plugin_names_the_distribution_its_suite_comes_from(r
     assert done.stdout.strip().splitlines()[-1].startswith("no suite item covers these 2 logs")
     index = (tmp_path / "report" / "index.md").read_text()
     assert not index.startswith("# LaGR-SEQ") and said in index and "Scoreboard" not in index
+
+
+def test_a_missing_task_is_named_by_what_its_logs_say_made_it() -> None:
+    import pandas as pd
+
+    from lagrseq.analysis.loading import Run, RunKey
+    from lagrseq.analysis.replay import missing_plugin_notes
+
+    def run(task: str, parts: dict[str, dict[str, str]]) -> Run:
+        key = RunKey(task=task, method="lagr", preset="upstream", provider="mock", seed=0, digest="0", variant="")
+        return Run(key, {}, (), (), pd.DataFrame(), pd.DataFrame(), 0, parts=parts)
+
+    notes = missing_plugin_notes([
+        run("cube-stacking", {"task": {"name": "cube-stacking", "distribution": "lagrseq", "version": "0"}}),  # installed: no line
+        run("gone-builtin", {"task": {"name": "gone-builtin", "distribution": "lagrseq", "version": "0.0.1"}}),
+        run("unnamed", {}),
+    ])
+    assert notes == (
+        "task 'gone-builtin' was a built-in task of the lagrseq that made its logs, and this one has none of that name: "
+        "its suite items cannot be listed",
+        "task 'unnamed' is not installed and its logs do not name the plugin distribution that made it: "
+        "install that plugin, then replay again to make its suite's items",
+    )

@@ -320,8 +320,10 @@ def missing_plugin_notes(runs: Sequence[loading.Run]) -> tuple[str, ...]:
             made_by.setdefault(run.key.task, set()).add(part.get("distribution", ""))
     lines = []
     for task, distributions in sorted(made_by.items()):
-        named = sorted(d for d in distributions if d and d != "unknown")
-        if named:
+        named = sorted(d for d in distributions if d and d not in ("unknown", "lagrseq"))
+        if "lagrseq" in distributions and not named:
+            lines.append(f"task {task!r} was a built-in task of the lagrseq that made its logs, and this one has none of that name: its suite items cannot be listed")
+        elif named:
             lines.append(
                 f"the suite of task {task!r} comes from plugin distribution {' or '.join(named)}, which is not "
                 f"installed: pip install {' '.join(named)}, then replay again to make its items"
