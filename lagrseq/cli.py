@@ -842,7 +842,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     )
     unit, per_trial = runner.progress_unit(config)
     with contextlib.ExitStack() as stack:
-        pending = runner.resume_plan(config, args.trials, args.seed, args.provider, directory).todo
+        pending = runner.resume_plan(config, args.trials, args.seed, args.provider, directory, options).todo
         pool = _make_executor(args, start=bool(pending))  # no cluster to start for nothing
         if pool is not None:
             stack.enter_context(pool)
@@ -872,6 +872,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     from lagrseq.running import recording
     from lagrseq.running.wiring import model_of
 
+    recording.recording_kind(args.provider)  # a provider it cannot ask is said before anything else
     model = model_of(args.provider, args.model)
     config = recording.record_config(args.task, args.preset, args.config, args.overrides, model, args.temperature)
     if args.states_from != "/query" and not args.from_runs:
@@ -1164,6 +1165,9 @@ def _print_report(
             line = line[: width - 1] + "…"
         print(line, file=sys.stderr)
     took = f" in {elapsed:.1f} s" if elapsed is not None else ""
+    if not report.items:  # no suite covers the logs (the lines above say why): their runs are still shown
+        print(_shown(f"no suite item covers these {report.logs.files} logs{took}; their runs and parts: {report.out / 'index.html'}"))
+        return
     print(_shown(f"{len(made)} of {len(report.items)} suite items made from {report.logs.files} logs{took}: {report.out / 'index.html'}"))
 
 

@@ -59,6 +59,12 @@ class LogError(LagrseqError):
     """An MCAP log that cannot be written or read."""
 
 
+class RecordError(LogError):
+    """A record a task's env made that its task does not declare (an undeclared field, a value
+    of another type, a non-finite number, text that is not valid UTF-8): deterministic, the same
+    trial makes it again."""
+
+
 class TrialsFailed(LagrseqError):
     """Some trials of a sweep raised; the others ran to their end. ``runs``: what failed, one
     entry per run (:class:`lagrseq.running.runner.RunFailures`), for a caller that reports each

@@ -92,6 +92,22 @@ def test_sigterm_stops_a_run_like_ctrl_c_and_leaves_no_process(tmp_path: Path) -
     assert list((tmp_path / "runs").rglob("*.mcap.partial"))  # the unfinished trials' logs are kept
 
 
+def test_sigterm_to_a_single_process_run_leaves_the_unfinished_trial_as_partial(tmp_path: Path) -> None:
+    """The stop line says unfinished trials are left as ``.partial``; so they are (a SIGTERM
+    once made the trial a finished log with status failed)."""
+    runs = tmp_path / "runs"
+    process = subprocess.Popen([sys.executable, "-m", "lagrseq", *RUN, "--jobs", "1", "--out", str(runs)], cwd=tmp_path,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 90
+    while not list(runs.rglob("*.mcap.partial")) and time.monotonic() < deadline and process.poll() is None:
+        time.sleep(0.2)
+    time.sleep(1.0)  # episodes under way
+    process.send_signal(signal.SIGTERM)
+    _, err = process.communicate(timeout=60)
+    assert process.returncode == 143 and "unfinished ones left as .partial" in err and "Traceback" not in err, err
+    assert list(runs.rglob("trial-000.mcap.partial")) and not list(runs.rglob("trial-000.mcap")), sorted(runs.rglob("*"))
+
+
 def test_sigkill_of_a_run_takes_its_workers_and_tracker_along(tmp_path: Path) -> None:
     process, children = start([*RUN, "--out", str(tmp_path / "runs")], tmp_path, wanted_children=3)
     process.kill()

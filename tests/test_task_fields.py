@@ -138,6 +138,12 @@ def test_a_plugin_tasks_own_fields_are_logged_under_its_schema_and_replayed(site
     assert int(row["wrong_bits_trials"]) == 2 and float(row["wrong_bits_per_episode_se"]) >= 0
     markdown = (tmp_path / "report" / "tables" / "runs.md").read_text()
     assert "wrong_bits per episode (mean ± s.e. over trials)" in markdown and "(n = 2)" in markdown
+    # the step field too: the share of steps with an odd action, per trial, averaged over the trials
+    from lagrseq.logs.reader import read_topic
+
+    shares = [sum(s["parity"] for s in read_topic(log, "/transition")) / len(read_topic(log, "/transition")) for log in logs]
+    assert float(row["parity_per_step_mean"]) == pytest.approx(sum(shares) / 2, rel=1e-4) and int(row["parity_trials"]) == 2
+    assert "parity (share of steps, mean ± s.e. over trials)" in markdown
 
 
 def test_an_undeclared_field_stops_the_run_in_one_line_naming_it(site: Path, tmp_path: Path) -> None:

@@ -526,10 +526,12 @@ def _slowdown_text(v: paired.SlowdownVerdict) -> str:
     and the margin on the ratio scale; or why there is no bound."""
     if v.reason.startswith(PAIRS_MISSING) or not math.isfinite(v.upper):
         return v.reason + (f", n = {v.n} pairs" if v.n and not v.reason.startswith(PAIRS_MISSING) else "")
-    limit = math.exp(v.margin)
-    bound = math.exp(v.upper)
+    def ratio_of(log: float) -> float:  # a ratio past the largest float is inf (shown so), never an OverflowError
+        return math.inf if log > math.log(np.finfo(float).max) else math.exp(log)
+
+    limit, bound, ratio = ratio_of(v.margin), ratio_of(v.upper), ratio_of(v.log_ratio)
     relation = "<" if bound < limit else ">="
-    text = f"ratio {v.ratio:.3g}, bound {bound:.3g} {relation} {limit:.3g}, n = {v.n} pairs"
+    text = f"ratio {ratio:.3g}, bound {bound:.3g} {relation} {limit:.3g}, n = {v.n} pairs"
     return text if v.n >= paired.MIN_PAIRS else f"{text}; n < {paired.MIN_PAIRS}"
 
 

@@ -15,12 +15,13 @@ the logs that were used, :attr:`Logs.skipped` the others.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import functools
 import gc
 import hashlib
 import json
 import os
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,6 +32,7 @@ import pandas as pd
 
 from lagrseq.config import config_digest
 from lagrseq.errors import LogError
+from lagrseq.logs.origins import PARTS_METADATA, read_parts
 from lagrseq.logs.reader import ReadStats, full_path, read_rows, recover_command
 from lagrseq.logs.schemas import ACCURACY_METHOD
 from lagrseq.logs.sink import PARTIAL_SUFFIX
@@ -127,6 +129,16 @@ class Run:
     task_fields: tuple[tuple[str, str], ...] = ()
     """The task's own ``/episode`` fields (name, JSON type), columns of :attr:`episodes` after
     :data:`EPISODE_COLUMNS` (``TaskSpec.episode_fields``, read from the logs' schema)."""
+    step_fields: tuple[tuple[str, str], ...] = ()
+    """The task's own ``/transition`` fields (``TaskSpec.step_fields``, read from the logs'
+    schema): the columns of :attr:`steps` after ``trial``."""
+    steps: pd.DataFrame | None = None
+    """One row per step of a run whose task logs fields of its own per step (``trial`` and those
+    fields); None for every other run (its transitions are never read)."""
+    parts: Mapping[str, Mapping[str, str]] = field(default_factory=dict)
+    """Which distribution and version made its task, provider, policy and executor, by role
+    (its first trial's ``parts`` metadata, :mod:`lagrseq.logs.origins`; empty for logs made
+    before it was logged)."""
 
     @functools.cached_property
     def episodes_per_trial(self) -> int:
@@ -183,6 +195,9 @@ class _Trial:
     counts: dict[str, int]
     samples: int
     task_fields: tuple[tuple[str, str], ...] = ()
+    parts: dict[str, dict[str, str]] = field(default_factory=dict)
+    step_fields: tuple[tuple[str, str], ...] = ()
+    steps: pd.DataFrame | None = None
 
 
 def _display(path: Path, root: Path) -> str:
@@ -267,6 +282,7 @@ def _read_trial(path: Path, root: Path, stats: ReadStats) -> _Trial:
         digest=digest,
         variant=f"samples-{samples}" if samples else miss_variant(run.get("provider", ""), logged_on_miss(run.get("provider_options"))),
     )
+    step_fields, steps = _steps(path, data.declared.get(STEP_TOPIC, ()), stats)
     return _Trial(
         key=key,
         config=json.loads(text),
@@ -280,7 +296,23 @@ def _read_trial(path: Path, root: Path, stats: ReadStats) -> _Trial:
         counts=counts,
         samples=samples,
         task_fields=own,
+        parts=read_parts(run.get(PARTS_METADATA)),
+        step_fields=step_fields,
+        steps=steps,
     )
+
+
+STEP_TOPIC = "/transition"
+
+
+def _steps(path: Path, declared: tuple[tuple[str, str], ...], stats: ReadStats) -> tuple[tuple[tuple[str, str], ...], pd.DataFrame | None]:
+    """The task's own step fields of a log and their values, one row per step (``trial`` first);
+    the transitions are read only where the log's schema declares such fields."""
+    if not declared:
+        return (), None
+    data = read_rows(path, {STEP_TOPIC: ("trial",)}, stats, missing=np.nan, task_fields=True)
+    own = data.task_fields.get(STEP_TOPIC, ())
+    return own, _frame(data.rows[STEP_TOPIC], ("trial", *(name for name, _ in own)))
 
 
 def logged_on_miss(text: Any) -> str:
@@ -306,6 +338,16 @@ def _task_fields(trials: Sequence[_Trial]) -> tuple[tuple[str, str], ...]:
         for name, kind in trial.task_fields:
             out.setdefault(name, kind)
     return tuple(out.items())
+
+
+def _step_fields(trials: Sequence[_Trial]) -> tuple[tuple[str, str], ...]:
+    """The task's own step fields of a run's trials (every one its logs name, in order)."""
+    return _task_fields([dataclasses.replace(t, task_fields=t.step_fields) for t in trials])
+
+
+def _steps_of(trials: Sequence[_Trial]) -> pd.DataFrame | None:
+    frames = [t.steps for t in trials if t.steps is not None]
+    return _concat(frames, ("trial",)) if frames else None
 
 
 def _concat(frames: list[pd.DataFrame], columns: Sequence[str]) -> pd.DataFrame:
@@ -456,6 +498,9 @@ def load(
                 transitions=sum(t.counts.get("/transition", 0) for t in ordered),
                 samples=ordered[0].samples,
                 task_fields=_task_fields(ordered),
+                parts=ordered[0].parts,
+                step_fields=_step_fields(ordered),
+                steps=_steps_of(ordered),
             )
         )
     return Logs(

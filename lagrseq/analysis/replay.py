@@ -179,35 +179,51 @@ _TASK_FIELD_HEADINGS = {
 }
 
 
-def _task_field_cells(run: loading.Run, name: str, kind: str) -> tuple[str, dict[str, float | int | str]]:
-    """One task's own ``/episode`` field of one run, for the runs table: a number or boolean as
-    its mean per episode, averaged over the trials (mean ± s.e., n = the trials that logged it;
-    a boolean's mean is the share of episodes where it was true); a string as its most frequent
-    value with the episodes that had it. Markdown cell, CSV columns."""
-    logged = run.episodes[["trial", name]].dropna() if name in run.episodes else pd.DataFrame(columns=["trial", name])
+_STEP_FIELD_HEADINGS = {
+    "integer": "{name} per step (mean ± s.e. over trials)",
+    "number": "{name} per step (mean ± s.e. over trials)",
+    "boolean": "{name} (share of steps, mean ± s.e. over trials)",
+    "string": "{name} (most common, of steps)",
+}
+
+
+def _task_field_cells(
+    run: loading.Run, name: str, kind: str, frame: pd.DataFrame | None = None, unit: str = "episode",
+) -> tuple[str, dict[str, float | int | str]]:
+    """One task's own ``/episode`` field of one run (or, with ``frame`` its steps and ``unit``
+    ``step``, a ``/transition`` field), for the runs table: a number or boolean as its mean per
+    episode (step), averaged over the trials (mean ± s.e., n = the trials that logged it; a
+    boolean's mean is the share of episodes where it was true); a string as its most frequent
+    value with the episodes (steps) that had it. Markdown cell, CSV columns."""
+    frame = run.episodes if frame is None else frame
+    logged = frame[["trial", name]].dropna() if name in frame else pd.DataFrame(columns=["trial", name])
     if kind == "string":
         counts = logged[name].astype(str).value_counts(sort=False)
         if counts.empty:
-            return "—", {f"{name}_most_common": "", f"{name}_most_common_episodes": 0, f"{name}_episodes": 0}
+            return "—", {f"{name}_most_common": "", f"{name}_most_common_{unit}s": 0, f"{name}_{unit}s": 0}
         top = min(counts.items(), key=lambda kv: (-kv[1], kv[0]))  # ties: the first in sort order
-        return f"{top[0]} ({top[1]} of {len(logged)} episodes)", {
-            f"{name}_most_common": top[0], f"{name}_most_common_episodes": int(top[1]), f"{name}_episodes": len(logged),
+        return f"{top[0]} ({top[1]} of {len(logged)} {unit}s)", {
+            f"{name}_most_common": top[0], f"{name}_most_common_{unit}s": int(top[1]), f"{name}_{unit}s": len(logged),
         }
     per_trial = logged.astype({name: float}).groupby("trial")[name].mean() if not logged.empty else pd.Series(dtype=float)
     mean, _, se = stats.mean_std_se(list(per_trial.values))
     cell = "—" if per_trial.empty else f"{plus_minus(mean, se, 2)} (n = {len(per_trial)})"
-    return cell, {f"{name}_per_episode_mean": mean, f"{name}_per_episode_se": se, f"{name}_trials": len(per_trial)}
+    return cell, {f"{name}_per_{unit}_mean": mean, f"{name}_per_{unit}_se": se, f"{name}_trials": len(per_trial)}
 
 
 def runs_table(runs: Sequence[loading.Run]) -> Table:
     """Every run found: trials, length, queries and return per trial; then the tasks' own
-    ``/episode`` fields (``TaskSpec.episode_fields``) where some run logged them."""
+    ``/episode`` fields (``TaskSpec.episode_fields``) and ``/transition`` fields
+    (``TaskSpec.step_fields``) where some run logged them."""
     rows = []
     data = []
     own: dict[str, str] = {}
+    own_steps: dict[str, str] = {}
     for run in runs:
         for name, kind in run.task_fields:
             own.setdefault(name, kind)
+        for name, kind in run.step_fields:
+            own_steps.setdefault(name, kind)
     for run in runs:
         if run.key.kind == "accuracy":
             length = f"{run.samples} answers per prefix"
@@ -224,6 +240,11 @@ def runs_table(runs: Sequence[loading.Run]) -> Table:
         columns: dict[str, float | int | str] = {}
         for name, kind in own.items():
             cell, values = _task_field_cells(run, name, kind) if run.key.kind != "accuracy" else ("—", {})
+            cells.append(cell)
+            columns.update(values)
+        for name, kind in own_steps.items():
+            steps = run.steps if run.steps is not None else pd.DataFrame(columns=["trial"])
+            cell, values = _task_field_cells(run, name, kind, steps, "step")
             cells.append(cell)
             columns.update(values)
         rows.append(
@@ -253,10 +274,81 @@ def runs_table(runs: Sequence[loading.Run]) -> Table:
             "queries per trial (mean ± s.e.)",
             "return per trial (mean ± s.e.)",
             *(_TASK_FIELD_HEADINGS[kind].format(name=name) for name, kind in own.items()),
+            *(_STEP_FIELD_HEADINGS[kind].format(name=name) for name, kind in own_steps.items()),
         ),
         tuple(rows),
         pd.DataFrame(data),
     )
+
+
+_ROLE_ORDER = {"task": 0, "provider": 1, "policy": 2, "executor": 3}
+
+
+def parts_table(runs: Sequence[loading.Run]) -> Table:
+    """Which distribution and version made the runs' tasks, providers, policies and executors
+    (each log's ``parts`` metadata): one row per part, with the runs it made; runs whose logs
+    do not name their parts (made before they were logged) counted on a row of their own."""
+    counts: dict[tuple[str, str, str, str], int] = {}
+    unnamed = 0
+    for run in runs:
+        if not run.parts:
+            unnamed += 1
+        for role, part in run.parts.items():
+            key = (role, part.get("name", ""), part.get("distribution", "unknown"), part.get("version", "unknown"))
+            counts[key] = counts.get(key, 0) + 1
+    ordered = sorted(counts.items(), key=lambda kv: (_ROLE_ORDER.get(kv[0][0], 9), *kv[0]))
+    rows = [(role, name or "—", distribution, version, str(n)) for (role, name, distribution, version), n in ordered]
+    if unnamed:
+        rows.append(("(not logged)", "—", "—", "—", str(unnamed)))
+    data = pd.DataFrame(
+        [{"part": r[0], "name": r[1] if r[1] != "—" else "", "distribution": r[2], "version": r[3], "runs": int(r[4])} for r in rows],
+        columns=["part", "name", "distribution", "version", "runs"],
+    )
+    return Table("Parts of these runs: distribution and version", ("part", "name", "distribution", "version", "runs"), tuple(rows), data)
+
+
+def missing_plugin_notes(runs: Sequence[loading.Run]) -> tuple[str, ...]:
+    """One line per logged task that no installed distribution registers: the plugin
+    distribution its logs name (and the command that installs it), so that a report of its
+    logs says why its suite items are not listed."""
+    from lagrseq.registry import TASKS
+
+    made_by: dict[str, set[str]] = {}
+    for run in runs:
+        if TASKS.find(run.key.task) is None:
+            part = run.parts.get("task", {})
+            made_by.setdefault(run.key.task, set()).add(part.get("distribution", ""))
+    lines = []
+    for task, distributions in sorted(made_by.items()):
+        named = sorted(d for d in distributions if d and d not in ("unknown", "lagrseq"))
+        if "lagrseq" in distributions and not named:
+            lines.append(f"task {task!r} was a built-in task of the lagrseq that made its logs, and this one has none of that name: its suite items cannot be listed")
+        elif named:
+            lines.append(
+                f"the suite of task {task!r} comes from plugin distribution {' or '.join(named)}, which is not "
+                f"installed: pip install {' '.join(named)}, then replay again to make its items"
+            )
+        else:
+            lines.append(
+                f"task {task!r} is not installed and its logs do not name the plugin distribution that made it: "
+                "install that plugin, then replay again to make its suite's items"
+            )
+    return tuple(lines)
+
+
+def report_title(runs: Sequence[loading.Run], suite: Suite) -> str:
+    """The report's heading: the paper's where its suite or runs are of the paper's tasks, else
+    one naming the logged tasks (a plugin's runs alone are no rebuild of the paper)."""
+    from lagrseq.suite import load_suite, suite_tasks
+
+    paper = suite_tasks(load_suite())
+    if paper & ({run.key.task for run in runs} | suite_tasks(suite)):
+        return PAPER_TITLE
+    tasks = sorted({run.key.task for run in runs}) or ["no task"]
+    return f"lagrseq: runs of {', '.join(tasks)}, rebuilt from MCAP logs"
+
+
+PAPER_TITLE = "LaGR-SEQ: the paper's figures and tables, rebuilt from MCAP logs"
 
 
 def replay(
@@ -319,11 +411,14 @@ def replay(
         notes: tuple[str, ...] = ()
         if suite is None:
             suite, notes = logged_tasks_suite({run.key.task for run in logs.runs})
+        notes += missing_plugin_notes(logs.runs)
         reports, extra, board, written = _make(logs, suite, out, formats, provider, unavailable, price, sections, painter, failed)
         painter.wait()
     shown = dataclasses.replace(logs, warnings=tuple(report_warnings(logs.warnings, roots)))
-    _write(out / "index.html", _index_html(reports, extra, shown, produced_by, board, problems, notes), written)
-    _write(out / "index.md", _index_markdown(reports, extra, shown, produced_by, board, problems, notes), written)
+    title = report_title(logs.runs, suite)
+    shown_board = board if board.rows or title == PAPER_TITLE else None  # no empty scoreboard atop a plugin's report
+    _write(out / "index.html", _index_html(reports, extra, shown, produced_by, shown_board, problems, notes, title), written)
+    _write(out / "index.md", _index_markdown(reports, extra, shown, produced_by, shown_board, problems, notes, title), written)
     _drop_stale(out, written)
     return Report(out, logs, reports, written, {r.item.id: r.failure for r in reports if r.failure is not None}, problems, notes)
 
@@ -397,6 +492,7 @@ def _make(
         ("costs-by-run", costs.by_run(logs.runs, price)),
         ("costs-by-method", costs.by_method(logs.runs, price)),
         ("runs", runs_table(logs.runs)),
+        ("parts", parts_table(logs.runs)),
     ]
     for stem, table, section_figure in sections:
         if section_figure is not None:
@@ -593,16 +689,17 @@ def _index_html(
     board: Table | None = None,
     problems: Mapping[str, ItemFailure] | None = None,
     notes: Sequence[str] = (),
+    title: str = PAPER_TITLE,
 ) -> str:
     e = html.escape
     failures = _failure_lines(reports, problems or {})
     parts = [
         "<!DOCTYPE html>",
         '<html lang="en">',
-        '<head><meta charset="utf-8"><title>lagrseq: LaGR-SEQ results</title>',
+        f"<head><meta charset=\"utf-8\"><title>{'lagrseq: LaGR-SEQ results' if title == PAPER_TITLE else e(title)}</title>",
         f"<style>{_CSS}</style></head>",
         "<body>",
-        "<h1>LaGR-SEQ: the paper's figures and tables, rebuilt from MCAP logs</h1>",
+        f"<h1>{e(title)}</h1>",
         f"<p>{e(_summary_line(logs))}; lagrseq {e(__version__)}. Every number below was "
         f"computed offline from these logs by <code>{e(produced_by)}</code>.</p>",
         *(f'<p class="missing">{e(note)}</p>' for note in notes),
@@ -614,7 +711,7 @@ def _index_html(
     for r in reports:
         status = f'<span class="status{" failed" if r.status == FAILED else ""}">{e(_shown_status(r))}</span>'
         parts.append(f'<li><a href="#{e(r.item.id)}">{e(r.item.title)}</a> {status}</li>')
-    parts += ['<li><a href="#costs">LLM costs</a></li>', '<li><a href="#runs">Runs</a></li>']
+    parts += ['<li><a href="#costs">LLM costs</a></li>', '<li><a href="#runs">Runs</a></li>', '<li><a href="#parts">Parts</a></li>']
     if logs.warnings:
         parts.append('<li><a href="#warnings">Warnings</a></li>')
     parts.append("</ul>")
@@ -683,10 +780,11 @@ def _index_markdown(
     board: Table | None = None,
     problems: Mapping[str, ItemFailure] | None = None,
     notes: Sequence[str] = (),
+    title: str = PAPER_TITLE,
 ) -> str:
     failures = _failure_lines(reports, problems or {})
     lines = [
-        "# LaGR-SEQ: the paper's figures and tables, rebuilt from MCAP logs",
+        f"# {title}",
         "",
         f"{_summary_line(logs)}; lagrseq {__version__}. Made offline from these logs by `{produced_by}`.",
         "",

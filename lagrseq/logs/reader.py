@@ -357,6 +357,9 @@ class LogRows:
     task_fields: dict[str, tuple[tuple[str, str], ...]] = field(default_factory=dict)
     """``read_rows(task_fields=True)``: per topic, the task's own fields its schema names (name,
     JSON type), whose values follow the columns asked for in each row."""
+    declared: dict[str, tuple[tuple[str, str], ...]] = field(default_factory=dict)
+    """``read_rows(task_fields=True)``: the task's own fields of every topic of the log, read or
+    not (a caller reads a topic's records only where they hold fields it wants)."""
 
 
 def read_rows(
@@ -385,11 +388,14 @@ def read_rows(
     """
     wanted = {topic: tuple(names) for topic, names in columns.items()}
     own: dict[str, tuple[tuple[str, str], ...]] = {}
+    every: dict[str, tuple[tuple[str, str], ...]] = {}
 
     def add_task_fields(summary: Summary) -> None:
         for channel in summary.channels.values():
             schema = summary.schemas.get(channel.schema_id)
-            topic = channel.topic
+            topic = EXPANDS[channel.topic][0] if channel.topic in EXPANDS else channel.topic  # format 3's columns: the topic read
+            if schema is not None and topic not in every:
+                every[topic] = declared(schema.data)
             if schema is not None and topic in wanted and topic not in own:
                 found = tuple(f for f in declared(schema.data) if f[0] not in wanted[topic])
                 if found:
@@ -409,7 +415,7 @@ def read_rows(
             }
 
     info, counts, out = _read(Path(path), list(wanted), stats, read_chunk, add_task_fields if task_fields else None)
-    return LogRows(info, counts, out, own)
+    return LogRows(info, counts, out, own, {topic: fields for topic, fields in every.items() if fields})
 
 
 _PROBE_FIELDS = (b'"prefix_length"', b'"fraction"')

@@ -11,7 +11,7 @@ the log alone (the plugin need not be installed). A task that declares none logs
 before (the built-in tasks' golden logs are unchanged).
 
 An env that logs a field its task does not declare, or a value not of its declared type, stops
-the trial with one :class:`~lagrseq.errors.LogError` line naming the field and the declaration
+the trial with one :class:`~lagrseq.errors.RecordError` line naming the field and the declaration
 that would take it.
 """
 
@@ -27,7 +27,7 @@ from typing import Any
 import msgspec
 import numpy as np
 
-from lagrseq.errors import LogError
+from lagrseq.errors import RecordError
 from lagrseq.logs import schemas
 from lagrseq.logs.events import EPISODE_RECORDS, EpisodeEvent, Transition, episode_event
 
@@ -57,6 +57,10 @@ def _value(kind: str, value: Any) -> Any:
     if kind == "boolean" and type(value) is bool:
         return value
     if kind == "string" and type(value) is str:
+        try:
+            value.encode("utf-8")
+        except UnicodeEncodeError:
+            raise ValueError("not valid UTF-8 text (a lone surrogate)") from None
         return value
     raise ValueError(f"{'an' if kind == 'integer' else 'a'} {kind} was declared, found {type(value).__name__}")
 
@@ -83,11 +87,11 @@ class TaskFields:
         out: dict[str, Any] = {}
         for name, value in extra.items():
             if name not in types:
-                raise LogError(_undeclared(self.task, key, name, what, value))
+                raise RecordError(_undeclared(self.task, key, name, what, value))
             try:
                 out[name] = _value(types[name], value)
             except ValueError as exc:
-                raise LogError(
+                raise RecordError(
                     f"task {self.task}: info[{key!r}][{name!r}] = {_shown(value)}: {exc}; log a {types[name]} "
                     f"or declare it as another type in TaskSpec.{what} (one of {', '.join(_JSON_TYPES)})"
                 ) from None
@@ -129,7 +133,7 @@ def builtin_step(fields: tuple[Any, ...], extra: Mapping[str, Any]) -> Transitio
     except TypeError:
         known = {f.encode_name for f in msgspec.structs.fields(Transition)}
         name = next((n for n in extra if n not in known), "?")
-        raise LogError(_undeclared("", STEP_KEY, name, "step_fields", extra.get(name))) from None
+        raise RecordError(_undeclared("", STEP_KEY, name, "step_fields", extra.get(name))) from None
 
 
 def builtin_episode(extra: Mapping[str, Any] | None = None, **summary: Any) -> EpisodeEvent:
@@ -140,8 +144,8 @@ def builtin_episode(extra: Mapping[str, Any] | None = None, **summary: Any) -> E
         known = {f.encode_name for record in EPISODE_RECORDS for f in msgspec.structs.fields(record)}
         name = next((n for n in sorted(extra or ()) if n not in known), None)
         if name is None:  # lagrseq's own fields, but not those of one record
-            raise LogError(f"{exc}; expected the fields of one record: {', '.join(sorted(known - {f.encode_name for f in msgspec.structs.fields(EpisodeEvent)}))}") from None
-        raise LogError(_undeclared("", EPISODE_KEY, name, "episode_fields", (extra or {}).get(name))) from None
+            raise RecordError(f"{exc}; expected the fields of one record: {', '.join(sorted(known - {f.encode_name for f in msgspec.structs.fields(EpisodeEvent)}))}") from None
+        raise RecordError(_undeclared("", EPISODE_KEY, name, "episode_fields", (extra or {}).get(name))) from None
 
 
 def _schema(title: str, episode_fields: tuple[tuple[str, str], ...], step_fields: tuple[tuple[str, str], ...], task: str) -> bytes:

@@ -41,6 +41,8 @@ class TrialJob:
     """Arm tasks: where ``--render`` writes the trial's frames and GIFs (None: nowhere)."""
     notes: dict[str, str] | None = None
     """More entries for the trial's run metadata (``lagrseq frontier --tune``'s choice)."""
+    executor: str = "local"
+    """The registered name of the executor running it (its log names the executor's origin)."""
 
 
 @dataclass(frozen=True)
@@ -104,7 +106,7 @@ class TrialExecutor:
         return self
 
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
-        if exc_type is KeyboardInterrupt:
+        if exc_type is not None and issubclass(exc_type, KeyboardInterrupt):  # Ctrl-C, SIGTERM
             exit_on_next_interrupt()
             self.interrupt()
         else:

@@ -115,7 +115,11 @@ def make_executor(kind: str, jobs: int, scheduler: str | None = None, say: Calla
         raise UsageError(f"--scheduler applies to --executor {' or '.join(s.name for s in REGISTRY.specs() if s.takes_scheduler)} only")
     if scheduler is not None:
         check_scheduler(scheduler)
-    return spec.make(jobs, scheduler, say)  # type: ignore[no-any-return]
+    executor = spec.make(jobs, scheduler, say)
+    with contextlib.suppress(AttributeError, TypeError):  # its logs name the executor by its registered name
+        if getattr(executor, "name", None) != kind:
+            executor.name = kind
+    return executor  # type: ignore[no-any-return]
 
 
 def make_local(jobs: int, scheduler: str | None = None, say: Callable[[str], None] | None = None) -> TrialExecutor:

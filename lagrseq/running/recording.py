@@ -155,7 +155,7 @@ def record(
     from lagrseq.running.wiring import local_live, local_settings, parse_provider
 
     spec = parse_provider(provider)
-    kind = _recording_kind(provider)
+    kind = recording_kind(provider)
     queries = served_queries(queries, kind.local_server or getattr(options, "server", None) == "llama.cpp")
     if not kind.local_server or mode == "none":
         endpoint = _local_endpoint() if kind.local_server else endpoint_of(options.base_url)
@@ -189,7 +189,7 @@ def check_record(store_path: Path, mode: str, options: Any, provider: str = "liv
     from lagrseq.running.wiring import local_settings, parse_provider
 
     spec = parse_provider(provider)
-    kind = _recording_kind(provider)
+    kind = recording_kind(provider)
     if mode == "none":
         return
     if kind.local_server:
@@ -200,8 +200,9 @@ def check_record(store_path: Path, mode: str, options: Any, provider: str = "liv
         store.writer()
 
 
-def _recording_kind(provider: str) -> ProviderKind:
-    """The kind of ``provider`` if ``record`` can ask it (a live or local model)."""
+def recording_kind(provider: str) -> ProviderKind:
+    """The kind of ``provider`` if ``record`` can ask it (a live or local model); else one line
+    saying it cannot (``record`` checks this before anything else: its prompts, its runs)."""
     from lagrseq.registry import PROVIDERS
     from lagrseq.running.wiring import provider_kind
 

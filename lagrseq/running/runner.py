@@ -34,12 +34,16 @@ from lagrseq.errors import (
     BudgetExceeded,
     ConfigError,
     LagrseqError,
+    LogError,
     ParseError,
+    ProviderError,
+    RecordError,
     RecordMiss,
     StoreError,
     TrialsFailed,
     UsageError,
 )
+from lagrseq.logs import origins
 from lagrseq.logs.sink import PARTIAL_SUFFIX, McapSink, NullSink, Sink
 from lagrseq.loop.experiment import TrialResult, run_trial
 from lagrseq.registry import find_part, logged_options, replace_part
@@ -79,13 +83,16 @@ def run_metadata(
     provider_spec: str,
     provider_options: Any = None,
     notes: Mapping[str, str] | None = None,
+    executor: str = "local",
 ) -> dict[str, str]:
     """The ``lagrseq.run`` metadata record: everything replay needs to know about the trial.
     ``notes``: more entries under names of their own (``frontier_tuning``: how ``lagrseq frontier
     --tune`` chose the run's knobs); none by default, so ordinary logs are unchanged.
     ``numerics``: ``perturbed`` in a trial that trains a network under ``LAGRSEQ_NUMERICS=perturbed``
     (:mod:`lagrseq.agents.numerics`); absent under native numerics, so native logs keep their bytes.
-    ``llm_samplers``: the samplers a llama.cpp-served run pins (top_k, min_p, repeat_penalty)."""
+    ``llm_samplers``: the samplers a llama.cpp-served run pins (top_k, min_p, repeat_penalty).
+    ``parts``: the distribution and version of the trial's task, provider, policy and
+    ``executor`` (:mod:`lagrseq.logs.origins`)."""
     machine = trial_numerics(config)
     samplers = _pinned_samplers(provider_spec, provider_options)
     return {
@@ -94,6 +101,7 @@ def run_metadata(
         **({"llm_samplers": samplers} if samplers else {}),
         "provider_options": logged_options(provider_options if provider_options is not None else default_options(provider_spec)),
         "config": config.to_json(),
+        origins.PARTS_METADATA: origins.parts_json(origins.trial_parts_origins(config, provider_spec, executor)),
         "task": config.task.name,
         "method": config.method,
         "preset": config.preset,
@@ -132,18 +140,20 @@ def run_one(
     render_dir: Path | None = None,
     notes: Mapping[str, str] | None = None,
     on_ready: Callable[[], None] | None = None,
+    executor: str = "local",
 ) -> TrialResult:
     """Build trial ``trial``'s parts and run it into ``path`` (``log=False``: no file, for
     benchmarks). ``on_episode(length)`` is called after every episode. ``render_dir``: arm
     tasks write PNG frames and GIFs of the trial's episodes under it (``--render``).
     ``on_ready()`` is called once the parts are built, before the first step (the estimate
-    times a trial's start apart from its steps)."""
+    times a trial's start apart from its steps). ``executor``: the executor that runs it, as its
+    log names it."""
     config = with_provider_model(config, provider_spec)  # live:MODEL asks MODEL, and the log says so
 
     def open_sink() -> Sink:
         if not log:
             return NullSink()
-        metadata = run_metadata(config, trial, seed, provider_spec, provider_options, notes)
+        metadata = run_metadata(config, trial, seed, provider_spec, provider_options, notes, executor)
         return McapSink(path, metadata, extra_topics=view_topics(config), task_fields=task_fields(config))
 
     parts = trial_parts(config, trial, seed, provider_spec, open_sink, provider_options, render_dir)
@@ -247,33 +257,86 @@ def _unfinished_info(path: Path) -> LogInfo | None:
     return None
 
 
+OPERATIONAL_OPTIONS = frozenset({
+    "api_key_env", "price_table", "read_timeout_s", "request_deadline_s", "max_response_bytes",
+    "max_cost_usd", "max_queries", "local_threads",
+})
+"""Logged provider options that cannot change an answer (where the key is read, what a request
+may cost or take): a rerun may change them (raise a spent budget, wait longer). Every other
+option, a plugin provider's included, is part of a run's identity."""
+
+
+def _shown_value(value: Any) -> str:
+    text = json.dumps(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def option_differences(logged_text: Any, provider_spec: str, provider_options: Any) -> list[str]:
+    """``provider_options.NAME: logged -> wanted`` for every provider option that can change an
+    answer and differs between a log and this run (an option the log does not name counts at
+    its default: a log made before the option existed)."""
+    try:
+        logged = json.loads(logged_text) if isinstance(logged_text, str) else None
+    except (ValueError, RecursionError):
+        logged = None
+    if not isinstance(logged, dict):
+        return []  # a log without the record: nothing to compare
+    defaults = json.loads(logged_options(default_options(provider_spec)))
+    wanted = json.loads(logged_options(provider_options if provider_options is not None else default_options(provider_spec)))
+    out = []
+    for name in sorted(set(logged) | set(wanted)):
+        if name in OPERATIONAL_OPTIONS:
+            continue
+        before, now = logged.get(name, defaults.get(name)), wanted.get(name, defaults.get(name))
+        if before != now:
+            out.append(f"provider_options.{name}: {_shown_value(before)} -> {_shown_value(now)}")
+    return out
+
+
+def part_differences(logged_text: Any, config: ExperimentConfig, provider_spec: str) -> list[str]:
+    """``parts.ROLE: logged -> wanted`` for the task, provider and policy whose distribution (a
+    plugin's: distribution and version) differs between a log and this run."""
+    logged = origins.read_parts(logged_text)
+    if not logged:
+        return []  # a log made before parts were logged
+    wanted = origins.trial_parts_origins(config, provider_spec)
+    out = []
+    for role in origins.ANSWER_ROLES:
+        before, now = logged.get(role), wanted.get(role)
+        if before is None or now is None:
+            continue
+        if origins.identity(before) != origins.identity(now):
+            out.append(f"parts.{role}: {json.dumps(origins.identity(before))} -> {json.dumps(origins.identity(now))}")
+    return out
+
+
 def check_resumable(
-    path: Path, config: ExperimentConfig, seed: int, provider_spec: str, trial: int, info: LogInfo | None = None
+    path: Path, config: ExperimentConfig, seed: int, provider_spec: str, trial: int, info: LogInfo | None = None,
+    provider_options: Any = None,
 ) -> None:
     """A complete log may stand for trial ``trial`` of this run only if it was made with the
-    same configuration, seed and provider; otherwise the rerun is refused. An unfinished log
-    (``info`` given) of another run is refused too: rerunning the trial would overwrite it."""
-    from lagrseq import config as cfg
-    from lagrseq.errors import ConfigError
-
+    same identity: configuration, seed, provider, the provider options that can change an
+    answer (``on_miss``, a plugin provider's own), the distribution of each part (a plugin's
+    version too) and the numerics; otherwise the rerun is refused in one line naming what
+    differs. An unfinished log (``info`` given) of another run is refused too: rerunning the
+    trial would overwrite it."""
     unfinished = info is not None
     if info is None:
         from lagrseq.logs.reader import read_info
 
         info = read_info(path)
-    wanted = json.loads(config.to_json())
     try:
         logged = info.config
     except LagrseqError:
         if not unfinished:
             raise
         return  # no configuration to compare: nothing recognisable to protect
-    with contextlib.suppress(ConfigError):  # a log made before a field existed holds its default
-        logged = json.loads(cfg.from_dict(logged).to_json())
-    differences = _differences(logged, wanted)
+    differences = _config_differences(logged, config)
     for key, value in (("seed", str(seed)), ("provider", provider_spec), ("trial", str(trial))):
         if info.run.get(key) != value:
             differences.append(f"{key}: {json.dumps(info.run.get(key))} -> {json.dumps(value)}")
+    differences += option_differences(info.run.get("provider_options"), provider_spec, provider_options)
+    differences += part_differences(info.run.get(origins.PARTS_METADATA), config, provider_spec)
     # the numerics are the machine's, not the configuration's (no field, no digest): a log made
     # under other numerics stands for another machine's trial, not for this one's
     made_under, wanted_now = info.run.get("numerics", NATIVE), trial_numerics(config)
@@ -288,6 +351,14 @@ def check_resumable(
             f"{path} was made by another run ({shown}){kept}; give another --name or --out, or remove "
             f"{path.parent} to start over"
         )
+
+
+def _config_differences(logged: dict[str, Any], config: ExperimentConfig) -> list[str]:
+    from lagrseq import config as cfg
+
+    with contextlib.suppress(ConfigError):  # a log made before a field existed holds its default
+        logged = json.loads(cfg.from_dict(logged).to_json())
+    return _differences(logged, json.loads(config.to_json()))
 
 
 def progress_unit(config: ExperimentConfig) -> tuple[str, int]:
@@ -351,7 +422,7 @@ def run_trial_job(job: executors.TrialJob) -> TrialResult:
     render_dir = Path(job.render_dir) if job.render_dir is not None else None
     return run_one(
         from_dict(job.config), job.trial, job.seed, job.provider_spec, Path(job.path), provider_options=job.options,
-        render_dir=render_dir, notes=job.notes,
+        render_dir=render_dir, notes=job.notes, executor=job.executor,
     )
 
 
@@ -381,9 +452,11 @@ def _is_complete(path: Path) -> bool:
     return is_complete(path)
 
 
-def resume_plan(config: ExperimentConfig, trials: int, seed: int, provider_spec: str, directory: Path) -> ResumePlan:
-    """Sort trials 0..trials-1 by what their log says; a complete log made by another run is
-    refused (:func:`check_resumable`)."""
+def resume_plan(
+    config: ExperimentConfig, trials: int, seed: int, provider_spec: str, directory: Path, provider_options: Any = None
+) -> ResumePlan:
+    """Sort trials 0..trials-1 by what their log says; a log made by another run (another
+    identity, ``provider_options`` included) is refused (:func:`check_resumable`)."""
     complete: list[int] = []
     missing: list[int] = []
     unfinished: list[int] = []
@@ -391,13 +464,13 @@ def resume_plan(config: ExperimentConfig, trials: int, seed: int, provider_spec:
         path = trial_path(directory, trial)
         # the log reader is imported only where there is a log to read (a fresh run has none)
         if path.exists() and _is_complete(path):
-            check_resumable(path, config, seed, provider_spec, trial)
+            check_resumable(path, config, seed, provider_spec, trial, provider_options=provider_options)
             complete.append(trial)
         elif path.exists() or path.with_name(path.name + PARTIAL_SUFFIX).exists():
             for found in (path, path.with_name(path.name + PARTIAL_SUFFIX)):
                 info = _unfinished_info(found) if found.exists() else None
                 if info is not None:
-                    check_resumable(found, config, seed, provider_spec, trial, info)
+                    check_resumable(found, config, seed, provider_spec, trial, info, provider_options)
             unfinished.append(trial)
         else:
             missing.append(trial)
@@ -405,7 +478,8 @@ def resume_plan(config: ExperimentConfig, trials: int, seed: int, provider_spec:
 
 
 RERUN_ADVICE = "run the same command again to rerun the failed trials"
-"""What to do about a failure that may pass (a server that did not answer, a worker that died)."""
+"""What to do about a failure that may pass (a server that did not answer, a worker that died,
+a full disk)."""
 MISS_ADVICE = (
     "a store miss is deterministic (a rerun misses again): record the prompt (lagrseq record) "
     "or set what a miss does (on_miss, --on-miss mock|refuse)"
@@ -413,19 +487,39 @@ MISS_ADVICE = (
 """What to do about a recorded store's miss (:class:`~lagrseq.errors.RecordMiss`)."""
 BUDGET_ADVICE = "the budget is spent: raise --max-cost-usd or --max-queries, then run the same command again"
 FIX_ADVICE = "a rerun fails the same way: fix what the error names, then run the same command again"
+CODE_ADVICE = (
+    "a trial is deterministic, so a rerun most likely fails the same way: fix the part that raised it "
+    "(lagrseq plugins names where each part comes from), then run the same command again"
+)
+"""What to do about an exception of the trial's own code (a task's, a policy's, a provider's)."""
+TRANSIENT_ERRORS: tuple[type[BaseException], ...] = (OSError, MemoryError, ProviderError, LogError)
+"""Failures that may pass: the network, a server, the disk, memory (a record a task made that
+it does not declare is a :class:`~lagrseq.errors.RecordError`, never transient)."""
+DETERMINISTIC_ERRORS: tuple[type[BaseException], ...] = (ConfigError, UsageError, StoreError, ParseError, RecordError)
 
 
 def rerun_advice(exc: BaseException) -> str:
     """What to do about a trial that raised ``exc``, by its cause: "run again" only where the
-    cause may pass (a network error, a lost worker, anything unforeseen); a store's miss, a spent
-    budget or a bad configuration or store say what to change instead."""
+    cause may pass (a network or disk error, a lost worker); a store's miss, a spent budget, a
+    bad configuration, store or task record, and any other exception of the trial's own code
+    (deterministic: the same seed raises it again) say what to change instead."""
     if isinstance(exc, RecordMiss):
         return MISS_ADVICE
     if isinstance(exc, BudgetExceeded):
         return BUDGET_ADVICE
-    if isinstance(exc, (ConfigError, UsageError, StoreError, ParseError)):
+    if isinstance(exc, DETERMINISTIC_ERRORS):
         return FIX_ADVICE
-    return RERUN_ADVICE
+    if isinstance(exc, TRANSIENT_ERRORS) or _lost_worker(exc):
+        return RERUN_ADVICE
+    return CODE_ADVICE
+
+
+def _lost_worker(exc: BaseException) -> bool:
+    """A worker process that died (a pool's BrokenProcessPool, Dask's KilledWorker or a closed
+    connection to it)."""
+    from concurrent.futures import BrokenExecutor
+
+    return isinstance(exc, BrokenExecutor) or type(exc).__name__ in ("KilledWorker", "CommClosedError")
 
 
 @dataclass(frozen=True)
@@ -562,7 +656,7 @@ def run_sweep(
     for run in runs:
         try:
             parse_provider(run.provider_spec)
-            found = resume_plan(run.config, run.trials, run.seed, run.provider_spec, run.directory)
+            found = resume_plan(run.config, run.trials, run.seed, run.provider_spec, run.directory, run.provider_options)
         except LagrseqError as exc:
             if not keep_going:
                 raise
@@ -704,6 +798,12 @@ def groups_of(todo: list[int], workers: int) -> list[list[int]]:
     return [g for g in groups if g]
 
 
+def executor_name(pool: executors.TrialExecutor) -> str:
+    """The registered name of ``pool``'s executor (:func:`executors.make_executor` names every
+    executor it makes; an executor made otherwise is the one its class names)."""
+    return str(getattr(pool, "name", "local"))
+
+
 def _run_pooled(
     pool: executors.TrialExecutor,
     plans: list[_Todo],
@@ -728,6 +828,7 @@ def _run_pooled(
             dicts[id(plan)], trial, run.seed, run.provider_spec, str(trial_path(run.directory, trial)), plan.options,
             executors.task_key(digests[id(plan)], trial, attempt),
             str(run.render_dir) if run.render_dir is not None else None, dict(run.notes) if run.notes else None,
+            executor_name(pool),
         )
 
     def submit(trials: list[tuple[_Todo, int]], attempt: int) -> Any:
