@@ -32,7 +32,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from lagrseq import __version__
-from lagrseq.analysis import audit, costs, figures, items, loading, scoreboard, stats
+from lagrseq.analysis import audit, costs, figures, findings, items, loading, scoreboard, stats
 from lagrseq.analysis.items import ItemFailure
 from lagrseq.analysis.tables import Table, plus_minus, to_csv, to_html, to_markdown
 from lagrseq.errors import LogError, UsageError
@@ -319,8 +319,11 @@ def replay(
         reports, extra, board, written = _make(logs, suite, out, formats, provider, unavailable, price, sections, painter, failed)
         painter.wait()
     shown = dataclasses.replace(logs, warnings=tuple(report_warnings(logs.warnings, roots)))
-    _write(out / "index.html", _index_html(reports, extra, shown, produced_by, board, problems, notes), written)
-    _write(out / "index.md", _index_markdown(reports, extra, shown, produced_by, board, problems, notes), written)
+    tables = findings.report_tables(((t, md) for r in reports for t, md, _csv in r.tables), extra)
+    _write(out / findings.PAGE, findings.page(board, tables, produced_by), written)
+    answer = findings.headline(board, len(findings.studies(tables)))
+    _write(out / "index.html", _index_html(reports, extra, shown, produced_by, board, problems, notes, answer), written)
+    _write(out / "index.md", _index_markdown(reports, extra, shown, produced_by, board, problems, notes, answer), written)
     _drop_stale(out, written)
     return Report(out, logs, reports, written, {r.item.id: r.failure for r in reports if r.failure is not None}, problems, notes)
 
@@ -585,6 +588,7 @@ def _index_html(
     board: Table | None = None,
     problems: Mapping[str, ItemFailure] | None = None,
     notes: Sequence[str] = (),
+    answer: Sequence[str] = (),
 ) -> str:
     e = html.escape
     failures = _failure_lines(reports, problems or {})
@@ -597,6 +601,7 @@ def _index_html(
         "<h1>LaGR-SEQ: the paper's figures and tables, rebuilt from MCAP logs</h1>",
         f"<p>{e(_summary_line(logs))}; lagrseq {e(__version__)}. Every number below was "
         f"computed offline from these logs by <code>{e(produced_by)}</code>.</p>",
+        *(['<section id="answer">', *(f"<p>{findings.to_html(line)}</p>" for line in answer), "</section>"] if answer else []),
         *(f'<p class="missing">{e(note)}</p>' for note in notes),
         *(_scoreboard_html(board) if board is not None else []),
     ]
@@ -675,6 +680,7 @@ def _index_markdown(
     board: Table | None = None,
     problems: Mapping[str, ItemFailure] | None = None,
     notes: Sequence[str] = (),
+    answer: Sequence[str] = (),
 ) -> str:
     failures = _failure_lines(reports, problems or {})
     lines = [
@@ -682,6 +688,7 @@ def _index_markdown(
         "",
         f"{_summary_line(logs)}; lagrseq {__version__}. Made offline from these logs by `{produced_by}`.",
         "",
+        *([*(f"{line}  " for line in answer), ""] if answer else []),
         *(line for note in notes for line in (note, "")),
     ]
     if board is not None:
