@@ -291,3 +291,42 @@ def report_tables(item_tables: Iterable[tuple[Table, str]], extra: Iterable[tupl
     ``tables/STEM.md``) and the others."""
     own = [(path.rsplit("/", 1)[-1].removesuffix(".md"), table) for table, path in item_tables]
     return own + list(extra)
+
+
+OVERVIEW = "figures/overview.png"
+"""The report's one-panel picture (the README shows the reference report's)."""
+
+
+def overview_table(tables: Sequence[tuple[str, Table]]) -> tuple[str, Table] | None:
+    """The frontier the overview shows: the cube task's where the report has it, else the first."""
+    frontiers = [(s, t) for s, t in tables if s.startswith("frontier-") and {"queries_mean", "steps_to_solve_mean"} <= set(t.data.columns)]
+    return next((f for f in frontiers if f[0] == "frontier-cube"), frontiers[0] if frontiers else None)
+
+
+def overview_axes(stem: str, table: Table, ax: Any = None) -> Any:
+    """One panel: each asking policy's queries a trial against the step of its first solved
+    episode, with 95% intervals both ways (from the frontier table's data; no dollars, which for
+    a free mock only restate the queries). Returns the axes."""
+    from lagrseq.analysis import figures
+
+    ax = figures.new_axes((6.4, 4.0)) if ax is None else ax
+    rows = table.data.to_dict("records") if len(table.data) else []
+    for k, row in enumerate(r for r in rows if _finite(r.get("queries_mean")) and _finite(r.get("steps_to_solve_mean"))):
+        x, y = float(row["queries_mean"]), float(row["steps_to_solve_mean"])
+        xerr = [[x - float(row.get("queries_low", x))], [float(row.get("queries_high", x)) - x]]
+        yerr = [[y - float(row.get("steps_to_solve_low", y))], [float(row.get("steps_to_solve_high", y)) - y]]
+        paper = _text(row.get("paper"))
+        name = str(row.get("policy")) + (f" ({row.get('knobs')})" if _text(row.get("knobs")) else "")
+        ax.errorbar(
+            x, y, xerr=xerr, yerr=yerr, fmt="*" if paper else "o", markersize=12 if paper else 6,
+            color=figures.COLORS[k % len(figures.COLORS)], capsize=2, label=name + (f" = {paper}" if paper and paper != "bound" else " (a bound)" if paper else ""),
+        )
+    match = _TITLE.match(table.title)
+    where = f" ({match.group('preset')} preset, {match.group('source')})" if match else ""
+    task = str(rows[0].get("run", "")).split("/")[0] if rows else stem.removeprefix("frontier-")
+    ax.set_title(f"Asking less against solving later: {task}{where}")
+    ax.set_xlabel("LLM queries per trial (mean, 95% interval)")
+    ax.set_ylabel("steps to the first solve (mean, 95% interval)")
+    ax.set_ylim(bottom=0)
+    ax.legend(fontsize=7, loc="upper right", ncol=2)
+    return ax

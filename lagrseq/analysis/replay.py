@@ -317,9 +317,13 @@ def replay(
         if suite is None:
             suite, notes = logged_tasks_suite({run.key.task for run in logs.runs})
         reports, extra, board, written = _make(logs, suite, out, formats, provider, unavailable, price, sections, painter, failed)
+        tables = findings.report_tables(((t, md) for r in reports for t, md, _csv in r.tables), extra)
+        if (shown_frontier := findings.overview_table(tables)) is not None:
+            with matplotlib.rc_context(_RC):  # type: ignore[arg-type]
+                painter.save(findings.overview_axes(*shown_frontier).figure, [(out / findings.OVERVIEW, "png")], styled=True)
+            written.append(out / findings.OVERVIEW)
         painter.wait()
     shown = dataclasses.replace(logs, warnings=tuple(report_warnings(logs.warnings, roots)))
-    tables = findings.report_tables(((t, md) for r in reports for t, md, _csv in r.tables), extra)
     _write(out / findings.PAGE, findings.page(board, tables, produced_by), written)
     answer = findings.headline(board, len(findings.studies(tables)))
     _write(out / "index.html", _index_html(reports, extra, shown, produced_by, board, problems, notes, answer), written)

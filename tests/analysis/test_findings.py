@@ -97,3 +97,15 @@ def test_replay_writes_the_findings_page_and_opens_its_index_with_the_tally(runs
     assert html.index('<section id="answer">') < html.index("<table")
     assert re.search(r'<a href="findings\.md">findings</a>', html)
     assert findings.PAGE in (out / ".lagrseq-report").read_text(encoding="utf-8")
+
+
+def test_the_overview_is_one_panel_of_queries_against_the_first_solve_without_dollars() -> None:
+    cube = _frontier("Query-efficiency frontier: cube-stacking (paper, mock, seed 0; answer kept for one episode)", "given")
+    other = _frontier("Query-efficiency frontier: image-completion (upstream, mock, seed 0; answer kept for the trial)", "given")
+    assert findings.overview_table([("frontier-image", other), ("frontier-cube", cube)]) == ("frontier-cube", cube)
+    assert findings.overview_table([("costs-by-run", other)]) is None
+    ax = findings.overview_axes("frontier-cube", cube)
+    assert len(ax.figure.axes) == 1 and len(ax.containers) == 2  # one panel, one point per policy
+    assert "USD" not in ax.get_xlabel() + ax.get_ylabel() and "queries" in ax.get_xlabel()
+    x = [c.lines[0].get_xdata()[0] for c in ax.containers]
+    assert x == [400.0, 160.0]
