@@ -100,7 +100,7 @@ def headline(board: Table | None, studies: int = 0) -> list[str]:
         f"What the verdicts mean: {meaning}." if meaning else "Verdicts as the scoreboard gives them.",
         f"Beyond the paper: {beyond} and {len(own_measures(board) if board is not None else [])} "
         "measures of lagrseq's own, each in one sentence on the findings page.",
-        f"Every claim in one sentence: [findings]({PAGE}); every test in full: the scoreboard below "
+        f"Every claim in one sentence: [findings]({PAGE}); every test in full: the scoreboard "
         "([Markdown](scoreboard.md), [CSV](tables/scoreboard.csv)).",
     ]
 
