@@ -243,3 +243,15 @@ def test_the_first_experiment_tutorial_runs_as_written(tmp_path: Path) -> None:
     assert (tmp_path / "lagrseq-out" / "first-report" / "index.html").is_file()
     recorded = next(text for command, text in said.items() if "recorded:" in command)
     assert "from the store" in recorded and "3 trial logs" in recorded
+
+
+def test_every_commands_help_ends_with_a_page_that_exists() -> None:
+    from lagrseq.cli import build_parser
+
+    parser = build_parser()
+    for name, command in next(a for a in parser._actions if a.dest == "command").choices.items():
+        if name == "frontier":  # its help is the protocol's own page link, written with the command
+            continue
+        last = command.format_help().rstrip().splitlines()[-1]
+        assert last.startswith("more: docs/"), (name, last)
+        assert (ROOT / last.removeprefix("more: ")).is_file(), (name, last)
