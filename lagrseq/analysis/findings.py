@@ -93,13 +93,14 @@ def headline(board: Table | None, studies: int = 0) -> list[str]:
         by_item.setdefault(str(row.get("title", row.get("item", ""))), Counter())[label(row.get("verdict"))] += 1
     meaning = "; ".join(f"{name}: {VERDICTS[name]}" for name in _ordered(counts) if name in VERDICTS)
     beyond = f"{studies} studies beyond the paper" if studies != 1 else "1 study beyond the paper"
+    own = len(own_measures(board)) if board is not None else 0
+    stated = f"Of the {len(claims)} numbers the paper states" if len(claims) != 1 else "Of the 1 number the paper states"
     return [
-        f"**Did the paper reproduce?** Of the {len(claims)} numbers the paper states that these logs test: "
-        f"{tally_text(counts)}.",
+        f"**Did the paper reproduce?** {stated} that these logs test: {tally_text(counts)}.",
         "By paper item: " + "; ".join(f"{title}: {tally_text(c)}" for title, c in by_item.items()) + ".",
         f"What the verdicts mean: {meaning}." if meaning else "Verdicts as the scoreboard gives them.",
-        f"Beyond the paper: {beyond} and {len(own_measures(board) if board is not None else [])} "
-        "measures of lagrseq's own, each in one sentence on the findings page.",
+        f"Beyond the paper: {beyond} and {own} measure{'s' if own != 1 else ''} of lagrseq's own, "
+        "each in one sentence on the findings page.",
         f"Every claim in one sentence: [findings]({PAGE}); every test in full: the scoreboard "
         "([Markdown](scoreboard.md), [CSV](tables/scoreboard.csv)).",
     ]

@@ -38,7 +38,7 @@ def test_rows_without_a_paper_value_are_lagrseqs_own_measures_not_claims() -> No
     assert [r["what"] for r in findings.paper_claims(board)] == ["cell 0"]
     assert [r["what"] for r in findings.own_measures(board)] == ["cell 1"]
     headline = findings.headline(board)
-    assert len(headline) == 5 and "Of the 1 numbers the paper states" in headline[0] and "1 reproduced" in headline[0]
+    assert len(headline) == 5 and "Of the 1 number the paper states" in headline[0] and "1 reproduced" in headline[0]
 
 
 def test_a_claim_sentence_carries_n_interval_verdict_and_source() -> None:
