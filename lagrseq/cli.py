@@ -94,7 +94,7 @@ def _experiment_options() -> argparse.ArgumentParser:
 
     p = argparse.ArgumentParser(add_help=False)
     g = p.add_argument_group("configuration")
-    g.add_argument("--preset", choices=PRESETS, default="upstream", help="upstream: as the released code runs; paper: as the paper's text says (a task with no paper ships upstream only; default: upstream)")
+    g.add_argument("--preset", choices=PRESETS, default="upstream", help="upstream: as the released code runs (default); paper: as the paper's text says (docs/presets.md)")
     g.add_argument("--config", type=Path, default=None, metavar="FILE.toml", help="a TOML file of [section] fields applied over the preset")
     g.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.FIELD=VALUE", help="override one field (repeatable), e.g. --set env.horizon=100")
     return p
@@ -183,13 +183,13 @@ def _report_options() -> argparse.ArgumentParser:
 
 def _provider_argument(p: argparse.ArgumentParser, default: str | None, role: str, records: bool = False) -> None:
     """``--provider SPEC``, the one definition: its help lists the registered provider kinds
-    (``records``: only those ``lagrseq record`` can ask)."""
+    (``records``: only those ``lagrseq record`` can ask); ``lagrseq plugins`` describes each."""
     from lagrseq.registry import PROVIDERS
 
     kinds = [k for k in PROVIDERS.specs() if k.records or not records]
-    forms = "; ".join(f"{k.usage} = {k.description}" if k.description else k.usage for k in kinds)
+    forms = "; ".join(k.usage for k in kinds)
     shown = "any" if default is None else default
-    p.add_argument("--provider", default=default, metavar="SPEC", help=f"{role} (default: {shown}); {forms}")
+    p.add_argument("--provider", default=default, metavar="SPEC", help=f"{role} (default: {shown}); {forms} (docs/providers.md)")
 
 
 def _provider_options(args: argparse.Namespace, elsewhere: tuple[str, ...] = ()) -> Any:
@@ -280,7 +280,7 @@ def _add_run(sub: Any) -> None:
     p.add_argument("--out", type=Path, default=Path("runs"), help="output directory (default: runs)")
     p.add_argument("--name", default=None, help="run directory name, one plain name (default: preset-provider-seed-digest)")
     p.add_argument("--jobs", type=_N["jobs"], default=1, help="trials run in parallel processes, or workers of a local Dask cluster (default 1)")
-    p.add_argument("--render", type=Path, default=None, metavar="DIR", help="arm-arrangement only: write PNG frames of every placement and an animated GIF of every episode to DIR/trial-NNN/ (headless; about 0.1 s a frame)")
+    p.add_argument("--render", type=Path, default=None, metavar="DIR", help="arm-arrangement only: PNG frames and a GIF of every episode into DIR/trial-NNN/ (docs/arm.md)")
 
 
 def _add_robot(sub: Any) -> None:
@@ -414,8 +414,8 @@ def _add_record(sub: Any) -> None:
     p.add_argument("--mode", choices=RECORD_MODES, default="new", help="new: top every prompt up to K (default); once: only into an empty store; none: report what is missing; all: K fresh")
     p.add_argument("--from-runs", nargs="+", default=None, metavar="RUN", help="MCAP logs or directories: ask from the states met there, not the default prompt set")
     p.add_argument("--states-from", choices=STATE_TOPICS, default="/query", help="with --from-runs: the states of /query records (where a query was decided, default) or of every /transition")
-    _provider_argument(p, "live", "the model asked (local answers are keyed under the endpoint 'local': replay them with --provider recorded:STORE --base-url local)", records=True)
-    p.add_argument("--concurrency", type=_N["concurrency"], default=1, metavar="N", help="requests in flight at once (default 1); a 429 pauses them all, and the budget counts the ones in flight at their worst case")
+    _provider_argument(p, "live", "the model asked (local answers are replayed with --base-url local)", records=True)
+    p.add_argument("--concurrency", type=_N["concurrency"], default=1, metavar="N", help="requests in flight at once (default 1); the budget counts them at their worst case")
 
 
 def _add_cache(sub: Any) -> None:
