@@ -255,3 +255,12 @@ def test_every_commands_help_ends_with_a_page_that_exists() -> None:
         last = command.format_help().rstrip().splitlines()[-1]
         assert last.startswith("more: docs/"), (name, last)
         assert (ROOT / last.removeprefix("more: ")).is_file(), (name, last)
+
+
+def test_the_suites_notes_are_short_and_carry_no_history() -> None:
+    """A note says what an item is in about 300 characters and links the page with the rest."""
+    from lagrseq.suite import load_suite
+
+    for item in load_suite().items:
+        assert len(item.note) <= 320, (item.id, len(item.note))
+        assert not re.search(r"\b(issue \d|round)\b", item.note, re.I), item.id
