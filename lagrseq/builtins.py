@@ -115,7 +115,7 @@ TASKS.register(
         views=lazy(f"{WIRING}:arm_views"),
         missing_dependency=lazy(f"{WIRING}:arm_dependency"),
         renders=True,
-        calibration_steps=40,  # a simulated arm step is slow: 40 steps time it within about 10% of 100 (docs/performance.md)
+        calibration_steps=40,  # a simulated arm step is slow: 40 steps time it within about 10% of 100
         description="object arrangement placed by a simulated or remote UR5e arm (the arm extra)",
     )
 )

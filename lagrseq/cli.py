@@ -93,7 +93,7 @@ def _experiment_options() -> argparse.ArgumentParser:
 
     p = argparse.ArgumentParser(add_help=False)
     g = p.add_argument_group("configuration")
-    g.add_argument("--preset", choices=PRESETS, default="upstream", help="upstream: as the released code runs; paper: as the paper's text says (a task with no paper ships upstream only; default: upstream)")
+    g.add_argument("--preset", choices=PRESETS, default="upstream", help="upstream: as the released code runs (default); paper: as the paper's text says (docs/presets.md)")
     g.add_argument("--config", type=Path, default=None, metavar="FILE.toml", help="a TOML file of [section] fields applied over the preset")
     g.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.FIELD=VALUE", help="override one field (repeatable), e.g. --set env.horizon=100")
     return p
@@ -189,9 +189,9 @@ def _executor_options() -> argparse.ArgumentParser:
 
     p = argparse.ArgumentParser(add_help=False)
     g = p.add_argument_group("execution")
-    g.add_argument("--executor", choices=EXECUTORS, default="local", help="local: a pool of --jobs processes on this machine (default); dask: Dask distributed, a local cluster of --jobs single-threaded workers on 127.0.0.1 (its dashboard link is printed) or the cluster of --scheduler (needs the dask extra: pip install 'lagrseq[dask]')")
-    g.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="with --executor dask: an existing Dask scheduler (dask scheduler / dask worker, or dask-jobqueue's SLURMCluster); its workers need this lagrseq installed and the output directory on a shared file system")
-    g.add_argument("--retries", type=_N["retries"], default=0, metavar="N", help="run a trial that raised up to N more times (default 0: trials are deterministic); a Dask worker that dies mid-trial is replaced and its trial rerun by Dask itself")
+    g.add_argument("--executor", choices=EXECUTORS, default="local", help="local: --jobs processes here (default); dask: a Dask cluster (the dask extra; docs/dask.md)")
+    g.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="with --executor dask: an existing scheduler, e.g. SLURM's (docs/dask.md)")
+    g.add_argument("--retries", type=_N["retries"], default=0, metavar="N", help="rerun a trial that raised up to N more times (default 0: trials are deterministic)")
     return p
 
 
@@ -231,13 +231,13 @@ def _report_options() -> argparse.ArgumentParser:
 
 def _provider_argument(p: argparse.ArgumentParser, default: str | None, role: str, records: bool = False) -> None:
     """``--provider SPEC``, the one definition: its help lists the registered provider kinds
-    (``records``: only those ``lagrseq record`` can ask)."""
+    (``records``: only those ``lagrseq record`` can ask); ``lagrseq plugins`` describes each."""
     from lagrseq.registry import PROVIDERS
 
     kinds = [k for k in PROVIDERS.specs() if k.records or not records]
-    forms = "; ".join(f"{k.usage} = {k.description}" if k.description else k.usage for k in kinds)
+    forms = "; ".join(k.usage for k in kinds)
     shown = "any" if default is None else default
-    p.add_argument("--provider", default=default, metavar="SPEC", help=f"{role} (default: {shown}); {forms}")
+    p.add_argument("--provider", default=default, metavar="SPEC", help=f"{role} (default: {shown}); {forms} (docs/providers.md)")
 
 
 def _provider_options(args: argparse.Namespace, elsewhere: tuple[str, ...] = ()) -> Any:
@@ -328,7 +328,7 @@ def _add_run(sub: Any) -> None:
     p.add_argument("--out", type=Path, default=Path("runs"), help="output directory (default: runs)")
     p.add_argument("--name", default=None, help="run directory name, one plain name (default: preset-provider-seed-digest)")
     p.add_argument("--jobs", type=_N["jobs"], default=1, help="trials run in parallel processes, or workers of a local Dask cluster (default 1)")
-    p.add_argument("--render", type=Path, default=None, metavar="DIR", help="arm-arrangement only: write PNG frames of every placement and an animated GIF of every episode to DIR/trial-NNN/ (headless; about 0.1 s a frame)")
+    p.add_argument("--render", type=Path, default=None, metavar="DIR", help="arm-arrangement only: PNG frames and a GIF of every episode into DIR/trial-NNN/ (docs/arm.md)")
 
 
 def _add_robot(sub: Any) -> None:
@@ -459,11 +459,11 @@ def _add_record(sub: Any) -> None:
     p.add_argument("--model", default=None, help="model to ask (default: the preset's llm.model)")
     p.add_argument("--temperature", type=_TEMPERATURE, default=None, metavar="T", help="sampling temperature, 0 to 2 (default: the preset's llm.temperature)")
     p.add_argument("--samples", type=_N["samples"], default=10, metavar="K", help="answers to keep per prompt (default 10, as the paper's authors recorded)")
-    p.add_argument("--mode", choices=RECORD_MODES, default="new", help="new: top every prompt up to K answers (default); once: record only into an empty store; none: ask nothing, report what is missing; all: ask K fresh answers for every prompt even if recorded")
-    p.add_argument("--from-runs", nargs="+", default=None, metavar="RUN", help="MCAP logs or directories: ask from the states met there instead of the default prompt set (damaged logs are skipped with a warning)")
+    p.add_argument("--mode", choices=RECORD_MODES, default="new", help="new: top every prompt up to K (default); once: only into an empty store; none: report what is missing; all: K fresh")
+    p.add_argument("--from-runs", nargs="+", default=None, metavar="RUN", help="MCAP logs or directories: ask from the states met there, not the default prompt set")
     p.add_argument("--states-from", choices=STATE_TOPICS, default="/query", help="with --from-runs: the states of /query records (where a query was decided, default) or of every /transition")
-    _provider_argument(p, "live", "the model asked (local answers are keyed under the endpoint 'local': replay them with --provider recorded:STORE --base-url local)", records=True)
-    p.add_argument("--concurrency", type=_N["concurrency"], default=1, metavar="N", help="requests in flight at once (default 1); a 429 pauses them all, and the budget counts the ones in flight at their worst case")
+    _provider_argument(p, "live", "the model asked (local answers are replayed with --base-url local)", records=True)
+    p.add_argument("--concurrency", type=_N["concurrency"], default=1, metavar="N", help="requests in flight at once (default 1); the budget counts them at their worst case")
 
 
 def _add_cache(sub: Any) -> None:
@@ -546,7 +546,7 @@ def _add_replay(sub: Any) -> None:
     p.add_argument("runs", nargs="+", type=Path, metavar="RUNS", help="MCAP files or directories searched for *.mcap")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     _provider_argument(p, None, "use only runs of this provider for the suite's default-provider runs (none given: any, preferring mock)")
-    p.add_argument("--jobs", type=_N["jobs"], default=None, help="processes that read the logs (default: the number of cores, at most 8, but one on a machine of 1 or 2 cores, where workers cost more than they save; a few logs are read in one process); where there are several, one more draws the figures; the report is the same for any number")
+    p.add_argument("--jobs", type=_N["jobs"], default=None, help="processes that read the logs (default: the cores, at most 8; one on 1-2 cores); the report is the same for any number")
 
 
 COMPARE_FLIPPED = 4
@@ -619,9 +619,7 @@ def _add_reproduce(sub: Any) -> None:
     p.add_argument("--items", default=None, metavar="ID,ID", help="only these suite items (default: all); audit-TASK: that task's paper-vs-code audit")
     p.add_argument(
         "--authors-caches", type=Path, default=None, metavar="DIR",
-        help="a clone of GKthom/LaGRSEQ or a folder of its cache pickles (any names; identified by content): "
-        "imported into OUT/authors-answers, and every item they cover gets a line or row on the authors' "
-        "recorded GPT answers (misses answered by the mock, counted beside each number)",
+        help="a clone of GKthom/LaGRSEQ or a folder of its cache pickles: adds the authors' GPT answers (docs/reproduce.md)",
     )
 
 
@@ -746,9 +744,7 @@ def _add_screen(sub: Any) -> None:
     p.add_argument("--from-runs", nargs="+", default=None, metavar="RUN", help="grid tasks: MCAP logs or directories whose /query states are screened (--prompt-set runs)")
     p.add_argument(
         "--prompt-set", choices=("prefixes", "relabelled", "runs", "sampled"), default=None,
-        help="which prompts: prefixes (cube default: every prefix of the target, nested: a complete count of one sequence), "
-        "relabelled (cube: N distinct relabelled cube sets, one prompt each, 1 to S-1 of the S cubes shown: a sample of prompts), "
-        "runs (grid default: N states met in --from-runs), sampled (grid: N distinct partial states of the target, no runs needed)",
+        help="prefixes (cube default), relabelled (cube), runs (grid default), sampled (grid); docs/open-models.md",
     )
     p.add_argument("--seed", type=_SEED, default=0, metavar="S", help="seeds the relabellings and sampled states (default 0)")
     p.add_argument("--store", type=Path, default=None, metavar="STORE", help="keep the answers in this store too (topped up: an interrupted screen resumes); default: a temporary one")
@@ -812,7 +808,21 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     for name, add in _ADDERS.items():
         if command is None or name == command:
             add(sub)
+    for name, page in _DOCS.items():  # every command's help ends with the page that explains it
+        if name in sub.choices:
+            shown = sub.choices[name]
+            shown.epilog = f"{shown.epilog}\n\nmore: {page}" if shown.epilog else f"more: {page}"
     return parser
+
+
+_DOCS = {
+    "run": "docs/tasks.md", "config": "docs/reference/config.md", "record": "docs/providers.md",
+    "cache": "docs/providers.md", "reproduce": "docs/reproduce.md", "replay": "docs/reproduce.md",
+    "recover": "docs/reproduce.md", "robot": "docs/arm.md", "audit": "docs/audit.md",
+    "serve-llm": "docs/providers.md", "plugins": "docs/extending.md", "models": "docs/providers.md",
+    "screen": "docs/open-models.md", "compare": "docs/reproduce.md", "info": "docs/install.md",
+}
+"""The documentation page of each command, named at the end of its ``--help``."""
 
 
 # ------------------------------------------------------------------------------------------

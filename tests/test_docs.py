@@ -33,19 +33,24 @@ def _quick_start() -> list[str]:
     return _blocks(section)
 
 
-def test_the_readme_is_short() -> None:
-    assert len(README.read_text(encoding="utf-8").splitlines()) <= 150
+def test_the_readme_is_short_and_its_first_command_comes_early() -> None:
+    lines = README.read_text(encoding="utf-8").splitlines()
+    assert len(lines) <= 120
+    first = next(k for k, line in enumerate(lines) if line.startswith("python3 -m venv"))
+    assert first < 40
 
 
-def test_the_quick_start_is_two_self_contained_commands() -> None:
-    commands = _quick_start()
-    assert len(commands) == 2 and all("\n" not in c for c in commands)
-    install, tests = commands
+def test_the_quick_start_installs_and_reproduces_in_a_venv_then_gives_the_test_command() -> None:
+    install, tests = _quick_start()
+    steps = install.splitlines()
     # a virtual environment first: a PEP 668 system Python refuses pip install outside one
-    assert install.startswith("python3 -m venv .venv && ")
-    assert "pip install -e '.[dqn]' -c constraints.txt" in install and install.endswith("lagrseq reproduce --quick")
-    assert tests.startswith("python3 -m venv ") and "pip install 'tox" in tests
+    assert steps[0] == "python3 -m venv .venv"
+    assert all(step.startswith(".venv/bin/") for step in steps[1:])
+    assert any("pip install -e '.[dqn]' -c constraints.txt" in step for step in steps)
+    assert steps[-1].endswith("lagrseq reproduce --quick")
+    assert "\n" not in tests and tests.startswith("python3 -m venv ") and "pip install 'tox" in tests
     assert "python3 -m pip" not in install + tests  # never pip into the system Python
+    assert not any(re.search(r"\b(tox|pytest)\b", step) for step in steps)  # the first tox line is the test command
 
 
 def test_ci_runs_the_readme_test_command() -> None:
@@ -65,7 +70,7 @@ def test_what_the_quick_start_writes_is_ignored() -> None:
 
 def test_the_readme_examples_write_only_ignored_places(tmp_path: Path) -> None:
     """Every output folder of the README's example commands (--out, --store, the run's runs/) is
-    ignored by git, so running the examples leaves `git status` clean (issue 38)."""
+    ignored by git, so running the examples leaves `git status` clean."""
     import shutil
     import subprocess
 
@@ -94,8 +99,7 @@ def test_the_docs_site_lands_where_the_readme_says() -> None:
 
 def test_the_test_command_leaves_no_venv_file_in_the_install_commands_way() -> None:
     """tox >= 4.6x writes a PEP 832 redirect *file* named .venv after a run, and then the install
-    command's `python3 -m venv .venv` fails ("Unable to create directory"): tox.ini turns it off
-    (checked by hand: tox 4.67.17 -e type wrote `.tox/type` into .venv without the setting, nothing with it)."""
+    command's `python3 -m venv .venv` fails ("Unable to create directory"): tox.ini turns it off."""
     import configparser
 
     tox = configparser.ConfigParser()
@@ -127,7 +131,9 @@ def test_the_nav_lists_every_page_and_only_pages_that_exist() -> None:
     required = {
         "index.md", "quickstart.md", "install.md", "tasks.md", "providers.md", "presets.md", "reproduce.md",
         "policies.md", "dask.md", "arm.md", "logs.md", "reference/index.md",
-        "extending.md", "architecture.md", "verdicts.md", "audit.md", "security.md", "performance.md", "frontier.md",
+        "extending.md", "architecture.md", "verdicts.md", "audit.md", "security.md", "benchmarks.md", "frontier.md",
+        "tutorials/read-the-report.md", "tutorials/run-one-experiment.md",
+        "tutorials/local-model.md", "reference/cli.md", "open-models.md", "suites.md",
     }
     assert required <= set(pages)
     own = {p.relative_to(DOCS).as_posix() for p in DOCS.rglob("*.md") if "reference-report/tables" not in p.as_posix()}
@@ -173,7 +179,7 @@ def test_each_topic_has_its_page(page: str, phrases: list[str]) -> None:
 
 
 def test_llama_cpp_is_built_portably_where_the_project_builds_it() -> None:
-    """issue 38: a -march=native llama.cpp dies of SIGILL on another CPU; the local-llm tox env and
+    """A -march=native llama.cpp dies of SIGILL on another CPU; the local-llm tox env and
     the install docs build it with GGML_NATIVE off and without pip's cache of a native wheel."""
     tox = configparser.ConfigParser(interpolation=None)
     tox.read(ROOT / "tox.ini", encoding="utf-8")
@@ -184,3 +190,77 @@ def test_llama_cpp_is_built_portably_where_the_project_builds_it() -> None:
     from lagrseq.llm import local
 
     assert "-DGGML_NATIVE=OFF" in local.REBUILD_COMMAND and "--no-cache-dir" in local.REBUILD_COMMAND
+
+
+def test_the_cli_reference_names_every_command() -> None:
+    from lagrseq.cli import build_parser
+
+    parser = build_parser()
+    commands = next(a for a in parser._actions if a.dest == "command").choices
+    page = (DOCS / "reference" / "cli.md").read_text(encoding="utf-8")
+    for name in commands:
+        assert f"`lagrseq {name}" in page, name
+
+
+def _tutorial_commands() -> list[str]:
+    lines = []
+    for page in [DOCS / "quickstart.md", *sorted((DOCS / "tutorials").glob("*.md"))]:
+        for block in _blocks(page.read_text(encoding="utf-8")):
+            lines += [line.strip() for line in block.splitlines() if line.strip().startswith(".venv/bin/lagrseq ")]
+    return lines
+
+
+def test_every_tutorial_command_parses() -> None:
+    """The tutorials' lagrseq commands are accepted by the command line as written (the quick
+    start, one experiment and the recorded answers run end to end in the test below)."""
+    import shlex
+
+    from lagrseq.cli import build_parser
+
+    commands = _tutorial_commands()
+    assert len(commands) >= 8
+    for command in commands:
+        argv = shlex.split(command)[1:]
+        build_parser(argv[0]).parse_args(argv)
+
+
+def test_the_first_experiment_tutorial_runs_as_written(tmp_path: Path) -> None:
+    import shlex
+    import subprocess
+
+    (tmp_path / "recorded_llm").symlink_to(ROOT / "recorded_llm")
+    page = (DOCS / "tutorials" / "run-one-experiment.md").read_text(encoding="utf-8")
+    page += (DOCS / "tutorials" / "local-model.md").read_text(encoding="utf-8").split("## 2.", 1)[0]
+    commands = [c for c in _tutorial_commands() if c in page and " config " not in c]
+    assert len(commands) == 5
+    env = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "HOME": str(tmp_path)}
+    said = {}
+    for command in commands:
+        argv = [sys.executable, "-m", "lagrseq", *shlex.split(command)[1:], *(["--quiet"] if " run " in command else [])]
+        result = subprocess.run(argv, cwd=tmp_path, capture_output=True, text=True, timeout=600, env=env)
+        assert result.returncode == 0, (command, result.stderr[-2000:])
+        said[command] = result.stdout + result.stderr
+    assert (tmp_path / "lagrseq-out" / "first-report" / "index.html").is_file()
+    recorded = next(text for command, text in said.items() if "recorded:" in command)
+    assert "from the store" in recorded and "3 trial logs" in recorded
+
+
+def test_every_commands_help_ends_with_a_page_that_exists() -> None:
+    from lagrseq.cli import build_parser
+
+    parser = build_parser()
+    for name, command in next(a for a in parser._actions if a.dest == "command").choices.items():
+        if name == "frontier":  # its help is the protocol's own page link, written with the command
+            continue
+        last = command.format_help().rstrip().splitlines()[-1]
+        assert last.startswith("more: docs/"), (name, last)
+        assert (ROOT / last.removeprefix("more: ")).is_file(), (name, last)
+
+
+def test_the_suites_notes_are_short_and_carry_no_history() -> None:
+    """A note says what an item is in about 300 characters and links the page with the rest."""
+    from lagrseq.suite import load_suite
+
+    for item in load_suite().items:
+        assert len(item.note) <= 320, (item.id, len(item.note))
+        assert not re.search(r"\b(issue \d|round)\b", item.note, re.I), item.id

@@ -41,8 +41,8 @@ SLOPE = "slope"
 EARLY_AREA = "early-area"
 """The stack-size table's added measure: the return over the first :data:`EARLY_EPISODES`."""
 EARLY_EPISODES = 10
-"""Episodes of the early return area: Q-learning's return levels off within about 10 episodes
-(issue 34), after which a 100-episode total mostly measures the run's length, not LaGR."""
+"""Episodes of the early return area: Q-learning's return levels off within about 10 episodes,
+after which a 100-episode total mostly measures the run's length, not LaGR."""
 
 
 @dataclass(frozen=True)

@@ -32,7 +32,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from lagrseq import __version__, outputs
-from lagrseq.analysis import audit, costs, figures, items, loading, scoreboard, stats
+from lagrseq.analysis import audit, costs, figures, findings, items, loading, scoreboard, stats
 from lagrseq.analysis.items import ItemFailure
 from lagrseq.analysis.tables import Table, plus_minus, to_csv, to_html, to_markdown
 from lagrseq.errors import LagrseqError, LogError, UsageError
@@ -413,12 +413,19 @@ def replay(
             suite, notes = logged_tasks_suite({run.key.task for run in logs.runs})
         notes += missing_plugin_notes(logs.runs)
         reports, extra, board, written = _make(logs, suite, out, formats, provider, unavailable, price, sections, painter, failed)
+        tables = findings.report_tables(((t, md) for r in reports for t, md, _csv in r.tables), extra)
+        if (shown_frontier := findings.overview_table(tables)) is not None:
+            with matplotlib.rc_context(_RC):  # type: ignore[arg-type]
+                painter.save(findings.overview_axes(*shown_frontier).figure, [(out / findings.OVERVIEW, "png")], styled=True)
+            written.append(out / findings.OVERVIEW)
         painter.wait()
     shown = dataclasses.replace(logs, warnings=tuple(report_warnings(logs.warnings, roots)))
     title = report_title(logs.runs, suite)
     shown_board = board if board.rows or title == PAPER_TITLE else None  # no empty scoreboard atop a plugin's report
-    _write(out / "index.html", _index_html(reports, extra, shown, produced_by, shown_board, problems, notes, title), written)
-    _write(out / "index.md", _index_markdown(reports, extra, shown, produced_by, shown_board, problems, notes, title), written)
+    _write(out / findings.PAGE, findings.page(board, tables, produced_by), written)
+    answer = findings.headline(board, len(findings.studies(tables))) if title == PAPER_TITLE else []
+    _write(out / "index.html", _index_html(reports, extra, shown, produced_by, shown_board, problems, notes, title, answer), written)
+    _write(out / "index.md", _index_markdown(reports, extra, shown, produced_by, shown_board, problems, notes, title, answer), written)
     _drop_stale(out, written)
     return Report(out, logs, reports, written, {r.item.id: r.failure for r in reports if r.failure is not None}, problems, notes)
 
@@ -690,6 +697,7 @@ def _index_html(
     problems: Mapping[str, ItemFailure] | None = None,
     notes: Sequence[str] = (),
     title: str = PAPER_TITLE,
+    answer: Sequence[str] = (),
 ) -> str:
     e = html.escape
     failures = _failure_lines(reports, problems or {})
@@ -702,6 +710,7 @@ def _index_html(
         f"<h1>{e(title)}</h1>",
         f"<p>{e(_summary_line(logs))}; lagrseq {e(__version__)}. Every number below was "
         f"computed offline from these logs by <code>{e(produced_by)}</code>.</p>",
+        *(['<section id="answer">', *(f"<p>{findings.to_html(line)}</p>" for line in answer), "</section>"] if answer else []),
         *(f'<p class="missing">{e(note)}</p>' for note in notes),
         *(_scoreboard_html(board) if board is not None else []),
     ]
@@ -781,6 +790,7 @@ def _index_markdown(
     problems: Mapping[str, ItemFailure] | None = None,
     notes: Sequence[str] = (),
     title: str = PAPER_TITLE,
+    answer: Sequence[str] = (),
 ) -> str:
     failures = _failure_lines(reports, problems or {})
     lines = [
@@ -788,6 +798,7 @@ def _index_markdown(
         "",
         f"{_summary_line(logs)}; lagrseq {__version__}. Made offline from these logs by `{produced_by}`.",
         "",
+        *([*(f"{line}  " for line in answer), ""] if answer else []),
         *(line for note in notes for line in (note, "")),
     ]
     if board is not None:

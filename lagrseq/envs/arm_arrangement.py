@@ -21,7 +21,9 @@ def make_robot(spec: str | Robot, timeout_s: float = 30.0, token_file: str = "",
         return spec
     if spec == "sim":
         try:
-            import pybullet  # noqa: F401
+            from lagrseq.robot.sim import import_pybullet
+
+            import_pybullet()
         except ImportError:
             raise gym.error.DependencyNotInstalled(
                 "the simulated arm needs pybullet: pip install 'lagrseq[arm]' (Python <= 3.11)"

@@ -65,7 +65,7 @@ ILLEGAL_INSTRUCTION = (
     "the llama.cpp build uses CPU instructions this machine lacks (it was compiled with -march=native "
     f"on another CPU, or pip reused a wheel built there); rebuild it portably: {REBUILD_COMMAND}"
 )
-"""What a server killed by SIGILL means, and its fix (issue 38)."""
+"""What a server killed by SIGILL means, and its fix."""
 
 
 HEALTH_PROBE_S = 2.0

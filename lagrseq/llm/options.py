@@ -92,12 +92,7 @@ class RecordedOptions:
     answered as ``on_miss`` says (``live``: asked with ``live`` and recorded)."""
 
     on_miss: str = field(default="error", metadata=flag(
-        "--on-miss", "recorded:STORE only, a query the store has no answer for: error = stop with a message naming the nearest "
-        "recorded keys (run's default); mock = answer it with the rule-based mock (not stored; frontier: its points are labelled "
-        "and get no verdict); live = ask the live server and record the answer into STORE; refuse = answer it with a refusal "
-        "(source miss: it costs a query and is never accepted; frontier's default, so no policy gains from answers nobody recorded); "
-        "calibrated = answer it with a draw fixed per prompt, right at the rate the store's own answers show for prompts of its "
-        "kind (grid tasks: cells shown), else wrong (source calibrated; numbers made with it are fitted)",
+        "--on-miss", "recorded:STORE: what answers a prompt the store lacks (default error; docs/providers.md)",
         choices=ON_MISS))
     """What answers a query the store lacks (error | mock | live | refuse | calibrated)."""
     live: LiveOptions = field(default_factory=LiveOptions)

@@ -241,22 +241,20 @@ class ThompsonPolicy:
 
 
 class AdvancePolicy:
-    """Ask where the primary agent advances, and where it has stalled (issue 35, item 5).
+    """Ask where the primary agent advances, and where it has stalled.
 
     Built from the failure mode of ``thompson`` with a query cost: it reaches its first solve as
     early as always in most trials, but in 1-2 trials in 10 it skips the very decisions at which
     always's answer was accepted (its posterior at that progress had fallen after rejections),
-    and the first solve comes hundreds or thousands of steps later. Where are those decisions?
-    In always's logs of the tuning seed (object arrangement, seed 1000004, 5 trials, answers
-    refused where the store misses them), every one of the 350 accepted answers came at a
-    decision where the pattern's progress rose above its best of the episode so far, on a
-    pattern not already answered and rejected; such decisions were 5.3% of always's. So this
-    policy asks:
+    and the first solve comes hundreds or thousands of steps later. In always's logs, accepted
+    answers come at decisions where the pattern's progress rises above its best of the episode
+    so far, on a pattern not already answered and rejected, a small share of all decisions. So
+    this policy asks:
 
     - at every decision where the progress (stack height, cells on) rises above its best of
       this episode (the episode's first decision included): the primary agent advanced;
     - once ``stall_steps`` decisions have passed without a new best and without a query: it
-      stalled (the issue's rule; a new best, a query or a new episode restarts the count);
+      stalled (a new best, a query or a new episode restarts the count);
     - never on a pattern already answered and rejected (at temperature 0 the same question gets
       the same answer; a refused store miss is a rejection too).
 

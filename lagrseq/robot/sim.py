@@ -34,9 +34,10 @@ import hashlib
 import math
 import os
 import re
+import sys
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -51,6 +52,41 @@ HOME = (0.0, -math.pi / 2, math.pi / 2, -math.pi / 2, -math.pi / 2, 0.0)
 DOWN = (math.pi, 0.0, 0.0)
 """Euler angles of tool0 pointing down (z out of the flange, as on the UR controller)."""
 _MASSLESS = '<inertial><mass value="0"/><inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/></inertial>'
+
+
+@contextlib.contextmanager
+def _c_output_silenced() -> Iterator[None]:
+    """File descriptors 1 and 2 pointed at the null device, C's stdio buffers flushed before they
+    are restored: pybullet prints a "build time" banner from C (to stderr, on import), which
+    would otherwise land in the middle of a progress bar. Python's own output is flushed first;
+    a Python exception raised inside still reaches the terminal (it is printed after)."""
+    import ctypes
+
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved: list[tuple[int, int]] = []
+    try:
+        with open(os.devnull, "wb") as null:
+            for fd in (1, 2):
+                with contextlib.suppress(OSError):  # no such descriptor (a detached process)
+                    saved.append((fd, os.dup(fd)))
+                    os.dup2(null.fileno(), fd)
+        yield
+    finally:
+        with contextlib.suppress(Exception):
+            ctypes.CDLL(None).fflush(None)  # what C buffered goes to the null device too
+        for fd, copy in saved:
+            os.dup2(copy, fd)
+            os.close(copy)
+
+
+def import_pybullet() -> Any:
+    """``import pybullet`` without a line of its own on the terminal (ImportError where it is absent)."""
+    if "pybullet" in sys.modules:
+        return sys.modules["pybullet"]
+    with _c_output_silenced():
+        import pybullet
+    return pybullet
 
 
 @dataclass
@@ -148,7 +184,7 @@ class SimRobot:
 
     def __init__(self, workspace: Workspace | None = None, settings: SimSettings | None = None) -> None:
         try:
-            import pybullet
+            pybullet = import_pybullet()
         except ImportError:
             raise RobotError(
                 "the simulated arm needs pybullet, which is not installed: pip install 'lagrseq[arm]' "
@@ -162,7 +198,8 @@ class SimRobot:
         self.on_frame: Callable[[str], None] | None = None
         """Called at the key poses of a placement (``--render``): it may call :meth:`render`."""
         self._urdf = str(_patched_urdf(self.settings.light_meshes))
-        self.client = self.p.connect(self.p.DIRECT)
+        with _c_output_silenced():  # nothing of pybullet's own on the terminal
+            self.client = self.p.connect(self.p.DIRECT)
         self._scene = _Scene()
         self._build()
         key = (self._urdf, self.workspace, self.settings)

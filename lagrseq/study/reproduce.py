@@ -45,14 +45,13 @@ alone with a step budget)."""
 EPISODES_CALIBRATION_STEPS = 5000
 """The same for a trial that ends after a number of episodes (cube stacking): timed whole, up to
 this many steps. Its first episodes are the longest (the agent has learned nothing yet), so steps
-per episode from its first 1,000 steps made a trial 4.5x longer than it is (91 steps an episode
-against 24 over a whole trial of 2,454 steps, 18 ms)."""
+per episode from its first steps would overstate a whole trial's length several times over."""
 LOCKSTEP_CALIBRATION_STEPS = 300
 """Environment steps of each trial when a lockstep group of trials is timed (at most 900
 trial-steps for a group of :data:`LOCKSTEP_CALIBRATION_GROUP`). Each distinct configuration is
 timed (an asking policy or the provider changes how often a trial asks and is guided), so each
-timing is short; the sums over the quick suite's 16 image-completion and 16 object-arrangement
-runs came within 7% of their CPU time (docs/performance.md, "Seventh round")."""
+timing is short; ``benchmarks/bench_estimate.py`` prints how close the sums come to the runs'
+CPU time."""
 
 STOP_CALIBRATION_STEPS = 2000
 """The step budget of the one trial timed for a run whose trials stop early (``run.stop_at``: at
@@ -461,7 +460,7 @@ def matched_sources(the_plan: Plan, items: set[str]) -> list[PlannedRun]:
 
 
 def plan_matched_random(the_plan: Plan, items: set[str], runs_dir: Path) -> Plan:
-    """The suite's second phase for its frontier ``items`` (issue 20): for each run of
+    """The suite's second phase for its frontier ``items``: for each run of
     :func:`matched_sources` whose trials are complete, its query rate from its logs (queries /
     decisions, :func:`lagrseq.frontier_protocol.matched_probability`) and a run of ``random`` at that
     rate with otherwise the same configuration, provider, seed and trials (so its trials pair with
@@ -537,8 +536,7 @@ def _calibration_key(run: PlannedRun) -> tuple[str, ...]:
     and trains: at the same length, the quick suite's grid policies cost 0.4 to 1.4 ms a step)
     and the provider timed, but not the length of a trial with a step budget (a grid trial: its
     steps are timed, not its end) and, for an accuracy probe, only its task (timed with the
-    mock: the model and temperature it asks do not change its cost). Issue 35: the quick suite
-    timed 81 configurations for 77 runs."""
+    mock: the model and temperature it asks do not change its cost)."""
     provider, options = _timed_provider(run)
     if run.kind == "accuracy":
         return (run.kind, run.config.task.name, provider, repr(options))
@@ -551,8 +549,7 @@ def _calibration_key(run: PlannedRun) -> tuple[str, ...]:
 REPLAY_SECONDS_PER_LOG = 0.013
 """Replay's reading of one trial log (its /episode and /query chunks), CPU seconds in one of
 ``min(jobs, 8)`` worker processes, which share the logs (with ``jobs`` 1: see
-:data:`REPLAY_SECONDS_PER_LOG_ONE_PROCESS`). Measured on the quick suite's 874 logs on a 2-core
-machine (``benchmarks/bench_replay.py``; docs/performance.md, "Replay")."""
+:data:`REPLAY_SECONDS_PER_LOG_ONE_PROCESS`); ``benchmarks/bench_replay.py`` measures it."""
 REPLAY_SECONDS_PER_LOG_ONE_PROCESS = 0.007
 """The same in one process: nothing is pickled from a worker."""
 REPLAY_SECONDS_PER_ITEM = 0.25
@@ -567,8 +564,8 @@ REPLAY_SECONDS_FIXED = 1.5
 def replay_jobs(jobs: int) -> int:
     """The processes ``reproduce``'s replay reads the logs with: its ``jobs``, but one where fewer
     than :data:`lagrseq.analysis.loading.WORKERS_MIN_CPUS` of them can run at once (``jobs`` or
-    this machine's CPUs): on 2 cores, workers cost replay 1.38x the CPU time and 1.24x the wall
-    time on the quick suite's logs (docs/performance.md, "Issue 35")."""
+    this machine's CPUs): there, workers cost replay more CPU and wall time than they save
+    (``benchmarks/bench_replay_jobs.py``)."""
     from lagrseq.analysis.loading import WORKERS_MIN_CPUS, usable_cpus
 
     return 1 if min(jobs, usable_cpus()) < WORKERS_MIN_CPUS else jobs
@@ -1293,9 +1290,9 @@ SUITE_AUDITS = {
     "object-arrangement": SuiteAudit("mock", (2, 0, 200), (10, 0, -1), ("upstream",), in_suite=False),
 }
 """The paper-vs-code audits of the packaged suite, each also a suite item of its own
-(:func:`audit_item`). The whole suite runs the cube audit; the grid audits run on request (issue
-35: at full length they were two thirds of the full suite's 35 minutes; the quick suite's reduced
-ones go with them, so that ``--quick`` previews what the full suite runs). The grid tasks' quick
+(:func:`audit_item`). The whole suite runs the cube audit; the grid audits run on request (at
+full length they would take most of the full suite's time; the quick suite's reduced ones go
+with them, so that ``--quick`` previews what the full suite runs). The grid tasks' quick
 audits are reduced (2 trials of 200 steps, the upstream preset's fields switched to the paper's
 values only: indicative, labelled so on their tables)."""
 
