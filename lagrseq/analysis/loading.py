@@ -392,11 +392,9 @@ pandas) costs more than reading a few logs."""
 
 
 WORKERS_MIN_CPUS = 3
-"""Fewer CPUs than this (for this process) and the logs are read in this process by default:
-on 2 cores, ``--jobs 2`` cost 1.38x the CPU time of ``--jobs 1`` and 1.24x its wall time on the
-quick suite's 732 logs, 1.74x and 1.64x on 102 logs (paired, ``benchmarks/bench_replay_jobs.py``;
-docs/performance.md, "Issue 35"): the workers' imports and the pickling cost more than the
-reading they share."""
+"""Fewer CPUs than this (for this process) and the logs are read in this process by default: on
+2 cores the workers' imports and pickling cost more than the reading they share
+(``benchmarks/bench_replay_jobs.py`` measures it)."""
 
 
 def usable_cpus() -> int:

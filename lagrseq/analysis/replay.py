@@ -9,7 +9,7 @@ for a Markdown viewer). Items the logs do not cover get one line saying why.
 
 Same logs in, same bytes out: figures are saved without timestamps or software versions (PNG
 ``Software``, PDF dates, SVG ids from a fixed salt), runs and rows are sorted, floats have fixed
-formats, and no wall-clock time is written. No absolute path is written either (issue 38): the
+formats, and no wall-clock time is written. No absolute path is written either: the
 warnings about skipped logs name each log by its path from the folder replay was given (as the
 user typed it when relative, else from that folder's name), while the terminal names it by its full
 path so that the command a warning suggests runs as written. The header's totals count the logs
@@ -433,7 +433,7 @@ def replay(
 def report_warnings(warnings: Sequence[str], roots: Sequence[str | Path]) -> list[str]:
     """``warnings`` as a report file shows them: every absolute spelling of a folder (or file)
     replay was given replaced by that folder as the user typed it when it is relative, else by its
-    name, so that a report's bytes do not depend on where its logs sat (issue 38)."""
+    name, so that a report's bytes do not depend on where its logs sat."""
     spellings: dict[str, str] = {}
     for root in roots:
         given = Path(root).expanduser()
