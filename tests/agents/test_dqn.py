@@ -172,7 +172,8 @@ def test_dqn_learns_the_diamond_better_than_random(torch, tmp_path: Path) -> Non
 def test_fused_adam_is_torch_adam_bit_for_bit(torch) -> None:  # type: ignore[no-untyped-def]
     """lagrseq's Adam step runs the kernel of ``torch.optim.Adam(fused=True)``: equal weights
     after every step (with the Keras epsilon the agents use)."""
-    from lagrseq.agents.dqn import fused_adam_step, mlp
+    from lagrseq.agents.batched import fused_adam_step
+    from lagrseq.agents.dqn import mlp
 
     def net():  # type: ignore[no-untyped-def]
         return mlp(torch, (5, 32, 32, 3), torch.Generator().manual_seed(7))
@@ -273,12 +274,14 @@ def check_group_against_networks(torch, sizes, discount: float, interval: int, b
     every step."""
     import copy
 
-    from lagrseq.agents.dqn import NetworkGroup, mlp
+    from lagrseq.agents.batched import NetworkGroup
+    from lagrseq.agents.dqn import mlp
     from lagrseq.agents.replay import Batch
 
     torch.set_num_threads(1)
     group = NetworkGroup(torch, sizes, 1e-3, discount, interval, torch.device("cpu"))
-    assert [group.join(torch.Generator().manual_seed(seed)) for seed in range(members)] == list(range(members))
+    joined = [group.join(mlp(torch, sizes, torch.Generator().manual_seed(seed))) for seed in range(members)]
+    assert joined == list(range(members))
     networks = [mlp(torch, sizes, torch.Generator().manual_seed(seed)) for seed in range(members)]
     targets = [copy.deepcopy(n).requires_grad_(False) if interval else None for n in networks]
     optimizers = [torch.optim.Adam(n.parameters(), lr=1e-3, eps=1e-7, fused=True) for n in networks]
@@ -306,3 +309,48 @@ def check_group_against_networks(torch, sizes, discount: float, interval: int, b
             x = torch.from_numpy(data.random(sizes[0], dtype=np.float32))
             with torch.no_grad():
                 assert torch.equal(group.q_values(m, x), networks[m](x[None])[0])
+
+
+@pytest.mark.torch
+@pytest.mark.parametrize("numerics", ["native", "perturbed"])
+@pytest.mark.parametrize(("sizes", "discount", "interval", "batch_size"), [
+    ((4, 16, 16, 2), 0.9, 0, 8),  # the small network of the tests above
+    ((103, 128, 128, 2), 0.95, 3, 32),  # the image task's primary network (a short target interval)
+    ((100, 128, 128, 2), 0.0, 0, 32),  # its SEQ bandit
+])  # fmt: skip
+def test_the_batched_backend_trains_as_the_reference_bit_for_bit(torch, monkeypatch, numerics, sizes, discount,  # type: ignore[no-untyped-def]
+                                                                 interval, batch_size) -> None:
+    """Two agents of one seed, one per backend, fed the same transitions: the same losses,
+    greedy actions, weights and target copies after every step."""
+    monkeypatch.setenv("LAGRSEQ_NUMERICS", numerics)
+    size = sizes[0]
+    agents = [
+        make(7, observation_size=size, hidden_sizes=sizes[1:-1], n_actions=sizes[-1], discount=discount,
+             target_update_interval=interval, batch_size=batch_size, learning_rate=1e-3,
+             observation_low=None, observation_high=None, backend=backend)
+        for backend in ("reference", "batched")
+    ]  # fmt: skip
+    data = np.random.default_rng(3)
+    replays = [np.random.default_rng(4), np.random.default_rng(4)]
+    for _ in range(batch_size + 30):
+        obs, nxt = data.random(size, dtype=np.float32), data.random(size, dtype=np.float32)
+        action, reward, terminal = int(data.integers(sizes[-1])), float(data.random()), bool(data.random() < 0.1)
+        losses = []
+        for agent, replay in zip(agents, replays, strict=True):
+            agent.remember(obs, action, reward, nxt, terminal)
+            losses.append(agent.train_step(replay))
+        assert losses[0] == losses[1]
+        probe = data.random(size, dtype=np.float32)
+        assert np.array_equal(agents[0].q_values(probe), agents[1].q_values(probe))
+    reference, batched = agents
+    assert reference.updates == batched.updates == 31
+    assert all(torch.equal(a, b) for a, b in zip(reference.parameters(), batched.parameters(), strict=True))
+    if interval:
+        assert all(torch.equal(a, b) for a, b in zip(reference.target_parameters(), batched.target_parameters(),
+                                                     strict=True))
+
+
+@pytest.mark.torch
+def test_an_unknown_backend_is_refused(torch) -> None:  # type: ignore[no-untyped-def]
+    with pytest.raises(UsageError, match="unknown DQN backend 'fast'; expected one of auto, reference, batched"):
+        make(backend="fast")
