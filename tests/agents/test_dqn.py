@@ -216,22 +216,14 @@ def test_building_and_training_an_agent_does_not_import_dynamo(torch) -> None:  
     assert out.stdout.strip() == "False"
 
 
-def reference_step(torch, network, optimizer, batch, discount: float, target) -> float:  # type: ignore[no-untyped-def]
-    """One training step of one network as the agent took it before networks were stacked:
-    ``nn.Sequential`` of ``nn.Linear``, ``mse_loss`` and ``torch.optim.Adam(fused=True)``."""
-    observations, actions, rewards = (torch.from_numpy(x) for x in (batch.observations, batch.actions, batch.rewards))
-    with torch.no_grad():
-        if discount == 0.0:
-            targets = rewards
-        else:
-            following = (target or network)(torch.from_numpy(batch.next_observations))
-            targets = rewards + discount * (1.0 - torch.from_numpy(batch.terminals)) * following.max(dim=1).values
-    predicted = network(observations).gather(1, actions[:, None]).squeeze(1)
-    loss = torch.nn.functional.mse_loss(predicted, targets)
-    optimizer.zero_grad(set_to_none=True)
-    loss.backward()
-    optimizer.step()
-    return float(loss.detach())
+class Given:
+    """A minibatch given as arrays, as :meth:`Reference.train` takes a draw from a buffer."""
+
+    def __init__(self, batch) -> None:  # type: ignore[no-untyped-def]
+        self._batch = batch
+
+    def batch(self):  # type: ignore[no-untyped-def]
+        return self._batch
 
 
 @pytest.mark.torch
@@ -243,7 +235,8 @@ def reference_step(torch, network, optimizer, batch, discount: float, target) ->
 def test_a_group_trains_each_member_as_a_network_of_its_own_bit_for_bit(torch, sizes, discount, interval, batch_size) -> None:  # type: ignore[no-untyped-def]
     """Members of a :class:`NetworkGroup` stepped together, in changing subsets (a member whose
     buffer is not full, a SEQ decision in some trials only), end with exactly the weights,
-    target copies, losses and greedy actions of separate networks stepped alone."""
+    target copies, losses and greedy actions of reference networks (``dqn.Reference``) stepped
+    alone."""
     everyone = list(range(5))
     check_group_against_networks(torch, sizes, discount, interval, batch_size, 5,
                                  ([everyone, [0, 2, 4], [3], [1, 2], everyone, [4, 0]] * 4)[:20])
@@ -261,7 +254,7 @@ def test_a_whole_group_steps_at_once_with_each_members_own_numbers(torch, sizes,
     """Every member stepping at one update count (a lockstep run's primary networks) is one
     fused Adam call over the stacked tensors and one refresh of the stacked target copies;
     after members fall out of step (one skipped a step), each is stepped on its own views.
-    Either way each member ends with the numbers of its own network stepped alone."""
+    Either way each member ends with the numbers of its own reference network stepped alone."""
     everyone = list(range(4))
     check_group_against_networks(torch, sizes, discount, interval, batch_size, 4,
                                  [everyone] * 7 + [[1, 3]] + [everyone] * 4)
@@ -269,23 +262,19 @@ def test_a_whole_group_steps_at_once_with_each_members_own_numbers(torch, sizes,
 
 def check_group_against_networks(torch, sizes, discount: float, interval: int, batch_size: int, members: int,  # type: ignore[no-untyped-def]
                                  schedule: list[list[int]]) -> None:
-    """Step a group's members in the subsets of ``schedule``, one subset a step, and separate
-    networks (``nn.Sequential``, ``torch.optim.Adam(fused=True)``) alongside; compare after
-    every step."""
-    import copy
-
+    """Step a group's members in the subsets of ``schedule``, one subset a step, and as many
+    ``dqn.Reference`` networks (autograd, ``torch.optim.Adam``) alongside; compare after every
+    step."""
     from lagrseq.agents.batched import NetworkGroup
-    from lagrseq.agents.dqn import mlp
+    from lagrseq.agents.dqn import Reference, mlp
     from lagrseq.agents.replay import Batch
 
     torch.set_num_threads(1)
     group = NetworkGroup(torch, sizes, 1e-3, discount, interval, torch.device("cpu"))
     joined = [group.join(mlp(torch, sizes, torch.Generator().manual_seed(seed))) for seed in range(members)]
     assert joined == list(range(members))
-    networks = [mlp(torch, sizes, torch.Generator().manual_seed(seed)) for seed in range(members)]
-    targets = [copy.deepcopy(n).requires_grad_(False) if interval else None for n in networks]
-    optimizers = [torch.optim.Adam(n.parameters(), lr=1e-3, eps=1e-7, fused=True) for n in networks]
-    updates = [0] * members
+    references = [Reference(torch, mlp(torch, sizes, torch.Generator().manual_seed(seed)), 1e-3, discount, interval)
+                  for seed in range(members)]
     data = np.random.default_rng(7)
     for subset in schedule:
         chosen = sorted(subset)
@@ -297,18 +286,14 @@ def check_group_against_networks(torch, sizes, discount: float, interval: int, b
         }  # fmt: skip
         losses = group.train([(m, batches[m]) for m in chosen])
         for m, loss in zip(chosen, losses, strict=True):
-            assert loss == reference_step(torch, networks[m], optimizers[m], batches[m], discount, targets[m])
-            updates[m] += 1
-            if interval and updates[m] % interval == 0:
-                targets[m].load_state_dict(networks[m].state_dict())  # type: ignore[union-attr]
-        assert group.updates == updates
-        for m in range(members):
-            assert all(torch.equal(a, b) for a, b in zip(group.parameters(m), networks[m].parameters(), strict=True))
+            assert loss == references[m].train(Given(batches[m]))  # type: ignore[arg-type]
+        assert group.updates == [reference.updates for reference in references]
+        for m, reference in enumerate(references):
+            assert all(torch.equal(a, b) for a, b in zip(group.parameters(m), reference.parameters(), strict=True))
             if interval:
-                assert all(torch.equal(a, b) for a, b in zip(group.parameters(m, target=True), targets[m].parameters(), strict=True))  # type: ignore[union-attr]
+                assert all(torch.equal(a, b) for a, b in zip(group.parameters(m, target=True), reference.target_parameters(), strict=True))  # type: ignore[arg-type]
             x = torch.from_numpy(data.random(sizes[0], dtype=np.float32))
-            with torch.no_grad():
-                assert torch.equal(group.q_values(m, x), networks[m](x[None])[0])
+            assert torch.equal(group.q_values(m, x), reference.q_values(x))
 
 
 @pytest.mark.torch
