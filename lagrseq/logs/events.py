@@ -274,6 +274,8 @@ def to_record(event: Event) -> dict[str, Any]:
     """The JSON object of an event, with the contract's field names, in contract order."""
     if type(event) is View:
         return event.message
+    if type(event) is NotAsked:  # the /query record it stands for
+        event = QueryEvent(*astuple(event), decision=0)  # type: ignore[misc]
     record = msgspec.structs.asdict(event)  # type: ignore[arg-type]
     if isinstance(event, Transition):  # as encoded: optional fields (an arm's placement) only when set
         for name in optional_columns(type(event)):

@@ -363,3 +363,4 @@ def test_a_not_asked_record_writes_the_bytes_of_its_query_event(tmp_path: Path, 
             _episodes(sink, range(3), steps=40, not_asked=not_asked)
     assert paths[True].read_bytes() == paths[False].read_bytes()
     assert [q["decision"] for q in read_topics(paths[True], ["/query"])["/query"]] == [0] * 12
+    assert to_record(NotAsked(0, 1, 2, 3, (4,))) == to_record(QueryEvent(0, 1, 2, 3, (4,), 0))
