@@ -5,7 +5,7 @@
 
 Each trial runs the full step budget of the released code (image completion 10 000 steps,
 object arrangement 5 000) with the mock provider and writes its MCAP log, as `lagrseq run` does.
-Targets (issue 3): an image trial in <= 30 s and an arrangement trial in <= 15 s. For scale, the
+Targets: an image trial in <= 30 s and an arrangement trial in <= 15 s. For scale, the
 released Keras code fits each of 64 (image) or 16 (arrangement) samples separately at every step:
 about 17-21 s per image step and 5 s per arrangement step once training starts.
 
@@ -18,9 +18,15 @@ processes (``benchmarks/paired.py``), and prints paired CPU-time ratios for:
    ``--vs-steps 0`` each trial has its preset's own length (image 10 000 steps, arrangement
    5 000), the issue's workload. The trials of one process run in lockstep (seed-batched DQN).
 
-    PYTHONPATH=. python benchmarks/bench_grids.py --task image-completion --vs f2d2ceb --pairs 3
-    PYTHONPATH=. python benchmarks/bench_grids.py --task image-completion --vs f2d2ceb --pairs 2 \
-        --vs-trials 10 --vs-steps 0 --no-startup     # issue 21's workload
+    PYTHONPATH=. python benchmarks/bench_grids.py --vs main --pairs 3   # this tree against main
+    PYTHONPATH=. python benchmarks/bench_grids.py --task image-completion --vs main --pairs 2 \
+        --vs-trials 10 --vs-steps 0 --no-startup     # ten full-length trials in lockstep
+    PYTHONPATH=. python benchmarks/bench_grids.py --task image-completion --vs main --pairs 3 \
+        --vs-trials 1 --no-startup                   # one trial alone (what the default rows run)
+
+With ``--vs main`` the printed ratio (main / this tree, above 1: this tree is faster) is the
+comparison against main's implementation in the same run: both trees run the same command,
+alternating, in fresh processes.
 """
 
 from __future__ import annotations

@@ -139,3 +139,44 @@ def test_stop_at_first_solve_ends_the_trial_with_its_first_solved_episode(tmp_pa
     assert events(b.path) == cut
     with pytest.raises(cfg.ConfigError, match="stop_at"):
         small("lagr", "paper", 'run.stop_at="never"')
+
+
+def test_a_sink_with_only_write_and_close_gets_every_record_in_the_logs_order(tmp_path: Path) -> None:
+    """The loop hands its sink every record as it comes, through ``write`` alone (the sink
+    buffers an episode itself), and closes it: a sink of nothing else runs a trial and gets the
+    transitions, decisions and episodes the MCAP log of the same trial holds."""
+    from lagrseq.logs.events import EpisodeEvent, NotAsked, QueryEvent, Transition
+    from lagrseq.loop.experiment import run_trial
+    from lagrseq.running.wiring import trial_parts
+
+    class Recording:
+        def __init__(self) -> None:
+            self.events: list[object] = []
+            self.closed = False
+
+        def write(self, event: object) -> None:
+            self.events.append(event)
+
+        def close(self) -> None:
+            self.closed = True
+
+        def __enter__(self) -> Recording:
+            return self
+
+        def __exit__(self, *exc: object) -> None:
+            self.close()
+
+    config = small("lagr-seq")
+    sink = Recording()
+    result = run_trial(trial_parts(config, 0, 0, "mock", lambda: sink), tmp_path / "unused.mcap")  # type: ignore[arg-type]
+    logged = run_one(config, 0, 0, "mock", tmp_path / "t.mcap")
+    assert sink.closed and not (tmp_path / "unused.mcap").exists()
+    steps = [(e.global_step, e.action, e.reward) for e in sink.events if type(e) is Transition]
+    assert steps == [(t["global_step"], t["action"], t["reward"]) for t in read_topic(logged.path, "/transition")]
+    assert len(steps) == result.steps == logged.steps
+    decisions = [(e.global_step, 0 if type(e) is NotAsked else e.decision)  # type: ignore[attr-defined]
+                 for e in sink.events if type(e) in (NotAsked, QueryEvent)]
+    assert decisions == [(q["global_step"], q["decision"]) for q in read_topic(logged.path, "/query")]
+    assert {d for _, d in decisions} == {0, 1}
+    episodes = [e.length for e in sink.events if type(e) is EpisodeEvent]
+    assert episodes == [e["length"] for e in read_topic(logged.path, "/episode")] and len(episodes) == 30

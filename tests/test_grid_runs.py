@@ -311,7 +311,7 @@ def test_lockstep_trains_the_trials_networks_in_shared_batched_calls(torch) -> N
         for _ in range(10):
             primary.remember(np.ones(6), 1, 1.0, np.zeros(6), False)
             primary.train_step(rng)
-        return primary.group, seq.group, primary.updates
+        return primary.learner.group, seq.learner.group, primary.updates
 
     outcomes = conductor.run([lambda s=s: trial(s) for s in range(3)])  # type: ignore[misc]
     assert len({id(o[0]) for o in outcomes}) == 1 and len({id(o[1]) for o in outcomes}) == 1

@@ -198,7 +198,8 @@ def test_both_log_formats_write_and_read_back_a_tasks_own_fields(tmp_path: Path,
     assert own is not None
     path = tmp_path / "trial-000.mcap"
     with McapSink(path, {"task": "t"}, log_format=log_format, task_fields=own) as sink:
-        sink.write_steps([own.step((0, 0, 0, 0, (), 1, 1.0, False, False, False), {"parity": True}), own.transition(0, 0, 1, 1, (1,), 2, 0.0, True, False, False)])
+        sink.write(own.step((0, 0, 0, 0, (), 1, 1.0, False, False, False), {"parity": True}))
+        sink.write(own.transition(0, 0, 1, 1, (1,), 2, 0.0, True, False, False))
         sink.write(own.episode_event({"wrong_bits": 1}, trial=0, episode=0, return_=1.0, length=2, global_step=2))
         sink.write(own.episode_event(None, trial=0, episode=1, return_=0.0, length=0, global_step=2))
     steps = read_topic(path, "/transition")

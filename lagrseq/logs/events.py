@@ -291,7 +291,20 @@ class EncodedMessage(dict):  # type: ignore[type-arg]
     json: bytes
 
 
-Event = Transition | QueryEvent | EpisodeEvent | ArmEpisodeEvent | View
+class NotAsked(msgspec.Struct, frozen=True, gc=False):
+    """A decision not to query and nothing more: ``QueryEvent(trial, episode, step, global_step,
+    state, 0)``, which the readers give back. The loop writes it so, and the MCAP sink keeps its
+    fields for the episode's ``/no_query`` record (log format 3) with no check of a QueryEvent's
+    other fields."""
+
+    trial: int
+    episode: int
+    step: int
+    global_step: int
+    state: Any
+
+
+Event = Transition | QueryEvent | NotAsked | EpisodeEvent | ArmEpisodeEvent | View
 
 def _numpy_scalar(value: Any) -> Any:
     """msgspec's hook for what it cannot encode itself: numpy scalars become Python numbers."""
@@ -321,6 +334,8 @@ def to_record(event: Event) -> dict[str, Any]:
     """The JSON object of an event, with the contract's field names, in contract order."""
     if type(event) is View:
         return event.message
+    if type(event) is NotAsked:  # the /query record it stands for
+        event = QueryEvent(*astuple(event), decision=0)  # type: ignore[misc]
     record = msgspec.structs.asdict(event)  # type: ignore[arg-type]
     if isinstance(event, Transition):  # as encoded: optional fields (an arm's placement) only when set
         for name in optional_columns(type(event)):
@@ -332,22 +347,12 @@ def to_record(event: Event) -> dict[str, Any]:
 
 
 class Sink(Protocol):
-    """Where a trial's events go: the MCAP file of the trial, or nowhere (benchmarks)."""
+    """Where a trial's events go: the MCAP file of the trial, or nowhere (benchmarks). A sink
+    buffers an episode itself: its ``/episode`` record ends it (what a Ctrl-C keeps from then
+    on). As a context manager it finishes the log, or, on a Ctrl-C, keeps the finished episodes."""
 
     def write(self, event: Event) -> None:
         """Take one event; its topic and log time follow from its type."""
-
-    def write_steps(self, transitions: list[Transition]) -> None:
-        """Take consecutive transitions at once, in order: the same as writing each (the loop
-        hands over an episode's steps this way when no picture comes between them)."""
-
-    def write_not_asked(self, trial: int, episode: int, step: int, global_step: int, state: Any) -> None:
-        """Take a decision not to query: the same as writing ``QueryEvent(trial, episode, step,
-        global_step, state, 0)`` (a sink that keeps nothing need not build it)."""
-
-    def flush(self) -> None:
-        """End of an episode: what a Ctrl-C keeps from now on (the MCAP sink writes its chunks
-        to the operating system once they are big enough)."""
 
     def close(self) -> None:
         """Finish (idempotent)."""
@@ -361,12 +366,6 @@ class NullSink:
     """A sink that keeps nothing: runs without a log (benchmarks measure the logging's cost)."""
 
     def write(self, event: Event) -> None:
-        return None
-
-    def write_steps(self, transitions: list[Transition]) -> None:
-        return None
-
-    def write_not_asked(self, trial: int, episode: int, step: int, global_step: int, state: Any) -> None:
         return None
 
     def flush(self) -> None:

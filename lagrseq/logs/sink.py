@@ -4,7 +4,8 @@ Log format 3 (:data:`LOG_FORMAT`): an episode's transitions are one ``/transitio
 (columns: entry i of each array is step i) and its decisions not to query one ``/no_query``
 record; queries that were sent and ``/episode`` summaries stay one record each, pictures
 (``/view...``) one per step. Both columnar records are written at the episode's end (when its
-``/episode`` record arrives, or at :meth:`McapSink.flush`). The readers
+``/episode`` record arrives, or at :meth:`McapSink.flush`): the sink buffers the episode, the
+loop hands it every record as it comes (:meth:`McapSink.write`). The readers
 (:mod:`lagrseq.logs.reader`) expand them into the ``/transition`` and ``/query`` records that
 format 2 wrote one message each, and take the expanded counts per topic from the
 ``lagrseq.records`` metadata written at the end. Framing and indexing a message cost more than
@@ -44,7 +45,6 @@ try:
     import fcntl
 except ImportError:  # pragma: no cover - not on Windows: no lock, as before
     fcntl = None  # type: ignore[assignment]
-from operator import attrgetter
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -63,12 +63,14 @@ from lagrseq.logs.events import (
     EncodedMessage,
     EpisodeEvent,
     Event,
+    NotAsked,
     NullSink,
     ProbeQueryEvent,
     QueryEvent,
     Sink,
     Transition,
     View,
+    astuple,
     decision_entry,
     encode,
     encode_into,
@@ -108,7 +110,6 @@ message records. Measured on cube LaGR-SEQ trials (``benchmarks/bench_cube.py``,
 per episode put logging at +33%; every 4 episodes (about 36 KB) +23%, every 8 (about 72 KB) +19%."""
 
 _HUGE = float("inf")
-_REWARD = attrgetter("reward")
 _dumps = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
 
 
@@ -257,7 +258,8 @@ class McapSink:
         """Add one event. Transitions and pictures go to the current chunk; queries and episodes
         are held until the chunks are written, then go into a chunk of their own. Format 3: an
         episode's transitions and decisions not to query are held until its ``/episode`` record
-        (or :meth:`flush`) and then written as one columnar record each."""
+        (or :meth:`flush`) and then written as one columnar record each. An ``/episode`` record
+        ends its episode: from then on a Ctrl-C keeps it (:meth:`abandon`)."""
         kind = type(event)
         try:
             if kind is Transition or kind is self._task_transition:
@@ -268,6 +270,13 @@ class McapSink:
                     self._steps.append(event)  # type: ignore[arg-type]
                 else:
                     self._writer.append_encoded(self._transition_channel, event.global_step, event, encode_into)  # type: ignore[union-attr]
+                return
+            if kind is NotAsked:
+                entry = astuple(event)  # type: ignore[arg-type]  # (trial, episode, step, global_step, state)
+                if self._columnar:
+                    self._not_asked.append(entry)
+                else:
+                    self.write(QueryEvent(*entry, decision=0))  # type: ignore[misc]
                 return
             if kind is QueryEvent or kind is ProbeQueryEvent:
                 if self._columnar and not_asked(event):  # type: ignore[arg-type]
@@ -285,6 +294,7 @@ class McapSink:
                 _finite(event, _EPISODE_FLOATS)
                 self._write_columns()  # the episode's columnar records go before its summary
                 self._pending.append((self._episode_channel, max(event.global_step - 1, 0), encode(event)))  # type: ignore[union-attr]
+                self._end_episode()
                 return
         except (TypeError, ValueError, OverflowError) as exc:
             raise LogError(f"record is not JSON-serialisable ({exc}): {kind.__name__}") from None
@@ -293,32 +303,7 @@ class McapSink:
             data = message.json if type(message) is EncodedMessage else _encode(message)
             self._writer.add_message(self._channels[event.topic], event.log_time, data)  # type: ignore[union-attr]
         else:
-            raise LogError(f"cannot log a {kind.__name__}; expected Transition, QueryEvent, EpisodeEvent or View")
-
-    def write_steps(self, transitions: list[Transition]) -> None:
-        """Consecutive transitions at once (format 3: held for the episode's columnar record in
-        one call, after one check of their rewards); the same as :meth:`write` of each, which
-        takes over where a reward is not finite or not a number (its LogError, the steps
-        before it held as they would be)."""
-        if self._columnar:
-            try:  # a NaN or an infinity makes the sum one too (a false alarm only takes the slow way)
-                finite = -_HUGE < sum(map(_REWARD, transitions)) < _HUGE
-            except TypeError:
-                finite = False
-            if finite:
-                self._steps += transitions
-                return
-        for transition in transitions:
-            self.write(transition)
-
-    def write_not_asked(self, trial: int, episode: int, step: int, global_step: int, state: Any) -> None:
-        """A decision not to query, ``QueryEvent(trial, episode, step, global_step, state, 0)``:
-        format 3 holds it for the episode's ``/no_query`` record without checking that every
-        later field is at its default (:func:`~lagrseq.logs.events.not_asked`), as it is made so."""
-        if self._columnar:
-            self._not_asked.append((trial, episode, step, global_step, state))
-        else:
-            self.write(QueryEvent(trial, episode, step, global_step, state, 0))
+            raise LogError(f"cannot log a {kind.__name__}; expected Transition, QueryEvent, NotAsked, EpisodeEvent or View")
 
     def _write_columns(self) -> None:
         """Format 3: the held transitions into the open chunk and the held decisions not to
@@ -374,11 +359,15 @@ class McapSink:
         return {topic: str(count) for topic, count in out.items()}
 
     def flush(self) -> None:
-        """End of an episode: (format 3) write its columnar records if its ``/episode`` record
-        did not; once the open transition chunk holds ``chunk_bytes``, close it, write the held
+        """End an episode that has no ``/episode`` record (a tool's own records): write its
+        columnar records and what :meth:`write` of an ``/episode`` record writes after it."""
+        self._write_columns()
+        self._end_episode()
+
+    def _end_episode(self) -> None:
+        """Once the open transition chunk holds ``chunk_bytes``, close it, write the held
         messages as a chunk of their own and push everything to the operating system;
         otherwise remember where the episode ended (for :meth:`abandon`)."""
-        self._write_columns()
         if self._writer.chunk_size >= self._chunk_bytes:
             self._write_chunks()
         self._episode_end = (self._writer.mark(), len(self._pending))

@@ -14,7 +14,7 @@ from __future__ import annotations
 import itertools
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -22,9 +22,18 @@ import msgspec
 import numpy as np
 
 from lagrseq.agents.schedules import EpsilonSchedule
-from lagrseq.config import ExperimentConfig
+from lagrseq.config import ExperimentConfig, LagrConfig, RunConfig
 from lagrseq.llm.base import Provider
-from lagrseq.logs.events import QueryEvent, Sink, Transition, View, jsonable, query_outcome
+from lagrseq.logs.events import (
+    EpisodeEvent,
+    NotAsked,
+    QueryEvent,
+    Sink,
+    Transition,
+    View,
+    jsonable,
+    query_outcome,
+)
 from lagrseq.logs.task_fields import TaskFields, builtin_episode, builtin_step
 from lagrseq.loop.adapters import PrimaryAgent, Step
 from lagrseq.loop.lagr import Consultation, QueryTrigger, consult, follows
@@ -116,6 +125,8 @@ class _Episode:
 
     number: int
     solved: bool
+    steady: bool = False
+    """Whether epsilon stays what it is at the episode's start (a per-episode schedule)."""
     steps: int = 0
     queries: int = 0
     accepted: int = 0
@@ -125,126 +136,170 @@ class _Episode:
     """Queries per answer source (set at the first query)."""
     epsilon: float = 0.0
     last_reward: float = 0.0
+    ended_by_env: bool = False
+    """Whether its last step terminated or truncated it (else the trial's step budget, or an
+    early stop, ended it)."""
+
+
+class _Records:
+    """The trial's log records: lagrseq's, or those of a task that declares fields of its own,
+    with what the env adds to them (``info[STEP_LOG]``: an arm's placement; ``info[EPISODE_LOG]``:
+    what the env counted)."""
+
+    def __init__(self, own: TaskFields | None) -> None:
+        self._transition, self._step = (Transition, builtin_step) if own is None else (own.transition, own.step)
+        self._episode = builtin_episode if own is None else own.episode_event
+
+    def transition(self, fields: tuple[Any, ...], info: dict[str, Any]) -> Transition:
+        extra = info.get(STEP_LOG)
+        return self._transition(*fields) if extra is None else self._step(fields, extra)
+
+    def episode(self, info: dict[str, Any], **summary: Any) -> EpisodeEvent:
+        return self._episode(info.get(EPISODE_LOG), **summary)
+
+
+class _Ending:
+    """When a trial ends: after ``run.episodes`` episodes or ``run.max_steps`` steps (0: no
+    limit); with ``run.stop_at = "first_solve"`` after its first solved episode; with
+    ``"first_accepted"`` with the step of its first accepted answer."""
+
+    def __init__(self, run: RunConfig) -> None:
+        self.episodes, self.max_steps = run.episodes, run.max_steps
+        self.at_solve, self.at_accepted = run.stop_at == "first_solve", run.stop_at == "first_accepted"
+
+    def before_episode(self, number: int, global_step: int) -> bool:
+        return bool(self.episodes and number >= self.episodes) or self.out_of_steps(global_step)
+
+    def out_of_steps(self, global_step: int) -> bool:
+        return bool(self.max_steps and global_step >= self.max_steps)
+
+    def after_step(self, episode: _Episode, global_step: int) -> bool:
+        return self.out_of_steps(global_step) or (self.at_accepted and episode.accepted > 0)
+
+    def after_episode(self, episode: _Episode) -> bool:
+        return (self.at_solve and episode.solved) or (self.at_accepted and episode.accepted > 0)
+
+
+@dataclass
+class _Trial:
+    """What a trial carries from step to step and from episode to episode."""
+
+    parts: TrialParts
+    guide: Guide
+    records: _Records
+    ending: _Ending
+    trigger: QueryTrigger
+    lagr: LagrConfig
+    sink: Sink
+    asks: bool
+    """Whether the method queries at all (``baseline`` never does)."""
+    solution: Any = None
+    """The accepted LLM solution (pi_LLM's); None while there is none."""
+    global_step: int = 0
+    episodes: int = 0
+    queries: int = 0
+    total_return: float = 0.0
+    sources: dict[str, int] = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, parts: TrialParts) -> _Trial:
+        config = parts.config
+        return cls(parts, parts.guide or task_guide(parts.task), _Records(parts.task_fields), _Ending(config.run),
+                   QueryTrigger(config.lagr.trigger), config.lagr, parts.sink, config.method != "baseline")
 
 
 def run_trial(parts: TrialParts, path: Path, on_episode: Callable[[int], None] | None = None) -> TrialResult:
-    """Run one trial (Algorithm 1). ``on_episode(length)`` is called after every episode. The
-    trial ends after ``run.episodes`` episodes or ``run.max_steps`` steps, or, with
-    ``run.stop_at = "first_solve"``, after its first solved episode, or with ``"first_accepted"``,
-    with the step of its first accepted answer."""
+    """Run one trial (Algorithm 1). ``on_episode(length)`` is called after every episode; the
+    trial ends as :class:`_Ending` says."""
     started = time.perf_counter()
-    config, task, env, sink = parts.config, parts.task, parts.env, parts.sink
-    asks = config.method != "baseline"
-    trigger = QueryTrigger(config.lagr.trigger)
-    solution: Any = None  # the accepted LLM solution (pi_LLM); None while there is none
-    global_step = episodes = queries = 0
-    total_return = 0.0
-    sources: dict[str, int] = {}
-    # What a step calls, looked up once per trial (a trial is about 5,000 steps of a few us each).
-    schedule, progress, armed, is_complete = parts.primary_epsilon, task.progress, trigger.armed, task.is_complete
-    act, learn, step_env, write, views = parts.primary.act, parts.primary.learn, env.step, sink.write, parts.views
-    # Without pictures between them, an episode's transitions go to the sink in one call at its
-    # end (or where it stops early): a sink call a step was most of what logging cost a cube trial.
-    # A task's own fields (declared by it) make its records subclasses of lagrseq's, checked.
-    own = parts.task_fields
-    record, step_record = (Transition, builtin_step) if own is None else (own.transition, own.step)
-    episode_record = builtin_episode if own is None else own.episode_event
-    held: list[Transition] = []
-    hold: Callable[[Transition], None] = held.append if views is None else write
-    guide = parts.guide or task_guide(task)
-    lagr, guidance_rng, primary_rng, trial = config.lagr, parts.guidance_rng, parts.primary_rng, parts.trial
-    learn_guided = lagr.update_primary_while_guided
-    max_steps = config.run.max_steps
-    stop_at_solve = config.run.stop_at == "first_solve"  # the trial ends with its first solved episode
-    stop_at_first = config.run.stop_at == "first_accepted"  # the trial ends with the step of its first acceptance
-    accepted_any = False
-    with sink, parts.provider:
+    trial = _Trial.of(parts)
+    with parts.sink, parts.provider:
         for number in itertools.count():
-            if _out_of_budget(config, number, global_step):
+            if trial.ending.before_episode(number, trial.global_step):
                 break
-            observation, info = env.reset(seed=parts.env_seed if number == 0 else None)
-            if lagr.solution_scope == "episode":
-                solution = None  # the released cube code forgets the solution every episode
-            trigger.reset_episode()
-            episode = _Episode(number, solved=task.is_complete(info["pattern"]))
-            # Exploration per episode (cube: asked once here) or per step (grid DQNs, a warm-up);
-            # /episode logs the last.
-            steady = schedule.steady_from(global_step)
-            epsilon = episode.epsilon = schedule.at(number, global_step)
-            try:
-                while True:
-                    pattern = info["pattern"]
-                    following = solution  # a solution accepted at this step guides from the next one
-                    if not steady:
-                        epsilon = episode.epsilon = schedule.at(number, global_step)
-                    if asks and solution is None:
-                        progressed = progress(pattern)
-                        if armed(progressed, episode.last_reward):
-                            solution = _ask(parts, trigger, episode, pattern, progressed, global_step, queries + episode.queries)
-                    # pi_LLM's action once a solution is held (with probability P), else the primary agent's
-                    guided = None
-                    if following is not None and follows(lagr, guidance_rng):
-                        guided = guide(following, observation, info)
-                    if guided is None:
-                        env_action = action = act(observation, info, epsilon, primary_rng)
-                    else:
-                        env_action, action, observation, info = guided.env_action, guided.action, guided.observation, guided.info
-                    next_observation, reward, terminated, truncated, next_info = step_env(env_action)
-                    is_guided = guided is not None
-                    # The released cube code does not update the primary agent on guided steps.
-                    if not is_guided or learn_guided:
-                        learn(Step(observation, info, action, reward, next_observation, next_info, terminated))
-                    # The step's transition (and pictures); jsonable keeps a tuple state as it is.
-                    state = pattern if type(pattern) is tuple else jsonable(pattern)
-                    extra = next_info.get(STEP_LOG)  # what the env adds to the record (an arm's placement)
-                    fields = (trial, number, episode.steps, global_step, state, int(action), float(reward), bool(terminated), bool(truncated), is_guided)
-                    hold(record(*fields) if extra is None else step_record(fields, extra))
-                    if views is not None:
-                        for view in views(next_info, global_step):
-                            write(view)
-                    episode.total += reward
-                    episode.guided_steps += is_guided
-                    episode.last_reward = reward  # the paper's trigger: query only after a positive reward
-                    if not episode.solved:
-                        episode.solved = is_complete(next_info["pattern"])
-                    episode.steps += 1
-                    observation, info = next_observation, next_info
-                    global_step += 1
-                    if terminated or truncated or (max_steps and global_step >= max_steps):
-                        break
-                    if stop_at_first and episode.accepted:
-                        break
-            finally:
-                if held:  # the episode's transitions (also those of an episode stopped by an error)
-                    steps = held[:]
-                    held.clear()
-                    sink.write_steps(steps)
-            sink.write(
-                episode_record(
-                    info.get(EPISODE_LOG),  # what the env counted (an arm's placements, a task's own fields)
-                    trial=parts.trial, episode=number, return_=float(episode.total), length=episode.steps,
-                    queries=episode.queries, accepted=episode.accepted, epsilon=float(episode.epsilon),
-                    solved=bool(episode.solved), guided_steps=episode.guided_steps, global_step=global_step,
-                    cut_by_step_budget=_out_of_steps(config, global_step) and not (terminated or truncated),
-                )
-            )
-            sink.flush()  # an episode ends: a Ctrl-C keeps every finished episode
-            episodes += 1
-            queries += episode.queries
-            total_return += episode.total
-            if episode.sources:
-                for source, count in episode.sources.items():
-                    sources[source] = sources.get(source, 0) + count
+            observation, info = parts.env.reset(seed=parts.env_seed if number == 0 else None)
+            if trial.lagr.solution_scope == "episode":
+                trial.solution = None  # the released cube code forgets the solution every episode
+            trial.trigger.reset_episode()
+            episode = _Episode(number, solved=parts.task.is_complete(info["pattern"]))
+            # exploration per episode (cube: asked once here) or per step (grid DQNs, a warm-up)
+            episode.steady = parts.primary_epsilon.steady_from(trial.global_step)
+            episode.epsilon = parts.primary_epsilon.at(number, trial.global_step)
+            ended = False
+            while not ended:
+                observation, info, ended = _step(trial, episode, observation, info)
+            _end_episode(trial, episode, info)
             if on_episode is not None:
                 on_episode(episode.steps)
-            accepted_any = accepted_any or episode.accepted > 0
-            if (stop_at_solve and episode.solved) or (stop_at_first and accepted_any):
+            if trial.ending.after_episode(episode):
                 break
-    env.close()
+    parts.env.close()
     return TrialResult(
-        path, parts.trial, episodes, global_step, queries, total_return, time.perf_counter() - started,
-        sources=tuple(sorted(sources.items())),
+        path, parts.trial, trial.episodes, trial.global_step, trial.queries, trial.total_return,
+        time.perf_counter() - started, sources=tuple(sorted(trial.sources.items())),
     )
+
+
+def _step(trial: _Trial, episode: _Episode, observation: Any, info: dict[str, Any]) -> tuple[Any, dict[str, Any], bool]:
+    """One step of Algorithm 1: the secondary agent may query (while no solution is held);
+    pi_LLM acts (with probability P) once a solution is held, else the primary agent; the
+    primary agent learns; the transition goes to the sink. Returns the next observation and
+    info, and whether the episode ended."""
+    parts, task, primary = trial.parts, trial.parts.task, trial.parts.primary
+    pattern = info["pattern"]
+    following = trial.solution  # a solution accepted at this step guides from the next one
+    if not episode.steady:
+        episode.epsilon = parts.primary_epsilon.at(episode.number, trial.global_step)
+    if trial.asks and following is None:
+        progress = task.progress(pattern)
+        if trial.trigger.armed(progress, episode.last_reward):
+            trial.solution = _ask(parts, trial.trigger, episode, pattern, progress, trial.global_step,
+                                  trial.queries + episode.queries)
+    guided = None
+    if following is not None and follows(trial.lagr, parts.guidance_rng):
+        guided = trial.guide(following, observation, info)
+    if guided is None:
+        env_action = action = primary.act(observation, info, episode.epsilon, parts.primary_rng)
+    else:
+        env_action, action, observation, info = guided.env_action, guided.action, guided.observation, guided.info
+    next_observation, reward, terminated, truncated, next_info = parts.env.step(env_action)
+    if guided is None or trial.lagr.update_primary_while_guided:  # the released cube code: not on guided steps
+        primary.learn(Step(observation, info, action, reward, next_observation, next_info, terminated))
+    state = pattern if type(pattern) is tuple else jsonable(pattern)  # jsonable keeps a tuple as it is
+    fields = (parts.trial, episode.number, episode.steps, trial.global_step, state, int(action), float(reward),
+              bool(terminated), bool(truncated), guided is not None)
+    trial.sink.write(trial.records.transition(fields, next_info))
+    if parts.views is not None:  # the pictures after the step
+        for view in parts.views(next_info, trial.global_step):
+            trial.sink.write(view)
+    episode.total += reward
+    episode.guided_steps += guided is not None
+    episode.last_reward = reward  # the paper's trigger: query only after a positive reward
+    episode.solved = episode.solved or task.is_complete(next_info["pattern"])
+    episode.steps += 1
+    trial.global_step += 1
+    episode.ended_by_env = bool(terminated or truncated)
+    ended = episode.ended_by_env or trial.ending.after_step(episode, trial.global_step)
+    return next_observation, next_info, ended
+
+
+def _end_episode(trial: _Trial, episode: _Episode, info: dict[str, Any]) -> None:
+    """The episode's ``/episode`` record (the sink keeps every finished episode from then on,
+    through a Ctrl-C), and the trial's totals."""
+    parts = trial.parts
+    parts.sink.write(
+        trial.records.episode(
+            info, trial=parts.trial, episode=episode.number, return_=float(episode.total), length=episode.steps,
+            queries=episode.queries, accepted=episode.accepted, epsilon=float(episode.epsilon),
+            solved=bool(episode.solved), guided_steps=episode.guided_steps, global_step=trial.global_step,
+            cut_by_step_budget=trial.ending.out_of_steps(trial.global_step) and not episode.ended_by_env,
+        )
+    )
+    trial.episodes += 1
+    trial.queries += episode.queries
+    trial.total_return += episode.total
+    for source, count in (episode.sources or {}).items():
+        trial.sources[source] = trial.sources.get(source, 0) + count
 
 
 def _ask(
@@ -267,7 +322,7 @@ def _ask(
     state = pattern if type(pattern) is tuple else jsonable(pattern)  # jsonable keeps a tuple as it is
     if decision == 0:  # not querying earns the neutral reward
         policy.update(context, decision, 0.0)
-        parts.sink.write_not_asked(parts.trial, episode.number, episode.steps, global_step, state)
+        parts.sink.write(NotAsked(parts.trial, episode.number, episode.steps, global_step, state))
         return None
     event = QueryEvent(
         trial=parts.trial, episode=episode.number, step=episode.steps, global_step=global_step,
@@ -323,12 +378,3 @@ def query_event(event: QueryEvent, result: Consultation, provider: str, temperat
         prompt=result.prompt,
         outcome=query_outcome(provider, answer.source),
     )
-
-
-def _out_of_budget(config: ExperimentConfig, episode: int, global_step: int) -> bool:
-    """A trial is ``run.episodes`` episodes or ``run.max_steps`` steps long (0: no limit)."""
-    return bool(config.run.episodes and episode >= config.run.episodes) or _out_of_steps(config, global_step)
-
-
-def _out_of_steps(config: ExperimentConfig, global_step: int) -> bool:
-    return bool(config.run.max_steps and global_step >= config.run.max_steps)

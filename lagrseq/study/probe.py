@@ -15,7 +15,7 @@ from lagrseq.config import ExperimentConfig
 from lagrseq.errors import UsageError
 from lagrseq.logs.events import ProbeQueryEvent, QueryEvent
 from lagrseq.logs.schemas import ACCURACY_METHOD
-from lagrseq.logs.sink import McapSink, NullSink, Sink
+from lagrseq.logs.sink import McapSink, NullSink
 from lagrseq.loop.experiment import TrialResult, query_event
 from lagrseq.loop.lagr import consult
 from lagrseq.running.wiring import make_provider, make_task
@@ -54,7 +54,7 @@ def run_accuracy_probe(
         draw()
         metadata["recorded_draws"] = "without replacement up to the samples each prompt holds"
     # a chunk per prefix (chunk_bytes=0): a crash keeps every finished prefix, live answers included
-    sink: Sink = McapSink(path, metadata, chunk_bytes=0) if log else NullSink()
+    sink: McapSink | NullSink = McapSink(path, metadata, chunk_bytes=0) if log else NullSink()
     target = task.target
     index = 0
     with sink, provider:  # type: ignore[attr-defined]

@@ -172,7 +172,8 @@ def test_dqn_learns_the_diamond_better_than_random(torch, tmp_path: Path) -> Non
 def test_fused_adam_is_torch_adam_bit_for_bit(torch) -> None:  # type: ignore[no-untyped-def]
     """lagrseq's Adam step runs the kernel of ``torch.optim.Adam(fused=True)``: equal weights
     after every step (with the Keras epsilon the agents use)."""
-    from lagrseq.agents.dqn import fused_adam_step, mlp
+    from lagrseq.agents.batched import fused_adam_step
+    from lagrseq.agents.dqn import mlp
 
     def net():  # type: ignore[no-untyped-def]
         return mlp(torch, (5, 32, 32, 3), torch.Generator().manual_seed(7))
@@ -215,22 +216,14 @@ def test_building_and_training_an_agent_does_not_import_dynamo(torch) -> None:  
     assert out.stdout.strip() == "False"
 
 
-def reference_step(torch, network, optimizer, batch, discount: float, target) -> float:  # type: ignore[no-untyped-def]
-    """One training step of one network as the agent took it before networks were stacked:
-    ``nn.Sequential`` of ``nn.Linear``, ``mse_loss`` and ``torch.optim.Adam(fused=True)``."""
-    observations, actions, rewards = (torch.from_numpy(x) for x in (batch.observations, batch.actions, batch.rewards))
-    with torch.no_grad():
-        if discount == 0.0:
-            targets = rewards
-        else:
-            following = (target or network)(torch.from_numpy(batch.next_observations))
-            targets = rewards + discount * (1.0 - torch.from_numpy(batch.terminals)) * following.max(dim=1).values
-    predicted = network(observations).gather(1, actions[:, None]).squeeze(1)
-    loss = torch.nn.functional.mse_loss(predicted, targets)
-    optimizer.zero_grad(set_to_none=True)
-    loss.backward()
-    optimizer.step()
-    return float(loss.detach())
+class Given:
+    """A minibatch given as arrays, as :meth:`Reference.train` takes a draw from a buffer."""
+
+    def __init__(self, batch) -> None:  # type: ignore[no-untyped-def]
+        self._batch = batch
+
+    def batch(self):  # type: ignore[no-untyped-def]
+        return self._batch
 
 
 @pytest.mark.torch
@@ -242,7 +235,8 @@ def reference_step(torch, network, optimizer, batch, discount: float, target) ->
 def test_a_group_trains_each_member_as_a_network_of_its_own_bit_for_bit(torch, sizes, discount, interval, batch_size) -> None:  # type: ignore[no-untyped-def]
     """Members of a :class:`NetworkGroup` stepped together, in changing subsets (a member whose
     buffer is not full, a SEQ decision in some trials only), end with exactly the weights,
-    target copies, losses and greedy actions of separate networks stepped alone."""
+    target copies, losses and greedy actions of reference networks (``dqn.Reference``) stepped
+    alone."""
     everyone = list(range(5))
     check_group_against_networks(torch, sizes, discount, interval, batch_size, 5,
                                  ([everyone, [0, 2, 4], [3], [1, 2], everyone, [4, 0]] * 4)[:20])
@@ -260,7 +254,7 @@ def test_a_whole_group_steps_at_once_with_each_members_own_numbers(torch, sizes,
     """Every member stepping at one update count (a lockstep run's primary networks) is one
     fused Adam call over the stacked tensors and one refresh of the stacked target copies;
     after members fall out of step (one skipped a step), each is stepped on its own views.
-    Either way each member ends with the numbers of its own network stepped alone."""
+    Either way each member ends with the numbers of its own reference network stepped alone."""
     everyone = list(range(4))
     check_group_against_networks(torch, sizes, discount, interval, batch_size, 4,
                                  [everyone] * 7 + [[1, 3]] + [everyone] * 4)
@@ -268,21 +262,19 @@ def test_a_whole_group_steps_at_once_with_each_members_own_numbers(torch, sizes,
 
 def check_group_against_networks(torch, sizes, discount: float, interval: int, batch_size: int, members: int,  # type: ignore[no-untyped-def]
                                  schedule: list[list[int]]) -> None:
-    """Step a group's members in the subsets of ``schedule``, one subset a step, and separate
-    networks (``nn.Sequential``, ``torch.optim.Adam(fused=True)``) alongside; compare after
-    every step."""
-    import copy
-
-    from lagrseq.agents.dqn import NetworkGroup, mlp
+    """Step a group's members in the subsets of ``schedule``, one subset a step, and as many
+    ``dqn.Reference`` networks (autograd, ``torch.optim.Adam``) alongside; compare after every
+    step."""
+    from lagrseq.agents.batched import NetworkGroup
+    from lagrseq.agents.dqn import Reference, mlp
     from lagrseq.agents.replay import Batch
 
     torch.set_num_threads(1)
     group = NetworkGroup(torch, sizes, 1e-3, discount, interval, torch.device("cpu"))
-    assert [group.join(torch.Generator().manual_seed(seed)) for seed in range(members)] == list(range(members))
-    networks = [mlp(torch, sizes, torch.Generator().manual_seed(seed)) for seed in range(members)]
-    targets = [copy.deepcopy(n).requires_grad_(False) if interval else None for n in networks]
-    optimizers = [torch.optim.Adam(n.parameters(), lr=1e-3, eps=1e-7, fused=True) for n in networks]
-    updates = [0] * members
+    joined = [group.join(mlp(torch, sizes, torch.Generator().manual_seed(seed))) for seed in range(members)]
+    assert joined == list(range(members))
+    references = [Reference(torch, mlp(torch, sizes, torch.Generator().manual_seed(seed)), 1e-3, discount, interval)
+                  for seed in range(members)]
     data = np.random.default_rng(7)
     for subset in schedule:
         chosen = sorted(subset)
@@ -294,15 +286,56 @@ def check_group_against_networks(torch, sizes, discount: float, interval: int, b
         }  # fmt: skip
         losses = group.train([(m, batches[m]) for m in chosen])
         for m, loss in zip(chosen, losses, strict=True):
-            assert loss == reference_step(torch, networks[m], optimizers[m], batches[m], discount, targets[m])
-            updates[m] += 1
-            if interval and updates[m] % interval == 0:
-                targets[m].load_state_dict(networks[m].state_dict())  # type: ignore[union-attr]
-        assert group.updates == updates
-        for m in range(members):
-            assert all(torch.equal(a, b) for a, b in zip(group.parameters(m), networks[m].parameters(), strict=True))
+            assert loss == references[m].train(Given(batches[m]))  # type: ignore[arg-type]
+        assert group.updates == [reference.updates for reference in references]
+        for m, reference in enumerate(references):
+            assert all(torch.equal(a, b) for a, b in zip(group.parameters(m), reference.parameters(), strict=True))
             if interval:
-                assert all(torch.equal(a, b) for a, b in zip(group.parameters(m, target=True), targets[m].parameters(), strict=True))  # type: ignore[union-attr]
+                assert all(torch.equal(a, b) for a, b in zip(group.parameters(m, target=True), reference.target_parameters(), strict=True))  # type: ignore[arg-type]
             x = torch.from_numpy(data.random(sizes[0], dtype=np.float32))
-            with torch.no_grad():
-                assert torch.equal(group.q_values(m, x), networks[m](x[None])[0])
+            assert torch.equal(group.q_values(m, x), reference.q_values(x))
+
+
+@pytest.mark.torch
+@pytest.mark.parametrize("numerics", ["native", "perturbed"])
+@pytest.mark.parametrize(("sizes", "discount", "interval", "batch_size"), [
+    ((4, 16, 16, 2), 0.9, 0, 8),  # the small network of the tests above
+    ((103, 128, 128, 2), 0.95, 3, 32),  # the image task's primary network (a short target interval)
+    ((100, 128, 128, 2), 0.0, 0, 32),  # its SEQ bandit
+])  # fmt: skip
+def test_the_batched_backend_trains_as_the_reference_bit_for_bit(torch, monkeypatch, numerics, sizes, discount,  # type: ignore[no-untyped-def]
+                                                                 interval, batch_size) -> None:
+    """Two agents of one seed, one per backend, fed the same transitions: the same losses,
+    greedy actions, weights and target copies after every step."""
+    monkeypatch.setenv("LAGRSEQ_NUMERICS", numerics)
+    size = sizes[0]
+    agents = [
+        make(7, observation_size=size, hidden_sizes=sizes[1:-1], n_actions=sizes[-1], discount=discount,
+             target_update_interval=interval, batch_size=batch_size, learning_rate=1e-3,
+             observation_low=None, observation_high=None, backend=backend)
+        for backend in ("reference", "batched")
+    ]  # fmt: skip
+    data = np.random.default_rng(3)
+    replays = [np.random.default_rng(4), np.random.default_rng(4)]
+    for _ in range(batch_size + 30):
+        obs, nxt = data.random(size, dtype=np.float32), data.random(size, dtype=np.float32)
+        action, reward, terminal = int(data.integers(sizes[-1])), float(data.random()), bool(data.random() < 0.1)
+        losses = []
+        for agent, replay in zip(agents, replays, strict=True):
+            agent.remember(obs, action, reward, nxt, terminal)
+            losses.append(agent.train_step(replay))
+        assert losses[0] == losses[1]
+        probe = data.random(size, dtype=np.float32)
+        assert np.array_equal(agents[0].q_values(probe), agents[1].q_values(probe))
+    reference, batched = agents
+    assert reference.updates == batched.updates == 31
+    assert all(torch.equal(a, b) for a, b in zip(reference.parameters(), batched.parameters(), strict=True))
+    if interval:
+        assert all(torch.equal(a, b) for a, b in zip(reference.target_parameters(), batched.target_parameters(),
+                                                     strict=True))
+
+
+@pytest.mark.torch
+def test_an_unknown_backend_is_refused(torch) -> None:  # type: ignore[no-untyped-def]
+    with pytest.raises(UsageError, match="unknown DQN backend 'fast'; expected one of auto, reference, batched"):
+        make(backend="fast")

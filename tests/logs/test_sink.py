@@ -14,6 +14,7 @@ from lagrseq import config as cfg
 from lagrseq.errors import LogError
 from lagrseq.logs.events import (
     EpisodeEvent,
+    NotAsked,
     ProbeQueryEvent,
     QueryEvent,
     Transition,
@@ -237,20 +238,23 @@ def test_lean_chunk_index_equals_the_reference_library() -> None:
         assert packed == builder.end()
 
 
-def _episodes(sink: McapSink, episodes: range, steps: int, stop_at: int | None = None) -> None:
+def _episodes(sink: McapSink, episodes: range, steps: int, stop_at: int | None = None, flush: bool = True,
+              not_asked: bool = False) -> None:
     """Write cube-like episodes: ``steps`` transitions and a decision every 10 steps, then the /episode
-    record and the episode's end; ``stop_at``: raise KeyboardInterrupt at that step of the
-    last episode, after its records so far were written."""
+    record (and ``flush``: a flush after it); ``stop_at``: raise KeyboardInterrupt at that step
+    of the last episode, after its records so far were written. ``not_asked``: the decisions as
+    :class:`NotAsked`, else as ``QueryEvent(..., 0)``."""
     for episode in episodes:
         for step in range(steps):
             t = episode * steps + step
             if step % 10 == 0:
-                sink.write(QueryEvent(0, episode, step, t, (step % 8,), 0))
+                sink.write(NotAsked(0, episode, step, t, (step % 8,)) if not_asked else QueryEvent(0, episode, step, t, (step % 8,), 0))
             sink.write(Transition(0, episode, step, t, tuple(range(step % 8)), step % 8, 1.0, False, step == steps - 1, False))
             if stop_at is not None and episode == episodes[-1] and step == stop_at:
                 raise KeyboardInterrupt
         sink.write(EpisodeEvent(0, episode, float(steps), steps, global_step=(episode + 1) * steps))
-        sink.flush()
+        if flush:
+            sink.flush()
 
 
 def test_small_chunks_are_stored_uncompressed_and_read_back(tmp_path: Path) -> None:
@@ -290,13 +294,15 @@ def test_chunks_end_at_episode_ends_once_big_enough(trial_log: Path) -> None:
                 assert transitions.uncompressed_size >= CHUNK_BYTES
 
 
+@pytest.mark.parametrize("flush", [True, False])
 @pytest.mark.parametrize("log_format", ["2", "3"])
-def test_ctrl_c_keeps_every_finished_episode_and_drops_the_unfinished_one(tmp_path: Path, log_format: str) -> None:
+def test_ctrl_c_keeps_every_finished_episode_and_drops_the_unfinished_one(tmp_path: Path, log_format: str,
+                                                                          flush: bool) -> None:
     from lagrseq.logs.recover import recover
 
     path = tmp_path / "trial-000.mcap"
     with pytest.raises(KeyboardInterrupt), McapSink(path, {"config": "{}"}, log_format=log_format) as sink:
-        _episodes(sink, range(3), steps=40, stop_at=25)  # episodes 0 and 1 end; 2 does not
+        _episodes(sink, range(3), steps=40, stop_at=25, flush=flush)  # episodes 0 and 1 end; 2 does not
     partial = path.with_name(path.name + ".partial")
     assert not path.exists() and partial.is_file()
     result = recover(partial)
@@ -334,54 +340,27 @@ def test_a_rollback_leaves_the_file_as_if_nothing_was_added_after_the_mark() -> 
     assert written(extra=True) == written(extra=False)
 
 
-def _episode_events(episode: int, first: int) -> list[tuple[str, object]]:
-    """One episode's calls as the loop makes them: steps, decisions not to query, one query."""
-    calls: list[tuple[str, object]] = []
-    for step in range(6):
-        state = tuple(range(step % 3))
-        if step % 2 == 0:
-            calls.append(("not_asked", (0, episode, step, first + step, state)))
-        if step == 3:
-            calls.append(("event", QueryEvent(0, episode, step, first + step, state, 1, queried=True, answer="[a]")))
-        calls.append(("step", Transition(0, episode, step, first + step, state, step % 4, float(step), False, step == 5, step == 1)))
-    calls.append(("event", EpisodeEvent(0, episode, 15.0, 6, 1, 0, 0.1, False, 1, first + 6)))
-    return calls
+@pytest.mark.parametrize("log_format", ["3", "2"])
+def test_an_episode_record_ends_its_episode_as_a_flush_does(tmp_path: Path, log_format: str) -> None:
+    """The loop hands the sink every record as it comes and never flushes: an ``/episode``
+    record ends its episode (columnar records, chunks), the same file as a flush after it."""
+    paths = {}
+    for flush in (True, False):
+        paths[flush] = tmp_path / f"flush-{flush}.mcap"
+        with McapSink(paths[flush], {"run": "x"}, chunk_bytes=4096, log_format=log_format) as sink:
+            _episodes(sink, range(6), steps=40, flush=flush)
+    assert paths[True].read_bytes() == paths[False].read_bytes()
 
 
 @pytest.mark.parametrize("log_format", ["3", "2"])
-def test_write_steps_and_write_not_asked_write_the_bytes_of_a_write_each(tmp_path: Path, log_format: str) -> None:
-    """The loop's batched calls (an episode's transitions at once, decisions not to query
-    without a QueryEvent) give the same file as writing every event on its own."""
+def test_a_not_asked_record_writes_the_bytes_of_its_query_event(tmp_path: Path, log_format: str) -> None:
+    """What the loop writes for a decision not to query (:class:`NotAsked`) gives the file that
+    ``QueryEvent(trial, episode, step, global_step, state, 0)`` gives."""
     paths = {}
-    for way in ("each", "batched"):
-        paths[way] = tmp_path / f"{way}.mcap"
-        with McapSink(paths[way], {"run": "x"}, log_format=log_format) as sink:
-            for episode in range(3):
-                held: list[Transition] = []
-                for kind, payload in _episode_events(episode, 6 * episode):
-                    if way == "each":
-                        sink.write(QueryEvent(*payload, 0) if kind == "not_asked" else payload)  # type: ignore[arg-type, misc]
-                    elif kind == "not_asked":
-                        sink.write_not_asked(*payload)  # type: ignore[misc]
-                    elif kind == "step":
-                        held.append(payload)  # type: ignore[arg-type]
-                    else:
-                        if isinstance(payload, EpisodeEvent):
-                            sink.write_steps(held)
-                        sink.write(payload)  # type: ignore[arg-type]
-                sink.flush()
-    assert paths["each"].read_bytes() == paths["batched"].read_bytes()
-    NullSink().write_steps([])
-    NullSink().write_not_asked(0, 0, 0, 0, ())
-
-
-def test_write_steps_refuses_a_reward_that_is_not_finite_as_write_does(tmp_path: Path) -> None:
-    good = Transition(0, 0, 0, 0, (), 1, 1.0, False, False, False)
-    bad = Transition(0, 0, 1, 1, (), 1, float("nan"), False, False, False)
-    with McapSink(tmp_path / "a.mcap", {}) as sink:
-        with pytest.raises(LogError, match="reward") as batched:
-            sink.write_steps([good, bad])
-        assert sink._steps == [good]  # the steps before it are held, as with a write each
-    with McapSink(tmp_path / "b.mcap", {}) as sink, pytest.raises(LogError) as each:
-        sink.write(bad)
-    assert str(batched.value) == str(each.value)
+    for not_asked in (True, False):
+        paths[not_asked] = tmp_path / f"not-asked-{not_asked}.mcap"
+        with McapSink(paths[not_asked], {"run": "x"}, log_format=log_format) as sink:
+            _episodes(sink, range(3), steps=40, not_asked=not_asked)
+    assert paths[True].read_bytes() == paths[False].read_bytes()
+    assert [q["decision"] for q in read_topics(paths[True], ["/query"])["/query"]] == [0] * 12
+    assert to_record(NotAsked(0, 1, 2, 3, (4,))) == to_record(QueryEvent(0, 1, 2, 3, (4,), 0))
