@@ -9,8 +9,8 @@ loop hands it every record as it comes (:meth:`McapSink.write`). The readers
 (:mod:`lagrseq.logs.reader`) expand them into the ``/transition`` and ``/query`` records that
 format 2 wrote one message each, and take the expanded counts per topic from the
 ``lagrseq.records`` metadata written at the end. Framing and indexing a message cost more than
-encoding it, so fewer records is what makes logging cheap (``docs/performance.md``, "Log format
-3"). ``log_format="2"`` writes format 2 (tests and benchmarks compare the two).
+encoding it, so fewer records is what makes logging cheap (``benchmarks/bench_cube.py`` measures
+it). ``log_format="2"`` writes format 2 (tests and benchmarks compare the two).
 
 Layout of a file, so that tables are cheap to read: transitions (and pictures) go into chunks of
 their own; at each episode end the sink closes the transition chunk and writes that episode's
