@@ -95,29 +95,34 @@ TIGHT_LAGR = [283.0, 284.0, 285.0, 284.0, 284.5, 283.5]
 def test_trials_at_the_papers_value_are_reproduced_where_the_papers_own_se_allows_it() -> None:
     """The test is two-sample: the paper's ± (a standard error over 10 runs) widens the interval.
     LaGR's 284 ± 0.94 leaves room inside its margin (±5.15, half the step to τ = 0.5); LaGR-SEQ's
-    126 ± 2.94 alone gives a 90% half-width of about 1.8 x 2.94 > 3.5, its margin (half the step
-    126 -> 133): no data can show equivalence there, so it stays inconclusive."""
+    126 ± 2.94 alone gives a 90% half-width of at least 126 (exp(t(0.95, 5) 2.94 / 126) - 1) > 3.5,
+    its margin: no data can show it reproduced, so its scale is two-valued (consistent or differs)."""
     data = _board(TIGHT_SEQ, TIGHT_LAGR)
-    assert data.loc[LAGR_CELL, "verdict"] == inference.REPRODUCED
+    assert data.loc[LAGR_CELL, "verdict"] == inference.REPRODUCED and bool(data.loc[LAGR_CELL, "testable"])
     assert data.loc[LAGR_CELL, "margin"] == pytest.approx(5.15) and "half the step" in data.loc[LAGR_CELL, "margin_reason"]
     assert data.loc[LAGR_CELL, "paper_se"] == pytest.approx(0.94) and data.loc[LAGR_CELL, "paper_n"] == 10
-    assert data.loc[SEQ_CELL, "verdict"] == inference.INCONCLUSIVE and data.loc[SEQ_CELL, "margin"] == pytest.approx(3.5)
-    assert data.loc[SEQ_CELL, "test_high90"] - data.loc[SEQ_CELL, "test_low90"] > 2 * 1.8 * 2.94
+    assert data.loc[SEQ_CELL, "verdict"] == inference.CONSISTENT and data.loc[SEQ_CELL, "margin"] == pytest.approx(3.5)
+    assert not data.loc[SEQ_CELL, "testable"]
+    floor = 126 * math.expm1(stats.t.ppf(0.95, 5) * 2.94 / 126)
+    assert data.loc[SEQ_CELL, "min_half_width"] == pytest.approx(floor) and floor > 3.5
+    assert data.loc[SEQ_CELL, "test_high90"] - data.loc[SEQ_CELL, "test_low90"] > 2 * 3.5
     assert data.loc[SEQ_CELL, "provenance"] == prov.RULE_BASED
-    assert data.loc[REDUCTION, "verdict"] == inference.REPRODUCED and data.loc[REDUCTION, "mean"] == pytest.approx(55.6, abs=0.1)
+    assert data.loc[REDUCTION, "verdict"] == scoreboard.MAGNITUDE and data.loc[REDUCTION, "mean"] == pytest.approx(55.6, abs=0.1)
     assert data.loc[REDUCTION, "margin"] == pytest.approx(13.91) and data.loc[REDUCTION, "scale"] == "percentage points"
 
 
-def test_the_welch_test_against_the_papers_value_matches_a_hand_computation() -> None:
+def test_the_log_ratio_test_against_the_papers_value_matches_a_hand_computation() -> None:
     """LaGR: five trials 283, 284, 285, 284, 284.5 (mean 284.1, variance 0.55) against 284 ± 0.94
-    (s.e., n = 10): difference 0.1, se sqrt(0.55/5 + 0.94^2) = sqrt(0.9936) = 0.99679,
-    Welch-Satterthwaite df 0.9936^2 / (0.11^2 / 4 + 0.8836^2 / 9) = 10.997."""
+    (s.e., n = 10): d = log(284.1 / 284), se sqrt((sqrt(0.55 / 5) / 284.1)^2 + (0.94 / 284)^2),
+    Hsu's df min(4, 9) = 4; shown at the paper's value, 284 (exp(d ± t se) - 1)."""
     data = _board(TIGHT_SEQ[:5], [283.0, 284.0, 285.0, 284.0, 284.5])
     row = data.loc[LAGR_CELL]
-    assert row["difference"] == pytest.approx(0.1)
-    assert row["difference_df"] == pytest.approx(10.997, abs=1e-3)
-    half = stats.t.ppf(0.95, 10.997) * 0.99679
-    assert (row["test_low90"], row["test_high90"]) == (pytest.approx(0.1 - half, abs=1e-4), pytest.approx(0.1 + half, abs=1e-4))
+    d = math.log(284.1 / 284)
+    se = math.sqrt((math.sqrt(0.55 / 5) / 284.1) ** 2 + (0.94 / 284) ** 2)
+    half = stats.t.ppf(0.95, 4) * se
+    assert row["difference"] == pytest.approx(284 * math.expm1(d)) and row["difference_df"] == 4
+    assert (row["test_low90"], row["test_high90"]) == (pytest.approx(284 * math.expm1(d - half)), pytest.approx(284 * math.expm1(d + half)))
+    assert row["test"] == scoreboard.LOG
 
 
 def test_trials_far_from_the_paper_differ() -> None:
@@ -127,10 +132,39 @@ def test_trials_far_from_the_paper_differ() -> None:
 
 
 def test_wide_trials_are_inconclusive_and_fewer_than_5_get_no_verdict() -> None:
-    assert _board([40.0, 210.0, 90.0, 160.0, 130.0], TIGHT_LAGR).loc[SEQ_CELL, "verdict"] == inference.INCONCLUSIVE
+    assert _board(TIGHT_SEQ, [250.0, 320.0, 284.0, 300.0, 270.0]).loc[LAGR_CELL, "verdict"] == inference.INCONCLUSIVE
     few = _board([126.0, 126.5, 125.5], [284.0, 284.5, 283.5])
     assert set(few["verdict"]) == {inference.NO_VERDICT} and set(few["trials"]) == {3}
     assert "no verdict below 5 trials" in few.loc[LAGR_CELL, "verdict_reason"]
+    assert set(few["explained_by"]) == {"— (n = 3 < 5)"}  # no gap judged below 5 trials
+
+
+def test_an_untestable_cell_reads_consistent_or_differs_never_reproduced_or_inconclusive() -> None:
+    """LaGR-SEQ at τ = 0 (126 ± 2.94 against ±3.5) whatever the trials: the interval holds 0
+    (consistent) or not (differs)."""
+    for values in (TIGHT_SEQ, [120.0, 140.0, 126.0, 131.0, 118.0], [59.0, 60.0, 61.0, 60.0, 60.5], [131.0, 131.5, 132.0, 131.0, 132.5]):
+        verdict = _board(values, TIGHT_LAGR).loc[SEQ_CELL, "verdict"]
+        assert verdict in (inference.CONSISTENT, inference.DIFFERS), values
+
+
+def test_the_gap_column_says_no_gap_where_the_tests_interval_holds_zero() -> None:
+    data = _board(TIGHT_SEQ, TIGHT_LAGR)
+    assert data.loc[SEQ_CELL, "explained_by"] == scoreboard.NO_GAP
+    assert data.loc[SEQ_CELL, "test_low95"] <= 0 <= data.loc[SEQ_CELL, "test_high95"]
+    far = _board([59.0, 60.0, 61.0, 60.0, 60.5], TIGHT_LAGR)
+    assert far.loc[SEQ_CELL, "explained_by"] == "#table2"  # the default link where no audit is held
+
+
+@settings(max_examples=25, deadline=None)
+@given(centre=st.floats(40, 400), spread=st.floats(0.1, 60), n=st.integers(5, 12))
+def test_a_row_reads_reproduced_only_where_its_scale_allows_it(centre: float, spread: float, n: int) -> None:
+    values = [max(1.0, centre + spread * ((k % 5) - 2) / 2) for k in range(n)]
+    data = _board(values, values)
+    for cell in (SEQ_CELL, LAGR_CELL):
+        if data.loc[cell, "verdict"] in (inference.REPRODUCED, inference.INCONCLUSIVE):
+            assert bool(data.loc[cell, "testable"])
+        if not data.loc[cell, "testable"]:
+            assert data.loc[cell, "verdict"] in (inference.CONSISTENT, inference.DIFFERS)
 
 
 def test_intervals_of_counts_and_reductions_stay_inside_their_range() -> None:
@@ -264,27 +298,42 @@ def _around(centre: float, n: int = 10, spread: float = 2.0) -> list[float]:
     return [centre + spread * ((k % 5) - 2) / 2 for k in range(n)]
 
 
-def test_table2s_trends_are_slopes_with_intervals_and_verdicts() -> None:
-    """Queries that rise with τ as the paper's do: both column slopes reproduce "rises" (the
-    least-squares slope over τ = 0, 0.5, 1 is the τ = 1 mean minus the τ = 0 mean); the reduction
-    moves from 1 - 126/284 to 1 - 140/330, a change of about -1.3 points, far above the "holds"
-    threshold (-14.06). Flat queries differ from "rises"; a collapsing reduction from "holds"."""
+def test_table2s_trends_are_tested_for_direction_and_size_apart() -> None:
+    """Queries that rise with τ as the paper's do: Jonckheere-Terpstra finds the rise in each
+    column (direction), the least-squares slope (the τ = 1 mean minus the τ = 0 mean) is judged
+    against the paper's slope with its ± (size: LaGR's 47.66 ± 1.72 is testable, LaGR-SEQ's
+    12.33 ± 7.88 is not); the reduction moves by about -1.3 points, far above "holds" (-14.06).
+    Flat queries differ from the paper's size; a collapsing reduction does not hold."""
     seq = {"0": _around(126), "0.5": _around(133), "1": _around(140)}
     lagr = {"0": _around(284), "0.5": _around(300), "1": _around(330)}
     data = _trend_board(seq, lagr)
-    rise = data.loc["trend: LaGR-SEQ queries per run over τ (slope)"]
-    assert rise["kind"] == "trend" and rise["mean"] == pytest.approx(14.0)  # least squares over 0, 0.5, 1
-    assert rise["verdict"] == inference.REPRODUCED and rise["test_low90"] > rise["margin"] > 0
-    assert rise["paper_value"] == pytest.approx(12.33)
-    holds = data.loc["trend: query reduction with SEQ over τ (slope)"]
+    rise = data.loc["trend: LaGR-SEQ queries per run over τ (direction)"]
+    assert rise["kind"] == "trend" and rise["test"] == scoreboard.DIRECTION and rise["verdict"] == inference.REPRODUCED
+    assert rise["p_rise"] < 0.05
+    size = data.loc["trend: LaGR-SEQ queries per run over τ (slope, size)"]
+    assert size["mean"] == pytest.approx(14.0) and size["paper_value"] == pytest.approx(12.33)
+    assert size["margin"] == pytest.approx(0.25 * 12.33) and not size["testable"]
+    assert size["verdict"] == inference.CONSISTENT
+    lagr_size = data.loc["trend: LaGR (without SEQ) queries per run over τ (slope, size)"]
+    assert bool(lagr_size["testable"]) and lagr_size["verdict"] == inference.REPRODUCED  # 46 against 47.66 ± 1.72, margin ±11.9
+    holds = data.loc["trend: query reduction with SEQ over τ (slope, holds)"]
     assert holds["trend"] == "holds" and holds["verdict"] == inference.REPRODUCED
     assert holds["mean"] == pytest.approx(100 * ((1 - 140 / 330) - (1 - 126 / 284)), abs=1e-6)
-    # flat queries: the "rises" claim differs (the slope's interval lies below a quarter of the paper's)
+    assert holds["margin"] == pytest.approx(-14.06, abs=0.01)
     flat = _trend_board({t: _around(126) for t in seq}, {t: _around(284) for t in lagr})
-    assert flat.loc["trend: LaGR (without SEQ) queries per run over τ (slope)", "verdict"] == inference.DIFFERS
-    # a reduction that collapses with τ does not hold
+    assert flat.loc["trend: LaGR (without SEQ) queries per run over τ (slope, size)", "verdict"] == inference.DIFFERS
+    assert flat.loc["trend: LaGR (without SEQ) queries per run over τ (direction)", "verdict"] == inference.INCONCLUSIVE
     collapsing = _trend_board({"0": _around(126), "0.5": _around(200), "1": _around(300)}, {t: _around(284) for t in lagr})
-    assert collapsing.loc["trend: query reduction with SEQ over τ (slope)", "verdict"] == inference.DIFFERS
+    assert collapsing.loc["trend: query reduction with SEQ over τ (slope, holds)", "verdict"] == inference.DIFFERS
+
+
+def test_a_slope_half_the_papers_no_longer_reads_reproduced() -> None:
+    """LaGR's paper slope is 47.66 per unit τ; trials rising half as fast (284 -> 308) rise
+    (direction reproduced) but their size differs from the paper's."""
+    lagr = {"0": _around(284), "0.5": _around(296), "1": _around(308)}
+    data = _trend_board({t: _around(126) for t in lagr}, lagr)
+    assert data.loc["trend: LaGR (without SEQ) queries per run over τ (direction)", "verdict"] == inference.REPRODUCED
+    assert data.loc["trend: LaGR (without SEQ) queries per run over τ (slope, size)", "verdict"] == inference.DIFFERS
 
 
 # -- no verdict where the fallback decided: real runs on a recorded store -----------------------
@@ -325,10 +374,10 @@ def test_a_row_where_the_fallback_decided_a_trial_gets_no_verdict_and_says_how_m
     five = data.loc["5 cubes: performance ratio LaGR / Q-learning"]
     assert five["verdict"] == inference.NO_VERDICT and (five["fallback_decided"], five["fallback_trials"]) == (5, 5)
     assert five["verdict_reason"].startswith("the fallback decided 5 of 5 trials")
-    assert five["test_verdict"] in (inference.REPRODUCED, inference.DIFFERS, inference.INCONCLUSIVE)  # computed, not shown as a verdict
+    assert five["test_verdict"] in scoreboard.VERDICTS and five["test_verdict"] != inference.NO_VERDICT  # computed, not shown as a verdict
     eight = data.loc["8 cubes: performance ratio LaGR / Q-learning"]
-    assert eight["fallback_decided"] == 0 and eight["verdict"] in (inference.REPRODUCED, inference.DIFFERS, inference.INCONCLUSIVE)
-    trend = data.loc["trend: performance ratio LaGR / Q-learning over stack size (slope)"]
+    assert eight["fallback_decided"] == 0 and eight["verdict"] in (inference.CONSISTENT, inference.DIFFERS)  # 1.28 ± 0.04: not testable to ±0.07
+    trend = data.loc["trend: performance ratio LaGR / Q-learning over stack size (slope, size)"]
     assert trend["verdict"] == inference.NO_VERDICT and "5 of 10 trials" in trend["verdict_reason"]
     assert any("no verdict: the fallback decided 5 of 5 trials" in row[7] for row in board.rows)
 
@@ -336,11 +385,13 @@ def test_a_row_where_the_fallback_decided_a_trial_gets_no_verdict_and_says_how_m
 def test_the_gap_column_is_a_hook_the_audits_can_fill() -> None:
     specs = [RunSpec("LaGR-SEQ", "cube-stacking", "lagr-seq", "upstream", None, row="0", column="LaGR-SEQ")]
     item = Item("table2", "Table 2", "query-table", tuple(specs), options={"reference": {"0|LaGR-SEQ": "126 ± 2.94"}})
-    matched = [items.Match(specs[0], "x", _run("lagr-seq", "mock", [130.0, 131.0, 129.0]), provider="mock")]
+    matched = [items.Match(specs[0], "x", _run("lagr-seq", "mock", [60.0, 61.0, 59.0, 60.0, 60.5]), provider="mock")]
     assert scoreboard.build([(item, matched)]).rows[0][-1] == "#table2"
     assert scoreboard.build([(item, matched)], ["cube-stacking"]).rows[0][-1] == "#audit-cube-stacking"
     board = scoreboard.build([(item, matched)], explain=lambda row: f"unexplained ({row['verdict']}, {row['provenance']})")
-    assert board.rows[0][-1] == "unexplained (no verdict, rule-based mock)"  # 3 trials: below the minimum
+    assert board.rows[0][-1] == "unexplained (differs, rule-based mock)"
+    few = [items.Match(specs[0], "x", _run("lagr-seq", "mock", [60.0, 61.0, 59.0]), provider="mock")]
+    assert scoreboard.build([(item, few)], explain=lambda row: "never asked").rows[0][-1] == "— (n = 3 < 5)"
 
 
 # -- read back from real logs -------------------------------------------------------------------
