@@ -25,6 +25,7 @@ states none).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 QUERIES = "queries per run"
@@ -140,7 +141,7 @@ def slope_margin(paper_slope: float, unit: str) -> Margin:
     return Margin(unit, value, f"a quarter of the paper's slope over the same cells ({paper_slope:+.4g} {unit})")
 
 
-def holds_threshold(levels: list[float], xs: list[float]) -> Margin:
+def holds_threshold(levels: Sequence[float], xs: Sequence[float]) -> Margin:
     """The "holds" threshold of a reduction's slope over ``xs``: it falls by less than
     :data:`TREND_SHARE` of the paper's mean level over the range, from the same cells."""
     mean = sum(levels) / len(levels)
