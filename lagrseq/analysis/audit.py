@@ -43,7 +43,7 @@ from matplotlib.figure import Figure
 from lagrseq import config as cfg
 from lagrseq.analysis import inference, stats
 from lagrseq.analysis.loading import Run
-from lagrseq.analysis.tables import Table
+from lagrseq.analysis.tables import Table, outward
 from lagrseq.errors import ConfigError
 
 PRESETS = ("upstream", "paper")
@@ -237,6 +237,24 @@ QUANTITIES = (
 )
 
 
+POSITIVE = ("queries with SEQ", "queries without SEQ", "performance ratio (LaGR-SEQ / baseline)", "steps to first solved episode (LaGR-SEQ)")
+"""Quantities that are never negative: their means get intervals on the log scale."""
+MIN_N_INTERVAL = 3
+"""No interval of a mean or an effect on fewer trials than this (t(0.975, 1) = 12.7: no information)."""
+
+
+def mean_interval(values: np.ndarray, quantity: str, level: float = 0.95) -> inference.Interval:
+    """The 95% interval of the mean of a quantity's per-trial values: on the log scale
+    (:meth:`lagrseq.analysis.inference.Estimate.log_interval`) for a positive one, so it never
+    reaches below 0; Student's t otherwise; NaN bounds below :data:`MIN_N_INTERVAL` trials."""
+    estimate = inference.mean_estimate(values)
+    if estimate.n < MIN_N_INTERVAL:
+        return inference.Interval(estimate.n, estimate.value, math.nan, math.nan, level)
+    if quantity in POSITIVE and bool(np.all(_finite(values) >= 0)):
+        return estimate.log_interval(level)
+    return estimate.interval(level)
+
+
 def _mean(values: np.ndarray) -> float:
     """The mean of the finite values, NaN (and no warning) where there are none."""
     x = _finite(values)
@@ -250,14 +268,15 @@ def _finite(values: np.ndarray) -> np.ndarray:
 
 def contrast(groups: Sequence[tuple[float, np.ndarray]], level: float = 0.95) -> tuple[inference.Interval, float]:
     """``sum w_i mean(x_i)`` over independent groups with its Welch-Satterthwaite t-interval and
-    two-sided p-value (of the contrast being 0); NaN bounds where a group has fewer than 2 values.
+    two-sided p-value (of the contrast being 0); NaN bounds (and p) where a group has fewer than
+    :data:`MIN_N_INTERVAL` values.
     With weights (+1, -1) it is Welch's difference of two means."""
     clean = [(float(w), _finite(x)) for w, x in groups]
     n = int(min((x.size for _, x in clean), default=0))
     if n == 0:
         return inference.Interval(n, math.nan, math.nan, math.nan, level), math.nan
     value = float(sum(w * x.mean() for w, x in clean))
-    if n < 2:
+    if n < MIN_N_INTERVAL:
         return inference.Interval(n, value, math.nan, math.nan, level), math.nan
     parts = [w * w * float(x.var(ddof=1)) / x.size for w, x in clean]
     var = sum(parts)
@@ -434,7 +453,7 @@ def _add_interactions(made: Audit, variants: dict[tuple[str, frozenset[str]], di
             if v is None:
                 continue
             values[(s, q.name)] = v
-            ci = inference.t_interval(v)
+            ci = mean_interval(v, q.name)
             corner_rows.append({"corner": _label(s), "switched": len(s), "quantity": q.name, "mean": ci.mean, "ci_low": ci.low, "ci_high": ci.high, "trials": ci.n})
     designs: list[tuple[str, list[tuple[float, frozenset[str]]]]] = []
     for a, b in itertools.combinations(chosen, 2):
@@ -469,7 +488,8 @@ def _cell(row: pd.Series) -> str:
     if not np.isfinite(row["ci_low"]):
         text = f"{row['effect']:+.3g} (no interval)"
     else:
-        text = f"{row['effect']:+.3g} [{row['ci_low']:+.3g}, {row['ci_high']:+.3g}]"
+        low, high = outward(row["ci_low"], row["ci_high"], significant=3)
+        text = f"{row['effect']:+.3g} [{low}, {high}]"
     if row["indicative"]:
         return f"{text} {_n(row)}, indicative"
     return f"{text} {_n(row)}" + (" *" if row["marked"] else "")
@@ -505,6 +525,15 @@ def _table(task: str, data: pd.DataFrame, length: str = "") -> Table:
     )
 
 
+def _corner_cell(r: pd.Series) -> str:
+    """A corner's mean with its 95% interval (on the log scale for a positive quantity), rounded
+    outward; no interval below :data:`MIN_N_INTERVAL` trials."""
+    if not np.isfinite(r["ci_low"]):
+        return f"{r['mean']:.4g} n={int(r['trials'])} (no interval)"
+    low, high = outward(r["ci_low"], r["ci_high"], significant=4)
+    return f"{r['mean']:.4g} [{low}, {high}] n={int(r['trials'])}"
+
+
 def _interaction_table(audit: Audit) -> Table | None:
     corners = audit.corners
     if corners is None:
@@ -512,10 +541,7 @@ def _interaction_table(audit: Audit) -> Table | None:
     quantities = [q.name for q in QUANTITIES if q.name in set(corners["quantity"])]
     rows: list[tuple[str, ...]] = []
     for (corner, _), group in corners.groupby(["corner", "switched"], sort=False):
-        cells = {
-            r["quantity"]: (f"{r['mean']:.4g} [{r['ci_low']:.4g}, {r['ci_high']:.4g}] n={int(r['trials'])}" if np.isfinite(r["ci_low"]) else f"{r['mean']:.4g} n={int(r['trials'])}")
-            for _, r in group.iterrows()
-        }
+        cells = {r["quantity"]: _corner_cell(r) for _, r in group.iterrows()}
         rows.append((f"mean, {INTERACTION_PRESET} + {corner}", *(cells.get(q, "—") for q in quantities)))
     note = "no contrast (a corner is missing)"
     if audit.interactions is not None:

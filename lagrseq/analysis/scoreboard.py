@@ -41,7 +41,7 @@ from lagrseq.analysis import audit, inference, margins, stats
 from lagrseq.analysis import provenance as prov
 from lagrseq.analysis.items import ItemFailure, Match
 from lagrseq.analysis.loading import Run
-from lagrseq.analysis.tables import Table
+from lagrseq.analysis.tables import Table, interval
 from lagrseq.registry import kind_of
 from lagrseq.suite import (
     MISS_ROWS,
@@ -480,7 +480,7 @@ def _display(r: Mapping[str, Any]) -> tuple[str, ...]:
     if math.isnan(r["ci_low"]):
         value = f"{r['mean']:.{d}f} (n={r['trials']}; no interval)"
     else:
-        value = f"{r['mean']:.{d}f} [{r['ci_low']:.{d}f}, {r['ci_high']:.{d}f}] (n={r['trials']})"
+        value = f"{r['mean']:.{d}f} {interval(r['ci_low'], r['ci_high'], d)} (n={r['trials']})"
     if r["note"]:
         value += f"; {r['note']}"
     test = _test_text(r, d)
@@ -510,9 +510,9 @@ def _test_text(r: Mapping[str, Any], d: int) -> str:
     if math.isnan(r["test_low90"]):
         return "n/a"
     if r["test"] == HOLDS:
-        return f"slope [{r['test_low90']:.{d + 1}f}, {r['test_high90']:.{d + 1}f}] vs {r['margin']:+.4g}"
+        return f"slope {interval(r['test_low90'], r['test_high90'], d + 1)} vs {r['margin']:+.4g}"
     scale = " (log ratio)" if r["test"] in (LOG, REDUCTION_ROW) else ""
-    return f"{r['difference']:+.{d}f} [{r['test_low90']:.{d}f}, {r['test_high90']:.{d}f}] (df {r['difference_df']:.1f}){scale}"
+    return f"{r['difference']:+.{d}f} {interval(r['test_low90'], r['test_high90'], d)} (df {r['difference_df']:.1f}){scale}"
 
 
 def _failed_row(item: Item, failure: ItemFailure) -> dict[str, Any]:

@@ -255,3 +255,16 @@ def test_an_interaction_run_that_closes_the_gap_is_named() -> None:
     made = _audit({"a": (20.0, 10, 1e-6)}, corners=corners)
     text = audit.gap_explained_by([made], TASK, "upstream", "queries without SEQ", 100.0, "284 ± 0.94")
     assert text is not None and text.startswith(f"{GUIDED} + {EPS} switched together (+186, n=10) of gap +184")
+
+
+def test_a_positive_quantitys_mean_interval_is_on_the_log_scale_and_none_below_three_trials() -> None:
+    """100, 10, 190 queries (n = 3): the plain t interval reaches below 0; the log-scale one does
+    not; two trials get no interval at all, nor does an effect on two."""
+    values = np.array([100.0, 10.0, 190.0])
+    assert inference.t_interval(values).low < 0
+    shown = audit.mean_interval(values, "queries with SEQ")
+    assert 0 < shown.low < 100 < shown.high
+    assert audit.mean_interval(np.array([-5.0, 2.0, 9.0]), "total return (LaGR-SEQ)").low < 0  # not positive: t
+    assert math.isnan(audit.mean_interval(values[:2], "queries with SEQ").low)
+    effect, p = audit.contrast([(1.0, values[:2]), (-1.0, values[1:])])
+    assert math.isnan(effect.low) and math.isnan(p)
