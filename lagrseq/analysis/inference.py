@@ -53,6 +53,9 @@ ALPHA = 0.05
 MIN_N_REPRODUCED = 5
 """No verdict (reproduced or differs) on fewer trials than this: below it a t interval is honest
 but so wide (t(0.975, 3) = 3.18) that a verdict would rest on one or two trials."""
+MIN_N_INTERVAL = 3
+"""No interval is shown on fewer trials than this: at n = 2 (t(0.975, 1) = 12.7) a 95% interval
+of a count spans orders of magnitude and says nothing."""
 MIN_N_NONINFERIORITY = 10
 """No policy is called non-inferior (or inferior) on fewer evaluation trials than this."""
 RELATIVE_MARGIN = 0.10

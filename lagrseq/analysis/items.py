@@ -19,7 +19,7 @@ import pandas as pd
 from matplotlib.axes import Axes
 
 from lagrseq import config as cfg
-from lagrseq.analysis import figures, stats
+from lagrseq.analysis import figures, inference, stats
 from lagrseq.analysis import provenance as prov
 from lagrseq.analysis.loading import ACCURACY_METHOD, Run
 from lagrseq.analysis.misses import Misses, count_misses
@@ -357,7 +357,7 @@ def _summary_row(label: str, values: np.ndarray, run: Run) -> tuple[stats.Summar
     """Summary of per-trial counts with the t interval of the mean on the log scale (the same for
     one run in every table and figure that shows it; it never reaches below 0), and the
     provenance of the run."""
-    s = stats.summarize_t(values, positive=True)
+    s = stats.summarize_t(values, positive=True, min_n=inference.MIN_N_INTERVAL)
     row = {
         "label": label,
         "provenance": made_by(run),
@@ -508,7 +508,7 @@ def build_ratio_table(item: Item, matched: Sequence[Match]) -> Built:
         if top is None or bottom is None:
             return None
         values = stats.paired_ratios(top.total_per_trial("return"), bottom.total_per_trial("return"))
-        return stats.summarize_t(values, positive=True), top, bottom
+        return stats.summarize_t(values, positive=True, min_n=inference.MIN_N_INTERVAL), top, bottom
 
     def shown(made: tuple[stats.Summary, Run, Run] | None, row: str, column: str) -> str:
         if made is None:

@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -197,6 +197,8 @@ def _part(runs: Sequence[Run], estimate: inference.Estimate, shown: inference.In
     """The part made from ``runs``: the weakest provenance of them; the trials a fallback decided
     out of the trials of the runs that asked a store (a baseline asks nothing)."""
     made = prov.combined([prov.of_run(r) for r in runs])
+    if estimate.n < inference.MIN_N_INTERVAL:
+        shown = inference.Interval(estimate.n, estimate.value, math.nan, math.nan, shown.level)
     decided = [prov.decided_by_fallback(r) for r in runs]
     asking = [d for d, r in zip(decided, runs, strict=True) if prov.replays(r)]
     return _Part(estimate, shown, made, sum(sum(d) for d in decided), sum(len(d) for d in asking), values, ratio)
@@ -339,6 +341,9 @@ def build(
         ``key`` in the item's table (``margin``: one computed from the row's own cells), tested as
         ``test`` says."""
         judged, mg = _judge(item, key, part, paper_est, paper, test, groups, margin)
+        if part.estimate.n < inference.MIN_N_INTERVAL:  # no interval on so few trials, in the test either
+            blank = inference.Interval(part.estimate.n, math.nan, math.nan, math.nan, 0.9)
+            judged = replace(judged, d90=blank, d95=blank)
         sample = margins.paper_sample(item.id)
         ours = part.estimate
         verdict, reason = _shown_verdict(judged, part)
@@ -478,7 +483,8 @@ def _display(r: Mapping[str, Any]) -> tuple[str, ...]:
         return (r["title"], r["what"], r["paper"], "—", "—", "FAILED", "n/a", f"FAILED: {r['verdict_reason']}", r["explained_by"])
     d = r["digits"]
     if math.isnan(r["ci_low"]):
-        value = f"{r['mean']:.{d}f} (n={r['trials']}; no interval)"
+        why = f"no interval below {inference.MIN_N_INTERVAL} trials" if r["trials"] < inference.MIN_N_INTERVAL else "no interval"
+        value = f"{r['mean']:.{d}f} (n={r['trials']}; {why})"
     else:
         value = f"{r['mean']:.{d}f} {interval(r['ci_low'], r['ci_high'], d)} (n={r['trials']})"
     if r["note"]:
@@ -495,7 +501,7 @@ def _display(r: Mapping[str, Any]) -> tuple[str, ...]:
         else:
             verdict += f" (margin ±{r['margin']:.4g} {r['scale']}: {r['margin_reason']})"
         if r["testable"] is False:
-            verdict += f"; not testable to the margin: the paper's ± alone gives a 90% half-width of at least {r['min_half_width']:.3g}"
+            verdict += f"; the paper's ± alone gives a 90% half-width of at least {r['min_half_width']:.3g}, over the margin"
     made_by = r["provenance"]
     if r.get("misses"):
         made_by += f" ({r['misses_answered_by']} misses: {r['misses']} of {r['answers']})"
@@ -505,6 +511,8 @@ def _display(r: Mapping[str, Any]) -> tuple[str, ...]:
 def _test_text(r: Mapping[str, Any], d: int) -> str:
     """The test column: the 90% interval of ``lagrseq - paper`` (on the log scale, shown at the
     paper's value), a slope's interval against its threshold, or the monotone test's p."""
+    if r["trials"] < inference.MIN_N_INTERVAL:
+        return f"n/a (n = {r['trials']} < {inference.MIN_N_INTERVAL})"
     if r["test"] == DIRECTION and math.isfinite(r["p_rise"]):
         return f"Jonckheere-Terpstra p = {r['p_rise']:.3g} (rise)"
     if math.isnan(r["test_low90"]):

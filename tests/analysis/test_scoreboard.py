@@ -168,18 +168,26 @@ def test_a_row_reads_reproduced_only_where_its_scale_allows_it(centre: float, sp
 
 
 def test_intervals_of_counts_and_reductions_stay_inside_their_range() -> None:
-    """Two very different trials (n = 2, t = 12.7): a plain t interval of the mean would reach far
-    below 0 queries; on the log scale it stays positive, and the reduction stays below 100%."""
-    data = _board([2.0, 80.0], [5.0, 300.0])
+    """Three very different trials (n = 3): a plain t interval of the mean would reach below 0
+    queries; on the log scale it stays positive, and the reduction stays below 100%. Two trials
+    get no interval at all."""
+    data = _board([2.0, 80.0, 3.0], [5.0, 300.0, 7.0])
     assert data.loc[SEQ_CELL, "ci_low"] > 0 and data.loc[LAGR_CELL, "ci_low"] > 0
     assert data.loc[REDUCTION, "ci_high"] < 100
-    assert inference.t_interval([2.0, 80.0]).low < 0  # what it replaces
+    assert inference.t_interval([2.0, 80.0, 3.0]).low < 0  # what it replaces
+    two = _board([2.0, 80.0], [5.0, 300.0])
+    assert two[["ci_low", "ci_high", "test_low90"]].isna().all().all()
 
 
 @settings(max_examples=20, deadline=None)
 @given(seq=st.lists(st.integers(0, 500), min_size=2, max_size=12), lagr=st.lists(st.integers(1, 900), min_size=2, max_size=12))
 def test_every_count_and_reduction_interval_on_the_board_stays_in_range(seq: list[int], lagr: list[int]) -> None:
     data = _board([float(v) for v in seq], [float(v) for v in lagr])
+    for cell, n in ((SEQ_CELL, len(seq)), (LAGR_CELL, len(lagr)), (REDUCTION, min(len(seq), len(lagr)))):
+        if n < inference.MIN_N_INTERVAL:
+            assert math.isnan(data.loc[cell, "ci_low"]) and math.isnan(data.loc[cell, "ci_high"])
+    if min(len(seq), len(lagr)) < inference.MIN_N_INTERVAL:
+        return
     for cell in (SEQ_CELL, LAGR_CELL):
         assert data.loc[cell, "ci_low"] >= 0 and data.loc[cell, "ci_low"] <= data.loc[cell, "mean"] <= data.loc[cell, "ci_high"]
     if sum(seq) > 0:
