@@ -206,8 +206,7 @@ def _part(runs: Sequence[Run], estimate: inference.Estimate, shown: inference.In
 
 def _count_part(run: Run) -> _Part:
     values = _queries(run)
-    estimate = inference.mean_estimate(values)
-    return _part([run], estimate, estimate.log_interval(0.95), values)
+    return _part([run], inference.mean_estimate(values), inference.positive_mean_interval(values), values)
 
 
 @dataclass(frozen=True)
@@ -687,13 +686,13 @@ def _ratio_rows(item: Item, reference: Mapping[str, Any], present: Sequence[Matc
                 continue
             ratios = stats_ratios(m.run, under.run)
             estimate = inference.mean_estimate(ratios)
-            part = _part([m.run, under.run], estimate, estimate.log_interval(0.95), ratios)
+            part = _part([m.run, under.run], estimate, inference.positive_mean_interval(ratios), ratios)
             add(item, f"{row} cubes: performance ratio {numerator} / {denominator}", str(paper), m, part, str(row), 3,
                 paper_estimate(item.id, str(paper)),
                 quantity=audit.RATIO_QUANTITY if (numerator, denominator) == ("LaGR-SEQ", "Q-learning") else None)
             early_values = stats.paired_ratios(_early_area(m.run), _early_area(under.run))
             early = inference.mean_estimate(early_values)
-            early_part = _part([m.run, under.run], early, early.log_interval(0.95), early_values)
+            early_part = _part([m.run, under.run], early, inference.positive_mean_interval(early_values), early_values)
             add(item, f"{row} cubes: early return ratio {numerator} / {denominator}, first {margins.EARLY_EPISODES} episodes "
                 "(lagrseq's measure)", "not in the paper", m, early_part, f"{margins.EARLY_AREA}|{row}", 3)
             try:

@@ -77,21 +77,16 @@ def summarize(values: Sequence[float] | np.ndarray, rng: np.random.Generator) ->
     return Summary(int(x.size), mean, std, se, low, high)
 
 
-def summarize_t(
-    values: Sequence[float] | np.ndarray, confidence: float = CONFIDENCE, positive: bool = False, min_n: int = 2
-) -> Summary:
+def summarize_t(values: Sequence[float] | np.ndarray, confidence: float = CONFIDENCE, positive: bool = False) -> Summary:
     """Mean, spread and Student's t interval of per-trial values: the interval every table of a
     mean reports (it keeps its nominal coverage at the 2 to 10 trials of a reproduction, where the
     percentile bootstrap under-covers; :mod:`lagrseq.analysis.inference`). ``positive``: the
     values are counts or ratios (never below 0) and the interval is taken on the log scale
-    (:meth:`lagrseq.analysis.inference.Estimate.log_interval`), so it never leaves (0, inf).
-    Fewer than ``min_n`` values: no interval (NaN bounds)."""
+    (:meth:`lagrseq.analysis.inference.Estimate.log_interval`), so it never leaves (0, inf)."""
     from lagrseq.analysis.inference import mean_estimate, t_interval
 
     x = np.asarray(values, dtype=float)
     mean, std, se = mean_std_se(x)
-    if x.size < min_n:
-        return Summary(int(x.size), mean, std, se, math.nan, math.nan)
     interval = mean_estimate(x).log_interval(confidence) if positive else t_interval(x, confidence)
     return Summary(int(x.size), mean, std, se, interval.low, interval.high)
 
