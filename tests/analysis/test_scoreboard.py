@@ -103,7 +103,8 @@ def test_trials_at_the_papers_value_are_reproduced_where_the_papers_own_se_allow
     assert data.loc[LAGR_CELL, "paper_se"] == pytest.approx(0.94) and data.loc[LAGR_CELL, "paper_n"] == 10
     assert data.loc[SEQ_CELL, "verdict"] == inference.CONSISTENT and data.loc[SEQ_CELL, "margin"] == pytest.approx(3.5)
     assert not data.loc[SEQ_CELL, "testable"]
-    floor = 126 * math.expm1(stats.t.ppf(0.95, 5) * 2.94 / 126)
+    relative = 2.94 / 126  # the paper's relative s.e.; Cox's term for the spread's uncertainty beside it
+    floor = 126 * math.expm1(stats.t.ppf(0.95, 5) * math.sqrt(relative**2 + math.log1p(10 * relative**2) ** 2 / 18))
     assert data.loc[SEQ_CELL, "min_half_width"] == pytest.approx(floor) and floor > 3.5
     assert data.loc[SEQ_CELL, "test_high90"] - data.loc[SEQ_CELL, "test_low90"] > 2 * 3.5
     assert data.loc[SEQ_CELL, "provenance"] == prov.RULE_BASED
@@ -113,12 +114,17 @@ def test_trials_at_the_papers_value_are_reproduced_where_the_papers_own_se_allow
 
 def test_the_log_ratio_test_against_the_papers_value_matches_a_hand_computation() -> None:
     """LaGR: five trials 283, 284, 285, 284, 284.5 (mean 284.1, variance 0.55) against 284 ± 0.94
-    (s.e., n = 10): d = log(284.1 / 284), se sqrt((sqrt(0.55 / 5) / 284.1)^2 + (0.94 / 284)^2),
-    Hsu's df min(4, 9) = 4; shown at the paper's value, 284 (exp(d ± t se) - 1)."""
+    (s.e., n = 10): d = log(284.1 / 284); per arm the relative variance r^2 = (se / mean)^2 plus
+    Cox's log(1 + n r^2)^2 / (2 (n - 1)); Hsu's df min(4, 9) = 4; shown at the paper's value,
+    284 (exp(d ± t se) - 1)."""
     data = _board(TIGHT_SEQ[:5], [283.0, 284.0, 285.0, 284.0, 284.5])
     row = data.loc[LAGR_CELL]
     d = math.log(284.1 / 284)
-    se = math.sqrt((math.sqrt(0.55 / 5) / 284.1) ** 2 + (0.94 / 284) ** 2)
+
+    def arm(relative: float, n: int) -> float:
+        return relative**2 + math.log1p(n * relative**2) ** 2 / (2 * (n - 1))
+
+    se = math.sqrt(arm(math.sqrt(0.55 / 5) / 284.1, 5) + arm(0.94 / 284, 10))
     half = stats.t.ppf(0.95, 4) * se
     assert row["difference"] == pytest.approx(284 * math.expm1(d)) and row["difference_df"] == 4
     assert (row["test_low90"], row["test_high90"]) == (pytest.approx(284 * math.expm1(d - half)), pytest.approx(284 * math.expm1(d + half)))
