@@ -76,7 +76,7 @@ def _measured(report: Path, name: str, mean: str, std: str, keep: Callable[[dict
 
 def tables(report: Path) -> list[tuple[str, float, tuple[int, ...]]]:
     """(table, cv, trial counts) to simulate."""
-    out = []
+    out: list[tuple[str, float, tuple[int, ...]]] = []
     table2 = _measured(report, "table2", "mean", "std", lambda row: True)
     if table2 is not None:
         out.append(("Table 2 (measured)", table2, (10,)))
