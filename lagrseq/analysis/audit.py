@@ -660,6 +660,7 @@ def gap_explained_by(
     paper: str,
     config: dict[str, Any] | None = None,
     margin: float | None = None,
+    interval: tuple[float, float] | None = None,
 ) -> str | None:
     """What accounts for the gap between a measured value and the paper's (a scoreboard row):
     the audit rows of ``task`` whose measured effects on ``quantity``, from ``preset``, add up to
@@ -667,7 +668,10 @@ def gap_explained_by(
     (``margin``: the scoreboard's, :mod:`lagrseq.analysis.margins`; without one,
     :func:`lagrseq.analysis.inference.margin_for`: 10% of the paper's value or its own +-), with
     their sum; or the interaction run that does so (fields switched together); or ``partly``, or
-    ``unexplained``. Only effects marked by the audit (Holm, enough trials) count, or, where none
+    ``unexplained``. ``interval``: the 95% interval of ``measured - paper`` the scoreboard's test
+    reads; where it holds 0 there is no gap to explain ("no gap shown"), where it lies inside
+    ``± margin`` none beyond the margin; without it the point gap is compared with the margin.
+    Only effects marked by the audit (Holm, enough trials) count, or, where none
     is marked, intervals that exclude 0 on fewer trials (said to be indicative). A row the audit
     never measured (another quantity; a run whose ``config`` differs from the audited preset's,
     such as another temperature or stack size) says so. None where the logs hold no audit of
@@ -695,8 +699,13 @@ def gap_explained_by(
     if margin is None or not math.isfinite(margin):
         margin = inference.margin_for(value, float(found.group(2)) if found.group(2) else None)
     gap = value - measured
-    if abs(gap) <= margin:
-        return f"no gap beyond the margin (gap {_signed(gap)}, margin ±{margin:.3g})"
+    if interval is not None and math.isfinite(interval[0]) and math.isfinite(interval[1]):
+        if interval[0] <= 0.0 <= interval[1]:
+            return f"no gap shown (the test's 95% interval [{interval[0]:.3g}, {interval[1]:.3g}] holds 0)"
+        if -margin <= interval[0] and interval[1] <= margin:
+            return f"no gap beyond the margin (the test's 95% interval lies inside ±{margin:.3g})"
+    elif abs(gap) <= margin:
+        return f"no gap beyond the margin (point gap {_signed(gap)}, margin ±{margin:.3g}; no interval)"
     source = f"{anchor}, {made.provider}"
     rows = made.data[(made.data["preset"] == preset) & (made.data["quantity"] == quantity)]
     same_way = rows[np.sign(rows["effect"]) == np.sign(gap)]

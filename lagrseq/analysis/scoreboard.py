@@ -136,7 +136,7 @@ def default_explanation(audits: Sequence[audit.Audit | str]) -> Explain:
         if built and row["task"] in named:
             found = audit.gap_explained_by(
                 built, row["task"], row["preset"], row["quantity"], row["mean"], row["paper"], row["_config"],
-                margin=row.get("margin"),
+                margin=row.get("margin"), interval=(row.get("test_low95", math.nan), row.get("test_high95", math.nan)),
             )
             if found:
                 return found

@@ -211,6 +211,19 @@ def test_the_gap_is_explained_by_the_rows_that_add_up_to_it() -> None:
     assert text is not None and text.startswith("no gap beyond the margin")
 
 
+def test_a_gap_whose_test_interval_holds_zero_is_no_gap_shown() -> None:
+    """A point gap of +30.5 far beyond the margin, but the test's interval of lagrseq - paper
+    (-85.2 to +24.2) holds 0: no gap is shown, so none is called unexplained; an interval inside
+    the margin is no gap beyond it; one outside it is explained as before."""
+    made = _audit({"a": (150.0, 10, 1e-6)})
+    text = audit.gap_explained_by([made], TASK, "upstream", "queries without SEQ", 100.0, "130.5 ± 1", margin=16.4, interval=(-85.2, 24.2))
+    assert text is not None and text.startswith("no gap shown")
+    text = audit.gap_explained_by([made], TASK, "upstream", "queries without SEQ", 100.0, "103 ± 1", margin=16.4, interval=(-10.0, -1.0))
+    assert text is not None and text.startswith("no gap beyond the margin (the test's 95% interval")
+    text = audit.gap_explained_by([made], TASK, "upstream", "queries without SEQ", 100.0, "250 ± 1", margin=16.4, interval=(-170.0, -130.0))
+    assert text is not None and text.startswith("a (+150) = +150 of gap +150")
+
+
 def test_an_effect_far_larger_than_the_gap_explains_nothing_of_it() -> None:
     """Found in the quick suite's report: lagr.solution_scope (+759) was named as "partly"
     explaining a gap of +18.5. An effect beyond the gap plus the margin measures another regime."""
