@@ -151,7 +151,8 @@ set = ["llm.temperature=0.5"]
 @pytest.mark.slow
 def test_the_scoreboard_says_what_explains_each_gap_from_the_audit_in_the_logs(tmp_path: Path) -> None:
     """Replay of audit logs plus a query table: each row's "gap explained by" is the audit's
-    attribution (rows, or unexplained), and the tau > 0 row says it was never audited."""
+    attribution (rows, or unexplained), and the tau > 0 row says it was never audited. Five trials:
+    no gap is judged below five."""
     import csv
 
     from lagrseq.analysis.replay import replay
@@ -159,9 +160,9 @@ def test_the_scoreboard_says_what_explains_each_gap_from_the_audit_in_the_logs(t
     from lagrseq.study.audit import run_audit
     from lagrseq.suite import load_suite
 
-    run_audit("cube-stacking", "mock", 2, 3, -1, tmp_path, 1, 0, ["png"], quiet=True, say=lambda _: None)
+    run_audit("cube-stacking", "mock", 5, 3, -1, tmp_path, 1, 0, ["png"], quiet=True, say=lambda _: None)
     config = cfg.load("cube-stacking", "lagr", "upstream", None, ["run.episodes=3", "llm.temperature=0.5"])
-    runner.run_trials(config, 2, 0, "mock", runner.run_directory(tmp_path / "runs", config, "mock", 0))
+    runner.run_trials(config, 5, 0, "mock", runner.run_directory(tmp_path / "runs", config, "mock", 0))
     suite_path = tmp_path / "suite.toml"
     suite_path.write_text(SCOREBOARD_SUITE, encoding="utf-8")
     report = replay([tmp_path / "runs"], tmp_path / "report", suite=load_suite(suite_path))
