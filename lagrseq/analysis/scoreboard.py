@@ -725,3 +725,34 @@ def _float(text: str) -> float | None:
 def stats_ratios(top: Run, bottom: Run) -> np.ndarray:
     """Per-trial ratios of total return, paired by trial index (the stack-size table's quantity)."""
     return stats.paired_ratios(top.total_per_trial("return"), bottom.total_per_trial("return"))
+
+
+def testability(board: Table) -> Table:
+    """Which of the scoreboard's judged rows can read ``reproduced`` at the paper's precision: per
+    paper item, quantity and lagrseq's n, the paper's ± and n, the margin, and the smallest 90%
+    half-width of ``lagrseq - paper`` that n trials could reach however small their spread
+    (:func:`lagrseq.analysis.inference.min_half_width`); where it is not below the margin, the row's
+    scale is two-valued (consistent with the paper, or differs)."""
+    data = board.data
+    if data.empty or "testable" not in data:
+        judged = data.iloc[0:0]
+    else:
+        judged = data[data["testable"].notna() & data["test"].isin([LOG, REDUCTION_ROW, SIZE])]
+    judged = judged.drop_duplicates(["item", "what", "trials"])
+    rows = []
+    for _, r in judged.iterrows():
+        testable = bool(r["testable"])
+        scale = "reproduced / differs / inconclusive" if testable else f"{inference.CONSISTENT} / differs"
+        why = (f"the paper's ± ({r['paper_se']:.4g}, n = {int(r['paper_n'])}) alone gives a half-width of at least "
+               f"{r['min_half_width']:.4g} {'<' if testable else '>='} the margin ±{r['margin']:.4g}")
+        rows.append((r["title"], r["what"], r["paper"], str(int(r["trials"])), f"±{r['margin']:.4g}", f"{r['min_half_width']:.4g}",
+                     "yes" if testable else "no", scale, why))
+    frame = judged[["item", "what", "paper", "paper_se", "paper_n", "trials", "margin", "min_half_width", "testable", "test"]].reset_index(drop=True)
+    return Table(
+        "Scoreboard rows testable at the paper's precision: the smallest 90% half-width of lagrseq - paper that lagrseq's n "
+        "could reach (its own spread 0), against the row's margin; rows that cannot reach reproduced are judged "
+        "consistent with the paper (the 95% interval holds 0) or differs",
+        ("paper item", "quantity", "paper", "lagrseq n", "margin", "smallest half-width", "testable", "verdicts it can read", "why"),
+        tuple(rows),
+        frame,
+    )

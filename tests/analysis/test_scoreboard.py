@@ -443,3 +443,20 @@ def test_provenance_and_the_stack_size_ratio_are_read_back_from_logged_runs(tmp_
     assert "| fitted |" in to_markdown(board)
     table = items.build_ratio_table(item, matched).tables[0][1]
     assert table.rows[0][1] == prov.FITTED and table.columns[2].startswith("performance ratio LaGR / Q-learning")
+
+
+def test_the_testability_table_lists_each_judged_row_and_why() -> None:
+    """Table 2's τ = 0 cells at 6 trials: LaGR (284 ± 0.94 against ±5.15) can reach reproduced,
+    LaGR-SEQ (126 ± 2.94 against ±3.5) cannot; the reduction can."""
+    specs = [
+        RunSpec("LaGR-SEQ", "cube-stacking", "lagr-seq", "upstream", None, row="0", column="LaGR-SEQ"),
+        RunSpec("LaGR", "cube-stacking", "lagr", "upstream", None, row="0", column="LaGR (without SEQ)"),
+    ]
+    item = Item("table2", "Table 2: queries", "query-table", tuple(specs), options={"reference": {"0|LaGR-SEQ": "126 ± 2.94", "0|LaGR (without SEQ)": "284 ± 0.94"}})
+    runs = [_run("lagr-seq", "mock", TIGHT_SEQ), _run("lagr", "mock", TIGHT_LAGR)]
+    matched = [items.Match(spec, spec.label, run, provider="mock") for spec, run in zip(specs, runs, strict=True)]
+    table = scoreboard.testability(scoreboard.build([(item, matched)]))
+    by_what = {row[1]: row for row in table.rows}
+    assert by_what[SEQ_CELL][6] == "no" and inference.CONSISTENT in by_what[SEQ_CELL][7] and ">= the margin ±3.5" in by_what[SEQ_CELL][8]
+    assert by_what[LAGR_CELL][6] == "yes" and by_what[REDUCTION][6] == "yes"
+    assert list(table.data["testable"]) == [False, True, True]
