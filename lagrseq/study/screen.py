@@ -1054,7 +1054,7 @@ def _target_tag() -> re.Pattern[str]:
 
 
 TARGET_TAG = _target_tag()
-"""How a screen file of another arrangement target names it: ``screen-target-plus-MODEL-t0.jsonl``
+"""How a screen file of another arrangement target names it: ``screen-sampled-target-plus-MODEL-t0.jsonl``
 (read with ``task.target=plus``; a file without the tag is read with the task's default target)."""
 
 
