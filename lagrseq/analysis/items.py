@@ -492,8 +492,11 @@ def build_query_table(item: Item, matched: Sequence[Match]) -> Built:
     if any(m.row.endswith(f"({MISS_ROWS['calibrated']})") for m in matched):
         method += (
             " Rows on the authors' answers are made three ways, by what answered a prompt the store lacks: a refusal "
-            "(never accepted), a calibrated draw (accepted at the rate the authors' answers show for prompts with as "
-            "many cells shown, fixed per prompt: fitted), or the rule-based mock: a sensitivity band."
+            "(never accepted: an upper bound), a calibrated draw (accepted at a rate for prompts with as many cells shown, "
+            "drawn per trial from the Beta posterior of the authors' answers' rate, then fixed per prompt: fitted; read it as "
+            "consistent with the paper where the interval holds the paper's value, compare its spread with the paper's ±, and "
+            "mind that the rates were fitted to the images the authors' runs met and that most of its trials are decided by a "
+            "draw, as each cell counts), or the rule-based mock: a sensitivity band."
         )
     return Built(None, None, [(item.id, table)], method)
 

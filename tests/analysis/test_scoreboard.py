@@ -20,7 +20,7 @@ from lagrseq.analysis import provenance as prov
 from lagrseq.analysis.loading import EPISODE_COLUMNS, QUERY_COLUMNS, Run, RunKey
 from lagrseq.analysis.tables import to_markdown
 from lagrseq.running import runner
-from lagrseq.suite import AUTHORS_STORE_NAME, Item, RunSpec, load_suite
+from lagrseq.suite import AUTHORS_STORE_NAME, RECORDED_NAME, Item, RunSpec, load_suite
 
 # -- one test per provenance class --------------------------------------------------------------
 
@@ -460,3 +460,56 @@ def test_the_testability_table_lists_each_judged_row_and_why() -> None:
     assert by_what[SEQ_CELL][6] == "no" and inference.CONSISTENT in by_what[SEQ_CELL][7] and ">= the margin ±3.5" in by_what[SEQ_CELL][8]
     assert by_what[LAGR_CELL][6] == "yes" and by_what[REDUCTION][6] == "yes"
     assert list(table.data["testable"]) == [False, True, True]
+
+
+AUTHORS_STORE = f"recorded:/data/{AUTHORS_STORE_NAME}"
+
+
+def _table3_board(refused: list[float], mock: list[float]) -> pd.DataFrame:
+    """Table 3's GPT4 LaGR-SEQ cell on the authors' answers, misses refused and answered by the
+    mock (no query records: no trial decided by a fallback)."""
+    specs = [
+        RunSpec("refused", "image-completion", "lagr-seq", "upstream", AUTHORS_STORE, on_miss="refuse", row="GPT4 (misses refused)", column="LaGR-SEQ"),
+        RunSpec("mock", "image-completion", "lagr-seq", "upstream", AUTHORS_STORE, on_miss="mock", row="GPT4 (misses: rule-based mock)", column="LaGR-SEQ"),
+    ]
+    item = Item("table3", "Table 3: queries", "query-table", tuple(specs), options={"reference": {"GPT4|LaGR-SEQ": "59.5 ± 13.79"}, "row_header": "LLM"})
+    runs = [_run("lagr-seq", AUTHORS_STORE, refused), _run("lagr-seq", AUTHORS_STORE, mock)]
+    matched = [items.Match(spec, spec.label, run, provider=AUTHORS_STORE) for spec, run in zip(specs, runs, strict=True)]
+    return scoreboard.build([(item, matched)]).data.set_index("what")
+
+
+def test_the_misses_refused_row_is_a_bound_with_the_band_not_a_verdict() -> None:
+    """A refused miss is never accepted, so the row runs high: whatever its test reads it shows
+    no verdict but a bound, with the band from the mock row to it and whether the band holds the
+    paper's value."""
+    data = _table3_board([580.0, 600.0, 590.0, 585.0, 595.0], [20.0, 22.0, 24.0, 21.0, 23.0])
+    refused = data.loc["LLM = GPT4 (misses refused), LaGR-SEQ: queries per run"]
+    assert refused["verdict"] == scoreboard.BOUND and refused["test_verdict"] == inference.DIFFERS
+    assert "[22.0, 590.0]" in refused["verdict_reason"] and "holds the paper's value" in refused["verdict_reason"]
+    assert refused["explained_by"].startswith("a bound")
+    mock = data.loc["LLM = GPT4 (misses: rule-based mock), LaGR-SEQ: queries per run"]
+    assert mock["verdict"] != scoreboard.BOUND
+    above = _table3_board([580.0, 600.0, 590.0, 585.0, 595.0], [200.0, 220.0, 240.0, 210.0, 230.0])
+    assert "does not hold" in above.loc["LLM = GPT4 (misses refused), LaGR-SEQ: queries per run", "verdict_reason"]
+
+
+def test_a_fitted_row_with_the_authors_rows_decisions_reads_as_that_row() -> None:
+    """Table 2 at τ = 0 on the authors' recorded answers and on mock:authors-t0, trial for trial
+    the same counts (the same decisions): both show the authors' row's verdict and say why; a fitted
+    row with other counts stays fitted."""
+    reference = {"0|LaGR (without SEQ)": "284 ± 0.94"}
+
+    def board(fitted_counts: list[float]) -> pd.DataFrame:
+        specs = [RunSpec("authors", "cube-stacking", "lagr", "upstream", AUTHORS_STORE, row=f"0 ({RECORDED_NAME})", column="LaGR (without SEQ)"),
+                 RunSpec("fitted", "cube-stacking", "lagr", "upstream", "mock:authors-t0", row="0", column="LaGR (without SEQ)")]
+        item = Item("table2", "Table 2: queries", "query-table", tuple(specs), options={"reference": reference, "row_header": "τ"})
+        runs = [_run("lagr", AUTHORS_STORE, TIGHT_LAGR), _run("lagr", "mock:authors-t0", fitted_counts)]
+        matched = [items.Match(spec, spec.label, run, provider=str(spec.provider)) for spec, run in zip(specs, runs, strict=True)]
+        return scoreboard.build([(item, matched)]).data
+
+    data = board(TIGHT_LAGR)
+    assert list(data["provenance"]) == [prov.AUTHORS, prov.FITTED]
+    assert list(data["verdict"]) == [inference.REPRODUCED, inference.REPRODUCED]
+    assert all("the same decisions as" in reason for reason in data["verdict_reason"])
+    other = board([v + 1 for v in TIGHT_LAGR])
+    assert list(other["verdict"]) == [inference.REPRODUCED, inference.FITTED]
