@@ -513,3 +513,46 @@ def test_a_fitted_row_with_the_authors_rows_decisions_reads_as_that_row() -> Non
     assert all("the same decisions as" in reason for reason in data["verdict_reason"])
     other = board([v + 1 for v in TIGHT_LAGR])
     assert list(other["verdict"]) == [inference.REPRODUCED, inference.FITTED]
+
+
+def _return_run(method: str, returns: list[float], stack: int) -> Run:
+    """A run whose trial k earned ``returns[k]`` in one episode."""
+    rows = [{"trial": k, "episode": 0, "return": r, "queries": 1.0, "global_step": 10, "solved": True} for k, r in enumerate(returns)]
+    frame = pd.DataFrame.from_records(rows, columns=list(EPISODE_COLUMNS))
+    key = RunKey("cube-stacking", method, "upstream", "mock", 0, f"{method}{stack}")
+    return Run(key, {"method": method, "llm": {"temperature": 0.0}}, (), tuple(range(len(returns))), frame, pd.DataFrame(columns=list(QUERY_COLUMNS)), 0)
+
+
+def _stack_board(ratios: dict[str, list[float]], reference: dict[str, str]) -> pd.DataFrame:
+    specs, runs = [], []
+    for stack, values in ratios.items():
+        specs += [RunSpec("LaGR", "cube-stacking", "lagr", "upstream", None, row=stack, column="LaGR"),
+                  RunSpec("Q", "cube-stacking", "baseline", "upstream", None, row=stack, column="Q-learning")]
+        runs += [_return_run("lagr", [100.0 * v for v in values], int(stack)), _return_run("baseline", [100.0] * len(values), int(stack))]
+    item = Item("appendix-stack-size", "Appendix table", "ratio-table", tuple(specs),
+                options={"numerator": "LaGR", "denominator": "Q-learning", "reference": reference})
+    matched = [items.Match(spec, spec.label, run, provider="mock") for spec, run in zip(specs, runs, strict=True)]
+    return scoreboard.build([(item, matched)]).data.set_index("what")
+
+
+def test_a_trends_threshold_comes_from_the_same_cells_as_its_slope() -> None:
+    """Only 8 and 11 cubes measured: the paper's slope is (1.33 - 1.28) / 3 per cube over those
+    cells, and the size margin a quarter of it (not the 5-to-11 slope's)."""
+    data = _stack_board({"8": _around(1.28, spread=0.02), "11": _around(1.33, spread=0.02)}, {"8": "1.28 ± 0.04", "11": "1.33 ± 0.19"})
+    size = data.loc["trend: performance ratio LaGR / Q-learning over stack size (slope, size)"]
+    assert size["paper_value"] == pytest.approx((1.33 - 1.28) / 3)
+    assert size["margin"] == pytest.approx(0.25 * (1.33 - 1.28) / 3)
+
+
+def test_the_early_return_ratios_trend_is_lagrseqs_measure_and_never_reproduced() -> None:
+    """Early ratios rising clearly over 5, 8 and 11 cubes: the direction row says it rises, as
+    lagrseq's measure; no row of a measure without a paper value reads reproduced."""
+    ratios = {"5": _around(1.05, spread=0.01), "8": _around(1.3, spread=0.01), "11": _around(1.6, spread=0.01)}
+    data = _stack_board(ratios, {"5": "1.05 ± 0.01", "8": "1.28 ± 0.04", "11": "1.33 ± 0.19"})
+    early = data.loc["trend: early return ratio over stack size (lagrseq's measure) (direction)"]
+    assert early["verdict"] == scoreboard.MEASURE_RISES and early["p_rise"] < 0.05
+    unpaper = data[data["paper"] == "not in the paper"]
+    assert len(unpaper) == 4 and inference.REPRODUCED not in set(unpaper["verdict"])
+    assert set(data["verdict"]) <= set(scoreboard.LABELS)
+    direction = data.loc["trend: performance ratio LaGR / Q-learning over stack size (direction)"]
+    assert direction["verdict"] == inference.REPRODUCED
