@@ -733,12 +733,13 @@ def testability(board: Table) -> Table:
     half-width of ``lagrseq - paper`` that n trials could reach however small their spread
     (:func:`lagrseq.analysis.inference.min_half_width`); where it is not below the margin, the row's
     scale is two-valued (consistent with the paper, or differs)."""
+    columns = ["item", "what", "paper", "paper_se", "paper_n", "trials", "margin", "min_half_width", "testable", "test"]
     data = board.data
-    if data.empty or "testable" not in data:
-        judged = data.iloc[0:0]
+    if data.empty or not set(columns) <= set(data.columns):
+        judged = pd.DataFrame(columns=[*columns, "title"])
     else:
         judged = data[data["testable"].notna() & data["test"].isin([LOG, REDUCTION_ROW, SIZE])]
-    judged = judged.drop_duplicates(["item", "what", "trials"])
+        judged = judged.drop_duplicates(["item", "what", "trials"])
     rows = []
     for _, r in judged.iterrows():
         testable = bool(r["testable"])
@@ -747,7 +748,7 @@ def testability(board: Table) -> Table:
                f"{r['min_half_width']:.4g} {'<' if testable else '>='} the margin ±{r['margin']:.4g}")
         rows.append((r["title"], r["what"], r["paper"], str(int(r["trials"])), f"±{r['margin']:.4g}", f"{r['min_half_width']:.4g}",
                      "yes" if testable else "no", scale, why))
-    frame = judged[["item", "what", "paper", "paper_se", "paper_n", "trials", "margin", "min_half_width", "testable", "test"]].reset_index(drop=True)
+    frame = judged[columns].reset_index(drop=True)
     return Table(
         "Scoreboard rows testable at the paper's precision: the smallest 90% half-width of lagrseq - paper that lagrseq's n "
         "could reach (its own spread 0), against the row's margin; rows that cannot reach reproduced are judged "

@@ -556,3 +556,8 @@ def test_the_early_return_ratios_trend_is_lagrseqs_measure_and_never_reproduced(
     assert set(data["verdict"]) <= set(scoreboard.LABELS)
     direction = data.loc["trend: performance ratio LaGR / Q-learning over stack size (direction)"]
     assert direction["verdict"] == inference.REPRODUCED
+
+
+def test_the_testability_table_of_an_empty_scoreboard_is_empty() -> None:
+    table = scoreboard.testability(scoreboard.build([]))
+    assert table.rows == () and list(table.data.columns)[:2] == ["item", "what"] and table.data.empty
