@@ -4,26 +4,29 @@ For each reference value of a table item (Table 2, Table 3, the stack-size ratio
 reductions those tables imply (1 - LaGR-SEQ / LaGR) and the trends the paper claims over a table's
 rows (Table 2: queries rise with tau, SEQ's reduction holds across tau; the appendix: LaGR's
 advantage grows with stack size), one row per source the logs hold: what made the number
-(:mod:`lagrseq.analysis.provenance`), lagrseq's mean with its 95% interval and n (counts and ratios
-on the log scale, so it never leaves their range; a slope's t interval), and a verdict:
+(:mod:`lagrseq.analysis.provenance`), lagrseq's mean with its 95% interval and n (a positive
+quantity's modified Cox interval, :func:`lagrseq.analysis.inference.positive_mean_interval`; a
+slope's t interval; none below 3 trials), the test and a verdict (docs/verdicts.md):
 
-* against a paper value, a two-sample Welch TOST of lagrseq's mean against the paper's value with
-  the paper's own ± (a standard error) and n (:func:`lagrseq.analysis.inference.tost`):
-  ``reproduced`` (the 90% interval of the difference lies inside ± margin), ``differs`` (the 95%
-  interval lies outside) or ``inconclusive``;
-* for a trend, the slope against a threshold (:func:`lagrseq.analysis.inference.above`);
-* ``fitted`` for a fitted number whatever its interval; **no verdict** where any trial's first
-  accepted answer came from a fallback (:func:`lagrseq.analysis.provenance.decided_by_fallback`;
-  the row says how many trials), where lagrseq has fewer than
-  :data:`lagrseq.analysis.inference.MIN_N_REPRODUCED` trials, or where the paper gives no value.
+* a count, a ratio or a reduction: a TOST of the log ratio of lagrseq's value over the paper's,
+  with the paper's own ± and n (:func:`lagrseq.analysis.inference.log_ratio_tost`), shown in the
+  quantity's units at the paper's value. Where the paper's ± alone leaves the margin out of reach
+  (:func:`lagrseq.analysis.inference.min_half_width`) the row is two-valued: consistent with the
+  paper (its 95% interval holds 0) or differs; :func:`testability` lists which rows and why. A
+  reduction is a magnitude check (:data:`MAGNITUDE`);
+* a trend: its direction by Jonckheere-Terpstra's test of the per-trial values, its size by a
+  Welch TOST of the slope against the paper's slope over the same cells (margin: a quarter of it);
+  a measure the paper never reports says so (:data:`MEASURE_RISES`) and never reads reproduced;
+* ``fitted`` for a fitted number whatever its interval; a bound (:data:`BOUND`) for a row built to
+  run to one side (misses refused); **no verdict** where any trial's first accepted answer came
+  from a fallback, below :data:`lagrseq.analysis.inference.MIN_N_REPRODUCED` trials, or where the
+  paper gives no value. A fitted row with the decisions of an authors' answers row reads as it.
 
-Every margin and threshold, its scale and why, is in one table, :mod:`lagrseq.analysis.margins`,
-fixed from the paper's numbers. Beside the paper's stack-size ratio (total return over 100
-episodes, ~1 by construction once Q-learning levels off) the table adds lagrseq's early measure:
-the same ratio over the first :data:`lagrseq.analysis.margins.EARLY_EPISODES` episodes. The last
-column says what explains the gap: a callable that :func:`build` takes (``explain``); by default,
-where the logs hold an audit of the row's task, :func:`lagrseq.analysis.audit.gap_explained_by`
-(within the row's margin), else a link to the item.
+Every label is one constant here (:data:`LABELS`). Every margin, its scale and why, is in
+:mod:`lagrseq.analysis.margins`. The last column says what explains a gap: nothing below 5 trials,
+:data:`NO_GAP` where the test's interval holds 0, else a callable :func:`build` takes
+(``explain``; by default the audit's attribution, :func:`lagrseq.analysis.audit.gap_explained_by`,
+or a link to the item).
 """
 
 from __future__ import annotations
@@ -171,10 +174,11 @@ LABELS = (*VERDICTS, MAGNITUDE, BOUND, MEASURE_RISES, MEASURE_FALLS, MEASURE_FLA
 NO_GAP = "no gap shown (the test's 95% interval holds 0)"
 """The gap column where the test's interval holds the paper's value."""
 
-VALUE, LOG, REDUCTION_ROW, DIRECTION, SIZE, HOLDS = "value", "log ratio", "reduction", "direction", "size", "holds"
-"""How a row is tested (the CSV's ``test``): Welch TOST on the raw scale, TOST of the log ratio
-(counts and ratios), the same for a reduction (the ratio SEQ / LaGR), Jonckheere-Terpstra's
-monotone test, a slope's TOST against the paper's slope, a slope against a "holds" threshold."""
+LOG, REDUCTION_ROW, DIRECTION, SIZE, HOLDS = "log ratio", "reduction", "direction", "size", "holds"
+"""How a row is tested (the CSV's ``test``): TOST of the log ratio (counts and ratios), the same
+for a reduction (the ratio SEQ / LaGR), Jonckheere-Terpstra's monotone test (a trend's
+direction), a slope's Welch TOST against the paper's slope (its size), a slope against a "holds"
+threshold."""
 
 
 @dataclass(frozen=True)
@@ -434,7 +438,7 @@ def _gap(row: Mapping[str, Any], explain: Explain) -> str:
     if row["trials"] < inference.MIN_N_REPRODUCED:
         return f"— (n = {row['trials']} < {inference.MIN_N_REPRODUCED})"
     low, high = row["test_low95"], row["test_high95"]
-    if row["test"] in (LOG, REDUCTION_ROW, SIZE, VALUE) and math.isfinite(low) and low <= 0.0 <= high:
+    if row["test"] in (LOG, REDUCTION_ROW, SIZE) and math.isfinite(low) and low <= 0.0 <= high:
         return NO_GAP
     return explain(row)
 
