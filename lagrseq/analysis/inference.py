@@ -28,6 +28,13 @@ Verdicts are three-way and never read from overlapping intervals:
   margin. Use it only where every pair is matched by construction; else :func:`noninferiority`.
 * :func:`holm` adjusts a family of p-values (Holm's step-down), so marks over many comparisons
   keep the family-wise error at alpha.
+* :func:`log_ratio_tost` is :func:`tost` on the log scale for a positive quantity (a count, a
+  ratio): Cox's term for a skewed arm's spread in each arm's variance (:func:`log_variance`) and
+  the smaller arm's degrees of freedom (:func:`hsu_df`); :func:`min_half_width` is the narrowest
+  interval a test against a paper value can reach, and :func:`judge_untestable` the two-valued
+  verdict (:data:`CONSISTENT` or ``differs``) of a row whose margin is narrower.
+* :func:`positive_mean_interval` is the modified Cox interval of a positive quantity's mean;
+  :func:`jonckheere` and :func:`direction` test a trend's direction on per-trial values.
 """
 
 from __future__ import annotations
