@@ -450,6 +450,10 @@ def _bounds(rows: list[dict[str, Any]]) -> None:
     for row in rows:
         if row["on_miss"] != "refuse" or f"({refused})" not in row["what"]:
             continue
+        if row["test"] != LOG:  # a reduction of two counts that both run high bounds nothing
+            row["verdict"], row["verdict_reason"] = inference.NO_VERDICT, "a ratio of two rows that run high (misses refused) is no bound"
+            row["explained_by"] = "—"
+            continue
         siblings = [r for r in rows if r["item"] == row["item"] and r["what"] == row["what"].replace(refused, MISS_ROWS["mock"])]
         band = ""
         if siblings and math.isfinite(siblings[0]["mean"]):

@@ -489,6 +489,7 @@ def test_the_misses_refused_row_is_a_bound_with_the_band_not_a_verdict() -> None
     assert refused["explained_by"].startswith("a bound")
     mock = data.loc["LLM = GPT4 (misses: rule-based mock), LaGR-SEQ: queries per run"]
     assert mock["verdict"] != scoreboard.BOUND
+    assert set(data["verdict"]) <= set(scoreboard.LABELS)
     above = _table3_board([580.0, 600.0, 590.0, 585.0, 595.0], [200.0, 220.0, 240.0, 210.0, 230.0])
     assert "does not hold" in above.loc["LLM = GPT4 (misses refused), LaGR-SEQ: queries per run", "verdict_reason"]
 
