@@ -471,9 +471,11 @@ def _table3_board(refused: list[float], mock: list[float]) -> pd.DataFrame:
     specs = [
         RunSpec("refused", "image-completion", "lagr-seq", "upstream", AUTHORS_STORE, on_miss="refuse", row="GPT4 (misses refused)", column="LaGR-SEQ"),
         RunSpec("mock", "image-completion", "lagr-seq", "upstream", AUTHORS_STORE, on_miss="mock", row="GPT4 (misses: rule-based mock)", column="LaGR-SEQ"),
+        RunSpec("refused", "image-completion", "lagr", "upstream", AUTHORS_STORE, on_miss="refuse", row="GPT4 (misses refused)", column="LaGR (without SEQ)"),
     ]
-    item = Item("table3", "Table 3: queries", "query-table", tuple(specs), options={"reference": {"GPT4|LaGR-SEQ": "59.5 ± 13.79"}, "row_header": "LLM"})
-    runs = [_run("lagr-seq", AUTHORS_STORE, refused), _run("lagr-seq", AUTHORS_STORE, mock)]
+    reference = {"GPT4|LaGR-SEQ": "59.5 ± 13.79", "GPT4|LaGR (without SEQ)": "92.3 ± 25.03"}
+    item = Item("table3", "Table 3: queries", "query-table", tuple(specs), options={"reference": reference, "row_header": "LLM"})
+    runs = [_run("lagr-seq", AUTHORS_STORE, refused), _run("lagr-seq", AUTHORS_STORE, mock), _run("lagr", AUTHORS_STORE, [2 * v for v in refused])]
     matched = [items.Match(spec, spec.label, run, provider=AUTHORS_STORE) for spec, run in zip(specs, runs, strict=True)]
     return scoreboard.build([(item, matched)]).data.set_index("what")
 
@@ -490,6 +492,8 @@ def test_the_misses_refused_row_is_a_bound_with_the_band_not_a_verdict() -> None
     mock = data.loc["LLM = GPT4 (misses: rule-based mock), LaGR-SEQ: queries per run"]
     assert mock["verdict"] != scoreboard.BOUND
     assert set(data["verdict"]) <= set(scoreboard.LABELS)
+    reduction = data.loc["LLM = GPT4 (misses refused): query reduction with SEQ (%)"]
+    assert reduction["verdict"] == inference.NO_VERDICT and "no bound" in reduction["verdict_reason"]
     above = _table3_board([580.0, 600.0, 590.0, 585.0, 595.0], [200.0, 220.0, 240.0, 210.0, 230.0])
     assert "does not hold" in above.loc["LLM = GPT4 (misses refused), LaGR-SEQ: queries per run", "verdict_reason"]
 
