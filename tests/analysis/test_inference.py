@@ -429,3 +429,32 @@ def t_ppf_09(df: float) -> float:
     from scipy.stats import t
 
     return float(t.ppf(0.95, df))
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    values=st.lists(st.floats(1.0, 1000.0), min_size=5, max_size=30),
+    paper=st.floats(1.0, 1000.0),
+    plus_minus=st.floats(0.01, 200.0),
+    share=st.floats(0.01, 0.9),
+    testable=st.booleans(),
+)
+def test_the_log_ratio_tost_reads_what_its_intervals_show(
+    values: list[float], paper: float, plus_minus: float, share: float, testable: bool
+) -> None:
+    """Whatever the data: reproduced only on a testable row with the 90% interval inside ±margin;
+    consistent only on an untestable one with the 95% interval holding 0; differs only with the
+    95% interval excluding 0; the interval in the quantity's units never reaches below -paper (the
+    quantity stays positive)."""
+    margin = share * paper
+    judged = inf.log_ratio_tost(inf.mean_estimate(values), inf.paper_estimate(paper, plus_minus, 10), margin, paper, testable=testable)
+    inner, wide = judged.interval, judged.wide
+    assert wide.low >= -paper and inner.low >= -paper
+    if judged.verdict == inf.REPRODUCED:
+        assert testable and -margin <= inner.low and inner.high <= margin
+    if judged.verdict == inf.CONSISTENT:
+        assert not testable and wide.low <= 0 <= wide.high
+    if judged.verdict == inf.DIFFERS:
+        assert not wide.low <= 0 <= wide.high
+    if not testable:
+        assert judged.verdict in (inf.CONSISTENT, inf.DIFFERS)
