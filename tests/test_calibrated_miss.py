@@ -71,17 +71,33 @@ def test_the_rates_are_fitted_per_bin_of_pixels_shown_and_the_draws_follow_them(
     assert fitted.text() == (
         "0-2 shown: 0/4 (0.0%); 3-5 shown: 1/4 (25.0%); 6-8 shown: 3/4 (75.0%); 9-11 shown: 2/2 (100.0%); 12+ shown: 0/2 (0.0%)"
     )
-    # distinct prompts the store lacks, 300 per bin: the share the loop accepts is the bin's rate
+    # distinct prompts the store lacks, 300 per bin: the share the loop accepts is this draw
+    # table's rate of the bin, a draw from the bin's Beta posterior
     rng = np.random.default_rng(7)
     with _calibrated(tmp_path / "store", seed=3) as provider:  # type: ignore[attr-defined]
+        drawn = provider.fallback.rates  # type: ignore[attr-defined]
+        assert set(drawn) == set(RATES) and all(0 < r < 1 for r in drawn.values())
         for shown, kind in ((2, "0-2 shown"), (4, "3-5 shown"), (7, "6-8 shown"), (10, "9-11 shown"), (14, "12+ shown")):
             results = [consult(task, provider, IMAGE.llm, IMAGE.lagr.threshold, _partial(rng, shown)) for _ in range(300)]
             assert {r.answer.source for r in results} == {CALIBRATED_SOURCE}
             share = np.mean([r.accepted for r in results])
-            rate = RATES[kind]
-            assert abs(share - rate) <= 4 * np.sqrt(rate * (1 - rate) / 300), (kind, share)
-            if rate in (0.0, 1.0):
-                assert share == rate
+            rate = drawn[kind]
+            assert abs(share - rate) <= 4 * np.sqrt(rate * (1 - rate) / 300) + 1e-9, (kind, share)
+
+
+def test_each_draw_tables_rates_come_from_the_beta_posteriors() -> None:
+    """Over many run seeds (draw tables) a kind's drawn rate has the Beta posterior's mean
+    (accepted + 1) / (answers + 2) and variance; 21 of 212 gives mean 22/214 and the spread of
+    Beta(22, 192); one seed always gives the same table."""
+    from lagrseq.llm.calibrated import Fit, KindRate, posterior_rates
+
+    fitted = Fit("image-completion", (KindRate("3-5 shown", 212, 21), KindRate("0-2 shown", 48, 0)))
+    draws = np.array([[posterior_rates(fitted, seed)[k] for k in ("3-5 shown", "0-2 shown")] for seed in range(4000)])
+    a, b = 22, 192
+    assert draws[:, 0].mean() == pytest.approx(a / (a + b), abs=0.002)
+    assert draws[:, 0].var() == pytest.approx(a * b / ((a + b) ** 2 * (a + b + 1)), rel=0.1)
+    assert draws[:, 1].mean() == pytest.approx(1 / 50, abs=0.002)  # 0 of 48 is not exactly 0
+    assert posterior_rates(fitted, 17) == posterior_rates(fitted, 17)
 
 
 def test_the_draw_is_fixed_per_prompt_and_by_the_run_seed(tmp_path: Path) -> None:

@@ -333,12 +333,10 @@ INTERVAL = ("ci_low", "ci_high")
 def _same_numbers(fresh: dict[str, str], committed: dict[str, str]) -> None:
     """Equal cells; numbers may differ in the 6th significant digit (the CSV's precision), the
     only place a different platform's floating point could show. The interval columns are derived
-    numbers: the fresh interval must be the current rule (issue 34: counts and ratios on the log
-    scale) applied to the committed mean, standard error and n, whichever rule made the committed
-    report (the committed interval is that, to the CSV's precision, once the report is
-    regenerated)."""
-    from lagrseq.analysis.inference import Estimate
-
+    from the per-trial values by the current rule (a positive quantity's modified Cox interval,
+    none below 3 trials: tests/analysis/test_inference.py holds the rule), whichever rule made the
+    committed report: here the fresh interval must lie inside the quantity's range, around the
+    committed mean, and be absent below 3 trials."""
     assert fresh.keys() == committed.keys()
     for key, value in fresh.items():
         if key in INTERVAL:
@@ -349,11 +347,12 @@ def _same_numbers(fresh: dict[str, str], committed: dict[str, str]) -> None:
             assert value == committed[key], key
     if INTERVAL[0] not in fresh:
         return
-    mean, se = (committed["mean"], committed["se"]) if "mean" in committed else (committed["ratio_mean"], committed["ratio_se"])
-    n = int(committed["n"])
-    rule = Estimate(float(mean), float(se), n - 1, n).log_interval(0.95)
-    for key, expected in zip(INTERVAL, (rule.low, rule.high), strict=True):
-        assert float(fresh[key]) == pytest.approx(expected, rel=5e-5), key
+    mean = float(committed["mean"] if "mean" in committed else committed["ratio_mean"])
+    if int(committed["n"]) < 3:
+        assert fresh[INTERVAL[0]] == fresh[INTERVAL[1]] == "", "no interval below 3 trials"
+        return
+    low, high = float(fresh[INTERVAL[0]]), float(fresh[INTERVAL[1]])
+    assert 0 <= low <= mean * (1 + 1e-5) and mean * (1 - 1e-5) <= high, (low, mean, high)
 
 
 @pytest.mark.skipif(not (COMMITTED / "tables").is_dir(), reason="no committed reports/reference/")

@@ -134,7 +134,7 @@ def test_the_table_and_picture_come_from_a_hand_made_file(tmp_path: Path) -> Non
     assert "| cube-stacking | tiny-1b | 0 | Tiny 1B, 1B, Q4_K_M, qwen2 | abababababab | 2/5 = 40% (3 prefixes of one target: a count over one sequence, not a sample of prompts; no interval) | 2/4 = 50% (2 prefixes" in table
     assert "correct 2, wrong 1, partial 1, prose 1" in table
     assert "| 2.0 | 10.0 | 1 | 320 |" in table  # s/answer, tokens/s, cut at max_tokens, longest
-    assert "| 4/8 cubes | 2/3 = 67% [21, 94] |" in table and "| 1/8 cubes | 0/1 = 0% [0, 79] |" in table
+    assert "| 4/8 cubes | 2/3 = 67% [20, 94] |" in table and "| 1/8 cubes | 0/1 = 0% [0, 80] |" in table  # bounds rounded outward
     rows = list(csv.DictReader((out / "screen-cube-stacking.csv").open()))
     four = next(r for r in rows if r["shown"] == "4")
     assert (four["answers"], four["correct"], four["fraction"], four["sha256"]) == ("3", "2", "0.5000", SHA)
@@ -252,7 +252,7 @@ def test_the_temperature_model_is_tested_not_fitted(tmp_path: Path) -> None:
     rows = screen.temperature_rows([*t0, *t1], AUTHORS_T0.temperature)
     four = next(r for r in rows if r[2] == "4/8 cubes")
     # P(right | 4 of 8 shown, tau 1) = 2/3 x (1 - 0.3) = 47%; measured 2/3 again: inside its interval
-    assert four == ("m", "1", "4/8 cubes", "47%", "2/3 = 67% [21, 94]", "yes")
+    assert four == ("m", "1", "4/8 cubes", "47%", "2/3 = 67% [20, 94]", "yes")
     assert rows[-1][2] == "all prefixes"
 
 
@@ -285,7 +285,7 @@ def test_replay_writes_the_sections_into_the_report(tmp_path: Path) -> None:
     report = replay([tmp_path / "runs"], tmp_path / "report", sections=sections)
     index = (report.out / "index.md").read_text()
     assert "![Open models: screen of 1 GGUF models" in index and "(figures/open-models.png)" in index
-    assert "| cube-stacking | screen-tiny τ=0 | 4/8 cubes | 2/3 = 67% [21, 94] |" in index
+    assert "| cube-stacking | screen-tiny τ=0 | 4/8 cubes | 2/3 = 67% [20, 94] |" in index
     assert (report.out / "figures" / "open-models.png").is_file() and (report.out / "tables" / "open-models.csv").is_file()
     assert 'src="figures/open-models.png"' in (report.out / "index.html").read_text()
 
@@ -380,20 +380,31 @@ def test_the_interval_resamples_prompts_not_answers() -> None:
     assert nested.low is None and "prefixes of one target" in nested.text() and "not a sample" in nested.text()
 
 
-def test_fisher_compares_the_best_model_with_each_other() -> None:
+def test_fisher_compares_one_unit_per_prompt_in_both_arms() -> None:
+    """Qwen's 2 of 7 prefixes against another model's 0 of 7 prefixes (never its 9 answers): Fisher
+    on [[2, 5], [0, 7]] is 0.46, not the 0.175 of prompts against answers; a prompt counts right when
+    at least half its counted answers are."""
     from scipy.stats import fisher_exact
 
-    a, b = _screen_of([]), _screen_of([])
+    a, b = _screen_of([(1, 1)] * 2 + [(1, 0)] * 5), _screen_of([(2, 0)] * 2 + [(1, 0)] * 5)
     a.model, b.model = "good", "bad"
-    a.cells, b.cells = {1: (8, 3)}, {1: (11, 0)}
     (row,) = screen.fisher_rows([a, b])
-    assert row[3:7] == ("good", "3/8", "bad", "0/11")
-    assert float(row[7]) == pytest.approx(fisher_exact([[3, 5], [0, 11]]).pvalue, abs=5e-4)
+    assert row[3:7] == ("good", "2/7", "bad", "0/7")
+    assert float(row[7]) == pytest.approx(fisher_exact([[2, 5], [0, 7]]).pvalue, abs=5e-4) and row[7] == "0.462"
     assert row[8] == "(no prompt shows the target)"
-    # with the whole target shown in some prompts, the comparison without them beside
-    a.cells, b.cells = {1: (7, 2), 8: (1, 1)}, {1: (9, 0), 8: (2, 0)}
-    (row,) = screen.fisher_rows([a, b])
-    assert row[8] == f"2/7 against 0/9: {fisher_exact([[2, 5], [0, 9]]).pvalue:.3f}" == "2/7 against 0/9: 0.175"
+    assert screen.prompt_units(_screen_of([(3, 2), (2, 1), (3, 1)])) == (3, 2)
+
+
+def test_states_met_by_runs_get_no_binomial_interval() -> None:
+    """An arrangement screen of the states the runs' trajectories met is no sample of states: no
+    interval over prompts and none per cell; a screen of sampled states keeps its interval."""
+    runs = _screen_of([(1, 0)] * 48, prompt_set="", task="object-arrangement")
+    runs.cells = {1: (48, 0)}
+    found = screen.accuracy_over_prompts(runs)
+    assert found.low is None and "states met by the runs' trajectories" in found.text() and "no interval" in found.text()
+    assert "wilson" not in screen.csv_text([runs]).split("\n", 2)[1]
+    sampled = screen.accuracy_over_prompts(_screen_of([(1, 0)] * 56, prompt_set=screen.SAMPLED_SET, task="object-arrangement"))
+    assert sampled.method == "exact over prompts" and sampled.text().startswith("0/56 = 0% [0, 7]")  # 6.38% rounded up
 
 
 class _Drop:
@@ -449,7 +460,7 @@ def test_a_relabelled_screen_asks_the_local_server_and_reads_back_as_a_sample(tm
     assert len({json.loads(line)["key"] for line in answers.read_text().splitlines()}) == 14
     table = (tmp_path / "out" / "screen-cube-stacking.md").read_text()
     # answers with llama.cpp's samplers pinned are labelled so, never pooled with answers of its defaults
-    assert "tiny-model (relabelled 8-cube sets, samplers pinned)" in table and "0/14 = 0% [0, 23] (exact over prompts, 14 prompts)" in table
+    assert "tiny-model (relabelled 8-cube sets, samplers pinned)" in table and "0/14 = 0% [0, 24] (exact over prompts, 14 prompts)" in table
     # read back with --from: the same table, the prompts' targets read from the prompts themselves
     again = lagrseq("screen", "cube-stacking", "--from", str(answers), "--out", str(tmp_path / "again"))
     assert again.returncode == 0, again.stderr
@@ -467,10 +478,10 @@ def test_a_screen_of_another_arrangement_target_is_judged_by_that_target(tmp_pat
     wrong = "[" + ",\n".join("[" + ",".join(str(int(v)) for v in row) + "]" for row in diamond) + "]"
     (tmp_path / "recorded_llm").mkdir()
     lines = [_record(request_of(queries[0], "local"), "object-arrangement", plus, 1), _record(request_of(queries[1], "local"), "object-arrangement", wrong, 2)]
-    (tmp_path / "recorded_llm" / "screen-target-plus-tiny-t0.jsonl").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    (tmp_path / "recorded_llm" / "screen-sampled-target-plus-tiny-t0.jsonl").write_text("\n".join(lines) + "\n", encoding="utf-8")
     sections, _ = screen.report_sections(tmp_path)
     (row,) = sections[0][1].rows
-    assert row[1] == "tiny-1b (plus target)" and row[5].startswith("1/2 = 50% [")
+    assert row[1] == "tiny-1b (sampled states, plus target)" and row[5].startswith("1/2 = 50% [")
 
 
 @pytest.mark.parametrize("suffix", [".md", ".csv", ".png"])

@@ -43,7 +43,7 @@ from matplotlib.figure import Figure
 from lagrseq import config as cfg
 from lagrseq.analysis import inference, stats
 from lagrseq.analysis.loading import Run
-from lagrseq.analysis.tables import Table
+from lagrseq.analysis.tables import Table, outward
 from lagrseq.errors import ConfigError
 
 PRESETS = ("upstream", "paper")
@@ -237,6 +237,24 @@ QUANTITIES = (
 )
 
 
+POSITIVE = ("queries with SEQ", "queries without SEQ", "performance ratio (LaGR-SEQ / baseline)", "steps to first solved episode (LaGR-SEQ)")
+"""Quantities that are never negative: their means get intervals on the log scale."""
+MIN_N_INTERVAL = 3
+"""No interval of a mean or an effect on fewer trials than this (t(0.975, 1) = 12.7: no information)."""
+
+
+def mean_interval(values: np.ndarray, quantity: str, level: float = 0.95) -> inference.Interval:
+    """The 95% interval of the mean of a quantity's per-trial values: on the log scale
+    (:meth:`lagrseq.analysis.inference.Estimate.log_interval`) for a positive one, so it never
+    reaches below 0; Student's t otherwise; NaN bounds below :data:`MIN_N_INTERVAL` trials."""
+    estimate = inference.mean_estimate(values)
+    if estimate.n < MIN_N_INTERVAL:
+        return inference.Interval(estimate.n, estimate.value, math.nan, math.nan, level)
+    if quantity in POSITIVE and bool(np.all(_finite(values) >= 0)):
+        return estimate.log_interval(level)
+    return estimate.interval(level)
+
+
 def _mean(values: np.ndarray) -> float:
     """The mean of the finite values, NaN (and no warning) where there are none."""
     x = _finite(values)
@@ -250,14 +268,15 @@ def _finite(values: np.ndarray) -> np.ndarray:
 
 def contrast(groups: Sequence[tuple[float, np.ndarray]], level: float = 0.95) -> tuple[inference.Interval, float]:
     """``sum w_i mean(x_i)`` over independent groups with its Welch-Satterthwaite t-interval and
-    two-sided p-value (of the contrast being 0); NaN bounds where a group has fewer than 2 values.
+    two-sided p-value (of the contrast being 0); NaN bounds (and p) where a group has fewer than
+    :data:`MIN_N_INTERVAL` values.
     With weights (+1, -1) it is Welch's difference of two means."""
     clean = [(float(w), _finite(x)) for w, x in groups]
     n = int(min((x.size for _, x in clean), default=0))
     if n == 0:
         return inference.Interval(n, math.nan, math.nan, math.nan, level), math.nan
     value = float(sum(w * x.mean() for w, x in clean))
-    if n < 2:
+    if n < MIN_N_INTERVAL:
         return inference.Interval(n, value, math.nan, math.nan, level), math.nan
     parts = [w * w * float(x.var(ddof=1)) / x.size for w, x in clean]
     var = sum(parts)
@@ -434,7 +453,7 @@ def _add_interactions(made: Audit, variants: dict[tuple[str, frozenset[str]], di
             if v is None:
                 continue
             values[(s, q.name)] = v
-            ci = inference.t_interval(v)
+            ci = mean_interval(v, q.name)
             corner_rows.append({"corner": _label(s), "switched": len(s), "quantity": q.name, "mean": ci.mean, "ci_low": ci.low, "ci_high": ci.high, "trials": ci.n})
     designs: list[tuple[str, list[tuple[float, frozenset[str]]]]] = []
     for a, b in itertools.combinations(chosen, 2):
@@ -469,7 +488,8 @@ def _cell(row: pd.Series) -> str:
     if not np.isfinite(row["ci_low"]):
         text = f"{row['effect']:+.3g} (no interval)"
     else:
-        text = f"{row['effect']:+.3g} [{row['ci_low']:+.3g}, {row['ci_high']:+.3g}]"
+        low, high = outward(row["ci_low"], row["ci_high"], significant=3)
+        text = f"{row['effect']:+.3g} [{low}, {high}]"
     if row["indicative"]:
         return f"{text} {_n(row)}, indicative"
     return f"{text} {_n(row)}" + (" *" if row["marked"] else "")
@@ -505,6 +525,15 @@ def _table(task: str, data: pd.DataFrame, length: str = "") -> Table:
     )
 
 
+def _corner_cell(r: pd.Series) -> str:
+    """A corner's mean with its 95% interval (on the log scale for a positive quantity), rounded
+    outward; no interval below :data:`MIN_N_INTERVAL` trials."""
+    if not np.isfinite(r["ci_low"]):
+        return f"{r['mean']:.4g} n={int(r['trials'])} (no interval)"
+    low, high = outward(r["ci_low"], r["ci_high"], significant=4)
+    return f"{r['mean']:.4g} [{low}, {high}] n={int(r['trials'])}"
+
+
 def _interaction_table(audit: Audit) -> Table | None:
     corners = audit.corners
     if corners is None:
@@ -512,10 +541,7 @@ def _interaction_table(audit: Audit) -> Table | None:
     quantities = [q.name for q in QUANTITIES if q.name in set(corners["quantity"])]
     rows: list[tuple[str, ...]] = []
     for (corner, _), group in corners.groupby(["corner", "switched"], sort=False):
-        cells = {
-            r["quantity"]: (f"{r['mean']:.4g} [{r['ci_low']:.4g}, {r['ci_high']:.4g}] n={int(r['trials'])}" if np.isfinite(r["ci_low"]) else f"{r['mean']:.4g} n={int(r['trials'])}")
-            for _, r in group.iterrows()
-        }
+        cells = {r["quantity"]: _corner_cell(r) for _, r in group.iterrows()}
         rows.append((f"mean, {INTERACTION_PRESET} + {corner}", *(cells.get(q, "—") for q in quantities)))
     note = "no contrast (a corner is missing)"
     if audit.interactions is not None:
@@ -634,6 +660,7 @@ def gap_explained_by(
     paper: str,
     config: dict[str, Any] | None = None,
     margin: float | None = None,
+    interval: tuple[float, float] | None = None,
 ) -> str | None:
     """What accounts for the gap between a measured value and the paper's (a scoreboard row):
     the audit rows of ``task`` whose measured effects on ``quantity``, from ``preset``, add up to
@@ -641,7 +668,10 @@ def gap_explained_by(
     (``margin``: the scoreboard's, :mod:`lagrseq.analysis.margins`; without one,
     :func:`lagrseq.analysis.inference.margin_for`: 10% of the paper's value or its own +-), with
     their sum; or the interaction run that does so (fields switched together); or ``partly``, or
-    ``unexplained``. Only effects marked by the audit (Holm, enough trials) count, or, where none
+    ``unexplained``. ``interval``: the 95% interval of ``measured - paper`` the scoreboard's test
+    reads; where it holds 0 there is no gap to explain ("no gap shown"), where it lies inside
+    ``± margin`` none beyond the margin; without it the point gap is compared with the margin.
+    Only effects marked by the audit (Holm, enough trials) count, or, where none
     is marked, intervals that exclude 0 on fewer trials (said to be indicative). A row the audit
     never measured (another quantity; a run whose ``config`` differs from the audited preset's,
     such as another temperature or stack size) says so. None where the logs hold no audit of
@@ -669,8 +699,13 @@ def gap_explained_by(
     if margin is None or not math.isfinite(margin):
         margin = inference.margin_for(value, float(found.group(2)) if found.group(2) else None)
     gap = value - measured
-    if abs(gap) <= margin:
-        return f"no gap beyond the margin (gap {_signed(gap)}, margin ±{margin:.3g})"
+    if interval is not None and math.isfinite(interval[0]) and math.isfinite(interval[1]):
+        if interval[0] <= 0.0 <= interval[1]:
+            return f"no gap shown (the test's 95% interval [{interval[0]:.3g}, {interval[1]:.3g}] holds 0)"
+        if -margin <= interval[0] and interval[1] <= margin:
+            return f"no gap beyond the margin (the test's 95% interval lies inside ±{margin:.3g})"
+    elif abs(gap) <= margin:
+        return f"no gap beyond the margin (point gap {_signed(gap)}, margin ±{margin:.3g}; no interval)"
     source = f"{anchor}, {made.provider}"
     rows = made.data[(made.data["preset"] == preset) & (made.data["quantity"] == quantity)]
     same_way = rows[np.sign(rows["effect"]) == np.sign(gap)]

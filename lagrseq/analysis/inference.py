@@ -28,6 +28,13 @@ Verdicts are three-way and never read from overlapping intervals:
   margin. Use it only where every pair is matched by construction; else :func:`noninferiority`.
 * :func:`holm` adjusts a family of p-values (Holm's step-down), so marks over many comparisons
   keep the family-wise error at alpha.
+* :func:`log_ratio_tost` is :func:`tost` on the log scale for a positive quantity (a count, a
+  ratio): Cox's term for a skewed arm's spread in each arm's variance (:func:`log_variance`) and
+  the smaller arm's degrees of freedom (:func:`hsu_df`); :func:`min_half_width` is the narrowest
+  interval a test against a paper value can reach, and :func:`judge_untestable` the two-valued
+  verdict (:data:`CONSISTENT` or ``differs``) of a row whose margin is narrower.
+* :func:`positive_mean_interval` is the modified Cox interval of a positive quantity's mean;
+  :func:`jonckheere` and :func:`direction` test a trend's direction on per-trial values.
 """
 
 from __future__ import annotations
@@ -53,6 +60,9 @@ ALPHA = 0.05
 MIN_N_REPRODUCED = 5
 """No verdict (reproduced or differs) on fewer trials than this: below it a t interval is honest
 but so wide (t(0.975, 3) = 3.18) that a verdict would rest on one or two trials."""
+MIN_N_INTERVAL = 3
+"""No interval is shown on fewer trials than this: at n = 2 (t(0.975, 1) = 12.7) a 95% interval
+of a count spans orders of magnitude and says nothing."""
 MIN_N_NONINFERIORITY = 10
 """No policy is called non-inferior (or inferior) on fewer evaluation trials than this."""
 RELATIVE_MARGIN = 0.10
@@ -503,3 +513,201 @@ def holm(pvalues: Sequence[float] | np.ndarray) -> np.ndarray:
         running = max(running, min(1.0, (m - rank) * float(p[index])))
         out[index] = running
     return out
+
+
+# -- tests on the log scale, testability, monotone trends -----------------------------------------
+
+CONSISTENT = "consistent with the paper (interval holds 0), not testable to the margin"
+"""The verdict of a row whose scale cannot reach ``reproduced`` (:func:`min_half_width` is wider
+than its margin) and whose 95% interval of ``lagrseq - paper`` holds 0."""
+
+
+def hsu_df(*estimates: Estimate) -> float:
+    """The conservative degrees of freedom of a difference of independent estimates: the smallest
+    of theirs (Hsu's rule; Welch-Satterthwaite under-covers against a skewed arm known only by its
+    mean and standard error, ``benchmarks/coverage_skew.py``)."""
+    return float(min(e.df for e in estimates))
+
+
+@dataclass(frozen=True)
+class LogRatio:
+    """``log(ours / paper)`` of two positive estimates: its value, its standard error (per arm
+    :func:`log_variance`) and :func:`hsu_df` degrees of freedom."""
+
+    value: float
+    se: float
+    df: float
+    n: int
+
+    def interval(self, level: float) -> tuple[float, float]:
+        """The t interval of the log ratio at ``level``."""
+        if math.isnan(self.se) or math.isnan(self.value) or not self.df > 0:
+            return math.nan, math.nan
+        half = t_ppf(0.5 + level / 2.0, self.df) * self.se
+        return self.value - half, self.value + half
+
+
+def log_variance(e: Estimate) -> float:
+    """The variance of ``log(e.value)`` for a positive mean of skewed values: the delta method's
+    ``(se / value)^2`` plus Cox's term for the uncertainty of the spread, ``s^4 / (2 df)`` with
+    ``s^2 = log(1 + cv^2)`` and ``cv = se sqrt(n) / value`` (the values' coefficient of variation);
+    without it a 95% interval of the log ratio covers 92% against a skewed arm of 10 runs
+    (``benchmarks/coverage_skew.py``)."""
+    relative = e.se / e.value
+    s2 = math.log1p(relative * relative * max(e.n, 1))
+    return relative * relative + (s2 * s2 / (2.0 * e.df) if e.df > 0 else 0.0)
+
+
+def log_ratio(ours: Estimate, paper: Estimate) -> LogRatio:
+    """:class:`LogRatio` of lagrseq's estimate over the paper's (NaN where either is not positive)."""
+    if not (ours.value > 0 and paper.value > 0) or math.isnan(ours.se) or math.isnan(paper.se):
+        return LogRatio(math.nan, math.nan, math.nan, ours.n)
+    se = math.sqrt(log_variance(ours) + log_variance(paper))
+    return LogRatio(math.log(ours.value / paper.value), se, hsu_df(ours, paper), ours.n)
+
+
+def log_ratio_tost(
+    ours: Estimate, paper: Estimate, margin: float, scale: float, alpha: float = ALPHA, min_n: int = MIN_N_REPRODUCED,
+    testable: bool = True,
+) -> Equivalence:
+    """The TOST of a positive quantity on the log scale: the interval of ``log(ours / paper)``
+    (:func:`log_ratio`), shown in the quantity's units as ``scale * (exp(d) - 1)`` (``scale``: the
+    paper's value, so the interval is ``lagrseq - paper`` at the paper's value; a negative
+    ``scale`` turns it around, as for a reduction ``1 - ratio`` in points: ``-100 * ratio``), and
+    judged against ``± margin`` in those units (:func:`judge`, or :func:`judge_untestable`)."""
+    d = log_ratio(ours, paper)
+
+    def shown(level: float) -> Interval:
+        low, high = d.interval(level)
+        ends = sorted((scale * math.expm1(low), scale * math.expm1(high))) if not math.isnan(low) else [math.nan, math.nan]
+        return Interval(ours.n, scale * math.expm1(d.value) if not math.isnan(d.value) else math.nan, ends[0], ends[1], level)
+
+    inner, wide = shown(1.0 - 2.0 * alpha), shown(1.0 - alpha)
+    return judge(inner, wide, 0.0, margin, min_n) if testable else judge_untestable(inner, wide, 0.0, margin, min_n)
+
+
+def judge_untestable(inner: Interval, wide: Interval, target: float, margin: float, min_n: int = MIN_N_REPRODUCED) -> Equivalence:
+    """The two-valued verdict of a row that cannot reach ``reproduced`` at the paper's precision:
+    :data:`CONSISTENT` where the (1 - alpha) interval holds ``target``, else :data:`DIFFERS`
+    (beyond the margin, or at least from the paper's value); fewer than ``min_n`` trials is
+    :data:`NO_VERDICT`."""
+    if wide.n < min_n or inner.n < min_n:
+        return Equivalence(NO_VERDICT, target, margin, inner, wide, f"n = {inner.n} < {min_n}: no verdict below {min_n} trials")
+    if math.isnan(wide.low):
+        return Equivalence(INCONCLUSIVE, target, margin, inner, wide, f"n = {inner.n}: no interval")
+    if wide.low <= target <= wide.high:
+        return Equivalence(CONSISTENT, target, margin, inner, wide, "the 95% interval holds the paper's value; the paper's own ± is too wide for its margin")
+    beyond = wide.high < target - margin or wide.low > target + margin
+    why = "the 95% interval excludes the margin band" if beyond else "the 95% interval excludes the paper's value (not beyond its margin)"
+    return Equivalence(DIFFERS, target, margin, inner, wide, why)
+
+
+def min_half_width(paper: Estimate, n: int, alpha: float = ALPHA, log: bool = False) -> float:
+    """The smallest half-width of the (1 - 2 alpha) interval of ``lagrseq - paper`` that ``n`` of
+    lagrseq's trials could reach, however small their spread: on the log scale (``log``, the
+    interval of :func:`log_ratio` with :func:`hsu_df`) ``t(df) * sqrt(log_variance(paper))``; on the raw scale the
+    smallest ``t(df(s)) * sqrt(s^2 + se_p^2)`` over lagrseq's standard error ``s >= 0``
+    (Welch-Satterthwaite df). A row whose margin is narrower cannot read ``reproduced``."""
+    level = 1.0 - alpha
+    if n < 2 or math.isnan(paper.se):
+        return math.inf
+    if log:
+        if not paper.value > 0:
+            return math.inf
+        return t_ppf(level, min(float(n - 1), paper.df)) * math.sqrt(log_variance(paper))
+    if paper.se == 0.0:
+        return 0.0
+    best = math.inf
+    for k in range(0, 401):
+        s = paper.se * k / 100.0
+        variances = [s * s, paper.se * paper.se]
+        df = satterthwaite(variances, [float(n - 1), paper.df])
+        best = min(best, t_ppf(level, df) * math.sqrt(sum(variances)))
+    return best
+
+
+@dataclass(frozen=True)
+class Monotone:
+    """Jonckheere-Terpstra's test of ordered groups: the statistic ``J`` (pairs of values, one from
+    an earlier group and one from a later, where the later is larger; ties count half), its
+    permutation p-values for a rise and for a fall, and the adjacent steps' Welch 95% intervals."""
+
+    statistic: float
+    p_rise: float
+    p_fall: float
+    steps: tuple[Interval, ...]
+    n: int
+
+
+def _pairs_below(values: np.ndarray) -> np.ndarray:
+    """``C[a, b]``: 1 where value a < value b, 0.5 where equal, else 0."""
+    x = values[:, None]
+    return (x < values[None, :]).astype(float) + 0.5 * (x == values[None, :])
+
+
+def jonckheere(groups: Sequence[Sequence[float] | np.ndarray], rng: np.random.Generator, resamples: int = 10_000) -> Monotone:
+    """Jonckheere-Terpstra's test that the groups (in order) rise, by ``resamples`` random
+    relabellings of the pooled values drawn from ``rng`` (ties count half): ``p_rise`` is the share
+    of relabellings whose statistic is at least the observed one (with the observed counted),
+    ``p_fall`` the same for at most. ``steps``: Welch's 95% interval of each adjacent step."""
+    clean = [_finite(g) for g in groups]
+    if len(clean) < 2 or any(g.size == 0 for g in clean):
+        raise ValueError("a monotone test needs at least two non-empty groups")
+    pooled = np.concatenate(clean)
+    labels = np.concatenate([np.full(g.size, i) for i, g in enumerate(clean)])
+    below = _pairs_below(pooled)
+    k = len(clean)
+    upper = np.triu(np.ones((k, k)), 1)
+
+    def statistic(assigned: np.ndarray) -> np.ndarray:
+        onehot = (assigned[..., None] == np.arange(k)).astype(float)
+        between = np.einsum("...ai,ab,...bj->...ij", onehot, below, onehot)
+        return np.asarray((between * upper).sum(axis=(-2, -1)))
+
+    observed = float(statistic(labels))
+    shuffled = np.argsort(rng.random((resamples, pooled.size)), axis=1)
+    simulated = np.concatenate([statistic(labels[shuffled[i : i + 500]]) for i in range(0, resamples, 500)])
+    eps = 1e-9
+    p_rise = (1.0 + float(np.sum(simulated >= observed - eps))) / (resamples + 1.0)
+    p_fall = (1.0 + float(np.sum(simulated <= observed + eps))) / (resamples + 1.0)
+    steps = tuple(welch_interval(b, a) for a, b in zip(clean, clean[1:]))
+    return Monotone(observed, p_rise, p_fall, steps, int(min(g.size for g in clean)))
+
+
+def direction(test: Monotone, alpha: float = ALPHA, min_n: int = MIN_N_REPRODUCED) -> tuple[str, str]:
+    """(verdict, reason) on a claimed rise: ``reproduced`` when Jonckheere-Terpstra's rise is
+    significant (p < alpha) and no adjacent step falls significantly (its 95% interval below 0),
+    ``differs`` when the fall is significant, else ``inconclusive``; fewer than ``min_n`` trials
+    in a group is :data:`NO_VERDICT`."""
+    if test.n < min_n:
+        return NO_VERDICT, f"n = {test.n} < {min_n}: no verdict below {min_n} trials"
+    falling = [i for i, s in enumerate(test.steps) if s.high < 0]
+    if test.p_rise < alpha and not falling:
+        return REPRODUCED, f"Jonckheere-Terpstra p = {test.p_rise:.3g} for a rise; no step falls"
+    if test.p_fall < alpha:
+        return DIFFERS, f"Jonckheere-Terpstra p = {test.p_fall:.3g} for a fall"
+    if test.p_rise < alpha:
+        return INCONCLUSIVE, f"Jonckheere-Terpstra p = {test.p_rise:.3g} for a rise, but step {falling[0] + 1} falls"
+    return INCONCLUSIVE, f"no monotone trend shown (Jonckheere-Terpstra p = {test.p_rise:.3g} for a rise)"
+
+
+def positive_mean_interval(values: Sequence[float] | np.ndarray, level: float = 0.95, min_n: int = MIN_N_INTERVAL) -> Interval:
+    """The interval of the mean of a positive quantity's per-trial values (queries per run, a
+    ratio of returns): the modified Cox interval, ``exp(m + s^2 / 2 ± t(n - 1) sqrt(s^2 / n +
+    s^4 / (2 (n - 1))))`` with ``m``, ``s^2`` the mean and variance of the logs; it covers at least
+    93% at nominal 95% at the skew the tables measure (coefficient of variation up to 1.2, log-normal
+    or gamma, n >= 3; ``benchmarks/coverage_skew.py``), where the delta-method log interval of the
+    mean (:meth:`Estimate.log_interval`) falls to 89%. With a value of 0 (no log) it is that log
+    interval; no interval below ``min_n`` values. ``mean``: the sample mean."""
+    x = _finite(values)
+    n = int(x.size)
+    estimate = mean_estimate(x)
+    if n < max(2, min_n):
+        return Interval(n, estimate.value, math.nan, math.nan, level)
+    if bool(np.any(x <= 0)):
+        return estimate.log_interval(level)
+    logs = np.log(x)
+    m, s2 = float(logs.mean()), float(logs.var(ddof=1))
+    half = t_ppf(0.5 + level / 2.0, n - 1) * math.sqrt(s2 / n + s2 * s2 / (2.0 * (n - 1)))
+    centre = m + s2 / 2.0
+    return Interval(n, estimate.value, math.exp(centre - half), math.exp(centre + half), level)

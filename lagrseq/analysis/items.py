@@ -19,7 +19,7 @@ import pandas as pd
 from matplotlib.axes import Axes
 
 from lagrseq import config as cfg
-from lagrseq.analysis import figures, stats
+from lagrseq.analysis import figures, inference, stats
 from lagrseq.analysis import provenance as prov
 from lagrseq.analysis.loading import ACCURACY_METHOD, Run
 from lagrseq.analysis.misses import Misses, count_misses
@@ -354,10 +354,10 @@ def build_returns(item: Item, matched: Sequence[Match]) -> Built:
 
 
 def _summary_row(label: str, values: np.ndarray, run: Run) -> tuple[stats.Summary, dict[str, Any]]:
-    """Summary of per-trial counts with the t interval of the mean on the log scale (the same for
-    one run in every table and figure that shows it; it never reaches below 0), and the
-    provenance of the run."""
-    s = stats.summarize_t(values, positive=True)
+    """Summary of per-trial counts with the interval of the mean of a positive quantity
+    (:func:`lagrseq.analysis.inference.positive_mean_interval`: the same for one run in every table
+    and figure that shows it; it never reaches below 0), and the provenance of the run."""
+    s = _positive_summary(values)
     row = {
         "label": label,
         "provenance": made_by(run),
@@ -369,6 +369,14 @@ def _summary_row(label: str, values: np.ndarray, run: Run) -> tuple[stats.Summar
         "ci_high": s.ci_high,
     }
     return s, row
+
+
+def _positive_summary(values: np.ndarray) -> stats.Summary:
+    """Mean, spread and the positive quantity's interval of per-trial values (none below
+    :data:`lagrseq.analysis.inference.MIN_N_INTERVAL`)."""
+    mean, std, se = stats.mean_std_se(values)
+    shown = inference.positive_mean_interval(values)
+    return stats.Summary(int(np.asarray(values).size), mean, std, se, shown.low, shown.high)
 
 
 def build_query_bars(item: Item, matched: Sequence[Match]) -> Built:
@@ -394,11 +402,11 @@ def build_query_bars(item: Item, matched: Sequence[Match]) -> Built:
     axes = figures.bars(bars, title=item.title)
     table = Table(
         f"{item.title}: LLM queries per trial",
-        ("", "made by", "trials", "mean ± s.e.", "std", "95% t interval (log scale)"),
+        ("", "made by", "trials", "mean ± s.e.", "std", "95% interval (modified Cox)"),
         tuple(display),
         pd.DataFrame(rows),
     )
-    method = "LLM queries per trial (summed over its episodes): bars are means, error bars the table's 95% t interval of the mean on the log scale (asymmetric, never below 0; the table also gives mean ± s.e.); each bar says what made it (provenance)."
+    method = "LLM queries per trial (summed over its episodes): bars are means, error bars the table's 95% interval of the mean (modified Cox, from the logs of the per-trial values: asymmetric, never below 0, none below 3 trials; the table also gives mean ± s.e.); each bar says what made it (provenance)."
     return Built(axes, pd.DataFrame(rows), [(item.id, table)], method)
 
 
@@ -469,7 +477,7 @@ def build_query_table(item: Item, matched: Sequence[Match]) -> Built:
         tuple(display),
         pd.DataFrame(data),
     )
-    method = "LLM queries per run (trial), mean ± standard error over trials (n per cell), next to the paper's values, each row with what made it (provenance); the CSV adds the standard deviation and a 95% t interval of the mean on the log scale (it never reaches below 0). On recorded answers, each cell shows its misses (answers the store lacked: k of n, refused or answered by a fallback that can be right) and, for such a fallback, the trials whose first accepted answer came from it."
+    method = "LLM queries per run (trial), mean ± standard error over trials (n per cell), next to the paper's values, each row with what made it (provenance); the CSV adds the standard deviation and a 95% interval of the mean (modified Cox, from the logs of the per-trial values: it never reaches below 0; none below 3 trials). On recorded answers, each cell shows its misses (answers the store lacked: k of n, refused or answered by a fallback that can be right) and, for such a fallback, the trials whose first accepted answer came from it."
     stopped = [run for _, run in _present(matched) if (run.config.get("run") or {}).get("stop_at") == "first_accepted"]
     if stopped:
         kept = all((run.config.get("lagr") or {}).get("solution_scope") == "trial" for run in stopped)
@@ -484,8 +492,11 @@ def build_query_table(item: Item, matched: Sequence[Match]) -> Built:
     if any(m.row.endswith(f"({MISS_ROWS['calibrated']})") for m in matched):
         method += (
             " Rows on the authors' answers are made three ways, by what answered a prompt the store lacks: a refusal "
-            "(never accepted), a calibrated draw (accepted at the rate the authors' answers show for prompts with as "
-            "many cells shown, fixed per prompt: fitted), or the rule-based mock: a sensitivity band."
+            "(never accepted: an upper bound), a calibrated draw (accepted at a rate for prompts with as many cells shown, "
+            "drawn per trial from the Beta posterior of the authors' answers' rate, then fixed per prompt: fitted; read it as "
+            "consistent with the paper where the interval holds the paper's value, compare its spread with the paper's ±, and "
+            "mind that the rates were fitted to the images the authors' runs met and that most of its trials are decided by a "
+            "draw, as each cell counts), or the rule-based mock: a sensitivity band."
         )
     return Built(None, None, [(item.id, table)], method)
 
@@ -508,7 +519,7 @@ def build_ratio_table(item: Item, matched: Sequence[Match]) -> Built:
         if top is None or bottom is None:
             return None
         values = stats.paired_ratios(top.total_per_trial("return"), bottom.total_per_trial("return"))
-        return stats.summarize_t(values, positive=True), top, bottom
+        return _positive_summary(values), top, bottom
 
     def shown(made: tuple[stats.Summary, Run, Run] | None, row: str, column: str) -> str:
         if made is None:
@@ -574,7 +585,7 @@ def build_ratio_table(item: Item, matched: Sequence[Match]) -> Built:
     beside_text = "".join(f"; {c}'s ratio over the same trials beside it" for c in others)
     method = (
         f"Per trial, the total return of {numerator} divided by that of {denominator} with the same trial index "
-        f"(same seed){beside_text}; mean ± standard error over trials (n per cell), and a 95% t interval of the mean on the log scale in the CSV (a ratio of returns is positive; the interval stays so)."
+        f"(same seed){beside_text}; mean ± standard error over trials (n per cell), and a 95% interval of the mean in the CSV (modified Cox, from the logs of the per-trial ratios: a ratio of returns is positive and the interval stays so; none below 3 trials)."
     )
     return Built(None, None, [(item.id, table)], method)
 

@@ -25,6 +25,7 @@ states none).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 QUERIES = "queries per run"
@@ -127,3 +128,23 @@ def margin(item_id: str, key: str) -> Margin | None:
 
 def paper_sample(item_id: str) -> PaperSample | None:
     return PAPER_SAMPLES.get(family(item_id))
+
+
+TREND_SHARE = 0.25
+"""A trend's size margin: a quarter of the paper's slope (as a ratio's margin is a quarter of
+its advantage), computed from the same cells as the slope it judges."""
+
+
+def slope_margin(paper_slope: float, unit: str) -> Margin:
+    """The margin of a trend's size: ± :data:`TREND_SHARE` of the paper's slope over the same cells."""
+    value = TREND_SHARE * abs(paper_slope)
+    return Margin(unit, value, f"a quarter of the paper's slope over the same cells ({paper_slope:+.4g} {unit})")
+
+
+def holds_threshold(levels: Sequence[float], xs: Sequence[float]) -> Margin:
+    """The "holds" threshold of a reduction's slope over ``xs``: it falls by less than
+    :data:`TREND_SHARE` of the paper's mean level over the range, from the same cells."""
+    mean = sum(levels) / len(levels)
+    span = max(xs) - min(xs)
+    value = -TREND_SHARE * mean / span
+    return Margin(POINTS_PER_TAU, value, f"SEQ's reduction holds: it falls by less than 25% of the paper's mean reduction ({mean:.4g} points) over the range", "holds")

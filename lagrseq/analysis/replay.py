@@ -517,6 +517,9 @@ def _make(
     )
     _write(out / "scoreboard.md", to_markdown(board), written)
     _write(out / "tables" / "scoreboard.csv", to_csv(board.data), written)
+    testable = scoreboard.testability(board)  # which rows can read reproduced at the paper's precision
+    _write(out / "tables" / "scoreboard-testability.md", to_markdown(testable), written)
+    _write(out / "tables" / "scoreboard-testability.csv", to_csv(testable.data), written)
     for made in audits:  # lagrseq audit runs in these logs: what each deviation does (and its interaction runs)
         for stem, table, fig in audit.outputs(made):
             _write(out / "tables" / f"{stem}.md", to_markdown(table), written)

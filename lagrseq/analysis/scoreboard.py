@@ -4,26 +4,29 @@ For each reference value of a table item (Table 2, Table 3, the stack-size ratio
 reductions those tables imply (1 - LaGR-SEQ / LaGR) and the trends the paper claims over a table's
 rows (Table 2: queries rise with tau, SEQ's reduction holds across tau; the appendix: LaGR's
 advantage grows with stack size), one row per source the logs hold: what made the number
-(:mod:`lagrseq.analysis.provenance`), lagrseq's mean with its 95% interval and n (counts and ratios
-on the log scale, so it never leaves their range; a slope's t interval), and a verdict:
+(:mod:`lagrseq.analysis.provenance`), lagrseq's mean with its 95% interval and n (a positive
+quantity's modified Cox interval, :func:`lagrseq.analysis.inference.positive_mean_interval`; a
+slope's t interval; none below 3 trials), the test and a verdict (docs/verdicts.md):
 
-* against a paper value, a two-sample Welch TOST of lagrseq's mean against the paper's value with
-  the paper's own ± (a standard error) and n (:func:`lagrseq.analysis.inference.tost`):
-  ``reproduced`` (the 90% interval of the difference lies inside ± margin), ``differs`` (the 95%
-  interval lies outside) or ``inconclusive``;
-* for a trend, the slope against a threshold (:func:`lagrseq.analysis.inference.above`);
-* ``fitted`` for a fitted number whatever its interval; **no verdict** where any trial's first
-  accepted answer came from a fallback (:func:`lagrseq.analysis.provenance.decided_by_fallback`;
-  the row says how many trials), where lagrseq has fewer than
-  :data:`lagrseq.analysis.inference.MIN_N_REPRODUCED` trials, or where the paper gives no value.
+* a count, a ratio or a reduction: a TOST of the log ratio of lagrseq's value over the paper's,
+  with the paper's own ± and n (:func:`lagrseq.analysis.inference.log_ratio_tost`), shown in the
+  quantity's units at the paper's value. Where the paper's ± alone leaves the margin out of reach
+  (:func:`lagrseq.analysis.inference.min_half_width`) the row is two-valued: consistent with the
+  paper (its 95% interval holds 0) or differs; :func:`testability` lists which rows and why. A
+  reduction is a magnitude check (:data:`MAGNITUDE`);
+* a trend: its direction by Jonckheere-Terpstra's test of the per-trial values, its size by a
+  Welch TOST of the slope against the paper's slope over the same cells (margin: a quarter of it);
+  a measure the paper never reports says so (:data:`MEASURE_RISES`) and never reads reproduced;
+* ``fitted`` for a fitted number whatever its interval; a bound (:data:`BOUND`) for a row built to
+  run to one side (misses refused); **no verdict** where any trial's first accepted answer came
+  from a fallback, below :data:`lagrseq.analysis.inference.MIN_N_REPRODUCED` trials, or where the
+  paper gives no value. A fitted row with the decisions of an authors' answers row reads as it.
 
-Every margin and threshold, its scale and why, is in one table, :mod:`lagrseq.analysis.margins`,
-fixed from the paper's numbers. Beside the paper's stack-size ratio (total return over 100
-episodes, ~1 by construction once Q-learning levels off) the table adds lagrseq's early measure:
-the same ratio over the first :data:`lagrseq.analysis.margins.EARLY_EPISODES` episodes. The last
-column says what explains the gap: a callable that :func:`build` takes (``explain``); by default,
-where the logs hold an audit of the row's task, :func:`lagrseq.analysis.audit.gap_explained_by`
-(within the row's margin), else a link to the item.
+Every label is one constant here (:data:`LABELS`). Every margin, its scale and why, is in
+:mod:`lagrseq.analysis.margins`. The last column says what explains a gap: nothing below 5 trials,
+:data:`NO_GAP` where the test's interval holds 0, else a callable :func:`build` takes
+(``explain``; by default the audit's attribution, :func:`lagrseq.analysis.audit.gap_explained_by`,
+or a link to the item).
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -41,7 +44,7 @@ from lagrseq.analysis import audit, inference, margins, stats
 from lagrseq.analysis import provenance as prov
 from lagrseq.analysis.items import ItemFailure, Match
 from lagrseq.analysis.loading import Run
-from lagrseq.analysis.tables import Table
+from lagrseq.analysis.tables import Table, interval
 from lagrseq.registry import kind_of
 from lagrseq.suite import (
     MISS_ROWS,
@@ -136,7 +139,7 @@ def default_explanation(audits: Sequence[audit.Audit | str]) -> Explain:
         if built and row["task"] in named:
             found = audit.gap_explained_by(
                 built, row["task"], row["preset"], row["quantity"], row["mean"], row["paper"], row["_config"],
-                margin=row.get("margin"),
+                margin=row.get("margin"), interval=(row.get("test_low95", math.nan), row.get("test_high95", math.nan)),
             )
             if found:
                 return found
@@ -145,30 +148,178 @@ def default_explanation(audits: Sequence[audit.Audit | str]) -> Explain:
     return explain
 
 
+VERDICTS = (
+    inference.REPRODUCED,
+    inference.DIFFERS,
+    inference.INCONCLUSIVE,
+    inference.CONSISTENT,
+    inference.FITTED,
+    inference.NO_VERDICT,
+)
+"""Every verdict a judged row can show (the CSV's ``verdict``), beside :data:`LABELS`."""
+MAGNITUDE = "magnitude reproduced (magnitude check)"
+"""A reduction row whose TOST reads ``reproduced``: its margin (25% of the paper's reduction)
+holds every τ cell of the table, so it checks SEQ's reduction's size, not one cell."""
+BOUND = "bound (no verdict)"
+"""A row built to run to one side (Table 3's "misses refused": a miss is never accepted, so it
+runs high): a bound, shown with the band the other miss rows span; never judged."""
+MEASURE_RISES = "rises (lagrseq's measure)"
+MEASURE_FALLS = "falls (lagrseq's measure)"
+MEASURE_FLAT = "no monotone trend shown (lagrseq's measure)"
+"""The direction of a trend of a measure the paper never reports: never ``reproduced``."""
+FAILED_VERDICT = "failed"
+"""The verdict column of an item whose runs failed (shown as FAILED)."""
+LABELS = (*VERDICTS, MAGNITUDE, BOUND, MEASURE_RISES, MEASURE_FALLS, MEASURE_FLAT, FAILED_VERDICT)
+"""Every verdict label the scoreboard writes (the CSV's ``verdict`` column), in one place."""
+NO_GAP = "no gap shown (the test's 95% interval holds 0)"
+"""The gap column where the test's interval holds the paper's value."""
+
+LOG, REDUCTION_ROW, DIRECTION, SIZE, HOLDS = "log ratio", "reduction", "direction", "size", "holds"
+"""How a row is tested (the CSV's ``test``): TOST of the log ratio (counts and ratios), the same
+for a reduction (the ratio SEQ / LaGR), Jonckheere-Terpstra's monotone test (a trend's
+direction), a slope's Welch TOST against the paper's slope (its size), a slope against a "holds"
+threshold."""
+
+
 @dataclass(frozen=True)
 class _Part:
     """lagrseq's side of one scoreboard row: its estimate, the interval shown (95%, inside the
-    quantity's range), what made it and how many trials a fallback decided."""
+    quantity's range), what made it and how many trials a fallback decided; ``values``: the
+    per-trial values behind it (a count or a ratio), ``ratio``: a reduction's ratio SEQ / LaGR."""
 
     estimate: inference.Estimate
     shown: inference.Interval
     made: prov.Provenance
     decided: int
     trials: int
+    values: np.ndarray | None = None
+    ratio: inference.Estimate | None = None
 
 
-def _part(runs: Sequence[Run], estimate: inference.Estimate, shown: inference.Interval) -> _Part:
+def _part(runs: Sequence[Run], estimate: inference.Estimate, shown: inference.Interval, values: np.ndarray | None = None,
+          ratio: inference.Estimate | None = None) -> _Part:
     """The part made from ``runs``: the weakest provenance of them; the trials a fallback decided
     out of the trials of the runs that asked a store (a baseline asks nothing)."""
     made = prov.combined([prov.of_run(r) for r in runs])
+    if estimate.n < inference.MIN_N_INTERVAL:
+        shown = inference.Interval(estimate.n, estimate.value, math.nan, math.nan, shown.level)
     decided = [prov.decided_by_fallback(r) for r in runs]
     asking = [d for d, r in zip(decided, runs, strict=True) if prov.replays(r)]
-    return _Part(estimate, shown, made, sum(sum(d) for d in decided), sum(len(d) for d in asking))
+    return _Part(estimate, shown, made, sum(sum(d) for d in decided), sum(len(d) for d in asking), values, ratio)
 
 
 def _count_part(run: Run) -> _Part:
-    estimate = inference.mean_estimate(_queries(run))
-    return _part([run], estimate, estimate.log_interval(0.95))
+    values = _queries(run)
+    return _part([run], inference.mean_estimate(values), inference.positive_mean_interval(values), values)
+
+
+@dataclass(frozen=True)
+class _Judged:
+    """A row's test: the verdict it reads, why, its 90% and 95% intervals (of ``lagrseq - paper``,
+    or the slope), the difference, whether the row can reach ``reproduced`` and the smallest
+    half-width lagrseq's n could reach."""
+
+    verdict: str
+    reason: str
+    d90: inference.Interval
+    d95: inference.Interval
+    difference: float = math.nan
+    df: float = math.nan
+    testable: bool | None = None
+    min_half: float = math.nan
+    test: str = ""
+    p: float = math.nan
+
+
+def _untested(n: int, reason: str) -> _Judged:
+    blank = inference.Interval(n, math.nan, math.nan, math.nan, 0.9)
+    return _Judged(inference.NO_VERDICT, reason, blank, blank)
+
+
+def _log_band_width(margin: float, scale: float) -> float:
+    """The width, on the log scale, of the band ``± margin`` around a value ``|scale|``."""
+    a = abs(scale)
+    return math.log1p(margin / a) - math.log1p(-margin / a) if margin < a else math.inf
+
+
+def _judge_log(ours: inference.Estimate, paper: inference.Estimate, margin: float, scale: float, test: str) -> _Judged:
+    """A TOST of a positive quantity on the log scale, shown in its units (scale: see
+    :func:`lagrseq.analysis.inference.log_ratio_tost`), two-valued where the paper's ± leaves the
+    margin out of reach."""
+    half = inference.min_half_width(paper, ours.n, log=True)
+    testable = 2.0 * half < _log_band_width(margin, scale)
+    judged = inference.log_ratio_tost(ours, paper, margin, scale, testable=testable)
+    d = inference.log_ratio(ours, paper)
+    return _Judged(judged.verdict, judged.reason, judged.interval, judged.wide, judged.interval.mean, d.df, testable,
+                   abs(scale) * math.expm1(half), test)
+
+
+def _judge_value(ours: inference.Estimate, paper: inference.Estimate, margin: float, test: str) -> _Judged:
+    """A two-sample Welch TOST on the raw scale (a slope against the paper's), two-valued where the
+    paper's ± leaves the margin out of reach."""
+    half = inference.min_half_width(paper, ours.n)
+    testable = half < margin
+    difference = inference.contrast([ours, paper], [1.0, -1.0])
+    inner, wide = difference.interval(0.9), difference.interval(0.95)
+    inner = inference.Interval(ours.n, inner.mean, inner.low, inner.high, inner.level)
+    judged = inference.judge(inner, wide, 0.0, margin) if testable else inference.judge_untestable(inner, wide, 0.0, margin)
+    return _Judged(judged.verdict, judged.reason, judged.interval, judged.wide, difference.value, difference.df, testable, half, test)
+
+
+def _judge_direction(groups: Sequence[np.ndarray], key: str, measure: bool) -> _Judged:
+    """Jonckheere-Terpstra's monotone test of per-trial ``groups`` in order (a rise claimed); a
+    measure the paper never reports reads :data:`MEASURE_RISES` and the like, never reproduced."""
+    test = inference.jonckheere(groups, stats.generator(f"jonckheere:{key}"))
+    verdict, reason = inference.direction(test)
+    blank = inference.Interval(test.n, math.nan, math.nan, math.nan, 0.9)
+    if measure and verdict != inference.NO_VERDICT:
+        verdict = {inference.REPRODUCED: MEASURE_RISES, inference.DIFFERS: MEASURE_FALLS}.get(verdict, MEASURE_FLAT)
+    return _Judged(verdict, reason, blank, blank, test=DIRECTION, p=test.p_rise)
+
+
+def _judge(item: Item, key: str, part: _Part, paper_est: inference.Estimate | None, paper: str, test: str,
+           groups: Sequence[np.ndarray] | None, margin: margins.Margin | None = None) -> tuple[_Judged, margins.Margin | None]:
+    """The test of one row by its kind (``test``), under ``margin`` or the margin of ``key`` in the
+    item's table."""
+    mg = margin if margin is not None else margins.margin(item.id, key)
+    ours = part.estimate
+    if mg is None:
+        if test == DIRECTION and groups is not None:
+            return _judge_direction(groups, f"{item.id}|{key}", measure=True), None
+        reason = "the paper gives no value of this measure (lagrseq's)" if paper_number(paper) is None else "no margin stated for this quantity"
+        return _untested(ours.n, reason), None
+    if test == DIRECTION and groups is not None:
+        return _judge_direction(groups, f"{item.id}|{key}", measure=paper_est is None), mg
+    if test == HOLDS:
+        trend = inference.above(ours, mg.value)
+        return _Judged(trend.verdict, trend.reason, trend.inner, trend.wide, ours.value, ours.df, None, math.nan, HOLDS), mg
+    if paper_est is None:
+        return _untested(ours.n, "the paper gives no ± for this value"), mg
+    if test == SIZE:
+        return _judge_value(ours, paper_est, mg.value, SIZE), mg
+    if test == REDUCTION_ROW and part.ratio is not None:
+        paper_ratio = _ratio_of_reduction(paper_est)
+        judged = _judge_log(part.ratio, paper_ratio, mg.value, -100.0 * paper_ratio.value, REDUCTION_ROW)
+        if judged.verdict == inference.REPRODUCED:
+            judged = _Judged(MAGNITUDE, judged.reason + "; a magnitude check: the margin holds every τ cell of the table",
+                             judged.d90, judged.d95, judged.difference, judged.df, judged.testable, judged.min_half, judged.test)
+        return judged, mg
+    return _judge_log(ours, paper_est, mg.value, paper_est.value, LOG), mg
+
+
+def _ratio_of_reduction(reduction: inference.Estimate) -> inference.Estimate:
+    """The ratio SEQ / LaGR behind a reduction in percent (:func:`_reduction` turned around)."""
+    return inference.Estimate(1.0 - reduction.value / 100.0, reduction.se / 100.0, reduction.df, reduction.n)
+
+
+def _shown_verdict(judged: _Judged, part: _Part) -> tuple[str, str]:
+    """The verdict shown: ``fitted`` for a fitted number, no verdict where a fallback decided a
+    trial, else the test's."""
+    if part.made.kind == prov.FITTED:
+        return inference.FITTED, part.made.why
+    if part.decided:
+        return inference.NO_VERDICT, f"the fallback decided {part.decided} of {part.trials} trials (their first accepted answer)"
+    return judged.verdict, judged.reason
 
 
 def build(
@@ -179,46 +330,33 @@ def build(
 ) -> Table:
     """The scoreboard of ``items`` (each with its matched runs). ``explain`` fills the last
     column from each row's data (default: :func:`default_explanation` of ``audits``: the audits
-    the logs hold, or the names of the tasks audited). ``failed``: items whose runs failed
-    (``lagrseq reproduce``), one row each after the others: FAILED, its reason, and the command
-    that reruns it in the last column."""
+    the logs hold, or the names of the tasks audited), where the test's interval does not hold 0
+    (:data:`NO_GAP`) and the row has at least :data:`lagrseq.analysis.inference.MIN_N_REPRODUCED`
+    trials. ``failed``: items whose runs failed (``lagrseq reproduce``), one row each after the
+    others: FAILED, its reason, and the command that reruns it in the last column."""
     rows: list[dict[str, Any]] = []
     explain = default_explanation(audits) if explain is None else explain
-    alpha = inference.ALPHA
 
     def add(item: Item, what: str, paper: str, m: Match, part: _Part, key: str, digits: int,
-            paper_est: inference.Estimate | None = None, quantity: str | None = None, kind: str = "value") -> None:
+            paper_est: inference.Estimate | None = None, quantity: str | None = None, kind: str = "value",
+            test: str = LOG, groups: Sequence[np.ndarray] | None = None, margin: margins.Margin | None = None) -> None:
         """One row: lagrseq's ``part`` against the paper's ``paper_est`` under the margin of
-        ``key`` in the item's table (a trend row: against the margin's threshold)."""
-        mg = margins.margin(item.id, key)
+        ``key`` in the item's table (``margin``: one computed from the row's own cells), tested as
+        ``test`` says."""
+        judged, mg = _judge(item, key, part, paper_est, paper, test, groups, margin)
+        if part.estimate.n < inference.MIN_N_INTERVAL:  # no interval on so few trials, in the test either
+            blank = inference.Interval(part.estimate.n, math.nan, math.nan, math.nan, 0.9)
+            judged = replace(judged, d90=blank, d95=blank)
         sample = margins.paper_sample(item.id)
         ours = part.estimate
-        difference = inference.contrast([ours, paper_est], [1.0, -1.0]) if paper_est is not None else None
-        judged_verdict, judged_reason = inference.NO_VERDICT, "no margin stated for this quantity"
-        d90 = d95 = inference.Interval(ours.n, math.nan, math.nan, math.nan, 0.9)
-        if mg is not None and mg.trend:
-            trend = inference.above(ours, mg.value, alpha)
-            judged_verdict, judged_reason = trend.verdict, trend.reason
-            d90, d95 = trend.inner, trend.wide
-        elif mg is not None and paper_est is not None:
-            judged = inference.tost(ours, paper_est, mg.value, alpha)
-            judged_verdict, judged_reason = judged.verdict, judged.reason
-            d90, d95 = judged.interval, judged.wide
-        elif mg is not None:
-            judged_reason = "the paper gives no ± for this value"
-        elif paper_number(paper) is None:
-            judged_reason = "the paper gives no value of this measure (lagrseq's)"
-        verdict, reason = judged_verdict, judged_reason
-        if part.made.kind == prov.FITTED:
-            verdict, reason = inference.FITTED, part.made.why
-        elif part.decided:
-            verdict, reason = inference.NO_VERDICT, f"the fallback decided {part.decided} of {part.trials} trials (their first accepted answer)"
+        verdict, reason = _shown_verdict(judged, part)
         row = {
             "item": item.id,
             "title": item.title.split(":")[0],
             "task": m.spec.task,
             "what": what,
             "kind": kind,
+            "test": judged.test,
             "paper": paper,
             "paper_value": paper_est.value if paper_est is not None else paper_number(paper),
             "paper_se": paper_est.se if paper_est is not None else math.nan,
@@ -227,21 +365,25 @@ def build(
             "scale": mg.scale if mg is not None else "",
             "margin": mg.value if mg is not None else math.nan,
             "margin_reason": mg.why if mg is not None else "",
-            "trend": mg.trend if mg is not None else "",
+            "trend": ("" if judged.test == SIZE else mg.trend) if mg is not None else "",
+            "testable": judged.testable,
+            "min_half_width": judged.min_half,
             "source": source_name(m.provider) + (f" ({m.spec.preset} preset)" if m.spec.preset != "upstream" else ""),
             "provenance": part.made.kind,
             "provenance_why": part.made.why + (f"; {m.misses.text()}" if m.misses is not None else ""),
+            "on_miss": m.spec.on_miss or "",
             "mean": ours.value,
             "se": ours.se,
             "ci_low": part.shown.low,
             "ci_high": part.shown.high,
             "trials": ours.n,
-            "difference": difference.value if difference is not None else math.nan,
-            "difference_df": difference.df if difference is not None else math.nan,
-            "test_low90": d90.low,
-            "test_high90": d90.high,
-            "test_low95": d95.low,
-            "test_high95": d95.high,
+            "difference": judged.difference,
+            "difference_df": judged.df,
+            "test_low90": judged.d90.low,
+            "test_high90": judged.d90.high,
+            "test_low95": judged.d95.low,
+            "test_high95": judged.d95.high,
+            "p_rise": judged.p,
             "fallback_decided": part.decided,
             "fallback_trials": part.trials,
             # a number made on a recorded store: its answers, those the store lacked, and what
@@ -252,14 +394,15 @@ def build(
             "misses_answered_by": m.misses.answered_by if m.misses is not None else None,
             "verdict": verdict,
             "verdict_reason": reason,
-            "test_verdict": judged_verdict,
+            "test_verdict": judged.verdict,
             "digits": digits,
             "note": m.note,
             "preset": m.spec.preset,
             "quantity": quantity,
             "_config": m.run.config if m.run is not None else None,
+            "_values": part.values,
         }
-        row["explained_by"] = explain(row)
+        row["explained_by"] = _gap(row, explain)
         rows.append(row)
 
     for item, matched in items:
@@ -271,18 +414,72 @@ def build(
             _query_rows(item, reference, present, add)
         elif item.render == "ratio-table":
             _ratio_rows(item, reference, present, add)
+    _bounds(rows)
+    _same_decisions(rows)
     rows += [_failed_row(item, failure) for item, failure in failed]
     display = [_display(r) for r in rows]
-    data = pd.DataFrame(rows).drop(columns=["digits", "_config"], errors="ignore")
+    data = pd.DataFrame(rows).drop(columns=["digits", "_config", "_values"], errors="ignore")
     return Table(
         "Scoreboard: the paper's numbers beside lagrseq's (mean [95% interval, on the log scale for counts and ratios] (n)); "
-        "the test against the paper's value with its ± and n (Welch TOST, 90% interval of lagrseq - paper) or, for a trend, "
-        "of the slope against its threshold; verdict: reproduced / ✗ differs / inconclusive within the stated margin, fitted, "
+        "the test against the paper's value with its ± and n (TOST of the log ratio for counts, ratios and reductions, shown as "
+        "lagrseq - paper at the paper's value; Welch TOST for a slope's size; Jonckheere-Terpstra for a trend's direction), "
+        "90% interval; verdict: reproduced / ✗ differs / inconclusive within the stated margin, or, where the paper's ± leaves "
+        "the margin out of reach, consistent (the 95% interval holds 0) / ✗ differs; fitted; a bound; "
         f"or no verdict (a fallback decided a trial; fewer than {inference.MIN_N_REPRODUCED} trials)",
         ("paper item", "quantity", "paper", "lagrseq source", "made by", "lagrseq", "test [90%]", "verdict", "gap explained by"),
         tuple(display),
         data,
     )
+
+
+def _gap(row: Mapping[str, Any], explain: Explain) -> str:
+    """The gap column: nothing below :data:`lagrseq.analysis.inference.MIN_N_REPRODUCED` trials,
+    :data:`NO_GAP` where the test's 95% interval of ``lagrseq - paper`` holds 0, else ``explain``."""
+    if row["trials"] < inference.MIN_N_REPRODUCED:
+        return f"— (n = {row['trials']} < {inference.MIN_N_REPRODUCED})"
+    low, high = row["test_low95"], row["test_high95"]
+    if row["test"] in (LOG, REDUCTION_ROW, SIZE) and math.isfinite(low) and low <= 0.0 <= high:
+        return NO_GAP
+    return explain(row)
+
+
+def _bounds(rows: list[dict[str, Any]]) -> None:
+    """A row built to run high (misses refused: a miss is never accepted) is a bound: no verdict,
+    shown with the band that the cell's miss rows span (refused to rule-based mock)."""
+    refused = MISS_ROWS["refuse"]
+    for row in rows:
+        if row["on_miss"] != "refuse" or f"({refused})" not in row["what"]:
+            continue
+        if row["test"] != LOG:  # a reduction of two counts that both run high bounds nothing
+            row["verdict"], row["verdict_reason"] = inference.NO_VERDICT, "a ratio of two rows that run high (misses refused) is no bound"
+            row["explained_by"] = "—"
+            continue
+        siblings = [r for r in rows if r["item"] == row["item"] and r["what"] == row["what"].replace(refused, MISS_ROWS["mock"])]
+        band = ""
+        if siblings and math.isfinite(siblings[0]["mean"]):
+            low, high = sorted((siblings[0]["mean"], row["mean"]))
+            inside = low <= (row["paper_value"] or math.nan) <= high
+            band = f"; the band [{low:.1f}, {high:.1f}] (misses refused to misses: rule-based mock) {'holds' if inside else 'does not hold'} the paper's value"
+        row["verdict"] = BOUND
+        row["verdict_reason"] = "a refused miss is never accepted, so this row runs high by construction: an upper bound" + band
+        row["explained_by"] = "a bound: see the band in the verdict"
+
+
+def _same_decisions(rows: list[dict[str, Any]]) -> None:
+    """A fitted row whose per-trial values equal those of an authors' answers row of the same
+    cell makes the same decisions: both read the same verdict, labelled so."""
+    authors = [r for r in rows if r["provenance"] == prov.AUTHORS and r["_values"] is not None]
+    for row in rows:
+        if row["provenance"] != prov.FITTED or row["_values"] is None:
+            continue
+        twin = next((a for a in authors if a["item"] == row["item"] and a["what"] == row["what"]
+                     and a["_values"].shape == row["_values"].shape and np.array_equal(a["_values"], row["_values"])), None)
+        if twin is None:
+            continue
+        note = f"the same decisions as {twin['source']} ({twin['provenance']}) and {row['source']} (fitted): identical per-trial values"
+        row["verdict"], row["verdict_reason"] = twin["verdict"], f"{twin['verdict_reason']}; {note}"
+        twin["verdict_reason"] = f"{twin['verdict_reason']}; {note}"
+        row["explained_by"] = twin["explained_by"]
 
 
 _Add = Callable[..., None]
@@ -293,35 +490,44 @@ def _display(r: Mapping[str, Any]) -> tuple[str, ...]:
         return (r["title"], r["what"], r["paper"], "—", "—", "FAILED", "n/a", f"FAILED: {r['verdict_reason']}", r["explained_by"])
     d = r["digits"]
     if math.isnan(r["ci_low"]):
-        value = f"{r['mean']:.{d}f} (n={r['trials']}; no interval)"
+        why = f"no interval below {inference.MIN_N_INTERVAL} trials" if r["trials"] < inference.MIN_N_INTERVAL else "no interval"
+        value = f"{r['mean']:.{d}f} (n={r['trials']}; {why})"
     else:
-        value = f"{r['mean']:.{d}f} [{r['ci_low']:.{d}f}, {r['ci_high']:.{d}f}] (n={r['trials']})"
+        value = f"{r['mean']:.{d}f} {interval(r['ci_low'], r['ci_high'], d)} (n={r['trials']})"
     if r["note"]:
         value += f"; {r['note']}"
-    if math.isnan(r["test_low90"]):
-        test = "n/a"
-    elif r["trend"]:
-        test = f"slope [{r['test_low90']:.{d + 1}f}, {r['test_high90']:.{d + 1}f}] vs {r['margin']:+.4g}"
-    else:
-        test = f"{r['difference']:+.{d}f} [{r['test_low90']:.{d}f}, {r['test_high90']:.{d}f}] (df {r['difference_df']:.1f})"
+    test = _test_text(r, d)
     verdict = r["verdict"]
     if verdict == inference.DIFFERS:
         verdict = f"✗ {verdict}"
-    if verdict == inference.NO_VERDICT:
+    if verdict in (inference.NO_VERDICT, BOUND, inference.FITTED) or r["test"] == DIRECTION:
         verdict += f": {r['verdict_reason']}"
-    elif verdict != inference.FITTED and r["margin_reason"]:
+    elif r["margin_reason"]:
         if r["trend"]:
             verdict += f" ({r['trend']}: threshold {r['margin']:+.4g} {r['scale']}: {r['margin_reason']})"
         else:
             verdict += f" (margin ±{r['margin']:.4g} {r['scale']}: {r['margin_reason']})"
+        if r["testable"] is False:
+            verdict += f"; the paper's ± alone gives a 90% half-width of at least {r['min_half_width']:.3g}, over the margin"
     made_by = r["provenance"]
     if r.get("misses"):
         made_by += f" ({r['misses_answered_by']} misses: {r['misses']} of {r['answers']})"
     return (r["title"], r["what"], r["paper"], r["source"], made_by, value, test, verdict, r["explained_by"])
 
 
-FAILED_VERDICT = "failed"
-"""The verdict column of an item whose runs failed (shown as FAILED)."""
+def _test_text(r: Mapping[str, Any], d: int) -> str:
+    """The test column: the 90% interval of ``lagrseq - paper`` (on the log scale, shown at the
+    paper's value), a slope's interval against its threshold, or the monotone test's p."""
+    if r["trials"] < inference.MIN_N_INTERVAL:
+        return f"n/a (n = {r['trials']} < {inference.MIN_N_INTERVAL})"
+    if r["test"] == DIRECTION and math.isfinite(r["p_rise"]):
+        return f"Jonckheere-Terpstra p = {r['p_rise']:.3g} (rise)"
+    if math.isnan(r["test_low90"]):
+        return "n/a"
+    if r["test"] == HOLDS:
+        return f"slope {interval(r['test_low90'], r['test_high90'], d + 1)} vs {r['margin']:+.4g}"
+    scale = " (log ratio)" if r["test"] in (LOG, REDUCTION_ROW) else ""
+    return f"{r['difference']:+.{d}f} {interval(r['test_low90'], r['test_high90'], d)} (df {r['difference_df']:.1f}){scale}"
 
 
 def _failed_row(item: Item, failure: ItemFailure) -> dict[str, Any]:
@@ -336,13 +542,14 @@ def _failed_row(item: Item, failure: ItemFailure) -> dict[str, Any]:
         "task": item.runs[0].task if item.runs else "",
         "what": "not measured: a run it needs failed",
         "kind": "failed",
+        "test": "",
         "paper": f"{stated} value{'s' if stated != 1 else ''}" if stated else "—",
         "paper_value": None, "paper_se": nan, "paper_n": nan, "paper_n_why": "",
-        "scale": "", "margin": nan, "margin_reason": "", "trend": "",
-        "source": "", "provenance": "", "provenance_why": "",
+        "scale": "", "margin": nan, "margin_reason": "", "trend": "", "testable": None, "min_half_width": nan,
+        "source": "", "provenance": "", "provenance_why": "", "on_miss": "",
         "mean": nan, "se": nan, "ci_low": nan, "ci_high": nan, "trials": 0,
         "difference": nan, "difference_df": nan,
-        "test_low90": nan, "test_high90": nan, "test_low95": nan, "test_high95": nan,
+        "test_low90": nan, "test_high90": nan, "test_low95": nan, "test_high95": nan, "p_rise": nan,
         "fallback_decided": 0, "fallback_trials": 0,
         "answers": None, "misses": None, "miss_share": None, "misses_answered_by": None,
         "verdict": FAILED_VERDICT,
@@ -411,9 +618,10 @@ def _query_rows(item: Item, reference: Mapping[str, Any], present: Sequence[Matc
             ml, lagr_part = counts[(key, lagr_col, provider)]
             assert ms.run is not None and ml.run is not None
             ratio = inference.ratio_estimate(seq_part.estimate, lagr_part.estimate)
-            part = _part([ms.run, ml.run], _reduction(ratio), _reduction_interval(ratio, 0.95))
+            part = _part([ms.run, ml.run], _reduction(ratio), _reduction_interval(ratio, 0.95), ratio=ratio)
             reductions[(key, provider)] = (ms, part)
-            add(item, f"{named(shown(ms, key))}: query reduction with SEQ (%)", paper, ms, part, f"{key}|{margins.REDUCTION}", 1, paper_est)
+            add(item, f"{named(shown(ms, key))}: query reduction with SEQ (%)", paper, ms, part, f"{key}|{margins.REDUCTION}", 1, paper_est,
+                kind="magnitude", test=REDUCTION_ROW)
     # trends over the rows (Table 2: over τ), where the margin table names them
     try:
         xs = {key: float(key) for key in keys}
@@ -421,29 +629,52 @@ def _query_rows(item: Item, reference: Mapping[str, Any], present: Sequence[Matc
         return
     if len(set(xs.values())) < 2:
         return
-    weights = inference.slope_weights([xs[k] for k in keys])
     providers = sorted({p for (_, _, p) in counts})
     for column in (seq_col, lagr_col, margins.REDUCTION):
         if margins.margin(item.id, f"{margins.SLOPE}|{column}") is None:
             continue
-        if column == margins.REDUCTION:
-            papers = [paper_reductions.get(k) for k in keys]
-        else:
-            papers = [paper_estimate(item.id, str(reference.get(f"{k}|{column}", ""))) for k in keys]
-        paper_slope = inference.contrast([p for p in papers if p is not None], weights) if all(p is not None for p in papers) else None
-        unit = "points" if column == margins.REDUCTION else "queries"
-        paper_text = f"{paper_slope.value:+.2f} ± {paper_slope.se:.2f} {unit} per unit {header or 'x'}" if paper_slope is not None else "n/a"
-        what = (f"trend: query reduction with SEQ over {header or 'rows'} (slope)" if column == margins.REDUCTION
-                else f"trend: {column} queries per run over {header or 'rows'} (slope)")
         for provider in providers:
             cells = [reductions.get((k, provider)) if column == margins.REDUCTION else counts.get((k, column, provider)) for k in keys]
-            if any(c is None for c in cells):
+            used = [(k, c) for k, c in zip(keys, cells, strict=True) if c is not None]
+            if len({xs[k] for k, _ in used}) < 2:
                 continue
-            found = [c for c in cells if c is not None]
-            estimate = inference.contrast([c[1].estimate for c in found], weights)
-            made = prov.combined([c[1].made for c in found])
-            part = _Part(estimate, estimate.interval(0.95), made, sum(c[1].decided for c in found), sum(c[1].trials for c in found))
-            add(item, what, paper_text, found[0][0], part, f"{margins.SLOPE}|{column}", 2, paper_slope, kind="trend")
+            if column == margins.REDUCTION:
+                papers = [paper_reductions.get(k) for k, _ in used]
+            else:
+                papers = [paper_estimate(item.id, str(reference.get(f"{k}|{column}", ""))) for k, _ in used]
+            over = header or "rows"
+            what = f"trend: query reduction with SEQ over {over}" if column == margins.REDUCTION else f"trend: {column} queries per run over {over}"
+            unit = ("points" if column == margins.REDUCTION else "queries") + f" per unit {header or 'x'}"
+            _trend(item, add, what, f"{margins.SLOPE}|{column}", [xs[k] for k, _ in used], [c for _, c in used],
+                   [p for p in papers], unit, holds=column == margins.REDUCTION)
+
+
+def _trend(item: Item, add: _Add, what: str, key: str, xs: Sequence[float], cells: Sequence[tuple[Match, _Part]],
+           papers: Sequence[inference.Estimate | None], unit: str, holds: bool = False) -> None:
+    """A trend over a table's rows, from the cells it is measured on (the paper's slope and its
+    threshold from the same cells): its direction, Jonckheere-Terpstra on the per-trial values
+    (where the cells have them), and its size, the least-squares slope against the paper's with its
+    ± (margin: a quarter of the paper's slope); a reduction's trend is the slope against "holds"
+    (it falls by less than a quarter of the paper's mean reduction over the range)."""
+    weights = inference.slope_weights(xs)
+    paper_slope = inference.contrast([p for p in papers if p is not None], weights) if all(p is not None for p in papers) else None
+    paper_text = f"{paper_slope.value:+.4g} ± {paper_slope.se:.4g} {unit}" if paper_slope is not None else "not in the paper"
+    estimate = inference.contrast([c[1].estimate for c in cells], weights)
+    made = prov.combined([c[1].made for c in cells])
+    part = _Part(estimate, estimate.interval(0.95), made, sum(c[1].decided for c in cells), sum(c[1].trials for c in cells))
+    first = cells[0][0]
+    if holds:
+        levels = [p.value for p in papers if p is not None]
+        rule = margins.holds_threshold(levels, xs) if len(levels) == len(papers) and levels else None
+        add(item, f"{what} (slope, holds)", paper_text, first, part, key, 2, paper_slope, kind="trend", test=HOLDS, margin=rule)
+        return
+    groups = [c[1].values for c in cells]
+    if all(g is not None and g.size for g in groups):
+        add(item, f"{what} (direction)", "rises" if paper_slope is not None else "not in the paper", first, part, key, 3,
+            paper_slope, kind="trend", test=DIRECTION, groups=[g for g in groups if g is not None])
+    if paper_slope is not None:
+        add(item, f"{what} (slope, size)", paper_text, first, part, key, 3, paper_slope, kind="trend", test=SIZE,
+            margin=margins.slope_margin(paper_slope.value, unit))
 
 
 def _ratio_rows(item: Item, reference: Mapping[str, Any], present: Sequence[Match], add: _Add) -> None:
@@ -463,12 +694,13 @@ def _ratio_rows(item: Item, reference: Mapping[str, Any], present: Sequence[Matc
                 continue
             ratios = stats_ratios(m.run, under.run)
             estimate = inference.mean_estimate(ratios)
-            part = _part([m.run, under.run], estimate, estimate.log_interval(0.95))
+            part = _part([m.run, under.run], estimate, inference.positive_mean_interval(ratios), ratios)
             add(item, f"{row} cubes: performance ratio {numerator} / {denominator}", str(paper), m, part, str(row), 3,
                 paper_estimate(item.id, str(paper)),
                 quantity=audit.RATIO_QUANTITY if (numerator, denominator) == ("LaGR-SEQ", "Q-learning") else None)
-            early = inference.mean_estimate(stats.paired_ratios(_early_area(m.run), _early_area(under.run)))
-            early_part = _part([m.run, under.run], early, early.log_interval(0.95))
+            early_values = stats.paired_ratios(_early_area(m.run), _early_area(under.run))
+            early = inference.mean_estimate(early_values)
+            early_part = _part([m.run, under.run], early, inference.positive_mean_interval(early_values), early_values)
             add(item, f"{row} cubes: early return ratio {numerator} / {denominator}, first {margins.EARLY_EPISODES} episodes "
                 "(lagrseq's measure)", "not in the paper", m, early_part, f"{margins.EARLY_AREA}|{row}", 3)
             try:
@@ -479,19 +711,12 @@ def _ratio_rows(item: Item, reference: Mapping[str, Any], present: Sequence[Matc
         if len(provider_rows) < 2 or len({x for x, *_ in provider_rows}) < 2:
             continue
         provider_rows.sort(key=lambda r: r[0])
-        weights = inference.slope_weights([r[0] for r in provider_rows])
+        xs = [r[0] for r in provider_rows]
         papers = [paper_estimate(item.id, str(reference.get(_row_key(reference, r[0]), ""))) for r in provider_rows]
-        paper_slope = inference.contrast([p for p in papers if p is not None], weights) if all(p is not None for p in papers) else None
-        for index, (what, key) in enumerate(((f"trend: performance ratio {numerator} / {denominator} over stack size (slope)", "ratio"),
-                                             ("trend: early return ratio over stack size (slope, lagrseq's measure)", margins.EARLY_AREA))):
-            parts = [r[2] if index == 0 else r[3] for r in provider_rows]
-            estimate = inference.contrast([p.estimate for p in parts], weights)
-            part = _Part(estimate, estimate.interval(0.95), prov.combined([p.made for p in parts]),
-                         sum(p.decided for p in parts), sum(p.trials for p in parts))
-            shown = (f"{paper_slope.value:+.4f} ± {paper_slope.se:.4f} per cube" if paper_slope is not None and index == 0
-                     else "not in the paper")
-            add(item, what, shown, provider_rows[0][1], part, f"{margins.SLOPE}|{key}", 3,
-                paper_slope if index == 0 else None, kind="trend")
+        _trend(item, add, f"trend: performance ratio {numerator} / {denominator} over stack size", f"{margins.SLOPE}|ratio", xs,
+               [(r[1], r[2]) for r in provider_rows], papers, "per cube")
+        _trend(item, add, "trend: early return ratio over stack size (lagrseq's measure)", f"{margins.SLOPE}|{margins.EARLY_AREA}", xs,
+               [(r[1], r[3]) for r in provider_rows], [None] * len(provider_rows), "per cube")
 
 
 def _row_key(reference: Mapping[str, Any], x: float) -> str:
@@ -508,3 +733,35 @@ def _float(text: str) -> float | None:
 def stats_ratios(top: Run, bottom: Run) -> np.ndarray:
     """Per-trial ratios of total return, paired by trial index (the stack-size table's quantity)."""
     return stats.paired_ratios(top.total_per_trial("return"), bottom.total_per_trial("return"))
+
+
+def testability(board: Table) -> Table:
+    """Which of the scoreboard's judged rows can read ``reproduced`` at the paper's precision: per
+    paper item, quantity and lagrseq's n, the paper's ± and n, the margin, and the smallest 90%
+    half-width of ``lagrseq - paper`` that n trials could reach however small their spread
+    (:func:`lagrseq.analysis.inference.min_half_width`); where it is not below the margin, the row's
+    scale is two-valued (consistent with the paper, or differs)."""
+    columns = ["item", "what", "paper", "paper_se", "paper_n", "trials", "margin", "min_half_width", "testable", "test"]
+    data = board.data
+    if data.empty or not set(columns) <= set(data.columns):
+        judged = pd.DataFrame(columns=[*columns, "title"])
+    else:
+        judged = data[data["testable"].notna() & data["test"].isin([LOG, REDUCTION_ROW, SIZE])]
+        judged = judged.drop_duplicates(["item", "what", "trials"])
+    rows = []
+    for _, r in judged.iterrows():
+        testable = bool(r["testable"])
+        scale = "reproduced / differs / inconclusive" if testable else f"{inference.CONSISTENT} / differs"
+        why = (f"the paper's ± ({r['paper_se']:.4g}, n = {int(r['paper_n'])}) alone gives a half-width of at least "
+               f"{r['min_half_width']:.4g} {'<' if testable else '>='} the margin ±{r['margin']:.4g}")
+        rows.append((r["title"], r["what"], r["paper"], str(int(r["trials"])), f"±{r['margin']:.4g}", f"{r['min_half_width']:.4g}",
+                     "yes" if testable else "no", scale, why))
+    frame = judged[columns].reset_index(drop=True)
+    return Table(
+        "Scoreboard rows testable at the paper's precision: the smallest 90% half-width of lagrseq - paper that lagrseq's n "
+        "could reach (its own spread 0), against the row's margin; rows that cannot reach reproduced are judged "
+        "consistent with the paper (the 95% interval holds 0) or differs",
+        ("paper item", "quantity", "paper", "lagrseq n", "margin", "smallest half-width", "testable", "verdicts it can read", "why"),
+        tuple(rows),
+        frame,
+    )

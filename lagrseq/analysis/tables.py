@@ -41,10 +41,43 @@ def plus_minus(mean: float, se: float, digits: int = 2) -> str:
     return f"{number(mean, digits)} ± {number(se, digits)}"
 
 
+def round_down(value: float, digits: int) -> float:
+    """``value`` rounded down at ``digits`` decimals (a lower bound printed so never moves inward);
+    a value already at that precision stays as it is."""
+    scaled = value * 10**digits
+    return math.floor(scaled + 1e-9 * max(1.0, abs(scaled))) / 10**digits
+
+
+def round_up(value: float, digits: int) -> float:
+    """``value`` rounded up at ``digits`` decimals (an upper bound: 6.38% at 0 decimals is 7)."""
+    scaled = value * 10**digits
+    return math.ceil(scaled - 1e-9 * max(1.0, abs(scaled))) / 10**digits
+
+
+def _decimals(value: float, significant: int) -> int:
+    """The decimals that show ``value`` with ``significant`` significant digits (0 to 12)."""
+    if value == 0 or not math.isfinite(value):
+        return max(0, significant - 1)
+    return min(12, max(0, significant - 1 - math.floor(math.log10(abs(value)))))
+
+
+def outward(low: float, high: float, digits: int | None = None, significant: int | None = None) -> tuple[str, str]:
+    """The bounds of an interval as text, rounded outward (the low one down, the high one up) at
+    ``digits`` decimals or, with ``significant``, at that many significant digits of each bound:
+    a printed interval never holds less than the computed one."""
+    if significant is not None:
+        lo_digits, hi_digits = _decimals(low, significant), _decimals(high, significant)
+    else:
+        lo_digits = hi_digits = 2 if digits is None else digits
+    return f"{round_down(low, lo_digits):.{lo_digits}f}", f"{round_up(high, hi_digits):.{hi_digits}f}"
+
+
 def interval(low: float, high: float, digits: int = 2) -> str:
+    """``[low, high]`` rounded outward at ``digits`` decimals; ``n/a`` without bounds."""
     if math.isnan(low) or math.isnan(high):
         return "n/a"
-    return f"[{number(low, digits)}, {number(high, digits)}]"
+    a, b = outward(low, high, digits)
+    return f"[{a}, {b}]"
 
 
 def _cell(text: str) -> str:

@@ -11,7 +11,11 @@ this trial and in a rerun, as GPT-4 at temperature 0 would give (the authors' ca
 answer per prompt).
 
 The rates are fitted to the store's answers (each sample counted once, by its id: the authors'
-import stores each answer under both presets' keys), so a number made with this mode is
+import stores each answer under both presets' keys), with their uncertainty: each draw table (one
+per run seed, and the loop gives each trial its own run seed) draws every kind's rate from its
+Beta posterior, ``Beta(accepted + 1, answers - accepted + 1)`` (a uniform prior), before drawing
+the per-prompt answers, so the spread over trials holds the rates' own uncertainty (21 of 212 is
+not exactly 9.9%) beside the draws'. A number made with this mode is
 ``fitted`` (:mod:`lagrseq.analysis.provenance`), and its answers carry the source
 :data:`CALIBRATED_SOURCE`, which the miss count (:mod:`lagrseq.analysis.misses`) counts as a miss
 a fallback answered (one that can be right).
@@ -123,9 +127,19 @@ def draw(key: str, run_seed: int) -> float:
     return int.from_bytes(digest.digest(), "little") / 2.0**64
 
 
+def posterior_rates(fitted: Fit, run_seed: int) -> dict[str, float]:
+    """One draw table's acceptance rate per kind: from each kind's Beta posterior under a uniform
+    prior, ``Beta(accepted + 1, answers - accepted + 1)``, by a generator fixed by the run seed."""
+    import numpy as np
+
+    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(run_seed % 2**63, spawn_key=(0xCA11B,))))
+    return {r.kind: float(rng.beta(r.accepted + 1, r.answers - r.accepted + 1)) for r in fitted.rates}
+
+
 class CalibratedMissProvider:
     """The fallback of ``--on-miss calibrated`` (module docstring): answers a query the store
-    lacks with the right answer when the prompt's draw falls below its kind's fitted rate."""
+    lacks with the right answer when the prompt's draw falls below its kind's rate in this draw
+    table (:func:`posterior_rates`)."""
 
     name = "calibrated"
     REASON = "calibrated"
@@ -136,6 +150,8 @@ class CalibratedMissProvider:
         self.calibration = calibration
         self.endpoint = endpoint
         self.run_seed = run_seed
+        self.rates = posterior_rates(fitted, run_seed)
+        """This draw table's rate per kind (a kind the fit never saw: 0)."""
 
     def accepts(self, query: Query) -> bool:
         """Whether this query's fixed draw is an accepted answer."""
@@ -144,7 +160,7 @@ class CalibratedMissProvider:
             kind = self.calibration.kind(query.prompt)
         except ValueError:
             return False
-        return draw(key, self.run_seed) < self.fit.rate(kind)
+        return draw(key, self.run_seed) < self.rates.get(kind, 0.0)
 
     def complete(self, query: Query) -> Answer:
         text = self.calibration.right(query.prompt) if self.accepts(query) else self.calibration.wrong(query.prompt)

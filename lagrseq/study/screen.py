@@ -324,6 +324,8 @@ def read_answers(path: Path, config: ExperimentConfig) -> list[ScreenedAnswer]:
                 task, prompt_set = task_of_entry(configured, entry.prompt)
                 if task is not None and not prompt_set and other_target:
                     prompt_set = other_target
+                if task is not None and not isinstance(task, _cube_class()) and SAMPLED_TAG.search(path.name):
+                    prompt_set = ", ".join(part for part in (SAMPLED_SET, prompt_set) if part)
                 where = None if task is None else bin_of_prompt(task, entry.prompt)
                 if task is None or where is None:
                     raise UsageError(f"{path}: a {config.task.name} answer whose prompt shows no pattern of this task (key {entry.key[:12]}); screen only answers to the task's own prompts")
@@ -353,6 +355,18 @@ def read_answers(path: Path, config: ExperimentConfig) -> list[ScreenedAnswer]:
                         )
                     )
     return answers
+
+
+SAMPLED_SET = "sampled states"
+"""The prompt set of a grid screen whose states were drawn from the target (``--prompt-set
+sampled``), not met by runs: a file named ``screen-sampled-...`` (a grid prompt names neither)."""
+SAMPLED_TAG = re.compile(r"(?:^|-)sampled-")
+
+
+def _cube_class() -> type:
+    from lagrseq.tasks.cube import CubeStacking
+
+    return CubeStacking
 
 
 def task_of_entry(configured: Any, prompt: str) -> tuple[Any, str]:
@@ -447,6 +461,13 @@ class Screen:
         return self.task == "cube-stacking" and not self.prompt_set.startswith("relabelled")
 
     @property
+    def from_runs(self) -> bool:
+        """A grid screen of the states the runs' trajectories met (``--prompt-set runs``): states
+        of a few trajectories, each following from the last, not a sample of states, so its
+        accuracy gets no binomial interval."""
+        return self.task != "cube-stacking" and not self.prompt_set.startswith(SAMPLED_SET)
+
+    @property
     def kind(self) -> str:
         """The prompt set and, when pinned, the samplers: what tells two screens of one model and
         temperature apart ("" for the default prompts with the server's own samplers)."""
@@ -486,9 +507,15 @@ def bin_label(task: str, b: int, size: int) -> str:
     return f"{b}/{size} cubes" if task == "cube-stacking" else f"{b}/{size} cells"
 
 
-def _percent(k: int, n: int) -> str:
+def _percent(k: int, n: int, interval: bool = True) -> str:
+    """``k/n = x% [low, high]`` with the Wilson 95% interval rounded outward; without
+    ``interval`` (answers that are no sample) the count alone."""
+    if not n:
+        return "-"
+    if not interval:
+        return f"{k}/{n} = {100 * k / n:.0f}%"
     low, high = wilson(k, n)
-    return f"{k}/{n} = {100 * k / n:.0f}% [{100 * low:.0f}, {100 * high:.0f}]" if n else "-"
+    return f"{k}/{n} = {100 * k / n:.0f}% {_bounds(low, high)}"
 
 
 # ------------------------------------------------------------------------------------------
@@ -520,9 +547,22 @@ class Accuracy:
         if not self.answers:
             return "-"
         rate = f"{self.correct}/{self.answers} = {100 * self.correct / self.answers:.0f}%"
+        if self.method == TRAJECTORY_STATES:
+            return f"{rate} ({self.prompts} states met by the runs' trajectories: not a sample of states; no interval)"
         if self.low is None or self.high is None:
             return f"{rate} ({self.prompts} prefixes of one target: a count over one sequence, not a sample of prompts; no interval)"
-        return f"{rate} [{100 * self.low:.0f}, {100 * self.high:.0f}] ({self.method}, {self.prompts} prompts)"
+        return f"{rate} {_bounds(self.low, self.high)} ({self.method}, {self.prompts} prompts)"
+
+
+TRAJECTORY_STATES = "states of trajectories"
+"""The method of a screen of the states runs met (:attr:`Screen.from_runs`): no interval."""
+
+
+def _bounds(low: float, high: float) -> str:
+    """``[low, high]`` in percent, rounded outward (an upper bound of 6.38% prints 7)."""
+    from lagrseq.analysis.tables import interval
+
+    return interval(100 * low, 100 * high, 0)
 
 
 def _exact(successes: int, n: int) -> tuple[float, float]:
@@ -554,6 +594,8 @@ def accuracy_over_prompts(s: Screen, resamples: int = RESAMPLES) -> Accuracy:
     n, k = (int(v) for v in table.sum(axis=0)) if m else (0, 0)
     if s.nested or m == 0:
         return Accuracy(k, n, m, None, None, "complete count")
+    if s.from_runs:
+        return Accuracy(k, n, m, None, None, TRAJECTORY_STATES)
     sizes, right = table[:, 0], table[:, 1]
     if np.all(right == 0) or np.all(right == sizes):
         low, high = _exact(int(np.count_nonzero(right)), m)
@@ -587,10 +629,19 @@ def _korn_graubard(right: np.ndarray, sizes: np.ndarray) -> tuple[float, float]:
     return low, high
 
 
+def prompt_units(s: Screen, unshown: bool = False) -> tuple[int, int]:
+    """(prompts, prompts right) of a screen: one unit per prompt, right when at least half its
+    counted answers are (at tau = 0 a repeated identical answer counts once, so mostly one answer
+    per prompt). ``unshown``: without the prompts that show the whole target."""
+    kept = [cell for key, cell in s.prompts.items() if not unshown or s.prompt_bins.get(key, 0) < s.size]
+    return len(kept), sum(1 for n, k in kept if n and 2 * k >= n)
+
+
 def fisher_rows(screens: Sequence[Screen]) -> list[tuple[str, ...]]:
-    """Per task, prompt set and temperature, the model right most often against each other model:
-    right/answers of each and Fisher's exact two-sided p (``scipy.stats.fisher_exact``) on the
-    counted answers (at tau = 0 a repeated identical answer counts once, so mostly one per prompt)."""
+    """Per task, prompt set and temperature, the model right on the most prompts against each
+    other model: prompts right of each, one unit per prompt in both arms (:func:`prompt_units`;
+    never one arm's prompts against the other's answers), and Fisher's exact two-sided p
+    (``scipy.stats.fisher_exact``); beside it the same without the prompts that show the target."""
     from scipy.stats import fisher_exact
 
     rows: list[tuple[str, ...]] = []
@@ -600,24 +651,25 @@ def fisher_rows(screens: Sequence[Screen]) -> list[tuple[str, ...]]:
     for (task, prompt_set, tau), group in sorted(groups.items()):
         if len(group) < 2:
             continue
-        best = max(group, key=lambda g: (g.correct / g.n if g.n else 0.0, g.correct))
+        units = {id(g): prompt_units(g) for g in group}
+        best = max(group, key=lambda g: (units[id(g)][1] / units[id(g)][0] if units[id(g)][0] else 0.0, units[id(g)][1]))
+        bm, bk = units[id(best)]
         for other in group:
             if other is best:
                 continue
-            table = [[best.correct, best.n - best.correct], [other.correct, other.n - other.correct]]
-            p = float(fisher_exact(table).pvalue)
-            row = [task, prompt_set or "-", f"{tau:g}", best.model, f"{best.correct}/{best.n}", other.model, f"{other.correct}/{other.n}", f"{p:.3f}"]
-            # the same without the prompts that show the whole target (answered by repeating it)
-            (bn, bk), (on, ok) = best.unshown(), other.unshown()
-            if (bn, on) != (best.n, other.n) and bn and on:
-                row += [f"{bk}/{bn} against {ok}/{on}: {float(fisher_exact([[bk, bn - bk], [ok, on - ok]]).pvalue):.3f}"]
+            om, ok = units[id(other)]
+            p = float(fisher_exact([[bk, bm - bk], [ok, om - ok]]).pvalue)
+            row = [task, prompt_set or "-", f"{tau:g}", best.model, f"{bk}/{bm}", other.model, f"{ok}/{om}", f"{p:.3f}"]
+            (bn, bu), (on, ou) = prompt_units(best, True), prompt_units(other, True)
+            if (bn, on) != (bm, om) and bn and on:
+                row += [f"{bu}/{bn} against {ou}/{on}: {float(fisher_exact([[bu, bn - bu], [ou, on - ou]]).pvalue):.3f}"]
             else:
                 row += ["(no prompt shows the target)"]
             rows.append(tuple(row))
     return rows
 
 
-FISHER_COLUMNS = ("task", "prompt set", "τ", "model right most often", "right", "against", "right", "Fisher exact p (two-sided)", "target not in prompt: right, p")
+FISHER_COLUMNS = ("task", "prompt set", "τ", "model right on most prompts", "prompts right", "against", "prompts right", "Fisher exact p (two-sided, one unit per prompt)", "target not in prompt: prompts right, p")
 
 
 @dataclass(frozen=True)
@@ -755,7 +807,8 @@ def overall_rows(screens: Sequence[Screen]) -> list[tuple[str, ...]]:
 
 
 def markdown(screens: Sequence[Screen]) -> list[str]:
-    """Two Markdown tables: one row per model (overall accuracy with its Wilson 95% interval,
+    """Two Markdown tables: one row per model (overall accuracy with its interval over prompts,
+    :func:`accuracy_over_prompts`,
     the same without the prompts that show the whole target, answer kinds, speed: seconds per
     answer and answer tokens per second of the whole request, prompt included), then accuracy
     per bin (correct/n, percent, interval)."""
@@ -767,7 +820,7 @@ def markdown(screens: Sequence[Screen]) -> list[str]:
         size = group[0].size
         lines += ["", f"| {task}: shown | " + " | ".join(markdown_cell(s.label()) for s in group) + " |", "|---|" + "---|" * len(group)]
         for b in bins:
-            cells = " | ".join(_percent(*reversed(s.cells[b])) if b in s.cells else "-" for s in group)
+            cells = " | ".join(_percent(s.cells[b][1], s.cells[b][0], interval=not s.from_runs) if b in s.cells else "-" for s in group)
             lines.append(f"| {bin_label(task, b, size)} | {cells} |")
     return lines
 
@@ -777,7 +830,7 @@ CSV_FIELDS = ("task", "model", "temperature", "prompt_set", "sha256", "model_fil
 
 def csv_text(screens: Sequence[Screen]) -> str:
     """One CSV row per model, temperature, prompt set and bin (``shown`` = bin: a Wilson 95%
-    interval over its counted answers), and one for the whole screen (``shown`` = ``all``: the
+    interval over its counted answers; none for states of trajectories), and one for the whole screen (``shown`` = ``all``: the
     interval over prompts of :func:`accuracy_over_prompts`, none for nested prefixes)."""
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
@@ -789,8 +842,8 @@ def csv_text(screens: Sequence[Screen]) -> str:
         head = [csv_cell(c) for c in (s.task, s.model, f"{s.temperature:g}", s.kind, s.sha256 or "", s.facts or "")]
         for b in sorted(s.cells):
             n, k = s.cells[b]
-            low, high = wilson(k, n)
-            writer.writerow([*head, str(b), s.size, f"{b / s.size:.4f}", per_bin.get(b, 0), n, k, f"{k / n:.4f}" if n else "", "wilson", f"{low:.4f}", f"{high:.4f}"])
+            shown = [TRAJECTORY_STATES, "", ""] if s.from_runs else ["wilson", *(f"{v:.4f}" for v in wilson(k, n))]
+            writer.writerow([*head, str(b), s.size, f"{b / s.size:.4f}", per_bin.get(b, 0), n, k, f"{k / n:.4f}" if n else "", *shown])
         total = accuracy_over_prompts(s)
         bounds = ["", ""] if total.low is None or total.high is None else [f"{total.low:.4f}", f"{total.high:.4f}"]
         writer.writerow([*head, "all", s.size, "", total.prompts, total.answers, total.correct, f"{total.correct / total.answers:.4f}" if total.answers else "", total.method, *bounds])
@@ -799,7 +852,8 @@ def csv_text(screens: Sequence[Screen]) -> str:
 
 def figure(screens: Sequence[Screen]) -> Any:
     """Fig. 4-style: accuracy (%) against the fraction of the pattern shown, one panel per task,
-    one line per model and temperature, each point with its Wilson 95% interval."""
+    one line per model and temperature, each point with its Wilson 95% interval (none for the
+    states of trajectories, :attr:`Screen.from_runs`)."""
     from matplotlib.figure import Figure
 
     from lagrseq.analysis.figures import COLORS, FIGSIZE
@@ -815,13 +869,13 @@ def figure(screens: Sequence[Screen]) -> Any:
             x = np.array([b / s.size for b in bins]) + (i - (len(group) - 1) / 2) * 0.008
             acc = np.array([100 * s.cells[b][1] / s.cells[b][0] for b in bins])
             bounds = np.array([wilson(s.cells[b][1], s.cells[b][0]) for b in bins]) * 100
-            err = np.vstack([np.maximum(acc - bounds[:, 0], 0), np.maximum(bounds[:, 1] - acc, 0)])
+            err = None if s.from_runs else np.vstack([np.maximum(acc - bounds[:, 0], 0), np.maximum(bounds[:, 1] - acc, 0)])
             ns = sorted({s.cells[b][0] for b in bins})
             per = f"n={ns[0]}" if len(ns) == 1 else f"n={ns[0]}-{ns[-1]}"
             ax.errorbar(x, acc, yerr=err, color=COLORS[i % len(COLORS)], marker=markers[i % len(markers)], markerfacecolor="none", capsize=3, linewidth=1.5, label=f"{s.label()} ({per} per point)")
         ax.set_title(f"{task}: open models, {'prefix' if task == 'cube-stacking' else 'pattern'} shown")
         ax.set_xlabel("Fraction of the pattern in the prompt")
-        ax.set_ylabel("Right (%), Wilson 95% interval")
+        ax.set_ylabel("Right (%), Wilson 95% interval (none for states of trajectories)")
         ax.set_ylim(-3, 103)
         ax.set_xlim(-0.05, 1.05)
         ax.legend(fontsize="small", loc="center left", framealpha=0.9)
@@ -1004,7 +1058,7 @@ def _target_tag() -> re.Pattern[str]:
 
 
 TARGET_TAG = _target_tag()
-"""How a screen file of another arrangement target names it: ``screen-target-plus-MODEL-t0.jsonl``
+"""How a screen file of another arrangement target names it: ``screen-sampled-target-plus-MODEL-t0.jsonl``
 (read with ``task.target=plus``; a file without the tag is read with the task's default target)."""
 
 
@@ -1058,7 +1112,7 @@ def report_sections(root: Path | None = None) -> tuple[list[tuple[str, Any, Any]
     ]
     cells: list[tuple[str, ...]] = []
     for s in screens:
-        cells += [(s.task, s.label(), bin_label(s.task, b, s.size), _percent(s.cells[b][1], s.cells[b][0])) for b in sorted(s.cells)]
+        cells += [(s.task, s.label(), bin_label(s.task, b, s.size), _percent(s.cells[b][1], s.cells[b][0], interval=not s.from_runs)) for b in sorted(s.cells)]
     sections.append(("open-models-cells", Table("Open models: right answers per prefix length / fill fraction (Wilson 95% interval over the cell's counted answers)", ("task", "model", "shown", "right"), tuple(cells), data), None))
     compared = fisher_rows(screens)
     if compared:
@@ -1066,7 +1120,7 @@ def report_sections(root: Path | None = None) -> tuple[list[tuple[str, Any, Any]
             (
                 "open-models-compare",
                 Table(
-                    "Open models compared: the model right most often against each other, Fisher's exact test on counted answers (per task, prompt set and τ)",
+                    "Open models compared: the model right on most prompts against each other, Fisher's exact test with one unit per prompt in both arms (per task, prompt set and τ)",
                     FISHER_COLUMNS,
                     tuple(compared),
                     pd.DataFrame(compared, columns=["task", "prompt_set", "tau", "best", "best_right", "other", "other_right", "fisher_p", "unshown"]),

@@ -211,6 +211,19 @@ def test_the_gap_is_explained_by_the_rows_that_add_up_to_it() -> None:
     assert text is not None and text.startswith("no gap beyond the margin")
 
 
+def test_a_gap_whose_test_interval_holds_zero_is_no_gap_shown() -> None:
+    """A point gap of +30.5 far beyond the margin, but the test's interval of lagrseq - paper
+    (-85.2 to +24.2) holds 0: no gap is shown, so none is called unexplained; an interval inside
+    the margin is no gap beyond it; one outside it is explained as before."""
+    made = _audit({"a": (150.0, 10, 1e-6)})
+    text = audit.gap_explained_by([made], TASK, "upstream", "queries without SEQ", 100.0, "130.5 ± 1", margin=16.4, interval=(-85.2, 24.2))
+    assert text is not None and text.startswith("no gap shown")
+    text = audit.gap_explained_by([made], TASK, "upstream", "queries without SEQ", 100.0, "103 ± 1", margin=16.4, interval=(-10.0, -1.0))
+    assert text is not None and text.startswith("no gap beyond the margin (the test's 95% interval")
+    text = audit.gap_explained_by([made], TASK, "upstream", "queries without SEQ", 100.0, "250 ± 1", margin=16.4, interval=(-170.0, -130.0))
+    assert text is not None and text.startswith("a (+150) = +150 of gap +150")
+
+
 def test_an_effect_far_larger_than_the_gap_explains_nothing_of_it() -> None:
     """Found in the quick suite's report: lagr.solution_scope (+759) was named as "partly"
     explaining a gap of +18.5. An effect beyond the gap plus the margin measures another regime."""
@@ -255,3 +268,16 @@ def test_an_interaction_run_that_closes_the_gap_is_named() -> None:
     made = _audit({"a": (20.0, 10, 1e-6)}, corners=corners)
     text = audit.gap_explained_by([made], TASK, "upstream", "queries without SEQ", 100.0, "284 ± 0.94")
     assert text is not None and text.startswith(f"{GUIDED} + {EPS} switched together (+186, n=10) of gap +184")
+
+
+def test_a_positive_quantitys_mean_interval_is_on_the_log_scale_and_none_below_three_trials() -> None:
+    """100, 10, 190 queries (n = 3): the plain t interval reaches below 0; the log-scale one does
+    not; two trials get no interval at all, nor does an effect on two."""
+    values = np.array([100.0, 10.0, 190.0])
+    assert inference.t_interval(values).low < 0
+    shown = audit.mean_interval(values, "queries with SEQ")
+    assert 0 < shown.low < 100 < shown.high
+    assert audit.mean_interval(np.array([-5.0, 2.0, 9.0]), "total return (LaGR-SEQ)").low < 0  # not positive: t
+    assert math.isnan(audit.mean_interval(values[:2], "queries with SEQ").low)
+    effect, p = audit.contrast([(1.0, values[:2]), (-1.0, values[1:])])
+    assert math.isnan(effect.low) and math.isnan(p)

@@ -5,6 +5,8 @@ from __future__ import annotations
 import math
 
 import pandas as pd
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from lagrseq.analysis.tables import (
     Table,
@@ -54,3 +56,26 @@ def test_csv_is_stable_text() -> None:
     text = to_csv(frame)
     assert text == "label,mean,n\na,0.333333,10\nb,2,10\n"
     assert to_csv(frame.copy()) == text
+
+
+def test_interval_bounds_are_rounded_outward() -> None:
+    """0/56 has the exact upper bound 6.38%: at 0 decimals it prints 7, never 6; a lower bound
+    rounds down; bounds already at the precision stay."""
+    from lagrseq.analysis.tables import interval, outward
+
+    assert interval(0.0, 6.38, 0) == "[0, 7]"
+    assert interval(-24.21, 224.2, 1) == "[-24.3, 224.2]"
+    assert interval(284.0, 290.0, 2) == "[284.00, 290.00]"
+    assert outward(0.012345, 1234.5, significant=3) == ("0.0123", "1235")
+
+
+@settings(max_examples=200, deadline=None)
+@given(low=st.floats(-1e6, 1e6), width=st.floats(0, 1e6), digits=st.integers(0, 4))
+def test_a_printed_interval_always_holds_the_computed_one(low: float, width: float, digits: int) -> None:
+    from lagrseq.analysis.tables import outward
+
+    high = low + width
+    a, b = outward(low, high, digits)
+    assert float(a) <= low + 1e-9 * max(1.0, abs(low)) and float(b) >= high - 1e-9 * max(1.0, abs(high))
+    c, d = outward(low, high, significant=3)
+    assert float(c) <= low + 1e-9 * max(1.0, abs(low)) and float(d) >= high - 1e-9 * max(1.0, abs(high))
