@@ -25,7 +25,7 @@ from lagrseq.cli import main
 from lagrseq.errors import ConfigError, UsageError
 from lagrseq.running.executors import check_scheduler
 from lagrseq.study import frontier
-from tests.llm.test_store_hardening import THE_ISSUES_VALUES, _set, line, made_read_only, record
+from tests.support.records import BAD_FIELD_VALUES, line, made_read_only, record, with_field
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ["--set", "run.episodes=2", "--quiet"]
@@ -312,10 +312,10 @@ def test_a_bad_toml_file_is_one_line_whatever_the_provider(tmp_path: Path, comma
 
 
 # ----------------------------------------------------------------------------- item 7: JSONL readers
-@pytest.mark.parametrize(("path", "value", "message"), THE_ISSUES_VALUES[:14], ids=[p for p, _, _ in THE_ISSUES_VALUES[:14]])
+@pytest.mark.parametrize(("path", "value", "message"), BAD_FIELD_VALUES[:14], ids=[p for p, _, _ in BAD_FIELD_VALUES[:14]])
 def test_cache_parse_and_recorded_jsonl_runs_refuse_a_bad_line_by_number(tmp_path: Path, path: str, value: Any, message: str) -> None:
     bad = tmp_path / "bad.jsonl"
-    bad.write_bytes((line(record(0)) + "\n" + line(_set(record(1), path, value)) + "\n").encode("utf-8", "surrogatepass"))
+    bad.write_bytes((line(record(0)) + "\n" + line(with_field(record(1), path, value)) + "\n").encode("utf-8", "surrogatepass"))
     for argv in (
         ["cache", "parse", str(bad), "--task", "cube-stacking"],
         ["run", "cube-stacking", "--provider", f"recorded:{bad}", "--on-miss", "mock", "--trials", "1", "--out", str(tmp_path / "o"), *SMALL],

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from lagrseq.text import printable
-from tests.llm.test_gguf import build, model_pairs
+from tests.support.gguf import build, model_pairs
 
 ROOT = Path(__file__).resolve().parents[1]
 NOT_UTF8 = os.fsdecode(b"caf\xe9-\xff.gguf")

@@ -29,16 +29,14 @@ from lagrseq.llm import local
 from lagrseq.logs.reader import find_logs, read_topic
 from lagrseq.loop.lagr import query_for
 from lagrseq.running import wiring
+from tests.support.local_server import FAKE, GGUF, gone, start_line
 
 ROOT = Path(__file__).resolve().parents[2]
-FAKE = Path(__file__).resolve().parent / "fake_llama"
-GGUF = b"GGUF\x03\x00\x00\x00" + bytes(56)
 
 def DEFAULT_SIGINT() -> None:  # noqa: N802 (used like a constant)
     """In the child: Ctrl-C's default action, so Python raises KeyboardInterrupt there even when
     this test run itself was started as a background job (whose SIGINT is ignored and inherited)."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)
-
 
 
 @pytest.fixture
@@ -49,24 +47,6 @@ def fake(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Path:
     model = tmp_path / "tiny-model.gguf"
     model.write_bytes(GGUF)
     return model
-
-
-def alive(pid: int) -> bool:
-    """The process exists and is not a zombie."""
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state != "Z"
-
-
-def gone(pid: int, within_s: float = 20.0) -> bool:
-    deadline = time.monotonic() + within_s
-    while time.monotonic() < deadline:
-        if not alive(pid):
-            return True
-        time.sleep(0.05)
-    return False
 
 
 def helper_pid(log: Path) -> int:
@@ -91,12 +71,6 @@ def group_members(pgid: int) -> list[int]:
         if int(fields[2]) == pgid:
             members.append(int(stat.parent.name))
     return members
-
-
-def start_line(text: str) -> tuple[int, Path]:
-    match = re.search(r"\(pid (\d+), .*; log (\S+)\)", text)
-    assert match, text
-    return int(match.group(1)), Path(match.group(2))
 
 
 def test_the_provider_starts_asks_and_stops_the_server_and_its_group(fake: Path) -> None:

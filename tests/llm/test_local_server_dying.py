@@ -23,7 +23,7 @@ from lagrseq.errors import ProviderError
 from lagrseq.llm import local
 from lagrseq.loop.lagr import query_for
 from lagrseq.running import wiring
-from tests.llm.test_local_server import FAKE, GGUF, gone, start_line
+from tests.support.local_server import FAKE, GGUF, gone, start_line
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -22,7 +22,7 @@ from lagrseq.logs.reader import full_path, is_complete, read_info
 from lagrseq.logs.recover import recover_all
 from lagrseq.running import runner
 from lagrseq.running.recording import record_patterns
-from tests.logs.test_damage import CHUNK_DATA_LENGTHS, DATA, GOLDEN, MEMORY_BOUND, length_fields
+from tests.support.golden_mcap import CHUNK_DATA_LENGTHS, DATA, GOLDEN, MEMORY_BOUND, length_fields
 
 TIME_BOUND = 2.0
 
