@@ -1,4 +1,4 @@
-"""Issue 37, item 5 (the text cases): outside text (file names, model paths, GGUF metadata, host
+"""Outside text (file names, model paths, GGUF metadata, host
 names) is printed on one line with control and format characters escaped, and a terminal
 encoding that cannot write a character escapes it instead of raising UnicodeEncodeError.
 Real files with hostile names, the real program in fresh processes."""

@@ -199,8 +199,8 @@ def _session(sid: int) -> set[int]:
 
 
 def test_sigkill_of_replay_leaves_no_process_of_its_session(tmp_path: Path) -> None:
-    """Issue 37: ``replay --jobs 2`` killed with SIGKILL left its spawn workers and the resource
-    tracker alive; its workers now die with it, and the tracker with them."""
+    """``replay --jobs 2`` killed with SIGKILL leaves neither its spawn workers nor the resource
+    tracker alive: they die with it."""
     golden = ROOT / "fixtures" / "golden" / "cube-stacking-lagr-seq-upstream-4ep.mcap"
     runs = tmp_path / "runs"
     runs.mkdir()

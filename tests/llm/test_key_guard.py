@@ -1,4 +1,4 @@
-"""Issue 37, item 1: the key never reaches the terminal, a log, a store or an error line, in any form
+"""The key never reaches the terminal, a log, a store or an error line, in any form
 a server or a user can turn it into: a header value, a --base-url holding it (or 8 characters of
 it), an echo with a zero-width space every 4 characters. Real HTTP on 127.0.0.1, real MCAP files,
 real stores, the real command line."""

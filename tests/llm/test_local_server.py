@@ -191,10 +191,10 @@ def test_ctrl_c_stops_the_run_and_its_server(fake: Path, tmp_path: Path) -> None
     assert "interrupted" in rest and gone(pid) and gone(helper)
 
 
-@pytest.mark.slow  # under tox the old recording did not end on SIGTERM (an inherited ignored/blocked SIGTERM; issue 25)
+@pytest.mark.slow  # under tox a SIGTERM may arrive ignored or blocked by inheritance
 def test_sigterm_ends_a_recording_and_its_server_keeping_the_answers(fake: Path, tmp_path: Path) -> None:
     """kill, timeout and batch schedulers send SIGTERM, which stops lagrseq as Ctrl-C does (exit
-    143; issue 25): its server dies with it (the kernel's parent-death signal is SIGKILL; with SIGTERM a real server waited
+    143): its server dies with it (the kernel's parent-death signal is SIGKILL; with SIGTERM a real server waited
     for its request in flight and outlived lagrseq), and every answer already returned stays in
     the store."""
     from lagrseq.llm.store import RecordStore
@@ -235,7 +235,7 @@ def test_serve_llm_runs_until_sigterm(fake: Path, tmp_path: Path) -> None:
     process.send_signal(signal.SIGTERM)
     _, err = process.communicate(timeout=60)
     pid, _ = start_line(err)
-    assert process.returncode == 143 and "stopped" in err and gone(pid)  # SIGTERM: 143 (issue 25)
+    assert process.returncode == 143 and "stopped" in err and gone(pid)  # SIGTERM: 143
 
 
 def test_lagrseq_killed_outright_takes_its_server_along(fake: Path, tmp_path: Path) -> None:

@@ -87,7 +87,7 @@ def test_a_server_killed_mid_run_is_restarted_once_then_the_request_fails_in_one
 
 
 def test_a_server_killed_by_an_illegal_instruction_says_what_it_means_and_is_not_restarted(model: Path) -> None:
-    # issue 38: a llama.cpp built with -march=native on another CPU (or a wheel pip cached there)
+    # a llama.cpp built with -march=native on another CPU (or a wheel pip cached there)
     # dies of SIGILL at its first request; restarting it only dies again
     provider, query, said = provider_and_query(model)
     try:

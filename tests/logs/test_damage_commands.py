@@ -1,4 +1,4 @@
-"""Issue 8, items 4 and 15: a damaged log is found by every command that reads logs, also where the
+"""A damaged log is found by every command that reads logs, also where the
 damage is in a chunk the command never opens, and each command either goes on without it (one
 warning naming its full path) or ends in one line; never another exception, a hang or an
 allocation far beyond the file."""

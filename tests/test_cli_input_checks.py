@@ -1,4 +1,4 @@
-"""Issue 8, items 5, 6/10, 7, 9, 12 and 14 on the newer commands and options: every bad value,
+"""Commands and options refuse bad input: every bad value,
 name, path and combination ends in one line on stderr and exit status 2 before anything runs, and
 nothing already written is touched."""
 
@@ -82,7 +82,7 @@ def test_check_name_accepts_only_plain_names_and_refuses_the_rest_with_usage_err
     assert not any(ch in name for ch in "/\\") and all(ord(ch) >= 32 and ord(ch) != 127 for ch in name)
 
 
-# ----------------------------------------------------------------------------- item 5: --name reuse
+# ----------------------------------------------------------------------------- --name reuse
 def test_a_reused_name_under_another_configuration_is_refused_for_each_difference(tmp_path: Path) -> None:
     base = ["run", "cube-stacking", "--method", "lagr-seq", "--trials", "2", "--out", str(tmp_path), "--name", "mine", *SMALL]
     assert cli(*base)[0] == 0
@@ -121,7 +121,7 @@ def test_an_unfinished_log_of_another_configuration_is_not_overwritten_by_a_reus
     assert not partial.exists() and log.read_bytes() == data
 
 
-# ----------------------------------------------------------------------------- items 6 and 10
+# ----------------------------------------------------------------------------- policies, values and lengths
 @pytest.mark.parametrize(
     ("args", "message"),
     [
@@ -257,7 +257,7 @@ def test_something_else_answering_at_the_scheduler_address_is_one_line(tmp_path:
     assert not list(tmp_path.rglob("*.mcap*"))
 
 
-# ----------------------------------------------------------------------------- item 14: reproduce
+# ----------------------------------------------------------------------------- reproduce
 @pytest.mark.parametrize(
     ("args", "message"),
     [
@@ -283,7 +283,7 @@ def test_reproduce_validates_every_option_before_any_trial(tmp_path: Path, monke
     assert not list(tmp_path.rglob("*.mcap*"))
 
 
-# ----------------------------------------------------------------------------- item 9: input files
+# ----------------------------------------------------------------------------- input files
 def _bad_files(tmp_path: Path) -> dict[str, Path]:
     binary = tmp_path / "binary.toml"
     binary.write_bytes(bytes(range(256)) * 4)
@@ -311,7 +311,7 @@ def test_a_bad_toml_file_is_one_line_whatever_the_provider(tmp_path: Path, comma
     assert not (tmp_path / "o").exists() and not (tmp_path / "s").exists()
 
 
-# ----------------------------------------------------------------------------- item 7: JSONL readers
+# ----------------------------------------------------------------------------- JSONL readers
 @pytest.mark.parametrize(("path", "value", "message"), BAD_FIELD_VALUES[:14], ids=[p for p, _, _ in BAD_FIELD_VALUES[:14]])
 def test_cache_parse_and_recorded_jsonl_runs_refuse_a_bad_line_by_number(tmp_path: Path, path: str, value: Any, message: str) -> None:
     bad = tmp_path / "bad.jsonl"
@@ -326,7 +326,7 @@ def test_cache_parse_and_recorded_jsonl_runs_refuse_a_bad_line_by_number(tmp_pat
     assert not list(tmp_path.rglob("*.mcap*"))
 
 
-# ----------------------------------------------------------------------------- item 12: read-only store
+# ----------------------------------------------------------------------------- read-only store
 @pytest.fixture
 def read_only_store(tmp_path: Path) -> Iterator[Path]:
     """A store whose directory and files nobody may write (root: chattr +i, as root ignores modes)."""
@@ -352,12 +352,12 @@ def test_a_read_only_store_serves_parse_frontier_and_runs_and_refuses_writes_in_
     live_misses = [{"mock": "live", "local": "http://127.0.0.1:9/v1"}.get(a, a) for a in recorded]  # nothing is sent: it fails first
     monkeypatch.setenv("OPENAI_API_KEY", "sk-test-not-a-key")
     assert "read-only" in refused("run", "cube-stacking", "--out", str(tmp_path / "live"), *live_misses)
-    # an export into the store it exports is refused before anything is written (issue 37)
+    # an export into the store it exports is refused before anything is written
     assert "inside the store" in refused("cache", "export", "--store", str(read_only_store), "--out", str(read_only_store / "x.jsonl"))
     assert {p.name: p.read_bytes() for p in read_only_store.iterdir()} == before
 
 
-# ----------------------------------------------------------------------------- item 9: output paths
+# ----------------------------------------------------------------------------- output paths
 @pytest.mark.parametrize("where", ["file", "below-file", "proc"])
 def test_cache_export_and_frontier_and_audit_outputs_that_cannot_be_written_are_one_line(tmp_path: Path, where: str) -> None:
     a_file = tmp_path / "file"
@@ -383,8 +383,8 @@ def test_cache_import_refuses_a_directory_and_a_missing_file_in_one_line(tmp_pat
 
 
 def test_jsonl_export_of_a_read_store_keeps_json_lines(tmp_path: Path) -> None:
-    """Sanity: the recorded file used above imports and exports as it should (no test of the
-    hardening passes because nothing works)."""
+    """Sanity: the recorded file used above imports and exports as it should (no refusal above
+    passes because nothing works)."""
     store = tmp_path / "s"
     assert cli("cache", "import", str(RECORDED), "--store", str(store))[0] == 0
     assert cli("cache", "export", "--store", str(store), "--out", str(tmp_path / "x.jsonl"))[0] == 0
@@ -478,7 +478,7 @@ def test_replay_and_reproduce_refuse_every_bad_toml_file_in_one_line(tmp_path: P
     assert not (tmp_path / "rep").exists() and not list(tmp_path.rglob("*.mcap*"))
 
 
-# ----------------------------------------------------------------------------- item 14: combinations
+# ----------------------------------------------------------------------------- combinations
 @pytest.mark.parametrize(
     ("extra", "named"),
     [
