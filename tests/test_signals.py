@@ -167,8 +167,8 @@ def test_sigterm_is_honoured_when_the_parent_ignored_it(tmp_path: Path) -> None:
 
 
 def test_sigint_is_honoured_when_started_with_it_ignored(tmp_path: Path) -> None:
-    """Issue 37: a shell starts background jobs with SIGINT ignored, and Python then installs no
-    Ctrl-C handler, so ``kill -INT`` did nothing while SIGTERM worked; lagrseq installs its own."""
+    """A shell starts background jobs with SIGINT ignored, and Python then installs no Ctrl-C
+    handler, so ``kill -INT`` would do nothing while SIGTERM works; lagrseq installs its own."""
     code = (
         "import signal, subprocess, sys\n"
         "signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
