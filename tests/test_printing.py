@@ -1,6 +1,6 @@
-"""Outside text (file names, model paths, GGUF metadata, host
-names) is printed on one line with control and format characters escaped, and a terminal
-encoding that cannot write a character escapes it instead of raising UnicodeEncodeError.
+"""Outside text (file names, model paths, GGUF metadata, host names) is printed on one line with
+control and format characters escaped, and a terminal encoding that cannot write a character
+escapes it instead of raising UnicodeEncodeError.
 Real files with hostile names, the real program in fresh processes."""
 
 from __future__ import annotations
