@@ -1,6 +1,6 @@
 """Every numeric configuration field has a declared range, checked before any trial starts, and
 the command line's numbers are read by validators that refuse NaN, infinities and values out of
-range with one line (issue 8, defects 6, 9 and 10)."""
+range with one line."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
-"""Issue 37, item 5 (the text cases): outside text (file names, model paths, GGUF metadata, host
-names) is printed on one line with control and format characters escaped, and a terminal
-encoding that cannot write a character escapes it instead of raising UnicodeEncodeError.
+"""Outside text (file names, model paths, GGUF metadata, host names) is printed on one line with
+control and format characters escaped, and a terminal encoding that cannot write a character
+escapes it instead of raising UnicodeEncodeError.
 Real files with hostile names, the real program in fresh processes."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from lagrseq.text import printable
-from tests.llm.test_gguf import build, model_pairs
+from tests.support.gguf import build, model_pairs
 
 ROOT = Path(__file__).resolve().parents[1]
 NOT_UTF8 = os.fsdecode(b"caf\xe9-\xff.gguf")

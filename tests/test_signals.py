@@ -167,8 +167,8 @@ def test_sigterm_is_honoured_when_the_parent_ignored_it(tmp_path: Path) -> None:
 
 
 def test_sigint_is_honoured_when_started_with_it_ignored(tmp_path: Path) -> None:
-    """Issue 37: a shell starts background jobs with SIGINT ignored, and Python then installs no
-    Ctrl-C handler, so ``kill -INT`` did nothing while SIGTERM worked; lagrseq installs its own."""
+    """A shell starts background jobs with SIGINT ignored, and Python then installs no Ctrl-C
+    handler, so ``kill -INT`` would do nothing while SIGTERM works; lagrseq installs its own."""
     code = (
         "import signal, subprocess, sys\n"
         "signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
@@ -199,8 +199,8 @@ def _session(sid: int) -> set[int]:
 
 
 def test_sigkill_of_replay_leaves_no_process_of_its_session(tmp_path: Path) -> None:
-    """Issue 37: ``replay --jobs 2`` killed with SIGKILL left its spawn workers and the resource
-    tracker alive; its workers now die with it, and the tracker with them."""
+    """``replay --jobs 2`` killed with SIGKILL leaves neither its spawn workers nor the resource
+    tracker alive: they die with it."""
     golden = ROOT / "fixtures" / "golden" / "cube-stacking-lagr-seq-upstream-4ep.mcap"
     runs = tmp_path / "runs"
     runs.mkdir()

@@ -1,5 +1,5 @@
 """One TOML reader for configuration files, suite files and price tables: every unusable file is
-one ConfigError line naming the path and the problem, never a traceback (issue 8, defect 9)."""
+one ConfigError line naming the path and the problem, never a traceback."""
 
 from __future__ import annotations
 
@@ -87,7 +87,7 @@ def test_a_file_that_fails_on_read() -> None:
 
 
 def test_an_endless_device_is_refused_before_it_is_read() -> None:
-    started = time.perf_counter()  # issue 25: every input is checked to be a regular file first
+    started = time.perf_counter()  # every input is checked to be a regular file first
     with pytest.raises(ConfigError, match="config file /dev/zero is a character device; expected a TOML file"):
         read_toml("/dev/zero")
     assert time.perf_counter() - started < 1.0

@@ -327,7 +327,7 @@ def test_a_live_run_on_dask_writes_no_fragment_of_the_key(
     cluster with a budget: no log, ledger, worker scratch file or output holds a fragment."""
     import dask
 
-    from tests.llm.test_redaction import ECHO_KEY, echo_completion, echoing, leaks, written
+    from tests.support.redaction import ECHO_KEY, echo_completion, echoing, leaks, written
 
     monkeypatch.setenv("OPENAI_API_KEY", ECHO_KEY)
     server.script.extend(echoing(echo_completion) for _ in range(200))

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from lagrseq import cli
 from lagrseq.llm.servers import base_url_problem
-from tests.llm.test_redaction import ECHO_KEY, leaks, written
+from tests.support.redaction import ECHO_KEY, leaks, written
 
 SHAPES = {
     "path (the probe's)": f"http://127.0.0.1:9/{ECHO_KEY}/v1",

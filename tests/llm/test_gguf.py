@@ -18,36 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lagrseq.llm import gguf
-
-
-def _string(text: str) -> bytes:
-    data = text.encode()
-    return struct.pack("<Q", len(data)) + data
-
-
-def _kv(key: str, kind: int, payload: bytes) -> bytes:
-    return _string(key) + struct.pack("<I", kind) + payload
-
-
-def build(pairs: list[bytes], version: int = 3, tensors: int = 0, extra: bytes = b"\0" * 32) -> bytes:
-    return b"GGUF" + struct.pack("<IQQ", version, tensors, len(pairs)) + b"".join(pairs) + extra
-
-
-def model_pairs(vocabulary: int = 5) -> list[bytes]:
-    tokens = struct.pack("<IQ", 8, vocabulary) + b"".join(_string(f"t{i}") for i in range(vocabulary))
-    return [
-        _kv("general.architecture", 8, _string("qwen2")),
-        _kv("general.name", 8, _string("Qwen2.5 0.5B Instruct")),
-        _kv("general.basename", 8, _string("Qwen2.5")),
-        _kv("general.size_label", 8, _string("0.5B")),
-        _kv("general.file_type", 4, struct.pack("<I", 15)),
-        _kv("qwen2.context_length", 4, struct.pack("<I", 32768)),
-        _kv("qwen2.rope.freq_base", 6, struct.pack("<f", 1e6)),
-        _kv("tokenizer.ggml.scores", 9, struct.pack("<IQ", 6, 3) + struct.pack("<3f", 0.0, 1.0, 2.0)),
-        _kv("tokenizer.ggml.tokens", 9, tokens),
-        _kv("tokenizer.chat_template", 8, _string("{% for m in messages %}{{ m.content }}{% endfor %}")),
-        _kv("general.flag", 7, b"\x01"),
-    ]
+from tests.support.gguf import build, gguf_string, key_value, model_pairs
 
 
 def test_a_hand_built_header_reads_back(tmp_path: Path) -> None:
@@ -66,8 +37,8 @@ def test_a_hand_built_header_reads_back(tmp_path: Path) -> None:
 
 def test_no_chat_template_and_unknown_file_type_are_said(tmp_path: Path) -> None:
     path = tmp_path / "base.gguf"
-    path.write_bytes(build([_kv("general.architecture", 8, _string("gemma3")),
-                            _kv("general.file_type", 4, struct.pack("<I", 999))]))
+    path.write_bytes(build([key_value("general.architecture", 8, gguf_string("gemma3")),
+                            key_value("general.file_type", 4, struct.pack("<I", 999))]))
     header = gguf.read_header(path)
     assert not header.chat_template and header.quantization == "file_type 999"
     assert header.context_length is None
@@ -82,9 +53,9 @@ def test_no_chat_template_and_unknown_file_type_are_said(tmp_path: Path) -> None
         (b"GGUF" + struct.pack("<IQQ", 3, 0, 10**9), "metadata pairs"),
         (b"GGUF" + struct.pack("<IQQ", 3, 0, 1) + struct.pack("<Q", 2**62), "strings over"),
         (b"GGUF" + struct.pack("<IQQ", 3, 0, 1) + struct.pack("<Q", 500) + b"x" * 10, "truncated"),
-        (build([_kv("k", 77, b"")]), "unknown value type 77"),
-        (build([_kv("k", 9, struct.pack("<IQ", 8, 10**12))]), "array of"),
-        (build([_kv("k", 9, struct.pack("<IQ", 4, 10**6))], extra=b""), "truncated"),
+        (build([key_value("k", 77, b"")]), "unknown value type 77"),
+        (build([key_value("k", 9, struct.pack("<IQ", 8, 10**12))]), "array of"),
+        (build([key_value("k", 9, struct.pack("<IQ", 4, 10**6))], extra=b""), "truncated"),
     ],
 )
 def test_malformed_files_are_one_error_naming_the_problem(tmp_path: Path, data: bytes, fragment: str) -> None:

@@ -1,4 +1,4 @@
-"""Issue 37, item 1: the key never reaches the terminal, a log, a store or an error line, in any form
+"""The key never reaches the terminal, a log, a store or an error line, in any form
 a server or a user can turn it into: a header value, a --base-url holding it (or 8 characters of
 it), an echo with a zero-width space every 4 characters. Real HTTP on 127.0.0.1, real MCAP files,
 real stores, the real command line."""
@@ -24,7 +24,7 @@ from lagrseq.llm.live import LiveProvider
 from lagrseq.logs.sink import McapSink
 from lagrseq.tasks import cube
 from tests.llm.conftest import KEY_ENV, FakeOpenAI, Reply, fast_settings
-from tests.llm.test_redaction import visible, windows, written
+from tests.support.redaction import visible, windows, written
 
 ROOT = Path(__file__).resolve().parents[2]
 KEY = "sk-proj-" + "".join(np.random.default_rng(37).choice(list(string.ascii_letters + string.digits), 48))
@@ -255,7 +255,7 @@ def test_a_usage_error_repeating_a_value_that_is_the_key_blanks_it(tmp_path: Pat
 
 def test_a_model_name_holding_the_key_is_refused_before_it_is_sent_or_stored(server: FakeOpenAI, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from lagrseq.llm.store import RecordStore, key_of_request
-    from tests.llm.test_redaction import query
+    from tests.support.redaction import query
 
     monkeypatch.setenv(KEY_ENV, KEY)
     with LiveProvider(fast_settings(server.url), rng=np.random.default_rng(0)) as live, pytest.raises(LagrseqError, match="model name") as caught:

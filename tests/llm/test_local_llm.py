@@ -160,12 +160,12 @@ def test_serve_llm_answers_until_sigterm(tmp_path: Path) -> None:
     assert url.startswith("http://127.0.0.1:") and httpx.get(f"{url}/models", timeout=10).status_code == 200
     process.send_signal(signal.SIGTERM)
     _, err = process.communicate(timeout=60)
-    assert process.returncode == 143 and "stopped" in err  # SIGTERM: 143 (issue 25)
+    assert process.returncode == 143 and "stopped" in err  # SIGTERM: 143
     assert gone(server_pid(err))
 
 
 def test_run_against_the_real_model_logs_live_queries(tmp_path: Path) -> None:
-    """The issue's done criterion, one trial of 5 episodes."""
+    """One trial of 5 episodes against the real model."""
     config = cfg.load("cube-stacking", "lagr-seq", "upstream", None, ["run.episodes=5"])
     results = runner.run_trials(
         wiring.with_provider_model(config, "local"), 1, 0, "local", tmp_path / "run", provider_options=wiring.LocalOptions(threads=1)

@@ -29,16 +29,14 @@ from lagrseq.llm import local
 from lagrseq.logs.reader import find_logs, read_topic
 from lagrseq.loop.lagr import query_for
 from lagrseq.running import wiring
+from tests.support.local_server import FAKE, GGUF, gone, start_line
 
 ROOT = Path(__file__).resolve().parents[2]
-FAKE = Path(__file__).resolve().parent / "fake_llama"
-GGUF = b"GGUF\x03\x00\x00\x00" + bytes(56)
 
 def DEFAULT_SIGINT() -> None:  # noqa: N802 (used like a constant)
     """In the child: Ctrl-C's default action, so Python raises KeyboardInterrupt there even when
     this test run itself was started as a background job (whose SIGINT is ignored and inherited)."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)
-
 
 
 @pytest.fixture
@@ -49,24 +47,6 @@ def fake(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Path:
     model = tmp_path / "tiny-model.gguf"
     model.write_bytes(GGUF)
     return model
-
-
-def alive(pid: int) -> bool:
-    """The process exists and is not a zombie."""
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state != "Z"
-
-
-def gone(pid: int, within_s: float = 20.0) -> bool:
-    deadline = time.monotonic() + within_s
-    while time.monotonic() < deadline:
-        if not alive(pid):
-            return True
-        time.sleep(0.05)
-    return False
 
 
 def helper_pid(log: Path) -> int:
@@ -91,12 +71,6 @@ def group_members(pgid: int) -> list[int]:
         if int(fields[2]) == pgid:
             members.append(int(stat.parent.name))
     return members
-
-
-def start_line(text: str) -> tuple[int, Path]:
-    match = re.search(r"\(pid (\d+), .*; log (\S+)\)", text)
-    assert match, text
-    return int(match.group(1)), Path(match.group(2))
 
 
 def test_the_provider_starts_asks_and_stops_the_server_and_its_group(fake: Path) -> None:
@@ -217,10 +191,10 @@ def test_ctrl_c_stops_the_run_and_its_server(fake: Path, tmp_path: Path) -> None
     assert "interrupted" in rest and gone(pid) and gone(helper)
 
 
-@pytest.mark.slow  # under tox the old recording did not end on SIGTERM (an inherited ignored/blocked SIGTERM; issue 25)
+@pytest.mark.slow  # under tox a SIGTERM may arrive ignored or blocked by inheritance
 def test_sigterm_ends_a_recording_and_its_server_keeping_the_answers(fake: Path, tmp_path: Path) -> None:
     """kill, timeout and batch schedulers send SIGTERM, which stops lagrseq as Ctrl-C does (exit
-    143; issue 25): its server dies with it (the kernel's parent-death signal is SIGKILL; with SIGTERM a real server waited
+    143): its server dies with it (the kernel's parent-death signal is SIGKILL; with SIGTERM a real server waited
     for its request in flight and outlived lagrseq), and every answer already returned stays in
     the store."""
     from lagrseq.llm.store import RecordStore
@@ -261,7 +235,7 @@ def test_serve_llm_runs_until_sigterm(fake: Path, tmp_path: Path) -> None:
     process.send_signal(signal.SIGTERM)
     _, err = process.communicate(timeout=60)
     pid, _ = start_line(err)
-    assert process.returncode == 143 and "stopped" in err and gone(pid)  # SIGTERM: 143 (issue 25)
+    assert process.returncode == 143 and "stopped" in err and gone(pid)  # SIGTERM: 143
 
 
 def test_lagrseq_killed_outright_takes_its_server_along(fake: Path, tmp_path: Path) -> None:

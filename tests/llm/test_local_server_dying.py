@@ -23,7 +23,7 @@ from lagrseq.errors import ProviderError
 from lagrseq.llm import local
 from lagrseq.loop.lagr import query_for
 from lagrseq.running import wiring
-from tests.llm.test_local_server import FAKE, GGUF, gone, start_line
+from tests.support.local_server import FAKE, GGUF, gone, start_line
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -87,7 +87,7 @@ def test_a_server_killed_mid_run_is_restarted_once_then_the_request_fails_in_one
 
 
 def test_a_server_killed_by_an_illegal_instruction_says_what_it_means_and_is_not_restarted(model: Path) -> None:
-    # issue 38: a llama.cpp built with -march=native on another CPU (or a wheel pip cached there)
+    # a llama.cpp built with -march=native on another CPU (or a wheel pip cached there)
     # dies of SIGILL at its first request; restarting it only dies again
     provider, query, said = provider_and_query(model)
     try:

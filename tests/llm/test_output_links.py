@@ -1,4 +1,4 @@
-"""Issue 37, item 2: outputs never go through a link nor over a user's file. A symlink planted as
+"""Outputs never go through a link nor over a user's file. A symlink planted as
 a log's ``.partial`` or final name, as ``cache export --out`` or ``screen --answers``, is refused
 in one line with the file it points at untouched; ``cache export --out`` inside the store it
 exports is refused; an existing ``--answers`` file is refused before anything is asked, never

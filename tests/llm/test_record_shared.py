@@ -1,8 +1,8 @@
-"""Several ``lagrseq record`` processes into one store share what they record (issue 37).
+"""Several ``lagrseq record`` processes into one store share what they record.
 
-Four ``record --samples 3`` processes started at once into one store used to end with up to 12
-answers per key: each read the store before any of them had stored anything, and each paid for
-the whole set. A recorder now claims a key (``RecordStore.claim``) and reads it again before it
+Four ``record --samples 3`` processes started at once into one store could end with up to 12
+answers per key, if each read the store before any of them had stored anything and each paid for
+the whole set. A recorder claims a key (``RecordStore.claim``) and reads it again before it
 pays; the fake server on 127.0.0.1 counts the requests.
 """
 

@@ -13,7 +13,7 @@ import pytest
 
 from lagrseq import cli
 from tests.llm.conftest import FakeOpenAI
-from tests.llm.test_redaction import ECHO_KEY, HARMLESS, echo_completion, echoing, leaks, written
+from tests.support.redaction import ECHO_KEY, HARMLESS, echo_completion, echoing, leaks, written
 
 
 @pytest.mark.slow
@@ -90,7 +90,7 @@ def test_a_key_that_cannot_go_in_a_header_is_one_line_exit_2(
 def test_a_failing_server_that_echoes_the_key_leaves_no_fragment_in_stderr_or_files(
     tmp_path: Path, server: FakeOpenAI, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str], failure: str, command: str
 ) -> None:
-    from tests.llm.test_redaction import FAILURES
+    from tests.support.redaction import FAILURES
 
     monkeypatch.setenv("OPENAI_API_KEY", ECHO_KEY)
     replies = FAILURES[failure]

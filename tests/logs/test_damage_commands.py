@@ -1,4 +1,4 @@
-"""Issue 8, items 4 and 15: a damaged log is found by every command that reads logs, also where the
+"""A damaged log is found by every command that reads logs, also where the
 damage is in a chunk the command never opens, and each command either goes on without it (one
 warning naming its full path) or ends in one line; never another exception, a hang or an
 allocation far beyond the file."""
@@ -22,7 +22,7 @@ from lagrseq.logs.reader import full_path, is_complete, read_info
 from lagrseq.logs.recover import recover_all
 from lagrseq.running import runner
 from lagrseq.running.recording import record_patterns
-from tests.logs.test_damage import CHUNK_DATA_LENGTHS, DATA, GOLDEN, MEMORY_BOUND, length_fields
+from tests.support.golden_mcap import CHUNK_DATA_LENGTHS, DATA, GOLDEN, MEMORY_BOUND, length_fields
 
 TIME_BOUND = 2.0
 

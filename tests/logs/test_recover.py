@@ -352,7 +352,7 @@ def test_a_partial_file_still_being_written_is_refused(tmp_path: Path) -> None:
 def test_recover_never_writes_through_a_planted_link(tmp_path: Path) -> None:
     """A symbolic link planted at the output, at the default output or at the temporary file
     ``NAME.mcap.recovering`` (a shared folder) is refused in one line with exit status 2: the
-    file it points to is unchanged, and a dangling link's target is not created (issue 37)."""
+    file it points to is unchanged, and a dangling link's target is not created."""
     data = GOLDEN.read_bytes()[:13000]
     victim = tmp_path / "victim.txt"
     victim.write_text("someone's file\n")

@@ -191,9 +191,9 @@ def test_the_command_line_refuses_0000_without_token_and_tls(tmp_path: Path) -> 
 
 
 def test_a_damaged_tls_cert_or_key_is_one_clear_line_before_grpc_starts(tmp_path: Path, tls_pair: tuple[Path, Path]) -> None:
-    """Issue 37: a truncated --tls-cert or --tls-key printed three gRPC log lines and a vague "in
-    use ... or a bad TLS certificate/key"; now the files are checked (OpenSSL through ``ssl``)
-    before any server starts."""
+    """A truncated --tls-cert or --tls-key is named in one line, not three gRPC log lines and a
+    vague "in use ... or a bad TLS certificate/key": the files are checked (OpenSSL through
+    ``ssl``) before any server starts."""
     cert, key = tls_pair
     lines = cert.read_text().splitlines()
     cut_cert = tmp_path / "cut-cert.pem"

@@ -21,7 +21,7 @@ from lagrseq.logs.events import EpisodeEvent, Transition
 from lagrseq.logs.task_fields import builtin_episode, builtin_step, task_fields
 from lagrseq.registry import LOGGED_EPISODE_FIELDS, LOGGED_STEP_FIELDS, TaskSpec
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 PLUGIN = '''
 import os

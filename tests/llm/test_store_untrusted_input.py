@@ -3,16 +3,11 @@ damaged store rows give one line naming the key, and a read-only store is read w
 
 from __future__ import annotations
 
-import contextlib
-import copy
 import io
-import json
-import os
 import pickle
 import re
 import shutil
 import sqlite3
-import subprocess
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -26,10 +21,9 @@ from jsonschema import Draft202012Validator
 
 from lagrseq import cli
 from lagrseq.errors import RecordMiss, StoreError
-from lagrseq.llm.base import Message, Query, Usage
 from lagrseq.llm.mock import MockProvider
 from lagrseq.llm.recorded import RecordedProvider, RecordingProvider
-from lagrseq.llm.records import MAX_ANSWER_CHARS, MAX_LINE_BYTES, RECORD_SCHEMA, fits
+from lagrseq.llm.records import MAX_LINE_BYTES, RECORD_SCHEMA, fits
 from lagrseq.llm.store import (
     JSONOnlyDisk,
     RecordStore,
@@ -38,30 +32,18 @@ from lagrseq.llm.store import (
     import_jsonl,
     import_jsonl_file,
     key_of_request,
-    query_key,
 )
 from tests.llm.conftest import authors_cache
-
-ENDPOINT = "api.openai.com"
-
-
-def query(prompt: str = "complete ['e','f']") -> Query:
-    return Query("cube-stacking", "gpt-3.5-turbo", (Message("user", prompt),), 0.0, 256)
-
-
-def record(index: int = 0, prompt: str = "complete ['e','f']") -> dict[str, Any]:
-    """A valid JSONL record, as `cache export` writes it."""
-    key, request = query_key(query(prompt), ENDPOINT)
-    sample = Sample(
-        id=f"s{index}", text=f"['e','f','a{index}']", origin="live", model="gpt-3.5-turbo-0125",
-        usage=Usage(120, 9, 0), finish_reason="stop", latency_s=0.4, cost_usd=0.0001,
-        recorded_at="2025-01-31T12:00:00Z", provenance="chatcmpl-1",
-    )
-    return {"format": "lagrseq.recorded/1", "key": key, "index": index, "task": "cube-stacking", "request": request, "sample": sample.to_json()}
-
-
-def line(data: dict[str, Any]) -> str:
-    return json.dumps(data, sort_keys=True)
+from tests.support.records import (
+    BAD_FIELD_VALUES,
+    DELETE,
+    ENDPOINT,
+    line,
+    made_read_only,
+    query,
+    record,
+    with_field,
+)
 
 
 def snapshot(directory: Path) -> dict[str, tuple[bytes, int]]:
@@ -94,52 +76,17 @@ def fresh_copy(base_store: Path, target: Path) -> Path:
     return target
 
 
-# ------------------------------------------------------------------------------ defect 7: JSONL
-def _set(data: dict[str, Any], path: str, value: Any) -> dict[str, Any]:
-    out = copy.deepcopy(data)
-    *parents, last = path.split(".")
-    node: Any = out
-    for part in parents:
-        node = node[int(part)] if part.isdigit() else node[part]
-    if value is _DELETE:
-        del node[int(last) if last.isdigit() else last]
-    else:
-        node[int(last) if last.isdigit() else last] = value
-    return out
+# ------------------------------------------------------------------------------ JSONL import
 
 
-_DELETE = object()
-
-THE_ISSUES_VALUES = [
-    ("request.messages", [42], "request.messages[0] is 42, expected an object with role and content"),
-    ("request", {"key_version": 1, "messages": []}, "request lacks fields 'endpoint', 'model'"),
-    ("sample.text", "broken \ud800 answer", "sample.text holds a lone surrogate '\\ud800'"),
-    ("request.messages", [], "request.messages is an empty list, expected a list of 1 to 1000 chat messages"),
-    ("request.temperature", "0.0", "request.temperature is '0.0', expected a number from 0 to 2"),
-    ("request.model", None, "request.model is null, expected a model name"),
-    ("sample.usage.prompt_tokens", -5, "sample.usage.prompt_tokens is -5, expected an integer from 0 to 10000000"),
-    ("sample.usage.completion_tokens", 10**12, "sample.usage.completion_tokens is 1000000000000, expected an integer from 0"),
-    ("sample.cost_usd", "0.01", "sample.cost_usd is '0.01', expected US dollars"),
-    ("sample.latency_s", float("nan"), "sample.latency_s is nan, expected a finite number"),
-    ("sample.id", "", "sample.id is an empty string, expected an id"),
-    ("request.temperature", float("inf"), "request.temperature is inf, expected a number from 0 to 2"),
-    ("request.messages.0.content", 7, "request.messages[0].content is 7, expected a string"),
-    ("sample.text", "x" * (MAX_ANSWER_CHARS + 1), f"sample.text is a string of {MAX_ANSWER_CHARS + 1} characters, expected an answer of at most {MAX_ANSWER_CHARS}"),
-    ("request.key_version", _DELETE, "request lacks field 'key_version'"),
-    ("sample.recorded_as", "pickle", "sample.recorded_as is 'pickle', expected text, array or list"),
-    ("sample.surprise", 1, "sample has unknown field 'surprise'"),
-    ("request.seed", 2**70, "request.seed is 1180591620717411303424, expected a 64-bit integer"),
-]
-
-
-@pytest.mark.parametrize(("path", "value", "message"), THE_ISSUES_VALUES, ids=[p for p, _, _ in THE_ISSUES_VALUES])
-def test_every_bad_value_the_issue_found_is_refused_with_its_line_and_the_store_is_unchanged(
+@pytest.mark.parametrize(("path", "value", "message"), BAD_FIELD_VALUES, ids=[p for p, _, _ in BAD_FIELD_VALUES])
+def test_every_bad_field_value_is_refused_with_its_line_and_the_store_is_unchanged(
     base_store: Path, tmp_path: Path, path: str, value: Any, message: str
 ) -> None:
     store = fresh_copy(base_store, tmp_path / "store")
     listing = exported(store)
     before = snapshot(store)
-    text = "\n".join([line(record(5)), line(_set(record(6), path, value)), line(record(7))]) + "\n"
+    text = "\n".join([line(record(5)), line(with_field(record(6), path, value)), line(record(7))]) + "\n"
     with pytest.raises(StoreError) as caught:
         import_jsonl(io.StringIO(text), store, "bad.jsonl")
     error = str(caught.value)
@@ -152,7 +99,7 @@ def test_every_bad_value_the_issue_found_is_refused_with_its_line_and_the_store_
 def test_bad_lines_are_listed_with_numbers_and_at_most_five_are_shown(tmp_path: Path) -> None:
     lines = [line(record(i)) for i in range(20)]
     for i in (1, 4, 6, 9, 12, 15, 18):
-        lines[i] = line(_set(record(i), "sample.latency_s", -1))
+        lines[i] = line(with_field(record(i), "sample.latency_s", -1))
     with pytest.raises(StoreError) as caught:
         import_jsonl(io.StringIO("\n".join(lines)), tmp_path / "new", "x.jsonl")
     error = str(caught.value)
@@ -188,15 +135,15 @@ REQUIRED = ["request", "sample", "request.key_version", "request.endpoint", "req
 def _mutated_line(path: str, value: Any) -> str:
     if isinstance(value, str) and value.startswith("NESTED:"):
         depth = int(value.split(":")[1])
-        return line(_set(record(3), path, "@@")).replace('"@@"', "[" * depth + "]" * depth)
-    return line(_set(record(3), path, value))
+        return line(with_field(record(3), path, "@@")).replace('"@@"', "[" * depth + "]" * depth)
+    return line(with_field(record(3), path, value))
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(
     mutation=st.one_of(
         st.tuples(st.sampled_from(FIELDS), BAD_ANYWHERE),
-        st.tuples(st.sampled_from(REQUIRED), st.just(_DELETE)),
+        st.tuples(st.sampled_from(REQUIRED), st.just(DELETE)),
     ),
     position=st.integers(min_value=0, max_value=3),
     as_bytes=st.booleans(),
@@ -222,8 +169,8 @@ def test_any_malformed_record_is_refused_with_its_line_number_and_nothing_is_wri
 
 
 def test_valid_records_import_with_numbers_normalised_into_one_key(tmp_path: Path) -> None:
-    hand_written = _set(record(1), "request.temperature", 0)  # 0 and 0.0 make one key
-    hand_written = _set(hand_written, "request.top_p", 1)
+    hand_written = with_field(record(1), "request.temperature", 0)  # 0 and 0.0 make one key
+    hand_written = with_field(hand_written, "request.top_p", 1)
     minimal = {"format": "lagrseq.recorded/1", "request": record(2)["request"], "sample": {"id": "m", "text": "", "origin": "authors-cache"}}
     text = "\n".join(line(r) for r in (record(0), hand_written, minimal)) + "\n\n"
     report = import_jsonl(io.BytesIO(("\ufeff" + text).encode()), tmp_path / "s")
@@ -317,7 +264,7 @@ def test_a_large_file_of_valid_lines_imports_in_batches(tmp_path: Path) -> None:
     assert (again.added, again.already_present) == (0, 1500)
 
 
-# ------------------------------------------------------------------------------ defect 7: damaged rows
+# ------------------------------------------------------------------------------ damaged rows
 def _plant(directory: Path, key: str, value: Any) -> None:
     """Write a row as an older lagrseq or a hand edit could (JSON, bypassing every check)."""
     with diskcache.Cache(str(directory), disk=JSONOnlyDisk, eviction_policy="none") as cache:
@@ -330,12 +277,12 @@ def _good_value() -> dict[str, Any]:
 
 
 DAMAGE = [
-    ("messages [42]", lambda v: _set(v, "request.messages", [42]), "request.messages[0] is 42"),
-    ("lone surrogate", lambda v: _set(v, "samples.0.text", "\udcff"), "samples[0].text holds a lone surrogate"),
-    ("NaN latency", lambda v: _set(v, "samples.0.latency_s", float("nan")), "samples[0].latency_s is nan"),
+    ("messages [42]", lambda v: with_field(v, "request.messages", [42]), "request.messages[0] is 42"),
+    ("lone surrogate", lambda v: with_field(v, "samples.0.text", "\udcff"), "samples[0].text holds a lone surrogate"),
+    ("NaN latency", lambda v: with_field(v, "samples.0.latency_s", float("nan")), "samples[0].latency_s is nan"),
     ("not an object", lambda v: [1, 2], "the entry is a list of 2 items, expected an object"),
-    ("request changed", lambda v: _set(v, "request.temperature", 1.0), "the key is not the hash of its request"),
-    ("no samples", lambda v: _set(v, "samples", _DELETE), "lacks field 'samples'"),
+    ("request changed", lambda v: with_field(v, "request.temperature", 1.0), "the key is not the hash of its request"),
+    ("no samples", lambda v: with_field(v, "samples", DELETE), "lacks field 'samples'"),
 ]
 
 
@@ -372,34 +319,7 @@ def test_a_store_row_pointing_outside_the_store_is_refused(tmp_path: Path) -> No
         list(opened.entries())
 
 
-# ------------------------------------------------------------------------------ defect 12: read-only stores
-
-@contextlib.contextmanager
-def made_read_only(store: Path) -> Iterator[Path]:
-    """``store`` (a directory) and everything in it unwritable, not even by root: ``chattr +i``
-    where the file system allows it, plain permissions for other users; the test is skipped where
-    neither holds. Writable again afterwards."""
-    targets = [store, *store.rglob("*")]
-    if os.geteuid() == 0:
-        try:
-            subprocess.run(["chattr", "+i", *map(str, targets)], check=True, capture_output=True)
-        except (OSError, subprocess.CalledProcessError):
-            pytest.skip("root ignores permissions and chattr +i is not available here")
-        undo = ["chattr", "-i", *map(str, targets)]
-    else:
-        for path in reversed(targets):
-            path.chmod(0o555 if path.is_dir() else 0o444)
-        undo = []
-    try:
-        with pytest.raises(OSError):
-            (store / "probe").write_text("x")
-        yield store
-    finally:
-        if undo:
-            subprocess.run(undo, check=False, capture_output=True)
-        for path in targets:
-            if path.exists():
-                path.chmod(0o755 if path.is_dir() else 0o644)
+# ------------------------------------------------------------------------------ read-only stores
 
 
 @pytest.fixture
@@ -512,7 +432,7 @@ VALID_RECORD = record(0)
 
 
 @settings(max_examples=150, deadline=None)
-@given(path=st.sampled_from(FIELDS), value=JSON_VALUES | st.just(_DELETE))
+@given(path=st.sampled_from(FIELDS), value=JSON_VALUES | st.just(DELETE))
 def test_the_fast_check_gives_jsonschemas_verdict(path: str, value: Any) -> None:
-    mutated = _set(VALID_RECORD, path, value)
+    mutated = with_field(VALID_RECORD, path, value)
     assert fits(mutated, RECORD_SCHEMA) == RECORD_VALIDATOR.is_valid(mutated)

@@ -98,7 +98,7 @@ def test_every_marked_item_gets_a_recorded_line_where_the_caches_cover_it() -> N
     rows = next(i for i in covered.items if i.id == "appendix-stack-size").runs
     recorded_rows = {r.row for r in rows if r.row and "authors" in r.row}
     assert recorded_rows == {"8 (authors' GPT answers)", "11 (authors' GPT answers)"}
-    # LaGR (the paper's ratio, issue 19) and LaGR-SEQ (beside it) on the answers, over the same Q-learning
+    # LaGR (the paper's ratio) and LaGR-SEQ (beside it) on the answers, over the same Q-learning
     assert {r.method for r in rows if r.row == "8 (authors' GPT answers)"} == {"lagr", "lagr-seq", "baseline"}
     # no baseline is ever run on the recorded answers, and only caches present add lines
     assert all(r.method != "baseline" for runs in added.values() for r in runs)
@@ -151,7 +151,7 @@ def test_reproduce_with_the_authors_caches_adds_rows_that_replay_rebuilds_from_l
     assert (out / AUTHORS_STORE_NAME).is_dir()
     table = (out / "reports" / "tables" / "t2.md").read_text()
     recorded = [line for line in table.splitlines() if line.startswith("| 0 (authors' GPT answers)")]
-    # each cell says how many of its answers the store lacked (issue 38): the small run's prompts are all in the caches
+    # each cell says how many of its answers the store lacked: the small run's prompts are all in the caches
     assert len(recorded) == 1 and recorded[0].count("; misses: 0 of ") == 2
     # replay alone, with the plain suite, finds the recorded runs in the logs and makes the same table
     again = replay([out / "runs"], tmp_path / "again", suite=load_suite(suite_path))
@@ -163,7 +163,7 @@ def test_reproduce_with_the_authors_caches_adds_rows_that_replay_rebuilds_from_l
     assert board == (again.out / "scoreboard.md").read_text()
     rows = [line for line in board.splitlines() if line.startswith("| queries")]
     assert len(rows) == 6 and sum("authors' GPT answers" in r for r in rows) == 3
-    # every row: what made it and one verdict (issue 19): the mock rule-based, the authors' answers
+    # every row: what made it and one verdict: the mock rule-based, the authors' answers
     # theirs; 2 trials are never "reproduced"
     assert all(sum(v in r for v in ("| reproduced", "| ✗ differs", "| inconclusive", "| fitted", "| no verdict")) == 1 for r in rows)
     assert not any("| reproduced" in r for r in rows) and all("(n=2" in r for r in rows)

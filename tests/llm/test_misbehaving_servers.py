@@ -27,7 +27,7 @@ from lagrseq.llm import local
 from lagrseq.llm.live import LiveProvider
 from lagrseq.llm.store import RecordStore, query_key, sample_from_answer
 from tests.llm.conftest import fast_settings
-from tests.llm.test_limits import RawServer, headers, live, query, serve
+from tests.support.servers import RawServer, headers, live, query, serve
 
 DRIP_BYTES = 400
 """A dripping server sends this many bytes, one every DRIP_S: 40 s, against a 1 s deadline."""

@@ -1,59 +1,24 @@
-"""Issue 8, items 5, 6/10, 7, 9, 12 and 14 on the newer commands and options: every bad value,
+"""Commands and options refuse bad input: every bad value,
 name, path and combination ends in one line on stderr and exit status 2 before anything runs, and
 nothing already written is touched."""
 
 from __future__ import annotations
 
-import importlib.util
-import io
-import json
 import os
-import shutil
-import socket
-import threading
-from collections.abc import Iterator
-from contextlib import redirect_stderr, redirect_stdout, suppress
 from pathlib import Path
-from typing import Any
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lagrseq import config as cfg
-from lagrseq.cli import main
 from lagrseq.errors import ConfigError, UsageError
-from lagrseq.running.executors import check_scheduler
 from lagrseq.study import frontier
-from tests.llm.test_store_hardening import THE_ISSUES_VALUES, _set, line, made_read_only, record
+from tests.support.cli import cli, files_under, refused
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ["--set", "run.episodes=2", "--quiet"]
 RECORDED = ROOT / "recorded_llm" / "smollm2-135m-cube-t0.jsonl"
-
-
-def cli(*argv: str) -> tuple[int, str, str]:
-    """``lagrseq ARGV`` in this process: (exit status, stdout, stderr); argparse's exits count."""
-    out, err = io.StringIO(), io.StringIO()
-    with redirect_stdout(out), redirect_stderr(err):
-        try:
-            status = main(list(argv))
-        except SystemExit as exc:
-            status = exc.code if isinstance(exc.code, int) else 1
-    return status, out.getvalue(), err.getvalue()
-
-
-def refused(*argv: str) -> str:
-    """The one stderr line of a refused command (exit status 2, no traceback)."""
-    status, _, err = cli(*argv)
-    lines = err.strip().splitlines()
-    assert status == 2 and len(lines) == 1, (status, err)
-    assert "Traceback" not in err
-    return lines[0]
-
-
-def files_under(directory: Path) -> dict[str, bytes]:
-    return {str(p.relative_to(directory)): p.read_bytes() for p in sorted(directory.rglob("*")) if p.is_file()}
 
 
 # ----------------------------------------------------------------------------- --name (Also:)
@@ -82,7 +47,7 @@ def test_check_name_accepts_only_plain_names_and_refuses_the_rest_with_usage_err
     assert not any(ch in name for ch in "/\\") and all(ord(ch) >= 32 and ord(ch) != 127 for ch in name)
 
 
-# ----------------------------------------------------------------------------- item 5: --name reuse
+# ----------------------------------------------------------------------------- --name reuse
 def test_a_reused_name_under_another_configuration_is_refused_for_each_difference(tmp_path: Path) -> None:
     base = ["run", "cube-stacking", "--method", "lagr-seq", "--trials", "2", "--out", str(tmp_path), "--name", "mine", *SMALL]
     assert cli(*base)[0] == 0
@@ -121,7 +86,7 @@ def test_an_unfinished_log_of_another_configuration_is_not_overwritten_by_a_reus
     assert not partial.exists() and log.read_bytes() == data
 
 
-# ----------------------------------------------------------------------------- items 6 and 10
+# ----------------------------------------------------------------------------- policies, values and lengths
 @pytest.mark.parametrize(
     ("args", "message"),
     [
@@ -197,67 +162,7 @@ def test_audit_refuses_bad_lengths(tmp_path: Path, args: list[str], message: str
     assert not (tmp_path / "a").exists()
 
 
-# ----------------------------------------------------------------------------- dask options
-@pytest.mark.parametrize(
-    "address",
-    ["bad", "tcp://host:notaport", "tcp://host:0", "tcp://host:65536", "tcp://:8786", "tcp://host", "http://host:8786", "tcp://ho st:1", "tcp://h:1\n", "tcp://h:1\x00"],
-)
-def test_a_bad_scheduler_address_is_one_line_before_anything_starts(tmp_path: Path, address: str) -> None:
-    error = refused("run", "cube-stacking", "--executor", "dask", "--scheduler", address, "--trials", "1", "--out", str(tmp_path / "r"), *SMALL)
-    assert "--scheduler" in error and "tcp://HOST:PORT" in error
-    status, _, err = cli("reproduce", "--quick", "--items", "table2", "--executor", "dask", "--scheduler", address, "--out", str(tmp_path / "p"))
-    assert status == 2 and len(err.strip().splitlines()) == 1, err  # no progress bar drawn before it
-    assert not list(tmp_path.rglob("*.mcap*"))
-
-
-@settings(max_examples=200, deadline=None)
-@given(st.text(max_size=40))
-def test_check_scheduler_returns_an_address_or_raises_one_usage_error(text: str) -> None:
-    try:
-        assert check_scheduler(text) == text
-    except UsageError as exc:
-        assert "\n" not in str(exc)
-
-
-@pytest.fixture
-def garbage_server() -> Iterator[int]:
-    """A TCP server on 127.0.0.1 that answers every connection with bytes Dask cannot read."""
-    server = socket.socket()
-    server.bind(("127.0.0.1", 0))
-    server.listen(8)
-    server.settimeout(0.1)
-    stop = threading.Event()
-
-    def serve() -> None:
-        while not stop.is_set():
-            try:
-                conn, _ = server.accept()
-            except TimeoutError:
-                continue
-            except OSError:
-                return
-            with conn, suppress(OSError):
-                conn.sendall(b"HTTP/1.1 200 OK\r\n\r\n" + b"\xff" * 4096)
-
-    thread = threading.Thread(target=serve, daemon=True)
-    thread.start()
-    yield server.getsockname()[1]
-    stop.set()
-    thread.join(timeout=5)
-    server.close()
-
-
-def test_something_else_answering_at_the_scheduler_address_is_one_line(tmp_path: Path, garbage_server: int) -> None:
-    pytest.importorskip("distributed")
-    error = refused(
-        "run", "cube-stacking", "--executor", "dask", "--scheduler", f"tcp://127.0.0.1:{garbage_server}",
-        "--trials", "1", "--out", str(tmp_path), *SMALL,
-    )
-    assert f"no Dask scheduler answered at tcp://127.0.0.1:{garbage_server}" in error
-    assert not list(tmp_path.rglob("*.mcap*"))
-
-
-# ----------------------------------------------------------------------------- item 14: reproduce
+# ----------------------------------------------------------------------------- reproduce
 @pytest.mark.parametrize(
     ("args", "message"),
     [
@@ -283,7 +188,7 @@ def test_reproduce_validates_every_option_before_any_trial(tmp_path: Path, monke
     assert not list(tmp_path.rglob("*.mcap*"))
 
 
-# ----------------------------------------------------------------------------- item 9: input files
+# ----------------------------------------------------------------------------- input files
 def _bad_files(tmp_path: Path) -> dict[str, Path]:
     binary = tmp_path / "binary.toml"
     binary.write_bytes(bytes(range(256)) * 4)
@@ -311,53 +216,7 @@ def test_a_bad_toml_file_is_one_line_whatever_the_provider(tmp_path: Path, comma
     assert not (tmp_path / "o").exists() and not (tmp_path / "s").exists()
 
 
-# ----------------------------------------------------------------------------- item 7: JSONL readers
-@pytest.mark.parametrize(("path", "value", "message"), THE_ISSUES_VALUES[:14], ids=[p for p, _, _ in THE_ISSUES_VALUES[:14]])
-def test_cache_parse_and_recorded_jsonl_runs_refuse_a_bad_line_by_number(tmp_path: Path, path: str, value: Any, message: str) -> None:
-    bad = tmp_path / "bad.jsonl"
-    bad.write_bytes((line(record(0)) + "\n" + line(_set(record(1), path, value)) + "\n").encode("utf-8", "surrogatepass"))
-    for argv in (
-        ["cache", "parse", str(bad), "--task", "cube-stacking"],
-        ["run", "cube-stacking", "--provider", f"recorded:{bad}", "--on-miss", "mock", "--trials", "1", "--out", str(tmp_path / "o"), *SMALL],
-        ["frontier", "cube-stacking", "--provider", f"recorded:{bad}", "--on-miss", "mock", "--policies", "always", "--trials", "1", "--jobs", "1", "--out", str(tmp_path / "o"), *SMALL],
-    ):
-        error = refused(*argv)
-        assert f"line 2: {message}" in error, error
-    assert not list(tmp_path.rglob("*.mcap*"))
-
-
-# ----------------------------------------------------------------------------- item 12: read-only store
-@pytest.fixture
-def read_only_store(tmp_path: Path) -> Iterator[Path]:
-    """A store whose directory and files nobody may write (root: chattr +i, as root ignores modes)."""
-    store = tmp_path / "store"
-    assert cli("cache", "import", str(RECORDED), "--store", str(store))[0] == 0
-    with made_read_only(store):
-        yield store
-
-
-def test_a_read_only_store_serves_parse_frontier_and_runs_and_refuses_writes_in_one_line(
-    read_only_store: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    before = {p.name: p.read_bytes() for p in read_only_store.iterdir()}
-    status, out, err = cli("cache", "parse", str(read_only_store), "--task", "cube-stacking")
-    assert status == 0 and "accuracy" in out.lower(), err
-    recorded = ["--provider", f"recorded:{read_only_store}", "--base-url", "local", "--on-miss", "mock", "--trials", "1", *SMALL]
-    status, _, err = cli("frontier", "cube-stacking", "--policies", "always,seq", "--jobs", "1", "--out", str(tmp_path / "fr"), *recorded)
-    assert status == 0, err
-    assert cli("run", "cube-stacking", "--out", str(tmp_path / "runs"), *recorded)[0] == 0
-    status, _, _ = cli("cache", "list", "--store", str(read_only_store))
-    assert status == 0
-    assert "read-only" in refused("cache", "import", str(RECORDED), "--store", str(read_only_store))
-    live_misses = [{"mock": "live", "local": "http://127.0.0.1:9/v1"}.get(a, a) for a in recorded]  # nothing is sent: it fails first
-    monkeypatch.setenv("OPENAI_API_KEY", "sk-test-not-a-key")
-    assert "read-only" in refused("run", "cube-stacking", "--out", str(tmp_path / "live"), *live_misses)
-    # an export into the store it exports is refused before anything is written (issue 37)
-    assert "inside the store" in refused("cache", "export", "--store", str(read_only_store), "--out", str(read_only_store / "x.jsonl"))
-    assert {p.name: p.read_bytes() for p in read_only_store.iterdir()} == before
-
-
-# ----------------------------------------------------------------------------- item 9: output paths
+# ----------------------------------------------------------------------------- output paths
 @pytest.mark.parametrize("where", ["file", "below-file", "proc"])
 def test_cache_export_and_frontier_and_audit_outputs_that_cannot_be_written_are_one_line(tmp_path: Path, where: str) -> None:
     a_file = tmp_path / "file"
@@ -374,78 +233,6 @@ def test_cache_export_and_frontier_and_audit_outputs_that_cannot_be_written_are_
     directory.mkdir()
     assert str(directory) in refused("cache", "export", "--store", str(store), "--out", str(directory))
     assert a_file.read_text() == "keep me"
-
-
-def test_cache_import_refuses_a_directory_and_a_missing_file_in_one_line(tmp_path: Path) -> None:
-    for source in (tmp_path, tmp_path / "missing.jsonl"):
-        assert str(source) in refused("cache", "import", str(source), "--store", str(tmp_path / "s"))
-    assert not (tmp_path / "s").exists()
-
-
-def test_jsonl_export_of_a_read_store_keeps_json_lines(tmp_path: Path) -> None:
-    """Sanity: the recorded file used above imports and exports as it should (no test of the
-    hardening passes because nothing works)."""
-    store = tmp_path / "s"
-    assert cli("cache", "import", str(RECORDED), "--store", str(store))[0] == 0
-    assert cli("cache", "export", "--store", str(store), "--out", str(tmp_path / "x.jsonl"))[0] == 0
-    rows = [json.loads(x) for x in (tmp_path / "x.jsonl").read_text().splitlines()]
-    assert len(rows) == len(RECORDED.read_text().splitlines())
-    shutil.rmtree(store)
-
-
-# ----------------------------------------------------------------------------- record, --base-url
-def test_record_checks_key_url_model_and_store_before_its_progress_bar(tmp_path: Path, read_only_store: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    a_file = tmp_path / "file"
-    a_file.write_text("keep me")
-    head = ["record", "cube-stacking", "--mode", "new"]  # no --quiet: a bar drawn first would be a second line
-    monkeypatch.delenv("OPENAI_API_KEY", raising=False)
-    assert "OPENAI_API_KEY is not set" in refused(*head, "--store", str(tmp_path / "s"))
-    # a missing model file, or (core environments) the missing extra: either way one line, before the bar
-    local = refused(*head, "--store", str(tmp_path / "s"), "--provider", f"local:{tmp_path / 'none.gguf'}")
-    extra = importlib.util.find_spec("llama_cpp") is not None
-    assert ("local model" if extra else "the local-llm extra is not installed") in local
-    monkeypatch.setenv("OPENAI_API_KEY", "sk-test-not-a-key")
-    assert "http:// or https://" in refused(*head, "--store", str(tmp_path / "s"), "--base-url", "ftp://127.0.0.1")
-    assert "is not a URL" in refused(*head, "--store", str(tmp_path / "s"), "--base-url", "http://[::1")
-    assert str(a_file / "x") in refused(*head, "--store", str(a_file / "x"))
-    assert "/proc/lagrseq-x" in refused(*head, "--store", "/proc/lagrseq-x")
-    assert "read-only" in refused(*head, "--store", str(read_only_store))
-    assert a_file.read_text() == "keep me"
-
-
-@pytest.mark.parametrize("url", ["http://[bad", "http://[::1", "ftp://127.0.0.1/v1", "127.0.0.1:8080", "http://127.0.0.1:99999/v1", "http://", "http://a b/v1"])
-@pytest.mark.parametrize("command", ["run", "frontier"])
-def test_a_bad_base_url_is_one_line_before_any_trial(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, url: str, command: str) -> None:
-    monkeypatch.setenv("OPENAI_API_KEY", "sk-test-not-a-key")
-    extra = ["--policies", "always", "--jobs", "1"] if command == "frontier" else []
-    error = refused(command, "cube-stacking", "--provider", "live", "--base-url", url, "--trials", "1", "--out", str(tmp_path / "o"), *SMALL, *extra)
-    assert "URL" in error or "base URL" in error, error
-    assert not list(tmp_path.rglob("*.mcap*"))
-
-
-# ----------------------------------------------------------------------------- robot serve, --render
-@pytest.mark.parametrize("host", ["bad host", "", "10.255.255.1", "[::1", "a" * 300])
-def test_robot_serve_on_an_address_it_cannot_listen_on_is_one_line_before_the_simulator_starts(host: str) -> None:
-    error = refused("robot", "serve", "--sim", "--host", host, "--port", "0")
-    assert "cannot listen on" in error and "--host" in error
-
-
-def test_robot_serve_on_a_port_in_use_is_one_line() -> None:
-    with socket.socket() as taken:
-        taken.bind(("127.0.0.1", 0))
-        taken.listen(1)
-        port = taken.getsockname()[1]
-        assert f"cannot listen on 127.0.0.1:{port}" in refused("robot", "serve", "--sim", "--port", str(port))
-
-
-def test_render_is_checked_before_any_trial(tmp_path: Path) -> None:
-    a_file = tmp_path / "file"
-    a_file.write_text("keep me")
-    head = ["run", "--trials", "1", "--out", str(tmp_path / "r"), *SMALL]
-    assert "arm-arrangement only" in refused(head[0], "cube-stacking", *head[1:], "--render", str(tmp_path / "frames"))
-    for bad in (a_file, a_file / "below", Path("/proc/lagrseq-x")):
-        assert f"--render {bad}" in refused(head[0], "arm-arrangement", *head[1:], "--render", str(bad))
-    assert a_file.read_text() == "keep me" and not list(tmp_path.rglob("*.mcap*"))
 
 
 # ----------------------------------------------------------------------------- sizes and --set text
@@ -478,7 +265,7 @@ def test_replay_and_reproduce_refuse_every_bad_toml_file_in_one_line(tmp_path: P
     assert not (tmp_path / "rep").exists() and not list(tmp_path.rglob("*.mcap*"))
 
 
-# ----------------------------------------------------------------------------- item 14: combinations
+# ----------------------------------------------------------------------------- combinations
 @pytest.mark.parametrize(
     ("extra", "named"),
     [
@@ -514,4 +301,26 @@ def test_authors_caches_that_are_a_file_or_a_folder_of_garbage_are_one_line_and_
     for caches in (a_file, garbage, tmp_path / "missing"):
         error = refused("reproduce", "--quick", "--items", "table2", "--out", str(tmp_path / "out"), "--quiet", "--authors-caches", str(caches))
         assert f"--authors-caches {caches}" in error
+    assert not list(tmp_path.rglob("*.mcap*"))
+
+
+# ----------------------------------------------------------------------------- --render
+def test_render_is_checked_before_any_trial(tmp_path: Path) -> None:
+    a_file = tmp_path / "file"
+    a_file.write_text("keep me")
+    head = ["run", "--trials", "1", "--out", str(tmp_path / "r"), *SMALL]
+    assert "arm-arrangement only" in refused(head[0], "cube-stacking", *head[1:], "--render", str(tmp_path / "frames"))
+    for bad in (a_file, a_file / "below", Path("/proc/lagrseq-x")):
+        assert f"--render {bad}" in refused(head[0], "arm-arrangement", *head[1:], "--render", str(bad))
+    assert a_file.read_text() == "keep me" and not list(tmp_path.rglob("*.mcap*"))
+
+
+# ----------------------------------------------------------------------------- --base-url
+@pytest.mark.parametrize("url", ["http://[bad", "http://[::1", "ftp://127.0.0.1/v1", "127.0.0.1:8080", "http://127.0.0.1:99999/v1", "http://", "http://a b/v1"])
+@pytest.mark.parametrize("command", ["run", "frontier"])
+def test_a_bad_base_url_is_one_line_before_any_trial(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, url: str, command: str) -> None:
+    monkeypatch.setenv("OPENAI_API_KEY", "sk-test-not-a-key")
+    extra = ["--policies", "always", "--jobs", "1"] if command == "frontier" else []
+    error = refused(command, "cube-stacking", "--provider", "live", "--base-url", url, "--trials", "1", "--out", str(tmp_path / "o"), *SMALL, *extra)
+    assert "URL" in error or "base URL" in error, error
     assert not list(tmp_path.rglob("*.mcap*"))

@@ -21,7 +21,7 @@ from lagrseq.logs.reader import iter_messages, read_info, read_topic
 from lagrseq.running.runner import run_one, run_trials
 from lagrseq.tasks import shapes
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 GRIDS = {"image-completion": (10, 10), "object-arrangement": (5, 5)}
 BUDGET = {"image-completion": 500, "object-arrangement": 400}
 

@@ -16,7 +16,7 @@ from mcap.writer import Writer
 from lagrseq.analysis import costs, loading
 from lagrseq.logs.reader import read_log
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CHECKER = ROOT / "tests" / "support" / "third_party_check.py"
 STORE = ROOT / "recorded_llm" / "qwen2.5-coder-1.5b-cube-t0.jsonl"
 MODEL = "qwen2.5-coder-1.5b-instruct-q4_k_m"

@@ -1,0 +1,34 @@
+"""The command line run in this process: its exit status and output, and the one line of a
+refused command."""
+
+from __future__ import annotations
+
+import io
+from contextlib import redirect_stderr, redirect_stdout
+from pathlib import Path
+
+from lagrseq.cli import main
+
+
+def cli(*argv: str) -> tuple[int, str, str]:
+    """``lagrseq ARGV`` in this process: (exit status, stdout, stderr); argparse's exits count."""
+    out, err = io.StringIO(), io.StringIO()
+    with redirect_stdout(out), redirect_stderr(err):
+        try:
+            status = main(list(argv))
+        except SystemExit as exc:
+            status = exc.code if isinstance(exc.code, int) else 1
+    return status, out.getvalue(), err.getvalue()
+
+
+def refused(*argv: str) -> str:
+    """The one stderr line of a refused command (exit status 2, no traceback)."""
+    status, _, err = cli(*argv)
+    lines = err.strip().splitlines()
+    assert status == 2 and len(lines) == 1, (status, err)
+    assert "Traceback" not in err
+    return lines[0]
+
+
+def files_under(directory: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(directory)): p.read_bytes() for p in sorted(directory.rglob("*")) if p.is_file()}
