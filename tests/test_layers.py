@@ -310,31 +310,23 @@ def test_running_and_the_loop_name_no_concrete_task_even_lazily() -> None:
     assert concrete_task_imports(imports, "lagrseq.loop") == {}
 
 
-PLANTED_TASKS = {
-    "lagrseq/__init__.py": "",
-    "lagrseq/tasks/__init__.py": "",
-    "lagrseq/tasks/base.py": "class Task:\n    pass\n",
-    "lagrseq/tasks/cube.py": "",
-    "lagrseq/envs/__init__.py": "",
-    "lagrseq/envs/image_completion.py": "",
-    "lagrseq/builtin_tasks/__init__.py": "",
-    "lagrseq/builtin_tasks/cube_stacking.py": "",
-    "lagrseq/loop/__init__.py": "",
-    "lagrseq/loop/good.py": "from lagrseq.tasks.base import Task\nimport lagrseq.tasks\n",
+PLANTED_TASK_IMPORTS = {
     "lagrseq/loop/adapters.py": "from lagrseq.tasks import cube\n",
-    "lagrseq/running/__init__.py": "",
-    "lagrseq/running/wiring.py": "def env():\n    from ..envs import image_completion\n    return image_completion\n",
-    "lagrseq/running/runner.py": "def spec():\n    import lagrseq.builtin_tasks.cube_stacking\n",
+    "lagrseq/running/wiring.py": "def planted_env():\n    from ..envs import image_completion\n    return image_completion\n",
+    "lagrseq/running/runner.py": "def planted_spec():\n    import lagrseq.builtin_tasks.cube_stacking\n",
 }
-"""A tree shaped like the package in which the loop and running name concrete task code: the
-loop a task at import time, running an env inside a function (relatively) and a built-in task's
-registration; the interface alone passes."""
+"""Imports planted at the end of a copy of the package: the loop names a task at import time,
+running an env inside a function (relatively) and a built-in task's registration."""
 
 
 def test_the_concrete_task_check_catches_a_planted_import(tmp_path: Path) -> None:
-    for relative, text in PLANTED_TASKS.items():
-        (tmp_path / relative).parent.mkdir(parents=True, exist_ok=True)
-        (tmp_path / relative).write_text(text, encoding="utf-8")
+    import shutil
+
+    shutil.copytree(ROOT / "lagrseq", tmp_path / "lagrseq", ignore=shutil.ignore_patterns("__pycache__"))
+    assert concrete_task_imports(static_imports(tmp_path), "lagrseq.running") == {}  # the copy is clean
+    for relative, text in PLANTED_TASK_IMPORTS.items():
+        with (tmp_path / relative).open("a", encoding="utf-8") as source:
+            source.write("\n\n" + text)
     imports = static_imports(tmp_path)
     assert concrete_task_imports(imports, "lagrseq.loop") == {"lagrseq.loop.adapters": ["lagrseq.tasks.cube"]}
     assert concrete_task_imports(imports, "lagrseq.running") == {
