@@ -47,6 +47,8 @@ def presets(task: str) -> Path:
 
 
 WIRING = "lagrseq.running.wiring"
+TASK = "lagrseq.builtin_tasks"
+"""The built-in tasks' modules: each holds what its spec names, as a plugin's module would."""
 GRID_SECONDARY = {"primary": cfg.DQNConfig, "secondary": cfg.NeuralSecondaryConfig}
 
 TASKS.register(
@@ -54,11 +56,11 @@ TASKS.register(
         name="cube-stacking",
         sections={"task": cfg.CubeTaskConfig, "env": cfg.CubeEnvConfig, "primary": cfg.TabularConfig, "secondary": cfg.TabularSecondaryConfig},
         presets=presets("cube-stacking"),
-        make_task=lazy(f"{WIRING}:cube_task"),
-        make_env=lazy(f"{WIRING}:cube_env"),
-        extrapolator=lazy(f"{WIRING}:cube_extrapolator"),
-        profiles=lazy(f"{WIRING}:cube_profiles"),
-        missing_dependency=lazy(f"{WIRING}:torch_dependency"),
+        make_task=lazy(f"{TASK}.cube_stacking:make_task"),
+        make_env=lazy(f"{TASK}.cube_stacking:make_env"),
+        extrapolator=lazy(f"{TASK}.cube_stacking:extrapolator"),
+        profiles=lazy(f"{TASK}.cube_stacking:profiles"),
+        state_keys={"upstream-aliased": lazy(f"{TASK}.cube_stacking:upstream_aliased")},
         estimated_tokens=lazy("lagrseq.tasks.estimates:cube_tokens"),
         frontier_preset="paper",
         description="stack cubes in the target order",
@@ -66,20 +68,21 @@ TASKS.register(
 )
 
 
-def grid_task(name: str, task: type, env: type, prefix: str, **own: Any) -> TaskSpec:
+def grid_task(name: str, task: type, env: type, module: str, **own: Any) -> TaskSpec:
     """A grid task (image completion, object arrangement, the arm): the DQN sections, the grid
-    extrapolator and profiles, steering guidance and both solution-scope regimes; ``prefix``
-    names its wiring functions (``{prefix}_task``, ``{prefix}_env``), ``own`` the rest (and
-    overrides any of these)."""
+    extrapolator and profiles, steering guidance, the grid picture and both solution-scope
+    regimes (``lagrseq.builtin_tasks.grid``); ``module`` (in ``lagrseq.builtin_tasks``) holds its
+    ``make_task`` and ``make_env``, ``own`` the rest (and overrides any of these)."""
     shared: dict[str, Any] = {
-        "make_task": lazy(f"{WIRING}:{prefix}_task"),
-        "make_env": lazy(f"{WIRING}:{prefix}_env"),
-        "extrapolator": lazy(f"{WIRING}:grid_extrapolator"),
-        "profiles": lazy(f"{WIRING}:grid_profiles_of"),
-        "guide": lazy(f"{WIRING}:steering_guide"),
-        "missing_dependency": lazy(f"{WIRING}:torch_dependency"),
+        "make_task": lazy(f"{TASK}.{module}:make_task"),
+        "make_env": lazy(f"{TASK}.{module}:make_env"),
+        "extrapolator": lazy(f"{TASK}.grid:extrapolator"),
+        "profiles": lazy(f"{TASK}.grid:profiles"),
+        "guide": lazy(f"{TASK}.grid:steering_guide"),
+        "view_topics": lazy(f"{TASK}.grid:view_topics"),
+        "views": lazy(f"{TASK}.grid:views"),
         "solution_scopes": ("episode", "trial"),
-        "miss_calibration": lazy(f"{WIRING}:grid_miss_calibration"),
+        "miss_calibration": lazy(f"{TASK}.grid:miss_calibration"),
     }
     return TaskSpec(
         name=name,
@@ -91,29 +94,26 @@ def grid_task(name: str, task: type, env: type, prefix: str, **own: Any) -> Task
 
 TASKS.register(
     grid_task(
-        "image-completion", cfg.ImageTaskConfig, cfg.ImageEnvConfig, "image",
-        view_topics=lazy(f"{WIRING}:image_topics"),
-        views=lazy(f"{WIRING}:image_views"),
+        "image-completion", cfg.ImageTaskConfig, cfg.ImageEnvConfig, "image_completion",
+        view_topics=lazy(f"{TASK}.image_completion:view_topics"),
+        views=lazy(f"{TASK}.image_completion:views"),
         estimated_tokens=lazy("lagrseq.tasks.estimates:image_tokens"),
         description="draw a 10 x 10 image cell by cell",
     )
 )
 TASKS.register(
     grid_task(
-        "object-arrangement", cfg.ArrangementTaskConfig, cfg.ArrangementEnvConfig, "arrangement",
-        view_topics=lazy(f"{WIRING}:grid_topics"),
-        views=lazy(f"{WIRING}:grid_views"),
+        "object-arrangement", cfg.ArrangementTaskConfig, cfg.ArrangementEnvConfig, "object_arrangement",
         estimated_tokens=lazy("lagrseq.tasks.estimates:arrangement_tokens"),
         description="place objects on a 5 x 5 table",
     )
 )
 TASKS.register(
     grid_task(
-        "arm-arrangement", cfg.ArmTaskConfig, cfg.ArmEnvConfig, "arm",
-        make_env=lazy(f"{WIRING}:make_arm_env"),
-        view_topics=lazy(f"{WIRING}:arm_topics"),
-        views=lazy(f"{WIRING}:arm_views"),
-        missing_dependency=lazy(f"{WIRING}:arm_dependency"),
+        "arm-arrangement", cfg.ArmTaskConfig, cfg.ArmEnvConfig, "arm_arrangement",
+        view_topics=lazy(f"{TASK}.arm_arrangement:view_topics"),
+        views=lazy(f"{TASK}.arm_arrangement:views"),
+        missing_dependency=lazy(f"{TASK}.arm_arrangement:missing_dependency"),
         renders=True,
         calibration_steps=40,  # a simulated arm step is slow: 40 steps time it within about 10% of 100
         description="object arrangement placed by a simulated or remote UR5e arm (the arm extra)",

@@ -430,8 +430,8 @@ def _add_config(sub: Any) -> None:
 
 
 def _add_record(sub: Any) -> None:
+    from lagrseq.llm.servers import RECORD_MODES
     from lagrseq.running.recording import STATE_TOPICS
-    from lagrseq.running.wiring import RECORD_MODES
 
     p = sub.add_parser(
         "record",
@@ -468,7 +468,7 @@ def _add_record(sub: Any) -> None:
 
 def _add_cache(sub: Any) -> None:
     from lagrseq.config import tasks
-    from lagrseq.running.wiring import DEFAULT_BASE_URL
+    from lagrseq.llm.servers import DEFAULT_BASE_URL
 
     p = sub.add_parser("cache", help="import, export or list recorded answers (JSONL, the authors' pickles)", description="Move recorded answers between a store directory and portable files.")
     actions = p.add_subparsers(dest="action", metavar="ACTION", parser_class=_Parser, required=True)
@@ -840,8 +840,8 @@ def cmd_config(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    from lagrseq.cli_helpers import check_render
     from lagrseq.running import runner
-    from lagrseq.running.wiring import check_render
 
     options = _provider_options(args)
     _make_executor(args, start=False)  # --executor/--scheduler checked before anything is made
@@ -879,8 +879,8 @@ def cmd_robot(args: argparse.Namespace) -> int:
 
 
 def cmd_record(args: argparse.Namespace) -> int:
+    from lagrseq.cli_helpers import model_of
     from lagrseq.running import recording
-    from lagrseq.running.wiring import model_of
 
     recording.recording_kind(args.provider)  # a provider it cannot ask is said before anything else
     model = model_of(args.provider, args.model)
@@ -936,7 +936,7 @@ def _cache_list(args: argparse.Namespace) -> int:
 
 
 def cmd_serve_llm(args: argparse.Namespace) -> int:
-    from lagrseq.running.wiring import serve_llm
+    from lagrseq.cli_helpers import serve_llm
 
     def say(line: str) -> None:
         print(f"lagrseq serve-llm: {_shown(line)}", file=sys.stderr, flush=True)
@@ -946,7 +946,7 @@ def cmd_serve_llm(args: argparse.Namespace) -> int:
 
 
 def cmd_models(args: argparse.Namespace) -> int:
-    from lagrseq.running.wiring import model_listing
+    from lagrseq.cli_helpers import model_listing
 
     lines, problems = model_listing(args.paths, hash_files=not args.no_hash, as_json=args.json)
     if lines:  # paths and GGUF metadata are outside text: one line each, escaped
@@ -966,8 +966,8 @@ def _refuse_asking_flags(args: argparse.Namespace) -> None:
 
 
 def cmd_screen(args: argparse.Namespace) -> int:
+    from lagrseq.cli_helpers import model_of
     from lagrseq.running import recording
-    from lagrseq.running.wiring import model_of
     from lagrseq.study import screen
 
     if args.from_files:
@@ -1184,7 +1184,7 @@ def _print_report(
 def _price_function(price_table: str | None) -> Any:
     """``(model, prompt tokens, completion tokens) -> USD or None`` for replay's costs tables
     (analysis never imports the provider layer itself)."""
-    from lagrseq.running.wiring import price_function
+    from lagrseq.cli_helpers import price_function
 
     return price_function(price_table)
 

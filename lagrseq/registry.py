@@ -137,6 +137,10 @@ class TaskSpec:
     """The ``lagr.solution_scope`` regimes ``frontier --scopes auto`` compares (the grid tasks
     keep an accepted answer for the trial, so asking again only matters per episode); empty: the
     preset's own."""
+    state_keys: Mapping[str, Callable[[Any], Callable[[Any], Any]]] = field(default_factory=dict)
+    """The tabular agent's state indices of its own (``primary.state_index``), by name -> (task ->
+    (pattern -> its Q-table row, hashable)); ``exact`` (a row per pattern) needs none (cube
+    stacking: the released code's ``upstream-aliased`` rows)."""
     episode_fields: Mapping[str, str] = field(default_factory=dict)
     """Fields of its own that its env logs per episode (``info["log_episode"]``, counted since
     the env's reset), by name -> JSON type (one of :data:`FIELD_TYPES`): added to the

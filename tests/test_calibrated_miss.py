@@ -41,7 +41,7 @@ def _synthetic_store(path: Path, task: object, plan: dict[int, tuple[int, int]],
     target, wrong ones an empty grid."""
     from lagrseq.tasks import grid
 
-    calibration = wiring.grid_miss_calibration(IMAGE)
+    calibration = wiring.miss_calibration(IMAGE)
     rng = np.random.default_rng(seed)
     with RecordStore(path) as store:
         for shown, (answers, right) in plan.items():
@@ -65,7 +65,7 @@ RATES = {"0-2 shown": 0.0, "3-5 shown": 0.25, "6-8 shown": 0.75, "9-11 shown": 1
 def test_the_rates_are_fitted_per_bin_of_pixels_shown_and_the_draws_follow_them(tmp_path: Path) -> None:
     task = wiring.make_task(IMAGE)
     _synthetic_store(tmp_path / "store", task, PLAN)
-    calibration = wiring.grid_miss_calibration(IMAGE)
+    calibration = wiring.miss_calibration(IMAGE)
     with RecordStore(tmp_path / "store", create=False) as store:
         fitted = wiring.fitted_rates(store, calibration)
     assert fitted.text() == (
@@ -195,7 +195,7 @@ def authors_out(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_the_authors_image_answers_fit_the_bins_the_issue_names(authors_out: Path) -> None:
     with RecordStore(authors_out / "authors-answers", create=False) as store:
-        fitted = wiring.fitted_rates(store, wiring.grid_miss_calibration(IMAGE))
+        fitted = wiring.fitted_rates(store, wiring.miss_calibration(IMAGE))
     # 0 accepted at <= 2 pixels, about 10% otherwise (issue 34), measured on the 780 answers
     assert fitted.text() == (
         "0-2 shown: 0/48 (0.0%); 3-5 shown: 21/212 (9.9%); 6-8 shown: 19/235 (8.1%); 9-11 shown: 20/218 (9.2%); 12+ shown: 13/67 (19.4%)"

@@ -8,8 +8,10 @@ placed on the map. The map is written over the packages that name the layers (ba
 with finer rules for single modules; ``test_no_import_cycle_between_modules`` checks the import
 graph (lazy imports included) has no cycle. Analysis is also checked in its source (lazy imports
 included): it imports neither the loop, running nor study; the suite's data (``lagrseq.suite``)
-and the frontier protocol's helpers (``lagrseq.frontier_protocol``) sit in the base layer. A
-planted tree shows both checks catch a bad import.
+and the frontier protocol's helpers (``lagrseq.frontier_protocol``) sit in the base layer. The
+loop and running are checked in their source too: they name no concrete task (no task, env or
+built-in task registration; only the ``Task`` interface), so a built-in task reaches them through
+its registered spec as a plugin's does. Planted trees show the checks catch a bad import.
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ HEAVY = ("torch", "gymnasium", "httpx", "httpcore", "pybullet")
 PROVIDERS = ("lagrseq.llm.mock", "lagrseq.llm.live", "lagrseq.llm.recorded", "lagrseq.llm.store")
 # The layers, bottom to top: base (ANYONE below), parts (tasks, envs, agents, llm, logs, robot),
 # loop, running, analysis and study, the command line. A package forbids everything above it.
-CLI = ("lagrseq.cli", "lagrseq.__main__")
+CLI = ("lagrseq.cli", "lagrseq.cli_helpers", "lagrseq.__main__")
 STUDY = ("lagrseq.study", *CLI)
 RUNNING = ("lagrseq.running", "lagrseq.analysis", *STUDY)
 LOOP = ("lagrseq.loop", *RUNNING)
@@ -55,6 +57,8 @@ LAYERS: dict[str, tuple[str, ...]] = {
     "lagrseq.robot": ("lagrseq.tasks", "lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", *LOOP, *HEAVY, "grpc", "mcap", "gymnasium"),
     # the generated gRPC code imports protobuf and grpc themselves (the arm extra)
     "lagrseq.robot.proto": ("lagrseq.tasks", "lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.logs", *LOOP, *HEAVY, "mcap"),
+    # the built-in tasks' registrations (what a plugin's module holds): their parts, the loop only inside a call
+    "lagrseq.builtin_tasks": ("lagrseq.loop", *RUNNING, *HEAVY, "mcap"),
     # loop: Algorithm 1 and its parts know interfaces only: no concrete env, provider or sink
     "lagrseq.loop": (*PROVIDERS, "lagrseq.envs", "lagrseq.logs.mcap_writer", *RUNNING, *HEAVY),
     "lagrseq.loop.lagr": (*PROVIDERS, "lagrseq.logs", "lagrseq.envs", "lagrseq.loop.experiment", *RUNNING, *HEAVY),
@@ -81,6 +85,7 @@ LAYERS: dict[str, tuple[str, ...]] = {
     "lagrseq.study.authors": ("lagrseq.analysis", "lagrseq.running.runner", "lagrseq.study.reproduce", *CLI, *HEAVY),
     # the command line parses and calls: the loop and wiring only when a command runs
     "lagrseq.cli": ("lagrseq.loop", "lagrseq.running.wiring", *HEAVY, "mcap", "pandas", "matplotlib"),
+    "lagrseq.cli_helpers": ("lagrseq.loop", "lagrseq.running", *HEAVY, "mcap", "pandas", "matplotlib"),
     "lagrseq.__main__": (),  # ``python -m lagrseq``: the command line, nothing else
     # lagrseq info: metadata only; torch is imported inside the call that names its device
     "lagrseq.info": ("lagrseq.loop", "lagrseq.running", "lagrseq.analysis", "lagrseq.study", *CLI, "dask", "distributed", *HEAVY, "mcap", "pandas", "matplotlib"),
@@ -276,6 +281,58 @@ def test_the_checks_catch_a_planted_bad_import(tmp_path: Path) -> None:
     names = ["lagrseq.analysis.good", "lagrseq.analysis.eager", "lagrseq.analysis.lazy"]
     problems = forbidden_loads(loaded_after_import(names, root=tmp_path, site=False))
     assert problems == {"lagrseq.analysis.eager": ["lagrseq.running", "lagrseq.running.runner"]}
+
+
+CONCRETE_TASKS = ("lagrseq.tasks", "lagrseq.envs", "lagrseq.builtin_tasks")
+"""Concrete task code: the tasks, their envs and the built-in tasks' registrations."""
+TASK_INTERFACE = ("lagrseq.tasks.base",)
+"""What of it the loop and running may name: the ``Task`` interface (and the ``lagrseq.tasks``
+package that holds it)."""
+
+
+def concrete_task_imports(imports: dict[str, set[str]], layer: str) -> dict[str, list[str]]:
+    """The modules of ``layer`` whose source names concrete task code, with what."""
+
+    def concrete(name: str) -> bool:
+        return _under(name, CONCRETE_TASKS) and name != "lagrseq.tasks" and not _under(name, TASK_INTERFACE)
+
+    found = {name: sorted(n for n in names if concrete(n)) for name, names in sorted(imports.items()) if _under(name, (layer,))}
+    return {name: names for name, names in found.items() if names}
+
+
+def test_running_and_the_loop_name_no_concrete_task_even_lazily() -> None:
+    """A built-in task reaches the loop and running only through its registered spec, as a
+    plugin's does: their source (lazy imports included) names no task, env or registration."""
+    imports = static_imports(ROOT)
+    assert "lagrseq.running.wiring" in imports and "lagrseq.loop.adapters" in imports
+    assert "lagrseq.tasks.base" in imports["lagrseq.running.wiring"]  # the interface is allowed
+    assert concrete_task_imports(imports, "lagrseq.running") == {}
+    assert concrete_task_imports(imports, "lagrseq.loop") == {}
+
+
+PLANTED_TASK_IMPORTS = {
+    "lagrseq/loop/adapters.py": "from lagrseq.tasks import cube\n",
+    "lagrseq/running/wiring.py": "def planted_env():\n    from ..envs import image_completion\n    return image_completion\n",
+    "lagrseq/running/runner.py": "def planted_spec():\n    import lagrseq.builtin_tasks.cube_stacking\n",
+}
+"""Imports planted at the end of a copy of the package: the loop names a task at import time,
+running an env inside a function (relatively) and a built-in task's registration."""
+
+
+def test_the_concrete_task_check_catches_a_planted_import(tmp_path: Path) -> None:
+    import shutil
+
+    shutil.copytree(ROOT / "lagrseq", tmp_path / "lagrseq", ignore=shutil.ignore_patterns("__pycache__"))
+    assert concrete_task_imports(static_imports(tmp_path), "lagrseq.running") == {}  # the copy is clean
+    for relative, text in PLANTED_TASK_IMPORTS.items():
+        with (tmp_path / relative).open("a", encoding="utf-8") as source:
+            source.write("\n\n" + text)
+    imports = static_imports(tmp_path)
+    assert concrete_task_imports(imports, "lagrseq.loop") == {"lagrseq.loop.adapters": ["lagrseq.tasks.cube"]}
+    assert concrete_task_imports(imports, "lagrseq.running") == {
+        "lagrseq.running.runner": ["lagrseq.builtin_tasks.cube_stacking"],
+        "lagrseq.running.wiring": ["lagrseq.envs", "lagrseq.envs.image_completion"],
+    }
 
 
 def import_graph() -> dict[str, set[str]]:

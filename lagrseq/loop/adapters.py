@@ -2,7 +2,7 @@
 
 The agents in ``agents/`` know only arrays, keys and gymnasium spaces; these adapters hold one and
 translate the loop's :class:`Step` (observations, the env's ``info``) into what it needs: the
-tabular agent's state key (with the released code's aliasing where configured), the DQN's
+tabular agent's state key (the task's own state index where configured), the DQN's
 observation vector. Composition throughout: an adapter holds its agent, it never subclasses it.
 """
 
@@ -18,7 +18,6 @@ from lagrseq.agents.tabular import TabularQ, epsilon_greedy
 from lagrseq.config import DQNConfig, NeuralSecondaryConfig, TabularConfig
 from lagrseq.loop.seq import TabularSecondary
 from lagrseq.seeding import Stream
-from lagrseq.tasks import cube
 
 
 class Step(NamedTuple):
@@ -51,28 +50,29 @@ class SecondaryAgent(Protocol):
 
 
 class TabularTask(Protocol):
-    """What tabular Q-learning needs of a task: its action count (and, for the released cube
-    code's ``upstream-aliased`` state index, the cube's target)."""
+    """What tabular Q-learning needs of a task: its action count."""
 
     n_actions: int
 
 
 class TabularPrimary:
     """Tabular Q-learning on the task's patterns (any task with ``n_actions`` whose env gives
-    ``info["action_mask"]``), with the configured state index."""
+    ``info["action_mask"]``). ``state_key``: a pattern's Q-table row under the configured state
+    index (the task's registered ``state_keys`` entry, looked up once per pattern); None: one
+    row per exact pattern."""
 
-    def __init__(self, section: TabularConfig, task: TabularTask) -> None:
+    def __init__(self, section: TabularConfig, task: TabularTask, state_key: Callable[[Any], Hashable] | None = None) -> None:
         self.agent = TabularQ(task.n_actions, section.learning_rate, section.discount)
         self.invalid = section.invalid_actions
         self.pre_revert = section.bootstrap_from == "pre-revert"
-        if section.state_index == "upstream-aliased":
-            target = task.target  # type: ignore[attr-defined]  # cube.CubeStacking (checked by wiring)
+        if state_key is not None:
+            index = state_key
             keys: dict[Any, Hashable] = {}  # a trial visits a few dozen patterns, 10,000 times
 
             def key(pattern: Any) -> Hashable:
                 found = keys.get(pattern)
                 if found is None:
-                    found = keys[pattern] = cube.upstream_state_key(pattern, target)
+                    found = keys[pattern] = index(pattern)
                 return found
 
             self.key: Callable[[Any], Hashable] = key

@@ -25,7 +25,6 @@ from lagrseq.logs.reader import find_logs, read_info, read_topic
 from lagrseq.loop.lagr import query_for
 from lagrseq.registry import ProviderKind
 from lagrseq.running.wiring import make_live, make_task
-from lagrseq.tasks import cube
 from lagrseq.tasks.base import Task
 from lagrseq.text import shown
 
@@ -60,8 +59,9 @@ def record_patterns(
     target. A damaged log is skipped with a warning, as replay skips it."""
     task = make_task(config)
     if not runs:
-        if isinstance(task, cube.CubeStacking):
-            return list(task.prefixes())
+        prefixes = getattr(task, "prefixes", None)  # a task's own default states (cube stacking's)
+        if prefixes is not None:
+            return list(prefixes())
         raise UsageError(f"{config.task.name} has no default set of prompts; give runs with --from-runs")
     if topic not in STATE_TOPICS:
         raise UsageError(f"--states-from {topic!r}; expected /query or /transition")
@@ -435,7 +435,8 @@ def classify(task: Task, text: str) -> tuple[str, Any]:
     parsed = task.parse(text)
     if parsed.ok:
         solution = parsed.solution
-        if isinstance(task, cube.CubeStacking) and len(solution) != task.stack_size:  # type: ignore[arg-type]
+        partial = getattr(task, "is_partial", None)  # a solution of the wrong size (cube stacking's)
+        if partial is not None and partial(solution):
             return "partial", solution
         return ("correct" if task.evaluate(solution) >= 1.0 else "wrong"), solution
     error = parsed.error or ""
@@ -487,9 +488,10 @@ def answer_census(store_path: Path, config: ExperimentConfig) -> list[CensusRow]
                 name, _ = classify(task, recorded.text)
                 counts[name] = counts.get(name, 0) + 1
             shown = -1  # the key stands in for the stack shown (grids, or a prompt that is not a cube prompt)
-            if isinstance(task, cube.CubeStacking):
+            shown_of = getattr(task, "shown", None)  # cubes the prompt shows (cube stacking's)
+            if shown_of is not None:
                 with contextlib.suppress(ValueError):
-                    shown = len(cube.partial_stack(entry.prompt))
+                    shown = shown_of(entry.prompt)
             rows.append(CensusRow(entry.key, float(entry.request["temperature"]), shown, counts))
     return sorted(rows, key=lambda r: (r.temperature, r.shown, r.key))
 

@@ -1,33 +1,28 @@
-"""Wiring: the only place that knows the concrete tasks, envs, agents and providers.
+"""Wiring: turns a configuration into the parts of a trial, through the registries.
 
 ``trial_parts`` builds everything one trial of ``lagrseq.loop.experiment.run_trial`` runs on; the
-``make_*`` factories build one part each from the resolved configuration. Provider specs
-(``mock``, ``mock:PROFILE``, ``recorded:STORE``, ``live[:MODEL]``) are parsed here and only here.
+``make_*`` factories build one part each from the resolved configuration. A task is reached only
+through its registered :class:`~lagrseq.registry.TaskSpec` (a built-in task's in
+``lagrseq.builtin_tasks``, a plugin's in its package), so this module names no concrete task.
+Provider specs (``mock``, ``mock:PROFILE``, ``recorded:STORE``, ``live[:MODEL]``) are parsed here
+and only here.
 """
 
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Hashable
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 
 from lagrseq import seeding
 from lagrseq.agents.schedules import EpsilonSchedule
 from lagrseq.config import (
-    ArmEnvConfig,
-    ArmTaskConfig,
-    ArrangementEnvConfig,
-    ArrangementTaskConfig,
-    CubeEnvConfig,
-    CubeTaskConfig,
     DQNConfig,
     ExperimentConfig,
-    ImageEnvConfig,
-    ImageTaskConfig,
     NeuralSecondaryConfig,
     RunConfig,
     TabularConfig,
@@ -35,12 +30,7 @@ from lagrseq.config import (
 from lagrseq.errors import ConfigError, UsageError
 from lagrseq.llm.base import Provider
 from lagrseq.llm.mock import MockProvider
-from lagrseq.llm.options import ON_MISS as ON_MISS  # for the command line
 from lagrseq.llm.options import LiveOptions, LocalOptions, RecordedOptions
-from lagrseq.llm.servers import DEFAULT_BASE_URL as DEFAULT_BASE_URL  # for the command line
-from lagrseq.llm.servers import RECORD_MODES as RECORD_MODES  # for the command line
-from lagrseq.llm.servers import SERVER_KINDS as SERVER_KINDS  # for the command line
-from lagrseq.logs import foxglove
 from lagrseq.logs.events import Sink, View
 from lagrseq.logs.task_fields import TaskFields, of_spec
 from lagrseq.loop.adapters import (
@@ -50,7 +40,7 @@ from lagrseq.loop.adapters import (
     TabularPrimary,
     TabularSeq,
 )
-from lagrseq.loop.experiment import Guide, Guided, TrialParts
+from lagrseq.loop.experiment import Guide, TrialParts
 from lagrseq.loop.policies import Always, AskingPolicy, make_policy
 from lagrseq.paths import expand_user, input_path, source_checkout
 from lagrseq.registry import (
@@ -65,24 +55,12 @@ from lagrseq.registry import (
     task_profiles,
 )
 from lagrseq.seeding import Stream
-from lagrseq.tasks import cube, grid_profiles
-from lagrseq.tasks.base import Task
-
-# The grid tasks' modules (lagrseq.tasks.grid, .image, .arrangement) are imported where a grid
-# task is built: a cube run never needs them.
+from lagrseq.tasks.base import Task, expect
 
 
 def provider_help() -> str:
     """Every ``--provider`` form, from the provider registry."""
     return ", ".join(kind.usage for kind in PROVIDERS.specs())
-
-
-def __getattr__(name: str) -> Any:
-    if name == "PROVIDER_HELP":  # read lazily: plugins add provider kinds
-        return provider_help()
-    if name == "PROVIDER_KINDS":
-        return PROVIDERS.names()
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 # ------------------------------------------------------------------------------------------
@@ -320,48 +298,6 @@ def fitted_rates(store: Any, calibration: Any) -> Any:
     return found
 
 
-def grid_miss_calibration(config: ExperimentConfig) -> Any:
-    """A grid task's calibrated miss answer: the kind of a prompt is the number of cells its
-    partial pattern shows, in the bins of :data:`lagrseq.tasks.grid_profiles.SHOWN_BINS`; the
-    right answer is the target, a wrong one as :func:`lagrseq.tasks.grid_profiles.wrong_answer`."""
-    from lagrseq.llm.calibrated import MissCalibration
-    from lagrseq.tasks import grid, shapes
-    from lagrseq.tasks.base import Parsed
-
-    task = make_task(config)
-    if not isinstance(task, grid.GridTask):
-        raise UsageError(f"--on-miss calibrated: task {config.task.name} is not a grid task")
-    edges = grid_profiles.SHOWN_BINS.get(config.task.name)
-    if edges is None:
-        raise UsageError(f"--on-miss calibrated: task {config.task.name} has no bins of cells shown (grid_profiles.SHOWN_BINS)")
-    labels = grid_profiles.shown_labels(edges)
-    threshold = config.lagr.threshold
-    library = shapes.library(task.rows, task.cols)
-
-    def partial_of(prompt: str) -> np.ndarray:
-        try:
-            partial = grid.partial_grid(prompt)
-        except (ValueError, IndexError) as exc:
-            raise ValueError(f"no {task.rows}x{task.cols} partial grid in the prompt: {exc}") from None
-        if partial.shape != task.target.shape:
-            raise ValueError(f"the prompt's grid is {partial.shape}, the task's {task.target.shape}")
-        return partial
-
-    def accepted(text: str) -> bool:
-        parsed: Parsed = task.parse(text)
-        return bool(parsed.ok and parsed.solution is not None and task.evaluate(parsed.solution) >= threshold)
-
-    return MissCalibration(
-        task=config.task.name,
-        kinds=labels,
-        kind=lambda prompt: labels[grid_profiles.shown_bin(partial_of(prompt), edges)],
-        accepted=accepted,
-        right=lambda prompt: grid.format_comma(task.target),
-        wrong=lambda prompt: grid.format_comma(grid_profiles.wrong_answer(task, partial_of(prompt), threshold, library)),
-        about=f"cells shown in the partial pattern, bins {', '.join(labels)}",
-    )
-
-
 def pays(spec: str, options: Any = None) -> bool:
     """Whether answers of ``spec`` may cost money: a paid kind, or options that say their
     answers may (a store whose misses are asked live, ``--on-miss live``)."""
@@ -482,74 +418,6 @@ def load_prices(price_table: str | Path | None) -> Any:
     return read_price_table(price_table) if price_table else PriceTable()
 
 
-def price_function(price_table: str | None) -> Callable[[str, int, int], float | None]:
-    """``(model, prompt tokens, completion tokens) -> USD or None`` from the dated price table
-    (``price_table`` over the built-in one), for replay's and the frontier's cost tables."""
-    from lagrseq.llm.base import Usage
-
-    table = load_prices(price_table)
-    return lambda model, prompt, completion: table.cost(Usage(prompt, completion), model)  # type: ignore[no-any-return]
-
-
-def model_of(provider: str, model: str | None) -> str | None:
-    """The model ``lagrseq record --provider`` asks: ``--model``, else the one the spec names (a
-    local model by its own name); None: the configuration's."""
-    if model is not None:
-        return model
-    spec = parse_provider(provider)
-    kind = PROVIDERS.get(spec.kind)
-    if kind.local_server:
-        from lagrseq.llm.local import model_name
-
-        return model_name(spec.argument)
-    return None
-
-
-def check_render(task: str, render: Path | None) -> None:
-    """``--render DIR``: the task must draw its episodes, and DIR must be writable."""
-    if render is None:
-        return
-    from lagrseq.paths import writable_directory
-
-    if not TASKS.get(task).renders:
-        drawn = ", ".join(spec.name for spec in TASKS.specs() if spec.renders)
-        raise UsageError(f"--render draws the arm of {drawn} only, not {task}; leave it out")
-    writable_directory(render, "--render")
-
-
-def model_listing(paths: list[Path], hash_files: bool, as_json: bool) -> tuple[list[str], list[str]]:
-    """``lagrseq models``: the lines describing every GGUF model found (text blocks, or one JSON
-    object a line), and the problems of the paths given that are not GGUF files."""
-    import json
-
-    from lagrseq.llm.gguf import find_models, model_lines
-
-    models = find_models(paths, hash_files=hash_files)
-    given_bad = [model for model in models if model.problem and model.found_by == "path"]
-    found = [model for model in models if model not in given_bad]
-    # JSON with ASCII escapes: a file name that is not UTF-8 (lone surrogates) stays valid JSON
-    lines = [json.dumps(model.row()) for model in found] if as_json else model_lines(found)
-    return lines, [f"{model.path}: {model.problem}" for model in given_bad]
-
-
-def serve_llm(model: str, port: int, n_ctx: int, threads: int, log: Any, announce: Callable[[str], None], say: Callable[[str], None]) -> None:
-    """``lagrseq serve-llm``: a llama.cpp server until interrupted (SIGTERM stops it as Ctrl-C
-    does: the command line's handler); ``announce`` gets its address line, ``say`` its log lines."""
-    import time
-
-    from lagrseq.errors import LagrseqError
-    from lagrseq.llm.local import LocalServer
-
-    settings = local_settings(model, LocalOptions(n_ctx=n_ctx, threads=threads), port=port)
-
-    with LocalServer(settings, log=log, on_line=say) as server:
-        announce(f"{server.base_url}  model {settings.model_name}  (use: --provider live:{settings.model_name} --base-url {server.base_url} --server llama.cpp; Ctrl-C stops it)")
-        while server.running:
-            time.sleep(0.5)
-        lines = server.log_tail().strip().splitlines()
-        raise LagrseqError(f"the llama.cpp server exited by itself: {lines[-1] if lines else 'no output'}")
-
-
 def extrapolator(config: ExperimentConfig, profile: str = "ideal") -> Callable[[str, float, np.random.Generator], str]:
     """What the mock provider answers with: the task's rule-based extrapolator (``ideal``) or a
     calibrated profile of it (the task's registered ``extrapolator``). The mock itself stays
@@ -573,53 +441,9 @@ def task_mock_profiles(spec: Any) -> tuple[str, ...]:
     return tuple(dict.fromkeys(("ideal", *task_profiles(spec), REFUSING)))
 
 
-def cube_profiles() -> tuple[str, ...]:
-    return tuple(cube.PROFILES)
-
-
-def grid_profiles_of() -> tuple[str, ...]:
-    return tuple(grid_profiles.PROFILES)
-
-
-def cube_extrapolator(config: ExperimentConfig, profile: str) -> Callable[[str, float, np.random.Generator], str]:
-    """The cube's extrapolator or one of its calibrated profiles (``cube.PROFILES``)."""
-    if profile in grid_profiles.PROFILES:
-        raise UsageError(f"mock profile {profile!r} is calibrated for the grid tasks; cube stacking has: {', '.join(cube.PROFILES)}")
-    return cube.profile_extrapolator(cube.CubeStacking(_expect(config.task, CubeTaskConfig, "task").stack_size), profile)
-
-
-def grid_extrapolator(config: ExperimentConfig, profile: str) -> Callable[[str, float, np.random.Generator], str]:
-    """The grid extrapolator or one of the grid profiles (``grid_profiles.PROFILES``)."""
-    from lagrseq.tasks import grid
-
-    if profile in grid_profiles.PROFILES:
-        task = make_task(config)
-        if isinstance(task, grid.GridTask):
-            return grid_profiles.profile_extrapolator(task, profile, config.lagr.threshold)
-    if profile != "ideal":
-        raise UsageError(
-            f"mock profile {profile!r} is calibrated for cube stacking only; "
-            f"{config.task.name} has the ideal mock (--provider mock) and: {', '.join(grid_profiles.PROFILES)}"
-        )
-    return grid.extrapolate
-
-
 # ------------------------------------------------------------------------------------------
 # Tasks, envs, agents
 # ------------------------------------------------------------------------------------------
-_Section = TypeVar("_Section")
-
-
-def _expect(value: Any, cls: type[_Section], section: str) -> _Section:
-    """``value`` as the section class this task needs (configs from ``config.load`` always are)."""
-    if not isinstance(value, cls):
-        raise ConfigError(
-            f"[{section}] is a {type(value).__name__}, this task needs a {cls.__name__}; "
-            "build configurations with lagrseq.config.load"
-        )
-    return value
-
-
 def make_task(config: ExperimentConfig) -> Task:
     """The task of ``config`` (its registered ``make_task``)."""
     return TASKS.get(config.task.name).make_task(config)  # type: ignore[no-any-return]
@@ -631,78 +455,6 @@ def make_env(config: ExperimentConfig, render_dir: Path | None = None) -> Any:
     ``step`` and ``close``). ``render_dir``: arm tasks write PNG frames and a GIF per episode
     there (``--render``)."""
     return TASKS.get(config.task.name).make_env(config, render_dir)
-
-
-def cube_task(config: ExperimentConfig) -> Task:
-    return cube.CubeStacking(_expect(config.task, CubeTaskConfig, "task").stack_size)  # type: ignore[return-value]
-
-
-def image_task(config: ExperimentConfig) -> Task:
-    from lagrseq.tasks.image import image_completion
-
-    task = _expect(config.task, ImageTaskConfig, "task")
-    return image_completion(task.target, task.goal_threshold, task.prompt_matrix, task.guidance)
-
-
-def arrangement_task(config: ExperimentConfig) -> Task:
-    from lagrseq.tasks.arrangement import object_arrangement
-
-    task = _expect(config.task, ArrangementTaskConfig, "task")
-    return object_arrangement(task.target, task.goal_threshold, task.prompt_matrix, task.guidance)
-
-
-def arm_task(config: ExperimentConfig) -> Task:
-    from lagrseq.tasks.arrangement import arm_arrangement
-
-    task = _expect(config.task, ArmTaskConfig, "task")
-    return arm_arrangement(task.target, task.goal_threshold, task.prompt_matrix, task.guidance)
-
-
-def cube_env(config: ExperimentConfig, render_dir: Path | None = None) -> Any:
-    """The cube env's dynamics without Gymnasium's interface (``CubeStackingEnv`` is this class
-    with it): a run needs nothing more, and importing gymnasium costs about 60 ms of CPU."""
-    from lagrseq.tasks.cube_dynamics import CubeStackingDynamics
-
-    task = _expect(config.task, CubeTaskConfig, "task")
-    env = _expect(config.env, CubeEnvConfig, "env")
-    return CubeStackingDynamics(
-        stack_size=task.stack_size,
-        horizon=env.horizon,
-        bonus=env.bonus,
-        bonus_on=env.bonus_on,
-        revert_wrong_cube=env.revert_wrong_cube,
-        wrong_cube_reward=env.wrong_cube_reward,
-        terminate_on_complete=env.terminate_on_complete,
-    )
-
-
-def image_env(config: ExperimentConfig, render_dir: Path | None = None) -> Any:
-    from lagrseq.envs.image_completion import ImageCompletionEnv
-
-    task = _expect(config.task, ImageTaskConfig, "task")
-    image = _expect(config.env, ImageEnvConfig, "env")
-    return ImageCompletionEnv(
-        target=task.target,
-        scans=image.scans,
-        bonus=image.bonus,
-        goal_threshold=task.goal_threshold,
-        goal_ends=image.goal_ends,
-        block_wrong_flips=image.block_wrong_flips,
-        guided_goal_threshold=image.guided_goal_threshold,
-    )
-
-
-def arrangement_env(config: ExperimentConfig, render_dir: Path | None = None) -> Any:
-    from lagrseq.envs.object_arrangement import ObjectArrangementEnv
-
-    table = _expect(config.env, ArrangementEnvConfig, "env")
-    arrangement = _expect(config.task, ArrangementTaskConfig, "task")
-    return ObjectArrangementEnv(
-        target=arrangement.target,
-        horizon=table.horizon,
-        bonus=table.bonus,
-        goal_threshold=arrangement.goal_threshold,
-    )
 
 
 def make_schedule(section: Any, run: RunConfig) -> EpsilonSchedule:
@@ -728,10 +480,21 @@ def make_schedule(section: Any, run: RunConfig) -> EpsilonSchedule:
 def make_primary(config: ExperimentConfig, task: Task, env: Any, seed: int, trial: int) -> PrimaryAgent:
     if isinstance(config.primary, DQNConfig):
         return DQNPrimary(config.primary, env, seed, trial)
-    section = _expect(config.primary, TabularConfig, "primary")
-    if section.state_index == "upstream-aliased":  # the released cube code's aliased Q rows
-        _expect(task, cube.CubeStacking, "task")
-    return TabularPrimary(section, task)  # type: ignore[arg-type]
+    section = expect(config.primary, TabularConfig, "primary")
+    return TabularPrimary(section, task, state_key(config, task, section.state_index))  # type: ignore[arg-type]
+
+
+def state_key(config: ExperimentConfig, task: Task, index: str) -> Callable[[Any], Hashable] | None:
+    """The tabular agent's Q-table row of a pattern under ``primary.state_index``: None for
+    ``exact`` (one row per pattern), else the task's registered ``state_keys`` entry (the
+    released cube code's ``upstream-aliased`` rows); ConfigError (one line) for a task without it."""
+    if index == "exact":
+        return None
+    make = TASKS.get(config.task.name).state_keys.get(index)
+    if make is None:
+        able = ", ".join(t.name for t in TASKS.specs() if index in t.state_keys) or "no task"
+        raise ConfigError(f"primary.state_index = {index!r} is a state index of {able}, not of {config.task.name}; use exact")
+    return make(task)  # type: ignore[no-any-return]
 
 
 def make_secondary(config: ExperimentConfig, task: Task, seed: int, trial: int) -> AskingPolicy | None:
@@ -745,41 +508,22 @@ def make_secondary(config: ExperimentConfig, task: Task, seed: int, trial: int) 
 
     def seq_agent() -> Any:
         if isinstance(section, NeuralSecondaryConfig):
-            from lagrseq.tasks import grid
-
-            return NeuralSeq(section, _expect(task, grid.GridTask, "task").cells, seed, trial)
+            return NeuralSeq(section, pattern_cells(config, task), seed, trial)
         return TabularSeq(section.learning_rate)
 
     return make_policy(section, seq_agent)
 
 
-def make_arm_env(config: ExperimentConfig, render_dir: Path | None = None) -> Any:
-    """The arm-arrangement env with its robot (``env.robot``: sim or remote:HOST:PORT)."""
-    import gymnasium as gym
-
-    from lagrseq.envs.arm_arrangement import ArmArrangementEnv
-
-    section = _expect(config.env, ArmEnvConfig, "env")
-    task = _expect(config.task, ArmTaskConfig, "task")
-    try:
-        env = ArmArrangementEnv(
-            target=task.target,
-            horizon=section.horizon,
-            bonus=section.bonus,
-            goal_threshold=task.goal_threshold,
-            robot=section.robot,
-            robot_timeout_s=section.robot_timeout_s,
-            robot_token_file=section.robot_token_file,
-            robot_tls_ca=section.robot_tls_ca,
-            render_size=(section.view_width, section.view_width * 3 // 4),
+def pattern_cells(config: ExperimentConfig, task: Task) -> int:
+    """The length of a flattened pattern, which the neural SEQ agent reads: the task's
+    ``cells`` (the grid tasks' rows x columns); ConfigError (one line) for a task without it."""
+    cells = getattr(task, "cells", None)
+    if not isinstance(cells, (int, np.integer)) or cells < 1:
+        raise ConfigError(
+            f"[secondary] is a {type(config.secondary).__name__}, whose neural SEQ agent reads a pattern of "
+            f"task.cells cells; task {config.task.name} has no cells: use a tabular [secondary] section"
         )
-    except (ImportError, gym.error.DependencyNotInstalled) as exc:
-        raise UsageError(f"arm-arrangement: {exc}") from None
-    if render_dir is not None:
-        from lagrseq.robot.render import EpisodeRenderer
-
-        EpisodeRenderer(env, Path(render_dir)).attach()
-    return env
+    return int(cells)
 
 
 def missing_dependency(config: ExperimentConfig) -> str:
@@ -787,11 +531,11 @@ def missing_dependency(config: ExperimentConfig) -> str:
     registered check (the arm's pybullet, airo-models or grpcio), then torch for the DQN agents
     and the neural SEQ agent (the ``dqn`` extra)."""
     check = TASKS.get(config.task.name).missing_dependency
-    return check(config) if check is not None else torch_dependency(config)
+    return (check(config) if check is not None else "") or torch_dependency(config)
 
 
 def torch_dependency(config: ExperimentConfig) -> str:
-    """The DQN agents of the grid tasks and the neural SEQ agent need torch (the ``dqn`` extra)."""
+    """The DQN agents and the neural SEQ agent need torch (the ``dqn`` extra), whatever the task."""
     import importlib.util
 
     needs_torch = isinstance(config.primary, DQNConfig) or (
@@ -802,21 +546,8 @@ def torch_dependency(config: ExperimentConfig) -> str:
     return ""
 
 
-def arm_dependency(config: ExperimentConfig) -> str:
-    """The simulated arm needs pybullet and airo-models, a remote arm grpcio (the ``arm`` extra);
-    then torch, as every grid task."""
-    import importlib.util
-
-    section = _expect(config.env, ArmEnvConfig, "env")
-    wanted = ("pybullet", "airo_models") if section.robot == "sim" else ("grpc", "google.protobuf")
-    absent = [name for name in wanted if importlib.util.find_spec(name.split(".")[0]) is None]
-    if absent:
-        return f"needs the arm extra ({', '.join(absent)} not installed): pip install 'lagrseq[arm]' (Python <= 3.11)"
-    return torch_dependency(config)
-
-
 # ------------------------------------------------------------------------------------------
-# Pictures (Foxglove views) and token estimates, per task
+# Pictures (Foxglove views), per task
 # ------------------------------------------------------------------------------------------
 def view_topics(config: ExperimentConfig) -> dict[str, tuple[str, str, bytes]] | None:
     """The picture topics of ``config``'s task for the sink (None: the task has none)."""
@@ -824,57 +555,11 @@ def view_topics(config: ExperimentConfig) -> dict[str, tuple[str, str, bytes]] |
     return None if topics is None else topics(config)
 
 
-def image_topics(config: ExperimentConfig) -> dict[str, tuple[str, str, bytes]] | None:
-    return foxglove.view_topics(image=True)
-
-
-def grid_topics(config: ExperimentConfig) -> dict[str, tuple[str, str, bytes]] | None:
-    return foxglove.view_topics(grid=True)
-
-
-def arm_topics(config: ExperimentConfig) -> dict[str, tuple[str, str, bytes]] | None:
-    topics = foxglove.view_topics(grid=True)
-    topics.update(foxglove.arm_topics())
-    return topics
-
-
 def step_views(config: ExperimentConfig, env: Any) -> Callable[[dict[str, Any], int], list[View]] | None:
     """The pictures written after every step (the task's registered ``views``), from the step's
     info: the state for Foxglove, and for arm tasks the robot's joints and camera."""
     views = TASKS.get(config.task.name).views
     return None if views is None else views(config, env)
-
-
-def _pictures(topic: str, picture: Callable[[Any, int], dict[str, Any]]) -> Callable[[dict[str, Any], int], list[View]]:
-    return lambda info, global_step: [View(topic, picture(info["pattern"], global_step), global_step)]
-
-
-def image_views(config: ExperimentConfig, env: Any) -> Callable[[dict[str, Any], int], list[View]]:
-    return _pictures(foxglove.IMAGE_TOPIC, foxglove.RawImages())
-
-
-def grid_views(config: ExperimentConfig, env: Any) -> Callable[[dict[str, Any], int], list[View]]:
-    return _pictures(foxglove.GRID_TOPIC, foxglove.grid)
-
-
-def arm_views(config: ExperimentConfig, env: Any) -> Callable[[dict[str, Any], int], list[View]]:
-    """The grid picture, then the arm's joint state after every step and every
-    ``env.view_every`` steps a camera frame (PNG), both read from the env's robot."""
-    grid_picture = _pictures(foxglove.GRID_TOPIC, foxglove.grid)
-    robot = env.unwrapped.robot
-    every = _expect(config.env, ArmEnvConfig, "env").view_every
-
-    def views(info: dict[str, Any], global_step: int) -> list[View]:
-        out = grid_picture(info, global_step)
-        state = robot.joint_state()
-        out.append(View(foxglove.JOINTS_TOPIC, foxglove.joint_state(state.names, state.positions, global_step), global_step))
-        if every and global_step % every == 0:
-            picture = env.unwrapped.render_png()
-            if picture is not None:
-                out.append(View(foxglove.ARM_TOPIC, foxglove.compressed_image(picture, global_step), global_step))
-        return out
-
-    return views
 
 
 def trial_parts(
@@ -928,23 +613,3 @@ def make_guide(config: ExperimentConfig, task: Task, env: Any) -> Guide | None:
     return None if guide is None else guide(config, task, env)  # type: ignore[no-any-return]
 
 
-def steering_guide(config: ExperimentConfig, task: Task, env: Any) -> Guide:
-    """The released grid code's pi_LLM picks its own cell (the solution's next missing one)
-    instead of the scanned or drawn cell: its action names that cell (the grid envs' cell
-    actions, judged by ``guided_goal_threshold``) and is the task's guidance there; the step
-    goes through ``env.step`` like any other."""
-    grid_env = env.unwrapped
-
-    def guide(solution: Any, observation: Any, info: dict[str, Any]) -> Guided | None:
-        pattern = info["pattern"]
-        cell = task.guided_cell(pattern, solution, info.get("cursor"))
-        if cell is None:
-            action = task.guidance(pattern, solution, info.get("cursor"))
-            return None if action is None else Guided(action, action, observation, info)
-        action = task.guidance(pattern, solution, cell)
-        if action is None:
-            return None
-        observation, info = grid_env.at_cell(observation, info, cell)
-        return Guided(action, grid_env.cell_action(cell, action), observation, info)
-
-    return guide

@@ -7,9 +7,11 @@ logs. ``Pattern`` is the task's own partial-pattern type (a tuple of cube ids, a
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
+
+from lagrseq.errors import ConfigError
 
 Pattern = Any
 Solution = Any
@@ -36,6 +38,20 @@ def oversized_answer(text: str) -> str | None:
         f"answer of {len(text)} characters is longer than the {MAX_ANSWER_CHARS}-character limit "
         "(MAX_ANSWER_CHARS in lagrseq/tasks/base.py); not read"
     )
+
+
+_Section = TypeVar("_Section")
+
+
+def expect(value: Any, cls: type[_Section], section: str) -> _Section:
+    """``value`` (a configuration section, or a task) as the class a task's factory needs;
+    ConfigError (one line) otherwise (configurations from ``config.load`` always are)."""
+    if not isinstance(value, cls):
+        raise ConfigError(
+            f"[{section}] is a {type(value).__name__}, this task needs a {cls.__name__}; "
+            "build configurations with lagrseq.config.load"
+        )
+    return value
 
 
 def unreadable_answer(text: object) -> str | None:
@@ -69,7 +85,10 @@ class Parsed:
 
 
 class Task(Protocol):
-    """A pattern-completion task."""
+    """A pattern-completion task. ``lagrseq record`` also uses three optional methods where a
+    task has them (cube stacking does): ``prefixes()``, the patterns asked without
+    ``--from-runs``; ``is_partial(solution)``, a parsed answer of the wrong size; and
+    ``shown(prompt)``, how much of the pattern a prompt shows (ValueError: not its prompt)."""
 
     name: str
 

@@ -159,6 +159,16 @@ class CubeStacking:
         cubes are taken off again (what ``lagrseq record`` asks by default)."""
         return [self.target[:n] for n in range(1, self.stack_size + 1)]
 
+    def is_partial(self, solution: tuple[int, ...]) -> bool:
+        """A parsed answer that lists fewer or more cubes than the stack holds (``lagrseq record
+        --census`` counts it apart from a wrong one)."""
+        return len(solution) != self.stack_size
+
+    def shown(self, prompt: str) -> int:
+        """How many cubes the partial stack of ``prompt`` shows (the census's ``shown``);
+        ValueError for a prompt that is not a cube prompt."""
+        return len(partial_stack(prompt))
+
     def progress(self, pattern: tuple[int, ...]) -> int:
         """Stack height (in the released code the stack is always a correct prefix)."""
         return len(pattern)

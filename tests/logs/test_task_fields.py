@@ -65,7 +65,7 @@ class Counted:
 
 
 def make_env(config, render_dir):
-    from lagrseq.running.wiring import cube_env
+    from lagrseq.builtin_tasks.cube_stacking import make_env as cube_env
 
     sloppy = os.environ.get("COUNTED_SLOPPY")  # an env that logs a field its task does not declare
     return Counted(cube_env(config, render_dir), {"mood": sloppy} if sloppy else {})
