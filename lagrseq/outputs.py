@@ -44,7 +44,7 @@ from pathlib import Path
 from typing import Any
 
 from lagrseq.errors import UsageError
-from lagrseq.paths import kind_of
+from lagrseq.text import kind_of
 
 
 @dataclass

@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import BinaryIO, Literal, TextIO, TypeVar
 
 from lagrseq.errors import LagrseqError, UsageError
+from lagrseq.text import kind_of
 
 Expect = Literal["file", "directory", "any"]
 T = TypeVar("T")
@@ -75,17 +76,6 @@ def expand_user(path: str | os.PathLike[str], what: str = "path", error: type[La
         return Path(text).expanduser()
     except RuntimeError:
         raise error(f"{what} {text}: '~' cannot be expanded (HOME is not set and the user has no home directory); give the full path") from None
-
-
-def kind_of(mode: int) -> str:
-    """What a stat mode is, in words."""
-    for test, name in (
-        (stat.S_ISREG, "a file"), (stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
-        (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
-    ):
-        if test(mode):
-            return name
-    return "not a regular file"
 
 
 def _stat(path: Path, what: str, error: type[LagrseqError]) -> os.stat_result:

@@ -13,6 +13,7 @@ other format characters), and a byte of a non-UTF-8 name as ``\\xff``.
 from __future__ import annotations
 
 import contextlib
+import stat
 import sys
 import unicodedata
 
@@ -130,3 +131,14 @@ def csv_cell(value: object) -> object:
     except ValueError:
         return "'" + value
     return value
+
+
+def kind_of(mode: int) -> str:
+    """What a stat mode is, in words."""
+    for test, name in (
+        (stat.S_ISREG, "a file"), (stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+        (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+    ):
+        if test(mode):
+            return name
+    return "not a regular file"

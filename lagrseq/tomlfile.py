@@ -14,7 +14,8 @@ import sys
 from typing import Any
 
 from lagrseq.errors import ConfigError
-from lagrseq.paths import expand_user, kind_of
+from lagrseq.paths import expand_user
+from lagrseq.text import kind_of
 
 if sys.version_info >= (3, 11):
     import tomllib

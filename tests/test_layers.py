@@ -44,7 +44,7 @@ ANALYSIS_FORBIDS = ("lagrseq.envs", "lagrseq.agents", "lagrseq.llm", "lagrseq.lo
 data and the frontier protocol's helpers live below it, in the base layer)."""
 
 LAYERS: dict[str, tuple[str, ...]] = {
-    # base: config, errors, seeding, paths, tomlfile, registry, builtins, keys, text (stdlib + numpy; the
+    # base: config, errors, seeding, paths, tomlfile, registry, builtins, keys, text, outputs (stdlib + numpy; the
     # built-in parts are registered by lazy reference); anyone may import them
     "lagrseq": (*PARTS, *LOOP, *HEAVY, "mcap", "pandas", "matplotlib"),
     # parts: each knows its own interface, none the loop or anything above it
@@ -109,6 +109,7 @@ ANYONE = (
     "lagrseq.builtins",
     "lagrseq.keys",
     "lagrseq.text",
+    "lagrseq.outputs",
     # data and definitions that analysis and running (or study) both read, so below both
     "lagrseq.suite",
     "lagrseq.frontier_protocol",

@@ -65,7 +65,7 @@ class Keyed:
 
 
 def keyed_env(config, render_dir):
-    from lagrseq.running.wiring import cube_env
+    from lagrseq.builtin_tasks.cube_stacking import make_env as cube_env
 
     return Keyed(cube_env(config, render_dir))
 

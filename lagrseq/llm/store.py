@@ -81,7 +81,8 @@ from lagrseq.llm.records import (
     problems,
 )
 from lagrseq.llm.servers import DEFAULT_BASE_URL, base_url_problem  # noqa: F401 - DEFAULT_BASE_URL re-exported for callers
-from lagrseq.paths import kind_of, open_input
+from lagrseq.paths import open_input
+from lagrseq.text import kind_of
 
 try:
     import fcntl

@@ -1,7 +1,7 @@
 """Lockstep: trials in threads, one running at a time, their requests served in batched calls.
 
 Plain Python operations stand in for the networks here (tests/agents/test_dqn.py checks that
-the network group's batched calls give each member its own numbers; tests/test_grid_runs.py
+the network group's batched calls give each member its own numbers; tests/running/test_grid_runs.py
 runs whole trials in lockstep)."""
 
 from __future__ import annotations

@@ -53,7 +53,7 @@ class Noted:
 
 
 def make_env(config, render_dir):
-    from lagrseq.running.wiring import cube_env
+    from lagrseq.builtin_tasks.cube_stacking import make_env as cube_env
 
     return Noted(cube_env(config, render_dir))
 
