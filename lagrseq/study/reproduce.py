@@ -302,7 +302,7 @@ def write_errors_log(out: Path, failures: Sequence[RunFailure], reruns: Mapping[
     """``OUT/reproduce-errors.log`` with every failure's whole text (secrets blanked), then the
     command that reruns each failed item (``reruns``: item id or "TASK audit" -> command); a
     stale one is removed when nothing failed."""
-    from lagrseq.llm.redaction import redact_key_like
+    from lagrseq.keys import redact_key_like
 
     path = out / ERRORS_LOG
     if not failures:
