@@ -24,10 +24,8 @@ from typing import Any
 from lagrseq.progress import Reporter, duration
 from lagrseq.running import runner
 from lagrseq.study.phases.audits import (
-    AUDIT_ITEM_PREFIX,
     SUITE_AUDITS,
     SuiteAudit,
-    audit_item,
     audit_items,
     audit_section,
     on_request_line,
@@ -36,16 +34,17 @@ from lagrseq.study.phases.audits import (
     suite_audits,
 )
 from lagrseq.study.phases.estimate import Forecast, calibrations, estimate_suite
-from lagrseq.study.phases.execute import Outcome, execute, execute_suite, needs_pool
+from lagrseq.study.phases.execute import Outcome, execute, execute_suite, needs_pool, run_failures
 from lagrseq.study.phases.failures import (
+    AUDIT_ITEM_PREFIX,
     ERRORS_LOG,
     LINE_WIDTH,
     REASON_WIDTH,
     RunFailure,
+    audit_item,
     failure_summary,
     item_failures,
     rerun_command,
-    run_failures,
     without_absolute_paths,
     without_checkout,
     write_errors_log,

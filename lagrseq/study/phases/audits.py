@@ -14,7 +14,12 @@ from lagrseq.errors import ConfigError, LagrseqError, TrialsFailed
 from lagrseq.progress import Reporter, duration
 from lagrseq.registry import EXECUTORS
 from lagrseq.running import runner
-from lagrseq.study.phases.failures import RunFailure, describe_config, short_name
+from lagrseq.study.phases.failures import (
+    RunFailure,
+    audit_item,
+    describe_config,
+    short_name,
+)
 from lagrseq.suite import Suite
 
 
@@ -46,14 +51,6 @@ SUITE_AUDITS = {
 ones go with them, so that ``--quick`` previews what the full suite runs). The grid tasks' quick
 audits are reduced (2 trials of 200 steps, the upstream preset's fields switched to the paper's
 values only: indicative, labelled so on their tables)."""
-
-AUDIT_ITEM_PREFIX = "audit-"
-
-
-def audit_item(task: str) -> str:
-    """The ``--items`` id that runs ``task``'s audit alone (``audit-TASK``: the stem of its tables)."""
-    return f"{AUDIT_ITEM_PREFIX}{task}"
-
 
 def audit_items() -> dict[str, str]:
     """``--items`` id -> task, for every audit of :data:`SUITE_AUDITS` whose task is here."""

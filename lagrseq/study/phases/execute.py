@@ -5,6 +5,7 @@ the audits."""
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -17,7 +18,7 @@ from lagrseq.registry import EXECUTORS
 from lagrseq.running import runner
 from lagrseq.study import probe
 from lagrseq.study.phases.audits import run_suite_audit
-from lagrseq.study.phases.failures import RunFailure, describe_config, run_failures, short_name
+from lagrseq.study.phases.failures import RunFailure, describe_config, short_name
 from lagrseq.study.phases.plan import Plan, PlannedRun, Request, SuitePlan, plan_matched_random
 
 if TYPE_CHECKING:
@@ -156,6 +157,27 @@ def _sweep(
     for share in shares:
         share.finish()
     return results
+
+
+def run_failures(caught: TrialsFailed, runs: Sequence[PlannedRun]) -> list[RunFailure]:
+    """What ``caught`` says about each of ``runs`` (matched by directory)."""
+    by_path = {run.path: run for run in runs}
+    out = []
+    for failed in caught.runs:
+        run = by_path.get(failed.directory)
+        if run is None:  # not one of ours: nothing to attribute it to
+            raise caught
+        failures = failed.failures
+        out.append(
+            RunFailure(
+                describe_config(run.config, run.provider), run.path, len(failures), failed.total,
+                tuple(f.describe() for f in failures), failures[0].error, failed.advice, tuple(run.items),
+                short=short_name(run.config, run.provider),
+            )
+        )
+    if not out:
+        raise caught
+    return out
 
 
 def needs_pool(executor: str, jobs: int, scheduler: str | None) -> bool:

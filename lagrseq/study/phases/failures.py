@@ -10,14 +10,10 @@ import shlex
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from lagrseq import outputs
 from lagrseq.config import ExperimentConfig
-from lagrseq.errors import TrialsFailed
-
-if TYPE_CHECKING:
-    from lagrseq.study.phases.plan import PlannedRun
 
 ERRORS_LOG = "reproduce-errors.log"
 """``OUT/reproduce-errors.log``: the whole text of every failure of the latest ``reproduce`` into
@@ -108,34 +104,12 @@ def short_name(config: ExperimentConfig, provider: str) -> str:
     return f"{config.task.name} {config.method} on {provider}"
 
 
-def run_failures(caught: TrialsFailed, runs: Sequence[PlannedRun]) -> list[RunFailure]:
-    """What ``caught`` says about each of ``runs`` (matched by directory)."""
-    by_path = {run.path: run for run in runs}
-    out = []
-    for failed in caught.runs:
-        run = by_path.get(failed.directory)
-        if run is None:  # not one of ours: nothing to attribute it to
-            raise caught
-        failures = failed.failures
-        out.append(
-            RunFailure(
-                describe_config(run.config, run.provider), run.path, len(failures), failed.total,
-                tuple(f.describe() for f in failures), failures[0].error, failed.advice, tuple(run.items),
-                short=short_name(run.config, run.provider),
-            )
-        )
-    if not out:
-        raise caught
-    return out
-
-
 def item_failures(failures: Sequence[RunFailure], rerun: Callable[[list[str]], str]) -> tuple[dict[str, Any], dict[str, Any]]:
     """The suite items the failed runs feed (item id -> :class:`~lagrseq.analysis.items.ItemFailure`,
     in the order first failed) and the audits that failed ("TASK audit" -> the same), each with
     the first failed run's reason, every distinct advice and ``rerun([item id])``, the command that
     reruns it alone (an audit: ``--items audit-TASK``, :func:`audit_item`)."""
     from lagrseq.analysis.items import ItemFailure
-    from lagrseq.study.phases.audits import audit_item
 
     by_item: dict[str, list[RunFailure]] = {}
     by_audit: dict[str, list[RunFailure]] = {}
@@ -234,3 +208,11 @@ def failure_summary(failed: Mapping[str, Any], problems: Mapping[str, Any], item
     if problems:
         parts.append(("also " if failed else "") + ", ".join(f"the {key} ({runs(f.runs)})" for key, f in problems.items()) + " failed")
     return "; ".join(parts) + f"; details in {out / ERRORS_LOG}"
+
+
+AUDIT_ITEM_PREFIX = "audit-"
+
+
+def audit_item(task: str) -> str:
+    """The ``--items`` id that runs ``task``'s audit alone (``audit-TASK``: the stem of its tables)."""
+    return f"{AUDIT_ITEM_PREFIX}{task}"
