@@ -527,9 +527,9 @@ def test_runs_that_train_networks_are_timed_in_their_lockstep_groups(tmp_path: P
     # a cube trial is timed whole (its first episodes are its longest), after its own warm-up
     monkeypatch.setattr(estimator, "EPISODES_CALIBRATION_STEPS", 6000)
     per_step, steps_per_episode, start, _ = estimator._calibrate(cube, group=1)
-    assert timed == [(0, 40), (0, reproduce.EPISODES_CALIBRATION_STEPS)]
+    assert timed == [(0, 40), (0, estimator.EPISODES_CALIBRATION_STEPS)]
     whole = real(cube.config, 0, cube.seed, "mock", tmp_path / "whole.mcap")
-    assert whole.steps < reproduce.EPISODES_CALIBRATION_STEPS and steps_per_episode == whole.steps / whole.episodes
+    assert whole.steps < estimator.EPISODES_CALIBRATION_STEPS and steps_per_episode == whole.steps / whole.episodes
     assert per_step > 0 and start > 0
 
 
@@ -656,9 +656,9 @@ def test_a_run_stopped_at_the_first_solve_is_timed_to_its_first_solve(tmp_path: 
     monkeypatch.setattr(runner, "run_one", counting)
     monkeypatch.setattr(estimator, "_WARM", {("object-arrangement", "lagr")})
     timing = estimator._calibrate(stopped, group=3)
-    assert timed == [(reproduce.STOP_CALIBRATION_STEPS, timed[0][1], "first_solve")]  # one trial, stopped
+    assert timed == [(estimator.STOP_CALIBRATION_STEPS, timed[0][1], "first_solve")]  # one trial, stopped
     took = timed[0][1]
-    assert 0 < took < reproduce.STOP_CALIBRATION_STEPS and timing.trial_steps == took
+    assert 0 < took < estimator.STOP_CALIBRATION_STEPS and timing.trial_steps == took
     assert estimator._trial_steps(stopped.config, timing) == took < stopped.config.run.max_steps
     # the full-length copy runs, and is estimated at, its whole budget
     whole = real(full.config, 0, full.seed, full.provider, tmp_path / "whole.mcap", provider_options=full.options)
