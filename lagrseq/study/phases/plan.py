@@ -193,7 +193,7 @@ def matched_sources(the_plan: Plan, items: AbstractSet[str]) -> list[PlannedRun]
 
 
 def plan_matched_random(the_plan: Plan, items: AbstractSet[str], runs_dir: Path) -> Plan:
-    """The suite's second phase for its frontier ``items`` (issue 20): for each run of
+    """The suite's second phase for its frontier ``items``: for each run of
     :func:`matched_sources` whose trials are complete, its query rate from its logs (queries /
     decisions, :func:`lagrseq.frontier_protocol.matched_probability`) and a run of ``random`` at that
     rate with otherwise the same configuration, provider, seed and trials (so its trials pair with

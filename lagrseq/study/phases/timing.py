@@ -77,8 +77,7 @@ def _calibration_key(run: PlannedRun) -> tuple[str, ...]:
     and trains: at the same length, the quick suite's grid policies cost 0.4 to 1.4 ms a step)
     and the provider timed, but not the length of a trial with a step budget (a grid trial: its
     steps are timed, not its end) and, for an accuracy probe, only its task (timed with the
-    mock: the model and temperature it asks do not change its cost). Issue 35: the quick suite
-    timed 81 configurations for 77 runs."""
+    mock: the model and temperature it asks do not change its cost)."""
     provider, options = _timed_provider(run)
     if run.kind == "accuracy":
         return (run.kind, run.config.task.name, provider, repr(options))
