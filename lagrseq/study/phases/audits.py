@@ -47,8 +47,8 @@ SUITE_AUDITS = {
 }
 """The paper-vs-code audits of the packaged suite, each also a suite item of its own
 (:func:`audit_item`). The whole suite runs the cube audit; the grid audits run on request (at
-full length they were two thirds of the full suite's 35 minutes; the quick suite's reduced
-ones go with them, so that ``--quick`` previews what the full suite runs). The grid tasks' quick
+full length they would take most of the full suite's time; the quick suite's reduced ones go
+with them, so that ``--quick`` previews what the full suite runs). The grid tasks' quick
 audits are reduced (2 trials of 200 steps, the upstream preset's fields switched to the paper's
 values only: indicative, labelled so on their tables)."""
 

@@ -26,14 +26,13 @@ alone with a step budget)."""
 EPISODES_CALIBRATION_STEPS = 5000
 """The same for a trial that ends after a number of episodes (cube stacking): timed whole, up to
 this many steps. Its first episodes are the longest (the agent has learned nothing yet), so steps
-per episode from its first 1,000 steps made a trial 4.5x longer than it is (91 steps an episode
-against 24 over a whole trial of 2,454 steps, 18 ms)."""
+per episode from its first steps would overstate a whole trial's length several times over."""
 LOCKSTEP_CALIBRATION_STEPS = 300
 """Environment steps of each trial when a lockstep group of trials is timed (at most 900
 trial-steps for a group of :data:`LOCKSTEP_CALIBRATION_GROUP`). Each distinct configuration is
 timed (an asking policy or the provider changes how often a trial asks and is guided), so each
-timing is short; the sums over the quick suite's 16 image-completion and 16 object-arrangement
-runs came within 7% of their CPU time (docs/performance.md, "Seventh round")."""
+timing is short; ``benchmarks/bench_estimate.py`` prints how close the sums come to the runs'
+CPU time."""
 
 STOP_CALIBRATION_STEPS = 2000
 """The step budget of the one trial timed for a run whose trials stop early (``run.stop_at``: at
@@ -90,8 +89,7 @@ def _calibration_key(run: PlannedRun) -> tuple[str, ...]:
 REPLAY_SECONDS_PER_LOG = 0.013
 """Replay's reading of one trial log (its /episode and /query chunks), CPU seconds in one of
 ``min(jobs, 8)`` worker processes, which share the logs (with ``jobs`` 1: see
-:data:`REPLAY_SECONDS_PER_LOG_ONE_PROCESS`). Measured on the quick suite's 874 logs on a 2-core
-machine (``benchmarks/bench_replay.py``; docs/performance.md, "Replay")."""
+:data:`REPLAY_SECONDS_PER_LOG_ONE_PROCESS`); ``benchmarks/bench_replay.py`` measures it."""
 REPLAY_SECONDS_PER_LOG_ONE_PROCESS = 0.007
 """The same in one process: nothing is pickled from a worker."""
 REPLAY_SECONDS_PER_ITEM = 0.25
@@ -106,8 +104,8 @@ REPLAY_SECONDS_FIXED = 1.5
 def replay_jobs(jobs: int) -> int:
     """The processes ``reproduce``'s replay reads the logs with: its ``jobs``, but one where fewer
     than :data:`lagrseq.analysis.loading.WORKERS_MIN_CPUS` of them can run at once (``jobs`` or
-    this machine's CPUs): on 2 cores, workers cost replay 1.38x the CPU time and 1.24x the wall
-    time on the quick suite's logs (docs/performance.md, "Issue 35")."""
+    this machine's CPUs): there, workers cost replay more CPU and wall time than they save
+    (``benchmarks/bench_replay_jobs.py``)."""
     from lagrseq.analysis.loading import WORKERS_MIN_CPUS, usable_cpus
 
     return 1 if min(jobs, usable_cpus()) < WORKERS_MIN_CPUS else jobs
