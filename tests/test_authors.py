@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from lagrseq.errors import UsageError
+from lagrseq.progress import Reporter
 from lagrseq.study import authors
 from lagrseq.suite import AUTHORS_STORE_NAME, is_authors_provider, load_suite, with_recorded
 from tests.conftest import AUTHORS_CACHES
@@ -58,8 +59,8 @@ def test_a_pickle_that_could_run_code_is_refused_and_named(tmp_path: Path) -> No
     (tmp_path / "evil.pkl").write_bytes(pickle.dumps([print, "x"]))
     warnings: list[str] = []
     with pytest.raises(UsageError, match="no authors' cache found"):
-        authors.find_caches(tmp_path, warn=warnings.append)
-    assert len(warnings) == 1 and "refusing to load builtins.print" in warnings[0]
+        authors.find_caches(tmp_path, Reporter(warnings.append))
+    assert len(warnings) == 1 and warnings[0].startswith("warning: ") and "refusing to load builtins.print" in warnings[0]
     with pytest.raises(UsageError, match="no such file or folder"):
         authors.find_caches(tmp_path / "missing")
 

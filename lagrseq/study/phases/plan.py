@@ -269,10 +269,10 @@ def with_authors_answers(suite: Suite, caches: Path, out: Path, progress: Report
     from lagrseq.study import authors
     from lagrseq.suite import with_recorded
 
-    say = (progress or Reporter()).say
-    found = authors.find_caches(caches, warn=lambda line: say(f"warning: {line}"))
-    for line in authors.import_caches(found, out, warn=lambda line: say(f"note: {line}")):
-        say(f"authors' answers: {line}")
+    progress = progress or Reporter()
+    found = authors.find_caches(caches, progress)
+    for line in authors.import_caches(found, out, progress):
+        progress.say(f"authors' answers: {line}")
     covers = {cache.covers for cache in found}
     return with_recorded(suite, authors.provider_spec(out), covers)
 
