@@ -19,7 +19,7 @@ from __future__ import annotations
 import contextlib
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
 
 from lagrseq.progress import Reporter, duration
 from lagrseq.running import runner
@@ -79,6 +79,9 @@ from lagrseq.study.phases.timing import (
     replay_jobs,
 )
 
+if TYPE_CHECKING:
+    from lagrseq.analysis.replay import Report
+
 __all__ = [
     "AUDIT_ITEM_PREFIX", "CALIBRATION_STEPS", "EPISODES_CALIBRATION_STEPS", "ERRORS_LOG", "LINE_WIDTH",
     "LOCKSTEP_CALIBRATION_GROUP", "LOCKSTEP_CALIBRATION_STEPS", "REASON_WIDTH", "STOP_CALIBRATION_STEPS", "SUITE_AUDITS",
@@ -96,9 +99,8 @@ __all__ = [
 class Reproduced:
     """What ``reproduce`` made."""
 
-    report: Any
-    """The replay's report (:class:`lagrseq.analysis.replay.Report`): its items, failed items
-    (``failed``) and failed audits (``problems``)."""
+    report: Report
+    """The replay's report: its items, failed items (``failed``) and failed audits (``problems``)."""
     elapsed: float
     """Wall seconds it all took (from the end of the checks)."""
     estimated: float

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import functools
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from lagrseq.errors import UsageError
 from lagrseq.progress import Reporter, duration
@@ -15,6 +15,9 @@ from lagrseq.study.phases.execute import Outcome
 from lagrseq.study.phases.failures import item_failures, write_errors_log
 from lagrseq.study.phases.plan import Request, SuitePlan
 from lagrseq.study.phases.timing import replay_jobs
+
+if TYPE_CHECKING:
+    from lagrseq.analysis.replay import Report
 
 
 def write_errors(planned: SuitePlan, outcome: Outcome, request: Request, progress: Reporter) -> None:
@@ -27,7 +30,7 @@ def write_errors(planned: SuitePlan, outcome: Outcome, request: Request, progres
         progress.warn(f"{exc}; the report is made without it")
 
 
-def report_suite(planned: SuitePlan, forecast: Forecast, outcome: Outcome, request: Request, progress: Reporter) -> Any:
+def report_suite(planned: SuitePlan, forecast: Forecast, outcome: Outcome, request: Request, progress: Reporter) -> Report:
     """Replay the run logs into ``OUT/reports`` (:func:`lagrseq.analysis.replay.replay`); returns its report."""
     from lagrseq.analysis.replay import replay
 
