@@ -1096,12 +1096,13 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     from lagrseq.suite import suite_argument
 
     items = [i.strip() for i in args.items.split(",") if i.strip()] if args.items is not None else None
-    report, elapsed = reproduce.reproduce(
+    request = reproduce.Request(
         suite_argument(args.suite), items, args.quick, args.provider, args.out, args.jobs, args.seed,
-        args.formats, _price_function(args.price_table), quiet=args.quiet, say=_say,
-        executor=args.executor, scheduler=args.scheduler, retries=args.retries,
-        authors_caches=args.authors_caches, warn=_say_error,
+        args.formats, _price_function(args.price_table), executor=args.executor, scheduler=args.scheduler,
+        retries=args.retries, authors_caches=args.authors_caches,
     )
+    done = reproduce.reproduce(request, reproduce.Reporter(_say, _say_error, quiet=args.quiet))
+    report, elapsed = done.report, done.elapsed
     failed_runs = [Path(folder).resolve() for f in (*report.failed.values(), *report.problems.values()) for folder in f.folders]
 
     def said(warning: str) -> bool:  # a failed run's logs: its line was printed when it failed

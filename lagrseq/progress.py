@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import sys
+from collections.abc import Callable
 from typing import Any
 
 FALLBACK_COLUMNS, FALLBACK_ROWS = 80, 24
@@ -57,3 +58,50 @@ def say(line: str, stderr: bool = False) -> None:
 
     tqdm.write(line, file=stream)
     stream.flush()
+
+
+class Reporter:
+    """What a long command tells its user, one object handed down its phases (the callback habit of
+    Stable-Baselines3): lines (:meth:`say`), warnings (:meth:`warn`), the run starting
+    (:meth:`on_run`), an experiment timed (:meth:`on_calibrated`), and the one progress bar they
+    all move (:attr:`bar`, None until the command shows one)."""
+
+    def __init__(
+        self, say: Callable[[str], None] = print, warn: Callable[[str], None] | None = None, quiet: bool = False
+    ) -> None:
+        self._say = say
+        self._warn = warn
+        self.quiet = quiet
+        """No bar on screen (lines are still said)."""
+        self.bar: Any = None
+
+    @classmethod
+    def silent(cls) -> Reporter:
+        """A reporter that says nothing and shows no bar."""
+        return cls(lambda _line: None, quiet=True)
+
+    def say(self, line: str) -> None:
+        self._say(line)
+
+    def warn(self, line: str) -> None:
+        """A line about something that went wrong (a failed run); said where no warning channel was given."""
+        (self._warn or self._say)(line)
+
+    def on_run(self, description: str) -> None:
+        """A run starts in this process: the bar says which."""
+        if self.bar is not None and hasattr(self.bar, "set_description"):
+            self.bar.set_description(description)
+
+    def on_calibrated(self) -> None:
+        """One experiment timed: the calibration bar moves by one."""
+        if self.bar is not None:
+            self.bar.update(1)
+
+
+def duration(seconds: float) -> str:
+    """A duration as people read it: seconds, minutes or hours."""
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.1f} min"
+    return f"{seconds / 3600:.1f} h"

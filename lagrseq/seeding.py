@@ -23,11 +23,6 @@ class Stream(IntEnum):
     REPLAY = 6
 
 
-def trial_seed_sequence(seed: int, trial: int) -> np.random.SeedSequence:
-    """The seed sequence of one trial of a run."""
-    return np.random.SeedSequence(entropy=seed, spawn_key=(trial,))
-
-
 def _key(trial: int, stream: Stream, part: int | None) -> tuple[int, ...]:
     return (trial, int(stream)) if part is None else (trial, int(stream), part)
 

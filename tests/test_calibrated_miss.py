@@ -189,7 +189,7 @@ def authors_out(tmp_path_factory: pytest.TempPathFactory) -> Path:
     if not AUTHORS_CACHES.exists():
         pytest.skip(f"the authors' caches are not present ({AUTHORS_CACHES})")
     out = tmp_path_factory.mktemp("authors")
-    reproduce.with_authors_answers(load_suite().select(["table3"]), AUTHORS_CACHES, out, say=lambda line: None)
+    reproduce.with_authors_answers(load_suite().select(["table3"]), AUTHORS_CACHES, out, reproduce.Reporter.silent())
     return out
 
 
@@ -204,7 +204,7 @@ def test_the_authors_image_answers_fit_the_bins_the_issue_names(authors_out: Pat
 
 def test_table3_has_three_rows_on_the_authors_answers(authors_out: Path) -> None:
     pytest.importorskip("torch")  # Table 3 is image completion, a DQN task: planned only where torch is installed
-    suite = reproduce.with_authors_answers(load_suite().select(["table3"]), AUTHORS_CACHES, authors_out, say=lambda line: None)
+    suite = reproduce.with_authors_answers(load_suite().select(["table3"]), AUTHORS_CACHES, authors_out, reproduce.Reporter.silent())
     runs_dir = authors_out / "runs"
     full = reproduce.plan(suite, quick=False, provider=None, runs_dir=runs_dir, seed=0)
     on_authors = [run for run in full.runs if run.provider.endswith("authors-answers")]

@@ -204,7 +204,9 @@ def test_a_suite_started_in_another_directory_finds_the_recorded_answers_and_wri
     monkeypatch.chdir(elsewhere)
     assert not (elsewhere / SMOLLM2).exists()
     said: list[str] = []
-    report, _ = reproduce.reproduce(Path("suite.toml"), None, True, None, Path("out"), 1, None, ["png"], quiet=True, say=said.append)
+    report = reproduce.reproduce(
+        reproduce.Request(Path("suite.toml"), None, True, None, Path("out"), 1), reproduce.Reporter(said.append, quiet=True)
+    ).report
     runs = load([elsewhere / "out" / "runs"]).runs
     recorded = next(run for run in runs if run.key.provider.startswith("recorded:"))
     assert recorded.key.provider == f"recorded:{SMOLLM2}"  # as written, not where it was found

@@ -179,7 +179,7 @@ def test_a_report_path_that_is_no_file_is_refused_before_anything_runs(tmp_path:
     victim.write_text("precious")
     {"directory": log.mkdir, "fifo": lambda: os.mkfifo(log), "symlink": lambda: log.symlink_to(victim)}[kind]()
     with pytest.raises(UsageError, match=name):
-        reproduce.reproduce(tmp_path / "suite.toml", None, True, None, out, 1, None, ["png"], quiet=True, say=lambda _: None)
+        reproduce.reproduce(reproduce.Request(tmp_path / "suite.toml", None, True, None, out, 1), reproduce.Reporter.silent())
     assert not (out / "runs").exists() and victim.read_text() == "precious"
 
 

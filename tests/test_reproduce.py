@@ -18,6 +18,7 @@ import lagrseq
 from lagrseq import config as cfg
 from lagrseq.analysis.replay import replay
 from lagrseq.running import runner
+from lagrseq.study.phases import timing as estimator
 
 ROOT = Path(lagrseq.__file__).resolve().parents[1]
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -503,31 +504,31 @@ def test_runs_that_train_networks_are_timed_in_their_lockstep_groups(tmp_path: P
         timed.append((args[1], args[0].run.max_steps))
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(reproduce, "CALIBRATION_STEPS", 120)
-    monkeypatch.setattr(reproduce, "LOCKSTEP_CALIBRATION_STEPS", 60)
-    monkeypatch.setattr(reproduce, "WARMUP_STEPS", 40)
+    monkeypatch.setattr(estimator, "CALIBRATION_STEPS", 120)
+    monkeypatch.setattr(estimator, "LOCKSTEP_CALIBRATION_STEPS", 60)
+    monkeypatch.setattr(estimator, "WARMUP_STEPS", 40)
     monkeypatch.setattr(runner, "run_one", counting)
-    monkeypatch.setattr(reproduce, "_WARM", set())
+    monkeypatch.setattr(estimator, "_WARM", set())
     grid.config = replace(grid.config, run=replace(grid.config.run, episodes=0, max_steps=120))
-    per_step, _, start, _ = reproduce._calibrate(grid, group=3)
+    per_step, _, start, _ = estimator._calibrate(grid, group=3)
     assert per_step > 0 and start > 0
     # the warm-up, then three trials in lockstep, each of the lockstep length
     assert sorted(timed) == [(0, 40), (0, 60), (1, 60), (2, 60)]
     timed.clear()
     # one trial alone: the longer stretch, never past the trial's length; the process is warm
-    reproduce._calibrate(grid, group=1)
+    estimator._calibrate(grid, group=1)
     assert timed == [(0, 120)]
     timed.clear()
     grid.trials = 2  # a group larger than the run: its own trials in turn (a store holds answers for those)
-    reproduce._calibrate(grid, group=3)
+    estimator._calibrate(grid, group=3)
     assert sorted(timed) == [(0, 60), (0, 60), (1, 60)]
     timed.clear()
     # a cube trial is timed whole (its first episodes are its longest), after its own warm-up
-    monkeypatch.setattr(reproduce, "EPISODES_CALIBRATION_STEPS", 6000)
-    per_step, steps_per_episode, start, _ = reproduce._calibrate(cube, group=1)
-    assert timed == [(0, 40), (0, reproduce.EPISODES_CALIBRATION_STEPS)]
+    monkeypatch.setattr(estimator, "EPISODES_CALIBRATION_STEPS", 6000)
+    per_step, steps_per_episode, start, _ = estimator._calibrate(cube, group=1)
+    assert timed == [(0, 40), (0, estimator.EPISODES_CALIBRATION_STEPS)]
     whole = real(cube.config, 0, cube.seed, "mock", tmp_path / "whole.mcap")
-    assert whole.steps < reproduce.EPISODES_CALIBRATION_STEPS and steps_per_episode == whole.steps / whole.episodes
+    assert whole.steps < estimator.EPISODES_CALIBRATION_STEPS and steps_per_episode == whole.steps / whole.episodes
     assert per_step > 0 and start > 0
 
 
@@ -561,17 +562,17 @@ def test_each_configuration_is_timed_with_the_provider_it_runs_on_where_that_ask
     plan = reproduce.plan(load_suite(), quick=True, provider=None, runs_dir=tmp_path, seed=0)  # the cube: no extra needed
     plan.runs = [run for run in plan.runs if run.config.task.name == "cube-stacking"]
     seq = [run for run in plan.runs if run.config.method == "lagr-seq" and run.provider == "mock" and run.config.preset == "paper"]
-    by_policy = {run.config.secondary.policy: reproduce._calibration_key(run) for run in seq}
+    by_policy = {run.config.secondary.policy: estimator._calibration_key(run) for run in seq}
     assert len(by_policy) > 1 and len(set(by_policy.values())) == len(by_policy)
     recorded = next(run for run in plan.runs if run.provider.startswith("recorded:") and run.kind == "trial")
-    assert reproduce._timed_provider(recorded) == (recorded.provider, recorded.options)
+    assert estimator._timed_provider(recorded) == (recorded.provider, recorded.options)
     profile = next(run for run in plan.runs if run.provider.startswith("mock:") and run.kind == "trial")
-    assert reproduce._timed_provider(profile) == (profile.provider, profile.options)
+    assert estimator._timed_provider(profile) == (profile.provider, profile.options)
     live = replace(profile, provider="live:gpt-4o-mini")
-    assert reproduce._timed_provider(live) == ("mock", None)
+    assert estimator._timed_provider(live) == ("mock", None)
     probe_run = next(run for run in plan.runs if run.kind == "accuracy")
-    assert reproduce._timed_provider(probe_run) == ("mock", None)
-    assert reproduce._calibration_key(live) != reproduce._calibration_key(profile)
+    assert estimator._timed_provider(probe_run) == ("mock", None)
+    assert estimator._calibration_key(live) != estimator._calibration_key(profile)
 
 
 def test_a_store_that_cannot_answer_the_timing_is_timed_with_the_mock(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -595,8 +596,8 @@ def test_a_store_that_cannot_answer_the_timing_is_timed_with_the_mock(tmp_path: 
         return real(*args, **kwargs)
 
     monkeypatch.setattr(runner, "run_one", counting)
-    monkeypatch.setattr(reproduce, "EPISODES_CALIBRATION_STEPS", 200)
-    per_step, steps_per_episode, _, _ = reproduce._calibrate(run, group=1)
+    monkeypatch.setattr(estimator, "EPISODES_CALIBRATION_STEPS", 200)
+    per_step, steps_per_episode, _, _ = estimator._calibrate(run, group=1)
     assert per_step > 0 and steps_per_episode > 0
     assert asked[0] == run.provider and asked[-1] == "mock"
 
@@ -614,16 +615,16 @@ def test_one_timing_per_configuration_family(tmp_path: Path) -> None:
     grid = next((run for run in plan.runs if run.kind == "trial" and run.config.run.episodes == 0), None)
     if grid is not None:  # the grid tasks are planned where torch is installed (the core suites have none)
         shorter = replace(grid, config=replace(grid.config, run=replace(grid.config.run, max_steps=grid.config.run.max_steps // 2)))
-        assert reproduce._calibration_key(shorter) == reproduce._calibration_key(grid)
+        assert estimator._calibration_key(shorter) == estimator._calibration_key(grid)
         other_policy = replace(grid, config=cfg.load(grid.config.task.name, "lagr-seq", "upstream", None, ['secondary.policy="oracle"']))
-        assert reproduce._calibration_key(other_policy) != reproduce._calibration_key(
+        assert estimator._calibration_key(other_policy) != estimator._calibration_key(
             replace(grid, config=cfg.load(grid.config.task.name, "lagr-seq", "upstream"))
         )
     cube = next(run for run in plan.runs if run.kind == "trial" and run.config.run.episodes > 0)
     fewer = replace(cube, config=replace(cube.config, run=replace(cube.config.run, episodes=cube.config.run.episodes // 2)))
-    assert reproduce._calibration_key(fewer) != reproduce._calibration_key(cube)  # its episodes are timed whole
+    assert estimator._calibration_key(fewer) != estimator._calibration_key(cube)  # its episodes are timed whole
     probes = [run for run in plan.runs if run.kind == "accuracy"]
-    assert len(probes) > 1 and len({reproduce._calibration_key(run) for run in probes}) == 1
+    assert len(probes) > 1 and len({estimator._calibration_key(run) for run in probes}) == 1
     assert reproduce.calibration_keys(plan, jobs=2) < len(plan.runs)
 
 
@@ -641,7 +642,7 @@ def test_a_run_stopped_at_the_first_solve_is_timed_to_its_first_solve(tmp_path: 
     stopped = next(run for run in always if run.config.run.stop_at == "first_solve")
     full = next(run for run in always if not run.config.run.stop_at)
     assert (stopped.trials, full.trials, full.full_horizon, stopped.full_horizon) == (30, 10, ["frontier-arrangement"], [])
-    assert reproduce._calibration_key(stopped) != reproduce._calibration_key(full)
+    assert estimator._calibration_key(stopped) != estimator._calibration_key(full)
     assert stopped.path not in reproduce.lockstep_groups(plan, jobs=2)
     timed: list[tuple[int, int, str]] = []
     real = runner.run_one
@@ -652,22 +653,22 @@ def test_a_run_stopped_at_the_first_solve_is_timed_to_its_first_solve(tmp_path: 
         return result
 
     monkeypatch.setattr(runner, "run_one", counting)
-    monkeypatch.setattr(reproduce, "_WARM", {("object-arrangement", "lagr")})
-    timing = reproduce._calibrate(stopped, group=3)
-    assert timed == [(reproduce.STOP_CALIBRATION_STEPS, timed[0][1], "first_solve")]  # one trial, stopped
+    monkeypatch.setattr(estimator, "_WARM", {("object-arrangement", "lagr")})
+    timing = estimator._calibrate(stopped, group=3)
+    assert timed == [(estimator.STOP_CALIBRATION_STEPS, timed[0][1], "first_solve")]  # one trial, stopped
     took = timed[0][1]
-    assert 0 < took < reproduce.STOP_CALIBRATION_STEPS and timing.trial_steps == took
-    assert reproduce._trial_steps(stopped.config, timing) == took < stopped.config.run.max_steps
+    assert 0 < took < estimator.STOP_CALIBRATION_STEPS and timing.trial_steps == took
+    assert estimator._trial_steps(stopped.config, timing) == took < stopped.config.run.max_steps
     # the full-length copy runs, and is estimated at, its whole budget
     whole = real(full.config, 0, full.seed, full.provider, tmp_path / "whole.mcap", provider_options=full.options)
     assert whole.steps == full.config.run.max_steps
-    assert reproduce._trial_steps(full.config, reproduce._calibrate(full, group=1)) == full.config.run.max_steps
+    assert estimator._trial_steps(full.config, estimator._calibrate(full, group=1)) == full.config.run.max_steps
     # a trial that does not solve within the timed budget is estimated at its whole budget
-    monkeypatch.setattr(reproduce, "STOP_CALIBRATION_STEPS", max(1, took - 1))
+    monkeypatch.setattr(estimator, "STOP_CALIBRATION_STEPS", max(1, took - 1))
     timed.clear()
-    late = reproduce._calibrate(stopped, group=1)
+    late = estimator._calibrate(stopped, group=1)
     assert timed == [(took - 1, took - 1, "first_solve")]
-    assert late.trial_steps == stopped.config.run.max_steps == reproduce._trial_steps(stopped.config, late)
+    assert late.trial_steps == stopped.config.run.max_steps == estimator._trial_steps(stopped.config, late)
 
 
 def test_only_the_stopped_runs_are_matched_with_random_and_their_random_stops_too(tmp_path: Path) -> None:
@@ -740,14 +741,14 @@ def test_a_suite_of_stopped_trials_runs_and_replays_with_its_full_length_copies(
 
     path = tmp_path / "suite.toml"
     path.write_text(STOPPED_SUITE)
-    quick, _ = reproduce.reproduce(path, None, True, None, tmp_path / "quick", 1, None, ["png"], quiet=True, say=lambda _: None)
+    quick = reproduce.reproduce(reproduce.Request(path, None, True, None, tmp_path / "quick", 1), reproduce.Reporter.silent()).report
     (item,) = quick.items
     assert item.status == "made" and item.missing() == []
     assert [m.spec.label for m in item.matched] == ["never", "always", "thompson"]
     runs = logged(tmp_path / "quick")
     assert len(runs) == 4 and all(c["run"].get("stop_at") == "first_solve" for c, _ in runs)  # 3 runs and thompson's random
     assert sum(c.get("secondary", {}).get("policy") == "random" for c, _ in runs) == 1
-    full, _ = reproduce.reproduce(path, None, False, None, tmp_path / "full", 1, None, ["png"], quiet=True, say=lambda _: None)
+    full = reproduce.reproduce(reproduce.Request(path, None, False, None, tmp_path / "full", 1), reproduce.Reporter.silent()).report
     (item,) = full.items
     assert item.status == "made" and len(item.matched) == 6
     assert sorted(path.name for path in (tmp_path / "full" / "reports" / "tables").glob("stops*.md")) == [

@@ -10,8 +10,10 @@ import pytest
 
 from lagrseq import cli
 from lagrseq.errors import ConfigError
+from lagrseq.progress import Reporter
 from lagrseq.running import runner
 from lagrseq.study import reproduce
+from lagrseq.study.phases import audits, timing
 from lagrseq.suite import Suite, load_suite
 
 TINY_CUBE_AUDIT = reproduce.SuiteAudit("mock:authors-t0", (1, 2, -1), (1, 2, -1))
@@ -68,7 +70,7 @@ def test_reproduce_items_audit_runs_that_audit_alone(tmp_path: Path, monkeypatch
     monkeypatch.chdir(tmp_path)
     assert cli.main(["reproduce", "--quick", "--items", "audit-cube-stacking", "--out", "out", "--jobs", "1", "--quiet"]) == 0
     reports = tmp_path / "out" / "reports"
-    planned, _ = reproduce._audit_plan("cube-stacking", tmp_path / "out" / "runs", True, 0, lambda line: None)
+    planned, _ = audits._audit_plan("cube-stacking", tmp_path / "out" / "runs", True, 0, Reporter.silent())
     assert all(runner.trial_path(run.path, 0).is_file() for run in planned)
     # only the audit's runs: no suite item was planned
     assert {path.parent for path in (tmp_path / "out" / "runs").rglob("*.mcap")} == {run.path for run in planned}
@@ -93,13 +95,13 @@ def test_the_whole_suite_times_an_audit_it_leaves_to_a_request_and_the_report_sa
     for task in list(reproduce.SUITE_AUDITS):
         monkeypatch.delitem(reproduce.SUITE_AUDITS, task)
     monkeypatch.setitem(reproduce.SUITE_AUDITS, "cube-stacking", reproduce.SuiteAudit("mock:authors-t0", (1, 2, -1), (1, 2, -1), in_suite=False))
-    monkeypatch.setattr(reproduce, "EPISODES_CALIBRATION_STEPS", 300)
+    monkeypatch.setattr(timing, "EPISODES_CALIBRATION_STEPS", 300)
     out = tmp_path / "out"
-    reproduce.reproduce(None, None, True, None, out, 1, None, ["png"], quiet=True)
+    reproduce.reproduce(reproduce.Request(None, None, True, None, out, 1), Reporter(quiet=True))
     said = capsys.readouterr().out
     line = next(line for line in said.splitlines() if line.startswith("cube-stacking audit: not in the suite; run it with "))
     assert "`lagrseq reproduce --quick --items audit-cube-stacking --out " in line and "on this machine with 1 process" in line
-    planned, _ = reproduce._audit_plan("cube-stacking", out / "runs", True, 0, lambda text: None)
+    planned, _ = audits._audit_plan("cube-stacking", out / "runs", True, 0, Reporter.silent())
     assert not any(run.path.exists() for run in planned)  # timed, not run
     section = (out / "reports" / "tables" / "audits.csv").read_text(encoding="utf-8").splitlines()
     assert section[0] == "audit,run,command,estimated_seconds"

@@ -16,8 +16,10 @@ import pytest
 
 import lagrseq
 from lagrseq import cli
+from lagrseq.progress import Reporter
 from lagrseq.running import runner
 from lagrseq.study import reproduce
+from lagrseq.study.phases import audits
 
 ROOT = Path(lagrseq.__file__).resolve().parents[1]
 
@@ -221,13 +223,13 @@ def test_a_failed_audit_run_is_reported_and_the_audit_goes_on(tmp_path: Path, mo
 
     monkeypatch.setitem(reproduce.SUITE_AUDITS, "cube-stacking", reproduce.SuiteAudit("mock:authors-t0", (1, 2, -1), (1, 2, -1)))
     runs_dir = tmp_path / "runs"
-    planned, _ = reproduce._audit_plan("cube-stacking", runs_dir, True, 0, lambda line: None)
+    planned, _ = audits._audit_plan("cube-stacking", runs_dir, True, 0, Reporter.silent())
     victim, donor = planned[0], planned[1]
     runner.run_trials(donor.config, 1, 0, donor.provider, donor.path)
     victim.path.mkdir(parents=True)
     runner.trial_path(donor.path, 0).rename(runner.trial_path(victim.path, 0))
     failures: list[reproduce.RunFailure] = []
-    reproduce.run_suite_audit("cube-stacking", runs_dir, True, 1, 0, True, lambda line: None, failures=failures)
+    reproduce.run_suite_audit("cube-stacking", runs_dir, True, 1, 0, Reporter.silent(), failures=failures)
     assert [(f.audit, f.items, f.path) for f in failures] == [("cube-stacking", (), victim.path)]
     assert all(runner.trial_path(r.path, 0).is_file() for r in planned[1:])  # the others ran
     # the report names it (and is written), with the command that reruns that audit alone

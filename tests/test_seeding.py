@@ -30,8 +30,8 @@ def test_every_component_of_the_key_changes_the_stream() -> None:
 def test_a_trials_streams_do_not_depend_on_how_many_trials_run() -> None:
     # trial 3 is spawned from (seed, 3) directly, never from a counter of trials before it
     assert draws(0, 3, Stream.LLM) == seeding.generator(0, 3, Stream.LLM).random(5).tolist()
-    sequence = seeding.trial_seed_sequence(0, 3)
-    assert sequence.spawn_key == (3,) and sequence.entropy == 0
+    sequence = seeding.generator(0, 3, Stream.LLM).bit_generator.seed_seq
+    assert sequence.spawn_key == (3, int(Stream.LLM)) and sequence.entropy == 0
 
 
 def test_integer_seeds_are_32_bit_and_spread() -> None:

@@ -4,7 +4,6 @@
 - :mod:`lagrseq.llm.mock`: the rule-based mock provider (the embedded default).
 - :mod:`lagrseq.llm.live`: OpenAI-compatible Chat Completions over httpx (retries, timeouts, ``n``,
   a deadline and a size cap per request, token counts believed only up to what a request can use).
-- :mod:`lagrseq.llm.redaction`: blanks the API key, whole or in part, out of what a server sends back.
 - :mod:`lagrseq.llm.store`: the recorded multi-sample store (JSON-only diskcache) and its JSONL form.
 - :mod:`lagrseq.llm.recorded`: replaying a store, and the recording wrapper (vcrpy modes).
 - :mod:`lagrseq.llm.budget`: stop before a request that could pass a cost or query limit.

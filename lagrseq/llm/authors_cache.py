@@ -183,61 +183,24 @@ def import_authors_cache(
         digest = hashlib.sha256(handle.read()).hexdigest()
     groups: dict[str, tuple[dict[str, Any], list[Sample]]] = {}
     skipped = 0
-
-    def skip(index: int, why: str) -> None:
-        nonlocal skipped
-        skipped += 1
-        if warn is not None and skipped <= MAX_WARNINGS:
-            warn(f"{path.name}: skipping pair {index}: {why}")
-
     for index, (key, answer) in enumerate(pairs):
         try:
-            prompt = prompt_for(key)
-        except ValueError as exc:
-            why = " ".join(str(exc).split())
-            skip(index, f"key {describe(key)} does not fit task {task}: {why if len(why) <= 160 else why[:157] + '...'}")
+            prompt, text, recorded_as = _usable(key, answer, prompt_for, task)
+            sample = _sample(text, recorded_as, model, path, digest, index)
+        except _Skip as why:
+            skipped += 1
+            if warn is not None and skipped <= MAX_WARNINGS:
+                warn(f"{path.name}: skipping pair {index}: {why}")
             continue
-        if isinstance(answer, np.ndarray) and isinstance(key, np.ndarray) and answer.shape != key.shape:
-            skip(index, f"answer shape {answer.shape} differs from key shape {key.shape}")
-            continue
-        too_large = oversized(answer)
-        if too_large is not None:
-            skip(index, too_large)
-            continue
-        written = answer_text(answer)
-        if written is None:
-            skip(index, f"answer {describe(answer)} is neither text nor a list or an array of numbers")
-            continue
-        text, recorded_as = written
         query = Query(
-            task=task,
-            model=model,
-            messages=(Message("user", prompt),),
-            temperature=temperature,
-            max_tokens=max_tokens,
+            task=task, model=model, messages=(Message("user", prompt),), temperature=temperature, max_tokens=max_tokens,
             top_p=top_p,
         )
         record_key, request = query_key(query, endpoint)
-        sample = Sample(
-            id=hashlib.sha256(f"authors-cache|{digest}|{index}".encode()).hexdigest()[:24],
-            text=text,
-            origin="authors-cache",
-            model=model,
-            recorded_as=recorded_as,
-            provenance=f"{path.name} pair {index} (sha256 {digest[:12]})",
-        )
-        wrong = problems(sample.to_json(), SAMPLE_SCHEMA, root="answer", limit=1)
-        if wrong:  # e.g. longer than MAX_ANSWER_CHARS, or text that is not valid Unicode
-            skip(index, wrong[0])
-            continue
         groups.setdefault(record_key, (request, []))[1].append(sample)
     if warn is not None and skipped > MAX_WARNINGS:
         warn(f"{path.name}: skipped {skipped - MAX_WARNINGS} more pairs (the first {MAX_WARNINGS} are named above)")
-    imported = 0
-    for record_key, (request, samples) in groups.items():
-        before = store.entry(record_key)
-        count_before = len(before.samples) if before else 0
-        imported += store.add(record_key, request, task, samples) - count_before
+    imported = _add(store, task, groups)
     usable = len(pairs) - skipped
     return ImportReport(
         pairs=len(pairs),
@@ -246,3 +209,54 @@ def import_authors_cache(
         skipped=skipped,
         keys=len(groups),
     )
+
+
+class _Skip(Exception):
+    """A pair that cannot be imported: why (one line)."""
+
+
+def _usable(key: Any, answer: Any, prompt_for: Callable[[Any], str], task: str) -> tuple[str, str, RecordedAs]:
+    """A pair's prompt and its answer as text and how it was recorded; :class:`_Skip` for a pair
+    whose key does not fit the task or whose answer cannot be stored."""
+    try:
+        prompt = prompt_for(key)
+    except ValueError as exc:
+        why = " ".join(str(exc).split())
+        raise _Skip(f"key {describe(key)} does not fit task {task}: {why if len(why) <= 160 else why[:157] + '...'}") from None
+    if isinstance(answer, np.ndarray) and isinstance(key, np.ndarray) and answer.shape != key.shape:
+        raise _Skip(f"answer shape {answer.shape} differs from key shape {key.shape}")
+    too_large = oversized(answer)
+    if too_large is not None:
+        raise _Skip(too_large)
+    written = answer_text(answer)
+    if written is None:
+        raise _Skip(f"answer {describe(answer)} is neither text nor a list or an array of numbers")
+    return prompt, *written
+
+
+def _sample(text: str, recorded_as: RecordedAs, model: str, path: Path, digest: str, index: int) -> Sample:
+    """Pair ``index`` of the cache at ``path`` (content ``digest``) as a stored sample; :class:`_Skip`
+    where it breaks the sample schema (e.g. longer than MAX_ANSWER_CHARS, or text that is not
+    valid Unicode)."""
+    sample = Sample(
+        id=hashlib.sha256(f"authors-cache|{digest}|{index}".encode()).hexdigest()[:24],
+        text=text,
+        origin="authors-cache",
+        model=model,
+        recorded_as=recorded_as,
+        provenance=f"{path.name} pair {index} (sha256 {digest[:12]})",
+    )
+    wrong = problems(sample.to_json(), SAMPLE_SCHEMA, root="answer", limit=1)
+    if wrong:
+        raise _Skip(wrong[0])
+    return sample
+
+
+def _add(store: RecordStore, task: str, groups: dict[str, tuple[dict[str, Any], list[Sample]]]) -> int:
+    """Add each key's samples to ``store``; how many it did not hold before."""
+    imported = 0
+    for record_key, (request, samples) in groups.items():
+        before = store.entry(record_key)
+        count_before = len(before.samples) if before else 0
+        imported += store.add(record_key, request, task, samples) - count_before
+    return imported

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import hashlib
 import os
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from lagrseq.errors import StoreError, UsageError
+from lagrseq.progress import Reporter
 from lagrseq.suite import AUTHORS_STORE_NAME
 
 MAX_FILE_BYTES = 64 * 1024 * 1024
@@ -114,9 +115,10 @@ def identify(pairs: list[tuple[Any, Any]]) -> tuple[str, tuple[str, ...], str] |
     return None
 
 
-def find_caches(root: Path, warn: Callable[[str], None] | None = None) -> list[Cache]:
+def find_caches(root: Path, progress: Reporter | None = None) -> list[Cache]:
     """The authors' caches under ``root`` (a file or a folder), each identified by content;
-    duplicates (same bytes) count once."""
+    duplicates (same bytes) count once; a pickle refused as unsafe is one ``warning:`` line to
+    ``progress``."""
     from lagrseq.llm.authors_cache import read_pairs
 
     if not root.exists():
@@ -133,8 +135,8 @@ def find_caches(root: Path, warn: Callable[[str], None] | None = None) -> list[C
         try:
             pairs = read_pairs(path)
         except StoreError as exc:
-            if warn is not None and "refusing" in str(exc):
-                warn(str(exc))
+            if progress is not None and "refusing" in str(exc):
+                progress.say(f"warning: {exc}")
             continue
         kind = identify(pairs)
         if kind is None:
@@ -159,12 +161,17 @@ def provider_spec(out: Path) -> str:
     return f"recorded:{store_path(out)}"
 
 
-def import_caches(caches: list[Cache], out: Path, warn: Callable[[str], None] | None = None) -> list[str]:
-    """Import every cache for both presets into ``OUT/authors-answers``; one line per cache."""
+def import_caches(caches: list[Cache], out: Path, progress: Reporter | None = None) -> list[str]:
+    """Import every cache for both presets into ``OUT/authors-answers``; one line per cache (a
+    skipped pair: one ``note:`` line to ``progress``, once for both presets)."""
     from lagrseq.llm.authors_cache import import_authors_cache
     from lagrseq.llm.servers import DEFAULT_BASE_URL
     from lagrseq.llm.store import RecordStore, endpoint_of
     from lagrseq.running.recording import prompt_function, record_config
+
+    def note(line: str) -> None:
+        if progress is not None:
+            progress.say(f"note: {line}")
 
     lines = []
     with RecordStore(store_path(out)) as store:
@@ -181,7 +188,7 @@ def import_caches(caches: list[Cache], out: Path, warn: Callable[[str], None] | 
                     temperature=0.0,
                     endpoint=endpoint_of(DEFAULT_BASE_URL),
                     max_tokens=config.llm.max_tokens,
-                    warn=warn if preset == PRESETS[0] else None,
+                    warn=note if preset == PRESETS[0] else None,
                 )
                 added += report.imported
                 keys = max(keys, report.keys)  # the presets' prompts may coincide

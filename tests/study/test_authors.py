@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from lagrseq.errors import UsageError
+from lagrseq.progress import Reporter
 from lagrseq.study import authors
 from lagrseq.suite import AUTHORS_STORE_NAME, is_authors_provider, load_suite, with_recorded
 from tests.conftest import AUTHORS_CACHES
@@ -58,8 +59,8 @@ def test_a_pickle_that_could_run_code_is_refused_and_named(tmp_path: Path) -> No
     (tmp_path / "evil.pkl").write_bytes(pickle.dumps([print, "x"]))
     warnings: list[str] = []
     with pytest.raises(UsageError, match="no authors' cache found"):
-        authors.find_caches(tmp_path, warn=warnings.append)
-    assert len(warnings) == 1 and "refusing to load builtins.print" in warnings[0]
+        authors.find_caches(tmp_path, Reporter(warnings.append))
+    assert len(warnings) == 1 and warnings[0].startswith("warning: ") and "refusing to load builtins.print" in warnings[0]
     with pytest.raises(UsageError, match="no such file or folder"):
         authors.find_caches(tmp_path / "missing")
 
@@ -139,14 +140,14 @@ method = "lagr"
 
 def test_reproduce_with_the_authors_caches_adds_rows_that_replay_rebuilds_from_logs(tmp_path: Path) -> None:
     from lagrseq.analysis.replay import replay
-    from lagrseq.study.reproduce import reproduce
+    from lagrseq.study.reproduce import Reporter, Request, reproduce
 
     caches = _caches()
     suite_path = tmp_path / "suite.toml"
     suite_path.write_text(SMALL_SUITE)
     said: list[str] = []
     out = tmp_path / "out"
-    report, _ = reproduce(suite_path, None, False, None, out, 1, None, ["png"], quiet=True, say=said.append, authors_caches=caches)
+    reproduce(Request(suite_path, None, False, None, out, 1, authors_caches=caches), Reporter(said.append, quiet=True))
     assert sum("authors' answers:" in line for line in said) == 4
     assert (out / AUTHORS_STORE_NAME).is_dir()
     table = (out / "reports" / "tables" / "t2.md").read_text()
@@ -171,7 +172,7 @@ def test_reproduce_with_the_authors_caches_adds_rows_that_replay_rebuilds_from_l
     html = (out / "reports" / "index.html").read_text()
     assert html.index('id="scoreboard"') < html.index("<ul>")
     # without the option the item says in one line how to add the recorded row
-    plain, _ = reproduce(suite_path, None, False, None, tmp_path / "plain", 1, None, ["png"], quiet=True, say=said.append)
+    plain = reproduce(Request(suite_path, None, False, None, tmp_path / "plain", 1), Reporter(said.append, quiet=True)).report
     assert "lagrseq reproduce --authors-caches DIR" in (plain.out / "index.md").read_text()
 
 
