@@ -82,8 +82,9 @@ def _c_output_silenced() -> Iterator[None]:
 
 def import_pybullet() -> Any:
     """``import pybullet`` without a line of its own on the terminal (ImportError where it is absent)."""
-    if "pybullet" in sys.modules:
-        return sys.modules["pybullet"]
+    loaded = sys.modules.get("pybullet")
+    if loaded is not None:  # None: an import that is known to fail, which ``import`` raises again
+        return loaded
     with _c_output_silenced():
         import pybullet
     return pybullet
