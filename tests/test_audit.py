@@ -180,7 +180,7 @@ def test_the_scoreboard_says_what_explains_each_gap_from_the_audit_in_the_logs(t
 def test_an_audit_of_one_episode_gives_a_result_where_a_baseline_earned_nothing(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """Issue 37: at one episode a baseline may earn no return; its ratio is no value (n counts
+    """At one episode a baseline may earn no return; its ratio is no value (n counts
     only the ratios that exist), not a ZeroDivisionError."""
     from lagrseq.cli import main
 

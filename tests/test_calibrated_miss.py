@@ -1,5 +1,5 @@
 """The calibrated miss answer of a recorded store (``--on-miss calibrated``), ``run.stop_at``, and
-Table 3 three ways on the authors' answers (issue 34 item 4)."""
+Table 3 three ways on the authors' answers."""
 
 from __future__ import annotations
 
@@ -196,7 +196,7 @@ def authors_out(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_the_authors_image_answers_fit_the_bins_the_issue_names(authors_out: Path) -> None:
     with RecordStore(authors_out / "authors-answers", create=False) as store:
         fitted = wiring.fitted_rates(store, wiring.miss_calibration(IMAGE))
-    # 0 accepted at <= 2 pixels, about 10% otherwise (issue 34), measured on the 780 answers
+    # 0 accepted at <= 2 pixels, about 10% otherwise, measured on the 780 answers
     assert fitted.text() == (
         "0-2 shown: 0/48 (0.0%); 3-5 shown: 21/212 (9.9%); 6-8 shown: 19/235 (8.1%); 9-11 shown: 20/218 (9.2%); 12+ shown: 13/67 (19.4%)"
     )

@@ -1,6 +1,6 @@
 """What a suite run on a recorded store does with a query the store lacks (``on_miss``), the miss
 share the report shows beside every number made on a store, and a suite started outside the
-clone finding the recorded answers it needs (issue 38, items 1 and 5)."""
+clone finding the recorded answers it needs."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Another machine, simulated (issue 38 item 3): the quick suite's recorded-store items under
+"""Another machine, simulated: the quick suite's recorded-store items under
 ``LAGRSEQ_NUMERICS=perturbed`` must finish with a report, and that report is compared with the
 committed reference by its verdicts (docs/reproduce.md, "Another machine").
 

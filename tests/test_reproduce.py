@@ -728,7 +728,7 @@ set = ["secondary.policy=\\"thompson\\""]
 
 
 def test_a_suite_of_stopped_trials_runs_and_replays_with_its_full_length_copies(tmp_path: Path) -> None:
-    """Issue 35 item 6, end to end on short cube trials: --quick runs the stopped runs and their
+    """End to end on short cube trials: --quick runs the stopped runs and their
     matched random (stopped too) and no full-length copies, and its report does not name the
     copies missing; the full suite adds the copies (their own panel, never matched with random)."""
     from lagrseq.logs.reader import read_info

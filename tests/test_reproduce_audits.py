@@ -1,4 +1,4 @@
-"""The suite's paper-vs-code audits (issue 35, item 6): the whole suite runs the cube audit, the
+"""The suite's paper-vs-code audits: the whole suite runs the cube audit, the
 grid audits run on request (``--items audit-TASK``), and the report's audit section says how to
 run an audit not run and about how long it takes here."""
 

@@ -291,7 +291,7 @@ def test_replay_writes_the_sections_into_the_report(tmp_path: Path) -> None:
 
 
 # ------------------------------------------------------------------------------------------
-# Issue 34: prompt sets that are samples, intervals clustered by prompt, exact comparisons, the
+# Prompt sets that are samples, intervals clustered by prompt, exact comparisons, the
 # temperature model's likelihood-ratio test
 # ------------------------------------------------------------------------------------------
 def test_relabelled_cube_sets_are_distinct_prompts_no_two_of_one_target() -> None:

@@ -261,7 +261,7 @@ set = ["secondary.policy=\\"thompson\\""]
 
 
 def test_a_frontier_item_stops_its_trials_and_copies_its_runs_at_full_length(tmp_path: Path) -> None:
-    """Issue 35 item 6: stop_at adds run.stop_at="first_solve" to every run of the item; with
+    """stop_at adds run.stop_at="first_solve" to every run of the item; with
     full_horizon_trials the runs are followed by one full-length copy each (K trials; quick: its
     own K, 0 none); a log matches the stopped run or the copy, never both."""
     never, thompson, never_full, thompson_full = load_suite(_write(tmp_path, STOP_SUITE)).items[0].runs

@@ -115,7 +115,7 @@ target, nested, so the screen is a complete count over one sequence, not a sampl
 target); ``runs`` (grid tasks, the default: N distinct states met in ``--from-runs``); ``sampled``
 (grid tasks: N distinct partial states of the target, drawn without runs)."""
 PROMPT_SEED = 34
-"""Seeds the relabellings and sampled states together with ``--seed`` (issue 34's prompt sets)."""
+"""Seeds the relabellings and sampled states together with ``--seed`` (the prompt sets)."""
 
 
 def screen_queries(
@@ -519,7 +519,7 @@ def _percent(k: int, n: int, interval: bool = True) -> str:
 
 
 # ------------------------------------------------------------------------------------------
-# Evidence sized right (issue 34): intervals clustered by prompt, exact comparisons, the
+# Evidence sized right: intervals clustered by prompt, exact comparisons, the
 # temperature model's likelihood-ratio test
 # ------------------------------------------------------------------------------------------
 RESAMPLES = 10_000

@@ -187,7 +187,7 @@ def test_an_output_file_in_a_missing_folder_is_refused_before_reading(cube_repor
 
 
 def test_compare_never_writes_its_tables_through_a_link(cube_report: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    # issue 37's rule for every output: a link planted where --csv points is refused, the file it
+    # the rule for every output: a link planted where --csv points is refused, the file it
     # points at untouched
     victim = tmp_path / "victim.txt"
     victim.write_text("keep me")

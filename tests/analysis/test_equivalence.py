@@ -1,4 +1,4 @@
-"""Equivalence to random at the matched rate (issue 35 item 4): two one-sided tests on the mean
+"""Equivalence to random at the matched rate: two one-sided tests on the mean
 per-pair log ratio of steps to the first solve, with superiority beside it."""
 
 from __future__ import annotations

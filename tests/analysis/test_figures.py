@@ -92,7 +92,7 @@ def test_accuracy_plots_percent_against_fraction() -> None:
 
 
 def test_an_accuracy_label_says_a_tag_once_and_the_axes_keep_their_height() -> None:
-    # issue 34: "open model (Qwen...), τ=0 [open model]" said it twice, and eight two-line labels
+    # "open model (Qwen...), τ=0 [open model]" said it twice, and eight two-line labels
     # squeezed Fig. 4's axes to a quarter of the picture
     import numpy as np
 

@@ -264,7 +264,7 @@ def test_a_papers_plus_minus_is_a_standard_error_or_a_standard_deviation_convert
 
 
 def test_tost_against_table3s_gpt4_lagr_value_by_hand() -> None:
-    """Issue 34's case: lagrseq's LaGR on the authors' answers (46, 38, 24, 20, 20 queries) against
+    """The case of lagrseq's LaGR on the authors' answers (46, 38, 24, 20, 20 queries) against
     the paper's 92.3 ± 25.03 (s.e., n = 10). By hand: mean 29.6, variance 138.8 (se^2 27.76);
     difference -62.7, se sqrt(27.76 + 626.5009) = 25.5785, Welch-Satterthwaite df
     654.2609^2 / (27.76^2 / 4 + 626.5009^2 / 9) = 9.7721; 95%: -62.7 ± 2.2354 x 25.5785 =

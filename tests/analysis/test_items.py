@@ -117,7 +117,7 @@ def test_returns_by_environment_step_work_for_any_task() -> None:
     assert at.loc[300, "mean"] == pytest.approx(1.5)
     # step 600: trial 0 mean of last two (3, 5) = 4, trial 1 mean of (2, 4) = 3 -> 3.5
     assert at.loc[600, "mean"] == pytest.approx(3.5)
-    # nobody has finished an episode yet: both trials count 0 (issue 19: no trial is dropped)
+    # nobody has finished an episode yet: both trials count 0 (no trial is dropped)
     assert at.loc[3, "mean"] == 0.0 and at.loc[3, "trials"] == 2
     assert built.axes is not None and built.axes.get_xlabel() == "Environment steps"
 

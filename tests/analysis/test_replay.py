@@ -321,7 +321,7 @@ def _absolute_paths_in(report: Path, places: list[Path]) -> list[str]:
 
 
 def test_no_report_file_holds_an_absolute_path(runs_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    # issue 38: a report's bytes do not depend on where its logs sat. The logs are given by their
+    # a report's bytes do not depend on where its logs sat. The logs are given by their
     # absolute path, and some are unfinished, damaged or duplicated, so that the warnings (which
     # name logs, and suggest `lagrseq recover` commands) are in the report too.
     root = tmp_path / "somewhere" / "runs"

@@ -1,4 +1,4 @@
-"""Provenance and verdicts on the scoreboard (issue 19): what made each number, read from the
+"""Provenance and verdicts on the scoreboard: what made each number, read from the
 logged provider and configuration; three-way equivalence against the paper with a stated margin;
 ``fitted`` for a fitted number whatever its interval; never ``reproduced`` below 5 trials."""
 

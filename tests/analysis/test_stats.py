@@ -73,7 +73,7 @@ def test_step_curve_is_the_mean_of_the_last_episodes_finished_by_each_step() -> 
     returns = np.array([1.0, 3.0, 5.0])
     grid = np.array([50, 100, 200, 250, 299, 300, 1000])
     out = stats.step_curve(end_steps, returns, grid, window=2)
-    assert out[0] == stats.BEFORE_FIRST_EPISODE == 0.0  # no episode finished yet: counts 0, not NaN (issue 19)
+    assert out[0] == stats.BEFORE_FIRST_EPISODE == 0.0  # no episode finished yet: counts 0, not NaN
     assert out[1:].tolist() == [1.0, 1.0, 2.0, 2.0, 4.0, 4.0]
     assert math.isnan(stats.step_curve(end_steps, returns, grid, window=2, before=math.nan)[0])
 

@@ -1,4 +1,4 @@
-"""The authors'-cache importer reads untrusted pickles (issue 8, defect 1, "every parser"): an answer
+"""The authors'-cache importer reads untrusted pickles (every parser): an answer
 too large to store is refused before it is written out (old: a 20-million-value array took 74 s
 and 320 MB to turn into text that the store then refused), answers of types no store can hold are
 skipped, not a traceback (old: a complex array of the key's shape), warnings stay one short line

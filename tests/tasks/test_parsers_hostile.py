@@ -1,6 +1,6 @@
 """Answer parsers against hostile answers: linear time, a size cap, one-line reasons, never raising.
 
-An LLM answer is untrusted input (issue 8, defect 1): the old grid parser's line pattern
+An LLM answer is untrusted input: the old grid parser's line pattern
 backtracked exponentially (``'1' * 30 + 'x'`` took minutes) and its bracket matching was quadratic
 (``'[]' * 32000`` took 25 s). Each bound below is generous on a loaded machine and orders of
 magnitude below what the old code took on the same input. Times are CPU times of this process
