@@ -233,7 +233,7 @@ def test_a_frontier_item_draws_one_panel_per_provider_with_never_in_each(reprodu
     figure = list(csv.DictReader(io.StringIO((out / "reports" / "figures" / "asking.csv").read_text())))
     assert sorted({r["provider"] for r in figure}) == ["mock", "mock:authors-t0"] and len(figure) == 9
     page = (out / "reports" / "index.html").read_text()
-    assert "Every verdict on this page is inconclusive: at most 2 trials per point" in page
+    assert "Every verdict on this page is provisional: at most 2 trials per point" in page
     from PIL import Image
 
     with Image.open(out / "reports" / "figures" / "asking.png") as png:
