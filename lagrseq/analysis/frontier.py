@@ -255,12 +255,17 @@ def stop_of(config: dict[str, Any]) -> str:
 
 
 def horizon(*points: Point) -> float:
-    """The step cap of ``points``' trials, the horizon of the restricted mean: ``run.max_steps``
-    where the configuration sets one, and never less than the longest trial logged (a trial that
-    never solved counts at its length; an episode-limited trial's cap is its longest)."""
+    """The step cap of ``points``' trials, the horizon of the restricted mean and the range of the
+    log ratio, fixed by the configuration before any trial ran: ``run.max_steps`` where set, else
+    ``run.episodes`` times ``env.horizon`` (the cube: 100 episodes of at most 100 steps); never
+    less than the longest trial logged (a configuration without either: the longest trial)."""
     cap = 0.0
     for p in points:
-        cap = max(cap, float(p.run.config.get("run", {}).get("max_steps", 0) or 0))
+        config = p.run.config
+        steps = float(config.get("run", {}).get("max_steps", 0) or 0)
+        episodes = float(config.get("run", {}).get("episodes", 0) or 0)
+        length = float(config.get("env", {}).get("horizon", 0) or 0)
+        cap = max(cap, steps if steps > 0 else episodes * length)
         if len(p.steps_to_solve):
             cap = max(cap, float(np.nanmax(p.steps_to_solve)))
     return cap if cap > 0 else math.inf
