@@ -150,3 +150,21 @@ def test_censored_pairs_decide_the_tail_only_where_both_countings_agree() -> Non
     assert found.verdict == paired.INCONCLUSIVE
     assert found.upper_if_late == pytest.approx(0.2386, abs=1e-4)  # 3 of 30 counted late: 23.9%, above 20% too
     assert dict(found.at_margins)[0.20] == paired.INCONCLUSIVE
+
+
+def test_the_coverage_benchmark_prints_the_worst_false_non_inferior_rate_over_its_family() -> None:
+    import re
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    done = subprocess.run(
+        [sys.executable, "benchmarks/coverage.py", "--paired", "--experiments", "200", "--n", "5,30"],
+        cwd=root, capture_output=True, text=True, timeout=300, env={"PYTHONPATH": str(root), "PATH": ""},
+    )
+    assert done.returncode == 0, done.stderr
+    rows = re.findall(r"^\s+(\d+)\s+([\d.]+)%\s+([\d.]+)%\s+([\d.]+)%", done.stdout, re.M)
+    assert [int(n) for n, *_ in rows] == [5, 30]
+    assert all(float(worst) <= 5.0 + 3 * 100 * math.sqrt(0.05 * 0.95 / 200) for _, worst, _, _ in rows)
+    assert "70 laws" in done.stdout and "(provisional: below MIN_PAIRS)" in done.stdout.splitlines()[2]
