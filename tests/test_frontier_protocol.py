@@ -1,4 +1,4 @@
-"""The frontier protocol (issue 20): refusals for store misses, matched-rate random, non-inferiority
+"""The frontier protocol: refusals for store misses, matched-rate random, non-inferiority
 against always, the tuning split on held-out seeds."""
 
 from __future__ import annotations

@@ -162,7 +162,7 @@ def _preset_epsilon(task: str, preset: str) -> tuple[Any, ...] | None:
 
 def _learning_text(config: dict[str, Any]) -> str:
     """``epsilon exponential 0.998/step`` for a seq run whose exploration schedule differs from
-    its preset's (the learning SEQ on the grids, whose upstream SEQ never decays: issue 35); ""
+    its preset's (the learning SEQ on the grids, whose upstream SEQ never decays); ""
     where it is the preset's own (so the paper's rows keep their names)."""
     section = config.get("secondary", {})
     task = (config.get("task") or {}).get("name")
@@ -1093,7 +1093,7 @@ def _plain_number(value: float, _position: int | None = None) -> str:
 
 def symlog_ticks(threshold: float, largest: float) -> list[float]:
     """Ticks of a symmetric-log axis from 0 to ``largest``: 0, then 1, 2 and 5 times each power
-    of ten from ``threshold`` on (issue 34: the default put ticks only at 0, 10 and 100, and a
+    of ten from ``threshold`` on (the default put ticks only at 0, 10 and 100, and a
     decade tick inside the linear part, 10^-1 next to 0, overlapped the 0). Where that gives more
     than 10 ticks, the powers of ten alone."""
     low = math.floor(math.log10(threshold))

@@ -1,5 +1,5 @@
 """The frontier's equivalence column against random at the matched rate, and the learning SEQ's
-label (issue 35 item 4)."""
+label."""
 
 from __future__ import annotations
 
