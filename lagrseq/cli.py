@@ -998,7 +998,7 @@ def cmd_frontier(args: argparse.Namespace) -> int:
         print(found.table.title)
         for row in found.rows:
             print(
-                f"  {row.label:<{width}} seed {row.seed_role}; queries {row.queries}; steps to first solve {row.steps}; "
+                f"  {row.label:<{width}} queries {row.queries}; steps to first solve {row.steps}; seed {row.seed_role}; "
                 f"vs always: {row.vs_always}; tail: {row.tail} [{row.tail_margins}]; "
                 f"vs matched random: {row.vs_random}; credited: {row.credited}"
             )
