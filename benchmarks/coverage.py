@@ -2,7 +2,7 @@
 
     PYTHONPATH=. python benchmarks/coverage.py                    # n = 2, 3, 5, 10; 4000 experiments each
     PYTHONPATH=. python benchmarks/coverage.py --n 2,5 --experiments 20000
-    PYTHONPATH=. python benchmarks/coverage.py --paired --experiments 2000   # the frontier's paired bounds, n = 10, 30, 60
+    PYTHONPATH=. python benchmarks/coverage.py --paired --experiments 2000   # the frontier's bounds at the margin
 
 For each n (trials per arm), draws ``--experiments`` simulated experiments and prints how often each
 nominal 95% interval covers the true value. The kinds (:mod:`lagrseq.analysis.inference`), each
@@ -25,16 +25,15 @@ where the scoreboard and the tables use it:
 A figure to print, not a test: the test suite holds the t interval to >= 93% at n = 5 and the
 log-scale interval to >= 92% at n = 5 and 10 (tests/analysis/test_inference.py).
 
-``--paired`` prints instead (at n = 10, 30, 60 unless ``--n`` says) the one-sided coverage of the
-frontier's paired bounds: the studentized bootstrap upper bound of the mean per-pair log ratio
-(:func:`lagrseq.analysis.paired.studentized_bounds`, what the frontier's verdicts use) at the
-frontier's calibrated nominal 97.5% (:data:`lagrseq.analysis.paired.BOUND_ALPHA`) and at nominal
-95% on the same resamples, beside the old paired t bound of the mean difference in steps
-(:func:`inference.paired_noninferiority`) and the exact Clopper-Pearson upper bound of the share
-of pairs more than 10% late (:func:`lagrseq.analysis.paired.tail`), on normal log ratios and on two
-zero-inflated, right-skewed generators fitted to the measured differences (:data:`SHAPES`: most
-pairs solve at the very same step, 1-2 in 10 are hundreds or thousands of steps late). A sample
-without spread gives the bootstrap no bound, counted as a miss.
+``--paired`` prints instead the frontier's false non-inferior rate with the truth at the margin:
+for each n (default 10, 30, 100, 300: :data:`lagrseq.analysis.paired.MIN_PAIRS` and the sizes the
+suite and a decisive run use) and each law of a family of zero-inflated, right-skewed laws of the
+per-pair log ratio (:func:`family`: late share 0.02-0.3, tie share among the others 0-0.95, late
+sizes from log 1.5 up to log cap, the remaining pairs at the value that puts the mean exactly at
+``log(1.1)``), the share of experiments in which the betting upper bound of
+:func:`lagrseq.analysis.paired.upper_bounds` lies below the margin (a false "non-inferior"), its
+worst case over the family per n, and the same for the tail's exact bound with the true late
+share at the tail margin. The argument (docs/frontier.md) says neither exceeds 5% at any n.
 """
 
 from __future__ import annotations
@@ -86,103 +85,84 @@ def coverage(n: int, experiments: int, seed: int) -> dict[str, float]:
     return {k: v / experiments for k, v in hits.items()}
 
 
+CAP = 5001.0
+"""The step cap of the simulated pairs (the object arrangement's trial length): log ratios lie in
+``[-log CAP, log CAP]``."""
+LATE_SHARES = (0.02, 0.05, 0.10, 0.20, 0.30)
+TIE_SHARES = (0.0, 0.5, 0.8, 0.95)
+LATE_SIZES = (math.log(1.5), math.log(10.0), math.log(100.0), math.log(CAP))
+
+
 @dataclass(frozen=True)
-class Shape:
-    """A generator of paired times to the first solve (policy, always), fitted to what the
-    frontier measured (issue 35; docs/frontier.md, seed 1, thompson at query cost 0.5 against
-    always, 10 pairs): always's time is log-normal; a pair is *late* with probability ``late``
-    (1-2 late trials in 10 were measured: 0.15), then the policy needs ``late_steps`` more
-    (log-normal, fitted to the two measured late differences); otherwise it is as fast as always
-    with probability ``zero`` (the measured share of exact ties among the other pairs) or a few
-    steps later (geometric, the measured mean of those small differences). Times are capped at
-    the trial's length (a trial that never solved counts at it)."""
+class Law:
+    """A three-point law of the per-pair log ratio with its mean at ``mean``: a share ``late`` of
+    pairs at ``size``, a share ``ties`` of the others at 0, the rest at ``rest``."""
 
-    name: str
-    always_median: float
-    always_log_sd: float
     late: float
-    late_log_mean: float
-    late_log_sd: float
-    zero: float
-    small_mean: float
-    cap: float
+    ties: float
+    size: float
+    rest: float
 
-    def draw(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
-        always = np.minimum(np.round(self.always_median * np.exp(rng.normal(0.0, self.always_log_sd, n))), self.cap)
-        always = np.maximum(always, 1.0)
-        u = rng.random(n)
-        extra = np.where(rng.random(n) < self.zero, 0.0, rng.geometric(1.0 / (1.0 + self.small_mean), n) - 1.0)
-        late = u < self.late
-        extra[late] = np.round(np.exp(rng.normal(self.late_log_mean, self.late_log_sd, int(late.sum()))))
-        return np.minimum(always + extra, self.cap), always
+    def draw(self, rng: np.random.Generator, experiments: int, n: int) -> np.ndarray:
+        u = rng.random((experiments, n))
+        tie = rng.random((experiments, n)) < self.ties
+        return np.where(u < self.late, self.size, np.where(tie, 0.0, self.rest))
 
 
-SHAPES = (
-    # arrangement: always 43, 195, 241, 39, 145, 74, 36, 164, 165, 67 steps (geometric mean 94,
-    # log sd 0.72); thompson's differences 1, 0, 238, 46, 4, 12, 0, 1, 22, 2: late 238 and 46
-    # (log mean 4.65, log sd 1.16), 2 ties among the other 8, their mean 7 steps; 5001-step trials
-    Shape("arrangement-like", 94.0, 0.72, 0.15, 4.65, 1.16, 2 / 8, 7.0, 5001.0),
-    # image: 6,494 and 6,465 steps late against always's ~97 (log sd as the arrangement's, the
-    # image's per-trial times are not on the page), differences 3, 1, 1, 0, 4, 1, 5, 2 otherwise:
-    # 1 tie in 8, mean 2.4 steps; 10001-step trials
-    Shape("image-like", 97.0, 0.72, 0.15, 8.77, 0.05, 1 / 8, 2.4, 10001.0),
-)
+def family(mean: float, span: float) -> list[Law]:
+    """Every law of the grid whose remaining pairs can carry the rest of ``mean`` inside the range."""
+    laws = []
+    for late in LATE_SHARES:
+        for ties in TIE_SHARES:
+            for size in LATE_SIZES:
+                others = (1.0 - late) * (1.0 - ties)
+                rest = (mean - late * size) / others
+                if abs(rest) <= span:
+                    laws.append(Law(late, ties, size, rest))
+    return laws
 
 
-def _truth(shape: Shape, seed: int, draws: int = 2_000_000) -> tuple[float, float, float]:
-    """The generator's mean log ratio, mean difference in steps and late share (the 10%-late
-    tail), by ``draws`` simulated pairs."""
-    policy, always = shape.draw(np.random.default_rng(seed), draws)
-    return (
-        float(np.mean(np.log(policy) - np.log(always))), float(np.mean(policy - always)),
-        float(np.mean(policy > (1.0 + paired.LATE) * always)),
-    )
-
-
-def paired_coverage(n: int, experiments: int, seed: int, resamples: int) -> list[tuple[str, float, float, float, float]]:
-    """One-sided coverage at ``n`` pairs, per generator: (name, the studentized bootstrap upper
-    bound of the mean log ratio at the frontier's calibrated level (:data:`lagrseq.analysis.paired.BOUND_ALPHA`,
-    nominal 97.5%), the same bound at nominal 95%, the old paired t upper bound of the mean
-    difference in steps (95%), the exact Clopper-Pearson upper bound of the late share (95%)). A
-    bound *covers* when it lies at or above the generator's true value; a sample without spread
-    gives no bound, which covers nothing. Normal differences: log ratios normal with mean 0.02 and
-    sd 0.1 on always's arrangement-like times (then the t bound runs on the same log ratios, and
-    the tail has no truth). Both bootstrap levels read the same resamples."""
-    from scipy.stats import binomtest
-
+def false_non_inferior(n: int, experiments: int, seed: int) -> list[tuple[Law, float]]:
+    """Per law of the family with its mean at the margin log(1.1): the share of ``experiments``
+    in which the betting upper bound falls below the margin."""
+    span, margin = math.log(CAP), math.log1p(0.10)
     rows = []
-    for k, shape in enumerate((None, *SHAPES)):
-        rng = np.random.default_rng(seed + 7 * n + 1000 * k)
-        boot = np.random.default_rng(seed + 13 * n + 1000 * k)
-        if shape is None:
-            name, truth = "normal log ratios", (0.02, 0.02, math.nan)
-        else:
-            name, truth = shape.name, _truth(shape, seed + k)
-        hits = [0, 0, 0, 0]
-        for _ in range(experiments):
-            if shape is None:
-                d = rng.normal(0.02, 0.1, n)
-                old = inference.paired_noninferiority(d, np.zeros(n), 1.0, higher_is_better=False)  # on the same log ratios
-            else:
-                policy, always = shape.draw(rng, n)
-                d = np.log(policy) - np.log(always)
-                old = inference.paired_noninferiority(policy, always, 1.0, higher_is_better=False)  # on the steps
-            state = boot.bit_generator.state
-            calibrated = paired.studentized_bounds(d, boot, alpha=paired.BOUND_ALPHA, resamples=resamples)
-            boot.bit_generator.state = state  # the same resamples at the nominal level
-            nominal = paired.studentized_bounds(d, boot, alpha=0.05, resamples=resamples)
-            hits[0] += bool(calibrated.upper >= truth[0])  # no bound (NaN, no spread) covers nothing
-            hits[1] += bool(nominal.upper >= truth[0])
-            hits[2] += bool(-old.bound >= truth[1])
-            if shape is not None:
-                late = int(np.sum(policy > (1.0 + paired.LATE) * always))
-                upper = binomtest(late, n).proportion_ci(confidence_level=1.0 - 2.0 * paired.ALPHA, method="exact").high
-                hits[3] += upper >= truth[2]
-        rows.append((
-            name, hits[0] / experiments, hits[1] / experiments, hits[2] / experiments,
-            hits[3] / experiments if shape is not None else math.nan,
-        ))
+    for k, law in enumerate(family(margin, span)):
+        x = law.draw(np.random.default_rng(seed + 7919 * n + k), experiments, n)
+        rows.append((law, float(np.mean(paired.upper_bounds(x, span) < margin))))
     return rows
+
+
+def tail_false_non_inferior(n: int) -> float:
+    """P(the exact upper bound of the late share < the tail margin) when the true share is the
+    margin: exact, from the binomial law."""
+    from scipy.stats import binom
+
+    k = np.arange(n + 1)
+    uppers = np.array([paired.clopper_pearson(int(i), n)[1] for i in k])
+    return float(binom.pmf(k, n, paired.TAIL_MARGIN)[uppers < paired.TAIL_MARGIN].sum())
+
+
+def print_paired(sizes: list[int], experiments: int, seed: int) -> None:
+    margin = math.log1p(0.10)
+    laws = family(margin, math.log(CAP))
+    print(
+        f"false non-inferior at the margin (true mean log ratio = log 1.1), one-sided level {paired.ALPHA:.0%}, "
+        f"cap {CAP:.0f} steps, {len(laws)} laws (late share {LATE_SHARES[0]}-{LATE_SHARES[-1]}, tie share "
+        f"{TIE_SHARES[0]}-{TIE_SHARES[-1]}, late sizes log 1.5 to log cap), {experiments} experiments per law and n"
+    )
+    print(f"{'n':>5}  {'worst P(false NI)':>17}  {'median':>7}  {'tail at 10%':>11}  worst law")
+    for n in sizes:
+        rows = false_non_inferior(n, experiments, seed)
+        worst_law, worst = max(rows, key=lambda r: r[1])
+        median = float(np.median([r for _, r in rows]))
+        law = (
+            f"late {worst_law.late:.2f} at x{math.exp(worst_law.size):.4g}, ties {worst_law.ties:.2f}, "
+            f"rest {worst_law.rest:+.3f}"
+        )
+        mark = "" if n >= paired.MIN_PAIRS else "  (provisional: below MIN_PAIRS)"
+        print(f"{n:>5}  {worst:>17.2%}  {median:>7.2%}  {tail_false_non_inferior(n):>11.2%}  {law}{mark}")
+    print(f"MIN_PAIRS = {paired.MIN_PAIRS}: below it the frontier marks every verdict provisional")
 
 
 def _sizes(spec: str, why: str) -> list[int]:
@@ -196,32 +176,15 @@ def _sizes(spec: str, why: str) -> list[int]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--n", default=None, help="trial counts, comma-separated (default 2,3,5,10; with --paired 10,30,60)")
+    parser.add_argument("--n", default=None, help="trial counts, comma-separated (default 2,3,5,10; with --paired 10,30,100,300)")
     parser.add_argument("--experiments", type=int, default=4000, help="simulated experiments per n (default 4000)")
     parser.add_argument("--seed", type=int, default=20231, help="generator seed (default 20231)")
     parser.add_argument("--paired", action="store_true", help="the frontier's paired one-sided bounds instead")
-    parser.add_argument("--resamples", type=int, default=paired.RESAMPLES, help=f"--paired: bootstrap resamples per bound (default {paired.RESAMPLES}, as the frontier)")
     args = parser.parse_args()
     args.n_given = args.n is not None
     args.n = args.n or "2,3,5,10"
     if args.paired:
-        sizes = _sizes(args.n if args.n_given else "10,30,60", "a bound needs at least 2 pairs")
-        level = 1.0 - paired.BOUND_ALPHA
-        print(
-            f"one-sided upper bounds, {args.experiments} simulated experiments per n and generator "
-            f"({args.resamples} bootstrap resamples); a bound covers when it lies at or above the truth; "
-            f"the frontier's bootstrap-t runs at nominal {level:.1%} (calibrated), the others at nominal 95%; "
-            "target: at least 93% at the suite's 30 pairs"
-        )
-        for k, shape in enumerate(SHAPES):
-            log_ratio, steps, late = _truth(shape, args.seed + k + 1)
-            print(f"  {shape.name}: true mean log ratio {log_ratio:.4f}, mean difference {steps:.1f} steps, late share {late:.3f}")
-        head = f"bootstrap-t {level:.1%}, log ratio"
-        print(f"{'n':>4}  {'generator':<18}  {head:>28}  {'bootstrap-t 95%':>15}  {'old paired t, steps':>19}  {'Clopper-Pearson, tail':>21}")
-        for n in sizes:
-            for name, new, nominal, old, tail in paired_coverage(n, args.experiments, args.seed, args.resamples):
-                shown_tail = "" if math.isnan(tail) else f"{tail:.1%}"
-                print(f"{n:>4}  {name:<18}  {new:>28.1%}  {nominal:>15.1%}  {old:>19.1%}  {shown_tail:>21}")
+        print_paired(_sizes(args.n if args.n_given else "10,30,100,300", "a bound needs at least 2 pairs"), args.experiments, args.seed)
         return
     print(f"coverage of nominal 95% intervals (90% where marked), {args.experiments} simulated experiments per n")
     widths = [max(len(k), 6) for k in KINDS]

@@ -355,64 +355,42 @@ def _add_robot(sub: Any) -> None:
 
 
 def _add_frontier(sub: Any) -> None:
-    from lagrseq.study.frontier import KNOBS, NAMES
-
     p = sub.add_parser(
         "frontier",
         parents=[_experiment_options(), _provider_flags(per="trial"), _quiet()],
         help="run asking policies on one task and draw return against queries and dollars",
         description=(
-            "Run every asking policy of --policies (and --sweep) on TASK with one provider, as "
-            "ordinary runs under OUT (resumable, MCAP logs), then write OUT/frontier/: the "
-            "frontier PNG (return and steps to the first solved episode against queries and US "
-            "dollars per trial, 95% bootstrap intervals on both axes, a swept knob as a curve), "
-            "performance profiles, and a Markdown/CSV table (mean, IQM with a stratified "
-            "bootstrap interval, probability of improvement over always, fallback answers) with "
-            "the paper's SEQ and LaGR rows marked. never = --method baseline, always = --method "
-            "lagr, the others = --method lagr-seq with secondary.policy. --replay DIR rebuilds the "
-            "report from the logs under DIR alone (no trial runs). With recorded:STORE nothing is "
-            "ever sent unless --on-miss live is given. The protocol (docs/frontier.md): the primary "
-            "outcome is steps to the first solved episode (and episodes solved per trial); trial i of "
-            "every policy runs the same seeds, and each point gets two one-sided non-inferiority "
-            "verdicts against always on those pairs (alpha 0.05, at least 10 pairs, none where the "
-            "logs do not pair): the mean per-pair log ratio (studentized bootstrap bound below "
-            "log 1.1, a 10% margin, a trial that never solved counted at the step cap) and the share "
-            "of pairs more than 10% later (exact bound below 20%); random runs at each learning "
-            "policy's matched query rate, and a point is credited only when it is non-inferior on "
-            "both and beats that random run; --stop-at-first-solve ends every trial at its first "
-            "solved episode (queries then counted to it); the grid tasks run both regimes (--scopes); store misses are refused (--on-miss "
-            "refuse, the default with recorded:STORE). Cube stacking runs on the paper preset unless "
-            "--preset is given (the upstream environment pays for wrong cubes)."
+            "Run the asking policies on TASK with one provider (resumable runs under OUT), then write "
+            "OUT/frontier/: figures and a Markdown/CSV table with each point's verdicts against always "
+            "and random at its query rate, and every seed's role. The protocol (estimands, bounds, "
+            "margins, seed roles, credit): docs/frontier.md."
         ),
         epilog=(
             "examples:\n"
-            "  lagrseq frontier cube-stacking --provider recorded:store \\\n"
-            "      --policies never,always,seq,oracle,thompson --sweep thompson:query_cost=0.25,0.5 --trials 10 --out fr\n"
-            "  lagrseq frontier object-arrangement --provider recorded:store --policies always,seq,random,thompson \\\n"
-            "      --trials 10 --tune --out fr     # knobs chosen on tuning seeds, then evaluated\n"
+            "  lagrseq frontier cube-stacking --provider recorded:store --trials 300 --stop-at-first-solve --out fr\n"
             "  lagrseq frontier --replay fr --out fr/frontier     # the report again, from the logs"
         ),
         formatter_class=_RAW,
     )
     from lagrseq.config import tasks
 
-    p.add_argument("task", metavar="TASK", nargs="?", choices=tasks(), help=f"one of: {', '.join(tasks())} (not with --replay)")
-    p.add_argument("--policies", default="never,always,seq,thompson,oracle", metavar="LIST", help=f"comma-separated NAME or NAME:FIELD=VALUE[:FIELD=VALUE]; names: {', '.join(NAMES)}; fields: those NAME reads (lagrseq plugins lists each policy's), among {', '.join(KNOBS)} (default: never,always,seq,thompson,oracle)")
-    p.add_argument("--sweep", action="append", default=[], metavar="NAME:FIELD=V1,V2", help="one variant per value, drawn as a curve (repeatable), e.g. thompson:query_cost=0.25,0.5,0.75")
+    p.add_argument("task", metavar="TASK", nargs="?", choices=tasks(), help="the task (not with --replay)")
+    p.add_argument("--policies", default="never,always,seq,thompson,oracle", metavar="LIST", help="comma-separated NAME[:FIELD=VALUE] (lagrseq plugins lists the names)")
+    p.add_argument("--sweep", action="append", default=[], metavar="N:F=V1,V2", help="one variant per value, a curve (repeatable); FIELD: a knob of NAME")
     _provider_argument(p, "mock", "LLM provider of every policy's runs")
     p.add_argument("--trials", type=_COUNT, default=5, help="trials per policy (default 5)")
     p.add_argument("--seed", type=_SEED, default=0, help="run seed (default 0)")
-    p.add_argument("--jobs", type=_N["jobs"], default=os.cpu_count() or 1, help="trials run in parallel processes, every policy's trials in one pool (default: the number of cores)")
-    p.add_argument("--out", type=Path, default=Path("frontier"), help="runs go to OUT/<task>/<method>/..., the report to OUT/frontier (default: frontier)")
-    p.add_argument("--replay", type=Path, default=None, metavar="DIR", help="rebuild the report from the logs under DIR (writes to --out) and run nothing")
-    p.add_argument("--miss-threshold", type=_N["share"], default=0.1, metavar="F", help="mark points whose share of fallback answers exceeds F, 0 to 1 (default 0.1)")
-    p.add_argument("--scopes", default="auto", metavar="LIST", help="lagr.solution_scope values to run, comma-separated: episode (an accepted answer guides one episode), trial (the rest of the trial); auto (default): episode and trial on the grid tasks, the preset's on cube stacking")
-    p.add_argument("--no-matched-random", dest="matched_random", action="store_false", help="do not run random at each learning policy's mean query rate (then no point is credited)")
-    p.add_argument("--tune", action="store_true", help="choose each policy's knob (thompson, seq: query_cost; random: ask_probability; advance: stall_steps) on tuning seeds by the fewest queries among settings non-inferior to always on steps to the first solve, record the choice in the logs' metadata, then evaluate it on the evaluation seed beside the variants as given")
-    p.add_argument("--tune-seed", type=_SEED, default=None, help="run seed of the tuning trials (default: --seed + 1000003; never the evaluation seed)")
-    p.add_argument("--tune-trials", type=_COUNT, default=5, help="tuning trials per candidate (default 5)")
-    p.add_argument("--stop-at-first-solve", action="store_true", help='stop every trial of the protocol (tuning, evaluation, matched random) at its first solved episode (run.stop_at = "first_solve"): steps to the first solve, the primary outcome, are known then; queries are counted to the first solve and the table says so')
-    p.add_argument("--full-horizon-trials", type=_N["count0"], default=0, metavar="K", help="with --stop-at-first-solve: also run every variant K trials at full length on the same seed (trials 0 to K-1), a panel of its own that measures the full-horizon query count on fewer pairs (default 0: none)")
+    p.add_argument("--jobs", type=_N["jobs"], default=os.cpu_count() or 1, help="trials run in parallel (default: the number of cores)")
+    p.add_argument("--out", type=Path, default=Path("frontier"), help="runs go under OUT, the report to OUT/frontier (default: frontier)")
+    p.add_argument("--replay", type=Path, default=None, metavar="DIR", help="rebuild the report from the logs under DIR; run nothing")
+    p.add_argument("--miss-threshold", type=_N["share"], default=0.1, metavar="F", help="mark points with > F of answers from a fallback (0.1)")
+    p.add_argument("--scopes", default="auto", metavar="LIST", help="lagr.solution_scope values: episode, trial (default auto: the task's)")
+    p.add_argument("--no-matched-random", dest="matched_random", action="store_false", help="no random run at each policy's query rate (then nothing is credited)")
+    p.add_argument("--tune", action="store_true", help="choose each policy's knob on tuning seeds first (recorded in the logs)")
+    p.add_argument("--tune-seed", type=_SEED, default=None, metavar="S", help="run seed of the tuning trials (default: --seed + 1000003)")
+    p.add_argument("--tune-trials", type=_COUNT, default=5, metavar="N", help="tuning trials per candidate (default 5)")
+    p.add_argument("--stop-at-first-solve", action="store_true", help="end each trial at its first solve")
+    p.add_argument("--full-horizon-trials", type=_N["count0"], default=0, metavar="K", help="with --stop-at-first-solve: also K full-length trials per variant")
     p.set_defaults(preset=None)  # cube stacking: paper (the upstream cube pays for wrong cubes); the rest: upstream
 
 
@@ -1079,13 +1057,14 @@ def cmd_frontier(args: argparse.Namespace) -> int:
     made = report(roots, out, price, args.miss_threshold)
     for warning in made.warnings:
         print(f"lagrseq frontier: warning: {_shown(warning)}", file=sys.stderr)
-    width = max((len(row[0]) for table in made.tables for row in table.rows), default=0)  # the longest label
-    for table in made.tables:
-        print(table.title)
-        for row in table.rows:
+    width = max((len(row.label) for found in made.panels for row in found.rows), default=0)
+    for found in made.panels:
+        print(found.table.title)
+        for row in found.rows:
             print(
-                f"  {row[0]:<{width}} queries {row[4]:<22} steps to first solve {row[7]:<22} vs always: {row[10]}; "
-                f"tail: {row[11]}; vs matched random: {row[13]}; credited: {row[14]}"
+                f"  {row.label:<{width}} queries {row.queries}; steps to first solve {row.steps}; seed {row.seed_role}; "
+                f"vs always: {row.vs_always}; tail: {row.tail} [{row.tail_margins}]; "
+                f"vs matched random: {row.vs_random}; credited: {row.credited}"
             )
     print(_shown(f"{len(made.written)} files in {out} ({time.perf_counter() - started:.1f} s)"))
     return 0

@@ -1,4 +1,4 @@
-"""The frontier protocol's shared definitions (issue 20): what running the frontier
+"""The frontier protocol's shared definitions: what running the frontier
 (:mod:`lagrseq.study.frontier`) and reporting it from the logs (:mod:`lagrseq.analysis.frontier`,
 :mod:`lagrseq.analysis.items`) must agree on, kept below both so that analysis never imports study.
 

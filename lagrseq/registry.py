@@ -394,6 +394,9 @@ class PolicySpec:
     own query rate (``random``), so it is never matched itself."""
     description: str = ""
     """One line on how it decides, shown by ``lagrseq plugins``."""
+    design_seeds: tuple[int, ...] = ()
+    """Run seeds whose logs its rule or defaults were read from: a frontier point on one of them
+    is shown with the role ``design`` and never credited (not evidence)."""
 
 
 @dataclass(frozen=True)

@@ -57,9 +57,9 @@ def test_help_texts_print_no_format_escapes(name: str, parser: argparse.Argument
     assert "Traceback" not in text
 
 
-def test_frontier_and_audit_help_say_95_percent() -> None:
+def test_frontier_help_points_to_its_protocol_and_audit_help_says_95_percent() -> None:
     helps = dict(PARSERS)
-    for name, interval in (("lagrseq frontier", "95% bootstrap"), ("lagrseq audit", "95% t-intervals")):
+    for name, interval in (("lagrseq frontier", "docs/frontier.md"), ("lagrseq audit", "95% t-intervals")):
         text = " ".join(_help(helps[name]).split())
         assert interval in text and "%%" not in text, name
 

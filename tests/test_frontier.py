@@ -59,7 +59,7 @@ def test_frontier_runs_policies_and_replay_rebuilds_the_same_table(tmp_path: Pat
     assert {p.suffix for p in report.iterdir()} == {".csv", ".md", ".png"}
     # every point ran seed 0, trials 0 and 1: the logs pair them with always (common random numbers)
     judged = table[~table["policy"].isin(["always"])]
-    assert set(judged["vs_always_test"]) == {"paired bootstrap-t (log ratio)"}
+    assert set(judged["vs_always_test"]) == {"paired betting bound (log ratio)"}
     # resume: nothing runs again; and the report from the logs alone is byte-identical
     assert cli.main(args) == 0
     again = tmp_path / "again"
@@ -110,3 +110,20 @@ def test_trials_stopped_at_the_first_solve_and_the_full_horizon_group(tmp_path: 
     assert "trials stopped at the first solve" in printed
     assert cli.main(["frontier", "cube-stacking", "--full-horizon-trials", "2", "--out", str(tmp_path / "x")]) == 2
     assert "--stop-at-first-solve" in capsys.readouterr().err
+
+
+def test_frontier_help_fits_one_screen_and_leaves_the_protocol_to_the_docs() -> None:
+    """Each of the command's own options is one line; the protocol's prose lives in docs/frontier.md."""
+    import argparse
+
+    from lagrseq.cli import build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices["frontier"]
+    shared = {"--provider"}  # the provider's help is every command's
+    own = [a for a in sub._actions if a.container.title in ("options", "positional arguments") and a.help
+           and not shared & set(a.option_strings)]
+    assert len(own) >= 15
+    for action in own:
+        assert len(str(action.help)) <= 76, action.option_strings
+    assert "docs/frontier.md" in str(sub.description) and len(str(sub.description)) < 400

@@ -1,4 +1,4 @@
-"""The frontier protocol (issue 20): refusals for store misses, matched-rate random, non-inferiority
+"""The frontier protocol: refusals for store misses, matched-rate random, non-inferiority
 against always, the tuning split on held-out seeds."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 
 from lagrseq import cli
-from lagrseq.analysis.frontier import Point, judge, summarise, table
+from lagrseq.analysis.frontier import Point, judge, panel, summarise
 from lagrseq.analysis.loading import Run, RunKey
 from lagrseq.frontier_protocol import matched_probability
 from lagrseq.logs.reader import read_info, read_topic
@@ -125,29 +125,31 @@ def _around(base: list[float], ratios: list[float]) -> list[float]:
 ALWAYS_20 = [100.0, 104, 96, 102, 98, 101, 99, 103, 97, 100, 250, 40, 180, 75, 120, 60, 310, 90, 140, 55]
 """Always's steps to the first solve in 20 hand-made trials: the trials differ far more between
 one another than any margin (the environment's draws), as the measured ones do."""
+ALWAYS_400 = ALWAYS_20 * 20
+"""400 pairs: enough for a bound valid for every distribution of the capped log ratio to decide."""
 
 
 def test_noninferiority_tail_and_credit_on_hand_made_points() -> None:
-    always = _point("always", ALWAYS_20)
-    same = _point("thompson", _around(ALWAYS_20, [1.01, 0.98, 1.03, 0.99, 1.0]), queries=20, decisions=100)  # rate 0.2
-    slow = _point("seq", _around(ALWAYS_20, [1.5, 1.45, 1.55]), queries=50, decisions=100)  # rate 0.5
-    few = _point("thompson", ALWAYS_20[:5], queries=20, decisions=100)  # 5 pairs: never a verdict
-    random_02 = _point("random", _around(ALWAYS_20, [1.6, 1.5, 1.7]), p=0.2)  # slower than thompson
-    random_05 = _point("random", _around(ALWAYS_20, [1.0, 1.02, 0.99]), p=0.5)  # faster than seq
+    always = _point("always", ALWAYS_400)
+    same = _point("thompson", _around(ALWAYS_400, [1.01, 0.98, 1.03, 0.99, 1.0]), queries=20, decisions=100)  # rate 0.2
+    slow = _point("seq", _around(ALWAYS_400, [1.5, 1.45, 1.55]), queries=50, decisions=100)  # rate 0.5
+    few = _point("thompson", ALWAYS_20[:5], queries=20, decisions=100)  # 5 trials against 400: no pairs
+    random_02 = _point("random", _around(ALWAYS_400, [1.6, 1.5, 1.7]), p=0.2)  # slower than thompson
+    random_05 = _point("random", _around(ALWAYS_400, [1.0, 1.02, 0.99]), p=0.5)  # faster than seq
     mocked = _point("thompson", list(same.steps_to_solve), queries=20, on_miss="mock")
     oracle = _point("oracle", list(same.steps_to_solve), queries=5)
     points = [always, same, slow, few, random_02, random_05, mocked, oracle]
     verdicts = judge(points)
     found = verdicts[id(same)].against_always
-    assert found is not None and found.verdict == "non-inferior" and found.n == 20
+    assert found is not None and found.verdict == "non-inferior" and found.n == 400
     longest = max(float(p.steps_to_solve.max()) for p in points)
     assert found.upper < math.log(1.1) and found.cap == longest  # the panel's horizon: its longest trial here
     assert verdicts[id(slow)].against_always.verdict == "inferior"  # type: ignore[union-attr]
-    assert verdicts[id(few)].against_always.verdict == "inconclusive"  # type: ignore[union-attr]
-    # the tail: none of the 20 pairs is more than 10% late, the exact bound 13.9% < 20%
+    assert verdicts[id(few)].against_always.reason.startswith("pairs missing")  # type: ignore[union-attr]
+    # the tail: none of the 400 pairs is more than 10% late, the exact bound 0.75% < 10%
     tail = verdicts[id(same)].tail
-    assert tail is not None and tail.verdict == "non-inferior" and tail.late_pairs == 0
-    assert tail.upper == pytest.approx(1 - 0.05 ** (1 / 20), rel=1e-6)
+    assert tail is not None and tail.verdict == "non-inferior" and tail.late_pairs == 0 and tail.censored == 0
+    assert tail.upper == pytest.approx(1 - 0.05 ** (1 / 400), rel=1e-6)
     assert verdicts[id(slow)].tail.verdict == "inferior"  # type: ignore[union-attr]
     # each learning policy meets random at its own rate (queries / decisions)
     assert verdicts[id(same)].matched is random_02 and verdicts[id(slow)].matched is random_05
@@ -162,10 +164,11 @@ def test_noninferiority_tail_and_credit_on_hand_made_points() -> None:
     assert judge([always, eager])[id(eager)].matched is always  # random at rate 1 is always
     # the same verdicts in the table, with the margins and the horizon named
     summarise(points)
-    shown = table(points)
+    made = panel(points)
+    shown, rows = made.table, made.rows
     data = shown.data
     assert f"mean log ratio (margin 10%, horizon {longest:.0f} steps)" in " ".join(shown.columns)
-    assert "pairs > 10% later (exact bound, tail margin 20%)" in " ".join(shown.columns)
+    assert "pairs > 10% later (exact bound, tail margin 10%)" in " ".join(shown.columns)
     assert list(data["vs_always"]) == [
         "reference", "non-inferior", "inferior", "inconclusive", "inferior", "non-inferior",
         "no verdict: misses answered by the mock", "non-inferior",
@@ -174,36 +177,80 @@ def test_noninferiority_tail_and_credit_on_hand_made_points() -> None:
     assert list(data["credited"]) == [False, True, False, False, False, False, False, False]
     # the second primary outcome gets its own verdict (every hand-made trial solved one episode)
     assert list(data["vs_always_episodes_solved"])[1:4] == ["non-inferior", "non-inferior", "inconclusive"]
-    assert shown.rows[-1][0] == "oracle (peeks at the answer)" and shown.rows[-1][1] == "bound"
+    assert rows[-1].label == "oracle (peeks at the answer)" and rows[-1].paper == "bound"
     assert data["noninferiority_margin"].iloc[0] == pytest.approx(math.log(1.1))
-    row = shown.rows[1]
-    assert row[shown.columns.index(next(c for c in shown.columns if c.startswith("vs always: pairs")))] == (
-        "non-inferior (0 of 20 pairs late, bound 13.9% vs 20%)"
-    )
-    assert row[shown.columns.index("vs matched random (mean log ratio < 0)")].startswith("beats (ratio 0.")
+    assert rows[1].tail == "non-inferior (0 of 400 pairs late, bound 0.8% vs 10%)"
+    assert rows[1].tail_margins == "5%: non-inferior; 10%: non-inferior; 20%: non-inferior"
+    assert rows[1].vs_random.startswith("beats (ratio 0.")
+    assert [r.credited for r in rows][:3] == ["no", "yes", "no"]
+    # the Markdown columns follow the named rows: no cell can move under another header
+    assert shown.rows[1][shown.columns.index("credited")] == rows[1].credited
 
 
-def test_no_verdict_from_zero_spread_and_the_tail_is_its_own_verdict() -> None:
-    """A policy as fast as always in every pair has no spread to bound: no verdict (the paired t
-    bound printed a certain one). A policy 11% late in 12 of 30 pairs passes the mean log ratio
-    (its mean is 4%) but fails the tail: not credited, though it beats random."""
-    base = ALWAYS_20 + ALWAYS_20[:10]
-    always = _point("always", base)
-    twin = _point("thompson", base, queries=20)
-    late = _point("thompson", [b * (1.11 if i % 5 in (0, 2) else 1.0) for i, b in enumerate(base)], queries=20)
-    random_02 = _point("random", _around(base, [1.6, 1.5, 1.7]), p=0.2)
+def test_identical_pairs_get_bounds_and_the_tail_is_its_own_verdict() -> None:
+    """A policy as fast as always in every pair is treated like any other sample: finite bounds,
+    here narrow enough at 400 pairs. A policy 11% late in 160 of 400 pairs stays within the
+    mean's margin on its point estimate (4%) but fails the tail: not credited, though it beats random."""
+    always = _point("always", ALWAYS_400)
+    twin = _point("thompson", ALWAYS_400, queries=20)
+    late = _point("thompson", [b * (1.11 if i % 5 in (0, 2) else 1.0) for i, b in enumerate(ALWAYS_400)], queries=20)
+    random_02 = _point("random", _around(ALWAYS_400, [1.6, 1.5, 1.7]), p=0.2)
     verdicts = judge([always, twin, late, random_02])
-    none = verdicts[id(twin)].against_always
-    assert none is not None and none.verdict == "inconclusive" and "no spread" in none.reason
+    same = verdicts[id(twin)].against_always
+    assert same is not None and same.verdict == "non-inferior" and same.ties == 400 and math.isfinite(same.lower)
     on_mean, on_tail = verdicts[id(late)].against_always, verdicts[id(late)].tail
-    assert on_mean is not None and on_mean.verdict == "non-inferior"
-    assert on_tail is not None and on_tail.late_pairs == 12 and on_tail.verdict == "inferior"
+    assert on_mean is not None and on_mean.log_ratio < math.log(1.1)
+    assert on_tail is not None and on_tail.late_pairs == 160 and on_tail.verdict == "inferior"
     assert verdicts[id(late)].beats_random and not verdicts[id(late)].credited
 
 
+def test_a_design_or_tuning_seed_is_never_credited() -> None:
+    """advance's rule was read from seeds 1 and 1000004: a point of advance on either is shown with
+    the role ``design`` and no credit, however good; a point tuned on its own run seed is ``tuning``."""
+    from lagrseq.analysis.frontier import DESIGN, EVALUATION, TUNING, design_seeds
+
+    assert design_seeds("advance") == (1, 1_000_004)
+
+    def on_seed(point: Point, seed: int) -> Point:
+        point.run = Run(dataclasses.replace(point.run.key, seed=seed), point.run.config, (), point.run.trials, pd.DataFrame(), pd.DataFrame(), 0)
+        return point
+
+    for seed, role in ((1, DESIGN), (1_000_004, DESIGN), (2, EVALUATION)):
+        always = on_seed(_point("always", ALWAYS_400), seed)
+        good = on_seed(_point("advance", _around(ALWAYS_400, [1.01, 0.98, 1.0]), queries=20), seed)
+        random_02 = on_seed(_point("random", _around(ALWAYS_400, [1.6, 1.5, 1.7]), p=0.2), seed)
+        verdict = judge([always, good, random_02])[id(good)]
+        assert verdict.role == role and verdict.credited == (role == EVALUATION)
+        summarise([always, good, random_02])
+        made = panel([always, good, random_02])
+        assert made.rows[1].seed_role.startswith(f"{seed}: {role}")
+        assert list(made.table.data["seed_role"]) == ["evaluation", role, "evaluation"]
+        assert made.table.data["design_seeds"].iloc[1] == "1 1000004"
+        if role == DESIGN:
+            assert made.rows[1].credited == "no (design seed: not evidence)"
+    tuned = _point("thompson", _around(ALWAYS_400, [1.01, 0.98, 1.0]), queries=20)
+    tuned.tuning = {"role": "tuned", "tuning_seed": 0, "evaluation_seed": 0}
+    always = _point("always", ALWAYS_400)
+    random_02 = _point("random", _around(ALWAYS_400, [1.6, 1.5, 1.7]), p=0.2)
+    verdict = judge([always, tuned, random_02])[id(tuned)]
+    assert verdict.role == TUNING and not verdict.credited and verdict.credit_text == "no (tuning seed: not evidence)"
+
+
+def test_cells_show_no_interval_below_three_trials_and_round_outward() -> None:
+    from lagrseq.analysis.frontier import outward
+
+    always = _point("always", [100.0, 300.0])
+    policy = _point("thompson", [120.0, 5000.0], queries=2)
+    summarise([always, policy])
+    rows = panel([always, policy]).rows
+    assert rows[1].steps == "2560 (n < 3: no interval)"
+    assert rows[1].vs_always.startswith("provisional ")
+    assert outward(0.123, 4.561, 1) == "[0.1, 4.6]" and outward(-0.001, 0.0, 2) == "[-0.01, 0.00]"
+
+
 def test_the_bounds_are_the_same_on_every_replay() -> None:
-    """Each comparison's bootstrap is seeded by the two runs and the outcome: judged twice, in
-    another order of points, the same bounds to the bit."""
+    """The bounds are a function of the pairs alone: judged twice, in another order of points,
+    the same bounds to the bit."""
     always = _point("always", ALWAYS_20)
     policy = _point("thompson", _around(ALWAYS_20, [1.0, 1.0, 1.3, 1.0, 0.97]), queries=20)
     first = judge([always, policy])[id(policy)].against_always
@@ -212,16 +259,14 @@ def test_the_bounds_are_the_same_on_every_replay() -> None:
 
 
 def test_paired_where_the_logs_pair_the_trials_no_verdict_where_pairs_are_missing() -> None:
-    """Trials that differ far more between one another than the margin (the environment's draws)
-    but little within a pair: the paired log ratios see the within-pair differences; a point whose
-    trials do not match always's (another seed, a trial missing) gets no verdict (both estimands
-    are per pair), and the table names the test of every verdict."""
+    """A point whose trials do not match always's (another seed, a trial missing) gets no verdict
+    (both estimands are per pair), pairs line up by trial index, and the table names the test."""
     base = [260.0, 1610, 160, 120, 320, 330, 890, 90, 220, 100, 410, 75, 530, 140, 980, 66, 300, 210, 450, 180]
     always = _point("always", base)
     close = _point("thompson", [b + d for b, d in zip(base, [0, 2, 0, 1, 0, 1, 0, 0, 0, 3] * 2, strict=True)], queries=20)
     points = [always, close]
     verdict = judge(points)[id(close)].against_always
-    assert verdict is not None and verdict.n == 20 and verdict.verdict == "non-inferior"
+    assert verdict is not None and verdict.n == 20 and verdict.verdict == "inconclusive"  # 20 pairs: bounds too wide
     # the same numbers under another run seed: no pairs, no verdict
     other = _point("thompson", list(close.steps_to_solve), queries=20)
     other.run = Run(dataclasses.replace(other.run.key, seed=5), other.run.config, (), other.run.trials, pd.DataFrame(), pd.DataFrame(), 0)
@@ -236,14 +281,14 @@ def test_paired_where_the_logs_pair_the_trials_no_verdict_where_pairs_are_missin
     again = judge([always, shuffled])[id(shuffled)].against_always
     assert again is not None and again.log_ratio == pytest.approx(verdict.log_ratio) and again.upper == verdict.upper
     summarise(points)
-    shown = table(points)
-    cell = shown.rows[1][10]
-    assert cell.startswith("non-inferior (ratio 1") and cell.endswith("< 1.1, n = 20 pairs)")
-    assert list(shown.data["vs_always_test"]) == ["", "paired bootstrap-t (log ratio)"]
+    made = panel(points)
+    cell = made.rows[1].vs_always
+    assert cell.startswith("inconclusive (ratio 1") and "margin 1.10, n = 20 pairs" in cell
+    assert list(made.table.data["vs_always_test"]) == ["", "paired betting bound (log ratio)"]
     summarise([always, other])
-    unpaired = table([always, other])
-    assert unpaired.rows[1][10] == "inconclusive (pairs missing: seed 5 against 0, no verdict)"
-    assert list(unpaired.data["vs_always_test"]) == ["", "no pairs"]
+    unpaired = panel([always, other])
+    assert unpaired.rows[1].vs_always == "inconclusive (pairs missing: seed 5 against 0, no verdict)"
+    assert list(unpaired.table.data["vs_always_test"]) == ["", "no pairs"]
 
 
 # -- the tuning split and the matched-rate runs, end to end -------------------------------------------
@@ -329,15 +374,15 @@ def test_scopes_auto_runs_both_regimes_on_the_grids_only(tmp_path: Path, capsys:
 
 
 def test_the_tail_needs_the_pairs_the_docs_state() -> None:
-    """docs/frontier.md: with no late pair the tail's exact bound falls below 20% from 14 pairs on,
-    with one from 22, with two from 30 (so 10 pairs never give a non-inferior tail)."""
+    """docs/frontier.md: with no late pair the tail's exact bound falls below 10% from 29 pairs on,
+    with one from 46, with two from 61."""
     from lagrseq.analysis import paired
 
     def first(late: int) -> int:
-        for n in range(paired.MIN_PAIRS, 100):
+        for n in range(2, 200):
             policy = np.r_[np.full(late, 200.0), np.full(n - late, 100.0)]
-            if paired.tail(policy, np.full(n, 100.0)).verdict == paired.NON_INFERIOR:
+            if paired.tail(policy, np.full(n, 100.0), 1000.0).settled == paired.NON_INFERIOR:
                 return n
         return -1
 
-    assert [first(0), first(1), first(2)] == [14, 22, 30]
+    assert [first(0), first(1), first(2)] == [29, 46, 61]

@@ -220,11 +220,11 @@ def test_a_frontier_item_draws_one_panel_per_provider_with_never_in_each(reprodu
     randoms = {r["knobs"] for r in main if r["policy"] == "random"}
     for learner in (main[2], main[5]):  # each met random at its own rate, paired by seed and trial
         assert learner["matched_random"].removeprefix("random (").removesuffix(")") in randoms
-        assert learner["vs_matched_random_test"] == learner["vs_always_test"] == "paired bootstrap-t (log ratio)"
+        assert learner["vs_matched_random_test"] == learner["vs_always_test"] == "paired betting bound (log ratio)"
         # its query rate, rounded as matched_probability does, is the random run's probability
         rate = float(learner["query_rate"])
         assert f"p {float(f'{rate:.2g}'):g}" in randoms
-        assert learner["credited"] == "False"  # 2 trials: every verdict is inconclusive
+        assert learner["credited"] == "False"  # 2 trials: every verdict is provisional
     other = list(csv.DictReader(io.StringIO((tables / "asking-mock-authors-t0.csv").read_text())))
     assert [r["policy"] for r in other] == ["never", "random", "thompson"]  # never (asks nothing) joins each panel
     assert other[0]["return_mean"] == main[0]["return_mean"]
@@ -234,7 +234,7 @@ def test_a_frontier_item_draws_one_panel_per_provider_with_never_in_each(reprodu
     figure = list(csv.DictReader(io.StringIO((out / "reports" / "figures" / "asking.csv").read_text())))
     assert sorted({r["provider"] for r in figure}) == ["mock", "mock:authors-t0"] and len(figure) == 9
     page = (out / "reports" / "index.html").read_text()
-    assert "Every verdict on this page is inconclusive: at most 2 trials per point" in page
+    assert "Every verdict on this page is provisional: at most 2 trials per point" in page
     from PIL import Image
 
     with Image.open(out / "reports" / "figures" / "asking.png") as png:

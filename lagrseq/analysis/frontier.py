@@ -13,42 +13,39 @@ with intervals, the interquartile mean of the return with a stratified bootstrap
 the probability that a trial of the policy returns more than one of ``always``. The paper's SEQ
 (``seq`` with no knob changed) and LaGR (``always``) rows are marked.
 
-The protocol (issues 20 and 35). Primary outcomes: steps to the end of the first solved episode
-(lower is better; a trial that solves none counts its full length) and episodes solved per trial;
-the return is secondary. The points of a panel run the same (seed, trial) pairs, so trial ``i`` of
-every policy saw the same environment draws (common random numbers); where the logs show two
-points ran the same seed and the same trials (:func:`paired_order`) each asking point is judged
-against ``always`` on steps to the first solve by two estimands of :mod:`lagrseq.analysis.paired`:
+The protocol (docs/frontier.md). Primary outcomes: steps to the end of the first solved episode
+(lower is better; a trial that solves none counts at the step cap, :func:`horizon`) and episodes
+solved per trial; the return is secondary. The points of a panel run the same (seed, trial) pairs,
+so trial ``i`` of every policy saw the same environment draws (common random numbers); where the
+logs show two points ran the same seed and the same trials (:func:`paired_order`) each asking
+point is judged against ``always`` on steps to the first solve by two estimands of
+:mod:`lagrseq.analysis.paired`, each with bounds that hold their level for every distribution of
+the capped times:
 
-* the **mean per-pair log ratio** ``mean(log(policy_i / always_i))`` with a one-sided studentized
-  bootstrap bound at the calibrated nominal 97.5% (:data:`lagrseq.analysis.paired.BOUND_ALPHA`:
-  it covers at least 93% at 30 pairs on the skewed generators of ``benchmarks/coverage.py
-  --paired``) (:func:`lagrseq.analysis.paired.slowdown`; relative margin 10%, :data:`MARGIN`,
-  so the bound must lie below ``log(1.1)``; the trials' step cap is the restricted-mean horizon,
-  :func:`horizon`, and a trial that never solved counts at its length; at least 10 pairs; no
-  verdict from differences without spread), and
+* the **mean per-pair log ratio** ``mean(log(policy_i / always_i))`` with one-sided 95% betting
+  bounds (:func:`lagrseq.analysis.paired.slowdown`; relative margin 10%, :data:`MARGIN`, so the
+  upper bound must lie below ``log(1.1)``), and
 * the **tail share**: the share of pairs in which the policy is more than 10% later than always,
-  with an exact Clopper-Pearson upper bound, non-inferior when it lies below a tail margin of 20%
-  (:func:`lagrseq.analysis.paired.tail`).
+  with exact Clopper-Pearson bounds, judged at a tail margin of 10% fixed in advance and shown at
+  5%, 10% and 20%; censored pairs (neither arm solved by the cap) are counted apart, and a tail
+  verdict needs the same answer with them counted as late and as on time.
 
-Each bootstrap draws from a generator seeded by the two runs and the outcome
-(:func:`_generator`), so a replay of the same logs gives the same bounds to the bit. Where the logs
-do not pair the points (another seed, a trial missing in either), there is no verdict: both
-estimands are per pair, and the table says ``inconclusive (pairs missing: ..., no verdict)``. Each learning policy's
-point is also compared with ``random`` asking at the point's own mean query rate (queries /
-decisions, from its logs; the random run is found by its ``ask_probability``,
+Below :data:`lagrseq.analysis.paired.MIN_PAIRS` pairs every verdict reads ``provisional``. Where
+the logs do not pair the points (another seed, a trial missing in either), there is no verdict.
+Each learning policy's point is also compared with ``random`` asking at the point's own mean query
+rate (queries / decisions, from its logs; the random run is found by its ``ask_probability``,
 :func:`lagrseq.frontier_protocol.matched_probability`): it *beats* it when the upper bound of the
-mean log ratio against that run lies below 0 (margin 0). A point is *credited* only when it is
-non-inferior to always on the mean log ratio **and** on the tail share **and** beats random at the
-matched rate (an intersection-union test: each at level 0.05, so the credit is at level 0.05);
-the oracle (it peeks at the answer before deciding) is shown as the bound and never credited, and
-points whose run answered store misses with the rule-based mock (``--on-miss mock``) get no
-verdict. Episodes solved per trial get the paired t test of
-:func:`lagrseq.analysis.inference.paired_noninferiority` (margin 10% of always's mean), shown
-beside the verdicts but not entering the credit. Runs are grouped into panels by task, preset,
-provider, seed, ``lagr.solution_scope`` (answer kept for one episode or for the trial) and
-``run.stop_at`` (trials stopped at their first solve make their own panel, whose query column
-counts the queries to the first solve).
+mean log ratio against that run lies below 0. A point is *credited* only when it is non-inferior to
+always on the mean log ratio **and** on the tail share **and** beats random at the matched rate
+(an intersection-union test at level 0.05), none of them provisional, **and** its run seed is an
+evaluation seed of its policy (:func:`seed_role`: a seed the policy's rule was read from, its
+design seed, or one ``--tune`` chose its knob on is "not evidence"). The oracle (it peeks at the
+answer before deciding) is shown as the bound and never credited, and points whose run answered
+store misses with the mock or a calibrated draw get no verdict. Episodes solved per trial get the
+paired t test of :func:`lagrseq.analysis.inference.paired_noninferiority` (margin 10% of always's
+mean), shown beside the verdicts but not entering the credit. Runs are grouped into panels by
+task, preset, provider, seed, ``lagr.solution_scope`` and ``run.stop_at`` (trials stopped at their
+first solve make their own panel, whose query column counts the queries to the first solve).
 
 Dollars: a query's logged ``cost_usd`` when it has one; else its logged token usage priced by
 ``price``; else (answers imported from the authors' caches carry no usage) the median token
@@ -58,6 +55,7 @@ token), marked as estimated. No usage anywhere: NaN.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import textwrap
@@ -78,7 +76,7 @@ from lagrseq.analysis import provenance as prov
 from lagrseq.analysis.figures import COLORS, STYLE
 from lagrseq.analysis.loading import Run, load
 from lagrseq.analysis.misses import missed, on_store, percent
-from lagrseq.analysis.tables import Table, interval, number, to_csv, to_markdown
+from lagrseq.analysis.tables import Table, number, to_csv, to_markdown
 from lagrseq.errors import LogError
 from lagrseq.frontier_protocol import TUNING_NOTE, matched_probability, wants_match
 from lagrseq.logs.reader import read_info
@@ -100,7 +98,8 @@ on episodes solved per trial is 10% of always's mean."""
 LATE = paired.LATE
 """The tail estimand: a pair is late when the policy's first solve is more than 10% later."""
 TAIL_MARGIN = paired.TAIL_MARGIN
-"""The tail verdict's margin: the late share's exact upper bound must lie below 20%."""
+"""The tail verdict's margin, fixed in advance: the late share's exact upper bound must lie below
+10% (:data:`lagrseq.analysis.paired.TAIL_MARGIN`)."""
 ALPHA = inference.ALPHA
 STOP_TEXT = {"first_solve": "trials stopped at the first solve"}
 """``run.stop_at`` as a panel's title says it (the default, "", says nothing)."""
@@ -164,7 +163,7 @@ def _preset_epsilon(task: str, preset: str) -> tuple[Any, ...] | None:
 
 def _learning_text(config: dict[str, Any]) -> str:
     """``epsilon exponential 0.998/step`` for a seq run whose exploration schedule differs from
-    its preset's (the learning SEQ on the grids, whose upstream SEQ never decays: issue 35); ""
+    its preset's (the learning SEQ on the grids, whose upstream SEQ never decays); ""
     where it is the preset's own (so the paper's rows keep their names)."""
     section = config.get("secondary", {})
     task = (config.get("task") or {}).get("name")
@@ -257,12 +256,17 @@ def stop_of(config: dict[str, Any]) -> str:
 
 
 def horizon(*points: Point) -> float:
-    """The step cap of ``points``' trials, the horizon of the restricted mean: ``run.max_steps``
-    where the configuration sets one, and never less than the longest trial logged (a trial that
-    never solved counts at its length; an episode-limited trial's cap is its longest)."""
+    """The step cap of ``points``' trials, the horizon of the restricted mean and the range of the
+    log ratio, fixed by the configuration before any trial ran: ``run.max_steps`` where set, else
+    ``run.episodes`` times ``env.horizon`` (the cube: 100 episodes of at most 100 steps); never
+    less than the longest trial logged (a configuration without either: the longest trial)."""
     cap = 0.0
     for p in points:
-        cap = max(cap, float(p.run.config.get("run", {}).get("max_steps", 0) or 0))
+        config = p.run.config
+        steps = float(config.get("run", {}).get("max_steps", 0) or 0)
+        episodes = float(config.get("run", {}).get("episodes", 0) or 0)
+        length = float(config.get("env", {}).get("horizon", 0) or 0)
+        cap = max(cap, steps if steps > 0 else episodes * length)
         if len(p.steps_to_solve):
             cap = max(cap, float(np.nanmax(p.steps_to_solve)))
     return cap if cap > 0 else math.inf
@@ -427,18 +431,20 @@ def points_of(runs: Sequence[Run], price: Price | None) -> list[Point]:
 
 NON_NEGATIVE = ("steps_to_solve", "queries", "dollars", "episodes_solved")
 """The point quantities that cannot be negative: their intervals are taken on the log scale."""
+MIN_TRIALS_FOR_INTERVAL = 3
+"""Trials below which a cell shows no interval (at 2 the t quantile makes it span orders of magnitude)."""
 
 
 def summarise(points: Sequence[Point]) -> None:
-    """Means with the tables' 95% Student-t intervals (issue 34: the percentile bootstrap
-    under-covers at these n, ``benchmarks/coverage.py``), on the log scale for
-    :data:`NON_NEGATIVE` quantities (:func:`lagrseq.analysis.stats.summarize_t`), so an interval
-    never reaches below 0, and steps to the first solve never above the trials' step budget
-    (``run.max_steps``, where one is set); values without spread have the value itself as both bounds."""
+    """Means with the tables' 95% Student-t intervals, on the log scale for :data:`NON_NEGATIVE`
+    quantities (:func:`lagrseq.analysis.stats.summarize_t`), so an interval never reaches below 0,
+    and steps to the first solve never above the trials' step budget (``run.max_steps``, where one
+    is set); values without spread have the value itself as both bounds; below
+    :data:`MIN_TRIALS_FOR_INTERVAL` trials, no interval (NaN)."""
     for p in points:
         for name in ("returns", "steps_to_solve", "queries", "dollars", "episodes_solved"):
             values = np.asarray(getattr(p, name), dtype=float)
-            if not len(values) or np.isnan(values).any():
+            if len(values) < MIN_TRIALS_FOR_INTERVAL or np.isnan(values).any():
                 p.summary[name] = (float(np.mean(values)) if len(values) else math.nan, math.nan, math.nan)
                 continue
             found = stats.summarize_t(values, positive=name in NON_NEGATIVE)
@@ -446,9 +452,57 @@ def summarise(points: Sequence[Point]) -> None:
             cap = float(p.run.config.get("run", {}).get("max_steps", 0) or 0)
             if name == "steps_to_solve" and cap > 0 and math.isfinite(high):
                 high = min(high, cap)  # no trial solves past its step budget: the interval stays in range
-            if len(values) >= 2 and np.all(values == values[0]):
+            if np.all(values == values[0]):
                 low = high = float(values[0])
             p.summary[name] = (found.mean, low, high)
+
+
+def outward(low: float, high: float, digits: int) -> str:
+    """``[low, high]`` rounded outward to ``digits`` decimals (the shown interval holds the
+    computed one); ``n/a`` where there is none."""
+    if math.isnan(low) or math.isnan(high):
+        return "n/a"
+    scale = 10.0**digits
+    return f"[{math.floor(low * scale) / scale:.{digits}f}, {math.ceil(high * scale) / scale:.{digits}f}]"
+
+
+def _cell(summary: tuple[float, float, float], digits: int) -> str:
+    mean, low, high = summary
+    shown = outward(low, high, digits)
+    return f"{number(mean, digits)} {shown if shown != 'n/a' else f'(n < {MIN_TRIALS_FOR_INTERVAL}: no interval)'}"
+
+
+DESIGN = "design"
+TUNING = "tuning"
+EVALUATION = "evaluation"
+
+
+def design_seeds(policy: str) -> tuple[int, ...]:
+    """The run seeds whose logs ``policy``'s rule or defaults were read from (its registry
+    entry's ``design_seeds``; none for a policy this installation does not know)."""
+    from lagrseq.registry import POLICIES
+
+    spec = POLICIES.find(policy)
+    return tuple(getattr(spec, "design_seeds", ())) if spec is not None else ()
+
+
+def tuning_seeds(p: Point) -> tuple[int, ...]:
+    """The run seeds ``--tune`` chose this point's knob on (from its logs' tuning note)."""
+    if p.tuning.get("role") == "tuning":
+        return (int(p.run.key.seed),)
+    seed = p.tuning.get("tuning_seed")
+    return (int(seed),) if isinstance(seed, int) else ()
+
+
+def seed_role(p: Point) -> str:
+    """The role of the point's run seed for its policy: ``design`` (its rule was read from that
+    seed's logs), ``tuning`` (``--tune`` ran candidates on it) or ``evaluation``."""
+    seed = int(p.run.key.seed)
+    if seed in design_seeds(p.policy):
+        return DESIGN
+    if seed in tuning_seeds(p):
+        return TUNING
+    return EVALUATION
 
 
 @dataclass(frozen=True)
@@ -471,6 +525,8 @@ class Verdict:
     point beats random)."""
     credited: bool
     note: str
+    role: str = EVALUATION
+    """The run seed's role for the point's policy (:func:`seed_role`)."""
 
     @property
     def always_text(self) -> str:
@@ -486,10 +542,15 @@ class Verdict:
             return self.note or "n/a"
         if not v.n:
             return f"{v.verdict} ({v.reason})"
-        return (
-            f"{v.verdict} ({v.late_pairs} of {v.n} pairs late, bound {100 * v.upper:.1f}% vs {100 * v.margin:.0f}%"
-            + (f"; {v.reason}" if v.n < paired.MIN_PAIRS else "") + ")"
-        )
+        censored = f", {v.censored} censored (bound {_percent_up(v.upper_if_late)} counted late)" if v.censored else ""
+        return f"{v.verdict} ({v.late_pairs} of {v.n} pairs late{censored}, bound {_percent_up(v.upper)} vs {100 * v.margin:.0f}%)"
+
+    @property
+    def tail_margins_text(self) -> str:
+        v = self.tail
+        if v is None or not v.n:
+            return self.note or "n/a"
+        return "; ".join(f"{100 * m:.0f}%: {said}" for m, said in v.at_margins)
 
     @property
     def solved_text(self) -> str:
@@ -509,30 +570,40 @@ class Verdict:
         assert v is not None
         if self.beats_random:
             said = "beats"
-        elif v.n < paired.MIN_PAIRS or v.reason.startswith(PAIRS_MISSING):
+        elif v.n == 0 or v.verdict.startswith(paired.PROVISIONAL):
             said = "no verdict"
         else:
             said = "does not beat"
         return f"{said} ({_slowdown_text(v)})"
+
+    @property
+    def credit_text(self) -> str:
+        if self.role != EVALUATION:
+            return f"no ({self.role} seed: not evidence)"
+        return "yes" if self.credited else "no"
 
 
 PAIRS_MISSING = "pairs missing"
 """The reason of a comparison whose logs do not pair the trials (no verdict)."""
 
 
-def _slowdown_text(v: paired.SlowdownVerdict) -> str:
-    """``ratio 1.02, bound 1.07 < 1.10, n = 30 pairs``: the geometric-mean time ratio, its
-    one-sided upper bound (at the calibrated nominal 97.5%, :data:`lagrseq.analysis.paired.BOUND_ALPHA`)
-    and the margin on the ratio scale; or why there is no bound."""
-    if v.reason.startswith(PAIRS_MISSING) or not math.isfinite(v.upper):
-        return v.reason + (f", n = {v.n} pairs" if v.n and not v.reason.startswith(PAIRS_MISSING) else "")
-    def ratio_of(log: float) -> float:  # a ratio past the largest float is inf (shown so), never an OverflowError
-        return math.inf if log > math.log(np.finfo(float).max) else math.exp(log)
+def _percent_up(share: float) -> str:
+    """A bound of a share in percent, rounded up to 0.1 (outward for an upper bound)."""
+    return f"{math.ceil(1000 * share) / 10:.1f}%"
 
-    limit, bound, ratio = ratio_of(v.margin), ratio_of(v.upper), ratio_of(v.log_ratio)
-    relation = "<" if bound < limit else ">="
-    text = f"ratio {ratio:.3g}, bound {bound:.3g} {relation} {limit:.3g}, n = {v.n} pairs"
-    return text if v.n >= paired.MIN_PAIRS else f"{text}; n < {paired.MIN_PAIRS}"
+
+def _slowdown_text(v: paired.SlowdownVerdict) -> str:
+    """``ratio 1.02, 95% bounds [0.41, 2.43], margin 1.10, n = 30 pairs, 27 ties``: the
+    geometric-mean time ratio, its one-sided betting bounds (rounded outward) and the margin on
+    the ratio scale; or why there is none."""
+    if v.n == 0:
+        return v.reason
+    low = math.floor(100 * paired._exp(v.lower)) / 100
+    high = math.ceil(100 * paired._exp(v.upper)) / 100
+    extra = "".join(
+        f", {k} {what}" for k, what in ((v.ties, "ties"), (v.censored, "censored")) if k
+    )
+    return f"ratio {v.ratio:.3g}, {1 - v.alpha:.0%} bounds [{low:.2f}, {high:.2f}], margin {paired._exp(v.margin):.2f}, n = {v.n} pairs{extra}"
 
 
 def paired_order(a: Point, b: Point) -> tuple[np.ndarray, np.ndarray] | None:
@@ -560,44 +631,50 @@ def compare(p: Point, q: Point, outcome: str, margin: float, higher_is_better: b
     return inference.noninferiority(x, y, margin, higher_is_better=higher_is_better, alpha=ALPHA)
 
 
-def _generator(p: Point, q: Point, outcome: str) -> np.random.Generator:
-    """The bootstrap generator of ``p`` against ``q`` on ``outcome``: seeded by both runs' keys
-    and the outcome alone, so a replay of the same logs draws the same resamples."""
-    return stats.generator(f"frontier/{p.run.key.name}/vs/{q.run.key.name}/{outcome}")
-
-
 def _missing(p: Point, q: Point) -> str:
     if p.run.key.seed != q.run.key.seed:
         return f"{PAIRS_MISSING}: seed {p.run.key.seed} against {q.run.key.seed}, no verdict"
     return f"{PAIRS_MISSING}: trials {len(p.steps_to_solve)} against {len(q.steps_to_solve)} do not match, no verdict"
 
 
+def capped_times(p: Point, cap: float) -> np.ndarray:
+    """Steps to the first solve with every trial that never solved at ``cap`` (the restricted
+    mean's horizon; a trial that never solved is censored there)."""
+    return np.where(p.solved.astype(bool), np.minimum(p.steps_to_solve, cap), cap)
+
+
 def slowdown(p: Point, q: Point, margin: float = MARGIN, cap: float | None = None) -> paired.SlowdownVerdict:
     """``p`` against ``q`` on steps to the first solve: the mean per-pair log ratio with its
-    studentized bootstrap bounds (:func:`lagrseq.analysis.paired.slowdown`, relative ``margin``,
-    ``cap`` as the restricted-mean horizon; None: the two points' :func:`horizon`). No pairs in
-    the logs: an inconclusive verdict whose reason starts with :data:`PAIRS_MISSING`."""
+    betting bounds (:func:`lagrseq.analysis.paired.slowdown`, relative ``margin``, ``cap`` the
+    restricted-mean horizon; None: the two points' :func:`horizon`). No pairs in the logs: an
+    inconclusive verdict whose reason starts with :data:`PAIRS_MISSING`."""
     cap = horizon(p, q) if cap is None else cap
     order = paired_order(p, q)
-    if order is None:
-        return paired.SlowdownVerdict(
-            paired.INCONCLUSIVE, math.nan, math.nan, math.nan, math.log1p(margin), 0, cap, _missing(p, q)
-        )
-    x, y = p.steps_to_solve[order[0]], q.steps_to_solve[order[1]]
-    return paired.slowdown(x, y, _generator(p, q, "steps_to_solve"), relative_margin=margin, cap=cap, alpha=paired.BOUND_ALPHA)
+    if order is None or not math.isfinite(cap) or cap <= 1.0:
+        reason = _missing(p, q) if order is None else "no step cap in the logs, no verdict"
+        return paired.SlowdownVerdict(paired.INCONCLUSIVE, math.nan, math.nan, math.nan, math.log1p(margin), 0, cap, reason)
+    x, y = capped_times(p, cap)[order[0]], capped_times(q, cap)[order[1]]
+    return paired.slowdown(x, y, cap, relative_margin=margin)
 
 
-def tail(p: Point, q: Point) -> paired.TailVerdict:
+def tail(p: Point, q: Point, cap: float | None = None) -> paired.TailVerdict:
     """The share of pairs in which ``p`` reaches its first solve more than :data:`LATE` later
-    than ``q``, with exact bounds and a verdict against :data:`TAIL_MARGIN`."""
+    than ``q``, censored pairs apart, with exact bounds and verdicts at :data:`TAIL_MARGIN`."""
+    cap = horizon(p, q) if cap is None else cap
     order = paired_order(p, q)
-    if order is None:
-        return paired.TailVerdict(paired.INCONCLUSIVE, 0, 0, math.nan, math.nan, LATE, TAIL_MARGIN, _missing(p, q))
-    return paired.tail(p.steps_to_solve[order[0]], q.steps_to_solve[order[1]], LATE, TAIL_MARGIN, ALPHA)
+    if order is None or not math.isfinite(cap) or cap <= 1.0:
+        reason = _missing(p, q) if order is None else "no step cap in the logs, no verdict"
+        return paired.TailVerdict(paired.INCONCLUSIVE, 0, 0, math.nan, math.nan, LATE, TAIL_MARGIN, reason)
+    return paired.tail(capped_times(p, cap)[order[0]], capped_times(q, cap)[order[1]], cap, LATE, TAIL_MARGIN)
+
+
+def _settled(verdict: str) -> str:
+    """A verdict that counts: provisional ones do not."""
+    return "" if verdict.startswith(paired.PROVISIONAL) else verdict
 
 
 def judge(points: Sequence[Point]) -> dict[int, Verdict]:
-    """id(point) -> its verdict (see the module: estimands, margins, credit)."""
+    """id(point) -> its verdict (see the module: estimands, margins, seed roles, credit)."""
     reference = next((p for p in points if p.policy == "always" and not p.knobs), None)
     randoms: dict[float, Point] = {}
     for p in points:
@@ -606,14 +683,16 @@ def judge(points: Sequence[Point]) -> dict[int, Verdict]:
     cap = horizon(*points)  # the panel's step cap: one restricted-mean horizon for all its comparisons
     out: dict[int, Verdict] = {}
     for p in points:
+        role = seed_role(p)
         if p.fallback_labelled:
-            out[id(p)] = Verdict(None, None, None, None, None, False, "no verdict: misses answered by the mock" if p.on_miss == "mock" else "no verdict: misses answered by a calibrated draw (fitted)")
+            note = "no verdict: misses answered by the mock" if p.on_miss == "mock" else "no verdict: misses answered by a calibrated draw (fitted)"
+            out[id(p)] = Verdict(None, None, None, None, None, False, note, role)
             continue
         if reference is None or p is reference:
-            out[id(p)] = Verdict(None, None, None, None, None, False, "reference" if p is reference else "no always run")
+            out[id(p)] = Verdict(None, None, None, None, None, False, "reference" if p is reference else "no always run", role)
             continue
         versus = slowdown(p, reference, cap=cap)
-        late = tail(p, reference)
+        late = tail(p, reference, cap=cap)
         solved = compare(p, reference, "episodes_solved", MARGIN * float(np.mean(reference.episodes_solved)))
         matched = against = None
         if wants_match(p.policy, p.knobs) and not math.isnan(p.rate) and p.rate > 0:
@@ -622,187 +701,251 @@ def judge(points: Sequence[Point]) -> dict[int, Verdict]:
             if matched is not None:
                 against = slowdown(p, matched, margin=0.0, cap=cap)
         credited = (
-            p.policy != "oracle" and versus.verdict == paired.NON_INFERIOR and late.verdict == paired.NON_INFERIOR
-            and against is not None and against.verdict == paired.NON_INFERIOR
+            p.policy != "oracle" and role == EVALUATION
+            and _settled(versus.verdict) == paired.NON_INFERIOR and _settled(late.verdict) == paired.NON_INFERIOR
+            and against is not None and _settled(against.verdict) == paired.NON_INFERIOR
         )
-        out[id(p)] = Verdict(versus, late, solved, matched, against, credited, "")
+        out[id(p)] = Verdict(versus, late, solved, matched, against, credited, "", role)
     return out
 
 
 EQUIVALENCE_COLUMN = "vs matched random: equivalence (geometric-mean ratio of steps to first solve, margin 10% either way)"
 
 
-def equivalence_to_random(p: Point, verdict: Verdict) -> paired.EquivalenceVerdict | None:
+def equivalence_to_random(p: Point, verdict: Verdict, cap: float) -> paired.EquivalenceVerdict | None:
     """The point against random at its matched rate on steps to the first solve, by two one-sided
-    tests on the mean per-pair log ratio (:func:`lagrseq.analysis.paired.equivalence`, margin
-    log(1.1) either way, studentized bootstrap bounds at level 0.05 each), with superiority
-    (``faster``) beside it: "no better than random at its rate" measured either way (issue 35).
-    None where there is no matched run or the two do not pair."""
+    betting bounds on the mean per-pair log ratio (:func:`lagrseq.analysis.paired.equivalence`,
+    margin log(1.1) either way, each at level 0.05), with superiority (``faster``) beside it.
+    None where there is no matched run, the two do not pair, or the logs give no step cap."""
     matched = verdict.matched
-    if matched is None:
+    if matched is None or not math.isfinite(cap) or cap <= 1.0:
         return None
     order = paired_order(p, matched)
     if order is None:
         return None
-    cap = float(p.run.config.get("run", {}).get("max_steps") or 0) or math.inf
-    return paired.equivalence(
-        p.steps_to_solve[order[0]], matched.steps_to_solve[order[1]],
-        stats.generator(f"frontier/{p.label}/equivalence"), MARGIN, cap,
-    )
+    return paired.equivalence(capped_times(p, cap)[order[0]], capped_times(matched, cap)[order[1]], cap, MARGIN)
 
 
 def equivalence_text(e: paired.EquivalenceVerdict | None) -> str:
-    """``equivalent (ratio 1.01, 95% [0.97, 1.05], n = 10 pairs)``; ``; faster`` where it beats: the
-    two one-sided bounds of the TOST, each at the calibrated level, as one (1 - 2 alpha) interval."""
+    """``equivalent (ratio 1.01, 90% [0.97, 1.05], n = 300 pairs)``; ``; faster`` where it beats:
+    the TOST's two one-sided bounds as one (1 - 2 alpha) interval, rounded outward."""
     if e is None:
         return "n/a"
-    if math.isnan(e.lower):
+    if e.n == 0:
         return f"{e.verdict} ({e.reason})"
-    low, high = (math.exp(v) if math.isfinite(v) else (0.0 if v < 0 else math.inf) for v in (e.lower, e.upper))
+    low = math.floor(100 * paired._exp(e.lower)) / 100
+    high = math.ceil(100 * paired._exp(e.upper)) / 100
     faster = "; faster" if e.faster else ""
-    level = 1.0 - 2.0 * e.alpha  # the TOST's two one-sided bounds at alpha each: a (1 - 2 alpha) interval
+    level = 1.0 - 2.0 * e.alpha
     return f"{e.verdict}{faster} (ratio {e.ratio:.2f}, {level:.0%} [{low:.2f}, {high:.2f}], n = {e.n} pairs)"
 
 
+@dataclass(frozen=True)
+class Row:
+    """One frontier table row, each cell by name (the Markdown columns follow this order:
+    :func:`column_names`; the CLI prints cells by name, never by position)."""
+
+    label: str
+    paper: str
+    knobs_chosen: str
+    seed_role: str
+    trials: str
+    queries: str
+    query_rate: str
+    usd: str
+    steps: str
+    episodes_solved: str
+    solved_trials: str
+    vs_always: str
+    tail: str
+    tail_margins: str
+    matched_random: str
+    vs_random: str
+    credited: str
+    vs_always_episodes_solved: str
+    returns: str
+    return_iqm: str
+    p_improvement: str
+    store_misses: str
+    outside_store: str
+    queries_vs_always: str
+    equivalence: str
+
+
+def column_names(cap: float, stopped: bool) -> tuple[str, ...]:
+    """The table's column headers, in :class:`Row`'s field order."""
+    names = {
+        "label": "policy", "paper": "paper", "knobs_chosen": "knobs chosen",
+        "seed_role": "seed (role: design, tuning or evaluation)", "trials": "trials",
+        "queries": "queries to the first solve / trial [95% CI]" if stopped else "queries / trial [95% CI]",
+        "query_rate": "query rate", "usd": "USD / trial [95% CI]", "steps": "steps to first solve [95% CI]",
+        "episodes_solved": "episodes solved / trial [95% CI]", "solved_trials": "solved trials",
+        "vs_always": f"vs always on steps to first solve: mean log ratio (margin 10%, horizon {number(cap, 0)} steps)",
+        "tail": f"vs always: pairs > {100 * LATE:.0f}% later (exact bound, tail margin {100 * TAIL_MARGIN:.0f}%)",
+        "tail_margins": "tail verdict at 5% / 10% / 20%",
+        "matched_random": "random at the matched rate: steps to first solve",
+        "vs_random": "vs matched random (mean log ratio < 0)", "credited": "credited",
+        "vs_always_episodes_solved": "vs always on episodes solved (margin 10%)",
+        "returns": "return / trial [95% CI]", "return_iqm": "return IQM [95% CI]",
+        "p_improvement": "P(return > always) [95% CI]",
+        "store_misses": "store misses (refused, or answered by a fallback)",
+        "outside_store": "trials decided outside the store", "queries_vs_always": "queries vs always",
+        "equivalence": EQUIVALENCE_COLUMN,
+    }
+    return tuple(names[f.name] for f in dataclasses.fields(Row))
+
+
+@dataclass(frozen=True)
+class Panel:
+    """A frontier panel's table and its rows by name."""
+
+    table: Table
+    rows: tuple[Row, ...]
+
+
 def table(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provider: str | None = None) -> Table:
+    """The frontier table (:func:`panel`'s)."""
+    return panel(points, miss_threshold, provider).table
+
+
+def panel(points: Sequence[Point], miss_threshold: float = MISS_THRESHOLD, provider: str | None = None) -> Panel:
     """The frontier table: one row per policy variant (paper rows marked, the oracle as the
-    bound), with the protocol's verdicts. ``provider``: the one named in the title (default: the
-    first point's)."""
+    bound), with the protocol's verdicts and every seed's role, and its rows by name.
+    ``provider``: the one named in the title (default: the first point's)."""
     reference = next((p for p in points if p.policy == "always" and not p.knobs), None)
     verdicts = judge(points)
     cap = horizon(*points) if points else math.nan
     stopped = bool(points) and any(stop_of(p.run.config) == "first_solve" for p in points)
-    queries_name = "queries to the first solve / trial [95% CI]" if stopped else "queries / trial [95% CI]"
-    columns = (
-        "policy", "paper", "knobs chosen", "trials", queries_name, "query rate", "USD / trial [95% CI]",
-        "steps to first solve [95% CI]", "episodes solved / trial [95% CI]", "solved trials",
-        f"vs always on steps to first solve: mean log ratio (margin 10%, horizon {number(cap, 0)} steps)",
-        f"vs always: pairs > {100 * LATE:.0f}% later (exact bound, tail margin {100 * TAIL_MARGIN:.0f}%)",
-        "random at the matched rate: steps to first solve",
-        "vs matched random (mean log ratio < 0)", "credited", "vs always on episodes solved (margin 10%)", "return / trial [95% CI]", "return IQM [95% CI]", "P(return > always) [95% CI]",
-        "store misses (refused, or answered by a fallback)", "trials decided outside the store", "queries vs always",
-        EQUIVALENCE_COLUMN,
+    made = [_row(p, verdicts[id(p)], reference, miss_threshold, cap) for p in points]
+    rows = tuple(row for row, _ in made)
+    shown = Table(
+        _title(points, provider), column_names(cap, stopped), tuple(dataclasses.astuple(r) for r in rows),
+        pd.DataFrame([data for _, data in made]),
     )
-    rows: list[tuple[str, ...]] = []
-    data: list[dict[str, Any]] = []
-    for p in points:
-        verdict = verdicts[id(p)]
-        iqm, iqm_low, iqm_high = stats.iqm_ci([p.returns], stats.generator(f"frontier/{p.label}/iqm"), 2000)
-        if reference is not None:
-            poi, poi_low, poi_high = stats.probability_of_improvement_ci(
-                [p.returns], [reference.returns], stats.generator(f"frontier/{p.label}/poi"), 2000
-            )
-        else:
-            poi = poi_low = poi_high = math.nan
-        q, d, r, s, e = (p.summary[n] for n in ("queries", "dollars", "returns", "steps_to_solve", "episodes_solved"))
-        ratio = q[0] / reference.summary["queries"][0] - 1.0 if reference and reference.summary["queries"][0] else math.nan
-        flagged = p.flagged(miss_threshold)
-        usd = f"{number(d[0], 4)} {interval(d[1], d[2], 4)}" + (" (est.)" if p.estimated_dollars else "")
-        paper = "bound" if p.policy == "oracle" else (PAPER_ROWS.get(p.policy, "") if not p.knobs else "")
-        chosen = _chosen(p)
-        matched = verdict.matched
-        same = equivalence_to_random(p, verdict)
-        shown_random = (
-            f"{matched.label}: {number(matched.summary['steps_to_solve'][0], 0)} "
-            f"{interval(*matched.summary['steps_to_solve'][1:], 0)}" if matched is not None else "n/a"
-        )
-        rows.append((
-            p.label + (" *" if flagged else "") + (f" (fallback: {p.on_miss})" if p.fallback_labelled else ""),
-            paper,
-            chosen,
-            str(len(p.returns)),
-            f"{number(q[0], 1)} {interval(q[1], q[2], 1)}",
-            number(p.rate, 3),
-            usd,
-            f"{number(s[0], 0)} {interval(s[1], s[2], 0)}",
-            f"{number(e[0], 1)} {interval(e[1], e[2], 1)}",
-            f"{int(p.solved.sum())}/{len(p.solved)}",
-            verdict.always_text,
-            verdict.tail_text,
-            shown_random,
-            verdict.random_text,
-            "yes" if verdict.credited else "no",
-            verdict.solved_text,
-            f"{number(r[0], 1)} {interval(r[1], r[2], 1)}",
-            f"{number(iqm, 1)} {interval(iqm_low, iqm_high, 1)}",
-            f"{number(poi, 2)} {interval(poi_low, poi_high, 2)}",
-            _misses_cell(p),
-            f"{int(p.outside.sum())}/{len(p.outside)}",
-            "n/a" if math.isnan(ratio) else f"{100 * ratio:+.0f}%",
-            equivalence_text(same),
-        ))
-        vs = verdict.against_always
-        vt = verdict.tail
-        vr = verdict.against_random
-        data.append({
-            "policy": p.policy, "knobs": p.knobs, "paper": paper, "knobs_chosen": chosen,
-            "solution_scope": scope_of(p.run.config), "on_miss": p.on_miss,
-            "trials": len(p.returns),
-            "query_rate": p.rate,
-            "episodes_solved_mean": e[0], "episodes_solved_low": e[1], "episodes_solved_high": e[2],
-            "stop_at": stop_of(p.run.config),
-            "noninferiority_margin": math.log1p(MARGIN),
-            "horizon_steps": vs.cap if vs is not None else cap,
-            "vs_always": vs.verdict if vs is not None else verdict.note,
-            "vs_always_reason": vs.reason if vs is not None else "",
-            "vs_always_pairs": vs.n if vs is not None else 0,
-            "vs_always_log_ratio": vs.log_ratio if vs is not None else math.nan,
-            "vs_always_lower": vs.lower if vs is not None else math.nan,
-            "vs_always_bound": vs.upper if vs is not None else math.nan,
-            "vs_always_test": _test_name(vs),
-            "tail_late_share_above": LATE,
-            "tail_margin": TAIL_MARGIN,
-            "vs_always_tail": vt.verdict if vt is not None else verdict.note,
-            "tail_late_pairs": vt.late_pairs if vt is not None else 0,
-            "tail_pairs": vt.n if vt is not None else 0,
-            "tail_bound": vt.upper if vt is not None else math.nan,
-            "matched_random": matched.label if matched is not None else "",
-            "matched_random_steps_mean": matched.summary["steps_to_solve"][0] if matched is not None else math.nan,
-            "vs_matched_random": vr.verdict if vr is not None else "",
-            "vs_matched_random_log_ratio": vr.log_ratio if vr is not None else math.nan,
-            "vs_matched_random_bound": vr.upper if vr is not None else math.nan,
-            "vs_matched_random_test": _test_name(vr),
-            "beats_matched_random": verdict.beats_random,
-            "vs_matched_random_equivalence": same.verdict if same is not None else "",
-            "vs_matched_random_faster": same.faster if same is not None else False,
-            "vs_matched_random_log_ratio_lower": same.lower if same is not None else math.nan,
-            "vs_matched_random_log_ratio_upper": same.upper if same is not None else math.nan,
-            "credited": verdict.credited,
-            "vs_always_episodes_solved": verdict.solved_text,
-            "outside_store_trials": int(p.outside.sum()),
-            "queries_mean": q[0], "queries_low": q[1], "queries_high": q[2],
-            "usd_mean": d[0], "usd_low": d[1], "usd_high": d[2], "usd_estimated": p.estimated_dollars,
-            "return_mean": r[0], "return_low": r[1], "return_high": r[2],
-            "return_iqm": iqm, "return_iqm_low": iqm_low, "return_iqm_high": iqm_high,
-            "p_improvement_vs_always": poi, "p_improvement_low": poi_low, "p_improvement_high": poi_high,
-            "steps_to_solve_mean": s[0], "steps_to_solve_low": s[1], "steps_to_solve_high": s[2],
-            "solved_trials": int(p.solved.sum()), "fallback_answers": int(p.fallback.sum()),
-            "miss_share": p.miss_share, "miss_flagged": flagged, "queries_vs_always": ratio,
-            "run": p.run.key.name,
-        })
+    return Panel(shown, rows)
+
+
+def _title(points: Sequence[Point], provider: str | None) -> str:
     first = points[0].run.key if points else None
-    shown = provider if provider is not None else (first.provider if first else "")
-    title = "Frontier"
-    if first:
-        # the regime of the panel's asking policies: ``never`` (the baseline) joins every panel
-        # and asks nothing, so its own configuration names no regime (issue 34: both blocks of a
-        # grid frontier were titled "answer kept for the trial")
-        asking = next((p for p in points if p.run.key.method != "baseline"), points[0])
-        scope = SCOPE_TEXT.get(scope_of(asking.run.config), scope_of(asking.run.config))
-        role = " (tuning seeds)" if any(p.tuning.get("role") == "tuning" for p in points) else ""
-        stop = STOP_TEXT.get(stop_of(asking.run.config), "")
-        title = f"Query-efficiency frontier: {first.task} ({first.preset}, {shown}, seed {first.seed}{role}; {scope}{'; ' + stop if stop else ''})"
-        if points[0].run.config.get("env", {}).get("wrong_cube_reward") == "pre-revert":
-            title += " [confound: the upstream environment rewards wrong cubes, which pays policies that guide fewer episodes]"
-    return Table(title, columns, tuple(rows), pd.DataFrame(data))
+    if first is None:
+        return "Frontier"
+    shown = provider if provider is not None else first.provider
+    # the regime of the panel's asking policies: ``never`` (the baseline) joins every panel and
+    # asks nothing, so its own configuration names no regime
+    asking = next((p for p in points if p.run.key.method != "baseline"), points[0])
+    scope = SCOPE_TEXT.get(scope_of(asking.run.config), scope_of(asking.run.config))
+    role = " (tuning seeds)" if any(p.tuning.get("role") == "tuning" for p in points) else ""
+    stop = STOP_TEXT.get(stop_of(asking.run.config), "")
+    title = f"Query-efficiency frontier: {first.task} ({first.preset}, {shown}, seed {first.seed}{role}; {scope}{'; ' + stop if stop else ''})"
+    if points[0].run.config.get("env", {}).get("wrong_cube_reward") == "pre-revert":
+        title += " [confound: the upstream environment rewards wrong cubes, which pays policies that guide fewer episodes]"
+    return title
+
+
+def _seed_text(p: Point, role: str) -> str:
+    """``seed 1: design (advance's rule was read from it; not evidence)``."""
+    seed = p.run.key.seed
+    if role == DESIGN:
+        return f"{seed}: design ({p.policy}'s rule was read from it; not evidence)"
+    if role == TUNING:
+        return f"{seed}: tuning (its knob was chosen on it; not evidence)"
+    return f"{seed}: evaluation"
+
+
+def _row(p: Point, verdict: Verdict, reference: Point | None, miss_threshold: float, cap: float) -> tuple[Row, dict[str, Any]]:
+    iqm = stats.iqm_ci([p.returns], stats.generator(f"frontier/{p.label}/iqm"), 2000)
+    poi = (math.nan, math.nan, math.nan)
+    if reference is not None:
+        poi = stats.probability_of_improvement_ci([p.returns], [reference.returns], stats.generator(f"frontier/{p.label}/poi"), 2000)
+    q, d, r, s, e = (p.summary[n] for n in ("queries", "dollars", "returns", "steps_to_solve", "episodes_solved"))
+    ratio = q[0] / reference.summary["queries"][0] - 1.0 if reference and reference.summary["queries"][0] else math.nan
+    flagged = p.flagged(miss_threshold)
+    paper = "bound" if p.policy == "oracle" else (PAPER_ROWS.get(p.policy, "") if not p.knobs else "")
+    matched = verdict.matched
+    same = equivalence_to_random(p, verdict, cap)
+    row = Row(
+        label=p.label + (" *" if flagged else "") + (f" (fallback: {p.on_miss})" if p.fallback_labelled else ""),
+        paper=paper, knobs_chosen=_chosen(p), seed_role=_seed_text(p, verdict.role), trials=str(len(p.returns)),
+        queries=_cell(q, 1), query_rate=number(p.rate, 3),
+        usd=_cell(d, 4) + (" (est.)" if p.estimated_dollars else ""), steps=_cell(s, 0), episodes_solved=_cell(e, 1),
+        solved_trials=f"{int(p.solved.sum())}/{len(p.solved)}", vs_always=verdict.always_text, tail=verdict.tail_text,
+        tail_margins=verdict.tail_margins_text,
+        matched_random=f"{matched.label}: {_cell(matched.summary['steps_to_solve'], 0)}" if matched is not None else "n/a",
+        vs_random=verdict.random_text, credited=verdict.credit_text, vs_always_episodes_solved=verdict.solved_text,
+        returns=_cell(r, 1), return_iqm=f"{number(iqm[0], 1)} {outward(iqm[1], iqm[2], 1)}",
+        p_improvement=f"{number(poi[0], 2)} {outward(poi[1], poi[2], 2)}", store_misses=_misses_cell(p),
+        outside_store=f"{int(p.outside.sum())}/{len(p.outside)}",
+        queries_vs_always="n/a" if math.isnan(ratio) else f"{100 * ratio:+.0f}%", equivalence=equivalence_text(same),
+    )
+    data = {
+        "policy": p.policy, "knobs": p.knobs, "paper": paper, "knobs_chosen": row.knobs_chosen,
+        "seed": int(p.run.key.seed), "seed_role": verdict.role,
+        "design_seeds": " ".join(map(str, design_seeds(p.policy))), "tuning_seeds": " ".join(map(str, tuning_seeds(p))),
+        "solution_scope": scope_of(p.run.config), "on_miss": p.on_miss, "trials": len(p.returns), "query_rate": p.rate,
+        "episodes_solved_mean": e[0], "episodes_solved_low": e[1], "episodes_solved_high": e[2],
+        "stop_at": stop_of(p.run.config), "noninferiority_margin": math.log1p(MARGIN),
+        **_verdict_data(verdict, cap), "vs_always_episodes_solved": verdict.solved_text,
+        "vs_matched_random_equivalence": same.verdict if same is not None else "",
+        "vs_matched_random_faster": same.faster if same is not None else False,
+        "vs_matched_random_log_ratio_lower": same.lower if same is not None else math.nan,
+        "vs_matched_random_log_ratio_upper": same.upper if same is not None else math.nan,
+        "outside_store_trials": int(p.outside.sum()),
+        "queries_mean": q[0], "queries_low": q[1], "queries_high": q[2],
+        "usd_mean": d[0], "usd_low": d[1], "usd_high": d[2], "usd_estimated": p.estimated_dollars,
+        "return_mean": r[0], "return_low": r[1], "return_high": r[2],
+        "return_iqm": iqm[0], "return_iqm_low": iqm[1], "return_iqm_high": iqm[2],
+        "p_improvement_vs_always": poi[0], "p_improvement_low": poi[1], "p_improvement_high": poi[2],
+        "steps_to_solve_mean": s[0], "steps_to_solve_low": s[1], "steps_to_solve_high": s[2],
+        "solved_trials": int(p.solved.sum()), "fallback_answers": int(p.fallback.sum()),
+        "miss_share": p.miss_share, "miss_flagged": flagged, "queries_vs_always": ratio, "run": p.run.key.name,
+    }
+    return row, data
+
+
+def _verdict_data(verdict: Verdict, cap: float) -> dict[str, Any]:
+    """The CSV's columns of a point's verdicts against always and matched random."""
+    vs, vt, vr, matched = verdict.against_always, verdict.tail, verdict.against_random, verdict.matched
+    margins = dict(vt.at_margins) if vt is not None else {}
+    out: dict[str, Any] = {
+        "horizon_steps": vs.cap if vs is not None else cap,
+        "vs_always": vs.verdict if vs is not None else verdict.note,
+        "vs_always_reason": vs.reason if vs is not None else "",
+        "vs_always_pairs": vs.n if vs is not None else 0,
+        "vs_always_ties": vs.ties if vs is not None else 0,
+        "vs_always_censored": vs.censored if vs is not None else 0,
+        "vs_always_log_ratio": vs.log_ratio if vs is not None else math.nan,
+        "vs_always_lower": vs.lower if vs is not None else math.nan,
+        "vs_always_bound": vs.upper if vs is not None else math.nan,
+        "vs_always_test": _test_name(vs),
+        "tail_late_share_above": LATE, "tail_margin": TAIL_MARGIN,
+        "vs_always_tail": vt.verdict if vt is not None else verdict.note,
+        "tail_late_pairs": vt.late_pairs if vt is not None else 0,
+        "tail_censored_pairs": vt.censored if vt is not None else 0,
+        "tail_pairs": vt.n if vt is not None else 0,
+        "tail_bound": vt.upper if vt is not None else math.nan,
+        "tail_bound_censored_late": vt.upper_if_late if vt is not None else math.nan,
+    }
+    for m in paired.TAIL_MARGINS:
+        out[f"tail_verdict_at_{100 * m:.0f}pct"] = margins.get(m, "")
+    out |= {
+        "matched_random": matched.label if matched is not None else "",
+        "matched_random_steps_mean": matched.summary["steps_to_solve"][0] if matched is not None else math.nan,
+        "vs_matched_random": vr.verdict if vr is not None else "",
+        "vs_matched_random_log_ratio": vr.log_ratio if vr is not None else math.nan,
+        "vs_matched_random_bound": vr.upper if vr is not None else math.nan,
+        "vs_matched_random_test": _test_name(vr),
+        "beats_matched_random": verdict.beats_random,
+        "credited": verdict.credited,
+    }
+    return out
 
 
 def _test_name(v: paired.SlowdownVerdict | None) -> str:
-    """The CSV's name of a comparison's test: the paired studentized bootstrap of the log ratio,
-    or no test where the logs do not pair the trials."""
+    """The CSV's name of a comparison's test: the paired betting bound of the log ratio, or no
+    test where the logs do not pair the trials."""
     if v is None:
         return ""
-    return "no pairs" if v.reason.startswith(PAIRS_MISSING) else "paired bootstrap-t (log ratio)"
+    return "paired betting bound (log ratio)" if v.n else "no pairs"
 
 
 def _chosen(p: Point) -> str:
@@ -917,7 +1060,7 @@ def draw(points: Sequence[Point], title: str, miss_threshold: float = MISS_THRES
     if any(label.endswith("(credited, ringed)") for label in handles):
         marks.append(
             "ringed: credited (non-inferior to always on steps to the first solve, on the mean log ratio and on the share of pairs"
-            f" > {100 * LATE:.0f}% later, and beats random at its query rate)"
+            f" > {100 * LATE:.0f}% later, and beats random at its query rate, on an evaluation seed)"
         )
     figure.legend(
         list(handles.values()), list(handles), loc="outside lower center", ncols=min(3, max(1, len(handles))),
@@ -951,7 +1094,7 @@ def _plain_number(value: float, _position: int | None = None) -> str:
 
 def symlog_ticks(threshold: float, largest: float) -> list[float]:
     """Ticks of a symmetric-log axis from 0 to ``largest``: 0, then 1, 2 and 5 times each power
-    of ten from ``threshold`` on (issue 34: the default put ticks only at 0, 10 and 100, and a
+    of ten from ``threshold`` on (the default put ticks only at 0, 10 and 100, and a
     decade tick inside the linear part, 10^-1 next to 0, overlapped the 0). Where that gives more
     than 10 ticks, the powers of ten alone."""
     low = math.floor(math.log10(threshold))
@@ -1029,6 +1172,8 @@ class FrontierReport:
     written: list[Path]
     tables: list[Table]
     warnings: tuple[str, ...]
+    panels: tuple[Panel, ...] = ()
+    """Each table with its rows by name (what the CLI prints)."""
 
 
 def report(
@@ -1049,13 +1194,16 @@ def report(
     out.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
     tables: list[Table] = []
+    made: list[Panel] = []
     with matplotlib.rc_context(STYLE):  # type: ignore[arg-type]
         for key, group in sorted(panels.items()):
             points = points_of(group, price)
             task, preset, provider, seed, scope, stop = key
             # a panel of trials stopped early is named by it; the full-horizon panel keeps its name
             stem = "-".join([task, preset, _slug(provider), f"seed{seed}", scope, *([stop.replace("_", "-")] if stop else [])])
-            shown = table(points, miss_threshold)
+            found = panel(points, miss_threshold)
+            shown = found.table
+            made.append(found)
             tables.append(shown)
             for suffix, text in ((".md", to_markdown(shown)), (".csv", to_csv(shown.data))):
                 path = out / f"{stem}{suffix}"
@@ -1068,7 +1216,7 @@ def report(
                 path = out / f"{stem}{suffix}"
                 outputs.save_figure(figure, path, "--out", format="png", dpi=DPI, metadata={"Software": None})
                 written.append(path)
-    return FrontierReport(written, tables, logs.warnings)
+    return FrontierReport(written, tables, logs.warnings, tuple(made))
 
 
 def _slug(text: str) -> str:

@@ -749,9 +749,11 @@ def build_frontier(item: Item, matched: Sequence[Match], price: Price | None = N
         "and the return, 95% Student-t intervals of the mean on both axes (on the log scale for queries, dollars and steps, which cannot be negative). The table adds episodes solved per trial, "
         "two one-sided non-inferiority verdicts against always on steps to the first solve, on the pairs of "
         "trials the logs show ran the same seed and trial (no verdict where they do not pair): the mean per-pair "
-        "log ratio (studentized bootstrap bound below log 1.1, a 10% margin; a trial that never solved counts at "
-        "the step cap, the restricted-mean horizon) and the share of pairs more than 10% later (exact "
-        "Clopper-Pearson bound below 20%), alpha 0.05, fewer than 10 pairs: inconclusive; random at each "
+        "log ratio (betting bound, valid for every distribution of the capped times, below log 1.1, a 10% margin; "
+        "a trial that never solved counts at the step cap, the restricted-mean horizon) and the share of pairs more "
+        "than 10% later (exact Clopper-Pearson bound below a 10% tail margin, shown at 5%, 10% and 20%; censored pairs "
+        "counted apart), alpha 0.05, fewer than 10 pairs: provisional; every seed's role (a design or tuning seed "
+        "of the policy is never credited); random at each "
         "learning policy's matched query rate (run by lagrseq reproduce after the policies, on the same seed and "
         "trials) and whether the policy beats it (the log ratio's bound below 0), credit (all three), trials "
         "whose first accepted answer came "
@@ -763,18 +765,18 @@ def build_frontier(item: Item, matched: Sequence[Match], price: Price | None = N
             " Trials of the panels titled 'trials stopped at the first solve' end with their first solved episode "
             "(queries counted to it; the matched random runs stop there too): their verdicts on steps to the first "
             "solve are the item's. The full-horizon panels hold the same policies' full-length trials on fewer pairs "
-            "(queries and return over the whole trial; verdicts below 10 pairs inconclusive)."
+            "(queries and return over the whole trial; verdicts below 10 pairs provisional)."
         )
     if counts and max(counts) < inference_min_n():
         method += (
-            f" Every verdict on this page is inconclusive: at most {max(counts)} trials per point, fewer than the "
-            f"{inference_min_n()} a verdict needs (lagrseq reproduce without --quick runs 10)."
+            f" Every verdict on this page is provisional: at most {max(counts)} trials per point, fewer than the "
+            f"{inference_min_n()} a verdict needs (lagrseq reproduce without --quick runs more)."
         )
     return Built(figure.axes[0], pd.concat(frames, ignore_index=True), tables, method)
 
 
 def inference_min_n() -> int:
-    """Pairs below which every frontier verdict is inconclusive."""
+    """Pairs below which every frontier verdict is provisional."""
     from lagrseq.analysis.paired import MIN_PAIRS
 
     return MIN_PAIRS

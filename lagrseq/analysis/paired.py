@@ -1,28 +1,28 @@
-"""Paired comparisons that keep their level on the frontier's differences (issue 35).
+"""Paired comparisons of times to the first solve that hold their level for every distribution.
 
 The frontier pairs an asking policy's trials with always's trials on the same seeds and compares
-their steps to the first solved episode. Those per-pair differences are zero-inflated and
-right-skewed: most pairs solve at the very same step, one or two in ten are hundreds or thousands
-of steps late. A paired t bound on such differences covers the true mean slowdown in only about
-76% of samples at n = 10 (``benchmarks/coverage.py --paired``), and when all n differences happen
-to be 0 it prints a certain verdict. This module replaces it with two estimands:
+their steps to the first solved episode. Both times of a pair lie in ``[1, cap]`` (a trial that
+never solved counts at the step cap ``cap``), so the per-pair log ratio ``log(policy_i /
+always_i)`` lies in ``[-log cap, log cap]``. Two estimands are judged on it:
 
-* **the mean log ratio** ``mean(log(policy_i / always_i))`` of the times (a time's natural scale:
-  a 10% margin is ``log(1.1)`` whatever the task's length), with a one-sided studentized
-  (bootstrap-t) bound. A trial that never solved counts at its step cap, so the estimand is the
-  restricted mean of the log time up to that horizon (the cap is stated with every verdict).
-  Differences with no spread (all equal) give no bound and no verdict.
-* **the tail share**: the share of pairs in which the policy is more than ``late`` (10%) later than
-  always, with an exact one-sided Clopper-Pearson upper bound (``scipy.stats.binomtest``), judged
-  against a stated tail margin.
+* **the mean log ratio** (the restricted mean up to the cap; a 10% margin is ``log(1.1)``
+  whatever the task's length), with one-sided bounds from a **betting test** (Waudby-Smith and
+  Ramdas, "Estimating means of bounded random variables by betting", JRSS-B 86(1), 2024): for a
+  candidate mean ``m`` the capital ``K(m) = sum_j w_j prod_i (1 + c_j (m - x_i) / (L - m))``,
+  ``L = log cap``, is a product of factors of mean 1 under the truth ``m = mu`` (a non-negative
+  martingale), so by Markov's inequality ``P(K(mu) >= 1 / alpha) <= alpha`` for every
+  distribution on ``[-L, L]`` and every n. The upper bound is the largest ``m`` not rejected.
+  The bets ``c_j`` and weights ``w_j`` (:data:`BETS`) are fixed before the data, so each factor
+  falls as ``x_i`` rises: a slower pair never lowers the upper bound (monotone), all-equal pairs
+  of any value are treated alike (no ``== 0`` rule), and ties are ordinary values 0.
+* **the tail share**: the share of pairs in which the policy is more than ``late`` (10%) later
+  than always, with an exact one-sided Clopper-Pearson bound, judged against a tail margin fixed
+  in advance (:data:`TAIL_MARGIN`) and shown at 5%, 10% and 20% side by side. A pair in which
+  neither arm solved by the cap is *censored*: counted apart, and the tail verdict is computed
+  with the censored pairs counted as late and as on time; a verdict only where both agree.
 
-The studentized bootstrap is written here because scipy's ``bootstrap`` has no one-sided
-studentized method for a paired mean that treats resamples without spread conservatively: a
-resample whose values are all equal has no standard error, and its t statistic is taken as
--inf or +inf (or 0 when its mean equals the sample's), never dropped, so a sample with one late
-pair in ten gives no finite bound rather than an optimistic one. Its coverage at the n the suite
-uses is simulated by ``benchmarks/coverage.py --paired`` and checked in
-``tests/analysis/test_paired.py``.
+``benchmarks/coverage.py --paired`` simulates the false non-inferior rate at the margin over a
+family of zero-inflated, right-skewed generators; docs/frontier.md gives the argument.
 """
 
 from __future__ import annotations
@@ -34,68 +34,119 @@ from dataclasses import dataclass
 import numpy as np
 
 ALPHA = 0.05
-"""The level of the exact tail bound (Clopper-Pearson holds it at every n)."""
-BOUND_ALPHA = 0.025
-"""The studentized bootstrap's one-sided level, calibrated (Loh 1987: the nominal level chosen by
-simulation so the actual coverage meets the target). At the nominal 95% the bound covered 92.1% at
-30 pairs on the arrangement-like generator (``benchmarks/coverage.py --paired``): under-sampled
-late pairs make the mean's bound short. At the nominal 97.5% it covers at least 93% at 30 and 60
-pairs on both skewed generators (and about 97.5% on normal differences, the price: a wider bound).
-At 10 pairs no level holds on the image-like generator (a sample of 10 often holds no late pair)."""
-RESAMPLES = 4000
+"""One-sided level of every bound here (the betting bound and Clopper-Pearson hold it at every n)."""
+BETS = ((1.0, 0.5), (0.5, 0.25), (0.25, 0.125), (0.125, 0.0625), (0.0625, 0.03125), (0.03125, 0.03125))
+"""(bet c, weight w) of the betting test's mixture: a bet of ``c / (L - m)`` per pair, the whole
+stake (c = 1) down to 1/32 of it, weights halving (they sum to 1). Fixed before any data: the
+mixture of non-negative martingales is one, and a fixed bet keeps the bound monotone."""
+BISECTIONS = 50
+"""Halvings of ``[-L, L]`` when the bound is searched (resolution ``2 L / 2^50``; the bound is
+the grid point above the largest mean not rejected: rounded outward)."""
 MIN_PAIRS = 10
-"""Pairs below which every paired verdict is inconclusive."""
+"""Pairs below which every verdict is shown as ``provisional``: the smallest n at which
+``benchmarks/coverage.py --paired`` checks the false non-inferior rate over its family."""
 LATE = 0.10
 """A pair is *late* when the policy's time exceeds always's by more than this share."""
-TAIL_MARGIN = 0.20
-"""The tail verdict: non-inferior when the upper bound of the late share lies below this, inferior
-when its lower bound lies above it. 20% is the rate at which the measured misses occurred (1-2
-late trials in 10); a policy must show it stays below that."""
+TAIL_MARGIN = 0.10
+"""The tail verdict's margin, fixed before any table: non-inferior when the exact upper bound of
+the late share lies below 10%, inferior when its lower bound lies above it. The same 10% as the
+mean's margin: a user who accepts a policy at most 10% slower on the geometric mean accepts at
+most one trial in ten being more than 10% late."""
+TAIL_MARGINS = (0.05, 0.10, 0.20)
+"""The tail verdict is shown at each of these margins side by side (the verdict is at 10%)."""
 
 NON_INFERIOR = "non-inferior"
 INFERIOR = "inferior"
 INCONCLUSIVE = "inconclusive"
+PROVISIONAL = "provisional"
+"""Prefixed to a verdict below :data:`MIN_PAIRS` pairs."""
+ORDER = {NON_INFERIOR: 0, INCONCLUSIVE: 1, INFERIOR: 2}
+"""Verdicts from best to worst for the policy (a slower sample never moves down this order)."""
+
+
+def _log_capital(x: np.ndarray, m: np.ndarray, span: float) -> np.ndarray:
+    """log K(m) per row of ``x`` (experiments x pairs) at the row's candidate ``m``."""
+    scale = (m[:, None] - x) / (span - m[:, None])
+    terms = []
+    with np.errstate(divide="ignore"):
+        for bet, weight in BETS:
+            terms.append(math.log(weight) + np.log1p(np.maximum(bet * scale, -1.0)).sum(axis=1))
+    return np.logaddexp.reduce(np.stack(terms), axis=0)
+
+
+def upper_bounds(x: np.ndarray, span: float, alpha: float = ALPHA) -> np.ndarray:
+    """The one-sided (1 - alpha) betting upper bound of the mean of each row of ``x`` (values in
+    ``[-span, span]``): the smallest point of a dyadic grid above every mean the test keeps."""
+    x = np.atleast_2d(np.asarray(x, dtype=float))
+    low = np.full(x.shape[0], -span)
+    high = np.full(x.shape[0], span)
+    threshold = math.log(1.0 / alpha)
+    for _ in range(BISECTIONS):
+        mid = 0.5 * (low + high)
+        kept = _log_capital(x, mid, span) < threshold
+        low = np.where(kept, mid, low)
+        high = np.where(kept, high, mid)
+    return high
 
 
 @dataclass(frozen=True)
-class BootstrapBound:
-    """A one-sided bound of a mean from a studentized bootstrap; NaN where there is none."""
+class Bounds:
+    """One-sided (1 - alpha) bounds of the mean log ratio and what the sample held."""
 
-    estimate: float
+    mean: float
     lower: float
-    """The (1 - alpha) lower bound of the mean."""
     upper: float
-    """The (1 - alpha) upper bound of the mean."""
     n: int
-    reason: str = ""
+    ties: int
+    """Pairs with equal (capped) times: log ratio 0."""
+    censored: int
+    """Pairs in which neither arm solved by the cap (both at the cap: log ratio 0)."""
+    span: float
+    """``log cap``: the range of a log ratio is ``[-span, span]``."""
 
 
-def studentized_bounds(values: Sequence[float] | np.ndarray, rng: np.random.Generator, alpha: float = ALPHA, resamples: int = RESAMPLES) -> BootstrapBound:
-    """One-sided (1 - alpha) lower and upper bounds of the mean of ``values`` by the studentized
-    bootstrap: ``t*_b = (mean*_b - mean) / se*_b`` over ``resamples`` resamples; upper bound
-    ``mean - q_alpha(t*) se``, lower bound ``mean - q_(1-alpha)(t*) se``. A resample without
-    spread has t* = 0 where its mean equals the sample's, else +-inf (conservative: never
-    dropped). Fewer than 2 values, or values without spread: no bounds (NaN) and a reason."""
-    x = np.asarray(values, dtype=float).ravel()
-    x = x[np.isfinite(x)]
+def log_ratios(policy: Sequence[float] | np.ndarray, other: Sequence[float] | np.ndarray, cap: float) -> np.ndarray:
+    """The per-pair log ratios ``log(policy_i / other_i)``, each time clipped to ``[1, cap]`` (a
+    trial that never solved is at its cap); a pair with a non-finite value is dropped whole."""
+    a, b = _pairs(policy, other)
+    return np.log(np.clip(a, 1.0, cap)) - np.log(np.clip(b, 1.0, cap))
+
+
+def _pairs(policy: Sequence[float] | np.ndarray, other: Sequence[float] | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    a = np.asarray(policy, dtype=float).ravel()
+    b = np.asarray(other, dtype=float).ravel()
+    if a.size != b.size:
+        raise ValueError(f"paired arms must have the same length, got {a.size} and {b.size}")
+    keep = np.isfinite(a) & np.isfinite(b)
+    return a[keep], b[keep]
+
+
+def _span(cap: float) -> float:
+    if not (math.isfinite(cap) and cap > 1.0):
+        raise ValueError(f"the step cap must be finite and > 1 (the log ratio's range is [-log cap, log cap]), got {cap}")
+    return math.log(cap)
+
+
+def bounds(policy: Sequence[float] | np.ndarray, other: Sequence[float] | np.ndarray, cap: float, alpha: float = ALPHA) -> Bounds:
+    """The mean log ratio of ``policy``'s times against ``other``'s (paired by index, clipped to
+    ``[1, cap]``) with its one-sided (1 - alpha) betting bounds (lower: the upper bound of the
+    negated ratios, negated). No pairs: NaN bounds."""
+    span = _span(cap)
+    a, b = _pairs(policy, other)
+    a, b = np.clip(a, 1.0, cap), np.clip(b, 1.0, cap)
+    x = np.log(a) - np.log(b)
     n = int(x.size)
-    if n < 2:
-        return BootstrapBound(float(x.mean()) if n else math.nan, math.nan, math.nan, n, "fewer than 2 pairs")
-    mean = float(x.mean())
-    spread = float(x.std(ddof=1))
-    if spread == 0.0:
-        return BootstrapBound(mean, math.nan, math.nan, n, f"no spread: all {n} differences are {mean:.4g}")
-    se = spread / math.sqrt(n)
-    draws = x[rng.integers(0, n, size=(resamples, n))]
-    means = draws.mean(axis=1)
-    ses = draws.std(axis=1, ddof=1) / math.sqrt(n)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(ses > 0, (means - mean) / ses, np.where(means == mean, 0.0, np.sign(means - mean) * np.inf))
-    low_q = float(np.quantile(t, alpha, method="lower"))
-    high_q = float(np.quantile(t, 1.0 - alpha, method="higher"))
-    upper = mean - low_q * se if math.isfinite(low_q) else math.inf
-    lower = mean - high_q * se if math.isfinite(high_q) else -math.inf
-    return BootstrapBound(mean, lower, upper, n)
+    if n == 0:
+        return Bounds(math.nan, math.nan, math.nan, 0, 0, 0, span)
+    upper = float(upper_bounds(x[None, :], span, alpha)[0])
+    lower = -float(upper_bounds(-x[None, :], span, alpha)[0])
+    censored = int(np.sum((a >= cap) & (b >= cap)))
+    return Bounds(float(x.mean()), lower, upper, n, int(np.sum(a == b)), censored, span)
+
+
+def provisional(verdict: str, n: int, min_pairs: int = MIN_PAIRS) -> str:
+    """``verdict``, marked ``provisional`` below ``min_pairs`` pairs."""
+    return f"{PROVISIONAL} {verdict}" if n < min_pairs else verdict
 
 
 @dataclass(frozen=True)
@@ -103,66 +154,69 @@ class SlowdownVerdict:
     """A policy against always on a time (lower is better), on the mean log ratio."""
 
     verdict: str
+    """``non-inferior``, ``inferior`` or ``inconclusive``, prefixed ``provisional`` below
+    :data:`MIN_PAIRS` pairs."""
     log_ratio: float
     """mean(log(policy / always)) over pairs: 0 is as fast, log(1.1) 10% slower."""
     lower: float
     upper: float
-    """One-sided (1 - alpha) bounds of the mean log ratio."""
+    """One-sided (1 - alpha) betting bounds of the mean log ratio."""
     margin: float
     """The non-inferiority margin on the log scale (log(1.1) for 10%)."""
     n: int
     cap: float
     """The step cap at which a trial that never solved is counted (the restricted-mean horizon)."""
     reason: str
-    alpha: float = BOUND_ALPHA
-    """The one-sided level of ``lower`` and ``upper``."""
+    alpha: float = ALPHA
+    ties: int = 0
+    censored: int = 0
 
     @property
     def ratio(self) -> float:
         """The geometric-mean time ratio exp(log_ratio)."""
-        return math.exp(self.log_ratio) if math.isfinite(self.log_ratio) else math.nan
+        return _exp(self.log_ratio)
+
+    @property
+    def settled(self) -> str:
+        """The verdict without the ``provisional`` mark."""
+        return self.verdict.removeprefix(f"{PROVISIONAL} ")
 
 
-def log_ratios(policy: Sequence[float] | np.ndarray, other: Sequence[float] | np.ndarray, cap: float = math.inf) -> np.ndarray:
-    """The per-pair log ratios ``log(policy_i / other_i)`` of two paired arms of times, each clipped
-    to ``[1, cap]`` (a trial that never solved is at its cap); a pair with a non-finite value in
-    either arm is dropped whole."""
-    a = np.asarray(policy, dtype=float).ravel()
-    b = np.asarray(other, dtype=float).ravel()
-    if a.size != b.size:
-        raise ValueError(f"paired arms must have the same length, got {a.size} and {b.size}")
-    keep = np.isfinite(a) & np.isfinite(b)
-    return np.log(np.clip(a[keep], 1.0, cap)) - np.log(np.clip(b[keep], 1.0, cap))
+def _exp(value: float) -> float:
+    """exp of a log ratio or bound (at most log cap in size); NaN stays NaN, never an overflow."""
+    if math.isnan(value):
+        return math.nan
+    return math.exp(max(min(value, 700.0), -700.0))
 
 
 def slowdown(
     policy: Sequence[float] | np.ndarray,
     always: Sequence[float] | np.ndarray,
-    rng: np.random.Generator,
+    cap: float,
     relative_margin: float = 0.10,
-    cap: float = math.inf,
-    alpha: float = BOUND_ALPHA,
+    alpha: float = ALPHA,
     min_pairs: int = MIN_PAIRS,
 ) -> SlowdownVerdict:
-    """Non-inferiority of ``policy``'s times against ``always``'s, paired by index: the mean of
-    the per-pair log ratios, with studentized bootstrap bounds. ``non-inferior``: the upper bound
-    lies below ``log(1 + relative_margin)``; ``inferior``: the lower bound lies above it; else
-    ``inconclusive`` (also below ``min_pairs`` pairs and with no spread). Times are clipped to
-    ``[1, cap]`` (a trial that never solved is at its cap: the restricted mean up to that horizon)."""
+    """Non-inferiority of ``policy``'s times against ``always``'s, paired by index, on the mean
+    log ratio: ``non-inferior`` when the upper betting bound lies below ``log(1 +
+    relative_margin)``, ``inferior`` when the lower one lies above it, else ``inconclusive``;
+    ``provisional`` below ``min_pairs`` pairs."""
     if not (math.isfinite(relative_margin) and relative_margin >= 0):
         raise ValueError(f"the margin must be finite and >= 0, got {relative_margin}")
     margin = math.log1p(relative_margin)
-    found = studentized_bounds(log_ratios(policy, always, cap), rng, alpha)
-    n = found.n
-    if found.reason:
-        return SlowdownVerdict(INCONCLUSIVE, found.estimate, math.nan, math.nan, margin, n, cap, found.reason, alpha)
-    if n < min_pairs:
-        return SlowdownVerdict(INCONCLUSIVE, found.estimate, found.lower, found.upper, margin, n, cap, f"n = {n} < {min_pairs} pairs", alpha)
+    found = bounds(policy, always, cap, alpha)
+    if found.n == 0:
+        return SlowdownVerdict(INCONCLUSIVE, math.nan, math.nan, math.nan, margin, 0, cap, "no pairs", alpha)
     if found.upper < margin:
-        return SlowdownVerdict(NON_INFERIOR, found.estimate, found.lower, found.upper, margin, n, cap, "upper bound below the margin", alpha)
-    if found.lower > margin:
-        return SlowdownVerdict(INFERIOR, found.estimate, found.lower, found.upper, margin, n, cap, "lower bound above the margin", alpha)
-    return SlowdownVerdict(INCONCLUSIVE, found.estimate, found.lower, found.upper, margin, n, cap, "the bounds straddle the margin", alpha)
+        verdict, reason = NON_INFERIOR, "upper bound below the margin"
+    elif found.lower > margin:
+        verdict, reason = INFERIOR, "lower bound above the margin"
+    else:
+        verdict, reason = INCONCLUSIVE, "the bounds straddle the margin"
+    return SlowdownVerdict(
+        provisional(verdict, found.n, min_pairs), found.mean, found.lower, found.upper, margin, found.n, cap,
+        reason, alpha, found.ties, found.censored,
+    )
 
 
 EQUIVALENT = "equivalent"
@@ -187,45 +241,41 @@ class EquivalenceVerdict:
     n: int
     cap: float
     reason: str
-    alpha: float = BOUND_ALPHA
+    alpha: float = ALPHA
     """Each one-sided bound's level: the interval shown is (1 - 2 alpha)."""
 
     @property
     def ratio(self) -> float:
-        return math.exp(self.log_ratio) if math.isfinite(self.log_ratio) else math.nan
+        return _exp(self.log_ratio)
 
 
 def equivalence(
     policy: Sequence[float] | np.ndarray,
     other: Sequence[float] | np.ndarray,
-    rng: np.random.Generator,
+    cap: float,
     relative_margin: float = 0.10,
-    cap: float = math.inf,
-    alpha: float = BOUND_ALPHA,
+    alpha: float = ALPHA,
     min_pairs: int = MIN_PAIRS,
 ) -> EquivalenceVerdict:
-    """Whether ``policy``'s times equal ``other``'s within ``relative_margin`` (both ways, on the
-    log scale: ``|mean(log(policy_i / other_i))| < log(1 + relative_margin)``), paired by index,
-    with the studentized bootstrap bounds of :func:`slowdown` at level ``alpha`` each (so the
-    TOST has level ``alpha``). Turns "no better than random at its rate" into a measured
-    statement either way. Times are clipped to ``[1, cap]`` as in :func:`slowdown`; below
-    ``min_pairs`` pairs, or without spread, the verdict is ``inconclusive`` and ``faster`` is
-    False (all-equal differences give no bound: they are not taken as proof of equality)."""
+    """Whether ``policy``'s times equal ``other``'s within ``relative_margin`` both ways on the
+    mean log ratio, paired by index, with the betting bounds of :func:`slowdown` at level
+    ``alpha`` each (so the TOST has level ``alpha``); ``provisional`` below ``min_pairs``."""
     if not (math.isfinite(relative_margin) and relative_margin > 0):
         raise ValueError(f"the equivalence margin must be finite and > 0, got {relative_margin}")
     margin = math.log1p(relative_margin)
-    found = studentized_bounds(log_ratios(policy, other, cap), rng, alpha)
-    n = found.n
-    if found.reason:
-        return EquivalenceVerdict(INCONCLUSIVE, False, found.estimate, math.nan, math.nan, margin, n, cap, found.reason, alpha)
-    if n < min_pairs:
-        return EquivalenceVerdict(INCONCLUSIVE, False, found.estimate, found.lower, found.upper, margin, n, cap, f"n = {n} < {min_pairs} pairs", alpha)
+    found = bounds(policy, other, cap, alpha)
+    if found.n == 0:
+        return EquivalenceVerdict(INCONCLUSIVE, False, math.nan, math.nan, math.nan, margin, 0, cap, "no pairs", alpha)
     faster = found.upper < 0.0
     if -margin < found.lower and found.upper < margin:
-        return EquivalenceVerdict(EQUIVALENT, faster, found.estimate, found.lower, found.upper, margin, n, cap, "both bounds inside the margin", alpha)
-    if found.lower > margin or found.upper < -margin:
-        return EquivalenceVerdict(DIFFERENT, faster, found.estimate, found.lower, found.upper, margin, n, cap, "a bound wholly outside the margin", alpha)
-    return EquivalenceVerdict(INCONCLUSIVE, faster, found.estimate, found.lower, found.upper, margin, n, cap, "a bound crosses the margin", alpha)
+        verdict, reason = EQUIVALENT, "both bounds inside the margin"
+    elif found.lower > margin or found.upper < -margin:
+        verdict, reason = DIFFERENT, "a bound wholly outside the margin"
+    else:
+        verdict, reason = INCONCLUSIVE, "a bound crosses the margin"
+    return EquivalenceVerdict(
+        provisional(verdict, found.n, min_pairs), faster, found.mean, found.lower, found.upper, margin, found.n, cap, reason, alpha
+    )
 
 
 @dataclass(frozen=True)
@@ -233,65 +283,80 @@ class TailVerdict:
     """The share of pairs in which the policy is more than ``late`` later than always."""
 
     verdict: str
+    """At :data:`TAIL_MARGIN`: a verdict only where counting the censored pairs as late and as
+    on time agree; ``provisional`` below :data:`MIN_PAIRS`."""
     late_pairs: int
+    """Pairs late with the censored pairs counted on time."""
     n: int
     lower: float
     upper: float
-    """Exact (Clopper-Pearson) one-sided (1 - alpha) bounds of the late share."""
+    """Exact one-sided (1 - alpha) bounds of the late share, censored pairs on time."""
     late: float
     margin: float
     reason: str
+    censored: int = 0
+    """Pairs in which neither arm solved by the cap (counted apart)."""
+    upper_if_late: float = math.nan
+    """The exact upper bound with the censored pairs counted as late."""
+    lower_if_late: float = math.nan
+    at_margins: tuple[tuple[float, str], ...] = ()
+    """(margin, verdict) at each of :data:`TAIL_MARGINS`."""
 
     @property
     def share(self) -> float:
         return self.late_pairs / self.n if self.n else math.nan
 
+    @property
+    def settled(self) -> str:
+        return self.verdict.removeprefix(f"{PROVISIONAL} ")
+
+
+def clopper_pearson(k: int, n: int, alpha: float = ALPHA) -> tuple[float, float]:
+    """Exact one-sided (1 - alpha) lower and upper bounds of a share of k in n."""
+    from scipy.stats import beta
+
+    lower = 0.0 if k == 0 else float(beta.ppf(alpha, k, n - k + 1))
+    upper = 1.0 if k == n else float(beta.ppf(1.0 - alpha, k + 1, n - k))
+    return lower, upper
+
+
+def _tail_verdict(on_time: tuple[float, float], as_late: tuple[float, float], margin: float) -> str:
+    """A verdict at ``margin`` from the bounds with the censored pairs on time and as late: the
+    same verdict from both, else inconclusive."""
+    said = []
+    for lower, upper in (on_time, as_late):
+        said.append(NON_INFERIOR if upper < margin else INFERIOR if lower > margin else INCONCLUSIVE)
+    return said[0] if said[0] == said[1] else INCONCLUSIVE
+
 
 def tail(
     policy: Sequence[float] | np.ndarray,
     always: Sequence[float] | np.ndarray,
+    cap: float,
     late: float = LATE,
     margin: float = TAIL_MARGIN,
     alpha: float = ALPHA,
     min_pairs: int = MIN_PAIRS,
 ) -> TailVerdict:
-    """The tail-risk estimand: pairs with ``policy_i > (1 + late) * always_i``, its exact one-sided
-    bounds, and a verdict against ``margin`` (see :data:`TAIL_MARGIN`)."""
-    from scipy.stats import binomtest
-
-    a = np.asarray(policy, dtype=float).ravel()
-    b = np.asarray(always, dtype=float).ravel()
-    if a.size != b.size:
-        raise ValueError(f"paired arms must have the same length, got {a.size} and {b.size}")
-    keep = np.isfinite(a) & np.isfinite(b)
-    a, b = a[keep], b[keep]
+    """The tail-risk estimand: pairs with ``policy_i > (1 + late) * always_i`` (times clipped to
+    ``[1, cap]``), censored pairs (both at the cap) counted apart, exact bounds with the censored
+    pairs on time and as late, and verdicts at ``margin`` and at each of :data:`TAIL_MARGINS`."""
+    a, b = _pairs(policy, always)
+    a, b = np.clip(a, 1.0, cap), np.clip(b, 1.0, cap)
     n = int(a.size)
-    k = int(np.sum(a > (1.0 + late) * b))
     if n == 0:
         return TailVerdict(INCONCLUSIVE, 0, 0, math.nan, math.nan, late, margin, "no pairs")
-    interval = binomtest(k, n).proportion_ci(confidence_level=1.0 - 2.0 * alpha, method="exact")
-    lower, upper = float(interval.low), float(interval.high)
-    if n < min_pairs:
-        return TailVerdict(INCONCLUSIVE, k, n, lower, upper, late, margin, f"n = {n} < {min_pairs} pairs")
-    if upper < margin:
-        return TailVerdict(NON_INFERIOR, k, n, lower, upper, late, margin, "upper bound below the tail margin")
-    if lower > margin:
-        return TailVerdict(INFERIOR, k, n, lower, upper, late, margin, "lower bound above the tail margin")
-    return TailVerdict(INCONCLUSIVE, k, n, lower, upper, late, margin, "the bounds straddle the tail margin")
-
-
-def pairs_for_power(values: Sequence[float] | np.ndarray, true_mean: float, margin: float, power: float = 0.80, alpha: float = ALPHA) -> int:
-    """Pairs a one-sided test of ``mean < margin`` needs for ``power`` when the differences have
-    the spread of ``values`` and their true mean is ``true_mean`` (the normal approximation
-    ``n = ((z_(1-alpha) + z_power) sd / (margin - true_mean))^2``; a planning figure, not a bound)."""
-    from scipy.stats import norm
-
-    x = np.asarray(values, dtype=float)
-    x = x[np.isfinite(x)]
-    if x.size < 2 or margin <= true_mean:
-        return -1
-    sd = float(x.std(ddof=1))
-    if sd == 0.0:
-        return MIN_PAIRS
-    z = float(norm.ppf(1.0 - alpha) + norm.ppf(power))
-    return max(MIN_PAIRS, math.ceil((z * sd / (margin - true_mean)) ** 2))
+    censored = int(np.sum((a >= cap) & (b >= cap)))
+    k = int(np.sum(a > (1.0 + late) * b))
+    on_time = clopper_pearson(k, n, alpha)
+    as_late = clopper_pearson(k + censored, n, alpha)
+    margins = tuple((m, provisional(_tail_verdict(on_time, as_late, m), n, min_pairs)) for m in TAIL_MARGINS)
+    verdict = _tail_verdict(on_time, as_late, margin)
+    reason = {
+        NON_INFERIOR: "upper bound below the tail margin",
+        INFERIOR: "lower bound above the tail margin",
+    }.get(verdict, "the bounds straddle the tail margin, or the censored pairs decide it")
+    return TailVerdict(
+        provisional(verdict, n, min_pairs), k, n, on_time[0], on_time[1], late, margin, reason,
+        censored, as_late[1], as_late[0], margins,
+    )

@@ -9,7 +9,7 @@ A policy item is ``NAME`` or ``NAME:FIELD=VALUE[:FIELD=VALUE...]`` with FIELD a 
 field (``thompson:query_cost=0.5``, ``random:ask_probability=0.1``, ``seq:budget=20``); a sweep
 ``NAME:FIELD=V1,V2,...`` adds one variant per value (drawn as a curve).
 
-The protocol (issue 20; the verdicts are :mod:`lagrseq.analysis.frontier`'s):
+The protocol (docs/frontier.md; the verdicts are :mod:`lagrseq.analysis.frontier`'s):
 
 - regimes: every variant runs under each ``lagr.solution_scope`` asked for (``episode``: an
   accepted answer guides one episode, so a policy must ask again; ``trial``: it guides the rest of
