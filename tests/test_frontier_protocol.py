@@ -13,10 +13,11 @@ import pytest
 
 from lagrseq import cli
 from lagrseq.analysis.frontier import Point, judge, panel, summarise
-from lagrseq.analysis.loading import Run, RunKey
+from lagrseq.analysis.loading import Run
 from lagrseq.frontier_protocol import matched_probability
 from lagrseq.logs.reader import read_info, read_topic
 from tests.llm.conftest import authors_cache
+from tests.support.frontier import point as _point
 
 
 def _cube_store(tmp_path: Path) -> Path:
@@ -85,27 +86,6 @@ def test_refusal_is_no_answer_even_when_its_text_would_parse(tmp_path: Path) -> 
 
 
 # -- matched rate, non-inferiority and credit on hand-made points -------------------------------------
-
-
-def _point(policy: str, steps: list[float], queries: float = 10.0, decisions: float = 100.0, p: float | None = None,
-           on_miss: str = "refuse") -> Point:
-    """A frontier point made by hand: per-trial steps to the first solve, and the run's totals of
-    queries and decisions spread over its trials."""
-    secondary = {"policy": policy} if p is None else {"policy": policy, "ask_probability": p}
-    method = {"always": "lagr", "never": "baseline"}.get(policy, "lagr-seq")
-    config = {"method": method, "secondary": secondary, "lagr": {"solution_scope": "episode"}, "task": {"name": "cube-stacking"}}
-    n = len(steps)
-    run = Run(
-        RunKey("cube-stacking", method, "paper", "recorded:store", 0, f"{policy}{p}"), config, (), tuple(range(n)),
-        pd.DataFrame(), pd.DataFrame(), 0,
-    )
-    per_trial = np.full(n, queries / n)
-    point = Point(
-        policy, "" if p is None else f"p {p:g}", run, np.zeros(n), np.array(steps, dtype=float), np.ones(n, dtype=bool),
-        per_trial, np.zeros(n), np.zeros(n), decisions=decisions, on_miss=on_miss,
-        episodes_solved=np.ones(n), outside=np.zeros(n, dtype=bool),
-    )
-    return point
 
 
 def test_matched_probability_is_the_runs_query_rate() -> None:

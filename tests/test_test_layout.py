@@ -9,10 +9,6 @@ from pathlib import Path
 
 TESTS = Path(__file__).resolve().parent
 
-NOT_YET_MOVED = {("analysis/test_frontier_equivalence.py", "tests.test_frontier_protocol")}
-"""Imports still waiting for their helper to move into tests/support (each entry must still
-exist, so a move that lands is noticed and the entry goes)."""
-
 
 def _module_of(path: Path) -> str:
     return ".".join(("tests", *path.relative_to(TESTS).with_suffix("").parts))
@@ -44,12 +40,8 @@ def _test_module_imports() -> set[tuple[str, str]]:
 
 
 def test_no_test_module_imports_another_test_module() -> None:
-    found = _test_module_imports() - NOT_YET_MOVED
+    found = _test_module_imports()
     assert found == set(), f"move these helpers into tests/support or a conftest.py: {sorted(found)}"
-
-
-def test_every_import_still_waiting_for_a_move_is_still_there() -> None:
-    assert _test_module_imports() >= NOT_YET_MOVED, "drop the entries of NOT_YET_MOVED that moved"
 
 
 def test_the_check_sees_absolute_relative_and_module_imports() -> None:

@@ -9,7 +9,7 @@ import numpy as np
 
 from lagrseq import config as cfg
 from lagrseq.analysis.frontier import EQUIVALENCE_COLUMN, judge, policy_of, summarise, table
-from tests.test_frontier_protocol import _point
+from tests.support.frontier import point as _point
 
 
 def test_the_table_says_whether_a_point_is_equivalent_to_random_at_its_rate() -> None:
