@@ -153,12 +153,14 @@ def find_caches(root: Path, progress: Reporter | None = None) -> list[Cache]:
 
 
 def store_path(out: Path) -> Path:
-    return (out / AUTHORS_STORE_NAME).resolve()
+    """``OUT/authors-answers``, spelt as ``--out`` was given (a relative OUT stays relative, so
+    no log, run folder or report made under it names where it lies)."""
+    return out / AUTHORS_STORE_NAME
 
 
 def provider_spec(out: Path) -> str:
     """The provider of the runs on the authors' answers (misses go to the mock)."""
-    return f"recorded:{store_path(out)}"
+    return f"recorded:{store_path(out).as_posix()}"
 
 
 def import_caches(caches: list[Cache], out: Path, progress: Reporter | None = None) -> list[str]:
