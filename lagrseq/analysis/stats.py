@@ -64,9 +64,16 @@ def bootstrap_ci(
     if x.size < 2:
         return math.nan, math.nan
     means = x[rng.integers(0, x.size, size=(resamples, x.size))].mean(axis=1)
-    tail = (1.0 - confidence) / 2.0
-    low, high = np.quantile(means, [tail, 1.0 - tail])
+    low, high = percentile_interval(means, confidence)
     return float(low), float(high)
+
+
+def percentile_interval(draws: np.ndarray, confidence: float = CONFIDENCE, axis: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The central ``confidence`` percentile interval of bootstrap ``draws`` (along ``axis``:
+    one bound per point of a curve): the ``(1 - confidence) / 2`` quantile and its mirror."""
+    tail = (1.0 - confidence) / 2.0
+    low, high = np.quantile(draws, [tail, 1.0 - tail], axis=axis)
+    return low, high
 
 
 def summarize(values: Sequence[float] | np.ndarray, rng: np.random.Generator) -> Summary:
@@ -227,8 +234,7 @@ def stratified_bootstrap_ci(
         return math.nan, math.nan
     picks = [rng.integers(0, g.size, size=(resamples, g.size)) for g in groups]
     values = np.array([statistic([g[p[i]] for g, p in zip(groups, picks, strict=True)]) for i in range(resamples)])
-    tail = (1.0 - confidence) / 2.0
-    low, high = np.quantile(values, [tail, 1.0 - tail])
+    low, high = percentile_interval(values, confidence)
     return float(low), float(high)
 
 
@@ -244,8 +250,7 @@ def iqm_ci(
     drawn = np.sort(np.concatenate([g[rng.integers(0, g.size, size=(resamples, g.size))] for g in groups], axis=1), axis=1)
     cut = int(0.25 * drawn.shape[1])
     values = drawn[:, cut : drawn.shape[1] - cut].mean(axis=1)
-    tail = (1.0 - confidence) / 2.0
-    low, high = np.quantile(values, [tail, 1.0 - tail])
+    low, high = percentile_interval(values, confidence)
     return value, float(low), float(high)
 
 
@@ -283,8 +288,7 @@ def probability_of_improvement_ci(
         ties = (ra[:, :, None] == rb[:, None, :]).sum(axis=(1, 2))
         total += (greater + 0.5 * ties) / (a.size * b.size)
     values = total / len(xs)
-    tail = (1.0 - confidence) / 2.0
-    low, high = np.quantile(values, [tail, 1.0 - tail])
+    low, high = percentile_interval(values, confidence)
     return value, float(low), float(high)
 
 
@@ -316,6 +320,5 @@ def performance_profile_ci(
     curves = np.array(
         [performance_profile(np.concatenate([g[p[i]] for g, p in zip(groups, picks, strict=True)]), taus) for i in range(resamples)]
     )
-    tail = (1.0 - confidence) / 2.0
-    low, high = np.quantile(curves, [tail, 1.0 - tail], axis=0)
+    low, high = percentile_interval(curves, confidence, axis=0)
     return profile, low, high
