@@ -353,7 +353,7 @@ def build_returns(item: Item, matched: Sequence[Match]) -> Built:
     return Built(axes, pd.concat(frames, ignore_index=True), [], method)
 
 
-def _summary_row(label: str, values: np.ndarray, run: Run) -> tuple[stats.Summary, dict[str, Any]]:
+def _summary_row(label: str, values: np.ndarray, run: Run) -> tuple[stats.Interval, dict[str, Any]]:
     """Summary of per-trial counts with the interval of the mean of a positive quantity
     (:func:`lagrseq.analysis.inference.positive_mean_interval`: the same for one run in every table
     and figure that shows it; it never reaches below 0), and the provenance of the run."""
@@ -371,12 +371,12 @@ def _summary_row(label: str, values: np.ndarray, run: Run) -> tuple[stats.Summar
     return s, row
 
 
-def _positive_summary(values: np.ndarray) -> stats.Summary:
+def _positive_summary(values: np.ndarray) -> stats.Interval:
     """Mean, spread and the positive quantity's interval of per-trial values (none below
     :data:`lagrseq.analysis.inference.MIN_N_INTERVAL`)."""
     mean, std, se = stats.mean_std_se(values)
     shown = inference.positive_mean_interval(values)
-    return stats.Summary(int(np.asarray(values).size), mean, std, se, shown.low, shown.high)
+    return stats.Interval(int(np.asarray(values).size), mean, shown.low, shown.high, shown.level, std, se)
 
 
 def build_query_bars(item: Item, matched: Sequence[Match]) -> Built:
@@ -446,7 +446,7 @@ def build_query_table(item: Item, matched: Sequence[Match]) -> Built:
         row = str(key).split("|", 1)[0]
         if "|" in str(key) and row not in rows:
             rows.append(row)  # a row the paper has and these runs do not: its values, for scale
-    cells: dict[tuple[str, str], stats.Summary] = {}
+    cells: dict[tuple[str, str], stats.Interval] = {}
     notes: dict[tuple[str, str], str] = {}
     makers: dict[str, list[str]] = {}
     data = []
@@ -544,7 +544,7 @@ def build_ratio_table(item: Item, matched: Sequence[Match]) -> Built:
     return Built(None, None, [(item.id, table)], method)
 
 
-_Ratio = tuple[stats.Summary, Run, Run]
+_Ratio = tuple[stats.Interval, Run, Run]
 
 
 def _run_ratio(runs: Mapping[tuple[str, str | None], Run], row: str, top_column: str, denominator: str) -> _Ratio | None:
