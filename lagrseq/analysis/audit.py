@@ -707,8 +707,7 @@ def gap_explained_by(
 
 
 def _other_run(made: Audit, anchor: str, preset: str, config: dict[str, Any]) -> str | None:
-    """Why the audit never measured a run of this ``config`` (another temperature, a field that
-    differs from the audited preset's), or None where it did."""
+    """The line saying the audit never measured a run of ``config``, or None where it did."""
     audited = (made.preset_configs or {}).get(preset, {})
     row = _flat(config)
     temperature = row.get("llm.temperature")
@@ -722,8 +721,7 @@ def _other_run(made: Audit, anchor: str, preset: str, config: dict[str, Any]) ->
 
 
 def _no_gap(gap: float, margin: float, interval: tuple[float, float] | None) -> str | None:
-    """The text saying there is no gap to explain (the test's interval holds 0 or lies inside the
-    margin; without one, the point gap is inside it), or None where there is one."""
+    """The line saying there is no gap beyond the margin to explain, or None where there is one."""
     if interval is not None and math.isfinite(interval[0]) and math.isfinite(interval[1]):
         if interval[0] <= 0.0 <= interval[1]:
             return f"no gap shown (the test's 95% interval [{interval[0]:.3g}, {interval[1]:.3g}] holds 0)"
@@ -735,8 +733,7 @@ def _no_gap(gap: float, margin: float, interval: tuple[float, float] | None) -> 
 
 
 def _candidates(made: Audit, preset: str, quantity: str, gap: float) -> tuple[pd.DataFrame, str]:
-    """The audit rows whose effects move ``quantity`` the gap's way: the marked ones, or where none
-    is, the indicative ones whose intervals exclude 0; and the qualifier that says which."""
+    """The audit rows that move ``quantity`` the gap's way (marked, else indicative), and their qualifier."""
     rows = made.data[(made.data["preset"] == preset) & (made.data["quantity"] == quantity)]
     same_way = rows[np.sign(rows["effect"]) == np.sign(gap)]
     candidates = same_way[same_way["marked"]]
@@ -768,8 +765,7 @@ def _joint_effect(made: Audit, preset: str, quantity: str, gap: float, margin: f
 
 
 def _added_effects(candidates: pd.DataFrame, gap: float, margin: float, qualifier: str, source: str) -> str:
-    """The one-field effects, largest first, whose sum comes nearest the gap: all of it, part of
-    it, or none where each effect overshoots it."""
+    """The line naming the one-field effects, largest first, whose sum comes nearest the gap."""
     # an effect far larger than the gap does not account for part of it: it measures another regime
     fitting = candidates[candidates["effect"].abs() <= abs(gap) + margin]
     if fitting.empty:

@@ -548,8 +548,7 @@ _Ratio = tuple[stats.Interval, Run, Run]
 
 
 def _run_ratio(runs: Mapping[tuple[str, str | None], Run], row: str, top_column: str, denominator: str) -> _Ratio | None:
-    """The per-trial ratio of total return of ``top_column`` over ``denominator`` in ``row``, with
-    the two runs (None where either was not run)."""
+    """The per-trial return ratio of ``top_column`` over ``denominator`` in ``row``, with its two runs."""
     top, bottom = runs.get((row, top_column)), runs.get((row, denominator))
     if top is None or bottom is None:
         return None

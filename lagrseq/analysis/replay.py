@@ -414,24 +414,23 @@ def replay(
 
 
 def _checked_formats(formats: Sequence[str], out: Path) -> list[str]:
-    """The figure formats to write, png first, once ``formats`` and the index files under ``out``
-    are checked (a link, folder or FIFO there: refused before the logs are read)."""
+    """The figure formats to write, png first, once they and the index files under ``out`` are checked."""
     bad = [f for f in formats if f not in FORMATS]
     if bad:
         raise UsageError(f"unknown figure format {bad[0]!r}; expected some of {', '.join(FORMATS)}")
     shown = ["png", *[f for f in FORMATS if f in formats and f != "png"]]
-    for name in ("index.html", "index.md", MANIFEST):
+    for name in ("index.html", "index.md", MANIFEST):  # a link, folder or FIFO there: refused before the logs are read
         outputs.check(out / name, "--out")
     return shown
 
 
 def _painter_starter(painter: _Painter, stack: contextlib.ExitStack, jobs: int) -> Callable[[int], None]:
-    """What :func:`lagrseq.analysis.loading.load` calls with the count of logs it found: where they
-    are read in worker processes, one more draws the figures while this one makes the next item
-    (one: each process that draws pays importing matplotlib, about 1 s, which it does while the
-    logs are read)."""
+    """The callback that starts the figures' process once :func:`loading.load` knows the logs' count."""
 
     def found(count: int) -> None:
+        # Where the logs are read in worker processes, one more draws the figures while this
+        # one makes the next item (one: each process that draws pays importing matplotlib,
+        # about 1 s, which it does while the logs are read).
         if loading.parallel(count, jobs):
             painter.pool = stack.enter_context(loading.worker_pool(1))
             painter.pending.append((painter.pool.submit(figures.ready), []))

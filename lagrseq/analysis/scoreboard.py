@@ -435,8 +435,7 @@ def _margin_cells(judged: _Judged, mg: margins.Margin | None) -> dict[str, Any]:
 
 
 def _miss_cells(m: Match) -> dict[str, Any]:
-    """A row's miss columns: for a number made on a recorded store, its answers, those the store
-    lacked, and what answered them (refused, or a fallback that can be right)."""
+    """A row's miss columns: a recorded store's answers, its misses and what answered them."""
     return {
         "answers": m.misses.answers if m.misses is not None else None,
         "misses": m.misses.missed if m.misses is not None else None,
@@ -635,8 +634,7 @@ def _shown(m: Match, row: str) -> str:
 
 
 def _count_rows(item: Item, reference: Mapping[str, Any], present: Sequence[Match], add: _Add, header: str) -> _Cells:
-    """One row per cell's queries per run; the cells, keyed by (row, column, source): the source is
-    the provider and, for a row's miss variants, the variant."""
+    """One row per cell's queries per run; the cells by (row, column, provider and miss variant)."""
     counts: _Cells = {}
     for key, paper in reference.items():
         if "|" not in key:
@@ -655,8 +653,7 @@ def _count_rows(item: Item, reference: Mapping[str, Any], present: Sequence[Matc
 
 def _reduction_rows(item: Item, reference: Mapping[str, Any], add: _Add, header: str, counts: _Cells, keys: Sequence[str],
                     seq_col: str, lagr_col: str) -> tuple[dict[tuple[str, str], tuple[Match, _Part]], dict[str, inference.Estimate]]:
-    """One row per table row and source: the query reduction its two columns imply; the
-    reductions by (row, source) and the paper's by row."""
+    """One row per row and source: the query reduction its two columns imply; the reductions made."""
     reductions: dict[tuple[str, str], tuple[Match, _Part]] = {}
     paper_reductions: dict[str, inference.Estimate] = {}
     for key in keys:
