@@ -683,15 +683,9 @@ def gap_explained_by(
     if quantity is None:
         return f"not audited: {anchor} does not measure this quantity"
     if config is not None:
-        audited = (made.preset_configs or {}).get(preset, {})
-        row = _flat(config)
-        temperature = row.get("llm.temperature")
-        if isinstance(temperature, (int, float)) and made.temperature is not None and abs(float(temperature) - made.temperature) > 1e-9:
-            return f"not audited: τ = {float(temperature):g} was never audited ({anchor} ran at τ = {made.temperature:g})"
-        differs = sorted(k for k in row if k in audited and row[k] != audited[k])
-        if differs:
-            shown = ", ".join(f"{k} = {json.dumps(row[k])}" for k in differs)
-            return f"not audited: this run's {shown} differs from the audited {preset} preset ({anchor})"
+        other = _other_run(made, anchor, preset, config)
+        if other is not None:
+            return other
     found = _PAPER.search(paper)
     if found is None or not math.isfinite(measured):
         return f"not audited: no paper number to compare ({anchor})"
@@ -699,6 +693,35 @@ def gap_explained_by(
     if margin is None or not math.isfinite(margin):
         margin = inference.margin_for(value, float(found.group(2)) if found.group(2) else None)
     gap = value - measured
+    no_gap = _no_gap(gap, margin, interval)
+    if no_gap is not None:
+        return no_gap
+    source = f"{anchor}, {made.provider}"
+    candidates, qualifier = _candidates(made, preset, quantity, gap)
+    joint = _joint_effect(made, preset, quantity, gap, margin, source)
+    if joint is not None:
+        return joint
+    if candidates.empty:
+        return f"unexplained (gap {_signed(gap)}; no audited field moves it that way beyond noise; {source})"
+    return _added_effects(candidates, gap, margin, qualifier, source)
+
+
+def _other_run(made: Audit, anchor: str, preset: str, config: dict[str, Any]) -> str | None:
+    """The line saying the audit never measured a run of ``config``, or None where it did."""
+    audited = (made.preset_configs or {}).get(preset, {})
+    row = _flat(config)
+    temperature = row.get("llm.temperature")
+    if isinstance(temperature, (int, float)) and made.temperature is not None and abs(float(temperature) - made.temperature) > 1e-9:
+        return f"not audited: τ = {float(temperature):g} was never audited ({anchor} ran at τ = {made.temperature:g})"
+    differs = sorted(k for k in row if k in audited and row[k] != audited[k])
+    if differs:
+        shown = ", ".join(f"{k} = {json.dumps(row[k])}" for k in differs)
+        return f"not audited: this run's {shown} differs from the audited {preset} preset ({anchor})"
+    return None
+
+
+def _no_gap(gap: float, margin: float, interval: tuple[float, float] | None) -> str | None:
+    """The line saying there is no gap beyond the margin to explain, or None where there is one."""
     if interval is not None and math.isfinite(interval[0]) and math.isfinite(interval[1]):
         if interval[0] <= 0.0 <= interval[1]:
             return f"no gap shown (the test's 95% interval [{interval[0]:.3g}, {interval[1]:.3g}] holds 0)"
@@ -706,7 +729,11 @@ def gap_explained_by(
             return f"no gap beyond the margin (the test's 95% interval lies inside ±{margin:.3g})"
     elif abs(gap) <= margin:
         return f"no gap beyond the margin (point gap {_signed(gap)}, margin ±{margin:.3g}; no interval)"
-    source = f"{anchor}, {made.provider}"
+    return None
+
+
+def _candidates(made: Audit, preset: str, quantity: str, gap: float) -> tuple[pd.DataFrame, str]:
+    """The audit rows that move ``quantity`` the gap's way (marked, else indicative), and their qualifier."""
     rows = made.data[(made.data["preset"] == preset) & (made.data["quantity"] == quantity)]
     same_way = rows[np.sign(rows["effect"]) == np.sign(gap)]
     candidates = same_way[same_way["marked"]]
@@ -714,21 +741,31 @@ def gap_explained_by(
     if candidates.empty:
         candidates = same_way[same_way["indicative"] & same_way["excludes_zero"]]
         qualifier = f", indicative: n < {MIN_N_MARK}" if not candidates.empty else ""
-    # measured together: an interaction run whose effect is the gap
-    if made.corners is not None and preset == INTERACTION_PRESET:
-        corners = made.corners[made.corners["quantity"] == quantity]
-        base = corners[corners["switched"] == 0]
-        if len(base):
-            joint = corners[corners["switched"] >= 2].assign(effect=lambda f: f["mean"] - float(base["mean"].iloc[0]))
-            if len(joint):
-                best = joint.iloc[int(np.argmin(np.abs(joint["effect"].to_numpy() - gap)))]
-                if abs(best["effect"] - gap) <= margin:
-                    return (
-                        f"{best['corner']} switched together ({_signed(best['effect'])}, n={int(best['trials'])}) "
-                        f"of gap {_signed(gap)} (interaction runs, {source})"
-                    )
-    if candidates.empty:
-        return f"unexplained (gap {_signed(gap)}; no audited field moves it that way beyond noise; {source})"
+    return candidates, qualifier
+
+
+def _joint_effect(made: Audit, preset: str, quantity: str, gap: float, margin: float, source: str) -> str | None:
+    """The interaction run (fields switched together) whose effect is the gap within the margin, or None."""
+    if made.corners is None or preset != INTERACTION_PRESET:
+        return None
+    corners = made.corners[made.corners["quantity"] == quantity]
+    base = corners[corners["switched"] == 0]
+    if not len(base):
+        return None
+    joint = corners[corners["switched"] >= 2].assign(effect=lambda f: f["mean"] - float(base["mean"].iloc[0]))
+    if not len(joint):
+        return None
+    best = joint.iloc[int(np.argmin(np.abs(joint["effect"].to_numpy() - gap)))]
+    if abs(best["effect"] - gap) <= margin:
+        return (
+            f"{best['corner']} switched together ({_signed(best['effect'])}, n={int(best['trials'])}) "
+            f"of gap {_signed(gap)} (interaction runs, {source})"
+        )
+    return None
+
+
+def _added_effects(candidates: pd.DataFrame, gap: float, margin: float, qualifier: str, source: str) -> str:
+    """The line naming the one-field effects, largest first, whose sum comes nearest the gap."""
     # an effect far larger than the gap does not account for part of it: it measures another regime
     fitting = candidates[candidates["effect"].abs() <= abs(gap) + margin]
     if fitting.empty:
@@ -737,8 +774,7 @@ def gap_explained_by(
             f"unexplained (gap {_signed(gap)}; the audited effects that way overshoot it, e.g. "
             f"{largest['field']} ({_signed(largest['effect'])}){qualifier}; {source})"
         )
-    candidates = fitting
-    ordered = candidates.reindex(candidates["effect"].abs().sort_values(ascending=False).index)
+    ordered = fitting.reindex(fitting["effect"].abs().sort_values(ascending=False).index)
     sums = np.cumsum(ordered["effect"].to_numpy())
     k = int(np.argmin(np.abs(sums - gap))) + 1
     named = " + ".join(f"{r['field']} ({_signed(r['effect'])})" for _, r in ordered.iloc[:k].iterrows())

@@ -19,7 +19,7 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
-from lagrseq.analysis.stats import CurveStats, Summary
+from lagrseq.analysis.stats import CurveStats, Interval
 
 FIGSIZE = (6.4, 4.4)
 # The matplotlib default cycle, fixed here so a figure does not depend on the user's rcParams.
@@ -174,7 +174,7 @@ class Bar:
     """One bar: a label and a per-trial quantity's summary."""
 
     label: str
-    summary: Summary
+    summary: Interval
 
 
 def bars(

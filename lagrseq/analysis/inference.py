@@ -46,6 +46,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import t as _t
 
+from lagrseq.analysis.stats import Interval
+
 REPRODUCED = "reproduced"
 DIFFERS = "differs"
 INCONCLUSIVE = "inconclusive"
@@ -89,23 +91,6 @@ def t_ppf(p: float, df: float) -> float:
 
 
 # -- intervals ------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Interval:
-    """A mean (or a difference of means) with a two-sided interval at ``level``. With fewer than
-    two values the bounds are NaN."""
-
-    n: int
-    mean: float
-    low: float
-    high: float
-    level: float
-
-    def __str__(self) -> str:
-        if math.isnan(self.low):
-            return f"{self.mean:.4g} (n = {self.n})"
-        return f"{self.mean:.4g} [{self.low:.4g}, {self.high:.4g}] (n = {self.n})"
 
 
 def _finite(values: Sequence[float] | np.ndarray) -> np.ndarray:

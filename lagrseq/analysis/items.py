@@ -9,7 +9,7 @@ any task: learning curves use episodes or environment steps on the x axis as the
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import PurePath
 from typing import Any
@@ -353,7 +353,7 @@ def build_returns(item: Item, matched: Sequence[Match]) -> Built:
     return Built(axes, pd.concat(frames, ignore_index=True), [], method)
 
 
-def _summary_row(label: str, values: np.ndarray, run: Run) -> tuple[stats.Summary, dict[str, Any]]:
+def _summary_row(label: str, values: np.ndarray, run: Run) -> tuple[stats.Interval, dict[str, Any]]:
     """Summary of per-trial counts with the interval of the mean of a positive quantity
     (:func:`lagrseq.analysis.inference.positive_mean_interval`: the same for one run in every table
     and figure that shows it; it never reaches below 0), and the provenance of the run."""
@@ -371,12 +371,12 @@ def _summary_row(label: str, values: np.ndarray, run: Run) -> tuple[stats.Summar
     return s, row
 
 
-def _positive_summary(values: np.ndarray) -> stats.Summary:
+def _positive_summary(values: np.ndarray) -> stats.Interval:
     """Mean, spread and the positive quantity's interval of per-trial values (none below
     :data:`lagrseq.analysis.inference.MIN_N_INTERVAL`)."""
     mean, std, se = stats.mean_std_se(values)
     shown = inference.positive_mean_interval(values)
-    return stats.Summary(int(np.asarray(values).size), mean, std, se, shown.low, shown.high)
+    return stats.Interval(int(np.asarray(values).size), mean, shown.low, shown.high, shown.level, std, se)
 
 
 def build_query_bars(item: Item, matched: Sequence[Match]) -> Built:
@@ -446,7 +446,7 @@ def build_query_table(item: Item, matched: Sequence[Match]) -> Built:
         row = str(key).split("|", 1)[0]
         if "|" in str(key) and row not in rows:
             rows.append(row)  # a row the paper has and these runs do not: its values, for scale
-    cells: dict[tuple[str, str], stats.Summary] = {}
+    cells: dict[tuple[str, str], stats.Interval] = {}
     notes: dict[tuple[str, str], str] = {}
     makers: dict[str, list[str]] = {}
     data = []
@@ -513,30 +513,16 @@ def build_ratio_table(item: Item, matched: Sequence[Match]) -> Built:
     others = [c for c in columns if c not in (numerator, denominator)]
     runs = {(m.row, m.spec.column): run for m, run in _present(matched)}
     notes = {(m.row, m.spec.column): m.note for m in matched}
-
-    def ratio(row: str, top_column: str) -> tuple[stats.Summary, Run, Run] | None:
-        top, bottom = runs.get((row, top_column)), runs.get((row, denominator))
-        if top is None or bottom is None:
-            return None
-        values = stats.paired_ratios(top.total_per_trial("return"), bottom.total_per_trial("return"))
-        return _positive_summary(values), top, bottom
-
-    def shown(made: tuple[stats.Summary, Run, Run] | None, row: str, column: str) -> str:
-        if made is None:
-            return "not run"
-        s = made[0]
-        note = notes.get((row, column))
-        return f"{plus_minus(s.mean, s.se, 3)} (n={s.n})" + (f"; {note}" if note else "")
-
     display = []
-    data = []
+    data: list[dict[str, Any]] = []
     for row in rows:
         paper = _reference(item, row)
-        main = ratio(row, numerator)
-        beside = [ratio(row, c) for c in others]
+        main = _run_ratio(runs, row, numerator, denominator)
+        beside = [_run_ratio(runs, row, c, denominator) for c in others]
         used = [prov.of_run(r) for x in (main, *beside) if x is not None for r in x[1:]]
         makers = prov.combined(used).kind if used else ""
-        line = [row, makers or "—", shown(main, row, numerator), *(shown(b, row, c) for b, c in zip(beside, others, strict=True))]
+        line = [row, makers or "—", _ratio_cell(main, notes.get((row, numerator))),
+                *(_ratio_cell(b, notes.get((row, c))) for b, c in zip(beside, others, strict=True))]
         for column in (numerator, *others, denominator):
             run = runs.get((row, column))
             if run is None:
@@ -547,28 +533,62 @@ def build_ratio_table(item: Item, matched: Sequence[Match]) -> Built:
         line.append(paper or "—")
         display.append(tuple(line))
         for column, result in ((numerator, main), *zip(others, beside, strict=True)):
-            if result is None:
-                continue
-            s, top, bottom = result
-            data.append(
-                {
-                    "row": row,
-                    "ratio": f"{column} / {denominator}",
-                    "main": column == numerator,
-                    "provenance": prov.combined([prov.of_run(top), prov.of_run(bottom)]).kind,
-                    "n": s.n,
-                    "ratio_mean": s.mean,
-                    "ratio_se": s.se,
-                    "ratio_std": s.std,
-                    "ci_low": s.ci_low,
-                    "ci_high": s.ci_high,
-                    "numerator_return": stats.mean_std_se(list(top.total_per_trial("return").values()))[0],
-                    "denominator_return": stats.mean_std_se(list(bottom.total_per_trial("return").values()))[0],
-                    "paper": paper if column == numerator else "",
-                }
-            )
+            if result is not None:
+                data.append(_ratio_data(row, column, numerator, denominator, result, paper))
+    table = _ratio_table(item, numerator, denominator, others, display, data)
+    beside_text = "".join(f"; {c}'s ratio over the same trials beside it" for c in others)
+    method = (
+        f"Per trial, the total return of {numerator} divided by that of {denominator} with the same trial index "
+        f"(same seed){beside_text}; mean ± standard error over trials (n per cell), and a 95% interval of the mean in the CSV (modified Cox, from the logs of the per-trial ratios: a ratio of returns is positive and the interval stays so; none below 3 trials)."
+    )
+    return Built(None, None, [(item.id, table)], method)
+
+
+_Ratio = tuple[stats.Interval, Run, Run]
+
+
+def _run_ratio(runs: Mapping[tuple[str, str | None], Run], row: str, top_column: str, denominator: str) -> _Ratio | None:
+    """The per-trial return ratio of ``top_column`` over ``denominator`` in ``row``, with its two runs."""
+    top, bottom = runs.get((row, top_column)), runs.get((row, denominator))
+    if top is None or bottom is None:
+        return None
+    values = stats.paired_ratios(top.total_per_trial("return"), bottom.total_per_trial("return"))
+    return _positive_summary(values), top, bottom
+
+
+def _ratio_cell(made: _Ratio | None, note: str | None) -> str:
+    """A ratio as its cell shows it: mean ± s.e. (n), with the cell's note."""
+    if made is None:
+        return "not run"
+    s = made[0]
+    return f"{plus_minus(s.mean, s.se, 3)} (n={s.n})" + (f"; {note}" if note else "")
+
+
+def _ratio_data(row: str, column: str, numerator: str, denominator: str, result: _Ratio, paper: str) -> dict[str, Any]:
+    """The CSV row of one ratio: its summary, provenance and the two mean returns."""
+    s, top, bottom = result
+    return {
+        "row": row,
+        "ratio": f"{column} / {denominator}",
+        "main": column == numerator,
+        "provenance": prov.combined([prov.of_run(top), prov.of_run(bottom)]).kind,
+        "n": s.n,
+        "ratio_mean": s.mean,
+        "ratio_se": s.se,
+        "ratio_std": s.std,
+        "ci_low": s.ci_low,
+        "ci_high": s.ci_high,
+        "numerator_return": stats.mean_std_se(list(top.total_per_trial("return").values()))[0],
+        "denominator_return": stats.mean_std_se(list(bottom.total_per_trial("return").values()))[0],
+        "paper": paper if column == numerator else "",
+    }
+
+
+def _ratio_table(item: Item, numerator: str, denominator: str, others: Sequence[str], display: Sequence[tuple[Any, ...]],
+                 data: Sequence[dict[str, Any]]) -> Table:
+    """The ratio table: its title, columns, displayed rows and data."""
     header = str(item.options.get("row_header", ""))
-    table = Table(
+    return Table(
         f"{item.title}: performance ratio {numerator} / {denominator}"
         + "".join(f" (beside it: {c} / {denominator})" for c in others),
         (
@@ -582,12 +602,6 @@ def build_ratio_table(item: Item, matched: Sequence[Match]) -> Built:
         tuple(display),
         pd.DataFrame(data),
     )
-    beside_text = "".join(f"; {c}'s ratio over the same trials beside it" for c in others)
-    method = (
-        f"Per trial, the total return of {numerator} divided by that of {denominator} with the same trial index "
-        f"(same seed){beside_text}; mean ± standard error over trials (n per cell), and a 95% interval of the mean in the CSV (modified Cox, from the logs of the per-trial ratios: a ratio of returns is positive and the interval stays so; none below 3 trials)."
-    )
-    return Built(None, None, [(item.id, table)], method)
 
 
 def build_accuracy(item: Item, matched: Sequence[Match]) -> Built:

@@ -21,7 +21,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import html
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Executor, Future
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -381,28 +381,14 @@ def replay(
     the command that reruns them, and not made from what their runs left; ``problems``: other
     failures to list (its suite audits), with the same fields.
     """
-    bad = [f for f in formats if f not in FORMATS]
-    if bad:
-        raise UsageError(f"unknown figure format {bad[0]!r}; expected some of {', '.join(FORMATS)}")
-    formats = ["png", *[f for f in FORMATS if f in formats and f != "png"]]
     out = Path(out)
-    for name in ("index.html", "index.md", MANIFEST):  # a link, folder or FIFO there: refused before the logs are read
-        outputs.check(out / name, "--out")
+    formats = _checked_formats(formats, out)
     jobs = loading.default_jobs() if jobs is None else jobs
     # the figures' artists are many small objects too (see loading.no_cycle_collection)
     with contextlib.ExitStack() as stack, loading.no_cycle_collection():
         stack.enter_context(outputs.outputs(out))  # every file of the report inside OUT
         painter = _Painter(None)
-
-        def found(count: int) -> None:
-            # Where the logs are read in worker processes, one more draws the figures while this
-            # one makes the next item (one: each process that draws pays importing matplotlib,
-            # about 1 s, which it does while the logs are read).
-            if loading.parallel(count, jobs):
-                painter.pool = stack.enter_context(loading.worker_pool(1))
-                painter.pending.append((painter.pool.submit(figures.ready), []))
-
-        logs = loading.load(roots, jobs, found)
+        logs = loading.load(roots, jobs, _painter_starter(painter, stack, jobs))
         if not logs.runs and not failed and not problems:  # with failures: a report that lists them
             detail = f" ({'; '.join(logs.warnings)})" if logs.warnings else ""
             raise LogError(f"no complete lagrseq trial logs under {', '.join(map(str, roots))}{detail}")
@@ -414,10 +400,7 @@ def replay(
         notes += missing_plugin_notes(logs.runs)
         reports, extra, board, written = _make(logs, suite, out, formats, provider, unavailable, price, sections, painter, failed)
         tables = findings.report_tables(((t, md) for r in reports for t, md, _csv in r.tables), extra)
-        if (shown_frontier := findings.overview_table(tables)) is not None:
-            with matplotlib.rc_context(_RC):  # type: ignore[arg-type]
-                painter.save(findings.overview_axes(*shown_frontier).figure, [(out / findings.OVERVIEW, "png")], styled=True)
-            written.append(out / findings.OVERVIEW)
+        _overview(tables, out, painter, written)
         painter.wait()
     shown = dataclasses.replace(logs, warnings=tuple(report_warnings(logs.warnings, roots)))
     title = report_title(logs.runs, suite)
@@ -428,6 +411,39 @@ def replay(
     _write(out / "index.md", _index_markdown(reports, extra, shown, produced_by, shown_board, problems, notes, title, answer), written)
     _drop_stale(out, written)
     return Report(out, logs, reports, written, {r.item.id: r.failure for r in reports if r.failure is not None}, problems, notes)
+
+
+def _checked_formats(formats: Sequence[str], out: Path) -> list[str]:
+    """The figure formats to write, png first, once they and the index files under ``out`` are checked."""
+    bad = [f for f in formats if f not in FORMATS]
+    if bad:
+        raise UsageError(f"unknown figure format {bad[0]!r}; expected some of {', '.join(FORMATS)}")
+    shown = ["png", *[f for f in FORMATS if f in formats and f != "png"]]
+    for name in ("index.html", "index.md", MANIFEST):  # a link, folder or FIFO there: refused before the logs are read
+        outputs.check(out / name, "--out")
+    return shown
+
+
+def _painter_starter(painter: _Painter, stack: contextlib.ExitStack, jobs: int) -> Callable[[int], None]:
+    """The callback that starts the figures' process once :func:`loading.load` knows the logs' count."""
+
+    def found(count: int) -> None:
+        # Where the logs are read in worker processes, one more draws the figures while this
+        # one makes the next item (one: each process that draws pays importing matplotlib,
+        # about 1 s, which it does while the logs are read).
+        if loading.parallel(count, jobs):
+            painter.pool = stack.enter_context(loading.worker_pool(1))
+            painter.pending.append((painter.pool.submit(figures.ready), []))
+
+    return found
+
+
+def _overview(tables: Sequence[tuple[str, Table]], out: Path, painter: _Painter, written: list[Path]) -> None:
+    """The overview figure of the report's frontier, where its tables hold one."""
+    if (shown_frontier := findings.overview_table(tables)) is not None:
+        with matplotlib.rc_context(_RC):  # type: ignore[arg-type]
+            painter.save(findings.overview_axes(*shown_frontier).figure, [(out / findings.OVERVIEW, "png")], styled=True)
+        written.append(out / findings.OVERVIEW)
 
 
 def report_warnings(warnings: Sequence[str], roots: Sequence[str | Path]) -> list[str]:
@@ -467,34 +483,80 @@ def _make(
     (out / "figures").mkdir(parents=True, exist_ok=True)
     (out / "tables").mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
-    reports = []
     with matplotlib.rc_context(_RC):  # type: ignore[arg-type]
-        for item in suite.items:
-            matched = items.match(
-                item, logs.runs, suite.provider, provider, dict(unavailable or {})
-            )
-            report = ItemReport(item, matched, failure=(failed or {}).get(item.id))
-            reports.append(report)
-            if not report.made:
-                continue
-            built = items.build(item, matched, price, logs.runs)
-            report.method = built.method
-            if built.axes is not None:
-                paths, report.figure_size = _save_figure(
-                    built.axes, out / "figures" / item.id, formats, painter
-                )
-                written += paths
-                report.figure = f"figures/{item.id}.png"
-                report.figure_files = [p.relative_to(out).as_posix() for p in paths]
-            if built.figure_data is not None:
-                _write(out / "figures" / f"{item.id}.csv", to_csv(built.figure_data), written)
-                report.figure_data = f"figures/{item.id}.csv"
-            _arm_animation(report, out, written)
-            for stem, table in built.tables:
-                _write(out / "tables" / f"{stem}.md", to_markdown(table), written)
-                _write(out / "tables" / f"{stem}.csv", to_csv(table.data), written)
-                report.tables.append((table, f"tables/{stem}.md", f"tables/{stem}.csv"))
+        reports = [
+            _item_report(item, logs, suite, out, formats, provider, unavailable, price, painter, failed, written)
+            for item in suite.items
+        ]
+    extra = _extra_tables(logs, price, sections, out, painter, written)
+    audits = audit.build(logs.runs)
+    board = scoreboard.build(
+        [(r.item, r.matched) for r in reports if r.made], audits,
+        failed=[(r.item, r.failure) for r in reports if r.failure is not None],
+    )
+    _write(out / "scoreboard.md", to_markdown(board), written)
+    _write(out / "tables" / "scoreboard.csv", to_csv(board.data), written)
+    testable = scoreboard.testability(board)  # which rows can read reproduced at the paper's precision
+    _write(out / "tables" / "scoreboard-testability.md", to_markdown(testable), written)
+    _write(out / "tables" / "scoreboard-testability.csv", to_csv(testable.data), written)
+    for made in audits:  # lagrseq audit runs in these logs: what each deviation does (and its interaction runs)
+        for stem, table, fig in audit.outputs(made):
+            _write_table(out, stem, table, written)
+            path = out / "figures" / f"{stem}.png"
+            painter.save(fig, [(path, "png")], styled=False)
+            written.append(path)
+            extra.append((stem, table))
+    return reports, extra, board, written
 
+
+def _item_report(
+    item: Item,
+    logs: loading.Logs,
+    suite: Suite,
+    out: Path,
+    formats: Sequence[str],
+    provider: str | None,
+    unavailable: Mapping[str, str] | None,
+    price: costs.Price | None,
+    painter: _Painter,
+    failed: Mapping[str, ItemFailure] | None,
+    written: list[Path],
+) -> ItemReport:
+    """One item's report, its figure, figure data, animation and tables written (the figure through ``painter``)."""
+    matched = items.match(
+        item, logs.runs, suite.provider, provider, dict(unavailable or {})
+    )
+    report = ItemReport(item, matched, failure=(failed or {}).get(item.id))
+    if not report.made:
+        return report
+    built = items.build(item, matched, price, logs.runs)
+    report.method = built.method
+    if built.axes is not None:
+        paths, report.figure_size = _save_figure(
+            built.axes, out / "figures" / item.id, formats, painter
+        )
+        written += paths
+        report.figure = f"figures/{item.id}.png"
+        report.figure_files = [p.relative_to(out).as_posix() for p in paths]
+    if built.figure_data is not None:
+        _write(out / "figures" / f"{item.id}.csv", to_csv(built.figure_data), written)
+        report.figure_data = f"figures/{item.id}.csv"
+    _arm_animation(report, out, written)
+    for stem, table in built.tables:
+        _write_table(out, stem, table, written)
+        report.tables.append((table, f"tables/{stem}.md", f"tables/{stem}.csv"))
+    return report
+
+
+def _extra_tables(
+    logs: loading.Logs,
+    price: costs.Price | None,
+    sections: Sequence[tuple[str, Table, Figure | None]],
+    out: Path,
+    painter: _Painter,
+    written: list[Path],
+) -> list[tuple[str, Table]]:
+    """The tables after the items (costs, runs, parts, then ``sections``), written with the sections' figures."""
     extra = [
         ("costs-by-run", costs.by_run(logs.runs, price)),
         ("costs-by-method", costs.by_method(logs.runs, price)),
@@ -508,27 +570,14 @@ def _make(
             written.append(path)
         extra.append((stem, table))
     for stem, table in extra:
-        _write(out / "tables" / f"{stem}.md", to_markdown(table), written)
-        _write(out / "tables" / f"{stem}.csv", to_csv(table.data), written)
-    audits = audit.build(logs.runs)
-    board = scoreboard.build(
-        [(r.item, r.matched) for r in reports if r.made], audits,
-        failed=[(r.item, r.failure) for r in reports if r.failure is not None],
-    )
-    _write(out / "scoreboard.md", to_markdown(board), written)
-    _write(out / "tables" / "scoreboard.csv", to_csv(board.data), written)
-    testable = scoreboard.testability(board)  # which rows can read reproduced at the paper's precision
-    _write(out / "tables" / "scoreboard-testability.md", to_markdown(testable), written)
-    _write(out / "tables" / "scoreboard-testability.csv", to_csv(testable.data), written)
-    for made in audits:  # lagrseq audit runs in these logs: what each deviation does (and its interaction runs)
-        for stem, table, fig in audit.outputs(made):
-            _write(out / "tables" / f"{stem}.md", to_markdown(table), written)
-            _write(out / "tables" / f"{stem}.csv", to_csv(table.data), written)
-            path = out / "figures" / f"{stem}.png"
-            painter.save(fig, [(path, "png")], styled=False)
-            written.append(path)
-            extra.append((stem, table))
-    return reports, extra, board, written
+        _write_table(out, stem, table, written)
+    return extra
+
+
+def _write_table(out: Path, stem: str, table: Table, written: list[Path]) -> None:
+    """``table`` as ``tables/<stem>.md`` and ``tables/<stem>.csv`` under ``out``."""
+    _write(out / "tables" / f"{stem}.md", to_markdown(table), written)
+    _write(out / "tables" / f"{stem}.csv", to_csv(table.data), written)
 
 
 MANIFEST = ".lagrseq-report"
@@ -719,7 +768,22 @@ def _index_html(
     ]
     if failures:
         parts += ['<section id="failures"><h2>Failed</h2><ul>', *(f'<li class="missing">{e(line)}</li>' for line in failures), "</ul></section>"]
-    parts.append("<ul>")
+    parts += _contents_html(reports, logs)
+    for r in reports:
+        parts += _item_html(r, produced_by)
+    parts += _extra_html(extra)
+    if logs.warnings:
+        parts.append('<section id="warnings"><h2>Warnings</h2><ul>')
+        parts += [f'<li class="warn">{e(w)}</li>' for w in logs.warnings]
+        parts.append("</ul></section>")
+    parts += ["</body>", "</html>"]
+    return "\n".join(parts) + "\n"
+
+
+def _contents_html(reports: Sequence[ItemReport], logs: loading.Logs) -> list[str]:
+    """The index page's list of contents: each item with its status, then the tables after the items."""
+    e = html.escape
+    parts = ["<ul>"]
     for r in reports:
         status = f'<span class="status{" failed" if r.status == FAILED else ""}">{e(_shown_status(r))}</span>'
         parts.append(f'<li><a href="#{e(r.item.id)}">{e(r.item.title)}</a> {status}</li>')
@@ -727,46 +791,58 @@ def _index_html(
     if logs.warnings:
         parts.append('<li><a href="#warnings">Warnings</a></li>')
     parts.append("</ul>")
-    for r in reports:
-        parts.append(f'<section id="{e(r.item.id)}">')
-        status = f'<span class="status{" failed" if r.status == FAILED else ""}">{e(_shown_status(r))}</span>'
-        parts.append(f"<h2>{e(r.item.title)} {status}</h2>")
-        if r.item.caption:
-            parts.append(f'<p class="caption">Paper: {e(r.item.caption)}</p>')
-        if not r.made:
-            parts.append(f'<p class="missing">{e(r.not_run_line())}</p>')
-            parts.append("</section>")
-            continue
-        if r.figure:
-            width, height = r.figure_size
-            parts.append(
-                f'<img src="{e(r.figure)}" alt="{e(r.item.title)}" width="{width}" height="{height}">'
-            )
-            links = [(f.rsplit(".", 1)[1].upper(), f) for f in r.figure_files]
-            if r.figure_data:
-                links.append(("data (CSV)", r.figure_data))
-            parts.append(
-                '<p class="links">'
-                + " · ".join(f'<a href="{e(h)}">{e(t)}</a>' for t, h in links)
-                + "</p>"
-            )
-        if r.animation:
-            parts.append(f'<p><img src="{e(r.animation)}" alt="{e(r.animation_note)}"></p>')
-            parts.append(f'<p class="how">{e(r.animation_note)}</p>')
-        for table, md, csv in r.tables:
-            parts.append(to_html(table, [("Markdown", md), ("CSV", csv)]))
-        how, run_lines = _how(r, produced_by)
-        parts.append(f'<p class="how">{e(how)} Runs:</p>')
-        parts.append(
-            '<ul class="how">' + "".join(f"<li>{e(line)}</li>" for line in run_lines) + "</ul>"
-        )
-        if r.item.note:
-            parts.append(f'<p class="how">Note: {e(r.item.note)}</p>')
-        if _authors_hint(r):
-            parts.append(f'<p class="how">{e(_authors_hint(r))}</p>')
-        for line in r.missing():
-            parts.append(f'<p class="missing">Missing — {e(line)}</p>')
+    return parts
+
+
+def _item_html(r: ItemReport, produced_by: str) -> list[str]:
+    """The index page's section of one item: its figure, tables, how it was made and what is missing."""
+    e = html.escape
+    parts = [f'<section id="{e(r.item.id)}">']
+    status = f'<span class="status{" failed" if r.status == FAILED else ""}">{e(_shown_status(r))}</span>'
+    parts.append(f"<h2>{e(r.item.title)} {status}</h2>")
+    if r.item.caption:
+        parts.append(f'<p class="caption">Paper: {e(r.item.caption)}</p>')
+    if not r.made:
+        parts.append(f'<p class="missing">{e(r.not_run_line())}</p>')
         parts.append("</section>")
+        return parts
+    if r.figure:
+        width, height = r.figure_size
+        parts.append(
+            f'<img src="{e(r.figure)}" alt="{e(r.item.title)}" width="{width}" height="{height}">'
+        )
+        links = [(f.rsplit(".", 1)[1].upper(), f) for f in r.figure_files]
+        if r.figure_data:
+            links.append(("data (CSV)", r.figure_data))
+        parts.append(
+            '<p class="links">'
+            + " · ".join(f'<a href="{e(h)}">{e(t)}</a>' for t, h in links)
+            + "</p>"
+        )
+    if r.animation:
+        parts.append(f'<p><img src="{e(r.animation)}" alt="{e(r.animation_note)}"></p>')
+        parts.append(f'<p class="how">{e(r.animation_note)}</p>')
+    for table, md, csv in r.tables:
+        parts.append(to_html(table, [("Markdown", md), ("CSV", csv)]))
+    how, run_lines = _how(r, produced_by)
+    parts.append(f'<p class="how">{e(how)} Runs:</p>')
+    parts.append(
+        '<ul class="how">' + "".join(f"<li>{e(line)}</li>" for line in run_lines) + "</ul>"
+    )
+    if r.item.note:
+        parts.append(f'<p class="how">Note: {e(r.item.note)}</p>')
+    if _authors_hint(r):
+        parts.append(f'<p class="how">{e(_authors_hint(r))}</p>')
+    for line in r.missing():
+        parts.append(f'<p class="missing">Missing — {e(line)}</p>')
+    parts.append("</section>")
+    return parts
+
+
+def _extra_html(extra: Sequence[tuple[str, Table]]) -> list[str]:
+    """The index page's sections of the tables after the items (costs, runs, parts, audits, ...)."""
+    e = html.escape
+    parts = []
     for stem, table in extra:
         anchor = "costs" if stem == "costs-by-run" else ("runs" if stem == "runs" else stem)
         parts.append(f'<section id="{e(anchor)}">')
@@ -776,12 +852,7 @@ def _index_html(
             to_html(table, [("Markdown", f"tables/{stem}.md"), ("CSV", f"tables/{stem}.csv")])
         )
         parts.append("</section>")
-    if logs.warnings:
-        parts.append('<section id="warnings"><h2>Warnings</h2><ul>')
-        parts += [f'<li class="warn">{e(w)}</li>' for w in logs.warnings]
-        parts.append("</ul></section>")
-    parts += ["</body>", "</html>"]
-    return "\n".join(parts) + "\n"
+    return parts
 
 
 def _index_markdown(

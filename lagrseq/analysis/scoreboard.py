@@ -344,64 +344,8 @@ def build(
         ``key`` in the item's table (``margin``: one computed from the row's own cells), tested as
         ``test`` says."""
         judged, mg = _judge(item, key, part, paper_est, paper, test, groups, margin)
-        if part.estimate.n < inference.MIN_N_INTERVAL:  # no interval on so few trials, in the test either
-            blank = inference.Interval(part.estimate.n, math.nan, math.nan, math.nan, 0.9)
-            judged = replace(judged, d90=blank, d95=blank)
-        sample = margins.paper_sample(item.id)
-        ours = part.estimate
-        verdict, reason = _shown_verdict(judged, part)
-        row = {
-            "item": item.id,
-            "title": item.title.split(":")[0],
-            "task": m.spec.task,
-            "what": what,
-            "kind": kind,
-            "test": judged.test,
-            "paper": paper,
-            "paper_value": paper_est.value if paper_est is not None else paper_number(paper),
-            "paper_se": paper_est.se if paper_est is not None else math.nan,
-            "paper_n": sample.n if sample is not None else math.nan,
-            "paper_n_why": sample.why if sample is not None else "",
-            "scale": mg.scale if mg is not None else "",
-            "margin": mg.value if mg is not None else math.nan,
-            "margin_reason": mg.why if mg is not None else "",
-            "trend": ("" if judged.test == SIZE else mg.trend) if mg is not None else "",
-            "testable": judged.testable,
-            "min_half_width": judged.min_half,
-            "source": source_name(m.provider) + (f" ({m.spec.preset} preset)" if m.spec.preset != "upstream" else ""),
-            "provenance": part.made.kind,
-            "provenance_why": part.made.why + (f"; {m.misses.text()}" if m.misses is not None else ""),
-            "on_miss": m.spec.on_miss or "",
-            "mean": ours.value,
-            "se": ours.se,
-            "ci_low": part.shown.low,
-            "ci_high": part.shown.high,
-            "trials": ours.n,
-            "difference": judged.difference,
-            "difference_df": judged.df,
-            "test_low90": judged.d90.low,
-            "test_high90": judged.d90.high,
-            "test_low95": judged.d95.low,
-            "test_high95": judged.d95.high,
-            "p_rise": judged.p,
-            "fallback_decided": part.decided,
-            "fallback_trials": part.trials,
-            # a number made on a recorded store: its answers, those the store lacked, and what
-            # answered them (refused, or a fallback that can be right)
-            "answers": m.misses.answers if m.misses is not None else None,
-            "misses": m.misses.missed if m.misses is not None else None,
-            "miss_share": m.misses.share if m.misses is not None else None,
-            "misses_answered_by": m.misses.answered_by if m.misses is not None else None,
-            "verdict": verdict,
-            "verdict_reason": reason,
-            "test_verdict": judged.verdict,
-            "digits": digits,
-            "note": m.note,
-            "preset": m.spec.preset,
-            "quantity": quantity,
-            "_config": m.run.config if m.run is not None else None,
-            "_values": part.values,
-        }
+        row = _row(item, what, paper, m, part, _blank_if_few(judged, part), mg, paper_est,
+                   digits=digits, quantity=quantity, kind=kind)
         row["explained_by"] = _gap(row, explain)
         rows.append(row)
 
@@ -417,6 +361,91 @@ def build(
     _bounds(rows)
     _same_decisions(rows)
     rows += [_failed_row(item, failure) for item, failure in failed]
+    return _board(rows)
+
+
+def _blank_if_few(judged: _Judged, part: _Part) -> _Judged:
+    """The test as judged, without intervals on fewer than :data:`inference.MIN_N_INTERVAL` trials."""
+    if part.estimate.n < inference.MIN_N_INTERVAL:  # no interval on so few trials, in the test either
+        blank = inference.Interval(part.estimate.n, math.nan, math.nan, math.nan, 0.9)
+        return replace(judged, d90=blank, d95=blank)
+    return judged
+
+
+def _row(item: Item, what: str, paper: str, m: Match, part: _Part, judged: _Judged, mg: margins.Margin | None,
+         paper_est: inference.Estimate | None, *, digits: int, quantity: str | None, kind: str) -> dict[str, Any]:
+    """The data of one scoreboard row (all but its gap column)."""
+    sample = margins.paper_sample(item.id)
+    ours = part.estimate
+    verdict, reason = _shown_verdict(judged, part)
+    return {
+        "item": item.id,
+        "title": item.title.split(":")[0],
+        "task": m.spec.task,
+        "what": what,
+        "kind": kind,
+        "test": judged.test,
+        "paper": paper,
+        "paper_value": paper_est.value if paper_est is not None else paper_number(paper),
+        "paper_se": paper_est.se if paper_est is not None else math.nan,
+        "paper_n": sample.n if sample is not None else math.nan,
+        "paper_n_why": sample.why if sample is not None else "",
+        **_margin_cells(judged, mg),
+        "source": source_name(m.provider) + (f" ({m.spec.preset} preset)" if m.spec.preset != "upstream" else ""),
+        "provenance": part.made.kind,
+        "provenance_why": part.made.why + (f"; {m.misses.text()}" if m.misses is not None else ""),
+        "on_miss": m.spec.on_miss or "",
+        "mean": ours.value,
+        "se": ours.se,
+        "ci_low": part.shown.low,
+        "ci_high": part.shown.high,
+        "trials": ours.n,
+        "difference": judged.difference,
+        "difference_df": judged.df,
+        "test_low90": judged.d90.low,
+        "test_high90": judged.d90.high,
+        "test_low95": judged.d95.low,
+        "test_high95": judged.d95.high,
+        "p_rise": judged.p,
+        "fallback_decided": part.decided,
+        "fallback_trials": part.trials,
+        **_miss_cells(m),
+        "verdict": verdict,
+        "verdict_reason": reason,
+        "test_verdict": judged.verdict,
+        "digits": digits,
+        "note": m.note,
+        "preset": m.spec.preset,
+        "quantity": quantity,
+        "_config": m.run.config if m.run is not None else None,
+        "_values": part.values,
+    }
+
+
+def _margin_cells(judged: _Judged, mg: margins.Margin | None) -> dict[str, Any]:
+    """A row's margin columns: its scale, value, reason and trend, and whether the paper's ± leaves it testable."""
+    return {
+        "scale": mg.scale if mg is not None else "",
+        "margin": mg.value if mg is not None else math.nan,
+        "margin_reason": mg.why if mg is not None else "",
+        "trend": ("" if judged.test == SIZE else mg.trend) if mg is not None else "",
+        "testable": judged.testable,
+        "min_half_width": judged.min_half,
+    }
+
+
+def _miss_cells(m: Match) -> dict[str, Any]:
+    """A row's miss columns: a recorded store's answers, its misses and what answered them."""
+    return {
+        "answers": m.misses.answers if m.misses is not None else None,
+        "misses": m.misses.missed if m.misses is not None else None,
+        "miss_share": m.misses.share if m.misses is not None else None,
+        "misses_answered_by": m.misses.answered_by if m.misses is not None else None,
+    }
+
+
+def _board(rows: list[dict[str, Any]]) -> Table:
+    """The scoreboard table of ``rows``: its caption, columns, displayed cells and data."""
     display = [_display(r) for r in rows]
     data = pd.DataFrame(rows).drop(columns=["digits", "_config", "_values"], errors="ignore")
     return Table(
@@ -563,35 +592,15 @@ def _failed_row(item: Item, failure: ItemFailure) -> dict[str, Any]:
     }
 
 
+_Cells = dict[tuple[str, str, str], tuple[Match, _Part]]
+
+
 def _query_rows(item: Item, reference: Mapping[str, Any], present: Sequence[Match], add: _Add) -> None:
     """Table 2 / Table 3: each cell's queries per run, the query reduction each row's two columns
     imply, and (where the margin table names them) the trends over the rows: the slope of each
     column and of the reduction."""
     header = str(item.options.get("row_header", "")).strip()
-
-    def named(row: str) -> str:
-        """A row by its header ("τ = 0", not a bare "0" that reads as a count)."""
-        return f"{header} = {row}" if header else row
-
-    def shown(m: Match, row: str) -> str:
-        """The row as the table names it: the paper's row, or one of its variants by what answered
-        the store's misses (Table 3 on the authors' answers: "GPT4 (misses refused)", ...)."""
-        return m.row if m.row is not None and m.row.startswith(f"{row} (misses") else row
-
-    # (row, column, source): the source is the provider and, for a row's miss variants, the variant
-    counts: dict[tuple[str, str, str], tuple[Match, _Part]] = {}
-    for key, paper in reference.items():
-        if "|" not in key:
-            continue
-        row, column = key.split("|", 1)
-        for m in present:
-            if m.spec.column == column and _fits(m, row):
-                assert m.run is not None
-                part = _count_part(m.run)
-                variant = shown(m, row)[len(row):]  # "" or " (misses refused)": the same on every row
-                counts[(row, column, m.provider + variant)] = (m, part)
-                add(item, f"{named(shown(m, row))}, {column}: queries per run", str(paper), m, part, key, 1,
-                    paper_estimate(item.id, str(paper)), quantity=audit.QUERY_COLUMNS.get(column))
+    counts = _count_rows(item, reference, present, add, header)
     columns = sorted({k.split("|", 1)[1] for k in reference if "|" in k})
     if len(columns) != 2:
         return
@@ -600,6 +609,51 @@ def _query_rows(item: Item, reference: Mapping[str, Any], present: Sequence[Matc
     if seq_col is None or lagr_col is None:
         return
     keys = sorted({k.split("|", 1)[0] for k in reference if "|" in k})
+    reductions, paper_reductions = _reduction_rows(item, reference, add, header, counts, keys, seq_col, lagr_col)
+    # trends over the rows (Table 2: over τ), where the margin table names them
+    try:
+        xs = {key: float(key) for key in keys}
+    except ValueError:
+        return
+    if len(set(xs.values())) < 2:
+        return
+    for column in (seq_col, lagr_col, margins.REDUCTION):
+        if margins.margin(item.id, f"{margins.SLOPE}|{column}") is not None:
+            _column_trends(item, reference, add, header, counts, reductions, paper_reductions, xs, column)
+
+
+def _named(header: str, row: str) -> str:
+    """A row by its header ("τ = 0", not a bare "0" that reads as a count)."""
+    return f"{header} = {row}" if header else row
+
+
+def _shown(m: Match, row: str) -> str:
+    """The row as the table names it: the paper's row, or one of its variants by what answered
+    the store's misses (Table 3 on the authors' answers: "GPT4 (misses refused)", ...)."""
+    return m.row if m.row is not None and m.row.startswith(f"{row} (misses") else row
+
+
+def _count_rows(item: Item, reference: Mapping[str, Any], present: Sequence[Match], add: _Add, header: str) -> _Cells:
+    """One row per cell's queries per run; the cells by (row, column, provider and miss variant)."""
+    counts: _Cells = {}
+    for key, paper in reference.items():
+        if "|" not in key:
+            continue
+        row, column = key.split("|", 1)
+        for m in present:
+            if m.spec.column == column and _fits(m, row):
+                assert m.run is not None
+                part = _count_part(m.run)
+                variant = _shown(m, row)[len(row):]  # "" or " (misses refused)": the same on every row
+                counts[(row, column, m.provider + variant)] = (m, part)
+                add(item, f"{_named(header, _shown(m, row))}, {column}: queries per run", str(paper), m, part, key, 1,
+                    paper_estimate(item.id, str(paper)), quantity=audit.QUERY_COLUMNS.get(column))
+    return counts
+
+
+def _reduction_rows(item: Item, reference: Mapping[str, Any], add: _Add, header: str, counts: _Cells, keys: Sequence[str],
+                    seq_col: str, lagr_col: str) -> tuple[dict[tuple[str, str], tuple[Match, _Part]], dict[str, inference.Estimate]]:
+    """One row per row and source: the query reduction its two columns imply; the reductions made."""
     reductions: dict[tuple[str, str], tuple[Match, _Part]] = {}
     paper_reductions: dict[str, inference.Estimate] = {}
     for key in keys:
@@ -620,33 +674,31 @@ def _query_rows(item: Item, reference: Mapping[str, Any], present: Sequence[Matc
             ratio = inference.ratio_estimate(seq_part.estimate, lagr_part.estimate)
             part = _part([ms.run, ml.run], _reduction(ratio), _reduction_interval(ratio, 0.95), ratio=ratio)
             reductions[(key, provider)] = (ms, part)
-            add(item, f"{named(shown(ms, key))}: query reduction with SEQ (%)", paper, ms, part, f"{key}|{margins.REDUCTION}", 1, paper_est,
-                kind="magnitude", test=REDUCTION_ROW)
-    # trends over the rows (Table 2: over τ), where the margin table names them
-    try:
-        xs = {key: float(key) for key in keys}
-    except ValueError:
-        return
-    if len(set(xs.values())) < 2:
-        return
+            add(item, f"{_named(header, _shown(ms, key))}: query reduction with SEQ (%)", paper, ms, part,
+                f"{key}|{margins.REDUCTION}", 1, paper_est, kind="magnitude", test=REDUCTION_ROW)
+    return reductions, paper_reductions
+
+
+def _column_trends(item: Item, reference: Mapping[str, Any], add: _Add, header: str, counts: _Cells,
+                   reductions: Mapping[tuple[str, str], tuple[Match, _Part]], paper_reductions: Mapping[str, inference.Estimate],
+                   xs: Mapping[str, float], column: str) -> None:
+    """The trend rows of one column (or of the reduction) over the table's rows, one per source."""
+    keys = list(xs)
     providers = sorted({p for (_, _, p) in counts})
-    for column in (seq_col, lagr_col, margins.REDUCTION):
-        if margins.margin(item.id, f"{margins.SLOPE}|{column}") is None:
+    for provider in providers:
+        cells = [reductions.get((k, provider)) if column == margins.REDUCTION else counts.get((k, column, provider)) for k in keys]
+        used = [(k, c) for k, c in zip(keys, cells, strict=True) if c is not None]
+        if len({xs[k] for k, _ in used}) < 2:
             continue
-        for provider in providers:
-            cells = [reductions.get((k, provider)) if column == margins.REDUCTION else counts.get((k, column, provider)) for k in keys]
-            used = [(k, c) for k, c in zip(keys, cells, strict=True) if c is not None]
-            if len({xs[k] for k, _ in used}) < 2:
-                continue
-            if column == margins.REDUCTION:
-                papers = [paper_reductions.get(k) for k, _ in used]
-            else:
-                papers = [paper_estimate(item.id, str(reference.get(f"{k}|{column}", ""))) for k, _ in used]
-            over = header or "rows"
-            what = f"trend: query reduction with SEQ over {over}" if column == margins.REDUCTION else f"trend: {column} queries per run over {over}"
-            unit = ("points" if column == margins.REDUCTION else "queries") + f" per unit {header or 'x'}"
-            _trend(item, add, what, f"{margins.SLOPE}|{column}", [xs[k] for k, _ in used], [c for _, c in used],
-                   [p for p in papers], unit, holds=column == margins.REDUCTION)
+        if column == margins.REDUCTION:
+            papers = [paper_reductions.get(k) for k, _ in used]
+        else:
+            papers = [paper_estimate(item.id, str(reference.get(f"{k}|{column}", ""))) for k, _ in used]
+        over = header or "rows"
+        what = f"trend: query reduction with SEQ over {over}" if column == margins.REDUCTION else f"trend: {column} queries per run over {over}"
+        unit = ("points" if column == margins.REDUCTION else "queries") + f" per unit {header or 'x'}"
+        _trend(item, add, what, f"{margins.SLOPE}|{column}", [xs[k] for k, _ in used], [c for _, c in used],
+               [p for p in papers], unit, holds=column == margins.REDUCTION)
 
 
 def _trend(item: Item, add: _Add, what: str, key: str, xs: Sequence[float], cells: Sequence[tuple[Match, _Part]],

@@ -29,15 +29,34 @@ def generator(key: str, seed: int = BOOTSTRAP_SEED) -> np.random.Generator:
 
 
 @dataclass(frozen=True)
-class Summary:
-    """One quantity over trials. ``std``, ``se`` and the interval are NaN with fewer than 2."""
+class Interval:
+    """A mean (or a difference of means) over ``n`` values with a two-sided interval at ``level``;
+    for a mean of per-trial values (:func:`summarize`, :func:`summarize_t`), also their sample
+    standard deviation ``std`` and the standard error ``se``. With fewer than two values the bounds,
+    ``std`` and ``se`` are NaN."""
 
     n: int
     mean: float
-    std: float
-    se: float
-    ci_low: float
-    ci_high: float
+    low: float
+    high: float
+    level: float = CONFIDENCE
+    std: float = math.nan
+    se: float = math.nan
+
+    @property
+    def ci_low(self) -> float:
+        """``low``, under the name of the tables' CSV column."""
+        return self.low
+
+    @property
+    def ci_high(self) -> float:
+        """``high``, under the name of the tables' CSV column."""
+        return self.high
+
+    def __str__(self) -> str:
+        if math.isnan(self.low):
+            return f"{self.mean:.4g} (n = {self.n})"
+        return f"{self.mean:.4g} [{self.low:.4g}, {self.high:.4g}] (n = {self.n})"
 
 
 def mean_std_se(values: Sequence[float] | np.ndarray) -> tuple[float, float, float]:
@@ -64,20 +83,27 @@ def bootstrap_ci(
     if x.size < 2:
         return math.nan, math.nan
     means = x[rng.integers(0, x.size, size=(resamples, x.size))].mean(axis=1)
-    tail = (1.0 - confidence) / 2.0
-    low, high = np.quantile(means, [tail, 1.0 - tail])
+    low, high = percentile_interval(means, confidence)
     return float(low), float(high)
 
 
-def summarize(values: Sequence[float] | np.ndarray, rng: np.random.Generator) -> Summary:
+def percentile_interval(draws: np.ndarray, confidence: float = CONFIDENCE, axis: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The central ``confidence`` percentile interval of bootstrap ``draws`` (along ``axis``:
+    one bound per point of a curve): the ``(1 - confidence) / 2`` quantile and its mirror."""
+    tail = (1.0 - confidence) / 2.0
+    low, high = np.quantile(draws, [tail, 1.0 - tail], axis=axis)
+    return low, high
+
+
+def summarize(values: Sequence[float] | np.ndarray, rng: np.random.Generator) -> Interval:
     """Mean, spread and a bootstrap interval of per-trial values."""
     x = np.asarray(values, dtype=float)
     mean, std, se = mean_std_se(x)
     low, high = bootstrap_ci(x, rng)
-    return Summary(int(x.size), mean, std, se, low, high)
+    return Interval(int(x.size), mean, low, high, CONFIDENCE, std, se)
 
 
-def summarize_t(values: Sequence[float] | np.ndarray, confidence: float = CONFIDENCE, positive: bool = False) -> Summary:
+def summarize_t(values: Sequence[float] | np.ndarray, confidence: float = CONFIDENCE, positive: bool = False) -> Interval:
     """Mean, spread and Student's t interval of per-trial values: the interval every table of a
     mean reports (it keeps its nominal coverage at the 2 to 10 trials of a reproduction, where the
     percentile bootstrap under-covers; :mod:`lagrseq.analysis.inference`). ``positive``: the
@@ -88,7 +114,7 @@ def summarize_t(values: Sequence[float] | np.ndarray, confidence: float = CONFID
     x = np.asarray(values, dtype=float)
     mean, std, se = mean_std_se(x)
     interval = mean_estimate(x).log_interval(confidence) if positive else t_interval(x, confidence)
-    return Summary(int(x.size), mean, std, se, interval.low, interval.high)
+    return Interval(int(x.size), mean, interval.low, interval.high, confidence, std, se)
 
 
 @dataclass(frozen=True)
@@ -227,8 +253,7 @@ def stratified_bootstrap_ci(
         return math.nan, math.nan
     picks = [rng.integers(0, g.size, size=(resamples, g.size)) for g in groups]
     values = np.array([statistic([g[p[i]] for g, p in zip(groups, picks, strict=True)]) for i in range(resamples)])
-    tail = (1.0 - confidence) / 2.0
-    low, high = np.quantile(values, [tail, 1.0 - tail])
+    low, high = percentile_interval(values, confidence)
     return float(low), float(high)
 
 
@@ -244,8 +269,7 @@ def iqm_ci(
     drawn = np.sort(np.concatenate([g[rng.integers(0, g.size, size=(resamples, g.size))] for g in groups], axis=1), axis=1)
     cut = int(0.25 * drawn.shape[1])
     values = drawn[:, cut : drawn.shape[1] - cut].mean(axis=1)
-    tail = (1.0 - confidence) / 2.0
-    low, high = np.quantile(values, [tail, 1.0 - tail])
+    low, high = percentile_interval(values, confidence)
     return value, float(low), float(high)
 
 
@@ -283,8 +307,7 @@ def probability_of_improvement_ci(
         ties = (ra[:, :, None] == rb[:, None, :]).sum(axis=(1, 2))
         total += (greater + 0.5 * ties) / (a.size * b.size)
     values = total / len(xs)
-    tail = (1.0 - confidence) / 2.0
-    low, high = np.quantile(values, [tail, 1.0 - tail])
+    low, high = percentile_interval(values, confidence)
     return value, float(low), float(high)
 
 
@@ -316,6 +339,5 @@ def performance_profile_ci(
     curves = np.array(
         [performance_profile(np.concatenate([g[p[i]] for g, p in zip(groups, picks, strict=True)]), taus) for i in range(resamples)]
     )
-    tail = (1.0 - confidence) / 2.0
-    low, high = np.quantile(curves, [tail, 1.0 - tail], axis=0)
+    low, high = percentile_interval(curves, confidence, axis=0)
     return profile, low, high

@@ -406,79 +406,87 @@ def servicer(
     Every call is checked against ``security`` (its token, the table's bound) and logged with
     its peer through ``log`` (default: a line on stderr)."""
     grpc, pb, pb_grpc = _grpc()
-    from lagrseq.robot.render import png_bytes
+    servicer_class = type("Servicer", (_RobotCalls, pb_grpc.RobotServicer), {})
+    return servicer_class(robot, description, security or ServiceSecurity(), log or _stderr_log, grpc, pb)
 
-    guard = security or ServiceSecurity()
-    say = log or _stderr_log
-    expected = f"Bearer {guard.token}".encode() if guard.token else None
-    lock = threading.Lock()
-    placed = [0]  # objects on the table (placements since the last Clear)
 
-    def admit(method: str, context: Any, what: str = "") -> None:
+class _RobotCalls:
+    """The robot service's calls, mixed into the generated servicer by :func:`servicer`."""
+
+    def __init__(self, robot: Robot, description: str, guard: ServiceSecurity, say: Callable[[str], None],
+                 grpc: Any, pb: Any) -> None:
+        from lagrseq.robot.render import png_bytes
+
+        self._robot, self._description, self._guard, self._say = robot, description, guard, say
+        self._grpc, self._pb, self._png_bytes = grpc, pb, png_bytes
+        self._expected = f"Bearer {guard.token}".encode() if guard.token else None
+        self._lock = threading.Lock()
+        self._placed = 0  # objects on the table (placements since the last Clear)
+
+    def _admit(self, method: str, context: Any, what: str = "") -> None:
         """Refuse a call without the token (UNAUTHENTICATED); log every call with its peer."""
         peer = context.peer()
-        if expected is not None:
+        if self._expected is not None:
             given = dict(context.invocation_metadata()).get("authorization", "")
-            if not hmac.compare_digest(expected, given.encode("utf-8", "replace")):
-                say(f"{method} from {peer}: refused (UNAUTHENTICATED: {'wrong token' if given else 'no token'})")
-                context.abort(grpc.StatusCode.UNAUTHENTICATED, "this robot service needs its token (authorization: Bearer TOKEN)")
-        say(f"{method}{what} from {peer}")
+            if not hmac.compare_digest(self._expected, given.encode("utf-8", "replace")):
+                self._say(f"{method} from {peer}: refused (UNAUTHENTICATED: {'wrong token' if given else 'no token'})")
+                context.abort(self._grpc.StatusCode.UNAUTHENTICATED, "this robot service needs its token (authorization: Bearer TOKEN)")
+        self._say(f"{method}{what} from {peer}")
 
-    class Servicer(pb_grpc.RobotServicer):  # type: ignore[misc, name-defined]
-        def Describe(self, request: Any, context: Any) -> Any:
-            admit("Describe", context)
-            with lock:
-                names = robot.joint_state().names
-            cell = getattr(getattr(robot, "workspace", None), "cell_size", 0.05)
-            return pb.Description(rows=robot.rows, cols=robot.cols, cell_size=cell, joint_names=names, robot=description)
+    def Describe(self, request: Any, context: Any) -> Any:
+        self._admit("Describe", context)
+        robot = self._robot
+        with self._lock:
+            names = robot.joint_state().names
+        cell = getattr(getattr(robot, "workspace", None), "cell_size", 0.05)
+        return self._pb.Description(rows=robot.rows, cols=robot.cols, cell_size=cell, joint_names=names, robot=self._description)
 
-        def Place(self, request: Any, context: Any) -> Any:
-            admit("Place", context, f"({request.row}, {request.col})")
-            if not (0 <= request.row < robot.rows and 0 <= request.col < robot.cols):
-                context.abort(grpc.StatusCode.INVALID_ARGUMENT, f"cell ({request.row}, {request.col}) is outside the {robot.rows}x{robot.cols} grid")
-            with lock:
-                if placed[0] >= guard.max_objects:
-                    say(f"Place refused: {placed[0]} objects on the table (the bound)")
-                    context.abort(
-                        grpc.StatusCode.FAILED_PRECONDITION,
-                        f"the table holds {placed[0]} objects, the most this service allows; call Clear first",
-                    )
-                r = robot.place(request.row, request.col)
-                placed[0] += 1
-            return pb.Placement(row=r.row, col=r.col, outcome=r.outcome, offset_mm=r.offset_mm, tilt_deg=r.tilt_deg,
-                                height_mm=r.height_mm, landed_row=r.landed_row, landed_col=r.landed_col, sim_steps=r.sim_steps)
+    def Place(self, request: Any, context: Any) -> Any:
+        self._admit("Place", context, f"({request.row}, {request.col})")
+        robot = self._robot
+        if not (0 <= request.row < robot.rows and 0 <= request.col < robot.cols):
+            context.abort(self._grpc.StatusCode.INVALID_ARGUMENT, f"cell ({request.row}, {request.col}) is outside the {robot.rows}x{robot.cols} grid")
+        with self._lock:
+            if self._placed >= self._guard.max_objects:
+                self._say(f"Place refused: {self._placed} objects on the table (the bound)")
+                context.abort(
+                    self._grpc.StatusCode.FAILED_PRECONDITION,
+                    f"the table holds {self._placed} objects, the most this service allows; call Clear first",
+                )
+            r = robot.place(request.row, request.col)
+            self._placed += 1
+        return self._pb.Placement(row=r.row, col=r.col, outcome=r.outcome, offset_mm=r.offset_mm, tilt_deg=r.tilt_deg,
+                                  height_mm=r.height_mm, landed_row=r.landed_row, landed_col=r.landed_col, sim_steps=r.sim_steps)
 
-        def Clear(self, request: Any, context: Any) -> Any:
-            admit("Clear", context)
-            with lock:
-                robot.clear()
-                placed[0] = 0
-            return pb.ClearReply()
+    def Clear(self, request: Any, context: Any) -> Any:
+        self._admit("Clear", context)
+        with self._lock:
+            self._robot.clear()
+            self._placed = 0
+        return self._pb.ClearReply()
 
-        def Observe(self, request: Any, context: Any) -> Any:
-            admit("Observe", context)
-            with lock:
-                grid = robot.observe()
-            return pb.Occupancy(rows=robot.rows, cols=robot.cols, cells=[int(c) for c in np.asarray(grid).ravel()])
+    def Observe(self, request: Any, context: Any) -> Any:
+        self._admit("Observe", context)
+        with self._lock:
+            grid = self._robot.observe()
+        return self._pb.Occupancy(rows=self._robot.rows, cols=self._robot.cols, cells=[int(c) for c in np.asarray(grid).ravel()])
 
-        def GetJointState(self, request: Any, context: Any) -> Any:
-            admit("GetJointState", context)
-            with lock:
-                state = robot.joint_state()
-            return pb.JointState(names=state.names, positions=state.positions)
+    def GetJointState(self, request: Any, context: Any) -> Any:
+        self._admit("GetJointState", context)
+        with self._lock:
+            state = self._robot.joint_state()
+        return self._pb.JointState(names=state.names, positions=state.positions)
 
-        def Render(self, request: Any, context: Any) -> Any:
-            admit("Render", context, f"({request.width}, {request.height})")
-            if not (16 <= request.width <= 1920 and 16 <= request.height <= 1440):
-                context.abort(grpc.StatusCode.INVALID_ARGUMENT, f"image {request.width}x{request.height}; expected 16..1920 x 16..1440")
-            with lock:
-                rgb = robot.render(request.width, request.height)
-            if rgb is None:
-                context.abort(grpc.StatusCode.UNIMPLEMENTED, "this robot has no camera")
-                return None
-            return pb.Image(width=request.width, height=request.height, png=png_bytes(rgb))
-
-    return Servicer()
+    def Render(self, request: Any, context: Any) -> Any:
+        self._admit("Render", context, f"({request.width}, {request.height})")
+        if not (16 <= request.width <= 1920 and 16 <= request.height <= 1440):
+            context.abort(self._grpc.StatusCode.INVALID_ARGUMENT, f"image {request.width}x{request.height}; expected 16..1920 x 16..1440")
+        with self._lock:
+            rgb = self._robot.render(request.width, request.height)
+        if rgb is None:
+            context.abort(self._grpc.StatusCode.UNIMPLEMENTED, "this robot has no camera")
+            return None
+        return self._pb.Image(width=request.width, height=request.height, png=self._png_bytes(rgb))
 
 
 def start_server(

@@ -1075,17 +1075,9 @@ def report_sections(root: Path | None = None) -> tuple[list[tuple[str, Any, Any]
     line saying what they were made of (or why there are none). The files are read under
     ``root``; by default under the current directory, else under the source checkout lagrseq was
     installed from (an editable install: ``reproduce`` started in another directory finds them)."""
-    if root is None:
-        from lagrseq.paths import source_checkout
-
-        roots = [Path("."), source_checkout()]
-        root = next((where for where in roots if any(where.glob(SCREEN_FILES))), roots[0])
-        where = "here or in a lagrseq source checkout (a non-editable install ships none)"
-    else:
-        where = f"under {root}"
+    root, where = _sections_root(root)
     import pandas as pd
 
-    from lagrseq.analysis.tables import Table
     from lagrseq.running.recording import record_config
     from lagrseq.tasks.cube import AUTHORS_T0
 
@@ -1098,11 +1090,35 @@ def report_sections(root: Path | None = None) -> tuple[list[tuple[str, Any, Any]
         # a grid prompt does not name its target: files of another one say it in their name
         screens += screens_from(group, configs if target is None else [record_config(SCREEN_TASKS[1], "upstream", None, [f"task.target={target}"])])
     data = pd.read_csv(io.StringIO(csv_text(screens)))
+    sections = _screen_sections(screens, len(files), data)
+    temperature_files = sorted(root.glob(TEMPERATURE_FILES))
+    if temperature_files and AUTHORS_T0.temperature is not None:
+        sections += _temperature_sections(screens_from(temperature_files, configs[:1]), AUTHORS_T0.temperature)
+    return sections, f"open models: {len(files)} recorded answer files, {sum(s.n for s in screens)} answers of {len({s.model for s in screens})} models"
+
+
+def _sections_root(root: Path | None) -> tuple[Path, str]:
+    """The folder the open-model sections are read under, and the words that say where it was looked for."""
+    if root is not None:
+        return root, f"under {root}"
+    from lagrseq.paths import source_checkout
+
+    roots = [Path("."), source_checkout()]
+    found = next((where for where in roots if any(where.glob(SCREEN_FILES))), roots[0])
+    return found, "here or in a lagrseq source checkout (a non-editable install ships none)"
+
+
+def _screen_sections(screens: Sequence[Screen], files: int, data: Any) -> list[tuple[str, Any, Any]]:
+    """The screen's sections: the models overall (with the figure), per cell, and compared (where any compare)."""
+    import pandas as pd
+
+    from lagrseq.analysis.tables import Table
+
     sections: list[tuple[str, Any, Any]] = [
         (
             "open-models",
             Table(
-                f"Open models: screen of {len({s.model for s in screens})} GGUF models at τ = 0 (provenance: open model; {len(files)} recorded answer files, {sum(s.n for s in screens)} answers)",
+                f"Open models: screen of {len({s.model for s in screens})} GGUF models at τ = 0 (provenance: open model; {files} recorded answer files, {sum(s.n for s in screens)} answers)",
                 OVERALL_COLUMNS,
                 tuple(overall_rows(screens)),
                 data,
@@ -1128,35 +1144,38 @@ def report_sections(root: Path | None = None) -> tuple[list[tuple[str, Any, Any]
                 None,
             )
         )
-    temperature_files = sorted(root.glob(TEMPERATURE_FILES))
-    if temperature_files and AUTHORS_T0.temperature is not None:
-        real = screens_from(temperature_files, configs[:1])
-        tests = temperature_tests(real, AUTHORS_T0.temperature)
-        test_table = temperature_test_rows(tests)
-        sections.append(
-            (
-                "open-models-temperature-test",
-                Table(
-                    f"Open models: the temperature model's likelihood-ratio test per prefix (nothing fitted; parametric bootstrap of {RESAMPLES} draws from the model)",
-                    TEST_COLUMNS,
-                    tuple(test_table),
-                    pd.DataFrame(test_table, columns=["model", "tau", "prefixes", "answers", "G", "df", "p_chi2", "p_bootstrap", "result"]),
-                ),
-                None,
-            )
-        )
-        rows = temperature_rows(real, AUTHORS_T0.temperature, tests)
-        frame = pd.DataFrame(rows, columns=["model", "tau", "shown", "predicted", "measured", "inside"])
-        sections.append(
-            (
-                "open-models-temperature",
-                Table(
-                    "Open models: the mock's temperature model (P(right | τ) = P(right | 0) × (1 - τ·drop)) tested on real τ > 0 answers, not refitted",
-                    ("model", "τ", "shown", "predicted from τ = 0", "measured (Wilson 95% CI over the prefix's answers)", "prediction inside CI (all prefixes: the test)"),
-                    tuple(rows),
-                    frame,
-                ),
-                _with_predictions(figure(real), real, AUTHORS_T0.temperature),
-            )
-        )
-    return sections, f"open models: {len(files)} recorded answer files, {sum(s.n for s in screens)} answers of {len({s.model for s in screens})} models"
+    return sections
+
+
+def _temperature_sections(real: Sequence[Screen], model: Any) -> list[tuple[str, Any, Any]]:
+    """The temperature sections of ``model`` (the mock's temperature model): its likelihood-ratio test, and its predictions against real τ > 0 answers."""
+    import pandas as pd
+
+    from lagrseq.analysis.tables import Table
+
+    tests = temperature_tests(real, model)
+    test_table = temperature_test_rows(tests)
+    rows = temperature_rows(real, model, tests)
+    frame = pd.DataFrame(rows, columns=["model", "tau", "shown", "predicted", "measured", "inside"])
+    return [
+        (
+            "open-models-temperature-test",
+            Table(
+                f"Open models: the temperature model's likelihood-ratio test per prefix (nothing fitted; parametric bootstrap of {RESAMPLES} draws from the model)",
+                TEST_COLUMNS,
+                tuple(test_table),
+                pd.DataFrame(test_table, columns=["model", "tau", "prefixes", "answers", "G", "df", "p_chi2", "p_bootstrap", "result"]),
+            ),
+            None,
+        ),
+        (
+            "open-models-temperature",
+            Table(
+                "Open models: the mock's temperature model (P(right | τ) = P(right | 0) × (1 - τ·drop)) tested on real τ > 0 answers, not refitted",
+                ("model", "τ", "shown", "predicted from τ = 0", "measured (Wilson 95% CI over the prefix's answers)", "prediction inside CI (all prefixes: the test)"),
+                tuple(rows),
+                frame,
+            ),
+            _with_predictions(figure(real), real, model),
+        ),
+    ]
