@@ -581,7 +581,7 @@ def judge_untestable(inner: Interval, wide: Interval, target: float, margin: flo
     if math.isnan(wide.low):
         return Equivalence(INCONCLUSIVE, target, margin, inner, wide, f"n = {inner.n}: no interval")
     if wide.low <= target <= wide.high:
-        return Equivalence(CONSISTENT, target, margin, inner, wide, "the 95% interval holds the paper's value; the paper's own ± is too wide for its margin")
+        return Equivalence(CONSISTENT, target, margin, inner, wide, "the test's 95% interval of lagrseq - paper, the paper's own ± included, holds 0; that ± is too wide to test the margin")
     beyond = wide.high < target - margin or wide.low > target + margin
     why = "the 95% interval excludes the margin band" if beyond else "the 95% interval excludes the paper's value (not beyond its margin)"
     return Equivalence(DIFFERS, target, margin, inner, wide, why)
