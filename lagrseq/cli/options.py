@@ -4,17 +4,51 @@ number types every value from the command line is checked by where it enters."""
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable
+import textwrap
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any, NoReturn
 
 from lagrseq.cli.output import _say, _shown
 
-_RAW = argparse.RawDescriptionHelpFormatter
+HELP_COLUMN = 30
+"""Where an option's help starts: an option with its metavar up to 26 characters shares its line."""
+
+
+class _Help(argparse.RawDescriptionHelpFormatter):
+    """``--help`` that fits a screen: each option's help beside it from :data:`HELP_COLUMN`, a
+    usage longer than four lines cut to ``[options]`` and what is required, prose paragraphs
+    wrapped to the terminal, examples (paragraphs of several lines) kept as written."""
+
+    def __init__(self, prog: str) -> None:
+        super().__init__(prog, max_help_position=HELP_COLUMN)
+
+    def _split_lines(self, text: str, width: int) -> list[str]:  # "arm-arrangement" stays whole
+        return textwrap.wrap(" ".join(text.split()), width, break_on_hyphens=False)
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        return "\n\n".join(
+            part if "\n" in part else textwrap.fill(" ".join(part.split()), width, initial_indent=indent, subsequent_indent=indent)
+            for part in text.split("\n\n")
+        )
+
+    def _format_usage(self, usage: str | None, actions: Iterable[argparse.Action], groups: Iterable[Any], prefix: str | None) -> str:
+        actions = list(actions)
+        full = super()._format_usage(usage, actions, groups, prefix)
+        if usage is not None or full.count("\n") <= 4:  # three lines at most, then a blank one
+            return full
+        kept = [a for a in actions if not a.option_strings or a.required]
+        short = super()._format_usage(usage, kept, [], prefix)
+        head = f"{'usage: ' if prefix is None else prefix}{self._prog}"
+        return short.replace(head, f"{head} [options]", 1)
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse with one-line errors (the usage block is what --help is for)."""
+    """argparse with one-line errors (the usage block is what --help is for) and :class:`_Help`."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("formatter_class", _Help)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> NoReturn:  # the value refused may be the key, or hold a newline
         self.exit(2, f"{self.prog}: error: {_shown(message)} (see {self.prog} --help)\n")
@@ -49,11 +83,7 @@ def _number_types() -> dict[str, Callable[[str], Any]]:
 
 
 _N = _number_types()
-
-
 _COUNT, _SEED, _BUDGET, _LIMIT, _TEMPERATURE = _N["count"], _N["seed"], _N["budget"], _N["limit"], _N["temperature"]
-
-
 _PORT = _N["port"]
 
 
@@ -73,7 +103,7 @@ def _experiment_options() -> argparse.ArgumentParser:
 
     p = argparse.ArgumentParser(add_help=False)
     g = p.add_argument_group("configuration")
-    g.add_argument("--preset", choices=PRESETS, default="upstream", help="upstream: as the released code runs (default); paper: as the paper's text says (docs/presets.md)")
+    g.add_argument("--preset", choices=PRESETS, default="upstream", help="upstream (the released code's; default) or paper (docs/presets.md)")
     g.add_argument("--config", type=Path, default=None, metavar="FILE.toml", help="a TOML file of [section] fields applied over the preset")
     g.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.FIELD=VALUE", help="override one field (repeatable), e.g. --set env.horizon=100")
     return p
@@ -160,16 +190,19 @@ def drop_clashing_plugin_flags() -> None:
 
 
 def _add_provider_flags(p: argparse.ArgumentParser, per: str, only: tuple[str, ...] | None = None) -> None:
-    """The provider flags (``only``: those setting these fields, with their defaults: serve-llm)."""
-    from lagrseq.registry import PROVIDERS, option_fields, option_flags, options_type
+    """The provider flags (``only``: those setting these fields, with their defaults: serve-llm):
+    those a built-in kind reads in one group, each plugin kind's own under its usage."""
+    from lagrseq.registry import BUILTIN, PROVIDERS, option_fields, option_flags, options_type
 
     drop_clashing_plugin_flags()
-    readers = {kind.usage: {o.name for o in option_fields(options_type(kind))} for kind in PROVIDERS.specs()}
+    readers = {e.spec.usage: {o.name for o in option_fields(options_type(e.spec))} for e in PROVIDERS.entries()}
+    built_in = {o.name for e in PROVIDERS.entries() if e.distribution == BUILTIN for o in option_fields(options_type(e.spec))}
     groups: dict[str, Any] = {}
     for name, option in option_flags().items():
         if only is not None and name not in only:
             continue
-        title = "options of --provider " + ", ".join(usage for usage, names in readers.items() if name in names)
+        title = PROVIDER_OPTIONS if name in built_in else "options of --provider " + ", ".join(
+            usage for usage, names in readers.items() if name in names)
         group = groups.get(title) or groups.setdefault(title, p.add_argument_group(title))
         f = option.flag
         assert f is not None  # option_flags holds flagged fields only
@@ -180,15 +213,19 @@ def _add_provider_flags(p: argparse.ArgumentParser, per: str, only: tuple[str, .
         )
 
 
+PROVIDER_OPTIONS = "provider options (which --provider kinds read each: docs/providers.md)"
+"""The title of the built-in provider kinds' flags (a plugin kind's own flags: its own group)."""
+
+
 def _executor_options() -> argparse.ArgumentParser:
     """Where trials run: this machine's processes or Dask (run and reproduce)."""
     from lagrseq.running.executors import EXECUTORS
 
     p = argparse.ArgumentParser(add_help=False)
     g = p.add_argument_group("execution")
-    g.add_argument("--executor", choices=EXECUTORS, default="local", help="local: --jobs processes here (default); dask: a Dask cluster (the dask extra; docs/dask.md)")
-    g.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="with --executor dask: an existing scheduler, e.g. SLURM's (docs/dask.md)")
-    g.add_argument("--retries", type=_N["retries"], default=0, metavar="N", help="rerun a trial that raised up to N more times (default 0: trials are deterministic)")
+    g.add_argument("--executor", choices=EXECUTORS, default="local", help="local (--jobs processes here; default) or dask (docs/dask.md)")
+    g.add_argument("--scheduler", default=None, metavar="URL", help="with --executor dask: an existing scheduler, tcp://HOST:PORT")
+    g.add_argument("--retries", type=_N["retries"], default=0, metavar="N", help="rerun a trial that raised up to N times (default 0: deterministic)")
     return p
 
 
@@ -221,20 +258,21 @@ def _report_options() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(add_help=False)
     g = p.add_argument_group("report")
     g.add_argument("--formats", type=_formats, default=["png"], metavar="png,svg,pdf", help="figure formats; PNG is always written (default: png)")
-    g.add_argument("--suite", default=None, metavar="FILE.toml|TASK", help="a suite file (docs/suites.md), or a task that ships one, instead of the default: the paper's suite (replay: and the suites of the logged tasks)")
-    g.add_argument("--price-table", default=None, metavar="FILE.toml", help="re-cost every logged query's token usage with these prices over the built-in dated table")
+    g.add_argument("--suite", default=None, metavar="FILE.toml|TASK", help="suite file or task shipping one (default: the paper's; docs/suites.md)")
+    g.add_argument("--price-table", default=None, metavar="FILE.toml", help="re-cost logged queries with these prices over the built-in dated table")
     return p
 
 
-def _provider_argument(p: argparse.ArgumentParser, default: str | None, role: str, records: bool = False) -> None:
+def _provider_argument(p: argparse.ArgumentParser, default: str | None, role: str, records: bool = False, shown: str | None = None) -> None:
     """``--provider SPEC``, the one definition: its help lists the registered provider kinds
-    (``records``: only those ``lagrseq record`` can ask); ``lagrseq plugins`` describes each."""
+    (``records``: only those ``lagrseq record`` can ask; ``shown``: what no ``--provider``
+    means, when ``default`` is None); ``lagrseq plugins`` describes each."""
     from lagrseq.registry import PROVIDERS
 
     kinds = [k for k in PROVIDERS.specs() if k.records or not records]
     forms = "; ".join(k.usage for k in kinds)
-    shown = "any" if default is None else default
-    p.add_argument("--provider", default=default, metavar="SPEC", help=f"{role} (default: {shown}); {forms} (docs/providers.md)")
+    shown = (shown or "any") if default is None else default
+    p.add_argument("--provider", default=default, metavar="SPEC", help=f"{role} (default: {shown}): {forms}")
 
 
 def _provider_options(args: argparse.Namespace, elsewhere: tuple[str, ...] = ()) -> Any:

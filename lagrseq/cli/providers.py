@@ -9,7 +9,6 @@ from typing import Any
 
 from lagrseq.cli.options import (
     _N,
-    _RAW,
     _TEMPERATURE,
     _add_provider_flags,
     _experiment_options,
@@ -44,23 +43,22 @@ def _add_record(sub: Any) -> None:
         ),
         epilog=(
             "examples:\n"
-            "  lagrseq record cube-stacking --model gpt-3.5-turbo --temperature 0 --samples 10 --store store/ --max-cost-usd 1\n"
-            "  lagrseq record cube-stacking --model gpt-4o-mini --temperature 1 --samples 10 --store store/ --set task.stack_size=11\n"
-            "  lagrseq record cube-stacking --model llama3 --base-url http://localhost:11434/v1 --server ollama --store store/\n"
+            "  lagrseq record cube-stacking --model gpt-3.5-turbo --temperature 0 \\\n      --samples 10 --store store/ --max-cost-usd 1\n"
+            "  lagrseq record cube-stacking --model gpt-4o-mini --temperature 1 \\\n      --samples 10 --store store/ --set task.stack_size=11\n"
+            "  lagrseq record cube-stacking --model llama3 --base-url http://localhost:11434/v1 \\\n      --server ollama --store store/\n"
             "  lagrseq record cube-stacking --from-runs runs/cube-stacking --model gpt-4 --store store/"
         ),
-        formatter_class=_RAW,
     )
     _task_argument(p)
     p.add_argument("--store", type=Path, required=True, metavar="STORE", help="store directory (created if missing)")
     p.add_argument("--model", default=None, help="model to ask (default: the preset's llm.model)")
     p.add_argument("--temperature", type=_TEMPERATURE, default=None, metavar="T", help="sampling temperature, 0 to 2 (default: the preset's llm.temperature)")
-    p.add_argument("--samples", type=_N["samples"], default=10, metavar="K", help="answers to keep per prompt (default 10, as the paper's authors recorded)")
-    p.add_argument("--mode", choices=RECORD_MODES, default="new", help="new: top every prompt up to K (default); once: only into an empty store; none: report what is missing; all: K fresh")
-    p.add_argument("--from-runs", nargs="+", default=None, metavar="RUN", help="MCAP logs or directories: ask from the states met there, not the default prompt set")
-    p.add_argument("--states-from", choices=STATE_TOPICS, default="/query", help="with --from-runs: the states of /query records (where a query was decided, default) or of every /transition")
-    _provider_argument(p, "live", "the model asked (local answers are replayed with --base-url local)", records=True)
-    p.add_argument("--concurrency", type=_N["concurrency"], default=1, metavar="N", help="requests in flight at once (default 1); the budget counts them at their worst case")
+    p.add_argument("--samples", type=_N["samples"], default=10, metavar="K", help="answers to keep per prompt (default 10, as the authors recorded)")
+    p.add_argument("--mode", choices=RECORD_MODES, default="new", help="new (top up to K; default), once (empty store), none (check), all")
+    p.add_argument("--from-runs", nargs="+", default=None, metavar="RUN", help="MCAP logs or folders: ask from the states met there")
+    p.add_argument("--states-from", choices=STATE_TOPICS, default="/query", metavar="TOPIC", help="with --from-runs: states of /query (default) or every /transition")
+    _provider_argument(p, "live", "the model asked", records=True)
+    p.add_argument("--concurrency", type=_N["concurrency"], default=1, metavar="N", help="requests in flight (default 1); the budget counts each at its worst")
 
 
 def _add_cache(sub: Any) -> None:
@@ -87,19 +85,18 @@ def _add_cache(sub: Any) -> None:
             "  lagrseq cache import ../shared/data/authors_caches/cube_stacking_cache0.0.pkl \\\n"
             "      --task cube-stacking --model gpt-3.5-turbo --temperature 0 --store store/\n"
             "  lagrseq cache import ../shared/data/authors_caches/cube_stacking_cache0.pkl \\\n"
-            "      --task cube-stacking --set task.stack_size=11 --model gpt-3.5-turbo --temperature 0 --store store/\n"
+            "      --task cube-stacking --set task.stack_size=11 \\\n      --model gpt-3.5-turbo --temperature 0 --store store/\n"
             "  lagrseq cache import recorded_llm/cube-gpt35-t0.jsonl --store store/"
         ),
-        formatter_class=_RAW,
     )
     imp.add_argument("file", type=Path, metavar="FILE", help="FILE.jsonl (a lagrseq export) or an authors' cache pickle")
     imp.add_argument("--store", type=Path, required=True, metavar="STORE", help="store directory (created if missing)")
     imp.add_argument("--format", choices=("auto", "jsonl", "pkl"), default="auto", help="auto: .jsonl is JSONL, anything else a pickle (default)")
-    imp.add_argument("--task", choices=tasks(), default=None, help="pickles: the task whose prompts the keys are rendered with")
+    imp.add_argument("--task", choices=tasks(), default=None, metavar="TASK", help="pickles: the task whose prompts the keys are rendered with")
     imp.add_argument("--model", default=None, help="pickles: the model the answers came from (keys include it)")
     imp.add_argument("--temperature", type=_TEMPERATURE, default=None, metavar="T", help="pickles: the temperature they were sampled at")
-    imp.add_argument("--max-tokens", type=_N["max_tokens"], default=None, metavar="N", help="pickles: max tokens of the keys (default: the preset's llm.max_tokens, what runs send)")
-    imp.add_argument("--base-url", default=DEFAULT_BASE_URL, metavar="URL", help=f"pickles: the server they came from; its host goes into the keys (default: {DEFAULT_BASE_URL})")
+    imp.add_argument("--max-tokens", type=_N["max_tokens"], default=None, metavar="N", help="pickles: the keys' max tokens (default: the preset's llm.max_tokens)")
+    imp.add_argument("--base-url", default=DEFAULT_BASE_URL, metavar="URL", help=f"pickles: their server (default: {DEFAULT_BASE_URL})")
     exp = actions.add_parser("export", help="write every recorded answer of a store to JSONL", description="Write STORE as JSONL, one answer per line, in a stable order (keys sorted, answers in recorded order).")
     exp.add_argument("--store", type=Path, required=True, metavar="STORE")
     exp.add_argument("--out", required=True, metavar="FILE.jsonl", help="output file, or - for standard output")
@@ -133,10 +130,9 @@ def _add_serve_llm(sub: Any) -> None:
         epilog=(
             "examples:\n"
             "  lagrseq serve-llm --port 8080\n"
-            "  lagrseq run cube-stacking --provider live:SmolLM2-135M-Instruct --base-url http://127.0.0.1:8080/v1 --server llama.cpp\n"
+            "  lagrseq run cube-stacking --provider live:SmolLM2-135M-Instruct \\\n      --base-url http://127.0.0.1:8080/v1 --server llama.cpp\n"
             "  lagrseq serve-llm ~/models/qwen2.5-0.5b-instruct-q4_k_m.gguf --port 8081 --threads 4"
         ),
-        formatter_class=_RAW,
     )
     p.add_argument("model", nargs="?", default="", metavar="MODEL.gguf", help="a GGUF model file (default: the packaged SmolLM2-135M-Instruct)")
     p.add_argument("--port", type=_N["port"], default=8080, help="port on 127.0.0.1 (default 8080; 0: a free one)")

@@ -10,7 +10,6 @@ from typing import Any
 
 from lagrseq.cli.options import (
     _N,
-    _RAW,
     _SEED,
     _executor_options,
     _provider_argument,
@@ -48,12 +47,11 @@ def _add_replay(sub: Any) -> None:
             "  lagrseq replay runs --out reports\n"
             "  lagrseq replay runs/cube-stacking other-runs --out /tmp/report --formats png,svg,pdf"
         ),
-        formatter_class=_RAW,
     )
     p.add_argument("runs", nargs="+", type=Path, metavar="RUNS", help="MCAP files or directories searched for *.mcap")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
-    _provider_argument(p, None, "use only runs of this provider for the suite's default-provider runs (none given: any, preferring mock)")
-    p.add_argument("--jobs", type=_N["jobs"], default=None, help="processes that read the logs (default: the cores, at most 8; one on 1-2 cores); the report is the same for any number")
+    _provider_argument(p, None, "only this provider's runs for the default-provider runs", shown="any, mock first")
+    p.add_argument("--jobs", type=_N["jobs"], default=None, help="log readers (default: the cores, at most 8); any number, same report")
 
 
 COMPARE_FLIPPED = 4
@@ -76,10 +74,9 @@ def _add_compare(sub: Any) -> None:
         epilog=(
             "examples:\n"
             "  lagrseq compare lagrseq-out/reports docs/reference-report\n"
-            "  LAGRSEQ_NUMERICS=perturbed lagrseq reproduce --quick --out other && lagrseq compare other docs/reference-report --differences\n"
+            "  LAGRSEQ_NUMERICS=perturbed lagrseq reproduce --quick --out other \\\n      && lagrseq compare other docs/reference-report --differences\n"
             "  lagrseq compare report-a report-b --csv compare.csv --markdown compare.md"
         ),
-        formatter_class=_RAW,
     )
     p.add_argument("report_a", type=Path, metavar="REPORT_A", help="a report folder (or an output folder holding reports/)")
     p.add_argument("report_b", type=Path, metavar="REPORT_B", help="the report to compare it with (e.g. docs/reference-report)")
@@ -104,29 +101,29 @@ def _add_reproduce(sub: Any) -> None:
             "command that reruns them alone. The whole suite runs the cube-stacking audit; the grid tasks' "
             "audits run on request (--items audit-image-completion, audit-object-arrangement; the report's "
             "audit section says how long each takes here).\n\n"
-            f"exit status: 0 every item made or set aside; {ITEMS_FAILED} finished, but some items failed "
-            "(one summary line on stderr); 2 bad usage or input; 130 interrupted (Ctrl-C)"
+            "exit status:\n  0 every item made or set aside\n"
+            f"  {ITEMS_FAILED} finished, but some items failed (one summary line on stderr)\n"
+            "  2 bad usage or input\n  130 interrupted (Ctrl-C)"
         ),
         epilog=(
             "examples:\n"
             "  lagrseq reproduce --quick                # ./lagrseq-out/runs and ./lagrseq-out/reports\n"
             "  lagrseq reproduce --out results --jobs 8\n"
             "  lagrseq reproduce --executor dask --scheduler tcp://head:8786 --out /shared/results\n"
-            "  lagrseq reproduce --provider recorded:store-tau0/ --items fig6a   # a store made by lagrseq cache import\n"
+            "  lagrseq reproduce --provider recorded:store/ --items fig6a   # a store from lagrseq cache import\n"
             "  lagrseq reproduce --quick --authors-caches ../LaGRSEQ   # add the authors' recorded GPT answers\n"
             "  lagrseq reproduce --items audit-object-arrangement      # one paper-vs-code audit alone"
         ),
-        formatter_class=_RAW,
     )
-    p.add_argument("--quick", action="store_true", help="fewer trials, episodes and probe samples where it matters (each item's quick_* length)")
-    p.add_argument("--out", type=Path, default=DEFAULT_REPRODUCE_OUT, metavar="DIR", help=f"writes DIR/runs and DIR/reports (default: {DEFAULT_REPRODUCE_OUT}, which .gitignore leaves untracked)")
-    _provider_argument(p, None, "provider of the suite's default-provider runs (none given: the suite's, mock)")
+    p.add_argument("--quick", action="store_true", help="fewer trials, episodes and probe samples (each item's quick_* length)")
+    p.add_argument("--out", type=Path, default=DEFAULT_REPRODUCE_OUT, metavar="DIR", help=f"writes DIR/runs and DIR/reports (default: {DEFAULT_REPRODUCE_OUT}, untracked)")
+    _provider_argument(p, None, "provider of the suite's default-provider runs", shown="the suite's, mock")
     p.add_argument("--jobs", type=_N["jobs"], default=os.cpu_count() or 1, help="trials run in parallel (default: the number of cores)")
     p.add_argument("--seed", type=_SEED, default=None, help="run seed (default: the suite's, 0)")
-    p.add_argument("--items", default=None, metavar="ID,ID", help="only these suite items (default: all); audit-TASK: that task's paper-vs-code audit")
+    p.add_argument("--items", default=None, metavar="ID,ID", help="only these suite items (default: all); audit-TASK: that task's audit")
     p.add_argument(
         "--authors-caches", type=Path, default=None, metavar="DIR",
-        help="a clone of GKthom/LaGRSEQ or a folder of its cache pickles: adds the authors' GPT answers (docs/reproduce.md)",
+        help="a GKthom/LaGRSEQ clone or its pickles: the authors' GPT answers too",
     )
 
 

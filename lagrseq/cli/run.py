@@ -12,7 +12,6 @@ from lagrseq.cli.options import (
     _COUNT,
     _N,
     _PORT,
-    _RAW,
     _SEED,
     _executor_options,
     _experiment_options,
@@ -30,11 +29,10 @@ from lagrseq.cli.output import _bar, _say, _shown
 @takes_provider_flags("run")
 def _add_run(sub: Any) -> None:
     from lagrseq.config import METHODS
-    from lagrseq.tasks.cube import PROFILE_HELP
 
     p = sub.add_parser(
         "run",
-        parents=[_experiment_options(), _provider_flags(per="run (every trial and worker together)"), _executor_options(), _quiet()],
+        parents=[_experiment_options(), _provider_flags(per="run"), _executor_options(), _quiet()],
         help="run trials of one task and method, logging every step to MCAP",
         description=(
             "Run TRIALS independent trials of one experiment and write one MCAP log per trial to "
@@ -51,26 +49,38 @@ def _add_run(sub: Any) -> None:
             "  lagrseq run cube-stacking --trials 256 --executor dask --scheduler tcp://head:8786\n"
             "  lagrseq run object-arrangement --method lagr --set task.target=\"square\"\n"
             "  lagrseq run arm-arrangement --preset paper --trials 5 --render frames   # the UR5e (arm extra)\n"
-            "  lagrseq config cube-stacking --preset paper     # every field, its value and meaning"
+            "  lagrseq config cube-stacking --preset paper     # every field, its value and meaning\n\n"
+            + _mock_profiles()
         ),
-        formatter_class=_RAW,
     )
     _task_argument(p)
-    p.add_argument("--method", choices=METHODS, default="lagr-seq", help="baseline: the plain RL agent; lagr: query the LLM whenever triggered; lagr-seq: the secondary agent decides (default)")
+    p.add_argument("--method", choices=METHODS, default="lagr-seq", metavar="METHOD", help="baseline (no LLM), lagr (asks when triggered), lagr-seq (default)")
+    _provider_argument(p, "mock", "LLM provider (mock profiles: below)")
+    p.add_argument("--trials", type=_COUNT, default=10, help="number of independent trials (default 10)")
+    p.add_argument("--seed", type=_SEED, default=0, help="run seed below 2**63; trial k draws from (seed, k) (default 0)")
+    p.add_argument("--out", type=Path, default=Path("runs"), help="output directory (default: runs)")
+    p.add_argument("--name", default=None, help="run folder name (default: preset-provider-seed-digest)")
+    p.add_argument("--jobs", type=_N["jobs"], default=1, help="parallel trial processes, or local Dask workers (default 1)")
+    p.add_argument("--render", type=Path, default=None, metavar="DIR", help="arm-arrangement: frames and a GIF per episode in DIR (docs/arm.md)")
+
+
+def _mock_profiles() -> str:
+    """Every profile ``--provider mock:PROFILE`` accepts (``wiring.mock_profiles``), each with its
+    meaning, wrapped to the terminal as argparse wraps the rest of the help."""
+    import shutil
+    import textwrap
+
     from lagrseq.running.wiring import REFUSING, REFUSING_HELP
     from lagrseq.tasks import grid_profiles
+    from lagrseq.tasks.cube import PROFILE_HELP
 
     grids = {name: f"(image completion, object arrangement) {made.description}" for name, made in grid_profiles.PROFILES.items()}
     cubes = {name: (about if name == "ideal" else f"(cube stacking) {about}") for name, about in PROFILE_HELP.items()}
-    # every profile --provider accepts (wiring.mock_profiles), each with its meaning; % escaped for argparse
-    profiles = "; ".join(f"{k}: {v}" for k, v in {**cubes, **grids, REFUSING: REFUSING_HELP}.items()).replace("%", "%%")
-    _provider_argument(p, "mock", f"LLM provider (mock:PROFILE: {profiles})")
-    p.add_argument("--trials", type=_COUNT, default=10, help="number of independent trials (default 10)")
-    p.add_argument("--seed", type=_SEED, default=0, help="run seed, 0 <= S < 2**63; trial k uses a stream spawned from (seed, k) (default 0)")
-    p.add_argument("--out", type=Path, default=Path("runs"), help="output directory (default: runs)")
-    p.add_argument("--name", default=None, help="run directory name, one plain name (default: preset-provider-seed-digest)")
-    p.add_argument("--jobs", type=_N["jobs"], default=1, help="trials run in parallel processes, or workers of a local Dask cluster (default 1)")
-    p.add_argument("--render", type=Path, default=None, metavar="DIR", help="arm-arrangement only: PNG frames and a GIF of every episode into DIR/trial-NNN/ (docs/arm.md)")
+    width = max(shutil.get_terminal_size().columns - 2, 40)
+    lines = ["mock profiles (--provider mock:PROFILE):"]
+    for name, about in {**cubes, **grids, REFUSING: REFUSING_HELP}.items():
+        lines += textwrap.wrap(f"{name}: {about}", width, initial_indent="  ", subsequent_indent="      ", break_on_hyphens=False)
+    return "\n".join(lines)
 
 
 def _add_robot(sub: Any) -> None:
@@ -83,17 +93,16 @@ def _add_robot(sub: Any) -> None:
             "with ur_rtde (see docs/arm.md, 'Robot service')."
         ),
         epilog="example:\n  lagrseq robot serve --sim --port 50051 &\n  lagrseq run arm-arrangement --set env.robot=\"remote:127.0.0.1:50051\"",
-        formatter_class=_RAW,
     )
     actions = p.add_subparsers(dest="robot_command", required=True, metavar="ACTION")
     serve = actions.add_parser("serve", help="serve a robot until interrupted (Ctrl-C)")
     serve.add_argument("--sim", action="store_true", required=True, help="serve a simulated UR5e (pybullet; the only robot lagrseq itself drives)")
-    serve.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only); any other address needs --token-file and --tls-cert/--tls-key")
+    serve.add_argument("--host", default="127.0.0.1", help="listen address (default 127.0.0.1); any other needs --token-file and TLS")
     serve.add_argument("--port", type=_PORT, default=50051, help="TCP port (default 50051; 0 picks a free one and prints it)")
-    serve.add_argument("--token-file", default=None, metavar="FILE", help="a shared secret (one line, chmod 600) every call must carry; clients set env.robot_token_file to the same file")
-    serve.add_argument("--tls-cert", default=None, metavar="FILE.pem", help="serve TLS with this certificate (chain); clients use env.robot=\"remote+tls:HOST:PORT\" and env.robot_tls_ca")
+    serve.add_argument("--token-file", default=None, metavar="FILE", help="a shared secret file (one line, chmod 600); clients: env.robot_token_file")
+    serve.add_argument("--tls-cert", default=None, metavar="FILE.pem", help="serve TLS with this certificate (clients: remote+tls:, env.robot_tls_ca)")
     serve.add_argument("--tls-key", default=None, metavar="FILE.pem", help="the private key of --tls-cert")
-    serve.add_argument("--max-objects", type=_N["objects"], default=64, metavar="N", help="objects the table may hold; Place on a full table is refused until Clear (default 64)")
+    serve.add_argument("--max-objects", type=_N["objects"], default=64, metavar="N", help="objects the table may hold; Place on a full table is refused (default 64)")
 
 
 def _add_config(sub: Any) -> None:

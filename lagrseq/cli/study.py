@@ -11,7 +11,6 @@ from typing import Any
 from lagrseq.cli.options import (
     _COUNT,
     _N,
-    _RAW,
     _SEED,
     _TEMPERATURE,
     _experiment_options,
@@ -33,24 +32,20 @@ def _add_frontier(sub: Any) -> None:
         parents=[_experiment_options(), _provider_flags(per="trial"), _quiet()],
         help="run asking policies on one task and draw return against queries and dollars",
         description=(
-            "Run the asking policies on TASK with one provider (resumable runs under OUT), then write "
-            "OUT/frontier/: figures and a Markdown/CSV table with each point's verdicts against always "
-            "and random at its query rate, and every seed's role. The protocol (estimands, bounds, "
-            "margins, seed roles, credit): docs/frontier.md."
+            "Run the asking policies on TASK; write figures and verdicts to OUT/frontier/ (docs/frontier.md)."
         ),
         epilog=(
             "examples:\n"
-            "  lagrseq frontier cube-stacking --provider recorded:store --trials 300 --stop-at-first-solve --out fr\n"
+            "  lagrseq frontier cube-stacking --provider recorded:store --stop-at-first-solve --out fr\n"
             "  lagrseq frontier --replay fr --out fr/frontier     # the report again, from the logs"
         ),
-        formatter_class=_RAW,
     )
     from lagrseq.config import tasks
 
     p.add_argument("task", metavar="TASK", nargs="?", choices=tasks(), help="the task (not with --replay)")
     p.add_argument("--policies", default="never,always,seq,thompson,oracle", metavar="LIST", help="comma-separated NAME[:FIELD=VALUE] (lagrseq plugins lists the names)")
     p.add_argument("--sweep", action="append", default=[], metavar="N:F=V1,V2", help="one variant per value, a curve (repeatable); FIELD: a knob of NAME")
-    _provider_argument(p, "mock", "LLM provider of every policy's runs")
+    _provider_argument(p, "mock", "provider of every run")
     p.add_argument("--trials", type=_COUNT, default=5, help="trials per policy (default 5)")
     p.add_argument("--seed", type=_SEED, default=0, help="run seed (default 0)")
     p.add_argument("--jobs", type=_N["jobs"], default=os.cpu_count() or 1, help="trials run in parallel (default: the number of cores)")
@@ -59,7 +54,7 @@ def _add_frontier(sub: Any) -> None:
     p.add_argument("--miss-threshold", type=_N["share"], default=0.1, metavar="F", help="mark points with > F of answers from a fallback (0.1)")
     p.add_argument("--scopes", default="auto", metavar="LIST", help="lagr.solution_scope values: episode, trial (default auto: the task's)")
     p.add_argument("--no-matched-random", dest="matched_random", action="store_false", help="no random run at each policy's query rate (then nothing is credited)")
-    p.add_argument("--tune", action="store_true", help="choose each policy's knob on tuning seeds first (recorded in the logs)")
+    p.add_argument("--tune", action="store_true", help="choose each policy's knob on tuning seeds first (logged)")
     p.add_argument("--tune-seed", type=_SEED, default=None, metavar="S", help="run seed of the tuning trials (default: --seed + 1000003)")
     p.add_argument("--tune-trials", type=_COUNT, default=5, metavar="N", help="tuning trials per candidate (default 5)")
     p.add_argument("--stop-at-first-solve", action="store_true", help="end each trial at its first solve")
@@ -89,7 +84,6 @@ def _add_audit(sub: Any) -> None:
             "  lagrseq audit object-arrangement --trials 3 --max-steps 1000 --out audit\n"
             "  lagrseq audit image-completion --provider mock:authors-gpt4 --trials 3 --max-steps 1000"
         ),
-        formatter_class=_RAW,
     )
     _task_argument(p)
     _provider_argument(p, "mock", "provider of the lagr and lagr-seq runs (the baseline never asks)")
@@ -119,26 +113,25 @@ def _add_screen(sub: Any) -> None:
         ),
         epilog=(
             "examples:\n"
-            "  lagrseq screen cube-stacking --provider local:qwen2.5-coder-0.5b-instruct-q4_k_m --threads 1 --prompts 40 --answers cube.jsonl --out screen/\n"
-            "  lagrseq screen object-arrangement --provider local --from-runs runs/object-arrangement --prompts 48 --answers arr.jsonl --out screen/\n"
-            "  lagrseq screen cube-stacking --provider local:qwen2.5-coder-1.5b-instruct-q4_k_m --threads 1 --prompt-set relabelled --prompts 56 --answers relabelled.jsonl --out screen/\n"
+            "  lagrseq screen cube-stacking --provider local:qwen2.5-coder-0.5b-instruct-q4_k_m \\\n      --threads 1 --prompts 40 --answers cube.jsonl --out screen/\n"
+            "  lagrseq screen object-arrangement --provider local --from-runs runs/object-arrangement \\\n      --prompts 48 --answers arr.jsonl --out screen/\n"
+            "  lagrseq screen cube-stacking --provider local:qwen2.5-coder-1.5b-instruct-q4_k_m \\\n      --threads 1 --prompt-set relabelled --prompts 56 \\\n      --answers relabelled.jsonl --out screen/\n"
             "  lagrseq screen cube-stacking --from recorded_llm/screen-*.jsonl --out screen/"
         ),
-        formatter_class=_RAW,
     )
     _task_argument(p)
     _provider_argument(p, "local", "the model asked (not with --from)", records=True)
     p.add_argument("--prompts", type=_N["prompts"], default=40, metavar="N", help="answers to ask for (default 40)")
     p.add_argument("--temperature", type=_TEMPERATURE, default=0.0, metavar="T", help="sampling temperature, 0 to 2 (default 0)")
-    p.add_argument("--from-runs", nargs="+", default=None, metavar="RUN", help="grid tasks: MCAP logs or directories whose /query states are screened (--prompt-set runs)")
+    p.add_argument("--from-runs", nargs="+", default=None, metavar="RUN", help="grid tasks: MCAP logs or folders whose /query states are screened")
     p.add_argument(
-        "--prompt-set", choices=("prefixes", "relabelled", "runs", "sampled"), default=None,
-        help="prefixes (cube default), relabelled (cube), runs (grid default), sampled (grid); docs/open-models.md",
+        "--prompt-set", choices=("prefixes", "relabelled", "runs", "sampled"), default=None, metavar="SET",
+        help="cube: prefixes (default), relabelled; grid: runs (default), sampled",
     )
     p.add_argument("--seed", type=_SEED, default=0, metavar="S", help="seeds the relabellings and sampled states (default 0)")
-    p.add_argument("--store", type=Path, default=None, metavar="STORE", help="keep the answers in this store too (topped up: an interrupted screen resumes); default: a temporary one")
-    p.add_argument("--answers", type=Path, default=None, metavar="FILE.jsonl", help="where the screen's answers are written (default OUT/screen-TASK-MODEL-tT.jsonl)")
-    p.add_argument("--from", dest="from_files", nargs="+", type=Path, default=None, metavar="FILE.jsonl", help="ask nothing: screen the answers in these recorded-answer JSONL files")
+    p.add_argument("--store", type=Path, default=None, metavar="STORE", help="also keep the answers in this store (an interrupted screen resumes)")
+    p.add_argument("--answers", type=Path, default=None, metavar="FILE.jsonl", help="where the answers go (default OUT/screen-TASK-MODEL-tT.jsonl)")
+    p.add_argument("--from", dest="from_files", nargs="+", type=Path, default=None, metavar="FILE", help="ask nothing: screen these recorded-answer JSONL files")
     p.add_argument("--out", type=Path, required=True, metavar="OUT", help="directory for screen-TASK.md, .csv and .png")
 
 
