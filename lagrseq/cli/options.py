@@ -17,7 +17,7 @@ HELP_COLUMN = 30
 
 class _Help(argparse.RawDescriptionHelpFormatter):
     """``--help`` that fits a screen: each option's help beside it from :data:`HELP_COLUMN`, a
-    usage longer than four lines cut to ``[options]`` and what is required, prose paragraphs
+    usage longer than three lines cut to ``[options]`` and what is required, prose paragraphs
     wrapped to the terminal, examples (paragraphs of several lines) kept as written."""
 
     def __init__(self, prog: str) -> None:

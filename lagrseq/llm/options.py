@@ -71,7 +71,7 @@ class LiveOptions:
         "--api-key-env", "variable holding the key, never written (default: {default})", metavar="NAME"))
     """Environment variable holding the API key."""
     server: str = field(default="openai", metadata=flag(
-        "--server", "openai, vllm, ollama or llama.cpp (default: {default})",
+        "--server", f"kind of server: {'|'.join(SERVER_KINDS)} (default: {{default}})",
         metavar="KIND", choices=tuple(SERVER_KINDS)))
     """Kind of OpenAI-compatible server (whether it honours ``n``)."""
     price_table: str | None = field(default=None, metadata=flag(
@@ -92,7 +92,7 @@ class RecordedOptions:
     answered as ``on_miss`` says (``live``: asked with ``live`` and recorded)."""
 
     on_miss: str = field(default="error", metadata=flag(
-        "--on-miss", "recorded: a miss is error (default), mock, live, refuse, calibrated",
+        "--on-miss", f"recorded: a miss is {'|'.join(ON_MISS)} (default {{default}})",
         metavar="MODE", choices=ON_MISS))
     """What answers a query the store lacks (error | mock | live | refuse | calibrated)."""
     live: LiveOptions = field(default_factory=LiveOptions)
