@@ -92,7 +92,7 @@ class RecordedOptions:
     answered as ``on_miss`` says (``live``: asked with ``live`` and recorded)."""
 
     on_miss: str = field(default="error", metadata=flag(
-        "--on-miss", f"recorded: a miss is {'|'.join(ON_MISS)} (default {{default}})",
+        "--on-miss", f"recorded misses: {'|'.join(ON_MISS)} (default {{default}})",
         metavar="MODE", choices=ON_MISS))
     """What answers a query the store lacks (error | mock | live | refuse | calibrated)."""
     live: LiveOptions = field(default_factory=LiveOptions)
