@@ -87,20 +87,22 @@ def test_frontier_help_fits_one_screen() -> None:
     assert any(line.startswith("provider options (") and "docs/providers.md" in line for line in lines)
 
 
-TWO_LINES = {"--provider", "TASK"}
+TWO_LINES = {"--provider", "TASK", "COMMAND", "ACTION"}
 """The options whose help may take a second line: ``--provider`` lists every kind's form, a
-task argument every task."""
+task argument every task (a command or action is followed by the list of them)."""
 
 
 @pytest.mark.parametrize("name, parser", PARSERS, ids=[n for n, _ in PARSERS])
 def test_every_option_is_one_line_of_help(name: str, parser: argparse.ArgumentParser) -> None:
     lines = _help(parser).rstrip("\n").split("\n")
     assert all(len(line) <= 100 for line in lines), (name, [line for line in lines if len(line) > 100])
-    # a plugin provider kind's own flags (their group: "options of --provider KIND") are its author's
-    ours = lines[: next((k for k, line in enumerate(lines) if line.startswith("options of --provider")), len(lines))]
+    # the options only: up to the examples, and a plugin provider kind's own flags (their group:
+    # "options of --provider KIND") are its author's
+    ends = ("options of --provider", "example:", "examples:")
+    ours = lines[: next((k for k, line in enumerate(lines) if line.startswith(ends)), len(lines))]
     wrapped = [
         line.split()[0] for line, after in zip(ours, ours[1:], strict=False)
-        if re.match(r"  [-A-Z]", line) and re.match(r" {20,}\S", after) and line.split()[0] not in TWO_LINES
+        if re.match(r"  [-A-Z]", line) and re.match(r" {4,}\S", after) and line.split()[0] not in TWO_LINES
     ]
     assert wrapped == [], name
 

@@ -18,14 +18,12 @@ def _add_plugins(sub: Any) -> None:
             "List every registered task, provider kind, asking policy and executor with the "
             "distribution it comes from (lagrseq: built in). Plugins register through the "
             "entry-point groups lagrseq.tasks, lagrseq.providers, lagrseq.policies, lagrseq.executors; "
-            "one that fails to load is listed as skipped (docs/extending.md)."
+            "one that fails to load is listed as skipped (docs/extending.md). With --check: each part "
+            "of every installed plugin loads, its names, knobs and flags collide with nothing, each task "
+            "passes Gymnasium's env checker and a short run logs the fields it declares."
         ),
     )
-    p.add_argument("--check", action="store_true", help=(
-        "check every installed plugin instead: each part loads, its names, knobs and flags collide with nothing, "
-        "each task passes Gymnasium's env checker and a short run logs the fields it declares "
-        "(exit 0 when clean, 2 with one line per problem)"
-    ))
+    p.add_argument("--check", action="store_true", help="check every installed plugin instead (exit 2: one line a problem)")
 
 
 def _add_info(sub: Any) -> None:

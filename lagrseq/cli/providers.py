@@ -136,7 +136,7 @@ def _add_serve_llm(sub: Any) -> None:
     )
     p.add_argument("model", nargs="?", default="", metavar="MODEL.gguf", help="a GGUF model file (default: the packaged SmolLM2-135M-Instruct)")
     p.add_argument("--port", type=_N["port"], default=8080, help="port on 127.0.0.1 (default 8080; 0: a free one)")
-    p.add_argument("--log", type=Path, default=None, metavar="FILE", help="write the server's own output to FILE (default: a temporary file, removed at the end)")
+    p.add_argument("--log", type=Path, default=None, metavar="FILE", help="the server's own output (default: a temporary file, removed after)")
     _add_provider_flags(p, "server", only=("n_ctx", "threads"))
 
 

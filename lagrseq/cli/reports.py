@@ -80,7 +80,7 @@ def _add_compare(sub: Any) -> None:
     )
     p.add_argument("report_a", type=Path, metavar="REPORT_A", help="a report folder (or an output folder holding reports/)")
     p.add_argument("report_b", type=Path, metavar="REPORT_B", help="the report to compare it with (e.g. docs/reference-report)")
-    p.add_argument("--differences", action="store_true", help="print only the rows whose verdicts flip or that one report lacks (the summary counts every row)")
+    p.add_argument("--differences", action="store_true", help="print only rows whose verdicts flip or that one report lacks (summary: all)")
     p.add_argument("--csv", type=Path, default=None, metavar="FILE", help="also write the comparison as CSV to FILE (every row)")
     p.add_argument("--markdown", type=Path, default=None, metavar="FILE", help="also write the comparison as a Markdown table to FILE (every row)")
 
@@ -139,7 +139,7 @@ def _add_recover(sub: Any) -> None:
         ),
     )
     p.add_argument("files", nargs="+", type=Path, metavar="FILE", help="truncated .mcap or .mcap.partial files")
-    p.add_argument("--out", type=Path, default=None, metavar="PATH", help="where to write: a new file (one FILE only) or an existing directory (DIR/NAME.mcap for each FILE)")
+    p.add_argument("--out", type=Path, default=None, metavar="PATH", help="a new file (one FILE) or an existing folder (DIR/NAME.mcap each)")
 
 
 def cmd_recover(args: argparse.Namespace) -> int:
