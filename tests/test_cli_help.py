@@ -71,6 +71,48 @@ def test_run_help_names_every_mock_profile() -> None:
     assert "authors-gpt4: (image completion, object arrangement)" in text
 
 
+def _screen_lines(command: list[str]) -> list[str]:
+    """What ``lagrseq COMMAND --help`` prints on a terminal 100 columns wide, a line per row."""
+    done = subprocess.run([sys.executable, "-m", "lagrseq", *command, "--help"], capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(ROOT), "COLUMNS": "100"}, timeout=120)
+    assert done.returncode == 0 and not done.stderr, done.stderr
+    return done.stdout.rstrip("\n").split("\n")
+
+
+def test_frontier_help_fits_one_screen() -> None:
+    lines = _screen_lines(["frontier"])
+    assert len(lines) <= 50, "\n".join(lines)
+    assert all(len(line) <= 100 for line in lines), [line for line in lines if len(line) > 100]
+    assert lines[0] == "usage: lagrseq frontier [options] [TASK]"
+    assert any(line.startswith("provider options (") and "docs/providers.md" in line for line in lines)
+
+
+TWO_LINES = {"--provider", "TASK", "COMMAND", "ACTION"}
+"""The options whose help may take a second line: ``--provider`` lists every kind's form, a
+task argument every task (a command or action is followed by the list of them)."""
+
+
+@pytest.mark.parametrize("name, parser", PARSERS, ids=[n for n, _ in PARSERS])
+def test_every_option_is_one_line_of_help(name: str, parser: argparse.ArgumentParser) -> None:
+    lines = _help(parser).rstrip("\n").split("\n")
+    assert all(len(line) <= 100 for line in lines), (name, [line for line in lines if len(line) > 100])
+    # the options only: up to the examples, and a plugin provider kind's own flags (their group:
+    # "options of --provider KIND") are its author's
+    ends = ("options of --provider", "example:", "examples:")
+    ours = lines[: next((k for k, line in enumerate(lines) if line.startswith(ends)), len(lines))]
+    wrapped = [
+        line.split()[0] for line, after in zip(ours, ours[1:], strict=False)
+        if re.match(r"  [-A-Z]", line) and re.match(r" {4,}\S", after) and line.split()[0] not in TWO_LINES
+    ]
+    assert wrapped == [], name
+
+
+def test_a_long_usage_is_cut_to_options_and_what_is_required() -> None:
+    helps = dict(PARSERS)
+    assert _help(helps["lagrseq record"]).startswith("usage: lagrseq record [options] --store STORE TASK\n")
+    assert _help(helps["lagrseq cache export"]).startswith("usage: lagrseq cache export [-h] --store STORE --out FILE.jsonl\n")
+
+
 def test_reproduce_writes_to_an_untracked_folder_by_default() -> None:
     parser = dict(PARSERS)["lagrseq reproduce"]
     args = build_parser().parse_args(["reproduce", "--quick"])

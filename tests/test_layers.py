@@ -33,7 +33,7 @@ HEAVY = ("torch", "gymnasium", "httpx", "httpcore", "pybullet")
 PROVIDERS = ("lagrseq.llm.mock", "lagrseq.llm.live", "lagrseq.llm.recorded", "lagrseq.llm.store")
 # The layers, bottom to top: base (ANYONE below), parts (tasks, envs, agents, llm, logs, robot),
 # loop, running, analysis and study, the command line. A package forbids everything above it.
-CLI = ("lagrseq.cli", "lagrseq.cli_helpers", "lagrseq.__main__")
+CLI = ("lagrseq.cli", "lagrseq.__main__")
 STUDY = ("lagrseq.study", *CLI)
 RUNNING = ("lagrseq.running", "lagrseq.analysis", *STUDY)
 LOOP = ("lagrseq.loop", *RUNNING)
@@ -85,7 +85,7 @@ LAYERS: dict[str, tuple[str, ...]] = {
     "lagrseq.study.authors": ("lagrseq.analysis", "lagrseq.running.runner", "lagrseq.study.reproduce", *CLI, *HEAVY),
     # the command line parses and calls: the loop and wiring only when a command runs
     "lagrseq.cli": ("lagrseq.loop", "lagrseq.running.wiring", *HEAVY, "mcap", "pandas", "matplotlib"),
-    "lagrseq.cli_helpers": ("lagrseq.loop", "lagrseq.running", *HEAVY, "mcap", "pandas", "matplotlib"),
+    "lagrseq.cli.helpers": ("lagrseq.loop", "lagrseq.running", *HEAVY, "mcap", "pandas", "matplotlib"),
     "lagrseq.__main__": (),  # ``python -m lagrseq``: the command line, nothing else
     # lagrseq info: metadata only; torch is imported inside the call that names its device
     "lagrseq.info": ("lagrseq.loop", "lagrseq.running", "lagrseq.analysis", "lagrseq.study", *CLI, "dask", "distributed", *HEAVY, "mcap", "pandas", "matplotlib"),

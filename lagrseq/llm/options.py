@@ -29,11 +29,11 @@ class HttpLimits:
         metavar="S", type=number_type("seconds", gt=0, le=86_400)))
     """Seconds to wait for the next bytes of a response."""
     request_deadline_s: float = field(default=300.0, metadata=flag(
-        "--request-deadline", "most seconds one request may take, from sending to the last byte; an overrun is retried like a timeout (default {default:g})",
+        "--request-deadline", "seconds one whole request may take, then retried (default {default:g})",
         metavar="S", type=number_type("seconds", gt=0, le=86_400)))
     """Most seconds one request may take, from sending to the last byte (retried like a timeout)."""
     max_response_bytes: int = field(default=4 * 1024 * 1024, metadata=flag(
-        "--max-response-bytes", "largest response body read, decompressed; a larger one fails at once and is not retried (default {default})",
+        "--max-response-bytes", "largest response body in bytes; a larger one fails (default {default})",
         metavar="N", type=number_type("bytes", integer=True, ge=1024, le=2**31)))
     """Largest response body read, decompressed (a larger one fails at once, not retried)."""
 
@@ -44,11 +44,11 @@ class Limits:
     worker together; else per provider)."""
 
     max_cost_usd: float | None = field(default=None, metadata=flag(
-        "--max-cost-usd", "per {per}: stop before a live request that could take the spending past X US dollars (worst case: every completion uses max_tokens)",
+        "--max-cost-usd", "per {per}: stop before a live request could pass X US dollars",
         metavar="X", type=number_type("US dollars", ge=0, le=1e6)))
     """Stop before a request that could pass this many US dollars."""
     max_queries: int | None = field(default=None, metadata=flag(
-        "--max-queries", "per {per}: stop before a live request that would take the number of live answers past N",
+        "--max-queries", "per {per}: stop before a live request would pass N live answers",
         metavar="N", type=number_type("queries", integer=True, ge=0, le=10**9)))
     """Stop before a request that would pass this many answers."""
     budget_ledger: str | None = field(default=None, metadata=NOT_LOGGED)
@@ -65,17 +65,17 @@ class LiveOptions:
     """``live[:MODEL]``: an OpenAI-compatible server asked now."""
 
     base_url: str = field(default=DEFAULT_BASE_URL, metadata=flag(
-        "--base-url", "API root of an OpenAI-compatible server; its host is part of every recorded key (default: {default})", metavar="URL"))
+        "--base-url", "OpenAI-compatible API root (default: {default})", metavar="URL"))
     """API root of the live server; its host is also part of every recorded key."""
     api_key_env: str = field(default="OPENAI_API_KEY", metadata=flag(
-        "--api-key-env", "environment variable that holds the API key (default: {default}); the key itself is never written anywhere", metavar="NAME"))
+        "--api-key-env", "variable holding the key, never written (default: {default})", metavar="NAME"))
     """Environment variable holding the API key."""
     server: str = field(default="openai", metadata=flag(
-        "--server", "kind of server: openai and vllm return n samples per request, ollama and llama.cpp one (default: {default})",
-        choices=tuple(SERVER_KINDS)))
+        "--server", f"kind of server: {'|'.join(SERVER_KINDS)} (default: {{default}})",
+        metavar="KIND", choices=tuple(SERVER_KINDS)))
     """Kind of OpenAI-compatible server (whether it honours ``n``)."""
     price_table: str | None = field(default=None, metadata=flag(
-        "--price-table", "prices (USD per million tokens, with source and date) over the built-in table", metavar="FILE.toml"))
+        "--price-table", "prices (USD per million tokens) over the built-in dated table", metavar="FILE.toml"))
     """TOML file of prices over the built-in table."""
     http: HttpLimits = field(default_factory=HttpLimits)
     limits: Limits = field(default_factory=Limits)
@@ -92,8 +92,8 @@ class RecordedOptions:
     answered as ``on_miss`` says (``live``: asked with ``live`` and recorded)."""
 
     on_miss: str = field(default="error", metadata=flag(
-        "--on-miss", "recorded:STORE: what answers a prompt the store lacks (default error; docs/providers.md)",
-        choices=ON_MISS))
+        "--on-miss", f"recorded misses: {'|'.join(ON_MISS)} (default {{default}})",
+        metavar="MODE", choices=ON_MISS))
     """What answers a query the store lacks (error | mock | live | refuse | calibrated)."""
     live: LiveOptions = field(default_factory=LiveOptions)
     """The store's endpoint (``base_url``) and, with ``on_miss = live``, the server asked."""
@@ -113,11 +113,11 @@ class LocalOptions:
     """``local[:MODEL.gguf]``: a llama.cpp server started on this machine for the run."""
 
     n_ctx: int = field(default=2048, metadata=flag(
-        "--n-ctx", "context size of the local llama.cpp server in tokens (default {default})",
+        "--n-ctx", "local server's context size in tokens (default {default})",
         metavar="N", type=number_type("tokens", integer=True, ge=64, le=2**20), logged_as="local_n_ctx"))
     """The llama.cpp server's context size in tokens."""
     threads: int = field(default=0, metadata=flag(
-        "--threads", "CPU threads of the local llama.cpp server (default 0: half the cores, at least 1; more threads than free cores makes llama.cpp much slower)",
+        "--threads", "local server's CPU threads (default 0: half the cores, at least 1)",
         metavar="N", type=number_type("threads", integer=True, ge=0, le=1024), logged_as="local_threads"))
     """The llama.cpp server's threads (0: half the cores, at least 1)."""
     http: HttpLimits = field(default_factory=HttpLimits)
