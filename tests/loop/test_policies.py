@@ -251,7 +251,7 @@ def test_advance_never_asks_a_rejected_pattern_again() -> None:
     accepted.accepted = True
     policy.update(accepted, 1, 1.0)
     assert policy.decide(_at(pattern=(9,), progress=0, episode=3)) == 1
-    assert policy.rejected == {(7,)}
+    assert policy.rejected == {(7,): 1}
 
 
 def test_advance_is_registered_with_validated_knobs_and_built_from_the_section() -> None:
