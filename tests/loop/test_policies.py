@@ -487,3 +487,15 @@ def test_digest_ignores_policy_fields_at_their_defaults() -> None:
     from lagrseq.running.runner import _differences
 
     assert _differences(json.loads(cfg.from_dict(old).to_json()), data) == []
+
+
+def test_a_frontier_point_names_its_reask_decay_only_when_set() -> None:
+    from lagrseq.analysis.frontier import _knob_value, policy_of
+
+    def point(*sets: str) -> dict:
+        return json.loads(cfg.load("cube-stacking", "lagr-seq", "paper", None, ['secondary.policy="advance"', *sets]).to_json())
+
+    assert policy_of(point()) == policy_of(point("secondary.reask_decay=0")) == ("advance", "stall 64")
+    assert policy_of(point("secondary.reask_decay=0.5")) == ("advance", "stall 64 reask 0.5")
+    # a curve of advance variants is ordered by the swept value
+    assert _knob_value(point("secondary.reask_decay=0.25")) < _knob_value(point("secondary.reask_decay=0.75"))
