@@ -516,8 +516,8 @@ class SecondarySection(_Section):
     already answered wrongly, so it generalises across states) or oracle (asks only when the
     answer would be accepted: it looks at the provider's answer first, uncounted; a lower bound
     on queries, refused with live answers) or advance (asks where the pattern's progress reaches a
-    new best of the episode or has stalled for stall_steps decisions, never again on a pattern
-    whose answer was rejected). Paper: seq."""
+    new best of the episode or has stalled for stall_steps decisions, on a pattern whose answer
+    was rejected only with the chance reask_decay gives). Paper: seq."""
     ask_probability: float = ranged(0.5, ge=0, le=1)
     """policy = "random": probability of asking when triggered."""
     query_cost: float = ranged(0.0, ge=0, le=1e6)
@@ -540,6 +540,12 @@ class SecondarySection(_Section):
     episode and without a query, after which it asks (as it does at every new best), unless
     this very pattern was already answered wrongly. In decisions, so it never needs the task;
     1000000: in effect never. Not in the paper."""
+    reask_decay: float = ranged(0.0, ge=0, le=1)
+    """policy = "advance": the chance, as a base, of asking again on a pattern whose answer was
+    already rejected: rejected k times, it is asked (where advance would otherwise ask) with
+    probability reask_decay**k, one draw from the secondary stream. A probability base, unitless;
+    0: never again (at temperature 0 the same question gets the same answer), 1: always again.
+    Not in the paper."""
     knobs: tuple[tuple[str, Any], ...] = ()
     """The knobs a registered policy declares of its own (a plugin's), as (name, value) pairs,
     written ``[secondary] NAME = VALUE`` (``--set secondary.NAME=VALUE``); read with
@@ -885,6 +891,7 @@ POLICY_DEFAULTS: dict[str, Any] = {
     "thompson_prior": (1.0, 1.0),
     "min_progress": 0,
     "stall_steps": 64,
+    "reask_decay": 0.0,
 }
 """The asking-policy fields of ``[secondary]`` and their defaults (see ``digest``)."""
 

@@ -185,17 +185,17 @@ def test_identical_pairs_get_bounds_and_the_tail_is_its_own_verdict() -> None:
 
 
 def test_a_design_or_tuning_seed_is_never_credited() -> None:
-    """advance's rule was read from seeds 1 and 1000004: a point of advance on either is shown with
+    """advance's rule and knob values were read from seeds 1, 3 and 1000004: a point of advance on any is shown with
     the role ``design`` and no credit, however good; a point tuned on its own run seed is ``tuning``."""
     from lagrseq.analysis.frontier import DESIGN, EVALUATION, TUNING, design_seeds
 
-    assert design_seeds("advance") == (1, 1_000_004)
+    assert design_seeds("advance") == (1, 3, 1_000_004)
 
     def on_seed(point: Point, seed: int) -> Point:
         point.run = Run(dataclasses.replace(point.run.key, seed=seed), point.run.config, (), point.run.trials, pd.DataFrame(), pd.DataFrame(), 0)
         return point
 
-    for seed, role in ((1, DESIGN), (1_000_004, DESIGN), (2, EVALUATION)):
+    for seed, role in ((1, DESIGN), (3, DESIGN), (1_000_004, DESIGN), (2, EVALUATION)):
         always = on_seed(_point("always", ALWAYS_400), seed)
         good = on_seed(_point("advance", _around(ALWAYS_400, [1.01, 0.98, 1.0]), queries=20), seed)
         random_02 = on_seed(_point("random", _around(ALWAYS_400, [1.6, 1.5, 1.7]), p=0.2), seed)
@@ -205,7 +205,7 @@ def test_a_design_or_tuning_seed_is_never_credited() -> None:
         made = panel([always, good, random_02])
         assert made.rows[1].seed_role.startswith(f"{seed}: {role}")
         assert list(made.table.data["seed_role"]) == ["evaluation", role, "evaluation"]
-        assert made.table.data["design_seeds"].iloc[1] == "1 1000004"
+        assert made.table.data["design_seeds"].iloc[1] == "1 3 1000004"
         if role == DESIGN:
             assert made.rows[1].credited == "no (design seed: not evidence)"
     tuned = _point("thompson", _around(ALWAYS_400, [1.01, 0.98, 1.0]), queries=20)

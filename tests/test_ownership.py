@@ -19,6 +19,7 @@ from tests.support.plugins import GOOD, distribution, lagrseq, skipped
     ("policy", "knob", "owners"),
     [
         ("random", "stall_steps=16", "advance"),
+        ("thompson", "reask_decay=0.5", "advance"),
         ("seq", "ask_probability=0.2", "random"),
         ("random", "thompson_prior=[2.0, 2.0]", "thompson"),
         ("advance", 'query_reward="logistic"', "seq, thompson"),

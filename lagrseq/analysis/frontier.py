@@ -132,6 +132,8 @@ def policy_of(config: dict[str, Any]) -> tuple[str, str]:
         knobs.append(_learning_text(config))
     if name == "advance":
         knobs.append(f"stall {section.get('stall_steps', 64)}")
+        if section.get("reask_decay", 0.0):
+            knobs.append(f"reask {section['reask_decay']:g}")
     if name == "thompson" and list(section.get("thompson_prior", [1.0, 1.0])) != [1.0, 1.0]:
         a, b = section["thompson_prior"]
         knobs.append(f"prior {a:g},{b:g}")
@@ -189,7 +191,7 @@ def _knob_value(config: dict[str, Any]) -> float:
     return (
         float(section.get("query_cost", 0.0)) + float(section.get("budget", 0)) * 1e-6
         + float(section.get("ask_probability", 0.5)) * 1e-9 + float(section.get("min_progress", 0)) * 1e-3
-        + float(section.get("stall_steps", 64)) * 1e-13 + sum(own) * 1e-12  # a plugin policy's own knobs, last
+        + float(section.get("stall_steps", 64)) * 1e-13 + float(section.get("reask_decay", 0.0)) * 1e-15 + sum(own) * 1e-12  # a plugin policy's own knobs, last
     )
 
 

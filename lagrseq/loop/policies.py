@@ -15,7 +15,8 @@ Policies (config field ``secondary.policy`` with ``--method lagr-seq``):
 - ``thompson``: a posterior per context (:class:`ThompsonPolicy`);
 - ``oracle``: ask only when the answer would be accepted (a lower bound on queries);
 - ``advance``: ask where the primary agent's progress reaches a new best of the episode, or
-  has stalled for ``stall_steps`` decisions, never twice on a rejected pattern (:class:`AdvancePolicy`);
+  has stalled for ``stall_steps`` decisions, on a rejected pattern only again with the decaying
+  chance ``reask_decay`` gives (default: never) (:class:`AdvancePolicy`);
 - any of them behind :class:`Budget` (``secondary.budget`` > 0): at most N queries per trial or
   per episode;
 - any of them behind :class:`ProgressGate` (``secondary.min_progress`` > 0): never ask before the
@@ -255,25 +256,34 @@ class AdvancePolicy:
       this episode (the episode's first decision included): the primary agent advanced;
     - once ``stall_steps`` decisions have passed without a new best and without a query: it
       stalled (a new best, a query or a new episode restarts the count);
-    - never on a pattern already answered and rejected (at temperature 0 the same question gets
-      the same answer; a refused store miss is a rejection too).
+    - on a pattern already answered and rejected k times, only with probability
+      ``reask_decay ** k`` (one draw from the secondary stream, made only there and only when
+      ``reask_decay`` > 0); the default 0 never asks it again (at temperature 0 the same question
+      gets the same answer; a refused store miss is a rejection too). With sampled answers
+      (temperature > 0) a second sample may be accepted where the first was not.
 
     Nothing here knows the task or the target: progress is what the agent sees of its own
-    pattern, the count is in decisions. It draws nothing from the secondary stream."""
+    pattern, the count is in decisions. At ``reask_decay`` = 0 it draws nothing from the
+    secondary stream."""
 
-    def __init__(self, stall_steps: int) -> None:
+    def __init__(self, stall_steps: int, reask_decay: float = 0.0) -> None:
         if stall_steps < 1:
             raise ValueError(f"stall_steps must be >= 1, got {stall_steps}")
+        if not 0.0 <= reask_decay <= 1.0:
+            raise ValueError(f"reask_decay must lie in [0, 1], got {reask_decay}")
         self.stall_steps = stall_steps
+        self.reask_decay = reask_decay
         self.episode: int | None = None
         self.best = -1
         """The highest progress seen at a decision in this episode (-1: none yet)."""
         self.waited = 0
         """Decisions since the last new best, the last query or the episode's start."""
-        self.rejected: set[Hashable] = set()
-        """Patterns whose answer was rejected (never asked again)."""
+        self.rejected: dict[Hashable, int] = {}
+        """How often each pattern's answer was rejected (absent: never)."""
         self.stalled = 0
         """Queries asked because the agent stalled (not at a new best)."""
+        self.reasked = 0
+        """Queries asked again on a pattern whose answer was already rejected."""
 
     def decide(self, context: AskContext) -> int:
         progress = int(context.progress)
@@ -284,19 +294,29 @@ class AdvancePolicy:
             self.best, self.waited = progress, 0
         else:
             self.waited += 1
-        if pattern_key(context.pattern) in self.rejected:
+        stalled = not advanced and self.waited >= self.stall_steps
+        if not (advanced or stalled) or not self._may_ask(context):
             return 0
-        if advanced:
-            return 1
-        if self.waited >= self.stall_steps:
+        if stalled:
             self.waited = 0
             self.stalled += 1
-            return 1
-        return 0
+        return 1
+
+    def _may_ask(self, context: AskContext) -> bool:
+        """Whether this pattern may be asked: never rejected, or drawn again with probability
+        ``reask_decay ** k`` after k rejections (no draw at ``reask_decay`` = 0)."""
+        times = self.rejected.get(pattern_key(context.pattern), 0)
+        if times == 0:
+            return True
+        if self.reask_decay <= 0.0 or context.rng.random() >= self.reask_decay**times:
+            return False
+        self.reasked += 1
+        return True
 
     def update(self, context: AskContext, asked: int, query_reward: float) -> None:
         if asked and not context.accepted:
-            self.rejected.add(pattern_key(context.pattern))
+            key = pattern_key(context.pattern)
+            self.rejected[key] = self.rejected.get(key, 0) + 1
 
 
 class Budget:
@@ -377,7 +397,7 @@ def make_oracle(section: Any, seq_agent: Callable[[], SecondaryAgent]) -> Asking
 
 
 def make_advance(section: Any, seq_agent: Callable[[], SecondaryAgent]) -> AskingPolicy:
-    return AdvancePolicy(int(section.knob("stall_steps")))
+    return AdvancePolicy(int(section.knob("stall_steps")), float(section.knob("reask_decay")))
 
 
 def make_policy(section: Any, seq_agent: Callable[[], SecondaryAgent]) -> AskingPolicy:

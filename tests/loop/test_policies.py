@@ -27,6 +27,7 @@ from lagrseq.loop.policies import (
     SeqPolicy,
     ThompsonPolicy,
     make_policy,
+    pattern_key,
 )
 from lagrseq.loop.seq import TabularSecondary
 from lagrseq.running.runner import run_one
@@ -251,7 +252,69 @@ def test_advance_never_asks_a_rejected_pattern_again() -> None:
     accepted.accepted = True
     policy.update(accepted, 1, 1.0)
     assert policy.decide(_at(pattern=(9,), progress=0, episode=3)) == 1
-    assert policy.rejected == {(7,)}
+    assert policy.rejected == {(7,): 1}
+
+
+def _rejected_twice(policy: AdvancePolicy, pattern: tuple[int, ...]) -> None:
+    """Ask ``pattern`` and reject its answer; then again, at the first episode it is re-asked."""
+    rng = np.random.default_rng(5)
+    for episode in range(100):
+        asked = AskContext(pattern, 1, episode, 0, 0, 0.0, rng, 0, 0, None)
+        if policy.decide(asked):
+            asked.accepted = False
+            policy.update(asked, 1, -1.0)
+        if policy.rejected.get(pattern_key(pattern)) == 2:
+            policy.reasked = 0
+            return
+    pytest.fail("the rejected pattern was never asked again")
+
+
+def test_advance_reasks_a_rejected_pattern_with_probability_decay_to_the_rejections() -> None:
+    policy = AdvancePolicy(stall_steps=1000, reask_decay=0.5)
+    _rejected_twice(policy, (7,))
+    assert policy.rejected == {(7,): 2}
+    rng, twin = np.random.default_rng(11), np.random.default_rng(11)
+    # each new episode opens at a new best on the rejected pattern: one draw, ask below 0.5**2
+    got = [policy.decide(AskContext((7,), 1, 2 + e, 0, 0, 0.0, rng, 0, 0, None)) for e in range(4000)]
+    assert got == [int(u < 0.25) for u in twin.random(4000)]
+    assert policy.reasked == sum(got) and abs(sum(got) / 4000 - 0.25) < 0.03
+    # a pattern never rejected asks without a draw; a decision that would not ask draws nothing
+    state = rng.bit_generator.state
+    assert policy.decide(AskContext((8,), 1, 9000, 0, 0, 0.0, rng, 0, 0, None)) == 1
+    assert policy.decide(AskContext((7,), 1, 9000, 0, 0, 0.0, rng, 0, 0, None)) == 0
+    assert rng.bit_generator.state == state
+
+
+def test_advance_reask_counts_rejections_and_stalls_only_when_it_asks() -> None:
+    policy = AdvancePolicy(stall_steps=2, reask_decay=1.0)
+    _rejected_twice(policy, (7,))
+    # decay 1: a rejected pattern is asked wherever advance would ask, and rejections add up
+    assert [policy.decide(_at(pattern=(7,), progress=1, episode=2)) for _ in range(5)] == [1, 0, 1, 0, 1]
+    assert policy.stalled == 2 and policy.reasked == 3
+    never = AdvancePolicy(stall_steps=2, reask_decay=0.0)
+    first = _at(pattern=(7,), progress=1, episode=0)
+    assert never.decide(first) == 1
+    first.accepted = False
+    never.update(first, 1, -1.0)
+    # decay 0: never again, and the stall count runs on to the next pattern it may ask
+    assert [never.decide(_at(pattern=(7,), progress=1, episode=2)) for _ in range(3)] == [0, 0, 0]
+    assert never.decide(_at(pattern=(8,), progress=1, episode=2)) == 1 and never.stalled == 1 and never.reasked == 0
+
+
+def test_reask_decay_is_range_checked_and_built_from_the_section() -> None:
+    for bad in ("-0.1", "1.5", '"often"'):
+        with pytest.raises(cfg.ConfigError, match="reask_decay"):
+            cfg.load("cube-stacking", "lagr-seq", "paper", None, ['secondary.policy="advance"', f"secondary.reask_decay={bad}"])
+    for bad_value in (-0.1, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="reask_decay"):
+            AdvancePolicy(64, bad_value)
+    section = cfg.load("cube-stacking", "lagr-seq", "paper", None, ['secondary.policy="advance"', "secondary.reask_decay=0.5"]).secondary
+    policy = make_policy(section, lambda: pytest.fail("seq's agent is built only for policy seq"))
+    assert isinstance(policy, AdvancePolicy) and policy.reask_decay == 0.5 and policy.stall_steps == 64
+    base = cfg.load("cube-stacking", "lagr-seq", "paper", None, ['secondary.policy="advance"'])
+    explicit = cfg.load("cube-stacking", "lagr-seq", "paper", None, ['secondary.policy="advance"', "secondary.reask_decay=0"])
+    assert base.digest() == explicit.digest() != cfg.load(
+        "cube-stacking", "lagr-seq", "paper", None, ['secondary.policy="advance"', "secondary.reask_decay=0.5"]).digest()
 
 
 def test_advance_is_registered_with_validated_knobs_and_built_from_the_section() -> None:
@@ -320,6 +383,14 @@ FROZEN = [
     ("baseline", "upstream", ["run.episodes=10"], "mock",
      "e4dfef4661a3baeb3036b2b3a66bd921bc2e8f2b70023ab37ef3a73d72b2dda0"),
 ]
+# Computed with advance before it had reask_decay (commit 0d8c41a), trial 1 of seed 7: at its
+# default the knob changes no event, on fixed answers and on answers sampled at temperature 1.
+FROZEN_ADVANCE = [
+    ("upstream", ["run.episodes=25", 'secondary.policy="advance"'], "mock:authors-t0",
+     "bc1fd3118065145d4b214d9b65c91071c44340759991b1cff0897c7791db6c83"),
+    ("paper", ["run.episodes=20", 'secondary.policy="advance"', "secondary.stall_steps=8", "llm.temperature=1.0"], "mock",
+     "bd2925c251a154eb30bf5dc6d719c7175195cfb296c4e65968070b1e0e15c926"),
+]
 
 
 @pytest.mark.parametrize(("method", "preset", "sets", "provider", "digest"), FROZEN)
@@ -330,6 +401,20 @@ def test_the_paper_seq_and_the_old_methods_give_the_same_events_as_before(
     path = tmp_path / "trial.mcap"
     run_one(config, 1, 7, provider, path)
     assert _digest(path) == digest
+
+
+@pytest.mark.parametrize(("preset", "sets", "provider", "digest"), FROZEN_ADVANCE)
+def test_advance_at_the_default_reask_decay_gives_the_same_events_as_before(
+    tmp_path: Path, preset: str, sets: list[str], provider: str, digest: str
+) -> None:
+    for name, extra in (("default", []), ("zero", ["secondary.reask_decay=0"])):
+        path = tmp_path / f"{name}.mcap"
+        run_one(cfg.load("cube-stacking", "lagr-seq", preset, None, [*sets, *extra]), 1, 7, provider, path)
+        assert _digest(path) == digest
+    # re-asking changes the events (the digests above are not blind to the knob)
+    path = tmp_path / "reask.mcap"
+    run_one(cfg.load("cube-stacking", "lagr-seq", preset, None, [*sets, "secondary.reask_decay=1"]), 1, 7, provider, path)
+    assert _digest(path) != digest
 
 
 def _run(tmp_path: Path, name: str, sets: list[str], method: str = "lagr-seq", episodes: int = 30) -> list[dict]:
@@ -402,3 +487,15 @@ def test_digest_ignores_policy_fields_at_their_defaults() -> None:
     from lagrseq.running.runner import _differences
 
     assert _differences(json.loads(cfg.from_dict(old).to_json()), data) == []
+
+
+def test_a_frontier_point_names_its_reask_decay_only_when_set() -> None:
+    from lagrseq.analysis.frontier import _knob_value, policy_of
+
+    def point(*sets: str) -> dict:
+        return json.loads(cfg.load("cube-stacking", "lagr-seq", "paper", None, ['secondary.policy="advance"', *sets]).to_json())
+
+    assert policy_of(point()) == policy_of(point("secondary.reask_decay=0")) == ("advance", "stall 64")
+    assert policy_of(point("secondary.reask_decay=0.5")) == ("advance", "stall 64 reask 0.5")
+    # a curve of advance variants is ordered by the swept value
+    assert _knob_value(point("secondary.reask_decay=0.25")) < _knob_value(point("secondary.reask_decay=0.75"))
