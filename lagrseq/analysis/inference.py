@@ -46,7 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import t as _t
 
-from lagrseq.analysis.stats import Interval
+from lagrseq.analysis.interval import Interval
 
 REPRODUCED = "reproduced"
 DIFFERS = "differs"

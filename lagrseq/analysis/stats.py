@@ -16,47 +16,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lagrseq.analysis.interval import CONFIDENCE, Interval
+
 BOOTSTRAP_SEED = 20230821
 """Seed of every bootstrap (the date of the authors' released code)."""
 RESAMPLES = 10_000
-CONFIDENCE = 0.95
 
 
 def generator(key: str, seed: int = BOOTSTRAP_SEED) -> np.random.Generator:
     """The bootstrap generator of one statistic, fixed by ``seed`` and the statistic's ``key``."""
     sequence = np.random.SeedSequence(seed, spawn_key=(zlib.crc32(key.encode()),))
     return np.random.Generator(np.random.PCG64(sequence))
-
-
-@dataclass(frozen=True)
-class Interval:
-    """A mean (or a difference of means) over ``n`` values with a two-sided interval at ``level``;
-    for a mean of per-trial values (:func:`summarize`, :func:`summarize_t`), also their sample
-    standard deviation ``std`` and the standard error ``se``. With fewer than two values the bounds,
-    ``std`` and ``se`` are NaN."""
-
-    n: int
-    mean: float
-    low: float
-    high: float
-    level: float = CONFIDENCE
-    std: float = math.nan
-    se: float = math.nan
-
-    @property
-    def ci_low(self) -> float:
-        """``low``, under the name of the tables' CSV column."""
-        return self.low
-
-    @property
-    def ci_high(self) -> float:
-        """``high``, under the name of the tables' CSV column."""
-        return self.high
-
-    def __str__(self) -> str:
-        if math.isnan(self.low):
-            return f"{self.mean:.4g} (n = {self.n})"
-        return f"{self.mean:.4g} [{self.low:.4g}, {self.high:.4g}] (n = {self.n})"
 
 
 def mean_std_se(values: Sequence[float] | np.ndarray) -> tuple[float, float, float]:

@@ -24,7 +24,9 @@ from lagrseq.logs.reader import iter_messages, read_info, read_log, read_topics
 from lagrseq.logs.recover import diagnose, recover
 from tests.support.golden_mcap import CHUNK_DATA_LENGTHS, DATA, GOLDEN, MEMORY_BOUND, length_fields
 
-TIME_BOUND = 1.0
+TIME_BOUND = 10.0
+"""A hang guard, not a speed target: a damaged log is refused in well under a second on a quiet
+machine (tests never time what a benchmark measures)."""
 
 
 def _readers(path: Path) -> list[Callable[[], object]]:
