@@ -8,10 +8,10 @@ run slows both alike.
 
 ``--vs REF`` (``--vs main``: against main) then measures the logging overhead again, in
 ``--pairs`` fresh processes on this tree's lagrseq and as many on REF's (a git worktree),
-alternating, and prints each tree's median overhead and their ratio of CPU seconds per logged
-trial; then it runs a whole cube LaGR-SEQ run of 10 trials (``lagrseq run cube-stacking
---trials 10 --jobs 1``, a fresh process each time) from each tree, alternating, and prints the
-paired CPU-time ratios (``benchmarks/paired.py``).
+alternating, and prints each tree's median overhead, its range over the processes, and their
+ratio of CPU seconds per logged trial; then it runs a whole cube LaGR-SEQ run of 10 trials
+(``lagrseq run cube-stacking --trials 10 --jobs 1``, a fresh process each time) from each tree,
+alternating, and prints the paired CPU-time ratios (``benchmarks/paired.py``).
 For scale: the released code needs about 0.4 s per LaGR-SEQ trial and about 39 s per Q-learning
 trial (its permutation-ranking state index), measured on this kind of machine.
 
@@ -94,8 +94,9 @@ def main() -> None:
 
 def overhead_vs(tree: Path, ref: str, pairs: int, methods: str, trials: int) -> None:
     """The logging overhead measured by this script in fresh processes, on this tree's lagrseq
-    and on REF's, alternating; prints each method's median overhead of each tree and the ratio of
-    their CPU seconds per logged trial (REF / this tree, above 1: this tree is faster)."""
+    and on REF's, alternating; prints each method's median overhead of each tree (and its range)
+    and the ratio of their CPU seconds per logged trial (REF / this tree, above 1: this tree is
+    faster)."""
     runs: dict[str, list[dict[str, dict[str, float]]]] = {"here": [], ref: []}
     for pair in range(pairs):
         for name, path in (("here", HERE), (ref, tree)) if pair % 2 == 0 else ((ref, tree), ("here", HERE)):
@@ -109,10 +110,15 @@ def overhead_vs(tree: Path, ref: str, pairs: int, methods: str, trials: int) -> 
         theirs = [run[method] for run in runs[ref]]
         ratio = statistics.median(t["logged"] for t in theirs) / statistics.median(h["logged"] for h in here)
         print(
-            f"{method:<10} overhead here {statistics.median(h['overhead'] for h in here):+.0%}, "
-            f"{ref} {statistics.median(t['overhead'] for t in theirs):+.0%}; s per logged trial "
+            f"{method:<10} overhead here {_spread([h['overhead'] for h in here])}, "
+            f"{ref} {_spread([t['overhead'] for t in theirs])}; s per logged trial "
             f"{ref} / here = {ratio:.2f}"
         )
+
+
+def _spread(overheads: list[float]) -> str:
+    """The median overhead of a tree's processes and their range: ``+24% (+22..+27%)``."""
+    return f"{statistics.median(overheads):+.0%} ({min(overheads):+.0%}..{max(overheads):+.0%})"
 
 
 def run_vs(ref: str, pairs: int, methods: str, trials: int) -> None:
