@@ -31,7 +31,7 @@ def generator(key: str, seed: int = BOOTSTRAP_SEED) -> np.random.Generator:
 @dataclass(frozen=True)
 class Interval:
     """A mean (or a difference of means) over ``n`` values with a two-sided interval at ``level``;
-    for a mean of per-trial values (:func:`summarize`, :func:`summarize_t`), also their sample
+    for a mean of per-trial values (:func:`summarize_t`), also their sample
     standard deviation ``std`` and the standard error ``se``. With fewer than two values the bounds,
     ``std`` and ``se`` are NaN."""
 
@@ -93,14 +93,6 @@ def percentile_interval(draws: np.ndarray, confidence: float = CONFIDENCE, axis:
     tail = (1.0 - confidence) / 2.0
     low, high = np.quantile(draws, [tail, 1.0 - tail], axis=axis)
     return low, high
-
-
-def summarize(values: Sequence[float] | np.ndarray, rng: np.random.Generator) -> Interval:
-    """Mean, spread and a bootstrap interval of per-trial values."""
-    x = np.asarray(values, dtype=float)
-    mean, std, se = mean_std_se(x)
-    low, high = bootstrap_ci(x, rng)
-    return Interval(int(x.size), mean, low, high, CONFIDENCE, std, se)
 
 
 def summarize_t(values: Sequence[float] | np.ndarray, confidence: float = CONFIDENCE, positive: bool = False) -> Interval:
