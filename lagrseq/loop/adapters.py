@@ -1,4 +1,5 @@
-"""What the loop asks of the primary and secondary agents, and the adapters that give it.
+"""What the loop asks of the primary agent, and the adapters that give it and the secondary
+agent's (:class:`lagrseq.loop.policies.SecondaryAgent`).
 
 The agents in ``agents/`` know only arrays, keys and gymnasium spaces; these adapters hold one and
 translate the loop's :class:`Step` (observations, the env's ``info``) into what it needs: the
@@ -39,14 +40,6 @@ class PrimaryAgent(Protocol):
     def act(self, observation: Any, info: dict[str, Any], epsilon: float, rng: np.random.Generator) -> int: ...
 
     def learn(self, step: Step) -> None: ...
-
-
-class SecondaryAgent(Protocol):
-    """The secondary (SEQ) agent: whether to query the LLM from a pattern, and its bandit update."""
-
-    def decide(self, pattern: Any, epsilon: float, rng: np.random.Generator) -> int: ...
-
-    def update(self, pattern: Any, decision: int, reward: float) -> None: ...
 
 
 class TabularTask(Protocol):
