@@ -31,7 +31,7 @@ def generator(key: str, seed: int = BOOTSTRAP_SEED) -> np.random.Generator:
 @dataclass(frozen=True)
 class Interval:
     """A mean (or a difference of means) over ``n`` values with a two-sided interval at ``level``;
-    for a mean of per-trial values (:func:`summarize_t`), also their sample
+    for a mean of per-trial values (:func:`summarize`, :func:`summarize_t`), also their sample
     standard deviation ``std`` and the standard error ``se``. With fewer than two values the bounds,
     ``std`` and ``se`` are NaN."""
 
