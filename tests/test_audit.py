@@ -11,6 +11,7 @@ import pytest
 
 from lagrseq import config as cfg
 from lagrseq.analysis import audit, loading
+from lagrseq.progress import Reporter
 
 
 def _flat(config: dict) -> dict:
@@ -20,7 +21,7 @@ def _flat(config: dict) -> dict:
 def test_the_plan_switches_one_field_per_run(tmp_path: Path) -> None:
     from lagrseq.study.audit import plan
 
-    runs = plan("cube-stacking", "mock", 1, 2, -1, tmp_path, 0, print)
+    runs = plan("cube-stacking", "mock", 1, 2, -1, tmp_path, 0, Reporter())
     assert len({r.path for r in runs}) == len(runs)  # no two runs share a configuration
     for r in runs:
         preset = _flat(json.loads(cfg.load("cube-stacking", r.method, r.preset).to_json()))
@@ -46,7 +47,7 @@ def test_every_audit_run_differs_from_its_preset_in_exactly_the_field_it_switche
     from lagrseq.study.audit import run_audit
 
     lines: list[str] = []
-    made = run_audit("cube-stacking", "mock", 2, 3, -1, tmp_path, 1, 0, ["png"], quiet=True, say=lines.append)
+    made = run_audit("cube-stacking", "mock", 2, 3, -1, tmp_path, 1, 0, ["png"], Reporter(lines.append, quiet=True))
     fields = audit.audited_fields("cube-stacking")
     names = {name for name, _, _ in fields}
     assert "lagr.solution_scope" in names and "env.horizon" in names and len(names) >= 10
@@ -106,7 +107,7 @@ def test_write_audit_names_each_log_it_leaves_out(tmp_path: Path) -> None:
     cut = runs / "trial-001.mcap"
     cut.write_bytes(golden.read_bytes()[:-1])
     warnings: list[str] = []
-    write_audit([runs], tmp_path, ["png"], warn=warnings.append)
+    write_audit([runs], tmp_path, ["png"], reporter=Reporter(lambda _line: None, warn=warnings.append))
     (warning,) = warnings
     assert warning.startswith(f"{full_path(cut)}: damaged MCAP log") and "lagrseq recover '" in warning
 
@@ -160,7 +161,7 @@ def test_the_scoreboard_says_what_explains_each_gap_from_the_audit_in_the_logs(t
     from lagrseq.study.audit import run_audit
     from lagrseq.suite import load_suite
 
-    run_audit("cube-stacking", "mock", 5, 3, -1, tmp_path, 1, 0, ["png"], quiet=True, say=lambda _: None)
+    run_audit("cube-stacking", "mock", 5, 3, -1, tmp_path, 1, 0, ["png"], Reporter.silent())
     config = cfg.load("cube-stacking", "lagr", "upstream", None, ["run.episodes=3", "llm.temperature=0.5"])
     runner.run_trials(config, 5, 0, "mock", runner.run_directory(tmp_path / "runs", config, "mock", 0))
     suite_path = tmp_path / "suite.toml"

@@ -9,6 +9,7 @@ import pytest
 
 from lagrseq import config as cfg
 from lagrseq.errors import ConfigError
+from lagrseq.progress import Reporter
 
 
 @pytest.mark.parametrize("task", cfg.tasks())
@@ -129,4 +130,4 @@ def test_a_task_without_a_paper_ships_upstream_alone(tmp_path: Path, monkeypatch
         cfg.load("paperless", "lagr", "paper")
     assert "\n" not in str(refused.value)
     with pytest.raises(UsageError, match="ships no 'paper' preset"):
-        plan("paperless", "mock", 1, 1, -1, tmp_path / "runs", 0, say=lambda _: None)
+        plan("paperless", "mock", 1, 1, -1, tmp_path / "runs", 0, Reporter.silent())

@@ -9,7 +9,7 @@ import pytest
 
 from lagrseq.config import LagrConfig, LLMConfig
 from lagrseq.llm.base import Answer, Query, Usage
-from lagrseq.loop.lagr import QueryTrigger, consult, follow, follows, query_for
+from lagrseq.loop.lagr import QueryTrigger, consult, follows, query_for
 from lagrseq.tasks.cube import LETTERS, CubeStacking
 
 TASK = CubeStacking(8)
@@ -97,7 +97,8 @@ def test_pi_llm_adds_the_next_cube_of_the_solution() -> None:
     assert TASK.guidance(target[:3], target) == target[3] + 1
     assert TASK.guidance(target[:3], target[:2] + (target[5],)) == 0, "off the solution: remove"
     rng = np.random.default_rng(0)
-    assert follow(TASK, LagrConfig(follow_probability=1.0), target[:1], target, None, rng) == target[1] + 1
+    assert follows(LagrConfig(follow_probability=1.0), rng)  # P = 1: pi_LLM acts at every step
+    assert TASK.guidance(target[:1], target, None) == target[1] + 1
 
 
 def test_follow_probability_one_draws_nothing_and_p_is_honoured() -> None:

@@ -163,17 +163,6 @@ def ratio_interval(
     return Interval(n, ratio, ratio - half, ratio + half, level)
 
 
-def welch_p(x: Sequence[float] | np.ndarray, y: Sequence[float] | np.ndarray) -> float:
-    """Two-sided p-value of Welch's test of equal means (NaN with fewer than 2 values per arm)."""
-    a, b = _finite(x), _finite(y)
-    if a.size < 2 or b.size < 2:
-        return math.nan
-    diff, se, df = _welch(a, b)
-    if se == 0.0:
-        return 1.0 if diff == 0.0 else 0.0
-    return 2.0 * (1.0 - t_cdf(abs(diff) / se, df))
-
-
 # -- estimates with a standard error: lagrseq's and the paper's -----------------------------------
 
 

@@ -65,14 +65,6 @@ def percentile_interval(draws: np.ndarray, confidence: float = CONFIDENCE, axis:
     return low, high
 
 
-def summarize(values: Sequence[float] | np.ndarray, rng: np.random.Generator) -> Interval:
-    """Mean, spread and a bootstrap interval of per-trial values."""
-    x = np.asarray(values, dtype=float)
-    mean, std, se = mean_std_se(x)
-    low, high = bootstrap_ci(x, rng)
-    return Interval(int(x.size), mean, low, high, CONFIDENCE, std, se)
-
-
 def summarize_t(values: Sequence[float] | np.ndarray, confidence: float = CONFIDENCE, positive: bool = False) -> Interval:
     """Mean, spread and Student's t interval of per-trial values: the interval every table of a
     mean reports (it keeps its nominal coverage at the 2 to 10 trials of a reproduction, where the

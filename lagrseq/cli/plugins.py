@@ -47,9 +47,10 @@ def cmd_plugins(args: argparse.Namespace) -> int:
     if not args.check:
         print("\n".join(registry.listing()))
         return 0
+    from lagrseq.progress import Reporter
     from lagrseq.study.plugin_check import check
 
-    problems = check(print)
+    problems = check(Reporter())
     for problem in problems:
         print(f"lagrseq plugins --check: {problem}", file=sys.stderr)
     print(f"{len(problems)} problem{'' if len(problems) == 1 else 's'} found")

@@ -23,6 +23,7 @@ from lagrseq.cli.options import (
 )
 from lagrseq.cli.output import _bar, _price_function, _say, _shown, _warn
 from lagrseq.errors import UsageError
+from lagrseq.progress import Reporter
 
 
 @takes_provider_flags("frontier")
@@ -158,7 +159,7 @@ def cmd_screen(args: argparse.Namespace) -> int:
         desc = f"screen {args.task} {config.llm.model} t={config.llm.temperature:g}"
         line = screen.record_screen(
             config, args.provider, args.prompts, args.from_runs or (), args.store, answers, _provider_options(args),
-            lambda total: _bar(total, "prompt", desc, args.quiet), _warn("screen"), args.prompt_set, args.seed,
+            lambda total: _bar(total, "prompt", desc, args.quiet), Reporter(_say, warn=_warn("screen")), args.prompt_set, args.seed,
         )
         _say(line)
         files = [answers]
@@ -187,7 +188,7 @@ def cmd_frontier(args: argparse.Namespace) -> int:
         args.task, args.replay, variants, args.provider, None if args.replay else _provider_options(args, elsewhere=("price_table",)), args.out,
         args.trials, args.seed, args.preset, args.config, args.overrides, args.jobs,
         progress=lambda desc, total, unit: _bar(total, unit, desc, args.quiet),
-        say=_say, scopes=args.scopes, matched_random=args.matched_random, tune=frontier.tuning(args.tune, args.seed, args.tune_seed, args.tune_trials),
+        reporter=Reporter(_say), scopes=args.scopes, matched_random=args.matched_random, tune=frontier.tuning(args.tune, args.seed, args.tune_seed, args.tune_trials),
         stop_at_first_solve=args.stop_at_first_solve, full_horizon_trials=args.full_horizon_trials,
     )
     made = report(roots, out, price, args.miss_threshold)
@@ -208,11 +209,11 @@ def cmd_frontier(args: argparse.Namespace) -> int:
 
 def cmd_audit(args: argparse.Namespace) -> int:
     from lagrseq.analysis.tables import to_markdown
-    from lagrseq.study.audit import run_audit
+    from lagrseq.study.audit import run_audit, warn_on_stderr
 
     made = run_audit(
         args.task, args.provider, args.trials, args.episodes, args.max_steps, args.out, args.jobs, args.seed,
-        ["png"], quiet=args.quiet, say=_say,
+        ["png"], Reporter(_say, warn=warn_on_stderr, quiet=args.quiet),
     )
     for audit in made:
         for stem, table in ((f"audit-{audit.task}", audit.table), (f"audit-{audit.task}-interactions", audit.interaction_table)):

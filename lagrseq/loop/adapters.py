@@ -1,4 +1,6 @@
-"""What the loop asks of the primary and secondary agents, and the adapters that give it.
+"""What the loop asks of the primary agent, and the adapters that give it and the neural
+secondary agent's (:class:`lagrseq.loop.policies.SecondaryAgent`; the tabular one,
+:class:`lagrseq.loop.seq.TabularSecondary`, needs none).
 
 The agents in ``agents/`` know only arrays, keys and gymnasium spaces; these adapters hold one and
 translate the loop's :class:`Step` (observations, the env's ``info``) into what it needs: the
@@ -16,7 +18,6 @@ import numpy as np
 from lagrseq import seeding
 from lagrseq.agents.tabular import TabularQ, epsilon_greedy
 from lagrseq.config import DQNConfig, NeuralSecondaryConfig, TabularConfig
-from lagrseq.loop.seq import TabularSecondary
 from lagrseq.seeding import Stream
 
 
@@ -39,14 +40,6 @@ class PrimaryAgent(Protocol):
     def act(self, observation: Any, info: dict[str, Any], epsilon: float, rng: np.random.Generator) -> int: ...
 
     def learn(self, step: Step) -> None: ...
-
-
-class SecondaryAgent(Protocol):
-    """The secondary (SEQ) agent: whether to query the LLM from a pattern, and its bandit update."""
-
-    def decide(self, pattern: Any, epsilon: float, rng: np.random.Generator) -> int: ...
-
-    def update(self, pattern: Any, decision: int, reward: float) -> None: ...
 
 
 class TabularTask(Protocol):
@@ -91,19 +84,6 @@ class TabularPrimary:
         self.agent.update(
             self.key(step.info["pattern"]), step.action, step.reward, self.key(following), step.terminated
         )
-
-
-class TabularSeq:
-    """The paper's tabular SEQ bandit, one row per exact pattern."""
-
-    def __init__(self, learning_rate: float) -> None:
-        self.bandit = TabularSecondary(learning_rate)
-
-    def decide(self, pattern: Any, epsilon: float, rng: np.random.Generator) -> int:
-        return self.bandit.decide(tuple(pattern), epsilon, rng)
-
-    def update(self, pattern: Any, decision: int, reward: float) -> None:
-        self.bandit.update(tuple(pattern), decision, reward)
 
 
 # The primary and secondary networks each get their own part of the TORCH and REPLAY streams.

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -98,17 +97,3 @@ def follows(config: LagrConfig, rng: np.random.Generator) -> bool:
     """Whether this step follows pi_LLM: with probability P (``follow_probability``); P = 1 draws
     nothing from ``rng``."""
     return config.follow_probability >= 1.0 or rng.random() < config.follow_probability
-
-
-def follow(
-    task: Task,
-    config: LagrConfig,
-    pattern: Pattern,
-    solution: Any,
-    cursor: Any,
-    rng: np.random.Generator,
-) -> int | None:
-    """pi_LLM's action with probability P (``follow_probability``), else None (the primary acts)."""
-    if not follows(config, rng):
-        return None
-    return task.guidance(pattern, solution, cursor)

@@ -100,7 +100,8 @@ class AskingPolicy(Protocol):
 
 
 class SecondaryAgent(Protocol):
-    """The paper's SEQ agent (tabular or neural bandit over patterns)."""
+    """The paper's SEQ agent (tabular or neural bandit over patterns): whether to query the LLM
+    from a pattern, and its bandit update (the adapters in :mod:`lagrseq.loop.adapters`)."""
 
     def decide(self, pattern: Any, epsilon: float, rng: np.random.Generator) -> int: ...
 

@@ -9,7 +9,7 @@ exploring.
 from __future__ import annotations
 
 import math
-from collections.abc import Hashable
+from collections.abc import Hashable, Iterable
 
 import numpy as np
 
@@ -30,7 +30,9 @@ def query_reward(evaluation: float, accepted: bool, config: SecondaryConfig) -> 
 
 
 class TabularSecondary:
-    """Bandit values Q2[s] = [value of not querying, value of querying]."""
+    """The paper's tabular SEQ agent: bandit values Q2[s] = [value of not querying, value of
+    querying], one row per exact pattern (its tuple: a cube stack's letters in order). It is the
+    :class:`lagrseq.loop.policies.SecondaryAgent` the ``seq`` policy consults."""
 
     def __init__(self, learning_rate: float) -> None:
         self.learning_rate = learning_rate
@@ -42,14 +44,14 @@ class TabularSecondary:
             row = self.table[key] = np.zeros(2)
         return row
 
-    def decide(self, key: Hashable, epsilon: float, rng: np.random.Generator) -> int:
+    def decide(self, pattern: Iterable[Hashable], epsilon: float, rng: np.random.Generator) -> int:
         """epsilon-greedy over {0: skip, 1: query}; ties choose 0."""
         if rng.random() < epsilon:
             return int(rng.integers(2))
-        row = self.values(key)
+        row = self.values(tuple(pattern))
         return 1 if row[1] > row[0] else 0
 
-    def update(self, key: Hashable, decision: int, reward: float) -> None:
+    def update(self, pattern: Iterable[Hashable], decision: int, reward: float) -> None:
         """Bandit update Q2[s,a] += lr * (r - Q2[s,a]) (no bootstrapping: every decision ends)."""
-        row = self.values(key)
+        row = self.values(tuple(pattern))
         row[decision] += self.learning_rate * (reward - row[decision])

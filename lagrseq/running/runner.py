@@ -908,12 +908,6 @@ LEDGER_NAME = "budget-ledger.sqlite"
 """The run's shared budget ledger, in its run directory (only when a budget is set)."""
 
 
-def with_episodes(config: ExperimentConfig, episodes: int) -> ExperimentConfig:
-    """A copy of ``config`` with another episode count."""
-    return replace(config, run=replace(config.run, episodes=episodes))
-
-
-
 def prepare(
     task: str,
     method: str,

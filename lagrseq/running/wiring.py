@@ -38,10 +38,10 @@ from lagrseq.loop.adapters import (
     NeuralSeq,
     PrimaryAgent,
     TabularPrimary,
-    TabularSeq,
 )
 from lagrseq.loop.experiment import Guide, TrialParts
 from lagrseq.loop.policies import Always, AskingPolicy, make_policy
+from lagrseq.loop.seq import TabularSecondary
 from lagrseq.paths import expand_user, input_path, source_checkout
 from lagrseq.registry import (
     CALIBRATED_MISS,
@@ -509,7 +509,7 @@ def make_secondary(config: ExperimentConfig, task: Task, seed: int, trial: int) 
     def seq_agent() -> Any:
         if isinstance(section, NeuralSecondaryConfig):
             return NeuralSeq(section, pattern_cells(config, task), seed, trial)
-        return TabularSeq(section.learning_rate)
+        return TabularSecondary(section.learning_rate)
 
     return make_policy(section, seq_agent)
 

@@ -15,7 +15,6 @@ asks).
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -25,6 +24,7 @@ from lagrseq import outputs
 from lagrseq.config import ExperimentConfig
 from lagrseq.errors import ConfigError, UsageError
 from lagrseq.logs.reader import is_complete
+from lagrseq.progress import Reporter
 from lagrseq.running import runner, wiring
 from lagrseq.text import shown
 
@@ -47,7 +47,7 @@ def plan(
     max_steps: int,
     runs_dir: Path,
     seed: int,
-    say: Callable[[str], None],
+    reporter: Reporter,
     presets: tuple[str, ...] | None = None,
 ) -> list[AuditRun]:
     """The audit's runs; ``presets`` limits the one-field switches to those presets' directions
@@ -85,7 +85,7 @@ def plan(
                 try:
                     config = cfg.load(task, method, preset, None, sets)
                 except ConfigError as exc:
-                    say(f"{preset} + {field}: cannot be switched alone ({exc}); left out")
+                    reporter.say(f"{preset} + {field}: cannot be switched alone ({exc}); left out")
                     break
                 spec = "mock" if method == "baseline" else provider
                 path = runner.run_directory(runs_dir, config, spec, seed)
@@ -98,7 +98,7 @@ def plan(
             try:
                 config = cfg.load(task, method, INTERACTION_PRESET, None, sets)
             except ConfigError as exc:
-                say(f"{INTERACTION_PRESET} + {' + '.join(sorted(together))}: cannot be switched together ({exc}); left out")
+                reporter.say(f"{INTERACTION_PRESET} + {' + '.join(sorted(together))}: cannot be switched together ({exc}); left out")
                 continue
             spec = "mock" if method == "baseline" else provider
             path = runner.run_directory(runs_dir, config, spec, seed)
@@ -116,44 +116,52 @@ def run_audit(
     jobs: int,
     seed: int,
     formats: list[str],
-    quiet: bool = False,
-    say: Callable[[str], None] = print,
+    reporter: Reporter | None = None,
 ) -> list[Any]:
     """Run the audit of ``task`` into ``OUT/runs`` and write ``OUT/reports/audit-TASK.*``;
-    returns the audits built from the logs."""
+    returns the audits built from the logs. ``reporter`` (default: lines on stdout, warnings on
+    stderr, :func:`warn_on_stderr`) says the plan and each log left out, and shows the bar unless
+    quiet."""
     from lagrseq.paths import writable_directory
     from lagrseq.progress import bar as progress_bar
 
     wiring.parse_provider(provider)
     writable_directory(out)
     runs_dir, reports = writable_directory(out / "runs"), writable_directory(out / "reports", "--out")
-    runs = plan(task, provider, trials, episodes, max_steps, runs_dir, seed, say)
+    reporter = reporter or Reporter(warn=warn_on_stderr)
+    runs = plan(task, provider, trials, episodes, max_steps, runs_dir, seed, reporter)
     pending = sum(not is_complete(runner.trial_path(r.path, t)) for r in runs for t in range(trials))
     fields = len({r.field for r in runs if r.field and " + " not in r.field})
     together = len([r for r in runs if r.field and " + " in r.field])
-    say(
+    reporter.say(
         f"audit of {task}: {fields} fields x 2 presets"
         + (f" and {together} interaction runs (fields switched together)" if together else "")
         + f", {len(runs)} runs of {trials} trials ({pending} trials to run)"
     )
-    with progress_bar(len(runs) * trials, "trial", quiet=quiet) as bar:
+    with progress_bar(len(runs) * trials, "trial", quiet=reporter.quiet) as bar:
         sweep = [runner.SweepRun(r.config, trials, seed, r.provider, r.path, progress=runner.TrialCount(bar, r.config)) for r in runs]
         runner.run_sweep(sweep, jobs)  # every run's trials in one pool: no worker waits on a run's last trial
-    return write_audit([runs_dir], reports, formats, task, warn=lambda line: print(f"lagrseq audit: warning: {shown(line)}", file=sys.stderr))
+    return write_audit([runs_dir], reports, formats, task, reporter)
+
+
+def warn_on_stderr(line: str) -> None:
+    """``lagrseq audit``'s warning: one line on stderr."""
+    print(f"lagrseq audit: warning: {shown(line)}", file=sys.stderr)
 
 
 def write_audit(
-    roots: list[Path], reports: Path, formats: list[str], task: str | None = None, warn: Callable[[str], None] | None = None
+    roots: list[Path], reports: Path, formats: list[str], task: str | None = None, reporter: Reporter | None = None
 ) -> list[Any]:
     """Build the audits from the logs under ``roots`` and write table (Markdown, CSV) and figure;
-    ``warn`` is told about each log left out (damaged, unfinished: one line naming its full path)."""
+    ``reporter`` is warned about each log left out (damaged, unfinished: one line naming its full
+    path)."""
     from lagrseq.analysis import audit, loading
     from lagrseq.analysis.tables import to_csv, to_markdown
 
     logs = loading.load(roots)
     for warning in logs.warnings:
-        if warn is not None:
-            warn(warning)
+        if reporter is not None:
+            reporter.warn(warning)
     made = [a for a in audit.build(logs.runs) if task is None or a.task == task]
     for a in made:
         for stem, table, fig in audit.outputs(a):

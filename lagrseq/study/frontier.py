@@ -34,6 +34,7 @@ from typing import Any
 from lagrseq import outputs
 from lagrseq.errors import UsageError
 from lagrseq.frontier_protocol import TUNING_NOTE, matched_probability, wants_match
+from lagrseq.progress import Reporter
 from lagrseq.registry import POLICIES, TASKS, knob_names, tuned_knob
 
 
@@ -185,7 +186,7 @@ def run_protocol(
     overrides: Sequence[str],
     jobs: int,
     progress: Callable[[str, int, str], Any] | None = None,
-    say: Callable[[str], None] = print,
+    reporter: Reporter | None = None,
     scopes: Sequence[str | None] = (None,),
     matched_random: bool = False,
     tune: Tuning | None = None,
@@ -195,6 +196,7 @@ def run_protocol(
     rate. Every configuration of a phase is checked before any of its trials starts."""
     if tune is not None and tune.seed == seed:
         raise UsageError(f"--tune-seed {tune.seed} is the evaluation seed; tuning must use other seeds")
+    reporter = reporter or Reporter()
     directories: list[Path] = []
     ran: list[Variant] = []
     chosen: dict[str, dict[str, Any]] = {}
@@ -208,7 +210,7 @@ def run_protocol(
         ) -> list[Path]:
             return _run_phase(
                 task, todo, provider, options, out, count, run_seed, preset, config_file, extra, jobs,
-                progress, say, what + where,
+                progress, reporter, what + where,
             )
 
         notes: dict[Variant, dict[str, str]] = {}
@@ -233,7 +235,7 @@ def run_protocol(
                     continue
                 queries, decisions = _rate(directory, trials)
                 if decisions == 0 or queries == 0:
-                    say(f"{variant}{where}: asked nothing, no random run at its rate")
+                    reporter.say(f"{variant}{where}: asked nothing, no random run at its rate")
                     continue
                 p = matched_probability(queries, decisions)
                 if p >= 1.0:  # random at rate 1 asks at every trigger: always is that run
@@ -278,7 +280,7 @@ def _run_phase(
     overrides: Sequence[str],
     jobs: int,
     progress: Callable[[str, int, str], Any] | None,
-    say: Callable[[str], None],
+    reporter: Reporter,
     what: str,
 ) -> list[Path]:
     """Run ``todo``'s variants (with their run-metadata notes) as one pool: all trials at once, so
@@ -301,9 +303,9 @@ def _run_phase(
             runner.SweepRun(config, trials, seed, provider, directory, options, progress=bar, notes=notes)
             for _, config, directory, notes in prepared
         ]
-        outcome = runner.run_sweep(sweep, jobs, say=say, warn=say)
+        outcome = runner.run_sweep(sweep, jobs, say=reporter.say, warn=reporter.warn)
     for (variant, _, directory, _), results in zip(prepared, outcome, strict=True):
-        say(f"{variant} [{what}]: " + runner.summary(results, directory, provider).replace("\n", "; "))
+        reporter.say(f"{variant} [{what}]: " + runner.summary(results, directory, provider).replace("\n", "; "))
     return [d for _, _, d, _ in prepared]
 
 
@@ -451,7 +453,7 @@ def runs_or_replay(
     scopes: str = "auto",
     matched_random: bool = True,
     tune: Tuning | None = None,
-    say: Callable[[str], None] = print,
+    reporter: Reporter | None = None,
     stop_at_first_solve: bool = False,
     full_horizon_trials: int = 0,
 ) -> tuple[Path, list[Path]]:
@@ -484,16 +486,17 @@ def runs_or_replay(
     check_variants(task, [*variants, *matched], provider, options, preset, config_file, stopped, chosen_scopes)
     if full_horizon_trials:
         check_variants(task, variants, provider, options, preset, config_file, overrides, chosen_scopes)
+    reporter = reporter or Reporter()
     made = run_protocol(  # out is made once every configuration is checked
         task, list(variants), provider, options, out, trials, seed, preset, config_file, stopped, jobs,
-        progress=progress, say=say, scopes=chosen_scopes, matched_random=matched_random, tune=tune,
+        progress=progress, reporter=reporter, scopes=chosen_scopes, matched_random=matched_random, tune=tune,
     )
     ran, directories = list(made.variants), list(made.directories)
     if full_horizon_trials:  # the second group: the variants at full length, on fewer pairs
-        say(f"full-horizon query counts: {len(variants)} variants x {full_horizon_trials} trials at full length")
+        reporter.say(f"full-horizon query counts: {len(variants)} variants x {full_horizon_trials} trials at full length")
         full = run_protocol(
             task, list(variants), provider, options, out, full_horizon_trials, seed, preset, config_file, list(overrides),
-            jobs, progress=progress, say=say, scopes=chosen_scopes, matched_random=False, tune=None,
+            jobs, progress=progress, reporter=reporter, scopes=chosen_scopes, matched_random=False, tune=None,
         )
         ran += full.variants
         directories += full.directories

@@ -18,11 +18,11 @@ import io
 import json
 import tempfile
 import warnings
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from lagrseq import registry
+from lagrseq.progress import Reporter
 
 CHECK_EPISODES = 3
 """Episodes of the short trial each plugin task runs."""
@@ -30,8 +30,8 @@ CHECK_STEPS = 200
 """At most this many steps in each of them (``env`` sections with a ``horizon`` field)."""
 
 
-def check(say: Callable[[str], None]) -> list[str]:
-    """Every problem of the installed plugins, one line each (``say`` gets what was checked)."""
+def check(reporter: Reporter) -> list[str]:
+    """Every problem of the installed plugins, one line each (``reporter`` says what was checked)."""
     for one in registry.REGISTRIES.values():
         one.names()  # every group loaded first: its skipped plugins are in FAILURES
     problems = [f"plugin {registry.printable(repr(f.entry_point))} ({registry.printable(f.source)}, group {f.group}): {f.problem}"
@@ -41,11 +41,11 @@ def check(say: Callable[[str], None]) -> list[str]:
             if entry.distribution == registry.BUILTIN:
                 continue
             where = f"{one.kind} {registry.printable(repr(entry.name))} ({registry.printable(entry.source)})"
-            found = _task_problems(entry.spec, say, where) if kind == "tasks" else []
+            found = _task_problems(entry.spec, reporter, where) if kind == "tasks" else []
             found += _policy_problems(entry.spec) if kind == "policies" else []
             problems += [f"{where}: {problem}" for problem in found]
             if not found:
-                say(f"ok: {where} loads; its names, knobs and flags are its own" + CHECKED.get(kind, ""))
+                reporter.say(f"ok: {where} loads; its names, knobs and flags are its own" + CHECKED.get(kind, ""))
     return problems
 
 
@@ -71,7 +71,7 @@ def _policy_problems(spec: registry.PolicySpec) -> list[str]:
     return []
 
 
-def _task_problems(spec: registry.TaskSpec, say: Callable[[str], None], where: str) -> list[str]:
+def _task_problems(spec: registry.TaskSpec, reporter: Reporter, where: str) -> list[str]:
     """The env checker's and a short run's problems with one plugin task ([] when none)."""
     from lagrseq import config as cfg
     from lagrseq.errors import LagrseqError
@@ -80,19 +80,19 @@ def _task_problems(spec: registry.TaskSpec, say: Callable[[str], None], where: s
         config = cfg.load(spec.name, "baseline", spec.frontier_preset if spec.frontier_preset in cfg.task_presets(spec.name) else "upstream")
     except LagrseqError as exc:
         return [f"its default configuration is refused: {exc}"]
-    problem = _env_problem(spec, config, say, where)
+    problem = _env_problem(spec, config, reporter, where)
     if problem:
         return [problem]
     return _run_problems(spec, config)
 
 
-def _env_problem(spec: registry.TaskSpec, config: Any, say: Callable[[str], None], where: str) -> str:
+def _env_problem(spec: registry.TaskSpec, config: Any, reporter: Reporter, where: str) -> str:
     """Gymnasium's env checker on the task's env ("" when it passes or cannot apply)."""
     try:
         import gymnasium
         from gymnasium.utils.env_checker import check_env
     except ImportError:  # pragma: no cover - gymnasium is a dependency of every task
-        say(f"note: {where}: gymnasium is not installed; its env checker was not run")
+        reporter.say(f"note: {where}: gymnasium is not installed; its env checker was not run")
         return ""
     try:
         env = spec.make_env(config, None)
@@ -100,14 +100,14 @@ def _env_problem(spec: registry.TaskSpec, config: Any, say: Callable[[str], None
         return f"make_env raised {registry._one_line(exc)}"
     try:
         if not isinstance(env, gymnasium.Env):
-            say(f"note: {where}: its env is a {type(env).__name__}, not a gymnasium.Env (reset, step and close are "
+            reporter.say(f"note: {where}: its env is a {type(env).__name__}, not a gymnasium.Env (reset, step and close are "
                 "all lagrseq needs), so Gymnasium's env checker does not apply")
             return ""
         with warnings.catch_warnings(record=True) as seen, contextlib.redirect_stdout(io.StringIO()):
             warnings.simplefilter("always")
             check_env(env, skip_render_check=True)
         for warning in seen:
-            say(f"note: {where}: Gymnasium's env checker warns: {registry.printable(' '.join(str(warning.message).split()))}")
+            reporter.say(f"note: {where}: Gymnasium's env checker warns: {registry.printable(' '.join(str(warning.message).split()))}")
     except Exception as exc:  # noqa: BLE001 - what the checker finds is the plugin's problem
         return f"Gymnasium's env checker: {registry._one_line(exc)}"
     finally:

@@ -31,6 +31,7 @@ import numpy as np
 from lagrseq import outputs
 from lagrseq.config import ExperimentConfig
 from lagrseq.errors import UsageError
+from lagrseq.progress import Reporter
 from lagrseq.text import csv_cell, markdown_cell
 
 Z95 = 1.959963984540054
@@ -122,7 +123,7 @@ def screen_queries(
     config: ExperimentConfig,
     prompts: int,
     runs: Sequence[str | Path] = (),
-    warn: Callable[[str], None] | None = None,
+    reporter: Reporter | None = None,
     prompt_set: str | None = None,
     seed: int = 0,
 ) -> tuple[list[Any], int]:
@@ -130,7 +131,8 @@ def screen_queries(
     Cube stacking: every prefix of the target, each asked ceil(N / prefixes) times; or N
     relabelled cube sets (:func:`relabelled_patterns`), each asked once. Grid tasks: N distinct
     states of the runs' ``/query`` records, or N sampled partial states of the target
-    (:func:`sampled_states`), spread over fill fractions, each asked once."""
+    (:func:`sampled_states`), spread over fill fractions, each asked once. ``reporter`` is warned
+    about each run log left out."""
     from lagrseq.loop.lagr import query_for
     from lagrseq.running.recording import queries_for, record_patterns
     from lagrseq.running.wiring import make_task
@@ -157,7 +159,7 @@ def screen_queries(
         return [query_for(t, config.llm, pattern) for t, pattern in pairs], 1
     if chosen_set == "sampled":
         return queries_for(config, sampled_states(task, prompts, seed)), 1
-    patterns = record_patterns(config, runs, "/query", warn)
+    patterns = record_patterns(config, runs, "/query", reporter.warn if reporter is not None else None)
     chosen = spread(patterns, [bin_of(task, p) for p in patterns], prompts)
     return queries_for(config, chosen), 1
 
@@ -894,7 +896,7 @@ def record_screen(
     answers: Path,
     options: Any,
     bar_for: Callable[[int], Any],
-    warn: Callable[[str], None] | None = None,
+    reporter: Reporter | None = None,
     prompt_set: str | None = None,
     seed: int = 0,
 ) -> str:
@@ -910,7 +912,7 @@ def record_screen(
     from lagrseq.running.recording import _local_endpoint, record, served_queries
     from lagrseq.running.wiring import local_settings, parse_provider, provider_kind
 
-    queries, samples = screen_queries(config, prompts, runs, warn, prompt_set, seed)
+    queries, samples = screen_queries(config, prompts, runs, reporter, prompt_set, seed)
     kind = provider_kind(provider)
     model = None
     if kind.local_server:

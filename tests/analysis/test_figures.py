@@ -10,6 +10,7 @@ import pytest
 from matplotlib.figure import Figure
 
 from lagrseq.analysis import figures, stats
+from tests.support.summaries import summarize
 
 
 def _series(label: str, offset: float) -> figures.Series:
@@ -73,7 +74,7 @@ def test_bar_error_bars_are_the_tables_intervals_and_never_reach_below_zero() ->
 
 
 def test_bars_with_a_single_trial_show_no_error() -> None:
-    one = stats.summarize([5.0], stats.generator("one"))
+    one = summarize([5.0], stats.generator("one"))
     assert math.isnan(one.se)
     ax = figures.bars([figures.Bar("x", one)])
     assert [t.get_text() for t in ax.texts] == ["5.0"]

@@ -14,6 +14,7 @@ from lagrseq.analysis import loading
 from lagrseq.errors import LogError
 from lagrseq.logs.reader import read_topics
 from lagrseq.running import runner
+from tests.support.configs import with_episodes
 
 
 def test_runs_are_grouped_by_what_was_run(runs_dir: Path, shape: tuple[int, int]) -> None:
@@ -63,7 +64,7 @@ def test_bad_logs_are_skipped_with_one_line_each(
     )
     # cut from a longer trial: in log format 3 a short cube trial's transitions are one chunk,
     # so the first half of its file holds no finished episode
-    longer = runner.run_one(runner.with_episodes(config, 150), 8, 0, "mock", tmp_path / "longer" / "trial-008.mcap")
+    longer = runner.run_one(with_episodes(config, 150), 8, 0, "mock", tmp_path / "longer" / "trial-008.mcap")
     data = longer.path.read_bytes()
     (lagr_seq.parent / "trial-008.mcap").write_bytes(data[: len(data) // 2])
     interrupted = lagr_seq.parent / "trial-009.mcap"

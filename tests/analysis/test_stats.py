@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from lagrseq.analysis import stats
+from tests.support.summaries import summarize
 
 
 def test_mean_std_se_use_the_sample_standard_deviation() -> None:
@@ -46,7 +47,7 @@ def test_bootstrap_of_constant_values_and_of_one_value() -> None:
 
 
 def test_summarize_collects_everything() -> None:
-    s = stats.summarize([2.0, 4.0], stats.generator("s"))
+    s = summarize([2.0, 4.0], stats.generator("s"))
     assert (s.n, s.mean, s.std) == (2, 3.0, pytest.approx(math.sqrt(2)))
     assert s.se == pytest.approx(1.0)
     assert 2.0 <= s.ci_low <= s.ci_high <= 4.0

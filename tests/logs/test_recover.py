@@ -18,6 +18,7 @@ from lagrseq.errors import LogError
 from lagrseq.logs.reader import read_info, read_topics
 from lagrseq.logs.recover import default_output, recover
 from lagrseq.running import runner
+from tests.support.configs import with_episodes
 
 ROOT = Path(lagrseq.__file__).resolve().parents[1]
 
@@ -103,7 +104,7 @@ def test_sigkill_mid_run_is_recovered_with_every_flushed_episode(tmp_path: Path)
     # Same seed, same config: the recovered episodes are exactly the first episodes of a run.
     config = cfg.from_dict(info.config)
     reference = tmp_path / "reference.mcap"
-    runner.run_one(runner.with_episodes(config, len(episodes)), 0, 0, "mock", reference)
+    runner.run_one(with_episodes(config, len(episodes)), 0, 0, "mock", reference)
     expected = read_topics(reference, ["/episode", "/query"])
     assert episodes == expected["/episode"]
     assert topics["/query"] == expected["/query"]

@@ -55,28 +55,16 @@ def test_random_asks_with_its_probability_from_the_secondary_stream() -> None:
     assert RandomAsk(0.0).decide(c) == 0 and RandomAsk(1.0).decide(c) == 1
 
 
-class _Bandit:
-    """The tabular SEQ adapter's contract on a plain TabularSecondary."""
-
-    def __init__(self) -> None:
-        self.bandit = TabularSecondary(0.1)
-
-    def decide(self, pattern, epsilon, rng):
-        return self.bandit.decide(tuple(pattern), epsilon, rng)
-
-    def update(self, pattern, decision, reward):
-        self.bandit.update(tuple(pattern), decision, reward)
-
-
 def test_seq_policy_is_the_bandit_unchanged() -> None:
-    policy = SeqPolicy(_Bandit())
+    bandit = TabularSecondary(0.1)
+    policy = SeqPolicy(bandit)
     c = context(epsilon=0.0)
     assert policy.decide(c) == 0  # ties go to "do not query"
     policy.update(c, 1, 1.0)  # Q2[s, 1] = 0 + 0.1 (1 - 0) = 0.1 > Q2[s, 0] = 0
-    assert policy.agent.bandit.table[(4, 5)].tolist() == [0.0, pytest.approx(0.1)]
+    assert bandit.table[(4, 5)].tolist() == [0.0, pytest.approx(0.1)]
     assert policy.decide(c) == 1
     policy.update(c, 1, -1.0)  # 0.1 + 0.1 (-1 - 0.1) = -0.01
-    assert policy.agent.bandit.table[(4, 5)][1] == pytest.approx(-0.01)
+    assert bandit.table[(4, 5)][1] == pytest.approx(-0.01)
     assert policy.decide(c) == 0
 
 

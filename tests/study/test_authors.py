@@ -14,6 +14,7 @@ from lagrseq.progress import Reporter
 from lagrseq.study import authors
 from lagrseq.suite import AUTHORS_STORE_NAME, is_authors_provider, load_suite, with_recorded
 from tests.conftest import AUTHORS_CACHES
+from tests.support.summaries import summarize
 
 NAMES = {
     "cube_stacking_cache0.0.pkl": ("cube-stacking", 8),
@@ -200,6 +201,6 @@ def test_the_grid_profile_runs_like_the_recorded_answers(tmp_path: Path, task: s
                 runner.run_one(config, t, 0, provider, tmp_path / "x.mcap", log=False, provider_options=options).queries
                 for t in range(trials)
             ]
-            summaries.append(stats.summarize(np.array(queries, dtype=float), stats.generator(f"{task}/{method}/{provider}")))
+            summaries.append(summarize(np.array(queries, dtype=float), stats.generator(f"{task}/{method}/{provider}")))
         profile, authors_run = summaries
         assert profile.ci_low <= authors_run.ci_high and authors_run.ci_low <= profile.ci_high, (method, profile, authors_run)

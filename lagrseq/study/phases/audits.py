@@ -125,7 +125,7 @@ def _audit_plan(task: str, runs_dir: Path, quick: bool, seed: int, progress: Rep
 
     chosen = SUITE_AUDITS[task]
     trials, episodes, max_steps = chosen.quick if quick else chosen.full
-    runs = audit_plan(task, chosen.provider, trials, episodes, max_steps, runs_dir, seed, progress.say, chosen.quick_presets if quick else None)
+    runs = audit_plan(task, chosen.provider, trials, episodes, max_steps, runs_dir, seed, progress, chosen.quick_presets if quick else None)
     return runs, trials
 
 
