@@ -13,7 +13,7 @@ CONFIDENCE = 0.95
 @dataclass(frozen=True)
 class Interval:
     """A mean (or a difference of means) over ``n`` values with a two-sided interval at ``level``;
-    for a mean of per-trial values (:func:`summarize`, :func:`summarize_t`), also their sample
+    for a mean of per-trial values (:func:`lagrseq.analysis.stats.summarize_t`), also their sample
     standard deviation ``std`` and the standard error ``se``. With fewer than two values the bounds,
     ``std`` and ``se`` are NaN."""
 
