@@ -498,3 +498,30 @@ def test_a_link_planted_at_a_screen_output_is_refused_and_nothing_is_written(tmp
     with pytest.raises(UsageError, match="symbolic link"):
         screen.write_screen(screens, out, "s")
     assert victim.read_text() == "precious" and sorted(p.name for p in out.iterdir()) == [f"s{suffix}"]
+
+
+SCREENED_MODELS = (
+    "SmolLM2-135M-Instruct",
+    "gemma-3-270m-q4_k_m",
+    "qwen2.5-coder-0.5b-instruct-q4_k_m",
+    "qwen2.5-coder-1.5b-instruct-q4_k_m",
+)
+"""The open models screened on the nested prefixes (recorded_llm/README.md, docs/open-models.md)."""
+
+
+def test_every_screened_model_is_in_the_report_on_both_sampled_prompt_sets() -> None:
+    """Each model the report screens was also asked at least 50 distinct relabelled cube prompts
+    and 50 distinct sampled arrangement states, one answer each with the samplers pinned, in the
+    committed files the report's item reads (its own glob); their rows carry an interval over
+    prompts."""
+    files = [p for p in sorted(ROOT.glob(screen.SCREEN_FILES)) if not screen.TARGET_TAG.search(p.name)]
+    configs = [record_config(task, "upstream", None, []) for task in screen.SCREEN_TASKS]
+    screens = screen.screens_from(files, configs)
+    assert {s.model for s in screens} == set(SCREENED_MODELS)
+    for task, prompt_set in (("cube-stacking", "relabelled 8-cube sets"), ("object-arrangement", "")):
+        sampled = {s.model: s for s in screens if s.task == task and s.pinned and s.prompt_set == prompt_set}
+        assert sorted(sampled) == sorted(SCREENED_MODELS), task
+        for model, s in sampled.items():
+            assert len(s.prompts) >= 50 and {n for n, _ in s.prompts.values()} == {1}, (task, model)
+            (row,) = screen.overall_rows([s])
+            assert "[" in row[5] and f"{len(s.prompts)} prompts)" in row[5], (task, model, row[5])
