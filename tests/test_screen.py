@@ -518,7 +518,7 @@ def test_every_screened_model_is_in_the_report_on_both_sampled_prompt_sets() -> 
     configs = [record_config(task, "upstream", None, []) for task in screen.SCREEN_TASKS]
     screens = screen.screens_from(files, configs)
     assert {s.model for s in screens} == set(SCREENED_MODELS)
-    for task, prompt_set in (("cube-stacking", "relabelled 8-cube sets"), ("object-arrangement", "")):
+    for task, prompt_set in (("cube-stacking", "relabelled 8-cube sets"), ("object-arrangement", "sampled states")):
         sampled = {s.model: s for s in screens if s.task == task and s.pinned and s.prompt_set == prompt_set}
         assert sorted(sampled) == sorted(SCREENED_MODELS), task
         for model, s in sampled.items():
