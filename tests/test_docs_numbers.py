@@ -14,8 +14,9 @@ word (``Qwen2.5`` and ``1.5B`` are names, not numbers) and not followed by a dec
 digit. A trailing full stop ends a sentence, not a decimal part.
 
 **Where it must be.** In the text of some file of a committed report (``.md``, ``.csv``,
-``.html`` under a folder of ``reports/`` that holds an ``index.md``: ``reports/reference/``, and a
-full-suite report beside it where one is committed; never the hand-written ``reports/README.md``),
+``.html`` under a folder of ``reports/`` that holds an ``index.md`` or a ``README.md``:
+``reports/reference/``, ``reports/authors/``, the frontier reports; never a hand-written
+``README.md``),
 read when the test runs (so a regenerated report is what the docs are checked against), as the same digits not preceded by a digit or a decimal point and not followed by a
 digit or a decimal part: ``443.7`` is found in ``443.7 [434.0, 453.6]``, ``43.7`` is not.
 
@@ -86,13 +87,15 @@ def numbers(section: str) -> list[str]:
 
 
 def report_text(reports: Path = REPORTS) -> str:
-    """The text of every committed report (each folder under ``reports`` with an index.md)."""
-    folders = sorted(index.parent for index in reports.glob("*/index.md"))
+    """The text of every committed report: each folder under ``reports`` with an index.md (a
+    report of ``reproduce``) or a README.md (tables of ``lagrseq frontier`` with the commands that
+    made them), its generated files only (never a hand-written README.md)."""
+    folders = sorted({marker.parent for name in ("index.md", "README.md") for marker in reports.glob(f"*/{name}")})
     return "\n".join(
         path.read_text(encoding="utf-8", errors="replace")
         for folder in folders
         for path in sorted(folder.rglob("*"))
-        if path.is_file() and path.suffix in {".md", ".csv", ".html"}
+        if path.is_file() and path.suffix in {".md", ".csv", ".html"} and path.name != "README.md"
     )
 
 
