@@ -72,7 +72,7 @@ def test_every_audit_run_differs_from_its_preset_in_exactly_the_field_it_switche
     assert len(made) == 1 and (tmp_path / "reports" / "audit-cube-stacking.png").stat().st_size > 0
     data = made[0].data
     assert set(data["field"]) == names and set(data["preset"]) == set(audit.PRESETS)
-    assert np.all(data["ci_low"] <= data["effect"] + 1e-9) and np.all(data["effect"] <= data["ci_high"] + 1e-9)
+    assert data["ci_low"].isna().all() and data["ci_high"].isna().all()  # 2 trials: no interval below 3
     assert data["indicative"].all() and not data["marked"].any()  # 2 trials: indicative, never marked
     assert (data["family_size"] == np.isfinite(data["p"]).sum()).all()
     assert "indicative" in made[0].table.rows[-1][1] and "n=2" in made[0].table.rows[-1][1]
