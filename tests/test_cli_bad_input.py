@@ -14,27 +14,12 @@ import pytest
 from lagrseq import config as cfg
 from lagrseq.cli import main
 from lagrseq.logs.reader import is_complete, read_info
+from tests.support.cli import lagrseq, one_line
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ["--set", "run.episodes=3", "--quiet"]
 
 
-def lagrseq(*args: str, env: dict[str, str] | None = None, timeout: float = 300) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "lagrseq", *args],
-        capture_output=True,
-        text=True,
-        env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", **(env or {})},
-        timeout=timeout,
-    )
-
-
-def one_line(done: subprocess.CompletedProcess[str]) -> str:
-    assert done.returncode == 2, (done.returncode, done.stderr)
-    lines = done.stderr.strip().splitlines()
-    assert len(lines) == 1, done.stderr
-    assert "Traceback" not in done.stderr
-    return lines[0]
 
 
 # ------------------------------------------------------------------------------------------ bad paths and values
