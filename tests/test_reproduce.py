@@ -629,7 +629,7 @@ def test_one_timing_per_configuration_family(tmp_path: Path) -> None:
 
 
 def test_a_run_stopped_at_the_first_solve_is_timed_to_its_first_solve(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """Issue 35 item 6: a frontier run whose trials stop at their first solved episode is timed
+    """A frontier run whose trials stop at their first solved episode is timed
     one trial, with its stop, to its first solve (or STOP_CALIBRATION_STEPS), alone (never in a
     lockstep group), and estimated at the steps that trial took, not at its step budget; its
     full-length copy (full_horizon_trials) is timed apart and estimated at its budget."""
@@ -672,7 +672,7 @@ def test_a_run_stopped_at_the_first_solve_is_timed_to_its_first_solve(tmp_path: 
 
 
 def test_only_the_stopped_runs_are_matched_with_random_and_their_random_stops_too(tmp_path: Path) -> None:
-    """Issue 35 items 2 and 6: in a frontier item with stop_at and full_horizon_trials, the
+    """In a frontier item with stop_at and full_horizon_trials, the
     learning policies' stopped runs are compared with random at their matched rate (a random run
     that keeps run.stop_at), their full-length copies are not (as lagrseq frontier's full group);
     --quick with quick_full_horizon_trials = 0 plans no copies."""

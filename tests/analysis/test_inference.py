@@ -39,7 +39,7 @@ def test_agrees_with_scipy_where_installed() -> None:
 
 @pytest.mark.parametrize("n", [3, 5, 10])
 def test_the_t_interval_covers_at_its_nominal_level_on_normal_data(n: int) -> None:
-    """The issue's requirement: nominal 95% covers at least 93% at n = 5 on normal data (the
+    """Nominal 95% covers at least 93% at n = 5 on normal data (the
     percentile bootstrap covers about 84% there). 4,000 simulated experiments per n."""
     rng = np.random.default_rng(12345 + n)
     samples = rng.normal(10.0, 3.0, size=(4000, n))

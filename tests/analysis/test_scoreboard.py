@@ -282,7 +282,7 @@ def test_trend_thresholds_are_a_quarter_of_the_papers_slope() -> None:
 
 
 def test_the_stack_size_ratio_near_one_differs_on_the_advantage_scale() -> None:
-    """The issue's case: the paper preset's 5-cube ratio 1.007 [1.001, 1.014] against 1.05 ±
+    """The paper preset's 5-cube ratio 1.007 [1.001, 1.014] against 1.05 ±
     0.01 was `reproduced` under ±10% of the ratio; on the advantage (±0.0125) it differs."""
     ours = inference.mean_estimate([1.0, 1.004, 1.007, 1.01, 1.014, 1.003, 1.008, 1.006, 1.009, 1.009])
     paper = inference.paper_estimate(1.05, 0.01, 10)

@@ -149,7 +149,7 @@ def test_a_grid_after_prose_is_still_read(cells: list[int], prose: str, writing:
 
 
 # ------------------------------------------------------------------------------------------
-# The examples (old code: minutes, seconds, tens of seconds)
+# Answers shaped to make a backtracking parser take minutes
 # ------------------------------------------------------------------------------------------
 @pytest.mark.parametrize(
     "text",
