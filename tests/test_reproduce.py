@@ -272,7 +272,7 @@ def test_index_page_loads_in_headless_chromium_with_every_image(reproduced, tmp_
         " const imgs = Array.from(doc.images);"
         " Promise.all(imgs.map(i => i.complete ? Promise.resolve() : new Promise(r => { i.onload = r; i.onerror = r; })))"
         " .then(() => { document.getElementById('result').textContent = JSON.stringify("
-        " {title: doc.title, first: doc.querySelector('section').id,"
+        " {title: doc.title, sections: Array.from(doc.querySelectorAll('section')).map(s => s.id),"
         " images: imgs.map(i => [i.getAttribute('src'), i.naturalWidth, i.naturalHeight])}); });"
         "});</script></body></html>"
     )
@@ -307,7 +307,8 @@ def test_index_page_loads_in_headless_chromium_with_every_image(reproduced, tmp_
     assert match, result.stdout[-2000:]
     state = json.loads(html.unescape(match.group(1)))
     assert state["title"] == "lagrseq: LaGR-SEQ results"
-    assert state["first"] == "scoreboard"  # the scoreboard is the first thing the page shows
+    # The page opens with the five-line answer, then the scoreboard.
+    assert state["sections"][:2] == ["answer", "scoreboard"]
     sources = re.findall(r'<img src="([^"]+)"', index.read_text())
     assert sources and [s for s, _, _ in state["images"]] == sources
     for src, width, height in state["images"]:
