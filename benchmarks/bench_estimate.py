@@ -28,6 +28,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("/tmp/lagrseq-bench-estimate"), help="scratch directory (emptied first)")
     args = parser.parse_args()
 
+    from lagrseq.progress import Reporter
     from lagrseq.running import runner
     from lagrseq.study import reproduce
     from lagrseq.suite import load_suite
@@ -42,7 +43,7 @@ def main() -> None:
     if not plan.runs:
         parser.exit(2, f"no trial runs of {', '.join(sorted(tasks))} in the suite; --tasks takes task names, e.g. cube-stacking\n")
     started = time.perf_counter()
-    with runner.make_executor("local", 2, None, print) as pool:
+    with runner.make_executor("local", 2, None, Reporter()) as pool:
         guess = reproduce.estimate_phases(plan, 2, pool=pool)
     print(f"calibration: {reproduce.calibration_keys(plan, 2)} experiments in {time.perf_counter() - started:.1f} s wall", flush=True)
     estimated = actual = 0.0

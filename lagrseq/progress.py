@@ -60,6 +60,10 @@ def say(line: str, stderr: bool = False) -> None:
     stream.flush()
 
 
+def ignore(_line: str) -> None:
+    """A channel that drops its lines (``Reporter(say, warn=ignore)``: lines said, warnings not)."""
+
+
 class Reporter:
     """What a long command tells its user, one object handed down its phases (the callback habit of
     Stable-Baselines3): lines (:meth:`say`), warnings (:meth:`warn`), the run starting
@@ -78,13 +82,16 @@ class Reporter:
     @classmethod
     def silent(cls) -> Reporter:
         """A reporter that says nothing and shows no bar."""
-        return cls(lambda _line: None, quiet=True)
+        return cls(ignore, quiet=True)
 
     def say(self, line: str) -> None:
+        """A line of the command's own output (stdout in the command line)."""
         self._say(line)
 
     def warn(self, line: str) -> None:
-        """A line about something that went wrong (a failed run); said where no warning channel was given."""
+        """A line about something that went wrong (a failed run), or a helper process's own line
+        (a llama.cpp server starting): stderr in the command line; said where no warning channel
+        was given (``warn=ignore``: dropped)."""
         (self._warn or self._say)(line)
 
     def on_run(self, description: str) -> None:

@@ -43,10 +43,13 @@ import typing
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Generic, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 from lagrseq.errors import UsageError
 from lagrseq.text import printable  # re-exported: the one escaping of outside text
+
+if TYPE_CHECKING:
+    from lagrseq.progress import Reporter
 
 BUILTIN = "lagrseq"
 """The source of the built-in parts (``lagrseq plugins``)."""
@@ -407,7 +410,7 @@ class ExecutorSpec:
     ```python
     ExecutorSpec(
         name="threads",
-        make=lambda jobs, scheduler, say: ThreadExecutor(jobs),   # a TrialExecutor
+        make=lambda jobs, scheduler, reporter: ThreadExecutor(jobs),   # a TrialExecutor
         workers=("thread", "threads"),
         description="trials in threads of this process",
     )
@@ -415,8 +418,9 @@ class ExecutorSpec:
 
     name: str
     """``--executor NAME``."""
-    make: Callable[[int, str | None, Callable[[str], None] | None], Any]
-    """(jobs, scheduler address or None, say) -> a ``TrialExecutor``."""
+    make: Callable[[int, str | None, Reporter], Any]
+    """(jobs, scheduler address or None, reporter) -> a ``TrialExecutor``; ``reporter``
+    (:class:`lagrseq.progress.Reporter`) is told lines such as a started cluster's address."""
     takes_scheduler: bool = False
     """``--scheduler`` applies to it."""
     runner_pool: bool = False

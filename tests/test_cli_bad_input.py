@@ -14,6 +14,7 @@ import pytest
 from lagrseq import config as cfg
 from lagrseq.cli import main
 from lagrseq.logs.reader import is_complete, read_info
+from lagrseq.progress import Reporter
 from tests.support.cli import lagrseq, one_line
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -140,7 +141,7 @@ def test_record_from_runs_skips_a_damaged_log_with_a_warning(tmp_path: Path) -> 
     logs[0].write_bytes(logs[0].read_bytes()[:300])
     warnings: list[str] = []
     config = cfg.load("cube-stacking", "lagr", "upstream")
-    patterns = record_patterns(config, [tmp_path], warn=warnings.append)
+    patterns = record_patterns(config, [tmp_path], reporter=Reporter(warn=warnings.append))
     assert patterns and len(warnings) == 1 and str(logs[0]) in warnings[0]
 
 

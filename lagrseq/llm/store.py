@@ -55,7 +55,7 @@ import tempfile
 import threading
 import time
 import zlib
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -82,6 +82,7 @@ from lagrseq.llm.records import (
 )
 from lagrseq.llm.servers import DEFAULT_BASE_URL, base_url_problem  # noqa: F401 - DEFAULT_BASE_URL re-exported for callers
 from lagrseq.paths import open_input
+from lagrseq.progress import Reporter
 from lagrseq.text import kind_of
 
 try:
@@ -964,7 +965,7 @@ def _check_line(text: str) -> tuple[dict[str, Any] | None, str | None]:
 
 
 def _check_jsonl(
-    source: IO[str] | IO[bytes], name: str, spool: IO[str], warn: Callable[[str], None] | None
+    source: IO[str] | IO[bytes], name: str, spool: IO[str], reporter: Reporter
 ) -> tuple[int, int]:
     """Pass one of an import: check every line, writing the checked records to ``spool``;
     raise one :class:`StoreError` listing the bad lines (nothing is written to the store).
@@ -1003,11 +1004,10 @@ def _check_jsonl(
             f"{name}: {bad_count} bad line{'s' if bad_count != 1 else ''} of {records + bad_count}, nothing "
             f"imported: {'; '.join(bad)}{shown}{hint}"
         )
-    if warn is not None:
-        for message in mismatched[:MAX_BAD_LINES_SHOWN]:
-            warn(message)
-        if len(mismatched) > MAX_BAD_LINES_SHOWN:
-            warn(f"{name}: more keys that do not match their request (first {MAX_BAD_LINES_SHOWN} shown)")
+    for message in mismatched[:MAX_BAD_LINES_SHOWN]:
+        reporter.warn(message)
+    if len(mismatched) > MAX_BAD_LINES_SHOWN:
+        reporter.warn(f"{name}: more keys that do not match their request (first {MAX_BAD_LINES_SHOWN} shown)")
     return records, len(keys)
 
 
@@ -1033,7 +1033,7 @@ def import_jsonl(
     source: IO[str] | IO[bytes],
     store: RecordStore | str | Path,
     name: str = "JSONL",
-    warn: Callable[[str], None] | None = None,
+    reporter: Reporter | None = None,
 ) -> JsonlReport:
     """Add every sample of a JSONL export to ``store`` (samples already there are skipped).
 
@@ -1044,10 +1044,11 @@ def import_jsonl(
     be a directory, opened (and created) only once the file has passed.
 
     The key of each line is recomputed from its request, which is the truth: a hand-edited request
-    files its samples under the new key (with a warning naming the line)."""
+    files its samples under the new key (with a warning to ``reporter`` naming the line; None:
+    no warning)."""
     try:
         with tempfile.TemporaryFile(mode="w+", encoding="utf-8") as spool:
-            records, keys = _check_jsonl(source, name, spool, warn)
+            records, keys = _check_jsonl(source, name, spool, reporter or Reporter.silent())
             spool.flush()
             spool.seek(0)
             if isinstance(store, RecordStore):
@@ -1148,7 +1149,7 @@ def _read_jsonl(handle: IO[bytes], name: str) -> tuple[dict[str, Entry], frozens
     """The entries of a JSONL export in key order, and the endpoints their requests name."""
     spool = io.StringIO()
     try:
-        _check_jsonl(handle, name, spool, None)
+        _check_jsonl(handle, name, spool, Reporter.silent())
     except OSError as exc:
         raise StoreError(f"cannot import {name}: {exc.strerror or exc}") from None
     merged: dict[str, tuple[dict[str, Any], list[str | None], dict[str, Sample]]] = {}
@@ -1171,7 +1172,7 @@ def import_jsonl_file(
     path: str | Path,
     store: RecordStore | str | Path,
     name: str | None = None,
-    warn: Callable[[str], None] | None = None,
+    reporter: Reporter | None = None,
 ) -> JsonlReport:
     """:func:`import_jsonl` of the file at ``path`` (read as bytes, so a line that is not UTF-8
     is named with its number). Every failure is one :class:`StoreError` line: a missing or
@@ -1183,4 +1184,4 @@ def import_jsonl_file(
         raise StoreError(f"{path} is a directory; expected a JSONL file (a lagrseq export)")
     handle = open_input(path, "JSONL file", StoreError)  # a FIFO or device is refused, not read for ever
     with handle:
-        return import_jsonl(handle, store, name, warn)
+        return import_jsonl(handle, store, name, reporter)

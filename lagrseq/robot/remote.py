@@ -40,6 +40,7 @@ import numpy as np
 
 from lagrseq import keys
 from lagrseq.paths import input_path
+from lagrseq.progress import Reporter
 from lagrseq.robot import OUTCOMES, JointState, PlacementResult, Robot, RobotError
 from lagrseq.text import printable
 
@@ -413,11 +414,11 @@ def servicer(
 class _RobotCalls:
     """The robot service's calls, mixed into the generated servicer by :func:`servicer`."""
 
-    def __init__(self, robot: Robot, description: str, guard: ServiceSecurity, say: Callable[[str], None],
+    def __init__(self, robot: Robot, description: str, guard: ServiceSecurity, log: Callable[[str], None],
                  grpc: Any, pb: Any) -> None:
         from lagrseq.robot.render import png_bytes
 
-        self._robot, self._description, self._guard, self._say = robot, description, guard, say
+        self._robot, self._description, self._guard, self._log = robot, description, guard, log
         self._grpc, self._pb, self._png_bytes = grpc, pb, png_bytes
         self._expected = f"Bearer {guard.token}".encode() if guard.token else None
         self._lock = threading.Lock()
@@ -429,9 +430,9 @@ class _RobotCalls:
         if self._expected is not None:
             given = dict(context.invocation_metadata()).get("authorization", "")
             if not hmac.compare_digest(self._expected, given.encode("utf-8", "replace")):
-                self._say(f"{method} from {peer}: refused (UNAUTHENTICATED: {'wrong token' if given else 'no token'})")
+                self._log(f"{method} from {peer}: refused (UNAUTHENTICATED: {'wrong token' if given else 'no token'})")
                 context.abort(self._grpc.StatusCode.UNAUTHENTICATED, "this robot service needs its token (authorization: Bearer TOKEN)")
-        self._say(f"{method}{what} from {peer}")
+        self._log(f"{method}{what} from {peer}")
 
     def Describe(self, request: Any, context: Any) -> Any:
         self._admit("Describe", context)
@@ -448,7 +449,7 @@ class _RobotCalls:
             context.abort(self._grpc.StatusCode.INVALID_ARGUMENT, f"cell ({request.row}, {request.col}) is outside the {robot.rows}x{robot.cols} grid")
         with self._lock:
             if self._placed >= self._guard.max_objects:
-                self._say(f"Place refused: {self._placed} objects on the table (the bound)")
+                self._log(f"Place refused: {self._placed} objects on the table (the bound)")
                 context.abort(
                     self._grpc.StatusCode.FAILED_PRECONDITION,
                     f"the table holds {self._placed} objects, the most this service allows; call Clear first",
@@ -541,10 +542,12 @@ def check_listen(host: str, port: int) -> None:
 
 
 def serve_sim(
-    host: str, port: int, say: Callable[[str], None] = print, security: ServiceSecurity | None = None,
+    host: str, port: int, reporter: Reporter | None = None, security: ServiceSecurity | None = None,
     log: Callable[[str], None] | None = None,
 ) -> None:
-    """``lagrseq robot serve --sim``: serve a simulated UR5e until Ctrl-C (or SIGTERM)."""
+    """``lagrseq robot serve --sim``: serve a simulated UR5e until Ctrl-C (or SIGTERM); its address
+    is said to ``reporter`` (None: printed), each call logged through ``log`` (:func:`servicer`)."""
+    reporter = reporter or Reporter()
     security = security or ServiceSecurity()
     if not is_loopback(host) and (security.token is None or security.tls_cert is None):
         raise RobotError(f"refusing to serve the robot on {host} without a token and TLS (see docs/security.md)")
@@ -558,7 +561,7 @@ def serve_sim(
         version = getattr(pybullet, "__version__", "")
         server, bound = start_server(robot, host, port, f"simulated UR5e (pybullet {version})".replace(" )", ")"), security, log)
         guard = ("token" if security.token else "no token") + (", TLS" if security.tls_cert else ", no TLS")
-        say(f"lagrseq robot: serving a simulated UR5e on {host}:{bound} ({guard}; at most {security.max_objects} objects; Ctrl-C stops)")
+        reporter.say(f"lagrseq robot: serving a simulated UR5e on {host}:{bound} ({guard}; at most {security.max_objects} objects; Ctrl-C stops)")
         try:
             server.wait_for_termination()
         finally:

@@ -40,6 +40,7 @@ from typing import Any
 import distributed
 
 from lagrseq.errors import UsageError
+from lagrseq.progress import Reporter
 from lagrseq.running.executor_base import (
     Job,
     TrialExecutor,
@@ -112,7 +113,8 @@ class DaskExecutor(TrialExecutor):
 
     name = "dask"
 
-    def __init__(self, jobs: int, scheduler: str | None = None, say: Callable[[str], None] | None = None) -> None:
+    def __init__(self, jobs: int, scheduler: str | None = None, reporter: Reporter | None = None) -> None:
+        reporter = reporter or Reporter.silent()
         self.cluster: Any = None
         self.dashboard = ""
         self.submitted: list[Any] = []
@@ -143,9 +145,8 @@ class DaskExecutor(TrialExecutor):
             self.workers = jobs
             if dashboard:
                 self.dashboard = self.client.dashboard_link
-            if say is not None:
-                link = f"dashboard {self.dashboard}" if dashboard else "no dashboard (pip install bokeh for one)"
-                say(f"dask: local cluster of {jobs} worker{'s' if jobs != 1 else ''} on 127.0.0.1, {link}")
+            link = f"dashboard {self.dashboard}" if dashboard else "no dashboard (pip install bokeh for one)"
+            reporter.say(f"dask: local cluster of {jobs} worker{'s' if jobs != 1 else ''} on 127.0.0.1, {link}")
         else:
             try:
                 self.client = distributed.Client(_check_address(scheduler), timeout=30)
@@ -155,8 +156,7 @@ class DaskExecutor(TrialExecutor):
                 reason = " ".join(f"{type(exc).__name__}: {exc}".split())[:200]
                 raise UsageError(f"no Dask scheduler answered at {scheduler} (what answered failed: {reason}); check the address") from None
             self.workers = max(1, len(self.client.scheduler_info().get("workers", {})))
-            if say is not None:
-                say(f"dask: scheduler {scheduler}, {self.workers} worker{'s' if self.workers != 1 else ''} now")
+            reporter.say(f"dask: scheduler {scheduler}, {self.workers} worker{'s' if self.workers != 1 else ''} now")
 
     def submit(self, fn: Callable[[Any], Any], job: Job) -> Any:
         # pure=False with an explicit key: the key is the trial's, not a hash of the arguments

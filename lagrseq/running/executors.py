@@ -22,6 +22,7 @@ from collections.abc import Callable, Iterable, Iterator
 from typing import TYPE_CHECKING, Any
 
 from lagrseq.errors import UsageError
+from lagrseq.progress import Reporter
 from lagrseq.registry import EXECUTORS as REGISTRY
 from lagrseq.running.executor_base import (
     SCHEDULER_SCHEMES,
@@ -107,26 +108,27 @@ class LocalExecutor(TrialExecutor):
         self.pool.shutdown(wait=True, cancel_futures=True)
 
 
-def make_executor(kind: str, jobs: int, scheduler: str | None = None, say: Callable[[str], None] | None = None) -> TrialExecutor:
+def make_executor(kind: str, jobs: int, scheduler: str | None = None, reporter: Reporter | None = None) -> TrialExecutor:
     """The executor ``--executor kind`` names (its registered factory; ``scheduler``: an existing
-    Dask scheduler's address). ``say`` receives one line about a started cluster (its dashboard)."""
+    Dask scheduler's address). ``reporter`` is told one line about a started cluster (its
+    dashboard); None: nothing is said."""
     spec = REGISTRY.get(kind)
     if scheduler is not None and not spec.takes_scheduler:
         raise UsageError(f"--scheduler applies to --executor {' or '.join(s.name for s in REGISTRY.specs() if s.takes_scheduler)} only")
     if scheduler is not None:
         check_scheduler(scheduler)
-    executor = spec.make(jobs, scheduler, say)
+    executor = spec.make(jobs, scheduler, reporter or Reporter.silent())
     with contextlib.suppress(AttributeError, TypeError):  # its logs name the executor by its registered name
         if getattr(executor, "name", None) != kind:
             executor.name = kind
     return executor  # type: ignore[no-any-return]
 
 
-def make_local(jobs: int, scheduler: str | None = None, say: Callable[[str], None] | None = None) -> TrialExecutor:
+def make_local(jobs: int, scheduler: str | None = None, reporter: Reporter | None = None) -> TrialExecutor:
     return LocalExecutor(jobs)
 
 
-def make_dask(jobs: int, scheduler: str | None = None, say: Callable[[str], None] | None = None) -> TrialExecutor:
+def make_dask(jobs: int, scheduler: str | None = None, reporter: Reporter | None = None) -> TrialExecutor:
     """Dask distributed (imported only now: dask is an optional extra)."""
     import importlib.util
 
@@ -134,4 +136,4 @@ def make_dask(jobs: int, scheduler: str | None = None, say: Callable[[str], None
         raise UsageError(DASK_MISSING)
     from lagrseq.running.dask_executor import DaskExecutor
 
-    return DaskExecutor(jobs, scheduler, say)
+    return DaskExecutor(jobs, scheduler, reporter)

@@ -23,6 +23,7 @@ from lagrseq.errors import BudgetExceeded, LogError, UsageError
 from lagrseq.llm.base import Query, samplers_of
 from lagrseq.logs.reader import find_logs, read_info, read_topic
 from lagrseq.loop.lagr import query_for
+from lagrseq.progress import Reporter
 from lagrseq.registry import ProviderKind
 from lagrseq.running.wiring import make_live, make_task
 from lagrseq.tasks.base import Task
@@ -51,12 +52,13 @@ def record_patterns(
     config: ExperimentConfig,
     runs: Sequence[str | Path] = (),
     topic: str = "/query",
-    warn: Callable[[str], None] | None = None,
+    reporter: Reporter | None = None,
 ) -> list[Any]:
     """The patterns ``lagrseq record`` asks about, without duplicates, in first-met order: the
     states of ``topic`` records in the MCAP logs under ``runs`` (``/query``: where the secondary
     agent decided; ``/transition``: every state met), or, with no runs, every prefix of a cube
-    target. A damaged log is skipped with a warning, as replay skips it."""
+    target. A damaged log is skipped with a warning to ``reporter`` (None: ``warning: ...`` on
+    stderr), as replay skips it."""
     task = make_task(config)
     if not runs:
         prefixes = getattr(task, "prefixes", None)  # a task's own default states (cube stacking's)
@@ -65,7 +67,7 @@ def record_patterns(
         raise UsageError(f"{config.task.name} has no default set of prompts; give runs with --from-runs")
     if topic not in STATE_TOPICS:
         raise UsageError(f"--states-from {topic!r}; expected /query or /transition")
-    warn = warn or (lambda message: print(f"warning: {shown(message)}", file=sys.stderr))
+    reporter = reporter or Reporter(warn=lambda message: print(f"warning: {shown(message)}", file=sys.stderr))
     wanted = json.loads(json.dumps(asdict(config.task)))
     patterns: list[Any] = []
     seen: set[str] = set()
@@ -93,7 +95,7 @@ def record_patterns(
         first = f" ({len(skipped)} log{'s' if len(skipped) != 1 else ''} skipped; first: {skipped[0]})" if skipped else ""
         raise UsageError(f"no {topic} states in {', '.join(map(str, runs))}{first}")
     for line in skipped:
-        warn(line)
+        reporter.warn(line)
     return patterns
 
 
@@ -165,7 +167,7 @@ def record(
     say = (lambda message: bar.write(shown(message))) if bar is not None else (lambda message: print(shown(message), file=sys.stderr))
     settings = local_settings(spec.argument, options)
     with LocalServer(settings, on_line=lambda line: say(f"  {line}")) as server:
-        supervisor = Supervisor(server, lambda line: say(f"  {line}"))  # a dying server: restarted once, then one line
+        supervisor = Supervisor(server, Reporter(lambda line: say(f"  {line}")))  # a dying server: restarted once, then one line
         try:
             return _record(queries, store_path, samples, mode, local_live(options, server.base_url), bar, _local_endpoint(), concurrency, settings.model_name, supervisor.on_retry)
         finally:
@@ -328,7 +330,7 @@ def import_answers(
     temperature: float | None,
     max_tokens: int | None,
     base_url: str,
-    warn: Callable[[str], None],
+    reporter: Reporter,
 ) -> str:
     """``lagrseq cache import``: a JSONL export, or an authors' pickle whose keys are rebuilt
     from the task descriptor. Returns the line to print."""
@@ -350,7 +352,7 @@ def import_answers(
                 f"a JSONL export holds each answer's own request: leave {'it' if len(given) == 1 else 'them'} out (or give --format pkl for a pickle)"
             )
         # The whole file is checked before the store is created or written.
-        lines = import_jsonl_file(file, store_path, file.name, warn=warn)
+        lines = import_jsonl_file(file, store_path, file.name, reporter)
         return f"{file}: {lines.lines} answers under {lines.keys} keys; {lines.added} added, {lines.already_present} already in {store_path}"
     missing = [flag for flag, value in (("--task", task), ("--model", model), ("--temperature", temperature)) if value is None]
     if missing or task is None or model is None or temperature is None:
@@ -369,7 +371,7 @@ def import_answers(
             temperature=temperature,
             endpoint=endpoint,
             max_tokens=config.llm.max_tokens,
-            warn=warn,
+            reporter=reporter,
         )
     return (
         f"{file}: {report.pairs} pairs; {report.imported} answers added under {report.keys} keys, "

@@ -46,6 +46,7 @@ from lagrseq.errors import (
 from lagrseq.logs import origins
 from lagrseq.logs.sink import PARTIAL_SUFFIX, McapSink, NullSink, Sink
 from lagrseq.loop.experiment import TrialResult, run_trial
+from lagrseq.progress import Reporter
 from lagrseq.registry import find_part, logged_options, replace_part
 from lagrseq.running import executors
 from lagrseq.running.wiring import (
@@ -581,24 +582,24 @@ def run_trials(
     progress: Any = None,
     provider_options: Any = None,
     pool: executors.TrialExecutor | None = None,
-    say: Callable[[str], None] | None = None,
-    warn: Callable[[str], None] | None = None,
+    reporter: Reporter | None = None,
     retries: int = 0,
     render_dir: Path | None = None,
 ) -> list[TrialResult]:
     """Run trials 0..trials-1 into ``directory``; trials whose log is complete (and made by this
-    very run) are skipped, and ``say`` is told how many of each kind there are before anything
-    starts. ``pool``: an executor to use (``reproduce`` keeps one warm; ``--executor dask``);
-    without one, ``jobs > 1`` runs a local process pool and ``jobs = 1`` this process.
+    very run) are skipped, and ``reporter`` is told how many of each kind there are before
+    anything starts (None: nothing is said). ``pool``: an executor to use (``reproduce`` keeps
+    one warm; ``--executor dask``); without one, ``jobs > 1`` runs a local process pool and
+    ``jobs = 1`` this process.
 
     A trial that raises is tried again up to ``retries`` times (not after a budget stop); then it
-    is reported to ``warn`` (with its config digest, seed and index) while the other trials go on,
-    and :class:`TrialsFailed` is raised at the end. A spent run budget stops each trial at its
+    is reported to ``reporter.warn`` (with its config digest, seed and index) while the other
+    trials go on, and :class:`TrialsFailed` is raised at the end. A spent run budget stops each trial at its
     first paid request, so trials that need none still finish. Ctrl-C stops the running trials
     (their ``.partial`` files stay). ``render_dir``: arm tasks write PNG frames and GIFs there
     (``--render``)."""
     run = SweepRun(config, trials, seed, provider_spec, directory, provider_options, render_dir, progress)
-    return run_sweep([run], jobs, pool, say, warn, retries)[0]
+    return run_sweep([run], jobs, pool, reporter, retries)[0]
 
 
 @dataclass
@@ -637,8 +638,7 @@ def run_sweep(
     runs: list[SweepRun],
     jobs: int = 1,
     pool: executors.TrialExecutor | None = None,
-    say: Callable[[str], None] | None = None,
-    warn: Callable[[str], None] | None = None,
+    reporter: Reporter | None = None,
     retries: int = 0,
     keep_going: bool = False,
 ) -> list[list[TrialResult]]:
@@ -646,11 +646,12 @@ def run_sweep(
     pending trial of every run is submitted at once, so no worker waits for the last trial of one
     run before the next run starts (a frontier's policies, a suite's runs). Each run's directory
     is checked (resume plan, refused foreign logs) before any trial starts. Returns each run's
-    results, in the order of ``runs``; a trial that keeps failing is reported to ``warn`` while
+    results, in the order of ``runs``; a trial that keeps failing is reported to ``reporter.warn`` while
     the others go on, and one :class:`TrialsFailed` at the end names them all (and carries each
     run's failures). ``keep_going``: a run whose directory or provider is refused before it
     starts (a foreign log, a store that cannot be read) counts as a run whose trials all failed,
     and the other runs go on (``lagrseq reproduce``); otherwise nothing starts."""
+    reporter = reporter or Reporter.silent()
     plans: list[_Todo] = []
     refused: list[RunFailures] = []
     for run in runs:
@@ -663,8 +664,8 @@ def run_sweep(
             failure = functools.partial(TrialFailure, seed=run.seed, digest=run.config.digest(), error=_error_line(exc), advice=rerun_advice(exc))
             refused.append(RunFailures(run.directory, run.trials, tuple(failure(trial) for trial in range(run.trials))))
             continue
-        if say is not None and (found.complete or found.unfinished):
-            say(found.describe() if len(runs) == 1 else f"{run.directory}: {found.describe()}")
+        if found.complete or found.unfinished:
+            reporter.say(found.describe() if len(runs) == 1 else f"{run.directory}: {found.describe()}")
         _, per_trial = progress_unit(run.config)
         results = [TrialResult(trial_path(run.directory, t), t, 0, 0, 0, 0.0, 0.0, skipped=True) for t in found.complete]
         if run.progress is not None and found.complete:
@@ -676,8 +677,8 @@ def run_sweep(
     def failed(plan: _Todo, trial: int, exc: BaseException) -> None:
         failure = TrialFailure(trial, plan.run.seed, plan.run.config.digest(), _error_line(exc), rerun_advice(exc))
         plan.failures.append(failure)
-        if warn is not None and pending > 1:
-            warn(failure.describe() if len(runs) == 1 else f"{plan.run.directory}: {failure.describe()}")
+        if pending > 1:
+            reporter.warn(failure.describe() if len(runs) == 1 else f"{plan.run.directory}: {failure.describe()}")
 
     if pool is None and (jobs <= 1 or pending <= 1):
         _run_here(plans, retries, failed)

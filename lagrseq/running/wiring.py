@@ -359,9 +359,10 @@ def make_local(argument: str, options: LocalOptions, rng: np.random.Generator) -
     """A llama.cpp server started for this provider (stopped by its ``close``), asked through the
     live provider as ``--server llama.cpp`` with no API key."""
     from lagrseq.llm.local import LocalProvider, LocalServer, Supervisor
+    from lagrseq.progress import Reporter
 
     server = LocalServer(local_settings(argument, options), on_line=_say).start()
-    supervisor = Supervisor(server, _say)  # a server dying mid-run: restarted once, then one line
+    supervisor = Supervisor(server, Reporter(_say))  # a server dying mid-run: restarted once, then one line
     try:
         inner = make_live(local_live(options, server.base_url), rng, budgeted=True, on_retry=supervisor.on_retry, environ={}, local_model=server.settings.model_name)
     except BaseException:

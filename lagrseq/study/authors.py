@@ -190,7 +190,7 @@ def import_caches(caches: list[Cache], out: Path, progress: Reporter | None = No
                     temperature=0.0,
                     endpoint=endpoint_of(DEFAULT_BASE_URL),
                     max_tokens=config.llm.max_tokens,
-                    warn=note if preset == PRESETS[0] else None,
+                    reporter=Reporter(warn=note) if preset == PRESETS[0] else None,
                 )
                 added += report.imported
                 keys = max(keys, report.keys)  # the presets' prompts may coincide

@@ -303,7 +303,7 @@ def _run_phase(
             runner.SweepRun(config, trials, seed, provider, directory, options, progress=bar, notes=notes)
             for _, config, directory, notes in prepared
         ]
-        outcome = runner.run_sweep(sweep, jobs, say=reporter.say, warn=reporter.warn)
+        outcome = runner.run_sweep(sweep, jobs, reporter=reporter)
     for (variant, _, directory, _), results in zip(prepared, outcome, strict=True):
         reporter.say(f"{variant} [{what}]: " + runner.summary(results, directory, provider).replace("\n", "; "))
     return [d for _, _, d, _ in prepared]

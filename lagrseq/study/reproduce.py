@@ -128,7 +128,7 @@ def reproduce(request: Request, progress: Reporter | None = None) -> Reproduced:
     ) as progress.bar:
         pool = None
         if needs_pool(request.executor, request.jobs, request.scheduler):
-            pool = pools.enter_context(runner.make_executor(request.executor, request.jobs, request.scheduler, progress.say))
+            pool = pools.enter_context(runner.make_executor(request.executor, request.jobs, request.scheduler, progress))
         forecast = estimate_suite(planned, request, progress, pool)
         outcome = execute_suite(planned, forecast, request, progress, pool)
         write_errors(planned, outcome, request, progress)

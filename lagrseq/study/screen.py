@@ -159,7 +159,7 @@ def screen_queries(
         return [query_for(t, config.llm, pattern) for t, pattern in pairs], 1
     if chosen_set == "sampled":
         return queries_for(config, sampled_states(task, prompts, seed)), 1
-    patterns = record_patterns(config, runs, "/query", reporter.warn if reporter is not None else None)
+    patterns = record_patterns(config, runs, "/query", reporter)
     chosen = spread(patterns, [bin_of(task, p) for p in patterns], prompts)
     return queries_for(config, chosen), 1
 

@@ -24,6 +24,7 @@ from lagrseq import config as cfg  # noqa: E402
 from lagrseq.errors import TrialsFailed  # noqa: E402
 from lagrseq.llm.store import RecordStore  # noqa: E402
 from lagrseq.logs.reader import find_logs, is_complete, read_info, read_topic  # noqa: E402
+from lagrseq.progress import Reporter, ignore
 from lagrseq.running import runner, wiring  # noqa: E402
 from lagrseq.running.dask_executor import DaskExecutor  # noqa: E402
 from lagrseq.running.executors import LocalExecutor, make_executor  # noqa: E402
@@ -115,7 +116,7 @@ def test_a_failing_trial_is_named_and_the_others_go_on(tmp_path: Path, pool: Das
     blocker.mkdir(parents=True)  # trial 1 cannot open its log: a real OSError inside the worker
     warnings: list[str] = []
     with pytest.raises(TrialsFailed) as failed:
-        runner.run_trials(config(), TRIALS, 0, "mock", directory, pool=pool, warn=warnings.append, retries=1)
+        runner.run_trials(config(), TRIALS, 0, "mock", directory, pool=pool, reporter=Reporter(ignore, warnings.append), retries=1)
     line = str(failed.value)
     digest = config().digest()
     assert "\n" not in line
@@ -124,7 +125,7 @@ def test_a_failing_trial_is_named_and_the_others_go_on(tmp_path: Path, pool: Das
     assert sorted(p.name for p in directory.glob("*.mcap")) == ["trial-000.mcap", "trial-002.mcap", "trial-003.mcap"]
     blocker.rmdir()
     said: list[str] = []
-    runner.run_trials(config(), TRIALS, 0, "mock", directory, pool=pool, say=said.append)
+    runner.run_trials(config(), TRIALS, 0, "mock", directory, pool=pool, reporter=Reporter(said.append, ignore))
     assert said == ["resuming: 3 trials complete (skipped), 1 missing and 0 unfinished (cut short, failed or recovered) to run"]
 
 
@@ -170,7 +171,7 @@ def test_a_rerun_after_lagrseq_and_its_workers_died_mid_trial_runs_exactly_the_m
     assert complete and partial and len(complete) < TRIALS
     (directory,) = {p.parent for p in partial}
     said: list[str] = []
-    results = runner.run_trials(config(), TRIALS, 0, "mock", directory, pool=pool, say=said.append)
+    results = runner.run_trials(config(), TRIALS, 0, "mock", directory, pool=pool, reporter=Reporter(said.append, ignore))
     unfinished = len(partial)
     missing = TRIALS - len(complete) - unfinished
     assert said == [f"resuming: {len(complete)} trial{'s' if len(complete) != 1 else ''} complete (skipped), {missing} missing and {unfinished} unfinished (cut short, failed or recovered) to run"]

@@ -17,6 +17,7 @@ from lagrseq.errors import StoreError
 from lagrseq.llm.authors_cache import RestrictedUnpickler, import_authors_cache, read_pairs
 from lagrseq.llm.store import RecordStore, query_key
 from lagrseq.loop.lagr import query_for
+from lagrseq.progress import Reporter
 from lagrseq.tasks import cube
 from tests.llm.conftest import authors_cache
 
@@ -81,7 +82,7 @@ def test_the_8_cube_cache_imports_as_81_samples_keyed_like_a_run(tmp_path: Path)
     with RecordStore(tmp_path / "store") as store:
         report = import_authors_cache(
             path, store, cube_prompt_for(8), task="cube-stacking", model="gpt-3.5-turbo",
-            temperature=0.0, endpoint=ENDPOINT, max_tokens=256, warn=warnings.append,
+            temperature=0.0, endpoint=ENDPOINT, max_tokens=256, reporter=Reporter(warn=warnings.append),
         )
         assert (report.pairs, report.imported, report.skipped, report.keys) == (81, 81, 0, 8)
         task = cube.CubeStacking(8)
@@ -110,7 +111,7 @@ def test_keys_that_do_not_fit_the_task_are_skipped_with_a_warning(tmp_path: Path
     with RecordStore(tmp_path / "store") as store:
         report = import_authors_cache(
             path, store, cube_prompt_for(8), task="cube-stacking", model="gpt-3.5-turbo",
-            temperature=0.0, endpoint=ENDPOINT, max_tokens=256, warn=warnings.append,
+            temperature=0.0, endpoint=ENDPOINT, max_tokens=256, reporter=Reporter(warn=warnings.append),
         )
     assert report.skipped == len(warnings) > 0 and report.imported == report.pairs - report.skipped
     assert all("does not fit task cube-stacking" in w for w in warnings)
@@ -129,7 +130,7 @@ def test_grid_answers_are_written_as_text_and_marked_as_arrays(tmp_path: Path) -
     with RecordStore(tmp_path / "store") as store:
         report = import_authors_cache(
             path, store, prompt_for, task="object-arrangement", model="gpt-4",
-            temperature=0.0, endpoint=ENDPOINT, max_tokens=256, warn=warnings.append,
+            temperature=0.0, endpoint=ENDPOINT, max_tokens=256, reporter=Reporter(warn=warnings.append),
         )
         assert report.pairs == 143 and report.skipped == 1 and "pair 0" in warnings[0] and "(10, 10)" in warnings[0]
         entries = list(store.entries())
@@ -151,7 +152,7 @@ def test_answers_a_store_may_not_hold_are_skipped_with_a_warning(tmp_path: Path)
     with RecordStore(tmp_path / "store") as store:
         report = import_authors_cache(
             path, store, lambda key: f"prompt {key}", task="cube-stacking", model="gpt-3.5-turbo",
-            temperature=0.0, endpoint=ENDPOINT, max_tokens=256, warn=warnings.append,
+            temperature=0.0, endpoint=ENDPOINT, max_tokens=256, reporter=Reporter(warn=warnings.append),
         )
         assert (report.imported, report.skipped) == (1, 2)
         assert sum(len(e.samples) for e in store.entries()) == 1

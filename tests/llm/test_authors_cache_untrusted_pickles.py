@@ -23,6 +23,7 @@ from lagrseq.llm.authors_cache import MAX_WARNINGS, ImportReport, import_authors
 from lagrseq.llm.records import MAX_ANSWER_CHARS
 from lagrseq.llm.store import RecordStore
 from lagrseq.loop.lagr import query_for
+from lagrseq.progress import Reporter
 from lagrseq.tasks import cube
 from lagrseq.tasks.arrangement import object_arrangement
 
@@ -46,7 +47,7 @@ def run_import(tmp_path: Path, pairs: list[Any], task: Any = CUBE) -> tuple[Impo
         started = time.process_time()
         report = import_authors_cache(
             path, store, prompt_for(task), task=task.name, model="gpt-4", temperature=0.0,
-            endpoint="api.openai.com", max_tokens=256, warn=warnings.append,
+            endpoint="api.openai.com", max_tokens=256, reporter=Reporter(warn=warnings.append),
         )
         took = time.process_time() - started
     for line in warnings:

@@ -30,6 +30,7 @@ from lagrseq.llm.store import (
     prompt_similarity,
     query_key,
 )
+from lagrseq.progress import Reporter
 
 ENDPOINT = "api.openai.com"
 
@@ -327,7 +328,7 @@ def test_a_hand_edited_request_is_filed_under_its_new_key(tmp_path: Path) -> Non
     record["request"]["temperature"] = 0.7
     warnings: list[str] = []
     with RecordStore(tmp_path / "b") as copy:
-        import_jsonl(io.StringIO(json.dumps(record) + "\n"), copy, "edited.jsonl", warn=warnings.append)
+        import_jsonl(io.StringIO(json.dumps(record) + "\n"), copy, "edited.jsonl", Reporter(warn=warnings.append))
         assert copy.keys() == [key_of_request(record["request"])]
     assert warnings and "edited.jsonl line 1" in warnings[0]
 

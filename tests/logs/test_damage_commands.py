@@ -20,6 +20,7 @@ from lagrseq.cli import main
 from lagrseq.errors import LagrseqError
 from lagrseq.logs.reader import full_path, is_complete, read_info
 from lagrseq.logs.recover import recover_all
+from lagrseq.progress import Reporter
 from lagrseq.running import runner
 from lagrseq.running.recording import record_patterns
 from tests.support.golden_mcap import CHUNK_DATA_LENGTHS, DATA, GOLDEN, MEMORY_BOUND, length_fields
@@ -109,7 +110,7 @@ def test_random_damage_gives_each_command_a_warning_or_one_line(
             assert logs.files + logs.skipped == 1
 
         _one_line_or_nothing(load)
-        _one_line_or_nothing(lambda: record_patterns(CONFIG, [root], warn=warnings.append))
+        _one_line_or_nothing(lambda: record_patterns(CONFIG, [root], reporter=Reporter(warn=warnings.append)))
         _, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
@@ -134,7 +135,7 @@ def test_record_from_runs_skips_a_log_damaged_where_it_never_reads(tmp_path: Pat
     damaged = runs / "trial-001.mcap"
     damaged.write_bytes(_flip_chunk_length(DATA, 0))
     warnings: list[str] = []
-    patterns = record_patterns(CONFIG, [runs], warn=warnings.append)
+    patterns = record_patterns(CONFIG, [runs], reporter=Reporter(warn=warnings.append))
     assert patterns
     (warning,) = warnings
     assert warning.startswith(f"{full_path(damaged)}: damaged MCAP log") and warning.endswith("; skipped")

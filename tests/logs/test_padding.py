@@ -21,6 +21,7 @@ from lagrseq.logs import mcap_reader
 from lagrseq.logs.mcap_reader import Damage, McapFile
 from lagrseq.logs.reader import full_path, read_info, read_topics
 from lagrseq.logs.recover import recover
+from lagrseq.progress import Reporter
 from lagrseq.running.recording import record_patterns
 from tests.support.golden_mcap import DATA, GOLDEN
 
@@ -55,7 +56,7 @@ def test_a_log_start_followed_by_zeros_is_one_line_from_every_reader(
     assert "damaged MCAP log" in str(read.value) and zeros in str(read.value) and "\n" not in str(read.value)
 
     with pytest.raises(UsageError) as asked:  # record --from-runs: no states, the skipped log named
-        record_patterns(CONFIG, [log.parent], warn=lambda _: None)
+        record_patterns(CONFIG, [log.parent], reporter=Reporter.silent())
     assert "1 log skipped" in str(asked.value) and zeros in str(asked.value)
 
     code = main(["replay", str(log.parent), "--out", str(tmp_path / "reports")])

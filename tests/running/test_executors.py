@@ -10,6 +10,7 @@ import pytest
 
 from lagrseq.cli import main
 from lagrseq.errors import UsageError
+from lagrseq.progress import Reporter, ignore
 from lagrseq.running import executors
 
 SMALL = ["--set", "run.episodes=20", "--quiet"]
@@ -93,7 +94,7 @@ def test_a_sweep_runs_several_runs_in_one_pool_with_the_logs_of_one_process(tmp_
     (broken[1].directory / "trial-002.mcap.partial").mkdir(parents=True)  # that trial cannot open its log
     warned: list[str] = []
     with pytest.raises(TrialsFailed, match=r"1 of 2 runs had failed trials: 1 of 3 trials failed \(trials 2;") as caught:
-        runner.run_sweep(broken, jobs=2, warn=warned.append)
+        runner.run_sweep(broken, jobs=2, reporter=Reporter(ignore, warned.append))
     assert str(broken[1].directory) in str(caught.value) and str(broken[0].directory) not in str(caught.value)
     assert len(warned) == 1 and warned[0].startswith(f"{broken[1].directory}: trial 2 (seed 0, config ")
     assert len(list(broken[0].directory.glob("*.mcap"))) == 3 and len(list(broken[1].directory.glob("*.mcap"))) == 2

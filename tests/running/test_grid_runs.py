@@ -18,6 +18,7 @@ from lagrseq import config as cfg
 from lagrseq.cli import main
 from lagrseq.errors import ConfigError
 from lagrseq.logs.reader import iter_messages, read_info, read_topic
+from lagrseq.progress import Reporter, ignore
 from lagrseq.running.runner import run_one, run_trials
 from lagrseq.tasks import shapes
 
@@ -289,7 +290,7 @@ def test_a_trial_that_fails_in_lockstep_is_reported_and_the_others_finish(torch,
     (directory / "trial-001.mcap.partial").mkdir(parents=True)
     warned: list[str] = []
     with pytest.raises(TrialsFailed, match="1 of 3 trials failed"):
-        run_trials(config, 3, 4, "mock", directory, jobs=1, retries=1, warn=warned.append)
+        run_trials(config, 3, 4, "mock", directory, jobs=1, retries=1, reporter=Reporter(ignore, warned.append))
     assert len(warned) == 1 and "trial 1 (seed 4" in warned[0]
     assert sorted(p.name for p in directory.glob("trial-*.mcap")) == ["trial-000.mcap", "trial-002.mcap"]
     assert all(read_info(p).complete for p in directory.glob("trial-*.mcap"))

@@ -101,8 +101,7 @@ def execute(
     trial_runs = [run for run in the_plan.runs if run.kind != "accuracy"]
     with contextlib.ExitStack() as stack:
         if pool is None and needs_pool(executor, jobs, scheduler):
-            say = progress.say if progress is not None else None
-            pool = stack.enter_context(runner.make_executor(executor, jobs, scheduler, say))
+            pool = stack.enter_context(runner.make_executor(executor, jobs, scheduler, progress))
         if pool is None:
             for run in trial_runs:
                 results += one(run)
