@@ -5,10 +5,10 @@ from __future__ import annotations
 import pytest
 
 from lagrseq import progress
-from lagrseq.progress import Reporter, duration
+from lagrseq.progress import Reporter, duration, ignore
 
 
-def test_warnings_go_to_their_own_channel_or_else_with_the_lines() -> None:
+def test_warnings_go_to_their_own_channel_with_the_lines_or_nowhere() -> None:
     lines: list[str] = []
     warnings: list[str] = []
     both = Reporter(lines.append, warnings.append)
@@ -18,6 +18,10 @@ def test_warnings_go_to_their_own_channel_or_else_with_the_lines() -> None:
     alone = Reporter(lines.append)
     alone.warn("failed: table2")
     assert lines == ["planned", "failed: table2"]
+    lines_only = Reporter(lines.append, ignore)
+    lines_only.say("resuming")
+    lines_only.warn("failed: fig7")
+    assert lines == ["planned", "failed: table2", "resuming"] and warnings == ["failed: fig6a"]
 
 
 def test_runs_and_calibrations_move_the_bar_it_shows(capsys: pytest.CaptureFixture[str]) -> None:

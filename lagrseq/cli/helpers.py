@@ -81,7 +81,7 @@ def serve_llm(model: str, port: int, n_ctx: int, threads: int, log: Any, reporte
 
     settings = local_settings(model, LocalOptions(n_ctx=n_ctx, threads=threads), port=port)
 
-    with LocalServer(settings, log=log, on_line=reporter.warn) as server:
+    with LocalServer(settings, log=log, reporter=reporter) as server:
         reporter.say(f"{server.base_url}  model {settings.model_name}  (use: --provider live:{settings.model_name} --base-url {server.base_url} --server llama.cpp; Ctrl-C stops it)")
         while server.running:
             time.sleep(0.5)

@@ -30,7 +30,6 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -205,17 +204,17 @@ def _stop_all() -> None:
 class LocalServer:
     """``python -m llama_cpp.server`` for one GGUF model, on 127.0.0.1. A context manager:
     ``start`` on entry, ``stop`` on exit. ``log``: the server's output file (default a temporary
-    file, removed at stop); ``on_line``: told the start and stop lines."""
+    file, removed at stop); ``reporter``: warned of the start and stop lines (None: not said)."""
 
     def __init__(
         self,
         settings: ServerSettings,
         log: Path | None = None,
-        on_line: Callable[[str], None] | None = None,
+        reporter: Reporter | None = None,
         python: str = sys.executable,
     ) -> None:
         self.settings = settings
-        self.on_line = on_line
+        self.reporter = reporter or Reporter.silent()
         self.python = python
         self.port = settings.port
         # llama-cpp-python's server samples from a fixed seed unless told otherwise, so every
@@ -419,8 +418,7 @@ class LocalServer:
         self._say(f"llama.cpp server on port {self.port} stopped")
 
     def _say(self, line: str) -> None:
-        if self.on_line is not None:
-            self.on_line(line)
+        self.reporter.warn(line)
 
     def __enter__(self) -> LocalServer:
         return self.start()

@@ -166,8 +166,9 @@ def record(
 
     say = (lambda message: bar.write(shown(message))) if bar is not None else (lambda message: print(shown(message), file=sys.stderr))
     settings = local_settings(spec.argument, options)
-    with LocalServer(settings, on_line=lambda line: say(f"  {line}")) as server:
-        supervisor = Supervisor(server, Reporter(lambda line: say(f"  {line}")))  # a dying server: restarted once, then one line
+    reporter = Reporter(lambda line: say(f"  {line}"))
+    with LocalServer(settings, reporter=reporter) as server:
+        supervisor = Supervisor(server, reporter)  # a dying server: restarted once, then one line
         try:
             return _record(queries, store_path, samples, mode, local_live(options, server.base_url), bar, _local_endpoint(), concurrency, settings.model_name, supervisor.on_retry)
         finally:

@@ -361,8 +361,9 @@ def make_local(argument: str, options: LocalOptions, rng: np.random.Generator) -
     from lagrseq.llm.local import LocalProvider, LocalServer, Supervisor
     from lagrseq.progress import Reporter
 
-    server = LocalServer(local_settings(argument, options), on_line=_say).start()
-    supervisor = Supervisor(server, Reporter(_say))  # a server dying mid-run: restarted once, then one line
+    reporter = Reporter(_say)
+    server = LocalServer(local_settings(argument, options), reporter=reporter).start()
+    supervisor = Supervisor(server, reporter)  # a server dying mid-run: restarted once, then one line
     try:
         inner = make_live(local_live(options, server.base_url), rng, budgeted=True, on_retry=supervisor.on_retry, environ={}, local_model=server.settings.model_name)
     except BaseException:

@@ -21,6 +21,7 @@ from lagrseq.errors import LagrseqError, ProviderError, UsageError
 from lagrseq.llm.local import LocalServer, ServerSettings, missing_extra, packaged_model
 from lagrseq.logs.reader import find_logs, read_topic
 from lagrseq.loop.lagr import query_for
+from lagrseq.progress import Reporter
 from lagrseq.running import runner, wiring
 
 pytestmark = [
@@ -100,7 +101,7 @@ def test_start_errors_are_one_line_and_leave_nothing(tmp_path: Path) -> None:
     # a file that claims to be GGUF and is not: the server exits, its log's reason is the error
     (tmp_path / "broken.gguf").write_bytes(b"GGUF" + b"\0" * 64)
     lines: list[str] = []
-    server = LocalServer(settings(model=tmp_path / "broken.gguf"), on_line=lines.append)
+    server = LocalServer(settings(model=tmp_path / "broken.gguf"), reporter=Reporter(lines.append))
     with pytest.raises(ProviderError, match="exited with status"):
         server.start()
     assert gone(server_pid(lines[0])) and server.process is None
@@ -127,7 +128,8 @@ def test_a_killed_parent_takes_its_server_along(tmp_path: Path) -> None:
     code = (
         "import time\n"
         "from lagrseq.llm.local import LocalServer, ServerSettings, packaged_model\n"
-        "server = LocalServer(ServerSettings(packaged_model(), n_threads=1), on_line=print).start()\n"
+        "from lagrseq.progress import Reporter\n"
+        "server = LocalServer(ServerSettings(packaged_model(), n_threads=1), reporter=Reporter()).start()\n"
         "print('pid-of-server', server.process.pid, flush=True)\n"
         "time.sleep(600)\n"
     )

@@ -28,6 +28,7 @@ from lagrseq.errors import ProviderError, UsageError
 from lagrseq.llm import local
 from lagrseq.logs.reader import find_logs, read_topic
 from lagrseq.loop.lagr import query_for
+from lagrseq.progress import Reporter
 from lagrseq.running import wiring
 from tests.support.local_server import FAKE, GGUF, gone, start_line
 
@@ -105,7 +106,7 @@ def test_start_failures_are_one_line_and_leave_no_process(fake: Path, tmp_path: 
     broken = tmp_path / "broken.gguf"
     broken.write_bytes(b"GGUF" + bytes(4))  # the magic, then nothing a loader accepts
     lines: list[str] = []
-    server = local.LocalServer(local.ServerSettings(broken), on_line=lines.append)
+    server = local.LocalServer(local.ServerSettings(broken), reporter=Reporter(lines.append))
     with pytest.raises(ProviderError, match=r"exited with status 1 before answering: broken.gguf is not a GGUF model"):
         server.start()
     assert gone(start_line(lines[0])[0]) and server.process is None
@@ -243,7 +244,8 @@ def test_lagrseq_killed_outright_takes_its_server_along(fake: Path, tmp_path: Pa
         "import sys, time\n"
         "from pathlib import Path\n"
         "from lagrseq.llm.local import LocalServer, ServerSettings\n"
-        "server = LocalServer(ServerSettings(Path(sys.argv[1])), on_line=lambda line: print(line, file=sys.stderr, flush=True)).start()\n"
+        "from lagrseq.progress import Reporter\n"
+        "server = LocalServer(ServerSettings(Path(sys.argv[1])), reporter=Reporter(lambda line: print(line, file=sys.stderr, flush=True))).start()\n"
         "time.sleep(600)\n"
     )
     process = subprocess.Popen([sys.executable, "-c", code, str(fake)], stderr=subprocess.PIPE, text=True)
