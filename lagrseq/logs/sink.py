@@ -253,6 +253,10 @@ class McapSink:
         """Where the open chunk and the held messages stood at the last episode's end."""
         self._writing = False
         self._finished = False
+        self._guarded = keys_active()
+        """Whether an API key is guarded (:func:`lagrseq.keys.active`): read when the sink opens
+        and at every episode's end, not at every query (reading the environment costs about a
+        microsecond, a tenth of what logging a query costs)."""
 
     def write(self, event: Event) -> None:
         """Add one event. Transitions and pictures go to the current chunk; queries and episodes
@@ -281,14 +285,16 @@ class McapSink:
                     self.write(QueryEvent(*entry, decision=0))  # type: ignore[misc]
                 return
             if kind is QueryEvent or kind is ProbeQueryEvent:
-                if self._columnar and not_asked(event):  # type: ignore[arg-type]
+                # a query asked (decision 1, what every QueryEvent the loop writes is) is no
+                # /no_query entry: its decision alone says so, without a look at every field
+                if self._columnar and event.decision == 0 and not_asked(event):  # type: ignore[union-attr, arg-type]
                     self._not_asked.append(decision_entry(event))
                     return
                 e = event
                 for value in (e.evaluation, e.query_reward, e.temperature, e.cost_usd, e.latency_s):  # type: ignore[union-attr]
                     if value is not None and not -_HUGE < value < _HUGE:
                         _finite(event, _QUERY_FLOATS)
-                if keys_active():
+                if self._guarded:
                     event = _scrubbed(event)  # type: ignore[arg-type]
                 self._pending.append((self._query_channel, event.global_step, encode(event)))  # type: ignore[union-attr]
                 return
@@ -373,6 +379,7 @@ class McapSink:
         if self._writer.chunk_size >= self._chunk_bytes:
             self._write_chunks()
         self._episode_end = (self._writer.mark(), len(self._pending))
+        self._guarded = keys_active()
 
     def _write_chunks(self) -> None:
         """Close the transition chunk, write the held messages as their own chunk, and push
