@@ -253,10 +253,10 @@ class McapSink:
         """Where the open chunk and the held messages stood at the last episode's end."""
         self._writing = False
         self._finished = False
-        self._guarded = keys_active()
-        """Whether an API key is guarded (:func:`lagrseq.keys.active`): read when the sink opens
-        and at every episode's end, not at every query (reading the environment costs about a
-        microsecond, a tenth of what logging a query costs)."""
+        self._guarded: bool | None = None
+        """Whether an API key is guarded (:func:`lagrseq.keys.active`), read at each episode's
+        first query (None: not yet read in this episode), not at every query: reading the
+        environment costs about a microsecond, a fifth of what logging a query costs."""
 
     def write(self, event: Event) -> None:
         """Add one event. Transitions and pictures go to the current chunk; queries and episodes
@@ -294,7 +294,10 @@ class McapSink:
                 for value in (e.evaluation, e.query_reward, e.temperature, e.cost_usd, e.latency_s):  # type: ignore[union-attr]
                     if value is not None and not -_HUGE < value < _HUGE:
                         _finite(event, _QUERY_FLOATS)
-                if self._guarded:
+                guarded = self._guarded
+                if guarded is None:  # the episode's first query
+                    guarded = self._guarded = keys_active()
+                if guarded:
                     event = _scrubbed(event)  # type: ignore[arg-type]
                 self._pending.append((self._query_channel, event.global_step, encode(event)))  # type: ignore[union-attr]
                 return
@@ -379,7 +382,7 @@ class McapSink:
         if self._writer.chunk_size >= self._chunk_bytes:
             self._write_chunks()
         self._episode_end = (self._writer.mark(), len(self._pending))
-        self._guarded = keys_active()
+        self._guarded = None
 
     def _write_chunks(self) -> None:
         """Close the transition chunk, write the held messages as their own chunk, and push
