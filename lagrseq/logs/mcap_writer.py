@@ -302,10 +302,8 @@ class LeanWriter:
         compression = b"" if len(raw) < _SMALL_CHUNK else b"zstd"
         compressed = self._compressor.compress(raw) if compression else raw
         head = _chunk_head(chunk_start, chunk_end, len(raw), zlib.crc32(raw), compression, len(compressed))
-        chunk_offset = self._offset
-        self._write(head)
-        self._write(compressed)
-        chunk_length = self._offset - chunk_offset
+        chunk_offset, chunk_length = self._offset, len(head) + len(compressed)
+        self._write(head + compressed)  # one write: a copy of the compressed data only
         offsets: dict[int, int] = {}
         pieces: list[bytes] = []
         position = self._offset

@@ -241,8 +241,8 @@ class McapSink:
         # Format 3: the current episode's transitions and decisions not to query, held until
         # its end, when each becomes one columnar record.
         self._steps: list[Transition] = []
-        self._not_asked: list[tuple[Any, ...]] = []
-        """Format 3: the episode's decisions not to query, as their ``decision_entry``."""
+        self._not_asked: list[NotAsked] = []
+        """Format 3: the episode's decisions not to query (made entries at its end, in one pass)."""
         self._expanded = {TRANSITION_TOPIC: 0, QUERY_TOPIC: 0}
         """Format 3: records written inside columnar ones, per topic the readers give them as."""
         # Transitions and pictures of the current episode go straight into the writer's open
@@ -278,17 +278,16 @@ class McapSink:
                     self._writer.append_encoded(self._transition_channel, event.global_step, event, encode_into)  # type: ignore[union-attr]
                 return
             if kind is NotAsked:
-                entry = astuple(event)  # type: ignore[arg-type]  # (trial, episode, step, global_step, state)
                 if self._columnar:
-                    self._not_asked.append(entry)
+                    self._not_asked.append(event)  # type: ignore[arg-type]
                 else:
-                    self.write(QueryEvent(*entry, decision=0))  # type: ignore[misc]
+                    self.write(QueryEvent(*astuple(event), decision=0))  # type: ignore[arg-type, misc]
                 return
             if kind is QueryEvent or kind is ProbeQueryEvent:
                 # a query asked (decision 1, what every QueryEvent the loop writes is) is no
                 # /no_query entry: its decision alone says so, without a look at every field
                 if self._columnar and event.decision == 0 and not_asked(event):  # type: ignore[union-attr, arg-type]
-                    self._not_asked.append(decision_entry(event))
+                    self._not_asked.append(NotAsked(*decision_entry(event)))
                     return
                 e = event
                 for value in (e.evaluation, e.query_reward, e.temperature, e.cost_usd, e.latency_s):  # type: ignore[union-attr]
@@ -302,7 +301,10 @@ class McapSink:
                 self._pending.append((self._query_channel, event.global_step, encode(event)))  # type: ignore[union-attr]
                 return
             if kind is EpisodeEvent or kind is ArmEpisodeEvent or kind is self._task_episode:
-                _finite(event, _EPISODE_FLOATS)
+                total, epsilon = event.return_, event.epsilon  # type: ignore[union-attr]
+                # x - x is 0.0 for a finite float, NaN (true) for NaN and the infinities
+                if type(total) is not float or type(epsilon) is not float or total - total or epsilon - epsilon:
+                    _finite(event, _EPISODE_FLOATS)
                 self._write_columns()  # the episode's columnar records go before its summary
                 self._pending.append((self._episode_channel, max(event.global_step - 1, 0), encode(event)))  # type: ignore[union-attr]
                 self._end_episode()
@@ -331,7 +333,7 @@ class McapSink:
                     self._writer.append_encoded(self._transition_channel, record["global_step"][0], record, encode_into)
                 self._expanded[TRANSITION_TOPIC] += len(steps)
             if not_asked:
-                for record in no_query_records(not_asked):
+                for record in no_query_records(list(map(astuple, not_asked))):
                     self._pending.append((self._no_query_channel, record["global_step"][0], encode(record)))
                 self._expanded[QUERY_TOPIC] += len(not_asked)
         except (TypeError, ValueError, OverflowError) as exc:
