@@ -133,6 +133,9 @@ _EPISODE_FLOATS = ("return_", "epsilon")
 
 
 _NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)
+_BUFFER_BYTES = 64 * 1024
+"""The file's write buffer: a chunk and its message indexes go to the operating system in one
+write when the sink pushes them (a few writes a trial, not one per record)."""
 
 
 def _scrubbed(event: Any) -> Any:
@@ -177,7 +180,8 @@ def _open_exclusive(partial: Path) -> Any:
             os.set_blocking(descriptor, True)
         if fcntl is not None:
             fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        os.ftruncate(descriptor, 0)
+        if os.fstat(descriptor).st_size:  # a crash's leftover (truncating a new, empty file costs a journal entry)
+            os.ftruncate(descriptor, 0)
     except BlockingIOError:
         os.close(descriptor)
         raise LogError(
@@ -187,7 +191,7 @@ def _open_exclusive(partial: Path) -> Any:
     except BaseException:
         os.close(descriptor)
         raise
-    return os.fdopen(descriptor, "wb")
+    return os.fdopen(descriptor, "wb", buffering=_BUFFER_BYTES)
 
 
 class McapSink:
@@ -212,7 +216,8 @@ class McapSink:
         self._chunk_bytes = chunk_bytes
         self._columnar = log_format != "2"
         self.partial = self.path.with_name(self.path.name + PARTIAL_SUFFIX)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        if not self.path.parent.is_dir():  # one stat where the folder exists (every trial but the first)
+            self.path.parent.mkdir(parents=True, exist_ok=True)
         _refuse_link(self.path)
         self._stream = _open_exclusive(self.partial)
         self._writer = LeanWriter(self._stream, library="lagrseq", profile=PROFILE)
