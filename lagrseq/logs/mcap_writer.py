@@ -102,7 +102,8 @@ _COMPRESSORS = threading.local()
 def _compressor() -> zstandard.ZstdCompressor:
     """This thread's zstd compressor, made once: making one costs about 0.1 ms (its working
     memory), as much as compressing a trial's chunks; each ``compress`` is a frame of its own,
-    so reusing it changes no byte."""
+    so reusing it changes no byte. One per thread: a compressor is not safe to share between
+    threads that compress at once (trials on a threaded executor)."""
     compressor = getattr(_COMPRESSORS, "zstd", None)
     if compressor is None:
         compressor = _COMPRESSORS.zstd = zstandard.ZstdCompressor(level=COMPRESSION_LEVEL)
@@ -152,7 +153,6 @@ class LeanWriter:
 
     def __init__(self, stream: IO[bytes], library: str = "lagrseq", profile: str = "") -> None:
         self._stream = stream
-        self._compressor = _compressor()
         self._schemas: dict[int, bytes] = {}
         self._channels: dict[int, bytes] = {}
         """The packed schema and channel records by id (the summary repeats them)."""
@@ -300,7 +300,7 @@ class LeanWriter:
         chunk_messages = sum(len(entries) for entries in self._index.values()) // 2
         raw = self._chunk  # read in place: a copy of a large chunk costs fresh memory pages
         compression = b"" if len(raw) < _SMALL_CHUNK else b"zstd"
-        compressed = self._compressor.compress(raw) if compression else raw
+        compressed = _compressor().compress(raw) if compression else raw  # the running thread's
         head = _chunk_head(chunk_start, chunk_end, len(raw), zlib.crc32(raw), compression, len(compressed))
         chunk_offset, chunk_length = self._offset, len(head) + len(compressed)
         self._write(head + compressed)  # one write: a copy of the compressed data only
