@@ -11,8 +11,10 @@ schemas, channels, statistics, chunk and metadata indexes, summary offsets and C
 
 from __future__ import annotations
 
+import functools
 import struct
 import sys
+import threading
 import zlib
 from array import array
 from collections import defaultdict
@@ -52,13 +54,18 @@ def _offsets() -> array[int]:
 _CHUNK_HEAD = struct.Struct("<BQQQQII")  # opcode, record length, start, end, size, crc, len("zstd")
 
 
-def _chunk_record(start: int, end: int, raw_size: int, crc: int, compression: bytes, data: bytes) -> bytes:
-    """A Chunk record (the same bytes as ``mcap.records.Chunk.write``), packed at once: the
-    reference builder seeks and packs field by field, which costs more than a small chunk's
-    compression."""
-    length = 8 + 8 + 8 + 4 + 4 + len(compression) + 8 + len(data)
+def _chunk_head(start: int, end: int, raw_size: int, crc: int, compression: bytes, data_size: int) -> bytes:
+    """A Chunk record up to its data (the same bytes as ``mcap.records.Chunk.write``), packed at
+    once: the reference builder seeks and packs field by field, which costs more than a small
+    chunk's compression. The data follows as it is (no copy of it is made)."""
+    length = 8 + 8 + 8 + 4 + 4 + len(compression) + 8 + data_size
     head = _CHUNK_HEAD.pack(Opcode.CHUNK, length, start, end, raw_size, crc, len(compression))
-    return head + compression + struct.pack("<Q", len(data)) + data
+    return head + compression + struct.pack("<Q", data_size)
+
+
+def _chunk_record(start: int, end: int, raw_size: int, crc: int, compression: bytes, data: bytes) -> bytes:
+    """A whole Chunk record (the same bytes as ``mcap.records.Chunk.write``)."""
+    return _chunk_head(start, end, raw_size, crc, compression, len(data)) + data
 
 
 def _chunk_index_record(
@@ -89,6 +96,20 @@ COMPRESSION_LEVEL = -1
 each, ``benchmarks/bench_cube.py``): level 1 took 13 ms a trial, -1 took 8 ms for 16% more bytes
 (lz4: 4 ms for 84% more; zlib 1: 34 ms). Readers need nothing new: any level is zstd."""
 
+_COMPRESSORS = threading.local()
+
+
+def _compressor() -> zstandard.ZstdCompressor:
+    """This thread's zstd compressor, made once: making one costs about 0.1 ms (its working
+    memory), as much as compressing a trial's chunks; each ``compress`` is a frame of its own,
+    so reusing it changes no byte. One per thread: a compressor is not safe to share between
+    threads that compress at once (trials on a threaded executor)."""
+    compressor = getattr(_COMPRESSORS, "zstd", None)
+    if compressor is None:
+        compressor = _COMPRESSORS.zstd = zstandard.ZstdCompressor(level=COMPRESSION_LEVEL)
+    return compressor
+
+
 _SMALL_CHUNK = 1024
 """Chunks smaller than this many bytes (an episode's summary messages) are stored uncompressed:
 zstd saves a few bytes there and costs more than writing them."""
@@ -112,14 +133,29 @@ class Mark(NamedTuple):
     size: int
 
 
+def _packed(record: Any) -> bytes:
+    """A record as bytes, packed by ``mcap.records``."""
+    builder = RecordBuilder()
+    record.write(builder)
+    return builder.end()
+
+
+@functools.lru_cache(maxsize=64)
+def _preamble_record(kind: type, **fields: Any) -> bytes:
+    """A header, schema or channel record (``kind(**fields)``, a channel without metadata) as
+    bytes, kept: every trial's file starts with the same few, and packing them field by field
+    costs more than compressing a small chunk."""
+    return _packed(kind(**fields, metadata={}) if kind is Channel else kind(**fields))
+
+
 class LeanWriter:
     """Write an indexed, chunked MCAP file; ``flush()`` closes the current chunk."""
 
     def __init__(self, stream: IO[bytes], library: str = "lagrseq", profile: str = "") -> None:
         self._stream = stream
-        self._compressor = zstandard.ZstdCompressor(level=COMPRESSION_LEVEL)
-        self._schemas: dict[int, Schema] = {}
-        self._channels: dict[int, Channel] = {}
+        self._schemas: dict[int, bytes] = {}
+        self._channels: dict[int, bytes] = {}
+        """The packed schema and channel records by id (the summary repeats them)."""
         self._chunk = bytearray()
         self._index: dict[int, array[int]] = defaultdict(_offsets)
         """Per channel of the current chunk: log time, offset, log time, offset, ..."""
@@ -131,9 +167,7 @@ class LeanWriter:
         self._start_time = self._end_time = 0
         self._chunks = 0
         self._offset = 0
-        builder = RecordBuilder()
-        Header(profile=profile, library=library).write(builder)
-        self._write(MAGIC + builder.end())
+        self._write(MAGIC + _preamble_record(Header, profile=profile, library=library))
 
     # ------------------------------------------------------------------ low level
     def _write(self, data: bytes | bytearray) -> None:
@@ -141,31 +175,25 @@ class LeanWriter:
         self._offset += len(data)
 
     def _record(self, record: Any) -> tuple[int, int]:
-        builder = RecordBuilder()
-        record.write(builder)
-        data = builder.end()
+        data = _packed(record)
         start = self._offset
         self._write(data)
         return start, len(data)
 
     # ------------------------------------------------------------------ registration
     def register_schema(self, name: str, encoding: str, data: bytes) -> int:
-        schema = Schema(id=len(self._schemas) + 1, name=name, encoding=encoding, data=data)
-        self._schemas[schema.id] = schema
-        self._record(schema)
-        return schema.id
+        schema_id = len(self._schemas) + 1
+        record = self._schemas[schema_id] = _preamble_record(Schema, id=schema_id, name=name, encoding=encoding, data=data)
+        self._write(record)
+        return schema_id
 
     def register_channel(self, topic: str, message_encoding: str, schema_id: int) -> int:
-        channel = Channel(
-            id=len(self._channels) + 1,
-            topic=topic,
-            message_encoding=message_encoding,
-            schema_id=schema_id,
-            metadata={},
+        channel_id = len(self._channels) + 1
+        record = self._channels[channel_id] = _preamble_record(
+            Channel, id=channel_id, topic=topic, message_encoding=message_encoding, schema_id=schema_id
         )
-        self._channels[channel.id] = channel
-        self._record(channel)
-        return channel.id
+        self._write(record)
+        return channel_id
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         start, length = self._record(Metadata(name=name, metadata=dict(data)))
@@ -270,12 +298,12 @@ class LeanWriter:
         chunk_start = min(min(entries[::2]) for entries in self._index.values())
         chunk_end = max(max(entries[::2]) for entries in self._index.values())
         chunk_messages = sum(len(entries) for entries in self._index.values()) // 2
-        raw = bytes(self._chunk)
+        raw = self._chunk  # read in place: a copy of a large chunk costs fresh memory pages
         compression = b"" if len(raw) < _SMALL_CHUNK else b"zstd"
-        compressed = self._compressor.compress(raw) if compression else raw
-        record = _chunk_record(chunk_start, chunk_end, len(raw), zlib.crc32(raw), compression, compressed)
-        chunk_offset, chunk_length = self._offset, len(record)
-        self._write(record)
+        compressed = _compressor().compress(raw) if compression else raw  # the running thread's
+        head = _chunk_head(chunk_start, chunk_end, len(raw), zlib.crc32(raw), compression, len(compressed))
+        chunk_offset, chunk_length = self._offset, len(head) + len(compressed)
+        self._write(head + compressed)  # one write: a copy of the compressed data only
         offsets: dict[int, int] = {}
         pieces: list[bytes] = []
         position = self._offset

@@ -101,7 +101,7 @@ def run_metadata(
         **({"numerics": machine} if machine != NATIVE else {}),
         **({"llm_samplers": samplers} if samplers else {}),
         "provider_options": logged_options(provider_options if provider_options is not None else default_options(provider_spec)),
-        "config": config.to_json(),
+        "config": _config_json(config),
         origins.PARTS_METADATA: origins.parts_json(origins.trial_parts_origins(config, provider_spec, executor)),
         "task": config.task.name,
         "method": config.method,
@@ -113,6 +113,13 @@ def run_metadata(
         "python": platform.python_version(),
         "numpy": np.__version__,
     }
+
+
+@functools.lru_cache(maxsize=16)
+def _config_json(config: ExperimentConfig) -> str:
+    """``config.to_json()``, made once per configuration (a frozen one): every trial of a run
+    logs it, and making it costs about as much as a trial's file header."""
+    return config.to_json()
 
 
 def trains_network(config: ExperimentConfig) -> bool:

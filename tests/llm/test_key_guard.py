@@ -244,6 +244,29 @@ def test_the_log_blanks_a_guarded_key_in_its_metadata_and_records(tmp_path: Path
     assert leaks(data.decode("latin-1"), BARE_KEY) == []
 
 
+def test_a_key_set_while_a_log_is_open_is_blanked_from_the_next_episodes_queries(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The sink reads the guarded keys once per episode, at its first query: a key that turns
+    up between episodes is blanked from every later query record."""
+    from mcap.reader import make_reader
+
+    from lagrseq.logs.events import EpisodeEvent, QueryEvent
+
+    monkeypatch.delenv("OPENAI_API_KEY", raising=False)
+    path = tmp_path / "trial-000.mcap"
+    with McapSink(path, {"config": "{}"}) as sink:
+        sink.write(QueryEvent(0, 0, 0, 0, [1], 1, True, answer="no key yet", model="m"))
+        sink.write(EpisodeEvent(0, 0, 0.0, 1, global_step=1))
+        monkeypatch.setenv("OPENAI_API_KEY", BARE_KEY)
+        for episode in (1, 2):
+            sink.write(QueryEvent(0, episode, 0, episode, [1], 1, True, answer=f"echo {spaced(BARE_KEY)}", model=BARE_KEY[:20]))
+            sink.write(QueryEvent(0, episode, 1, episode, [1], 1, True, answer=f"again {BARE_KEY.upper()}", model="m"))
+            sink.write(EpisodeEvent(0, episode, 0.0, 2, global_step=episode + 1))
+    with path.open("rb") as handle:
+        records = [json.loads(m.data) for _, channel, m in make_reader(handle).iter_messages() if channel.topic == "/query"]
+    assert [r["answer"] for r in records] == ["no key yet"] + [f"echo {MARK}", f"again {MARK}"] * 2
+    assert all(leaks(json.dumps(r, ensure_ascii=False), BARE_KEY) == [] for r in records)
+
+
 def test_a_usage_error_repeating_a_value_that_is_the_key_blanks_it(tmp_path: Path) -> None:
     """Swapped arguments caught by argparse itself (an invalid choice, a number expected)."""
     for argv in (["record", "cube-stacking", "--model", "m", "--store", str(tmp_path / "s"), "--server", BARE_KEY],
