@@ -116,7 +116,7 @@ def test_noninferiority_tail_and_credit_on_hand_made_points() -> None:
     few = _point("thompson", ALWAYS_20[:5], queries=20, decisions=100)  # 5 trials against 400: no pairs
     random_02 = _point("random", _around(ALWAYS_400, [1.6, 1.5, 1.7]), p=0.2)  # slower than thompson
     random_05 = _point("random", _around(ALWAYS_400, [1.0, 1.02, 0.99]), p=0.5)  # faster than seq
-    mocked = _point("thompson", list(same.steps_to_solve), queries=20, on_miss="mock")
+    mocked = _point("thompson", list(same.steps_to_solve), queries=20, on_miss="mock", missed=4)
     oracle = _point("oracle", list(same.steps_to_solve), queries=5)
     points = [always, same, slow, few, random_02, random_05, mocked, oracle]
     verdicts = judge(points)
@@ -366,3 +366,18 @@ def test_the_tail_needs_the_pairs_the_docs_state() -> None:
         return -1
 
     assert [first(0), first(1), first(2)] == [29, 46, 61]
+
+
+def test_a_fallback_that_answered_nothing_withholds_no_verdict() -> None:
+    """A run on a store whose misses would go to the mock, but that met no miss, took every answer
+    from the store: it is judged like a run that refuses misses. One miss answered by the mock
+    withholds the verdict."""
+    always = _point("always", ALWAYS_400, on_miss="mock")
+    twin = _point("thompson", ALWAYS_400, queries=20, on_miss="mock")
+    mocked = _point("thompson", ALWAYS_400, queries=20, on_miss="mock", missed=1)
+    verdicts = judge([always, twin, mocked])
+    assert verdicts[id(always)].note == "reference"
+    assert verdicts[id(twin)].against_always is not None
+    assert verdicts[id(twin)].against_always.verdict == "non-inferior"
+    assert verdicts[id(mocked)].against_always is None
+    assert verdicts[id(mocked)].note == "no verdict: misses answered by the mock"

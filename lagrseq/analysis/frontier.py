@@ -238,9 +238,10 @@ class Point:
 
     @property
     def fallback_labelled(self) -> bool:
-        """Its store misses were answered by the rule-based mock or a calibrated draw (fitted to
-        the store's answers): no verdict."""
-        return self.on_miss in ("mock", CALIBRATED_MISS)
+        """At least one store miss was answered by the rule-based mock or a calibrated draw
+        (fitted to the store's answers): no verdict. A run whose every answer came from the store
+        is judged like a ``refuse`` run: its fallback decided nothing."""
+        return self.on_miss in ("mock", CALIBRATED_MISS) and float(self.fallback.sum()) > 0
 
     @property
     def miss_share(self) -> float:

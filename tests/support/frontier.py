@@ -10,9 +10,9 @@ from lagrseq.analysis.loading import Run, RunKey
 
 
 def point(policy: str, steps: list[float], queries: float = 10.0, decisions: float = 100.0, p: float | None = None,
-          on_miss: str = "refuse") -> Point:
+          on_miss: str = "refuse", missed: float = 0.0) -> Point:
     """A frontier point made by hand: per-trial steps to the first solve, and the run's totals of
-    queries and decisions spread over its trials."""
+    queries, decisions and store misses (answers from ``on_miss``) spread over its trials."""
     secondary = {"policy": policy} if p is None else {"policy": policy, "ask_probability": p}
     method = {"always": "lagr", "never": "baseline"}.get(policy, "lagr-seq")
     config = {"method": method, "secondary": secondary, "lagr": {"solution_scope": "episode"}, "task": {"name": "cube-stacking"}}
@@ -24,7 +24,7 @@ def point(policy: str, steps: list[float], queries: float = 10.0, decisions: flo
     per_trial = np.full(n, queries / n)
     point = Point(
         policy, "" if p is None else f"p {p:g}", run, np.zeros(n), np.array(steps, dtype=float), np.ones(n, dtype=bool),
-        per_trial, np.zeros(n), np.zeros(n), decisions=decisions, on_miss=on_miss,
+        per_trial, np.zeros(n), np.full(n, missed / n), decisions=decisions, on_miss=on_miss,
         episodes_solved=np.ones(n), outside=np.zeros(n, dtype=bool),
     )
     return point
