@@ -14,9 +14,8 @@ import pytest
 
 from lagrseq import __version__
 from lagrseq.logs.reader import read_info
-from tests.support.plugins import ROOT, install, lagrseq
+from tests.support.plugins import ROOT, example_code, install, lagrseq
 
-NUMSEQ = ROOT / "examples" / "lagrseq-numseq" / "src"
 ENTRY_POINTS = (
     "[lagrseq.tasks]\nnumber-sequence = lagrseq_numseq:task_spec\n\n"
     "[lagrseq.policies]\nbackoff = lagrseq_numseq:policy_spec\n"
@@ -29,10 +28,11 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("numseq")
     site = root / "site"
     site.mkdir()
-    install(site, "lagrseq-numseq", "0.1.0", "", "", ENTRY_POINTS)  # its code: examples/lagrseq-numseq/src on the path
+    install(site, "lagrseq-numseq", "0.1.0", "", "", ENTRY_POINTS)  # its code: a copy of the example's package
+    example_code(root)
     out = root / "runs"
     done = lagrseq(site, "run", "number-sequence", "--method", "lagr-seq", "--set", 'secondary.policy="backoff"', "--trials", "2",
-                   "--set", "run.episodes=3", "--quiet", "--jobs", "1", "--out", str(out), cwd=root, env={"PYTHONPATH": f"{site}:{NUMSEQ}:{ROOT}"})
+                   "--set", "run.episodes=3", "--quiet", "--jobs", "1", "--out", str(out), cwd=root, env={"PYTHONPATH": f"{site}:{root / 'example-code'}:{ROOT}"})
     assert done.returncode == 0, done.stderr
     return out
 
@@ -44,7 +44,7 @@ def test_each_log_names_its_parts_and_replay_shows_them(runs: Path, tmp_path: Pa
     assert parts["task"] == {"name": "number-sequence", **plugin} and parts["policy"] == {"name": "backoff", **plugin}
     assert parts["provider"] == {"name": "mock", "distribution": "lagrseq", "version": __version__}
     site = runs.parent / "site"
-    done = lagrseq(site, "replay", str(runs), "--out", str(tmp_path / "report"), cwd=tmp_path, env={"PYTHONPATH": f"{site}:{NUMSEQ}:{ROOT}"})
+    done = lagrseq(site, "replay", str(runs), "--out", str(tmp_path / "report"), cwd=tmp_path, env={"PYTHONPATH": f"{site}:{runs.parent / 'example-code'}:{ROOT}"})
     assert done.returncode == 0, done.stderr
     with (tmp_path / "report" / "tables" / "parts.csv").open() as file:
         rows = {(r["part"], r["name"]): (r["distribution"], r["version"], r["runs"]) for r in csv.DictReader(file)}

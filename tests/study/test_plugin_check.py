@@ -6,9 +6,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from tests.support.plugins import ROOT, distribution, lagrseq
+from tests.support.plugins import ROOT, distribution, example_code, lagrseq
 
-NUMSEQ = ROOT / "examples" / "lagrseq-numseq" / "src"
 ENTRY_POINTS = "[lagrseq.tasks]\nnumber-sequence = lagrseq_numseq:task_spec\n[lagrseq.policies]\nbackoff = lagrseq_numseq:policy_spec\n"
 VARIANTS = '''
 import dataclasses
@@ -76,7 +75,8 @@ def _site(root: Path, variant: str = "") -> Path:
 
 
 def _check(site: Path, cwd: Path):  # type: ignore[no-untyped-def]
-    return lagrseq(site, "plugins", "--check", cwd=cwd, env={"PYTHONPATH": f"{site}:{NUMSEQ}:{ROOT}"})
+    code = example_code(site.parent)
+    return lagrseq(site, "plugins", "--check", cwd=cwd, env={"PYTHONPATH": f"{site}:{code}:{ROOT}"})
 
 
 def test_the_example_plugin_passes_the_check(tmp_path: Path) -> None:

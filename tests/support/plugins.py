@@ -5,11 +5,23 @@ fresh interpreter that finds them, as ``pip install`` would leave them."""
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
+
+
+def example_code(root: Path) -> Path:
+    """A folder under ``root`` holding the example plugin's package (``lagrseq_numseq``) and
+    nothing else, to put on ``PYTHONPATH``: the example's own ``src`` may also hold the metadata
+    an editable install of it left there (tox's plugin environment does), which would make the
+    example a second, installed distribution."""
+    code = root / "example-code"
+    shutil.copytree(ROOT / "examples" / "lagrseq-numseq" / "src" / "lagrseq_numseq", code / "lagrseq_numseq",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    return code
 
 GOOD = '''
 from lagrseq.registry import PolicySpec
