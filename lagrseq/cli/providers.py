@@ -114,7 +114,7 @@ def _add_cache(sub: Any) -> None:
         ),
     )
     par.add_argument("source", type=Path, metavar="STORE|FILE.jsonl")
-    par.add_argument("--task", choices=tasks(), required=True)
+    par.add_argument("--task", choices=tasks(), required=True, metavar="TASK", help="the task the answers were recorded for (lagrseq plugins lists them)")
 
 
 def _add_serve_llm(sub: Any) -> None:
