@@ -283,12 +283,7 @@ def contrast(groups: Sequence[tuple[float, np.ndarray]], level: float = 0.95) ->
     if var == 0.0:
         return inference.Interval(n, value, value, value, level), (1.0 if value == 0.0 else 0.0)
     se = math.sqrt(var)
-    below = sum(p * p / (x.size - 1) for p, (_, x) in zip(parts, clean, strict=True) if p > 0)
-    if below > 0.0:
-        df = var * var / below
-    else:  # tiny variances whose squares underflow to 0: the same ratio, scaled by the largest
-        top = max(parts)
-        df = (var / top) ** 2 / sum((p / top) ** 2 / (x.size - 1) for p, (_, x) in zip(parts, clean, strict=True) if p > 0)
+    df = inference.satterthwaite(parts, [x.size - 1 for _, x in clean])
     half = inference.t_ppf(0.5 + level / 2.0, df) * se
     p = 2.0 * (1.0 - inference.t_cdf(abs(value) / se, df))
     return inference.Interval(n, value, value - half, value + half, level), p

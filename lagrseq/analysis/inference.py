@@ -119,8 +119,7 @@ def _welch(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
     diff = float(x.mean() - y.mean())
     if se == 0.0:
         return diff, 0.0, float(x.size + y.size - 2)
-    df = (vx + vy) ** 2 / ((vx * vx) / (x.size - 1) + (vy * vy) / (y.size - 1))
-    return diff, se, df
+    return diff, se, satterthwaite((vx, vy), (x.size - 1, y.size - 1))
 
 
 def welch_interval(
@@ -138,28 +137,37 @@ def welch_interval(
     return Interval(n, diff, diff - half, diff + half, level)
 
 
+def _relative_variance(x: np.ndarray) -> float:
+    """The variance of the mean of ``x`` (a nonzero mean) relative to its square; through the
+    coefficient of variation where the square under- or overflows (a mean near 1e-160)."""
+    mean = float(x.mean())
+    try:
+        return float(x.var(ddof=1)) / x.size / mean**2
+    except (ZeroDivisionError, OverflowError):
+        cv = float(x.std(ddof=1)) / mean
+        return cv * cv / x.size
+
+
 def ratio_interval(
     x: Sequence[float] | np.ndarray, y: Sequence[float] | np.ndarray, level: float = 0.95
 ) -> Interval:
     """Interval of ``mean(x) / mean(y)`` for two independent arms (e.g. queries with and without
     SEQ): the delta method's standard error, ``r * sqrt(se_x^2 / mean_x^2 + se_y^2 / mean_y^2)``,
     with Welch-Satterthwaite degrees of freedom of the two relative variances and Student's t
-    quantile. ``n`` is the smaller arm's count; NaN bounds with fewer than 2 values per arm or a
-    zero denominator."""
+    quantile. ``n`` is the smaller arm's count; NaN bounds with fewer than 2 values per arm, a
+    zero denominator or a ratio that overflows."""
     a, b = _finite(x), _finite(y)
     n = int(min(a.size, b.size))
     if a.size == 0 or b.size == 0 or float(b.mean()) == 0.0:
         return Interval(n, math.nan, math.nan, math.nan, level)
     ratio = float(a.mean()) / float(b.mean())
-    if a.size < 2 or b.size < 2 or float(a.mean()) == 0.0:
+    if a.size < 2 or b.size < 2 or float(a.mean()) == 0.0 or not math.isfinite(ratio):
         return Interval(n, ratio, math.nan, math.nan, level)
-    rx = float(a.var(ddof=1)) / a.size / float(a.mean()) ** 2
-    ry = float(b.var(ddof=1)) / b.size / float(b.mean()) ** 2
+    rx, ry = _relative_variance(a), _relative_variance(b)
     if rx + ry == 0.0:
         return Interval(n, ratio, ratio, ratio, level)
     se = abs(ratio) * math.sqrt(rx + ry)
-    df = (rx + ry) ** 2 / ((rx * rx) / (a.size - 1) + (ry * ry) / (b.size - 1))
-    half = t_ppf(0.5 + level / 2.0, df) * se
+    half = t_ppf(0.5 + level / 2.0, satterthwaite((rx, ry), (a.size - 1, b.size - 1))) * se
     return Interval(n, ratio, ratio - half, ratio + half, level)
 
 
@@ -202,12 +210,22 @@ class Estimate:
 
 def satterthwaite(variances: Sequence[float], dfs: Sequence[float]) -> float:
     """Welch-Satterthwaite degrees of freedom of a sum of independent variance terms (each a
-    squared standard error with its own degrees of freedom); a term with variance 0 adds none."""
+    squared standard error with its own degrees of freedom); a term with variance 0 adds none,
+    and no variance at all gives the sum of the degrees of freedom. Where the squares under- or
+    overflow (spreads near 1e-150 or 1e150), the same ratio with each variance taken relative to
+    the largest; an infinite variance gives the smallest degrees of freedom (its interval is
+    infinite at any)."""
     total = float(sum(variances))
-    denominator = sum(v * v / d for v, d in zip(variances, dfs, strict=True) if v > 0)
-    if total == 0.0 or denominator == 0.0:
+    if total == 0.0:
         return float(sum(dfs))
-    return total * total / denominator
+    terms = [(v, d) for v, d in zip(variances, dfs, strict=True) if v > 0]
+    denominator = sum(v * v / d for v, d in terms)
+    if 0.0 < denominator < math.inf and total * total < math.inf:
+        return total * total / denominator
+    top = max(v for v, _ in terms)
+    if not top < math.inf:
+        return float(min(dfs))
+    return (total / top) ** 2 / sum((v / top) ** 2 / d for v, d in terms)
 
 
 def mean_estimate(values: Sequence[float] | np.ndarray) -> Estimate:

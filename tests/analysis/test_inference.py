@@ -409,6 +409,33 @@ def test_jonckheere_is_symmetric_under_reversal(groups: list[list[float]]) -> No
     assert 0 < forward.p_rise <= 1 and 0 < forward.p_fall <= 1 and forward.p_rise + forward.p_fall >= 1
 
 
+SCALES = st.floats(-1e150, 1e150, allow_nan=False)
+"""Finite values from subnormal to huge: their variances' squares under- and overflow."""
+
+
+@settings(max_examples=200, deadline=None)
+@given(x=st.lists(SCALES, min_size=3, max_size=6), y=st.lists(SCALES, min_size=3, max_size=6))
+def test_welch_intervals_hold_their_estimate_at_every_scale(x: list[float], y: list[float]) -> None:
+    """Welch's interval, the ratio interval and a contrast give an interval around their estimate
+    for any finite values: tiny spreads (1e-140, whose squares underflow to 0) and huge ones
+    (1e150, whose squares overflow) included."""
+    from lagrseq.analysis import audit
+
+    for shown in (inf.welch_interval(x, y), audit.contrast([(1.0, np.array(x)), (-1.0, np.array(y))])[0]):
+        assert shown.low <= shown.mean <= shown.high, shown
+    ratio = inf.ratio_interval(x, y)
+    assert math.isnan(ratio.mean) or math.isnan(ratio.low) or ratio.low <= ratio.mean <= ratio.high, ratio
+
+
+def test_welch_satterthwaite_degrees_of_freedom_keep_their_ratio_at_any_scale() -> None:
+    """Equal variances of 3-value means: 4 degrees of freedom, at 1, 1e-280 (whose square is
+    0.0) and 1e300 (whose square is infinite); an infinite variance gives the smaller n - 1."""
+    for v in (1.0, 1e-280, 1e300):
+        assert inf.satterthwaite([v, v], [2, 2]) == pytest.approx(4.0)
+    assert inf.satterthwaite([1e-280, 0.0], [2, 4]) == pytest.approx(2.0)
+    assert inf.satterthwaite([math.inf, 1.0], [2, 4]) == 2.0
+
+
 def test_jonckheere_matches_the_statistic_and_its_exact_tail_by_hand() -> None:
     """Groups (1, 2), (3, 4), (5, 6): every one of the 12 pairs from an earlier group is smaller,
     J = 12, the largest value; of the 90 labellings (6! / (2! 2! 2!)) only this one reaches it,
