@@ -34,7 +34,6 @@ from __future__ import annotations
 import io
 import struct
 import threading
-import zlib
 from collections.abc import Container, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -62,6 +61,7 @@ from mcap.records import (
 )
 
 from lagrseq.errors import LogError  # noqa: E402
+from lagrseq.logs.crc import crc32  # noqa: E402
 from lagrseq.logs.mcap_writer import MAGIC  # noqa: E402 - one definition of the file magic
 from lagrseq.paths import open_input  # noqa: E402
 
@@ -556,7 +556,7 @@ class McapFile:
         start = footer.summary_start
         section = self.read(start, footer_start - start, "summary section")
         if footer.summary_crc:
-            crc = zlib.crc32(self.read(footer_start, 1 + 8 + 16, "footer"), zlib.crc32(section))
+            crc = crc32(self.read(footer_start, 1 + 8 + 16, "footer"), crc32(section))
             if crc != footer.summary_crc:
                 raise Damage(start, f"summary CRC mismatch (stored {footer.summary_crc}, computed {crc})")
         summary = Summary()
@@ -689,8 +689,8 @@ class McapFile:
     def chunk_data(chunk: Chunk, offset: int) -> bytes:
         """The records of ``chunk`` (found at ``offset``) decompressed, CRC checked."""
         data = _decompress(chunk.compression, chunk.data, chunk.uncompressed_size, offset)
-        if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
-            raise Damage(offset, f"chunk CRC mismatch (stored {chunk.uncompressed_crc}, computed {zlib.crc32(data)})")
+        if chunk.uncompressed_crc and crc32(data) != chunk.uncompressed_crc:
+            raise Damage(offset, f"chunk CRC mismatch (stored {chunk.uncompressed_crc}, computed {crc32(data)})")
         return data
 
     def chunk_messages(self, chunk: Chunk, offset: int, channels: Container[int]) -> list[tuple[int, bytes]]:

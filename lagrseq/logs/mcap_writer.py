@@ -2,11 +2,13 @@
 
 ``mcap.writer.Writer`` builds a ``Message`` object and several small records per message, which
 costs about 5 microseconds each in pure Python: more than a whole cube-stacking environment step.
-This writer packs message records straight into a chunk buffer with one ``struct.pack`` call and
-builds everything else (header, schemas, channels, chunks, message indexes, metadata, the summary
-section and footer) with the ``mcap.records`` classes of the reference library, so files follow
-the same layout as ``mcap.writer.Writer`` output: indexed, zstd-compressed chunks, a summary with
-schemas, channels, statistics, chunk and metadata indexes, summary offsets and CRCs.
+This writer packs message records straight into a chunk buffer with one ``struct.pack`` call,
+the header, schemas and channels with the ``mcap.records`` classes of the reference library (once
+per process: they repeat from trial to trial), and everything else (chunks, message indexes,
+metadata, the summary section and footer) with one ``struct.pack`` per record, byte for byte as
+the reference library's writers do (a test reads a trial's log back and packs it again). Files
+follow the same layout as ``mcap.writer.Writer`` output: indexed, zstd-compressed chunks, a
+summary with schemas, channels, statistics, chunk and metadata indexes, summary offsets and CRCs.
 """
 
 from __future__ import annotations
@@ -15,7 +17,6 @@ import functools
 import struct
 import sys
 import threading
-import zlib
 from array import array
 from collections import defaultdict
 from collections.abc import Sequence
@@ -24,18 +25,10 @@ from typing import IO, Any, NamedTuple
 import zstandard
 from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
-from mcap.records import (
-    Channel,
-    DataEnd,
-    Footer,
-    Header,
-    Metadata,
-    MetadataIndex,
-    Schema,
-    Statistics,
-    SummaryOffset,
-)
+from mcap.records import Channel, Header, Schema
 from mcap.well_known import MessageEncoding, SchemaEncoding
+
+from lagrseq.logs.crc import crc32
 
 MAGIC = b"\x89MCAP0\r\n"
 _MESSAGE = struct.Struct("<BQHIQQ")  # opcode, record length, channel, sequence, log, publish time
@@ -148,6 +141,26 @@ def _preamble_record(kind: type, **fields: Any) -> bytes:
     return _packed(kind(**fields, metadata={}) if kind is Channel else kind(**fields))
 
 
+def _string(value: str) -> bytes:
+    """An MCAP string: its UTF-8 length (uint32) and bytes."""
+    data = value.encode()
+    return struct.pack("<I", len(data)) + data
+
+
+def _summary_record(opcode: int, body: bytes) -> bytes:
+    """A record of the file's end (metadata, their index, statistics, summary offsets, footer)
+    packed at once: the same bytes as ``mcap.records``' writers, which pack field by field
+    through a seekable buffer and cost about as much as the rest of a small trial's closing."""
+    return struct.pack("<BQ", opcode, len(body)) + body
+
+
+def _metadata_record(name: str, data: dict[str, str]) -> bytes:
+    """A Metadata record (``mcap.records.Metadata.write``'s bytes): name, then the map's byte
+    length and its key, value strings in order."""
+    pairs = b"".join(_string(key) + _string(value) for key, value in data.items())
+    return _summary_record(Opcode.METADATA, _string(name) + struct.pack("<I", len(pairs)) + pairs)
+
+
 class LeanWriter:
     """Write an indexed, chunked MCAP file; ``flush()`` closes the current chunk."""
 
@@ -161,7 +174,8 @@ class LeanWriter:
         """Per channel of the current chunk: log time, offset, log time, offset, ..."""
         self._chunk_indexes: list[bytes] = []
         """ChunkIndex records, packed as each chunk is written."""
-        self._metadata_indexes: list[MetadataIndex] = []
+        self._metadata_indexes: list[bytes] = []
+        """MetadataIndex records, packed as each metadata record is written."""
         self._counts: dict[int, int] = defaultdict(int)
         self._message_count = 0
         self._start_time = self._end_time = 0
@@ -173,12 +187,6 @@ class LeanWriter:
     def _write(self, data: bytes | bytearray) -> None:
         self._stream.write(data)
         self._offset += len(data)
-
-    def _record(self, record: Any) -> tuple[int, int]:
-        data = _packed(record)
-        start = self._offset
-        self._write(data)
-        return start, len(data)
 
     # ------------------------------------------------------------------ registration
     def register_schema(self, name: str, encoding: str, data: bytes) -> int:
@@ -196,8 +204,11 @@ class LeanWriter:
         return channel_id
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
-        start, length = self._record(Metadata(name=name, metadata=dict(data)))
-        self._metadata_indexes.append(MetadataIndex(offset=start, length=length, name=name))
+        record = _metadata_record(name, data)
+        self._metadata_indexes.append(
+            _summary_record(Opcode.METADATA_INDEX, struct.pack("<QQ", self._offset, len(record)) + _string(name))
+        )
+        self._write(record)
 
     # ------------------------------------------------------------------ messages
     def add_message(self, channel_id: int, log_time: int, data: bytes, sequence: int | None = None) -> None:
@@ -301,7 +312,7 @@ class LeanWriter:
         raw = self._chunk  # read in place: a copy of a large chunk costs fresh memory pages
         compression = b"" if len(raw) < _SMALL_CHUNK else b"zstd"
         compressed = _compressor().compress(raw) if compression else raw  # the running thread's
-        head = _chunk_head(chunk_start, chunk_end, len(raw), zlib.crc32(raw), compression, len(compressed))
+        head = _chunk_head(chunk_start, chunk_end, len(raw), crc32(raw), compression, len(compressed))
         chunk_offset, chunk_length = self._offset, len(head) + len(compressed)
         self._write(head + compressed)  # one write: a copy of the compressed data only
         offsets: dict[int, int] = {}
@@ -342,50 +353,36 @@ class LeanWriter:
         """Write the data end, the summary section, the footer and the closing magic."""
         if self._chunk:
             self._finish_chunk()
-        self._record(DataEnd(data_section_crc=0))
+        self._write(_summary_record(Opcode.DATA_END, struct.pack("<I", 0)))  # no data section CRC
         summary_start = self._offset
-        builder = RecordBuilder()
-        offsets: list[SummaryOffset] = []
-
-        def group(opcode: int, records: list[Any]) -> None:
-            if not records:
-                return
-            begin = builder.count
-            for record in records:
-                if isinstance(record, bytes):
-                    builder.write(record)
-                else:
-                    record.write(builder)
-            offsets.append(SummaryOffset(opcode, summary_start + begin, builder.count - begin))
-
-        group(Opcode.SCHEMA, list(self._schemas.values()))
-        group(Opcode.CHANNEL, list(self._channels.values()))
-        group(
+        counts = self._counts
+        statistics = _summary_record(
             Opcode.STATISTICS,
-            [
-                Statistics(
-                    message_count=self._message_count,
-                    schema_count=len(self._schemas),
-                    channel_count=len(self._channels),
-                    attachment_count=0,
-                    metadata_count=len(self._metadata_indexes),
-                    chunk_count=self._chunks,
-                    message_start_time=self._start_time,
-                    message_end_time=self._end_time,
-                    channel_message_counts=dict(self._counts),
-                )
-            ],
+            struct.pack(
+                "<QHIIIIQQI", self._message_count, len(self._schemas), len(self._channels), 0,
+                len(self._metadata_indexes), self._chunks, self._start_time, self._end_time, 10 * len(counts),
+            )
+            + b"".join(struct.pack("<HQ", channel, count) for channel, count in counts.items()),
         )
-        group(Opcode.CHUNK_INDEX, self._chunk_indexes)
-        group(Opcode.METADATA_INDEX, self._metadata_indexes)
-        summary_offset_start = summary_start + builder.count
-        for offset in offsets:
-            offset.write(builder)
-        summary = builder.end()
-        crc = zlib.crc32(summary)
-        crc = zlib.crc32(struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, summary_offset_start), crc)
-        self._write(summary)
-        footer = RecordBuilder()
-        Footer(summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=crc).write(footer)
-        self._write(footer.end() + MAGIC)
+        groups = [
+            (Opcode.SCHEMA, list(self._schemas.values())),
+            (Opcode.CHANNEL, list(self._channels.values())),
+            (Opcode.STATISTICS, [statistics]),
+            (Opcode.CHUNK_INDEX, self._chunk_indexes),
+            (Opcode.METADATA_INDEX, self._metadata_indexes),
+        ]
+        pieces: list[bytes] = []
+        offsets: list[bytes] = []
+        position = summary_start
+        for opcode, records in groups:
+            if records:
+                group = b"".join(records)
+                offsets.append(_summary_record(Opcode.SUMMARY_OFFSET, struct.pack("<BQQ", opcode, position, len(group))))
+                pieces.append(group)
+                position += len(group)
+        summary_offset_start = position
+        summary = b"".join(pieces + offsets)
+        footer_head = struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, summary_offset_start)
+        crc = crc32(footer_head, crc32(summary))
+        self._write(summary + footer_head + struct.pack("<I", crc) + MAGIC)
         self._stream.flush()

@@ -8,6 +8,8 @@ from pathlib import Path
 import jsonschema
 import msgspec
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from mcap.reader import make_reader
 
 from lagrseq import config as cfg
@@ -238,6 +240,28 @@ def test_lean_chunk_index_equals_the_reference_library() -> None:
         assert packed == builder.end()
 
 
+def test_every_record_of_a_trial_log_is_the_reference_librarys_packing(tmp_path: Path) -> None:
+    """A real trial's log, read record by record with ``mcap``'s stream reader and each record
+    packed again by ``mcap.records``: the very bytes lagrseq wrote, from the header through the
+    chunks, message indexes, metadata, statistics, summary offsets and footer to the magic."""
+    from mcap.data_stream import RecordBuilder
+    from mcap.stream_reader import StreamReader
+
+    from lagrseq.logs.mcap_writer import MAGIC
+
+    path = tmp_path / "trial.mcap"
+    run_one(cfg.load("cube-stacking", "lagr-seq", "upstream", overrides=["run.episodes=30"]), 0, 0, "mock", path)
+    data = path.read_bytes()
+    builder = RecordBuilder()
+    kinds = set()
+    for record in StreamReader(str(path), emit_chunks=True, validate_crcs=True).records:
+        record.write(builder)
+        kinds.add(type(record).__name__)
+    assert MAGIC + builder.end() + MAGIC == data
+    assert {"Header", "Schema", "Channel", "Chunk", "MessageIndex", "Metadata", "DataEnd", "Statistics",
+            "ChunkIndex", "MetadataIndex", "SummaryOffset", "Footer"} <= kinds, kinds
+
+
 def _episodes(sink: McapSink, episodes: range, steps: int, stop_at: int | None = None, flush: bool = True,
               not_asked: bool = False) -> None:
     """Write cube-like episodes: ``steps`` transitions and a decision every 10 steps, then the /episode
@@ -364,3 +388,16 @@ def test_a_not_asked_record_writes_the_bytes_of_its_query_event(tmp_path: Path, 
     assert paths[True].read_bytes() == paths[False].read_bytes()
     assert [q["decision"] for q in read_topics(paths[True], ["/query"])["/query"]] == [0] * 12
     assert to_record(NotAsked(0, 1, 2, 3, (4,))) == to_record(QueryEvent(0, 1, 2, 3, (4,), 0))
+
+
+@settings(max_examples=200, deadline=None)
+@given(data=st.binary(max_size=5000), running=st.integers(0, 2**32 - 1))
+def test_the_log_checksum_is_zlibs_crc32(data: bytes, running: int) -> None:
+    """The logger's CRC-32 (zlib-ng's where installed) is the standard library's, byte for byte,
+    from any running value: a log's checksums do not depend on which one wrote it."""
+    import zlib
+
+    from lagrseq.logs.crc import crc32
+
+    assert crc32(data, running) == zlib.crc32(data, running)
+    assert crc32(bytearray(data)) == zlib.crc32(data)
