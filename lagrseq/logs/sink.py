@@ -158,6 +158,17 @@ def _refuse_link(path: Path) -> None:
         )
 
 
+def _still_named(descriptor: int, partial: Path) -> bool:
+    """Whether ``partial`` still names the open file ``descriptor``: a writer renames its file to
+    the log's name before it lets go of the lock, so a file found renamed is a finished log."""
+    try:
+        named = os.lstat(partial)
+    except FileNotFoundError:
+        return False
+    opened = os.fstat(descriptor)
+    return (named.st_dev, named.st_ino) == (opened.st_dev, opened.st_ino)
+
+
 def _open_exclusive(partial: Path) -> Any:
     """``partial`` opened for writing from scratch, locked against a second lagrseq process that
     would write the same trial (two identical runs at once): that one is refused, and the file
@@ -180,6 +191,8 @@ def _open_exclusive(partial: Path) -> Any:
             os.set_blocking(descriptor, True)
         if fcntl is not None:
             fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            if not _still_named(descriptor, partial):  # its writer finished it meanwhile: a log now
+                raise BlockingIOError
         if os.fstat(descriptor).st_size:  # a crash's leftover (truncating a new, empty file costs a journal entry)
             os.ftruncate(descriptor, 0)
     except BlockingIOError:
@@ -416,10 +429,13 @@ class McapSink:
                 STATUS_METADATA, scrub_value({"status": status, "error": error, "messages": str(self.messages)})
             )
             self._writer.finish()
+            _refuse_link(self.path)  # planted while the trial ran: the log stays NAME.partial
+            # renamed while the file is still locked (the lock goes when it is closed): a second
+            # lagrseq process that opens NAME.partial from now on makes a file of its own, and
+            # one that opened it before finds it renamed once it holds the lock
+            os.replace(self.partial, self.path)  # rename replaces a name, never writes through a link
         finally:
             self._stream.close()
-        _refuse_link(self.path)  # planted while the trial ran: the log stays NAME.partial
-        os.replace(self.partial, self.path)  # rename replaces a name, never writes through a link
         return self.path
 
     def abandon(self) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import jsonschema
@@ -401,3 +402,35 @@ def test_the_log_checksum_is_zlibs_crc32(data: bytes, running: int) -> None:
 
     assert crc32(data, running) == zlib.crc32(data, running)
     assert crc32(bytearray(data)) == zlib.crc32(data)
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="no advisory file locks (fcntl) on Windows")
+def test_a_writer_that_gets_the_lock_after_the_first_finished_refuses_and_the_log_stays_whole(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Two identical runs at once: the second opens ``NAME.partial`` while the first still writes
+    it, and gets the lock only once the first has finished (renamed its file to ``NAME``, then
+    let go of the lock). The second is refused with one line, and the first's log is whole: it
+    is never truncated under its new name."""
+    from lagrseq.logs import sink as sink_module
+
+    path = tmp_path / "trial-000.mcap"
+    first = McapSink(path, {"writer": "first"})
+    _episodes(first, range(3), 20)
+    real_flock = sink_module.fcntl.flock
+
+    def flock_once_the_first_finished(descriptor: int, operation: int) -> None:
+        monkeypatch.setattr(sink_module.fcntl, "flock", real_flock)
+        first.finish()
+        real_flock(descriptor, operation)
+
+    monkeypatch.setattr(sink_module.fcntl, "flock", flock_once_the_first_finished)
+    with pytest.raises(LogError, match="another lagrseq process"):
+        McapSink(path, {"writer": "second"})
+    assert is_complete(path) and not path.with_name(path.name + ".partial").exists()
+    assert read_info(path).run["writer"] == "first"
+    assert [e["episode"] for e in read_topics(path, ["/episode"])["/episode"]] == [0, 1, 2]
+    second = McapSink(path, {"writer": "second"})  # a writer that comes later writes the trial anew
+    _episodes(second, range(2), 20)
+    second.finish()
+    assert read_info(path).run["writer"] == "second" and is_complete(path)
