@@ -219,6 +219,8 @@ def satterthwaite(variances: Sequence[float], dfs: Sequence[float]) -> float:
     if total == 0.0:
         return float(sum(dfs))
     terms = [(v, d) for v, d in zip(variances, dfs, strict=True) if v > 0]
+    if not terms:  # no positive variance (NaN ones only): as if none
+        return float(sum(dfs))
     denominator = sum(v * v / d for v, d in terms)
     if 0.0 < denominator < math.inf and total * total < math.inf:
         return total * total / denominator

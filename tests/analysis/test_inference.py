@@ -429,11 +429,14 @@ def test_welch_intervals_hold_their_estimate_at_every_scale(x: list[float], y: l
 
 def test_welch_satterthwaite_degrees_of_freedom_keep_their_ratio_at_any_scale() -> None:
     """Equal variances of 3-value means: 4 degrees of freedom, at 1, 1e-280 (whose square is
-    0.0) and 1e300 (whose square is infinite); an infinite variance gives the smaller n - 1."""
+    0.0) and 1e300 (whose square is infinite); an infinite variance gives the smaller n - 1; a
+    NaN variance adds none when it is the only one and makes the result NaN beside a real one."""
     for v in (1.0, 1e-280, 1e300):
         assert inf.satterthwaite([v, v], [2, 2]) == pytest.approx(4.0)
     assert inf.satterthwaite([1e-280, 0.0], [2, 4]) == pytest.approx(2.0)
     assert inf.satterthwaite([math.inf, 1.0], [2, 4]) == 2.0
+    assert inf.satterthwaite([math.nan, 0.0], [2, 4]) == 6.0  # no positive variance: as if none
+    assert math.isnan(inf.satterthwaite([math.nan, 1.0], [2, 4]))
 
 
 def test_jonckheere_matches_the_statistic_and_its_exact_tail_by_hand() -> None:
