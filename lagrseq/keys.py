@@ -232,7 +232,7 @@ _built: dict[str, Redactor] = {}
 def watch(env_name: str) -> None:
     """Guard the key in environment variable ``env_name`` too (a provider's ``--api-key-env``).
     The variable is read at every :func:`scrub`, so a key set later is guarded as well (the MCAP
-    sink asks :func:`active` at each episode's first query, not at every one)."""
+    sink asks :func:`active` once for each chunk of queries it writes, not at every query)."""
     _watched[env_name] = None
 
 

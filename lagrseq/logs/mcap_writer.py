@@ -119,11 +119,39 @@ def _message_index(channel_id: int, flat: Sequence[int]) -> bytes:
 
 
 class Mark(NamedTuple):
-    """Where a writer's open chunk stood (:meth:`LeanWriter.mark`): its size in bytes. What was
-    added after it is found by its offset when it is rolled back, so a mark costs nothing to
-    take (the sink takes one at every episode's end)."""
+    """Where a writer's open and held chunks stood (:meth:`LeanWriter.mark`): their sizes in
+    bytes. What was added after it is found by its offset when it is rolled back, so a mark
+    costs nothing to keep (the sink keeps the open chunk's size at every episode's end)."""
 
     size: int
+    held: int = 0
+
+
+class _OpenChunk:
+    """A chunk being filled: its message records and, per channel, the flat sequence log time,
+    offset, log time, offset, ... of its messages (their message index)."""
+
+    __slots__ = ("data", "index")
+
+    def __init__(self) -> None:
+        self.data = bytearray()
+        self.index: dict[int, array[int]] = defaultdict(_offsets)
+
+    def rollback(self, size: int, counts: dict[int, int]) -> None:
+        """Drop every message from offset ``size`` on, and its count in ``counts``."""
+        del self.data[size:]
+        for channel_id in list(self.index):
+            entries = self.index[channel_id]
+            kept = len(entries)
+            while kept and entries[kept - 1] >= size:  # (log time, offset) pairs, in order
+                kept -= 2
+            counts[channel_id] -= (len(entries) - kept) // 2
+            if not counts[channel_id]:  # first used after the mark: as if never used
+                del counts[channel_id]
+            if kept:
+                del entries[kept:]
+            else:
+                del self.index[channel_id]
 
 
 def _packed(record: Any) -> bytes:
@@ -162,21 +190,28 @@ def _metadata_record(name: str, data: dict[str, str]) -> bytes:
 
 
 class LeanWriter:
-    """Write an indexed, chunked MCAP file; ``flush()`` closes the current chunk."""
+    """Write an indexed, chunked MCAP file. Messages go to one of two chunks being filled, the
+    open one or the held one; ``flush()`` writes both, the open one first."""
 
     def __init__(self, stream: IO[bytes], library: str = "lagrseq", profile: str = "") -> None:
         self._stream = stream
         self._schemas: dict[int, bytes] = {}
         self._channels: dict[int, bytes] = {}
         """The packed schema and channel records by id (the summary repeats them)."""
-        self._chunk = bytearray()
-        self._index: dict[int, array[int]] = defaultdict(_offsets)
-        """Per channel of the current chunk: log time, offset, log time, offset, ..."""
+        self._open = _OpenChunk()
+        """The chunk being filled (a trial's transitions and pictures)."""
+        self._held = _OpenChunk()
+        """A second chunk being filled, written after the open one (a trial's queries and
+        episode summaries, so that a reader of those alone never decompresses transitions)."""
         self._chunk_indexes: list[bytes] = []
         """ChunkIndex records, packed as each chunk is written."""
         self._metadata_indexes: list[bytes] = []
         """MetadataIndex records, packed as each metadata record is written."""
         self._counts: dict[int, int] = defaultdict(int)
+        """Messages added so far per channel (each message's sequence number is its count)."""
+        self._written: dict[int, int] = {}
+        """Messages written per channel, in the order the file first holds each channel (the
+        order of the statistics record's counts, as the reference writer's)."""
         self._message_count = 0
         self._start_time = self._end_time = 0
         self._chunks = 0
@@ -211,82 +246,60 @@ class LeanWriter:
         self._write(record)
 
     # ------------------------------------------------------------------ messages
-    def add_message(self, channel_id: int, log_time: int, data: bytes, sequence: int | None = None) -> None:
-        """Add one message to the current chunk; ``sequence`` defaults to the channel's count of
-        messages so far (what every lagrseq topic uses)."""
-        chunk = self._chunk
+    def add_message(
+        self, channel_id: int, log_time: int, data: bytes, sequence: int | None = None, held: bool = False
+    ) -> None:
+        """Add one message to the open chunk (``held``: to the held chunk, which
+        :meth:`flush` writes after it); ``sequence`` defaults to the channel's count of messages
+        so far (what every lagrseq topic uses)."""
+        chunk = self._held if held else self._open
+        data_so_far = chunk.data
         counts = self._counts
         count = counts[channel_id]
         counts[channel_id] = count + 1
-        self._index[channel_id].extend((log_time, len(chunk)))
-        chunk += _MESSAGE.pack(
+        chunk.index[channel_id].extend((log_time, len(data_so_far)))
+        data_so_far += _MESSAGE.pack(
             Opcode.MESSAGE, _MESSAGE_FIXED + len(data), channel_id, count if sequence is None else sequence, log_time, log_time
         )
-        chunk += data
+        data_so_far += data
 
-    def append_encoded(self, channel_id: int, log_time: int, item: Any, encode_into: Any) -> None:
+    def append_encoded(self, channel_id: int, log_time: int, item: Any, encode_into: Any, held: bool = False) -> None:
         """Add one message whose data ``encode_into(item, buffer, -1)`` appends to ``buffer``
-        (``msgspec.json.Encoder.encode_into``): the same bytes as :meth:`add_message` with the
-        encoded data, but encoded straight into the chunk (no bytes object, no second pass over
-        the episode). An item that cannot be encoded leaves the chunk as it was. The chunk's
-        first and last log times and message count are worked out when it is written (from its
-        message index), not kept up per message."""
-        chunk = self._chunk
-        start = len(chunk)
-        chunk += _RESERVED
+        (``msgspec.json.Encoder.encode_into``) to the open chunk (``held``: to the held one):
+        the same bytes as :meth:`add_message` with the encoded data, but encoded straight into
+        the chunk (no bytes object, no second copy). An item that cannot be encoded leaves the
+        chunk as it was. The chunk's first and last log times and message count are worked out
+        when it is written (from its message index), not kept up per message."""
+        chunk = self._held if held else self._open
+        data = chunk.data
+        start = len(data)
+        data += _RESERVED
         try:
-            encode_into(item, chunk, -1)
+            encode_into(item, data, -1)
         except BaseException:
-            del chunk[start:]
+            del data[start:]
             raise
         counts = self._counts
         count = counts[channel_id]
-        _MESSAGE.pack_into(chunk, start, _OPCODE_MESSAGE, len(chunk) - start - 9, channel_id, count, log_time, log_time)
+        _MESSAGE.pack_into(data, start, _OPCODE_MESSAGE, len(data) - start - 9, channel_id, count, log_time, log_time)
         counts[channel_id] = count + 1
-        self._index[channel_id].extend((log_time, start))
-
-    def add_messages(self, items: list[tuple[int, int, bytes]]) -> None:
-        """Add ``(channel id, log time, data)`` messages to the current chunk in this order: the
-        same bytes as one :meth:`add_message` each, in one tight loop (the held messages of
-        a chunk's episodes arrive here at once)."""
-        chunk = self._chunk
-        counts = self._counts
-        index = self._index
-        pack = _MESSAGE.pack
-        opcode = Opcode.MESSAGE
-        for channel_id, log_time, data in items:
-            count = counts[channel_id]
-            counts[channel_id] = count + 1
-            index[channel_id].extend((log_time, len(chunk)))
-            chunk += pack(opcode, _MESSAGE_FIXED + len(data), channel_id, count, log_time, log_time)
-            chunk += data
+        chunk.index[channel_id].extend((log_time, start))
 
     @property
     def chunk_size(self) -> int:
-        """Bytes of message records in the current (open) chunk."""
-        return len(self._chunk)
+        """Bytes of message records in the open chunk (not the held one)."""
+        return len(self._open.data)
 
     def mark(self) -> Mark:
-        """Where the open chunk stands now, for :meth:`rollback`."""
-        return Mark(len(self._chunk))
+        """Where the open and held chunks stand now, for :meth:`rollback`."""
+        return Mark(len(self._open.data), len(self._held.data))
 
     def rollback(self, mark: Mark) -> None:
-        """Drop every message added to the open chunk since ``mark`` was taken (no chunk may
-        have been written in between): the chunk's bytes, their index entries (those at or past
-        the mark's offset) and their count."""
-        del self._chunk[mark.size :]
-        for channel_id in list(self._index):
-            entries = self._index[channel_id]
-            kept = len(entries)
-            while kept and entries[kept - 1] >= mark.size:  # (log time, offset) pairs, in order
-                kept -= 2
-            self._counts[channel_id] -= (len(entries) - kept) // 2
-            if not self._counts[channel_id]:  # first used after the mark: as if never used
-                del self._counts[channel_id]
-            if kept:
-                del entries[kept:]
-            else:
-                del self._index[channel_id]
+        """Drop every message added to the open and held chunks since ``mark`` was taken (no
+        chunk may have been written in between): the chunks' bytes, their index entries (those
+        at or past the mark's offsets) and their count."""
+        self._open.rollback(mark.size, self._counts)
+        self._held.rollback(mark.held, self._counts)
 
     @property
     def messages(self) -> int:
@@ -298,18 +311,23 @@ class LeanWriter:
         return dict(self._counts)
 
     def flush(self, push: bool = True) -> None:
-        """Close the current chunk (if it holds messages) and, with ``push``, hand the bytes to
-        the operating system."""
-        if self._chunk:
-            self._finish_chunk()
+        """Write the open chunk, then the held chunk (each if it holds messages) and, with
+        ``push``, hand the bytes to the operating system."""
+        if self._open.data:
+            self._finish_chunk(self._open)
+            self._open = _OpenChunk()
+        if self._held.data:
+            self._finish_chunk(self._held)
+            self._held = _OpenChunk()
         if push:
             self._stream.flush()
 
-    def _finish_chunk(self) -> None:
-        chunk_start = min(min(entries[::2]) for entries in self._index.values())
-        chunk_end = max(max(entries[::2]) for entries in self._index.values())
-        chunk_messages = sum(len(entries) for entries in self._index.values()) // 2
-        raw = self._chunk  # read in place: a copy of a large chunk costs fresh memory pages
+    def _finish_chunk(self, chunk: _OpenChunk) -> None:
+        index = chunk.index
+        chunk_start = min(min(entries[::2]) for entries in index.values())
+        chunk_end = max(max(entries[::2]) for entries in index.values())
+        chunk_messages = sum(len(entries) for entries in index.values()) // 2
+        raw = chunk.data  # read in place: a copy of a large chunk costs fresh memory pages
         compression = b"" if len(raw) < _SMALL_CHUNK else b"zstd"
         compressed = _compressor().compress(raw) if compression else raw  # the running thread's
         head = _chunk_head(chunk_start, chunk_end, len(raw), crc32(raw), compression, len(compressed))
@@ -318,7 +336,9 @@ class LeanWriter:
         offsets: dict[int, int] = {}
         pieces: list[bytes] = []
         position = self._offset
-        for channel_id, records in self._index.items():
+        written = self._written
+        for channel_id, records in index.items():
+            written[channel_id] = written.get(channel_id, 0) + len(records) // 2
             offsets[channel_id] = position
             piece = _message_index(channel_id, records)
             pieces.append(piece)
@@ -345,17 +365,14 @@ class LeanWriter:
         self._end_time = max(self._end_time, chunk_end)
         self._message_count += chunk_messages
         self._chunks += 1
-        self._chunk = bytearray()
-        self._index = defaultdict(_offsets)
 
     # ------------------------------------------------------------------ end of file
     def finish(self) -> None:
         """Write the data end, the summary section, the footer and the closing magic."""
-        if self._chunk:
-            self._finish_chunk()
+        self.flush(push=False)
         self._write(_summary_record(Opcode.DATA_END, struct.pack("<I", 0)))  # no data section CRC
         summary_start = self._offset
-        counts = self._counts
+        counts = self._written
         statistics = _summary_record(
             Opcode.STATISTICS,
             struct.pack(

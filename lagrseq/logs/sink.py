@@ -3,35 +3,34 @@
 Log format 3 (:data:`LOG_FORMAT`): an episode's transitions are one ``/transitions`` record
 (columns: entry i of each array is step i) and its decisions not to query one ``/no_query``
 record; queries that were sent and ``/episode`` summaries stay one record each, pictures
-(``/view...``) one per step. Both columnar records are written at the episode's end (when its
-``/episode`` record arrives, or at :meth:`McapSink.flush`): the sink buffers the episode, the
-loop hands it every record as it comes (:meth:`McapSink.write`). The readers
-(:mod:`lagrseq.logs.reader`) expand them into the ``/transition`` and ``/query`` records that
-format 2 wrote one message each, and take the expanded counts per topic from the
-``lagrseq.records`` metadata written at the end. Framing and indexing a message cost more than
-encoding it, so fewer records is what makes logging cheap (``benchmarks/bench_cube.py`` measures
-it). ``log_format="2"`` writes format 2 (tests and benchmarks compare the two).
+(``/view...``) one per step. The loop hands the sink every event as it comes
+(:meth:`McapSink.write`); the sink holds an episode until its ``/episode`` record (or
+:meth:`McapSink.flush`) ends it. The readers (:mod:`lagrseq.logs.reader`) expand the columnar
+records into the ``/transition`` and ``/query`` records that format 2 wrote one message each, and
+take the expanded counts per topic from the ``lagrseq.records`` metadata written at the end.
+Framing and indexing a message cost more than encoding it, so fewer records is what makes
+logging cheap (``benchmarks/bench_cube.py`` measures it). ``log_format="2"`` writes format 2
+(tests and benchmarks compare the two).
 
 Layout of a file, so that tables are cheap to read: transitions (and pictures) go into chunks of
-their own; at each episode end the sink closes the transition chunk and writes that episode's
-``/query``, ``/no_query`` and ``/episode`` messages as a separate small chunk. A reader that asks
-only for ``/episode`` and ``/query`` (replay's tables, the costs table) then never decompresses a
-transition chunk.
+their own, and each is followed by a chunk of the same episodes' ``/query``, ``/no_query`` and
+``/episode`` messages. A reader that asks only for ``/episode`` and ``/query`` (replay's tables,
+the costs table) then never decompresses a transition chunk.
 
-Chunks end at episode ends, once the open transition chunk holds :data:`CHUNK_BYTES` of records
-(a cube-stacking episode is about 2 KB in format 3, 9 KB in format 2, so about 30 or 7 episodes a
-chunk; an episode bigger than that is a chunk of its own), and are then handed to the operating system. Every chunk costs a
-fixed amount of work (compression, indexes, a write), which one chunk per episode made about a
-third of what logging costs a cube trial.
+Chunks end at episode ends, once the transition chunk holds :data:`CHUNK_BYTES` of records (an
+episode bigger than that is a chunk of its own), and are then handed to the operating system.
+Finished episodes are encoded many at a time, not one by one: they wait until their transitions
+would take :data:`BATCH_BYTES`, then are encoded in order in one pass, and each chunk ends after
+the first episode that fills it, as it would had each episode been encoded at its end: the same
+bytes. One pass over many episodes costs less than a pass each.
 
 Crash safety: the file is written as ``NAME.partial`` and renamed when finished. A Ctrl-C
-(``abandon``) writes every episode finished before it, as it did when each episode was its own
-chunk, and drops the unfinished one. A process killed outright (SIGKILL, power loss) leaves
-everything up to the last chunk written, at most :data:`CHUNK_BYTES` of records short of the last
-finished episode; ``lagrseq recover`` turns such a file into a valid one. ``finish()`` is
-idempotent and records whether the trial completed.
+(``abandon``) writes every episode finished before it and drops the unfinished one. A process
+killed outright (SIGKILL, power loss) leaves everything up to the last chunk written: the
+finished episodes after it, up to about :data:`BATCH_BYTES` of transitions, are lost;
+``lagrseq recover`` turns such a file into a valid one. ``finish()`` is idempotent and records
+whether the trial completed.
 """
-
 from __future__ import annotations
 
 import contextlib
@@ -46,7 +45,7 @@ try:
 except ImportError:  # pragma: no cover - not on Windows: no lock, as before
     fcntl = None  # type: ignore[assignment]
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import msgspec
 
@@ -72,7 +71,6 @@ from lagrseq.logs.events import (
     View,
     astuple,
     decision_entry,
-    encode,
     encode_into,
     no_query_records,
     not_asked,
@@ -105,9 +103,16 @@ LOG_FORMATS = ("2", "3", "4")
 """The formats the sink writes (``McapSink(log_format=...)``)."""
 
 CHUNK_BYTES = 64 * 1024
-"""An episode's end closes the open chunks once the transition chunk holds this many bytes of
-message records. Measured on cube LaGR-SEQ trials (``benchmarks/bench_cube.py``, paired): a chunk
-per episode put logging at +33%; every 4 episodes (about 36 KB) +23%, every 8 (about 72 KB) +19%."""
+"""An episode's end writes the open chunk, then the held messages as a chunk of their own, once
+the open chunk holds this many bytes of transition records (format 3: about 30 cube-stacking
+episodes)."""
+BATCH_BYTES = 256 * 1024
+"""Finished episodes wait to be encoded until their transitions would take this many bytes (at
+the bytes a step has taken so far), then are encoded in one pass, each chunk ending where
+:data:`CHUNK_BYTES` ends it. One pass over many episodes costs less than one each
+(``benchmarks/bench_cube.py`` measures the logging's cost); a process killed outright loses the
+finished episodes not yet written, up to about this many bytes of transitions. A task that logs
+pictures encodes each episode before the next one's first picture (the file keeps its order)."""
 
 _HUGE = float("inf")
 _dumps = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
@@ -207,6 +212,17 @@ def _open_exclusive(partial: Path) -> Any:
     return os.fdopen(descriptor, "wb", buffering=_BUFFER_BYTES)
 
 
+class _Kept(NamedTuple):
+    """What a Ctrl-C keeps (:meth:`McapSink.abandon`), as it stood at the last episode's end:
+    the open chunk's size; the number of held messages (queries, decisions not to query,
+    summaries) of finished episodes, counted from the trial's first; and the finished episodes
+    whose transitions are not encoded yet, each with the number of its first held message."""
+
+    size: int
+    messages: int
+    episodes: tuple[tuple[list[Any], int], ...] = ()
+
+
 class McapSink:
     """Write one trial's events. Use as a context manager; ``write(topic, record, log_time)``."""
 
@@ -263,25 +279,30 @@ class McapSink:
         """Format 3: the episode's decisions not to query (made entries at its end, in one pass)."""
         self._expanded = {TRANSITION_TOPIC: 0, QUERY_TOPIC: 0}
         """Format 3: records written inside columnar ones, per topic the readers give them as."""
-        # Transitions and pictures of the current episode go straight into the writer's open
-        # chunk (encoded into it, in order); the chunk is written at the episode's end.
-        self._pending: list[tuple[int, int, bytes]] = []
-        """Queries and episodes held until the chunks are written: (channel id, log time, data)."""
-        self._episode_end: tuple[Mark, int] = (self._writer.mark(), 0)
-        """Where the open chunk and the held messages stood at the last episode's end."""
+        self._pending: list[tuple[int, int, Any]] = []
+        """The messages of the chunk after the transitions' (queries, decisions not to query,
+        episode summaries), not yet encoded: (channel id, log time, item), in order; an item is
+        an event, an episode's list of NotAsked (its ``/no_query`` record) or encoded bytes."""
+        self._pending_from = 0
+        """The number of the first message in ``_pending``, counted from the trial's first."""
+        self._kept = _Kept(0, 0)
+        self._held_steps = 0
+        """Steps of the finished episodes whose transitions are not encoded yet."""
+        self._step_bytes = (0, 0)
+        """Bytes and steps of the transitions encoded so far: what a step takes."""
+        self._failure: LogError | None = None
+        """The first record that could not be encoded since the last check (it was dropped)."""
         self._writing = False
         self._finished = False
-        self._guarded: bool | None = None
-        """Whether an API key is guarded (:func:`lagrseq.keys.active`), read at each episode's
-        first query (None: not yet read in this episode), not at every query: reading the
-        environment costs about a microsecond, a fifth of what logging a query costs."""
 
     def write(self, event: Event) -> None:
-        """Add one event. Transitions and pictures go to the current chunk; queries and episodes
-        are held until the chunks are written, then go into a chunk of their own. Format 3: an
-        episode's transitions and decisions not to query are held until its ``/episode`` record
-        (or :meth:`flush`) and then written as one columnar record each. An ``/episode`` record
-        ends its episode: from then on a Ctrl-C keeps it (:meth:`abandon`)."""
+        """Add one event. Pictures (and format 2's transitions) go to the open chunk; queries and
+        episode summaries are held until the chunks are written, then go into a chunk of their
+        own. Format 3: an episode's transitions and decisions not to query are held, to become
+        one columnar record each, encoded with other finished episodes' (the module docstring).
+        An ``/episode`` record ends its episode: from then on a Ctrl-C keeps it (:meth:`abandon`).
+        A non-finite number is refused here; a record that cannot be encoded is dropped with a
+        LogError when it is encoded."""
         kind = type(event)
         try:
             if kind is Transition or kind is self._task_transition:
@@ -308,54 +329,31 @@ class McapSink:
                     self._not_asked.append(NotAsked(*decision_entry(event)))
                     return
                 e = event
-                for value in (e.evaluation, e.query_reward, e.temperature, e.cost_usd, e.latency_s):  # type: ignore[union-attr]
-                    if value is not None and not -_HUGE < value < _HUGE:
-                        _finite(event, _QUERY_FLOATS)
-                guarded = self._guarded
-                if guarded is None:  # the episode's first query
-                    guarded = self._guarded = keys_active()
-                if guarded:
-                    event = _scrubbed(event)  # type: ignore[arg-type]
-                self._pending.append((self._query_channel, event.global_step, encode(event)))  # type: ignore[union-attr]
+                # one sum: finite where every value is (NaN, an infinity or an overflow is not,
+                # and then each value is looked at); 5 comparisons each cost as much
+                total = (e.evaluation or 0.0) + (e.query_reward or 0.0) + (e.temperature or 0.0) + (e.cost_usd or 0.0) + (e.latency_s or 0.0)  # type: ignore[union-attr]
+                if total - total != 0.0:
+                    _finite(event, _QUERY_FLOATS)
+                self._pending.append((self._query_channel, event.global_step, event))  # type: ignore[union-attr]
                 return
             if kind is EpisodeEvent or kind is ArmEpisodeEvent or kind is self._task_episode:
                 total, epsilon = event.return_, event.epsilon  # type: ignore[union-attr]
                 # x - x is 0.0 for a finite float, NaN (true) for NaN and the infinities
                 if type(total) is not float or type(epsilon) is not float or total - total or epsilon - epsilon:
                     _finite(event, _EPISODE_FLOATS)
-                self._write_columns()  # the episode's columnar records go before its summary
-                self._pending.append((self._episode_channel, max(event.global_step - 1, 0), encode(event)))  # type: ignore[union-attr]
-                self._end_episode()
+                self._end_episode((self._episode_channel, max(event.global_step - 1, 0), event))  # type: ignore[union-attr]
                 return
         except (TypeError, ValueError, OverflowError) as exc:
             raise LogError(f"record is not JSON-serialisable ({exc}): {kind.__name__}") from None
         if kind is View:
             message = event.message  # type: ignore[union-attr]
             data = message.json if type(message) is EncodedMessage else _encode(message)
+            if self._kept.episodes:  # the finished episodes' transitions go before this picture
+                self._encode_steps()
+                self._raise_failure()
             self._writer.add_message(self._channels[event.topic], event.log_time, data)  # type: ignore[union-attr]
         else:
             raise LogError(f"cannot log a {kind.__name__}; expected Transition, QueryEvent, NotAsked, EpisodeEvent or View")
-
-    def _write_columns(self) -> None:
-        """Format 3: the held transitions into the open chunk and the held decisions not to
-        query into the held messages, one columnar record per episode (log time: the global
-        step of its first entry). What cannot be encoded is dropped with a LogError; nothing
-        else is lost."""
-        steps, not_asked = self._steps, self._not_asked
-        if not steps and not not_asked:
-            return
-        self._steps, self._not_asked = [], []
-        try:
-            if steps:
-                for record in transitions_records(steps):  # encoded straight into the open chunk
-                    self._writer.append_encoded(self._transition_channel, record["global_step"][0], record, encode_into)
-                self._expanded[TRANSITION_TOPIC] += len(steps)
-            if not_asked:
-                for record in no_query_records(list(map(astuple, not_asked))):
-                    self._pending.append((self._no_query_channel, record["global_step"][0], encode(record)))
-                self._expanded[QUERY_TOPIC] += len(not_asked)
-        except (TypeError, ValueError, OverflowError) as exc:
-            raise LogError(f"record is not JSON-serialisable ({exc}): an episode's Transition or QueryEvent") from None
 
     def write_record(self, topic: str, record: dict[str, Any], log_time: int) -> None:
         """Add one JSON object to ``topic`` as it is (tools and tests that write their own), the
@@ -364,13 +362,16 @@ class McapSink:
             raise LogError(f"topic {topic!r} is not registered in {self.path.name}")
         if keys_active() and topic not in (TRANSITION_TOPIC, TRANSITIONS_TOPIC):
             record = scrub_value(record)
+        data = _encode(record)
         if topic in (TRANSITIONS_TOPIC, NO_QUERY_TOPIC):  # count what the readers will expand
             column = record.get("global_step")
             self._expanded[TRANSITION_TOPIC if topic == TRANSITIONS_TOPIC else QUERY_TOPIC] += len(column) if isinstance(column, list) else 0
         if topic in (TRANSITION_TOPIC, TRANSITIONS_TOPIC) or topic.startswith("/view"):
-            self._writer.add_message(self._channels[topic], log_time, _encode(record))
+            self._encode_steps()  # the finished episodes' transitions go before it
+            self._raise_failure()
+            self._writer.add_message(self._channels[topic], log_time, data)
         else:
-            self._pending.append((self._channels[topic], log_time, _encode(record)))
+            self._pending.append((self._channels[topic], log_time, data))
 
     @property
     def messages(self) -> int:
@@ -390,39 +391,137 @@ class McapSink:
         return {topic: str(count) for topic, count in out.items()}
 
     def flush(self) -> None:
-        """End an episode that has no ``/episode`` record (a tool's own records): write its
-        columnar records and what :meth:`write` of an ``/episode`` record writes after it."""
-        self._write_columns()
-        self._end_episode()
+        """End an episode that has no ``/episode`` record (a tool's own records): what
+        :meth:`write` of an ``/episode`` record does, without that record."""
+        self._end_episode(None)
 
-    def _end_episode(self) -> None:
-        """Once the open transition chunk holds ``chunk_bytes``, close it, write the held
-        messages as a chunk of their own and push everything to the operating system;
-        otherwise remember where the episode ended (for :meth:`abandon`)."""
-        if self._writer.chunk_size >= self._chunk_bytes:
-            self._write_chunks()
-        self._episode_end = (self._writer.mark(), len(self._pending))
-        self._guarded = None
+    def _end_episode(self, summary: tuple[int, int, Any] | None) -> None:
+        """The current episode is finished, and from here on a Ctrl-C keeps it: its decisions
+        not to query and its summary join the held messages, its transitions the finished
+        episodes. Once those would take :data:`BATCH_BYTES` (or the open chunk is full), they
+        are encoded, and written chunk by chunk."""
+        steps, not_asked = self._steps, self._not_asked
+        self._steps, self._not_asked = [], []
+        if not_asked:
+            self._pending.append((self._no_query_channel, not_asked[0].global_step, not_asked))
+        if summary is not None:
+            self._pending.append(summary)
+        kept = self._kept
+        episodes = (*kept.episodes, (steps, kept.messages)) if steps else kept.episodes
+        # one assignment: the open chunk (pictures, format 2's transitions) and the held
+        # messages so far are the finished episodes'
+        self._kept = _Kept(self._writer.chunk_size, self._pending_from + len(self._pending), episodes)
+        self._held_steps += len(steps)
+        if self._held_bytes() >= BATCH_BYTES or self._writer.chunk_size >= self._chunk_bytes:
+            self._encode_steps(episode_end=True)
+        self._raise_failure()
 
-    def _write_chunks(self) -> None:
-        """Close the transition chunk, write the held messages as their own chunk, and push
-        everything to the operating system."""
+    def _held_bytes(self) -> float:
+        """The bytes the finished episodes' transitions not encoded yet will take: each step at
+        the bytes a step took so far (infinite before the first is encoded)."""
+        if not self._held_steps:
+            return 0
+        encoded, steps = self._step_bytes
+        return self._held_steps * encoded / steps if steps else math.inf
+
+    def _encode_steps(self, final: bool = False, episode_end: bool = False) -> None:
+        """Encode the finished episodes' transitions into the open chunk, one columnar record
+        each, in order (many episodes in one pass cost less than one at a time). At an
+        episode's end where the open chunk holds ``chunk_bytes`` (and, with ``final``, at the
+        last), the chunk is written, then the held messages up to that episode's end as a chunk
+        of their own. ``episode_end``: called as an episode ends (a format-2 log holds no
+        episodes back). A Ctrl-C in between finds ``_kept`` as it was and encodes them again."""
+        writer, kept = self._writer, self._kept
+        episodes = kept.episodes
+        for index, (steps, _) in enumerate(episodes):
+            self._encode_columns(steps)
+            if writer.chunk_size >= self._chunk_bytes:  # the chunk ends with this episode
+                rest = episodes[index + 1 :]
+                self._write_chunks(rest[0][1] if rest else kept.messages, rest)
+        self._held_steps = 0
+        if final or (episode_end and writer.chunk_size >= self._chunk_bytes):
+            self._write_chunks(kept.messages, ())
+        elif self._kept.episodes:  # every one encoded; the chunk stays open
+            self._kept = _Kept(writer.chunk_size, kept.messages)
+
+    def _encode_columns(self, steps: list[Any]) -> None:
+        """One episode's transitions as ``/transitions`` records into the open chunk (format 3;
+        log time: the global step of its first). What cannot be encoded is dropped (a
+        LogError, raised once the episodes at hand are written); nothing else is lost."""
+        writer = self._writer
+        size = writer.chunk_size
+        try:
+            for record in transitions_records(steps):
+                writer.append_encoded(self._transition_channel, record["global_step"][0], record, encode_into)
+        except (TypeError, ValueError, OverflowError) as exc:
+            self._fail(exc, "an episode's Transition")
+            return
+        self._expanded[TRANSITION_TOPIC] += len(steps)
+        encoded, count = self._step_bytes
+        self._step_bytes = (encoded + writer.chunk_size - size, count + len(steps))
+
+    def _write_chunks(self, end: int, rest: tuple[tuple[list[Any], int], ...]) -> None:
+        """Write the open chunk, then the held messages numbered below ``end`` as a chunk of
+        their own, and push both to the operating system; ``rest``: the finished episodes whose
+        transitions are still to encode."""
+        count = end - self._pending_from
+        self._encode_messages(self._pending[:count])
         self._writing = True
-        self._writer.flush(push=not self._pending)
-        if self._pending:
-            self._writer.add_messages(self._pending)
-            self._pending.clear()
-            self._writer.flush()
+        self._writer.flush()
+        del self._pending[:count]
+        self._pending_from = end
+        self._kept = _Kept(0, self._kept.messages, rest)
         self._writing = False
 
+    def _encode_messages(self, items: list[tuple[int, int, Any]]) -> None:
+        """Held messages into the writer's held chunk: events encoded (a query with the guarded
+        API keys blanked out), an episode's decisions not to query as one ``/no_query``
+        record, bytes as they are."""
+        writer, queries = self._writer, self._query_channel
+        guarded = keys_active()  # read once a chunk: reading the environment costs a microsecond
+        for channel, log_time, item in items:
+            kind = type(item)
+            try:
+                if kind is bytes:
+                    writer.add_message(channel, log_time, item, held=True)
+                elif kind is list:
+                    for record in no_query_records(list(map(astuple, item))):
+                        writer.append_encoded(channel, record["global_step"][0], record, encode_into, held=True)
+                    self._expanded[QUERY_TOPIC] += len(item)
+                else:
+                    if guarded and channel == queries:
+                        item = _scrubbed(item)
+                    writer.append_encoded(channel, log_time, item, encode_into, held=True)
+            except (TypeError, ValueError, OverflowError) as exc:
+                self._fail(exc, "an episode's QueryEvent" if kind is list else kind.__name__)
+
+    def _fail(self, exc: Exception, what: str) -> None:
+        if self._failure is None:
+            self._failure = LogError(f"record is not JSON-serialisable ({exc}): {what}")
+
+    def _raise_failure(self) -> None:
+        failure, self._failure = self._failure, None
+        if failure is not None:
+            raise failure
+
     def finish(self, status: str = "complete", error: str = "") -> Path:
-        """Write the summary and rename the file to its final name (idempotent)."""
+        """Write the summary and rename the file to its final name (idempotent). A record that
+        could not be encoded at the end is dropped, the log says ``failed`` and the LogError is
+        raised once the file is renamed."""
         if self._finished:
             return self.path
         self._finished = True
+        failure = None
         try:
-            self._write_columns()
-            self._write_chunks()
+            try:
+                self._end_episode(None)  # what the last episode left without its /episode record
+                self._encode_steps(final=True)
+                self._raise_failure()
+            except LogError as exc:  # that record was dropped; everything else is written
+                failure = exc
+                self._encode_steps(final=True)
+                if status == "complete":
+                    status, error = "failed", f"LogError: {exc}"
             if self._columnar:
                 self._writer.add_metadata(RECORDS_METADATA, self.records())
             self._writer.add_metadata(
@@ -436,6 +535,8 @@ class McapSink:
             os.replace(self.partial, self.path)  # rename replaces a name, never writes through a link
         finally:
             self._stream.close()
+        if failure is not None:
+            raise failure
         return self.path
 
     def abandon(self) -> None:
@@ -446,11 +547,11 @@ class McapSink:
         self._finished = True
         with contextlib.suppress(OSError):
             if not self._writing:  # interrupted inside a chunk's write: leave the file as it is
-                mark, held = self._episode_end
-                self._writer.rollback(mark)
-                del self._pending[held:]
-                self._steps, self._not_asked = [], []  # the unfinished episode's
-                self._write_chunks()
+                kept = self._kept
+                self._writer.rollback(Mark(kept.size))  # what the unfinished episode added
+                del self._pending[kept.messages - self._pending_from :]
+                self._steps, self._not_asked = [], []
+                self._encode_steps(final=True)
             self._stream.close()
 
     def close(self) -> None:

@@ -245,8 +245,8 @@ def test_the_log_blanks_a_guarded_key_in_its_metadata_and_records(tmp_path: Path
 
 
 def test_a_key_set_while_a_log_is_open_is_blanked_from_the_next_episodes_queries(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """The sink reads the guarded keys once per episode, at its first query: a key that turns
-    up between episodes is blanked from every later query record."""
+    """The sink reads the guarded keys as it encodes queries (once for each chunk it writes):
+    a key that turns up between episodes is blanked from every later query record."""
     from mcap.reader import make_reader
 
     from lagrseq.logs.events import EpisodeEvent, QueryEvent
