@@ -121,7 +121,7 @@ def _message_index(channel_id: int, flat: Sequence[int]) -> bytes:
 class Mark(NamedTuple):
     """Where a writer's open and held chunks stood (:meth:`LeanWriter.mark`): their sizes in
     bytes. What was added after it is found by its offset when it is rolled back, so a mark
-    costs nothing to keep (the sink keeps the open chunk's size at every episode's end)."""
+    costs nothing to keep (the sink keeps one at every episode's end)."""
 
     size: int
     held: int = 0

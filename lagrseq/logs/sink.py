@@ -214,11 +214,12 @@ def _open_exclusive(partial: Path) -> Any:
 
 class _Kept(NamedTuple):
     """What a Ctrl-C keeps (:meth:`McapSink.abandon`), as it stood at the last episode's end:
-    the open chunk's size; the number of held messages (queries, decisions not to query,
-    summaries) of finished episodes, counted from the trial's first; and the finished episodes
-    whose transitions are not encoded yet, each with the number of its first held message."""
+    where the writer's chunks stood; the number of held messages (queries, decisions not to
+    query, summaries) of finished episodes, counted from the trial's first; and the finished
+    episodes whose transitions are not encoded yet, each with the number of its first held
+    message."""
 
-    size: int
+    chunks: Mark
     messages: int
     episodes: tuple[tuple[list[Any], int], ...] = ()
 
@@ -285,7 +286,7 @@ class McapSink:
         an event, an episode's list of NotAsked (its ``/no_query`` record) or encoded bytes."""
         self._pending_from = 0
         """The number of the first message in ``_pending``, counted from the trial's first."""
-        self._kept = _Kept(0, 0)
+        self._kept = _Kept(self._writer.mark(), 0)
         self._held_steps = 0
         """Steps of the finished episodes whose transitions are not encoded yet."""
         self._step_bytes = (0, 0)
@@ -410,7 +411,7 @@ class McapSink:
         episodes = (*kept.episodes, (steps, kept.messages)) if steps else kept.episodes
         # one assignment: the open chunk (pictures, format 2's transitions) and the held
         # messages so far are the finished episodes'
-        self._kept = _Kept(self._writer.chunk_size, self._pending_from + len(self._pending), episodes)
+        self._kept = _Kept(self._writer.mark(), self._pending_from + len(self._pending), episodes)
         self._held_steps += len(steps)
         if self._held_bytes() >= BATCH_BYTES or self._writer.chunk_size >= self._chunk_bytes:
             self._encode_steps(episode_end=True)
@@ -442,7 +443,7 @@ class McapSink:
         if final or (episode_end and writer.chunk_size >= self._chunk_bytes):
             self._write_chunks(kept.messages, ())
         elif self._kept.episodes:  # every one encoded; the chunk stays open
-            self._kept = _Kept(writer.chunk_size, kept.messages)
+            self._kept = _Kept(writer.mark(), kept.messages)
 
     def _encode_columns(self, steps: list[Any]) -> None:
         """One episode's transitions as ``/transitions`` records into the open chunk (format 3;
@@ -470,7 +471,7 @@ class McapSink:
         self._writer.flush()
         del self._pending[:count]
         self._pending_from = end
-        self._kept = _Kept(0, self._kept.messages, rest)
+        self._kept = _Kept(self._writer.mark(), self._kept.messages, rest)
         self._writing = False
 
     def _encode_messages(self, items: list[tuple[int, int, Any]]) -> None:
@@ -548,7 +549,7 @@ class McapSink:
         with contextlib.suppress(OSError):
             if not self._writing:  # interrupted inside a chunk's write: leave the file as it is
                 kept = self._kept
-                self._writer.rollback(Mark(kept.size))  # what the unfinished episode added
+                self._writer.rollback(kept.chunks)  # what the unfinished episode added
                 del self._pending[kept.messages - self._pending_from :]
                 self._steps, self._not_asked = [], []
                 self._encode_steps(final=True)
