@@ -208,10 +208,9 @@ class LeanWriter:
         self._metadata_indexes: list[bytes] = []
         """MetadataIndex records, packed as each metadata record is written."""
         self._counts: dict[int, int] = defaultdict(int)
-        """Messages added so far per channel (each message's sequence number is its count)."""
-        self._written: dict[int, int] = {}
-        """Messages written per channel, in the order the file first holds each channel (the
-        order of the statistics record's counts, as the reference writer's)."""
+        """Messages added so far per channel (each message's sequence number is its count), in
+        the order the file first holds each channel: the held chunk is filled only as the open
+        one is written, so the statistics record's counts keep the reference writer's order."""
         self._message_count = 0
         self._start_time = self._end_time = 0
         self._chunks = 0
@@ -336,9 +335,7 @@ class LeanWriter:
         offsets: dict[int, int] = {}
         pieces: list[bytes] = []
         position = self._offset
-        written = self._written
         for channel_id, records in index.items():
-            written[channel_id] = written.get(channel_id, 0) + len(records) // 2
             offsets[channel_id] = position
             piece = _message_index(channel_id, records)
             pieces.append(piece)
@@ -372,7 +369,7 @@ class LeanWriter:
         self.flush(push=False)
         self._write(_summary_record(Opcode.DATA_END, struct.pack("<I", 0)))  # no data section CRC
         summary_start = self._offset
-        counts = self._written
+        counts = self._counts
         statistics = _summary_record(
             Opcode.STATISTICS,
             struct.pack(
